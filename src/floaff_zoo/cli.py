@@ -1,0 +1,207 @@
+"""The ``floaff-zoo`` command line.
+
+Trainer commands (``fit``, ``validate``, ``test``, ``predict``) are a LightningCLI in subclass
+mode, so ``model: {class_path: PointNet2Module}`` and ``--model CFARModule`` resolve. The other
+commands (``generate``, ``curriculum``, ``table``, ``hub``, ``demo``) are dispatched to their own
+modules' ``main`` before LightningCLI sees the arguments.
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+from pathlib import Path
+from typing import Any
+
+import lightning as L
+from lightning.pytorch.callbacks import ModelCheckpoint, TQDMProgressBar
+from lightning.pytorch.cli import LightningCLI
+from lightning.pytorch.utilities.exceptions import MisconfigurationException
+
+from floaff_zoo import __version__
+from floaff_zoo.contract import SampleError
+from floaff_zoo.data.base import FloAffDataModule
+from floaff_zoo.models.base import FloAffModule
+
+TRAINER_COMMANDS = ("fit", "validate", "test", "predict")
+#: non-trainer command -> "module:function" taking argv and returning an exit code
+OTHER_COMMANDS: dict[str, tuple[str, str]] = {
+    "generate": ("floaff_zoo.sim.generate:main", "generate a FloAff-Kitchen-style benchmark in MuJoCo"),
+    "curriculum": ("floaff_zoo.curriculum:main", "run a PFAL curriculum (a list of fit stages)"),
+    "table": ("floaff_zoo.report.table:main", "aggregate report.json files into paper-style tables"),
+    "hub": ("floaff_zoo.hub.cli:main", "list / info / pull / push / verify pretrained checkpoints"),
+    "demo": ("floaff_zoo.demo:main", "run the end-to-end demo on generated data"),
+}
+
+
+class CLIError(RuntimeError):
+    """A user-facing command-line error (printed without a traceback)."""
+
+
+def _import_registries() -> None:
+    """Import the model and data packages so bare class names resolve in configs."""
+    import floaff_zoo.data  # noqa: F401
+    import floaff_zoo.models  # noqa: F401
+
+
+def resolve_ckpt_alias(alias: str, root: str | Path) -> str:
+    """Turn ``best``/``last`` into a checkpoint file found under a run directory.
+
+    ``last`` is the newest ``last.ckpt``; ``best`` is the ``best_model_path`` its ModelCheckpoint
+    state recorded (falling back to ``last`` when none was monitored).
+    """
+    import torch
+
+    lasts = sorted(Path(root).rglob("last*.ckpt"), key=lambda p: p.stat().st_mtime)
+    if not lasts:
+        raise CLIError(f"--ckpt_path {alias}: no last.ckpt under {root}; pass a checkpoint file instead")
+    last = lasts[-1]
+    if alias == "last":
+        return str(last)
+    state = torch.load(last, map_location="cpu", weights_only=True)
+    for key, cb in (state.get("callbacks") or {}).items():
+        if key.startswith("ModelCheckpoint") and cb.get("best_model_path"):
+            best = Path(cb["best_model_path"])
+            if not best.is_file():  # run dir moved: look next to last.ckpt
+                best = last.parent / best.name
+            if best.is_file():
+                return str(best)
+    return str(last)
+
+
+class FloAffCLI(LightningCLI):
+    """LightningCLI with the zoo's defaults and guards."""
+
+    def add_arguments_to_parser(self, parser: Any) -> None:
+        parser.set_defaults({"trainer.default_root_dir": "runs"})
+
+    def before_instantiate_classes(self) -> None:
+        cfg = self.config[self.subcommand]
+        trainer = cfg.trainer
+        if trainer.logger in (None, True):
+            model_cfg = cfg.model
+            name = str(getattr(model_cfg, "class_path", "model")).rsplit(".", 1)[-1].lower()
+            trainer.logger = {
+                "class_path": "lightning.pytorch.loggers.CSVLogger",
+                "init_args": {"save_dir": trainer.default_root_dir, "name": name},
+            }
+
+    def instantiate_trainer(self, **kwargs: Any) -> L.Trainer:
+        cfg = self.config_init[self.subcommand]["trainer"]
+        extra = list(kwargs.pop("callbacks", None) or [])
+        user = cfg.get("callbacks") or []
+        if cfg.get("enable_progress_bar", True) is not False and not any(
+            isinstance(c, TQDMProgressBar) for c in user
+        ):
+            # Rich breaks non-TTY logs; TQDM with a slow refresh keeps CI logs short.
+            extra.append(TQDMProgressBar(refresh_rate=1 if sys.stdout.isatty() else 20, leave=True))
+        model = self.model
+        if (
+            cfg.get("enable_checkpointing", True) is not False
+            and not any(isinstance(c, ModelCheckpoint) for c in user)
+            and self.subcommand == "fit"
+        ):
+            extra.append(
+                ModelCheckpoint(
+                    monitor=model.monitor,
+                    mode=model.mode,
+                    save_last=True,
+                    filename="epoch{epoch:03d}-" + model.monitor + "{" + model.monitor + ":.4f}",
+                    auto_insert_metric_name=False,
+                )
+            )
+        return super().instantiate_trainer(callbacks=extra, **kwargs)
+
+    def _guard_eval(self) -> None:
+        cfg = self.config_init[self.subcommand]
+        ckpt = cfg.get("ckpt_path")
+        if ckpt in ("best", "last"):
+            cfg["ckpt_path"] = resolve_ckpt_alias(ckpt, self.trainer.default_root_dir)
+            ckpt = cfg["ckpt_path"]
+        if ckpt is None and self.model.trainable and not self.model.hparams.get("weights"):
+            raise CLIError(
+                f"`floaff-zoo {self.subcommand}` needs trained weights: pass --ckpt_path <file|best|last> "
+                "(e.g. `floaff-zoo test --config <run>/config.yaml --ckpt_path best`) or "
+                "--model.init_args.weights <hub name|file>; refusing to evaluate a randomly initialised model"
+            )
+        if ckpt is not None and not Path(ckpt).is_file():
+            raise CLIError(f"--ckpt_path {ckpt}: no such file")
+
+    def before_fit(self) -> None:
+        if not self.model.trainable:
+            raise CLIError(
+                f"{type(self.model).__name__} is training-free (no weights to fit); "
+                "use `floaff-zoo test`/`predict` with it directly"
+            )
+
+    before_validate = _guard_eval
+    before_test = _guard_eval
+    before_predict = _guard_eval
+
+
+def _print_overview() -> None:
+    print(f"floaff-zoo {__version__}: floor-affordance model zoo\n")
+    print("usage: floaff-zoo <command> [options]\n\ntrainer commands (LightningCLI; `floaff-zoo fit --help`):")
+    for c in TRAINER_COMMANDS:
+        print(f"  {c}")
+    print("\nother commands (`floaff-zoo <command> --help`):")
+    for c, (_, text) in OTHER_COMMANDS.items():
+        print(f"  {c:<11} {text}")
+    print("\noptions:\n  -h, --help  show this overview\n  --version   print the version")
+
+
+def _dispatch(command: str, argv: list[str]) -> int:
+    target, _ = OTHER_COMMANDS[command]
+    mod_name, fn_name = target.split(":")
+    try:
+        mod = importlib.import_module(mod_name)
+    except ModuleNotFoundError as exc:
+        if exc.name and exc.name.startswith("floaff_zoo"):
+            raise CLIError(f"`floaff-zoo {command}` is not available in this build ({exc.name} missing)") from exc
+        raise
+    return int(getattr(mod, fn_name)(argv) or 0)
+
+
+def run_lightning(args: list[str]) -> FloAffCLI:
+    """Run a trainer command; returns the CLI object (tests read ``cli.trainer``/``cli.model``)."""
+    _import_registries()
+    return FloAffCLI(
+        FloAffModule,
+        FloAffDataModule,
+        subclass_mode_model=True,
+        subclass_mode_data=True,
+        seed_everything_default=0,
+        save_config_kwargs={"overwrite": True},
+        parser_kwargs={"version": __version__},
+        auto_configure_optimizers=False,
+        args=args,
+    )
+
+
+def main(args: list[str] | None = None) -> int:
+    """Entry point of ``floaff-zoo`` and ``python -m floaff_zoo``."""
+    argv = list(sys.argv[1:] if args is None else args)
+    if not argv or argv[0] in ("-h", "--help"):
+        _print_overview()
+        return 0
+    if argv[0] == "--version":
+        print(__version__)
+        return 0
+    try:
+        if argv[0] in OTHER_COMMANDS:
+            return _dispatch(argv[0], argv[1:])
+        if argv[0] not in TRAINER_COMMANDS:
+            raise CLIError(
+                f"unknown command {argv[0]!r}; choose from {list(TRAINER_COMMANDS) + list(OTHER_COMMANDS)}"
+            )
+        run_lightning(argv)
+        return 0
+    except (CLIError, SampleError, MisconfigurationException) as exc:
+        print(f"floaff-zoo: error: {exc}", file=sys.stderr)
+        if args is not None:  # called from Python (tests, curriculum): let callers see the exception
+            raise
+        return 2
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,345 @@
+"""The sample contract: the one data schema every reader, transform, model and metric shares.
+
+A **sample** is a ``dict`` of tensors (no batch dimension):
+
+============  ===============  ==============================================================
+key           dtype / shape    meaning
+============  ===============  ==============================================================
+scene_xyz     float32 [N, 3]   observation points in the robot *base* frame (metres; x forward,
+                               y left, z up; floor at z = 0)
+scene_feat    float32 [N, C]   per-point features; channel 0 is the target flag (+1 target,
+                               -1 obstacle, 0 other, MoMa-Kitchen's visual alignment);
+                               channels 1..3 are RGB in [0, 1] when present
+scene_mask    bool    [N]      valid points (False marks padding)
+floor_xyz     float32 [M, 3]   candidate base positions (robot base frame, z = 0)
+floor_label   float32 [M]      probability in [0, 1] that the task succeeds from there
+floor_mask    bool    [M]      valid floor points (False marks padding)
+robot         float32 [R]      robot descriptor (MoMa-Kitchen: [arm reach m, base height m])
+target_xyz    float32 [3]      target centre (robot base frame)
+target_yaw    float32 []       yaw of the target's front-facing outward normal (robot base frame);
+                               CFAR rotates by R(pi - yaw) so that every front faces -y
+meta          dict             dataset, task, view (front/side/''), scene_id, layout_id,
+                               style_id, sample_id, index (position in the split) and, for
+                               simulated data, ``sim`` (JSON-able, enough to rebuild the scene)
+============  ===============  ==============================================================
+
+A **batch** has the same keys with a leading batch dimension ``B``; ``meta`` becomes a list of
+dicts. Padded entries are zeros with their mask ``False``; models and metrics must ignore them.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+import torch
+from torch import Tensor
+
+TENSOR_KEYS: tuple[str, ...] = (
+    "scene_xyz",
+    "scene_feat",
+    "scene_mask",
+    "floor_xyz",
+    "floor_label",
+    "floor_mask",
+    "robot",
+    "target_xyz",
+    "target_yaw",
+)
+REQUIRED_KEYS: tuple[str, ...] = (
+    "scene_xyz",
+    "scene_feat",
+    "floor_xyz",
+    "floor_label",
+    "robot",
+    "target_xyz",
+    "target_yaw",
+)
+META_KEYS: tuple[str, ...] = (
+    "dataset",
+    "task",
+    "view",
+    "scene_id",
+    "layout_id",
+    "style_id",
+    "sample_id",
+)
+TASKS: tuple[str, ...] = ("PnPCounterToCab", "OpenSingleDoor", "CloseDrawer", "CloseDoubleDoor")
+VIEWS: tuple[str, ...] = ("front", "side")
+
+Sample = dict[str, Any]
+Batch = dict[str, Any]
+
+
+class SampleError(ValueError):
+    """A sample breaks the contract; the message names the sample and the field."""
+
+
+def _where(meta: dict | None) -> str:
+    """Human-readable sample name for error messages."""
+    if not meta:
+        return "sample"
+    name = meta.get("sample_id") or meta.get("scene_id") or "?"
+    src = meta.get("path") or meta.get("dataset") or ""
+    return f"sample {name!s}" + (f" ({src})" if src else "")
+
+
+def validate_sample(sample: Sample) -> Sample:
+    """Check keys, shapes, dtypes and finiteness of one sample; fill missing masks.
+
+    Args:
+        sample: a dict following the contract (masks optional).
+    Returns:
+        the same dict, with ``scene_mask``/``floor_mask`` added when absent and every tensor
+        converted to its contract dtype.
+    Raises:
+        SampleError: naming the sample and the offending field.
+    """
+    where = _where(sample.get("meta"))
+    missing = [k for k in REQUIRED_KEYS if k not in sample]
+    if missing:
+        raise SampleError(f"{where}: missing field(s) {missing}; required {list(REQUIRED_KEYS)}")
+    out: Sample = dict(sample)
+    for key in REQUIRED_KEYS:
+        out[key] = torch.as_tensor(np.asarray(sample[key]) if not torch.is_tensor(sample[key]) else sample[key])
+        out[key] = out[key].float()
+    xyz, feat = out["scene_xyz"], out["scene_feat"]
+    if xyz.ndim != 2 or xyz.shape[1] != 3:
+        raise SampleError(f"{where}: scene_xyz must be [N, 3], got {list(xyz.shape)}")
+    if feat.ndim == 1:
+        feat = out["scene_feat"] = feat[:, None]
+    if feat.ndim != 2 or feat.shape[0] != xyz.shape[0] or feat.shape[1] < 1:
+        raise SampleError(f"{where}: scene_feat must be [N={xyz.shape[0]}, C>=1], got {list(feat.shape)}")
+    floor, label = out["floor_xyz"], out["floor_label"]
+    if floor.ndim != 2 or floor.shape[1] not in (2, 3):
+        raise SampleError(f"{where}: floor_xyz must be [M, 3], got {list(floor.shape)}")
+    if floor.shape[1] == 2:
+        floor = out["floor_xyz"] = torch.cat([floor, floor.new_zeros(floor.shape[0], 1)], dim=1)
+    label = out["floor_label"] = label.reshape(-1)
+    if label.shape[0] != floor.shape[0]:
+        raise SampleError(
+            f"{where}: floor_label has {label.shape[0]} values but floor_xyz has {floor.shape[0]} points"
+        )
+    if out["robot"].ndim != 1:
+        out["robot"] = out["robot"].reshape(-1)
+    if out["target_xyz"].numel() != 3:
+        raise SampleError(f"{where}: target_xyz must have 3 values, got {list(out['target_xyz'].shape)}")
+    out["target_xyz"] = out["target_xyz"].reshape(3)
+    if out["target_yaw"].numel() != 1:
+        raise SampleError(f"{where}: target_yaw must be a scalar, got {list(out['target_yaw'].shape)}")
+    out["target_yaw"] = out["target_yaw"].reshape(())
+    for key in REQUIRED_KEYS:
+        if not torch.isfinite(out[key]).all():
+            bad = int((~torch.isfinite(out[key])).sum())
+            raise SampleError(f"{where}: field {key} contains {bad} NaN/Inf value(s)")
+    if xyz.shape[0] == 0:
+        raise SampleError(f"{where}: scene_xyz is empty")
+    if floor.shape[0] == 0:
+        raise SampleError(f"{where}: floor_xyz is empty")
+    if (label < 0).any() or (label > 1).any():
+        raise SampleError(f"{where}: floor_label must lie in [0, 1] (min {label.min():.3g}, max {label.max():.3g})")
+    out["scene_mask"] = _mask(sample.get("scene_mask"), xyz.shape[0], where, "scene_mask")
+    out["floor_mask"] = _mask(sample.get("floor_mask"), floor.shape[0], where, "floor_mask")
+    out["meta"] = dict(sample.get("meta") or {})
+    return out
+
+
+def _mask(mask: Any, n: int, where: str, name: str) -> Tensor:
+    if mask is None:
+        return torch.ones(n, dtype=torch.bool)
+    m = torch.as_tensor(np.asarray(mask) if not torch.is_tensor(mask) else mask).bool().reshape(-1)
+    if m.shape[0] != n:
+        raise SampleError(f"{where}: {name} has {m.shape[0]} entries, expected {n}")
+    return m
+
+
+def resample_indices(
+    n_valid: int, size: int, generator: torch.Generator | None = None
+) -> Tensor:
+    """Indices that resample ``n_valid`` items to exactly ``size`` (random subset, or all + repeats).
+
+    Returns:
+        LongTensor [size].
+    """
+    if n_valid <= 0:
+        raise SampleError("cannot resample an empty point set")
+    if n_valid >= size:
+        return torch.randperm(n_valid, generator=generator)[:size]
+    extra = torch.randint(n_valid, (size - n_valid,), generator=generator)
+    return torch.cat([torch.arange(n_valid), extra])
+
+
+def collate_samples(
+    samples: Sequence[Sample],
+    num_points: int | None = None,
+    num_floor: int | None = None,
+    mode: Literal["pad", "resample"] = "pad",
+    generator: torch.Generator | None = None,
+) -> Batch:
+    """Stack samples into a batch with fixed sizes and masks.
+
+    Args:
+        samples: validated samples (``validate_sample`` is applied again cheaply if masks are missing).
+        num_points: scene size N; ``None`` = the largest in the batch.
+        num_floor: floor size M; ``None`` = the largest in the batch.
+        mode: ``pad`` keeps the first N valid points and zero-pads (official MoMa-Kitchen semantics:
+            longer clouds are truncated); ``resample`` draws exactly N valid points (with repeats
+            when short, every slot valid). Floor points are only padded/truncated, never resampled,
+            so labels stay aligned with their points.
+    Returns:
+        a batch dict: tensors with a leading dim B, ``meta`` a list of dicts.
+    """
+    if len(samples) == 0:
+        raise SampleError("cannot collate an empty batch (0 samples)")
+    samples = [s if "scene_mask" in s and "floor_mask" in s else validate_sample(s) for s in samples]
+    n_max = num_points or max(int(s["scene_mask"].sum()) for s in samples)
+    m_max = num_floor or max(s["floor_xyz"].shape[0] for s in samples)
+    c = samples[0]["scene_feat"].shape[1]
+    r = samples[0]["robot"].shape[0]
+    for s in samples:
+        if s["scene_feat"].shape[1] != c or s["robot"].shape[0] != r:
+            raise SampleError(
+                f"{_where(s.get('meta'))}: feature/robot sizes ({s['scene_feat'].shape[1]}, {s['robot'].shape[0]}) "
+                f"differ from the batch's first sample ({c}, {r})"
+            )
+    b = len(samples)
+    batch: Batch = {
+        "scene_xyz": torch.zeros(b, n_max, 3),
+        "scene_feat": torch.zeros(b, n_max, c),
+        "scene_mask": torch.zeros(b, n_max, dtype=torch.bool),
+        "floor_xyz": torch.zeros(b, m_max, 3),
+        "floor_label": torch.zeros(b, m_max),
+        "floor_mask": torch.zeros(b, m_max, dtype=torch.bool),
+        "robot": torch.stack([s["robot"] for s in samples]),
+        "target_xyz": torch.stack([s["target_xyz"] for s in samples]),
+        "target_yaw": torch.stack([s["target_yaw"].reshape(()) for s in samples]),
+        "meta": [dict(s.get("meta") or {}) for s in samples],
+    }
+    for i, s in enumerate(samples):
+        valid = s["scene_mask"].nonzero().squeeze(1)
+        if mode == "resample":
+            valid = valid[resample_indices(valid.numel(), n_max, generator)]
+        else:
+            valid = valid[:n_max]
+        k = valid.numel()
+        batch["scene_xyz"][i, :k] = s["scene_xyz"][valid]
+        batch["scene_feat"][i, :k] = s["scene_feat"][valid]
+        batch["scene_mask"][i, :k] = True
+        m = min(s["floor_xyz"].shape[0], m_max)
+        batch["floor_xyz"][i, :m] = s["floor_xyz"][:m]
+        batch["floor_label"][i, :m] = s["floor_label"][:m]
+        batch["floor_mask"][i, :m] = s["floor_mask"][:m]
+    return batch
+
+
+def check_batch(batch: Batch) -> None:
+    """Raise a clear error for an empty batch or one whose samples have no valid floor point."""
+    if batch["scene_xyz"].shape[0] == 0:
+        raise SampleError("empty batch (0 samples)")
+    no_floor = (~batch["floor_mask"].any(dim=1)).nonzero().squeeze(1).tolist()
+    if no_floor:
+        names = [_where(batch["meta"][i]) for i in no_floor[:3]]
+        raise SampleError(f"{len(no_floor)} sample(s) in the batch have no valid floor point: {names}")
+
+
+def yaw_matrix(yaw: Tensor | float) -> Tensor:
+    """Rotation about +z. Returns [..., 3, 3] for yaw of shape [...]."""
+    yaw = torch.as_tensor(yaw, dtype=torch.float32)
+    c, s = torch.cos(yaw), torch.sin(yaw)
+    z, o = torch.zeros_like(c), torch.ones_like(c)
+    return torch.stack([c, -s, z, s, c, z, z, z, o], dim=-1).reshape(*yaw.shape, 3, 3)
+
+
+@dataclass
+class FloorGrid:
+    """A regular floor raster (cells of ``cell`` metres) covering a set of floor points.
+
+    Rasterising maps per-point values to an ``H x W`` image (mean of the points in a cell, NaN
+    where no point falls); sampling maps a raster back to the points. Row ``i`` grows with y,
+    column ``j`` with x; ``origin`` is the (x, y) of the centre of cell (0, 0).
+    """
+
+    origin: tuple[float, float]
+    shape: tuple[int, int]
+    cell: float = 0.05
+
+    @classmethod
+    def from_points(cls, xy: Tensor | np.ndarray, cell: float = 0.05, margin: int = 0) -> "FloorGrid":
+        """Smallest grid containing ``xy`` [M, 2+] (extra columns ignored) plus ``margin`` cells."""
+        pts = np.asarray(xy, dtype=np.float64)[:, :2]
+        if pts.shape[0] == 0:
+            raise SampleError("FloorGrid.from_points needs at least one floor point")
+        lo = np.floor(pts.min(0) / cell + 0.5) - margin
+        hi = np.floor(pts.max(0) / cell + 0.5) + margin
+        shape = (int(hi[1] - lo[1] + 1), int(hi[0] - lo[0] + 1))
+        return cls(origin=(float(lo[0] * cell), float(lo[1] * cell)), shape=shape, cell=cell)
+
+    def cell_of(self, xy: Tensor | np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Row, column and in-bounds flag of each point. xy: [M, 2+] -> three [M] arrays."""
+        pts = np.asarray(xy, dtype=np.float64)[:, :2]
+        j = np.floor((pts[:, 0] - self.origin[0]) / self.cell + 0.5).astype(np.int64)
+        i = np.floor((pts[:, 1] - self.origin[1]) / self.cell + 0.5).astype(np.int64)
+        ok = (i >= 0) & (i < self.shape[0]) & (j >= 0) & (j < self.shape[1])
+        return i, j, ok
+
+    def centers(self) -> np.ndarray:
+        """World (x, y) of every cell centre: [H, W, 2]."""
+        ys = self.origin[1] + self.cell * np.arange(self.shape[0])
+        xs = self.origin[0] + self.cell * np.arange(self.shape[1])
+        gx, gy = np.meshgrid(xs, ys)
+        return np.stack([gx, gy], axis=-1)
+
+    def rasterize(self, xy: Tensor | np.ndarray, values: Tensor | np.ndarray) -> np.ndarray:
+        """Mean value per cell: xy [M, 2+], values [M] -> [H, W] float (NaN where empty)."""
+        vals = np.asarray(values, dtype=np.float64).reshape(-1)
+        i, j, ok = self.cell_of(xy)
+        flat = i[ok] * self.shape[1] + j[ok]
+        total = np.bincount(flat, weights=vals[ok], minlength=self.shape[0] * self.shape[1])
+        count = np.bincount(flat, minlength=self.shape[0] * self.shape[1])
+        with np.errstate(invalid="ignore", divide="ignore"):
+            out = np.where(count > 0, total / np.maximum(count, 1), np.nan)
+        return out.reshape(self.shape)
+
+    def sample(self, raster: np.ndarray, xy: Tensor | np.ndarray) -> np.ndarray:
+        """Raster value at each point (NaN outside the grid): [H, W], [M, 2+] -> [M]."""
+        i, j, ok = self.cell_of(xy)
+        out = np.full(i.shape[0], np.nan)
+        out[ok] = raster[i[ok], j[ok]]
+        return out
+
+
+def best_pose(
+    floor_xyz: Tensor | np.ndarray,
+    scores: Tensor | np.ndarray,
+    mask: Tensor | np.ndarray | None,
+    target_xyz: Tensor | np.ndarray,
+    k: int = 1,
+) -> list[tuple[float, float, float]]:
+    """Top-``k`` SE(2) base poses (x, y, yaw facing the target) from per-point scores.
+
+    Tie-break (documented, deterministic): among equal scores the point closest to the target
+    wins, then the lower index. So a constant or all-zero map picks the nearest candidate.
+
+    Args:
+        floor_xyz: [M, 3]; scores: [M]; mask: [M] bool or None; target_xyz: [3].
+    Returns:
+        up to ``k`` tuples (x, y, yaw), best first.
+    """
+    xyz = np.asarray(torch.as_tensor(floor_xyz).detach().cpu(), dtype=np.float64)
+    sc = np.asarray(torch.as_tensor(scores).detach().cpu(), dtype=np.float64).reshape(-1)
+    valid = np.ones(sc.shape[0], bool) if mask is None else np.asarray(torch.as_tensor(mask).cpu()).astype(bool)
+    valid &= np.isfinite(sc)
+    if not valid.any():
+        raise SampleError("best_pose: no valid floor point with a finite score")
+    t = np.asarray(torch.as_tensor(target_xyz).detach().cpu(), dtype=np.float64).reshape(3)
+    dist = np.hypot(xyz[:, 0] - t[0], xyz[:, 1] - t[1])
+    idx = np.nonzero(valid)[0]
+    order = np.lexsort((idx, dist[idx], -np.round(sc[idx], 6)))
+    poses = []
+    for n in idx[order][:k]:
+        yaw = math.atan2(t[1] - xyz[n, 1], t[0] - xyz[n, 0])
+        poses.append((float(xyz[n, 0]), float(xyz[n, 1]), float(yaw)))
+    return poses

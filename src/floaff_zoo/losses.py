@@ -1,0 +1,114 @@
+"""Masked FloAff training losses on per-point maps ``pred``/``target`` [B, M] with a validity ``mask`` [B, M].
+
+Masked (padding) points never change a loss or its gradient; a batch or sample without valid points
+gives 0 (with a graph attached), never NaN.
+
+* ``masked_mse``: the paper's eq. (mse), mean over all valid points of the batch.
+* ``soft_dice_loss``: the paper's eq. (sdl) per sample, averaged over samples that have valid points.
+  The paper only calls epsilon "a small constant"; the default ``eps = 1.0`` is the usual Dice smoothing
+  term (Milletari et al. / common V-Net implementations). It keeps the loss bounded and ~0 for a sample
+  whose label map is all zero and whose prediction is near zero, instead of pushing such samples at full
+  strength (with a tiny eps an all-zero label gives a loss of ~1 for any non-zero prediction).
+* ``affordance_loss``: the paper's L_aff = L_mse + beta * L_sdl.
+* ``navaff_weighted_mse``: NavAff's training loss (``MoMaKitchen/MoMaKitchen:train.py@64ca7a4``, REFERENCE.md
+  section 3): weight 0.7 where the label is 0 *and* a fresh Bernoulli(0.5) draw fires, else 1;
+  mean(w (p - g)^2) over valid points (expected weight 0.85 on zero-label points).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Literal
+
+import torch
+from torch import Tensor
+
+__all__ = ["affordance_loss", "build_loss", "masked_mse", "navaff_weighted_mse", "soft_dice_loss"]
+
+LossFn = Callable[[Tensor, Tensor, Tensor], Tensor]
+
+
+def _prepare(name: str, pred: Tensor, target: Tensor, mask: Tensor | None) -> tuple[Tensor, Tensor, Tensor]:
+    """Check shapes; return (pred, target) with padded entries zeroed and the bool mask, all [B, M]."""
+    if pred.ndim != 2 or pred.shape != target.shape:
+        raise ValueError(f"{name}: pred and target must both be [B, M]; got {tuple(pred.shape)} and {tuple(target.shape)}")
+    if mask is None:
+        mask = torch.ones_like(pred, dtype=torch.bool)
+    if mask.dtype != torch.bool or mask.shape != pred.shape:
+        raise ValueError(f"{name}: mask must be bool {tuple(pred.shape)}; got {mask.dtype} {tuple(mask.shape)}")
+    target = target.to(pred.dtype)
+    # where() (not multiplication) so NaN/garbage in padded entries cannot reach the value or the gradient.
+    return torch.where(mask, pred, 0.0), torch.where(mask, target, 0.0), mask
+
+
+def _masked_mean(values: Tensor, mask: Tensor, ref: Tensor) -> Tensor:
+    """Mean of ``values`` [B, M] over ``mask``; ``0 * ref.sum()`` when nothing is valid (keeps the graph)."""
+    n = mask.sum()
+    if int(n) == 0:
+        return ref.sum() * 0.0
+    return torch.where(mask, values, 0.0).sum() / n
+
+
+def masked_mse(pred: Tensor, target: Tensor, mask: Tensor | None) -> Tensor:
+    """Mean (pred - target)^2 over all valid points of the batch. [B, M] x3 -> scalar."""
+    p, g, m = _prepare("masked_mse", pred, target, mask)
+    return _masked_mean((p - g) ** 2, m, pred)
+
+
+def soft_dice_loss(pred: Tensor, target: Tensor, mask: Tensor | None, eps: float = 1.0) -> Tensor:
+    """Per-sample 1 - (2 sum pg + eps) / (sum p^2 + sum g^2 + eps), mean over samples with valid points.
+
+    pred, target [B, M], mask bool [B, M] -> scalar. 0 for a perfect prediction; samples without a valid
+    point are left out of the mean (0 if the whole batch is empty).
+    """
+    if eps <= 0:
+        raise ValueError(f"soft_dice_loss: eps must be > 0, got {eps}")
+    p, g, m = _prepare("soft_dice_loss", pred, target, mask)
+    inter = (p * g).sum(1)
+    denom = (p * p).sum(1) + (g * g).sum(1)
+    per_sample = 1.0 - (2.0 * inter + eps) / (denom + eps)  # [B]
+    has_points = m.any(1)
+    if not bool(has_points.any()):
+        return pred.sum() * 0.0
+    return per_sample[has_points].mean()
+
+
+def affordance_loss(pred: Tensor, target: Tensor, mask: Tensor | None, beta: float = 1.0, eps: float = 1.0) -> Tensor:
+    """The paper's L_aff = masked MSE + beta * soft Dice (eps see ``soft_dice_loss``). [B, M] x3 -> scalar."""
+    return masked_mse(pred, target, mask) + beta * soft_dice_loss(pred, target, mask, eps=eps)
+
+
+def navaff_weighted_mse(
+    pred: Tensor, target: Tensor, mask: Tensor | None, generator: torch.Generator | None = None
+) -> Tensor:
+    """NavAff's randomised weighted MSE: mean(w (p - g)^2) over valid points. [B, M] x3 -> scalar.
+
+    w = 0.7 where target == 0 and a fresh Bernoulli(0.5) fires (redrawn every call), else 1.
+    ``generator`` (on pred's device) makes the draw reproducible.
+    """
+    p, g, m = _prepare("navaff_weighted_mse", pred, target, mask)
+    fire = torch.rand(p.shape, generator=generator, device=p.device) < 0.5
+    w = torch.where((g == 0) & fire, 0.7, 1.0).to(p.dtype)
+    return _masked_mean(w * (p - g) ** 2, m, pred)
+
+
+def build_loss(name: Literal["mse", "aff", "navaff"], beta: float = 1.0) -> LossFn:
+    """Loss callable ``(pred [B, M], target [B, M], mask [B, M]) -> scalar`` by name.
+
+    ``mse`` = masked MSE, ``aff`` = MSE + beta * soft Dice (paper), ``navaff`` = NavAff's weighted MSE.
+    """
+    if name == "mse":
+        return masked_mse
+    if name == "aff":
+
+        def aff(pred: Tensor, target: Tensor, mask: Tensor) -> Tensor:
+            return affordance_loss(pred, target, mask, beta=beta)
+
+        return aff
+    if name == "navaff":
+
+        def navaff(pred: Tensor, target: Tensor, mask: Tensor) -> Tensor:
+            return navaff_weighted_mse(pred, target, mask)
+
+        return navaff
+    raise ValueError(f"build_loss: unknown loss {name!r}; expected one of 'mse', 'aff', 'navaff'")

@@ -1,0 +1,39 @@
+"""Shared test set-up: headless rendering, no network, quiet matplotlib, small thread pools."""
+
+import os
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+os.environ.setdefault("HF_HUB_OFFLINE", "1")
+os.environ.setdefault("MPLBACKEND", "Agg")
+
+from pathlib import Path  # noqa: E402
+
+import pytest  # noqa: E402
+import torch  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+torch.set_num_threads(2)
+
+
+@pytest.fixture(autouse=True)
+def _isolated_caches(tmp_path_factory, monkeypatch):
+    """Keep torch.hub and the floaff hub inside a temp dir so tests never touch user caches."""
+    hub = tmp_path_factory.mktemp("hub")
+    torch.hub.set_dir(str(hub / "torch"))
+    monkeypatch.setenv("FLOAFF_ZOO_HUB", str(hub / "floaff"))
+    monkeypatch.setenv("FLOAFF_ZOO_OFFLINE", "1")
+
+
+@pytest.fixture
+def root() -> Path:
+    return ROOT
+
+
+def quiet_trainer_args(tmp_path) -> list[str]:
+    """Trainer flags for fast, quiet CLI runs under tmp_path."""
+    return [
+        "--trainer.accelerator", "cpu",
+        "--trainer.default_root_dir", str(tmp_path),
+        "--trainer.enable_progress_bar", "false",
+        "--trainer.enable_model_summary", "false",
+    ]

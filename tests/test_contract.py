@@ -1,0 +1,91 @@
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from floaff_zoo.contract import FloorGrid, SampleError, best_pose, collate_samples, validate_sample
+from floaff_zoo.data.synthetic import make_synthetic_sample
+
+
+def _sample(n=10, m=6, **over):
+    s = {
+        "scene_xyz": np.random.rand(n, 3).astype(np.float32),
+        "scene_feat": np.zeros((n, 1), np.float32),
+        "floor_xyz": np.random.rand(m, 3).astype(np.float32),
+        "floor_label": np.random.rand(m).astype(np.float32),
+        "robot": np.array([0.85, 1.03], np.float32),
+        "target_xyz": np.zeros(3, np.float32),
+        "target_yaw": 0.0,
+        "meta": {"sample_id": "s1", "dataset": "unit"},
+    }
+    s.update(over)
+    return s
+
+
+def test_validate_fills_masks_and_types():
+    s = validate_sample(_sample())
+    assert s["scene_mask"].dtype == torch.bool and s["scene_mask"].all()
+    assert s["floor_label"].dtype == torch.float32 and s["target_yaw"].shape == ()
+
+
+@pytest.mark.parametrize(
+    "over, field",
+    [
+        ({"floor_label": np.zeros(5, np.float32)}, "floor_label has 5 values but floor_xyz has 6"),
+        ({"scene_xyz": np.full((10, 3), np.nan, np.float32)}, "scene_xyz contains"),
+        ({"scene_xyz": np.zeros((10, 2), np.float32)}, "scene_xyz must be [N, 3]"),
+        ({"floor_label": np.full(6, 2.0, np.float32)}, "floor_label must lie in [0, 1]"),
+    ],
+)
+def test_validate_names_field_and_sample(over, field):
+    with pytest.raises(SampleError) as err:
+        validate_sample(_sample(**over))
+    assert field in str(err.value) and "s1" in str(err.value)
+
+
+def test_missing_field_is_named():
+    s = _sample()
+    del s["robot"]
+    with pytest.raises(SampleError, match="robot"):
+        validate_sample(s)
+
+
+def test_collate_pad_and_resample():
+    a, b = validate_sample(_sample(10, 6)), validate_sample(_sample(4, 3))
+    batch = collate_samples([a, b], mode="pad")
+    assert batch["scene_xyz"].shape == (2, 10, 3) and batch["floor_xyz"].shape == (2, 6, 3)
+    assert batch["scene_mask"][1].sum() == 4 and batch["floor_mask"][1].sum() == 3
+    assert torch.equal(batch["floor_label"][1, :3], b["floor_label"])
+    assert (batch["floor_label"][1, 3:] == 0).all()
+    res = collate_samples([a, b], num_points=8, mode="resample", generator=torch.Generator().manual_seed(0))
+    assert res["scene_mask"].all() and res["scene_xyz"].shape == (2, 8, 3)
+    # resampled points are real points of the sample
+    pts = {tuple(p) for p in b["scene_xyz"].tolist()}
+    assert all(tuple(p) in pts for p in res["scene_xyz"][1].tolist())
+    with pytest.raises(SampleError, match="empty batch"):
+        collate_samples([])
+
+
+def test_floor_grid_round_trip():
+    s = make_synthetic_sample(3, floor_cells=8)
+    xy = np.stack(np.meshgrid(np.arange(5) * 0.05, np.arange(4) * 0.05), -1).reshape(-1, 2) + 1.0
+    grid = FloorGrid.from_points(xy, cell=0.05)
+    assert grid.shape == (4, 5)
+    vals = np.arange(len(xy), dtype=float)
+    raster = grid.rasterize(xy, vals)
+    assert np.allclose(grid.sample(raster, xy), vals)
+    assert np.isnan(grid.sample(raster, np.array([[10.0, 10.0]]))).all()
+    assert s["floor_xyz"].shape[0] == 64
+
+
+def test_best_pose_tie_break_and_heading():
+    floor = torch.tensor([[1.0, 0, 0], [2.0, 0, 0], [0.5, 0.5, 0]])
+    target = torch.tensor([3.0, 0, 0.9])
+    # constant map: nearest point to the target wins
+    (x, y, yaw), = best_pose(floor, torch.zeros(3), None, target)
+    assert (x, y) == (2.0, 0.0) and abs(yaw) < 1e-9
+    poses = best_pose(floor, torch.tensor([0.1, 0.2, 0.9]), torch.tensor([True, True, False]), target, k=2)
+    assert poses[0][:2] == (2.0, 0.0) and poses[1][:2] == (1.0, 0.0)
+    (x, y, yaw), = best_pose(floor, torch.tensor([0.0, 0.0, 1.0]), None, target)
+    assert math.isclose(yaw, math.atan2(-0.5, 2.5))

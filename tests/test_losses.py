@@ -1,0 +1,108 @@
+"""Masked FloAff losses vs hand NumPy."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from floaff_zoo.losses import affordance_loss, build_loss, masked_mse, navaff_weighted_mse, soft_dice_loss
+
+
+def data(seed=0, b=4, m=30):
+    rng = np.random.default_rng(seed)
+    pred = rng.random((b, m))
+    target = rng.random((b, m)) * (rng.random((b, m)) > 0.4)
+    mask = rng.random((b, m)) > 0.3
+    mask[2] = False  # an all-masked sample
+    return pred, target, mask
+
+
+def np_mse(p, g, m):
+    return np.mean((p[m] - g[m]) ** 2)
+
+
+def np_sdl(p, g, m, eps):
+    vals = [1 - (2 * np.sum(p[i][m[i]] * g[i][m[i]]) + eps) / (np.sum(p[i][m[i]] ** 2) + np.sum(g[i][m[i]] ** 2) + eps)
+            for i in range(len(p)) if m[i].any()]  # fmt: skip
+    return np.mean(vals)
+
+
+def t(x):
+    return torch.from_numpy(np.asarray(x))
+
+
+@pytest.mark.parametrize("eps", [1.0, 1e-6])
+def test_values_match_numpy(eps):
+    p, g, m = data()
+    assert float(masked_mse(t(p), t(g), t(m))) == pytest.approx(np_mse(p, g, m))
+    assert float(soft_dice_loss(t(p), t(g), t(m), eps=eps)) == pytest.approx(np_sdl(p, g, m, eps))
+    want = np_mse(p, g, m) + 0.3 * np_sdl(p, g, m, 1.0)
+    assert float(affordance_loss(t(p), t(g), t(m), beta=0.3)) == pytest.approx(want)
+    assert float(build_loss("aff", beta=0.3)(t(p), t(g), t(m))) == pytest.approx(want)
+    assert float(build_loss("mse")(t(p), t(g), t(m))) == pytest.approx(np_mse(p, g, m))
+
+
+@pytest.mark.parametrize("name", ["mse", "aff", "navaff"])
+def test_masked_points_do_not_matter_and_grads_finite(name):
+    p, g, m = data(seed=1)
+    fn = build_loss(name)
+    p2, g2 = p.copy(), g.copy()
+    p2[~m] = np.nan  # garbage (even NaN) in padding
+    g2[~m] = 123.0
+    torch.manual_seed(0)
+    a = fn(t(p), t(g), t(m))
+    torch.manual_seed(0)
+    x = t(p2).requires_grad_(True)
+    b = fn(x, t(g2), t(m))
+    assert float(a.detach()) == pytest.approx(float(b.detach()))
+    b.backward()
+    assert torch.isfinite(x.grad).all()
+    assert (x.grad[~t(m)] == 0).all()
+
+
+def test_empty_batch_is_zero_not_nan():
+    p = torch.rand(2, 5, requires_grad=True)
+    m = torch.zeros(2, 5, dtype=torch.bool)
+    for name in ("mse", "aff", "navaff"):
+        loss = build_loss(name)(p, torch.rand(2, 5), m)
+        assert float(loss) == 0.0
+        loss.backward()
+        assert torch.isfinite(p.grad).all()
+
+
+def test_sdl_zero_for_perfect_prediction():
+    g = torch.tensor([[0.0, 0.3, 1.0, 0.7], [1.0, 0.0, 0.0, 0.2]])
+    m = torch.tensor([[True, True, True, False], [True, True, True, True]])
+    for eps in (1.0, 1e-8):
+        assert float(soft_dice_loss(g, g, m, eps=eps)) == pytest.approx(0.0, abs=1e-7)
+    assert float(soft_dice_loss(torch.zeros_like(g), g, m)) > 0.5
+    with pytest.raises(ValueError, match="eps"):
+        soft_dice_loss(g, g, m, eps=0.0)
+
+
+def test_navaff_expected_weight():
+    """Zero-label points get weight 0.7 half the time -> mean weight 0.85; non-zero labels weight 1."""
+    gen = torch.Generator().manual_seed(1234)
+    pred = torch.ones(8, 5000)
+    zeros = torch.zeros(8, 5000)
+    mask = torch.ones(8, 5000, dtype=torch.bool)
+    loss = float(navaff_weighted_mse(pred, zeros, mask, generator=gen))
+    assert loss == pytest.approx(0.85, abs=0.005)  # std of the mean ~0.0007
+    half = torch.full((8, 5000), 0.5)
+    assert float(navaff_weighted_mse(pred, half, mask, generator=gen)) == pytest.approx(0.25)
+    # Fresh draws: two calls differ; same seed reproduces.
+    a = navaff_weighted_mse(pred, zeros, mask, generator=torch.Generator().manual_seed(7))
+    b = navaff_weighted_mse(pred, zeros, mask, generator=torch.Generator().manual_seed(7))
+    c = navaff_weighted_mse(pred, zeros, mask, generator=torch.Generator().manual_seed(8))
+    assert float(a) == float(b) and float(a) != float(c)
+
+
+def test_bad_input():
+    with pytest.raises(ValueError, match="unknown loss"):
+        build_loss("l1")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match=r"\[B, M\]"):
+        masked_mse(torch.zeros(2, 3), torch.zeros(3, 2), None)
+    with pytest.raises(ValueError, match="mask"):
+        masked_mse(torch.zeros(2, 3), torch.zeros(2, 3), torch.ones(2, 3))
+    assert float(masked_mse(torch.ones(2, 3), torch.zeros(2, 3), None)) == 1.0
