@@ -203,7 +203,7 @@ class FloAffModule(L.LightningModule):
         """Build the model a checkpoint/hub entry describes and load its weights (no code is executed)."""
         from floaff_zoo.hub import load_model
 
-        model = load_model(name_or_path, map_location=map_location)
+        model = load_model(name_or_path, map_location=map_location, expected=cls)
         if not isinstance(model, cls):
             raise TypeError(f"{name_or_path!r} holds a {type(model).__name__}, not a {cls.__name__}")
         return model

@@ -1,0 +1,243 @@
+"""Export a training run's checkpoint as a hub entry (safetensors + config.json + model card).
+
+Layout written by :func:`export_checkpoint` (also a valid Hugging Face model repo)::
+
+    <hub dir>/<name>/
+        <name>-<sha256[:8]>.safetensors   weights (teacher.* dropped), config in the header too
+        config.json                       class_path, init_args, weights, sha256, metrics, meta
+        README.md                         model card
+    <hub dir>/index.json                  user index, entry registered with source {"kind": "local"}
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from floaff_zoo.hub.io import (
+    CONFIG_NAME,
+    SAFETENSORS_META_KEY,
+    TEACHER_PREFIX,
+    fit_init_args,
+    import_model_class,
+    load_model,
+)
+from floaff_zoo.hub.registry import (
+    NON_PORTABLE_ARGS,
+    HubEntry,
+    HubError,
+    RegistryFormatError,
+    hub_dir,
+    is_offline,
+    register,
+    sha256_file,
+    unique_filename,
+)
+
+
+def find_run_checkpoint(run: str | os.PathLike[str]) -> Path:
+    """A ``.ckpt``/``.pth`` file as given; for a run directory its best checkpoint, like the CLI's ``best``.
+
+    ``best`` = the ModelCheckpoint ``best_model_path`` recorded in the newest ``last.ckpt``, else that
+    ``last.ckpt``.
+    """
+    p = Path(run).expanduser()
+    if p.is_file():
+        if p.suffix not in (".ckpt", ".pth", ".pt"):
+            raise HubError(f"{p}: push takes a run directory or a .ckpt file, not {p.suffix or 'this file'}")
+        return p
+    if not p.is_dir():
+        raise FileNotFoundError(f"{p}: no such run directory or checkpoint file")
+    from floaff_zoo.cli import CLIError, resolve_ckpt_alias
+
+    try:
+        return Path(resolve_ckpt_alias("best", p))
+    except CLIError as exc:
+        raise HubError(f"{p}: no last.ckpt found in the run directory; pass the .ckpt file instead") from exc
+
+
+def _report_metrics(ckpt_path: Path, run: Path | None) -> dict[str, float]:
+    """Numbers from a ``report.json`` (its ``metrics`` object, else its top-level numbers)."""
+    dirs = [d for d in (run, ckpt_path.parent, ckpt_path.parent.parent) if d is not None and d.is_dir()]
+    for d in dirs:
+        report = d / "report.json"
+        if report.is_file():
+            try:
+                raw = json.loads(report.read_text(encoding="utf-8"))
+            except (OSError, json.JSONDecodeError) as exc:
+                raise HubError(f"{report}: unreadable report ({exc})") from exc
+            src = raw.get("metrics", raw) if isinstance(raw, dict) else {}
+            if not isinstance(src, dict):
+                src = {}
+            return {
+                k: float(v) for k, v in src.items()
+                if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(float(v))
+            }
+    return {}
+
+
+def _best_score(ckpt_path: Path, ckpt: dict[str, Any], run: Path | None) -> dict[str, float]:
+    """``{monitor: best_model_score}`` that a ModelCheckpoint recorded for this very file.
+
+    Looked up in the exported checkpoint itself, then in the run's newest ``last.ckpt`` (which
+    knows the final best); a score is used only if its ``best_model_path`` is this file.
+    """
+    states = [ckpt]
+    if run is not None:
+        lasts = sorted(run.rglob("last*.ckpt"), key=lambda p: p.stat().st_mtime)
+        if lasts and lasts[-1] != ckpt_path:
+            states.append(torch.load(lasts[-1], map_location="cpu", weights_only=True))
+    for state in states:
+        for key, cb in (state.get("callbacks") or {}).items():
+            if not (str(key).startswith("ModelCheckpoint") and isinstance(cb, dict)):
+                continue
+            score, monitor, best = cb.get("best_model_score"), cb.get("monitor"), cb.get("best_model_path")
+            if monitor and score is not None and best and Path(best).name == ckpt_path.name:
+                value = float(score.item() if isinstance(score, torch.Tensor) else score)
+                if math.isfinite(value):
+                    return {str(monitor): value}
+    return {}
+
+
+def _portable_state(state: dict[str, Any], where: Path) -> dict[str, torch.Tensor]:
+    """Tensors only, teacher dropped, contiguous private copies (safetensors refuses shared storage)."""
+    out = {}
+    for k, v in state.items():
+        if k.startswith(TEACHER_PREFIX):
+            continue
+        if not isinstance(v, torch.Tensor):
+            raise HubError(f"{where}: state entry {k!r} is a {type(v).__name__}, not a tensor; cannot export")
+        out[k] = v.detach().to("cpu").contiguous().clone()
+    if not out:
+        raise HubError(f"{where}: the checkpoint holds no (student) weights")
+    return out
+
+
+def _model_card(entry: HubEntry, metrics: dict[str, float], source_ckpt: str) -> str:
+    meta = entry.meta
+    lines = ["---", f"license: {str(meta.get('license', 'other')).lower()}", "library_name: floaff-zoo",
+             "tags:", "- floor-affordance", "- point-cloud", "- mobile-manipulation", "---", "",
+             f"# {entry.name}", "", f"`{entry.class_path}` weights for floor-affordance prediction "
+             "(where a mobile manipulator should stand to do a task).", ""]
+    for key in ("dataset", "benchmark", "description"):
+        if meta.get(key):
+            lines.append(f"- **{key}**: {meta[key]}")
+    lines += [f"- **weights**: `{entry.filename}` (sha256 `{entry.sha256}`)",
+              f"- **exported from**: `{source_ckpt}`", "", "## Metrics", ""]
+    if metrics:
+        lines += ["| metric | value |", "|---|---|"] + [f"| {k} | {v:.4g} |" for k, v in sorted(metrics.items())]
+    else:
+        lines.append("No metrics were recorded for this checkpoint.")
+    lines += ["", "## Usage", "", "```python", f"from {entry.class_path.rsplit('.', 1)[0]} import "
+              f"{entry.class_path.rsplit('.', 1)[1]}", "",
+              f"model = {entry.class_path.rsplit('.', 1)[1]}.from_pretrained(\"{entry.name}\")", "```", "",
+              "or in a config: `model.init_args.weights: " + entry.name + "`.", "", "## Config", "", "```json",
+              json.dumps({"class_path": entry.class_path, "init_args": entry.init_args}, indent=2), "```", ""]
+    return "\n".join(lines)
+
+
+def export_checkpoint(
+    run_or_ckpt: str | os.PathLike[str],
+    name: str,
+    directory: str | os.PathLike[str] | None = None,
+    class_path: str | None = None,
+    meta: dict[str, Any] | None = None,
+) -> tuple[HubEntry, Path]:
+    """Export a run's best checkpoint into ``<hub dir>/<name>/`` and register it in the user index.
+
+    Args:
+        run_or_ckpt: a run directory (best checkpoint found like ``--ckpt_path best``) or a ``.ckpt``.
+        name: the hub name, ``model.dataset.vN``.
+        directory: hub directory (default ``$FLOAFF_ZOO_HUB``).
+        class_path: model class when the checkpoint does not record ``_class_path``.
+        meta: extra metadata (dataset, benchmark, license, description); ``metrics`` is filled in.
+    Returns:
+        (the registered entry, the export directory).
+    """
+    ckpt_path = find_run_checkpoint(run_or_ckpt)
+    run = Path(run_or_ckpt) if Path(run_or_ckpt).is_dir() else None
+    try:
+        ckpt = torch.load(ckpt_path, map_location="cpu", weights_only=True)
+    except Exception as exc:
+        raise HubError(f"{ckpt_path}: not a readable weights-only checkpoint ({exc})") from exc
+    if not isinstance(ckpt, dict) or "state_dict" not in ckpt:
+        raise HubError(f"{ckpt_path}: not a Lightning checkpoint (no 'state_dict')")
+    hp = dict(ckpt.get("hyper_parameters") or {})
+    cls_path = hp.pop("_class_path", None) or class_path
+    hp.pop("_instantiator", None)
+    if not cls_path:
+        raise HubError(f"{ckpt_path}: the checkpoint does not record its model class; pass --class-path")
+    init_args = {k: v for k, v in hp.items() if k not in NON_PORTABLE_ARGS}
+    try:  # keep exactly the class's own init args (base hparams it does not expose are dropped)
+        init_args = fit_init_args(import_model_class(cls_path, str(ckpt_path)), init_args, str(ckpt_path))
+    except TypeError as exc:
+        raise HubError(str(exc)) from exc
+    try:
+        json.dumps(init_args)
+    except TypeError as exc:
+        raise HubError(f"{ckpt_path}: hyper_parameters are not JSON primitives ({exc})") from exc
+    state = _portable_state(ckpt["state_dict"], ckpt_path)
+    metrics = _report_metrics(ckpt_path, run) or _best_score(ckpt_path, ckpt, run)
+    meta = {**(meta or {}), "metrics": metrics}
+
+    out = hub_dir(directory) / name
+    out.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkstemp(prefix=".export-", suffix=".safetensors", dir=out)[1])
+    try:
+        from safetensors.torch import save_file
+
+        header = {SAFETENSORS_META_KEY: json.dumps({"name": name, "class_path": cls_path, "init_args": init_args})}
+        save_file(state, str(tmp), metadata=header)
+        sha = sha256_file(tmp)
+        filename = unique_filename(name, sha, ".safetensors")
+        for old in out.glob(f"{name}-*.safetensors"):  # an earlier export of the same name
+            if old.name != filename:
+                old.unlink()
+        os.replace(tmp, out / filename)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    try:
+        entry = HubEntry(
+            name=name, class_path=cls_path, filename=filename, sha256=sha, init_args=init_args,
+            source={"kind": "local", "path": f"{name}/{filename}"}, meta=meta,
+        )
+        HubEntry.from_json(entry.to_json(), "push")  # validate the name etc. before writing anything else
+    except RegistryFormatError as exc:
+        (out / filename).unlink(missing_ok=True)
+        raise HubError(str(exc)) from exc
+    config = {"name": name, "class_path": cls_path, "init_args": init_args, "weights": filename, "sha256": sha,
+              "metrics": metrics, "meta": meta}
+    (out / CONFIG_NAME).write_text(json.dumps(config, indent=2) + "\n", encoding="utf-8")
+    (out / "README.md").write_text(_model_card(entry, metrics, ckpt_path.name), encoding="utf-8")
+    load_model(out)  # refuse to register an export that does not rebuild and load strictly
+    register(entry, directory)
+    return entry, out
+
+
+def upload_export(entry: HubEntry, export_dir: Path, repo: str, directory: str | os.PathLike[str] | None = None,
+                  private: bool = False) -> HubEntry:
+    """Upload an export folder to the Hugging Face repo ``repo`` and re-register it pinned to the new commit."""
+    if is_offline():
+        raise HubError("refusing to upload: FLOAFF_ZOO_OFFLINE is set")
+    try:
+        from huggingface_hub import HfApi
+    except ImportError as exc:
+        raise HubError("--upload needs the optional package huggingface_hub: `pip install huggingface_hub`") from exc
+    api = HfApi()
+    api.create_repo(repo_id=repo, repo_type="model", exist_ok=True, private=private)
+    info = api.upload_folder(
+        folder_path=str(export_dir), repo_id=repo, repo_type="model", commit_message=f"floaff-zoo: {entry.name}"
+    )
+    revision = getattr(info, "oid", None)
+    if not isinstance(revision, str) or len(revision) != 40:
+        raise HubError(f"upload to {repo} returned no commit id to pin (got {revision!r})")
+    entry.source = {"kind": "hf", "repo": repo, "revision": revision, "path_in_repo": entry.filename}
+    register(entry, directory)
+    return entry

@@ -1,0 +1,269 @@
+"""The checkpoint registry: named entries from the shipped index merged with the user's index.
+
+An index file is JSON ``{"version": 1, "entries": [ENTRY, ...]}``. One entry::
+
+    {
+      "name": "tiny-pointnet.synthetic.v1",          # model.dataset.vN
+      "class_path": "floaff_zoo.models.tiny.TinyPointNetModule",
+      "init_args": {"width": 32, ...},               # exact hparams (no weights/teacher)
+      "filename": "tiny-pointnet.synthetic.v1-1a2b3c4d.safetensors",   # name-<sha256[:8]>.<ext>
+      "sha256": "<64 hex>",                          # of the file, checked before loading
+      "source": {"kind": "local", "path": "tiny-pointnet.synthetic.v1/<filename>"}
+             | {"kind": "url", "url": "https://.../<pinned revision>/..."}
+             | {"kind": "hf", "repo": "org/repo", "revision": "<40-hex commit>", "path_in_repo": "..."},
+      "meta": {"dataset": ..., "benchmark": ..., "metrics": {...}, "license": ..., ...}
+    }
+
+The shipped index (``floaff_zoo/hub/index.json``) is read first; ``<hub dir>/index.json`` (the user
+index, written by ``floaff-zoo hub push``) is merged over it by name. The hub directory is
+``$FLOAFF_ZOO_HUB`` (default ``~/.cache/floaff_zoo/hub``).
+"""
+
+from __future__ import annotations
+
+import difflib
+import hashlib
+import json
+import os
+import re
+import tempfile
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+INDEX_VERSION = 1
+SHIPPED_INDEX = Path(__file__).with_name("index.json")
+USER_INDEX_NAME = "index.json"
+DEFAULT_HUB_DIR = Path("~/.cache/floaff_zoo/hub")
+#: weight file formats the hub reads (all without executing code: safetensors / weights-only torch.load)
+WEIGHT_EXTS = (".safetensors", ".ckpt", ".pth", ".pt")
+#: init args that must never travel with a checkpoint (they point at other files)
+NON_PORTABLE_ARGS = ("weights", "teacher")
+
+_NAME_RE = re.compile(r"^[a-z0-9][a-z0-9_\-]*(\.[a-z0-9_\-]+)*$")
+_SHA_RE = re.compile(r"^[0-9a-f]{64}$")
+_COMMIT_RE = re.compile(r"^[0-9a-f]{40}$")
+_HF_RESOLVE_RE = re.compile(r"huggingface\.co/.+/resolve/([^/]+)/")
+SOURCE_KINDS = ("local", "url", "hf")
+
+
+class HubError(RuntimeError):
+    """Base class of user-facing hub errors (the CLI prints them without a traceback)."""
+
+
+class RegistryFormatError(HubError, ValueError):
+    """An index file or entry is malformed (names the file and the field)."""
+
+
+class UnknownWeightsError(HubError, LookupError):
+    """A name that is neither a file, an exported directory nor a registry entry."""
+
+
+class ChecksumError(HubError, ValueError):
+    """A file's sha256 differs from the one the registry / config records."""
+
+
+class WeightsNotFoundError(HubError, FileNotFoundError):
+    """A registry entry whose file is not available locally and may not be downloaded."""
+
+
+# --------------------------------------------------------------------------- environment
+def hub_dir(override: str | os.PathLike[str] | None = None) -> Path:
+    """The hub directory: ``override``, else ``$FLOAFF_ZOO_HUB``, else ``~/.cache/floaff_zoo/hub``."""
+    if override is not None:
+        return Path(override).expanduser()
+    env = os.environ.get("FLOAFF_ZOO_HUB")
+    return Path(env).expanduser() if env else DEFAULT_HUB_DIR.expanduser()
+
+
+def is_offline() -> bool:
+    """True when ``$FLOAFF_ZOO_OFFLINE`` is set to anything but ``''``/``0``/``false``/``no``."""
+    return os.environ.get("FLOAFF_ZOO_OFFLINE", "").strip().lower() not in ("", "0", "false", "no", "off")
+
+
+def sha256_file(path: str | os.PathLike[str], chunk: int = 1 << 20) -> str:
+    """Hex sha256 of a file, streamed."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        while block := f.read(chunk):
+            h.update(block)
+    return h.hexdigest()
+
+
+def unique_filename(name: str, sha256: str, ext: str) -> str:
+    """``name-<sha256[:8]><ext>``: unique per content, so caches keyed by basename never collide."""
+    return f"{name}-{sha256[:8]}{ext if ext.startswith('.') else '.' + ext}"
+
+
+# --------------------------------------------------------------------------- entries
+@dataclass
+class HubEntry:
+    """One named checkpoint (see the module docstring for the JSON form)."""
+
+    name: str
+    class_path: str
+    filename: str
+    sha256: str
+    init_args: dict[str, Any] = field(default_factory=dict)
+    source: dict[str, Any] = field(default_factory=lambda: {"kind": "local"})
+    meta: dict[str, Any] = field(default_factory=dict)
+    #: the index file the entry came from (not serialised); relative local paths are relative to its folder
+    index_path: Path | None = field(default=None, compare=False, repr=False)
+
+    @property
+    def ext(self) -> str:
+        return Path(self.filename).suffix
+
+    def to_json(self) -> dict[str, Any]:
+        d = asdict(self)
+        d.pop("index_path")
+        return d
+
+    @classmethod
+    def from_json(cls, raw: Any, where: str) -> "HubEntry":
+        """Validate and build an entry; ``where`` names the index file for error messages."""
+        if not isinstance(raw, dict):
+            raise RegistryFormatError(f"{where}: every entry must be an object, got {type(raw).__name__}")
+        name = raw.get("name")
+        if not isinstance(name, str) or not _NAME_RE.match(name):
+            raise RegistryFormatError(
+                f"{where}: entry name {name!r} must be lower-case 'model.dataset.vN' (letters, digits, '-', '_', '.')"
+            )
+        at = f"{where}: entry {name!r}"
+        unknown = set(raw) - {"name", "class_path", "init_args", "filename", "sha256", "source", "meta"}
+        if unknown:
+            raise RegistryFormatError(f"{at}: unknown field(s) {sorted(unknown)}")
+        for key in ("class_path", "filename", "sha256"):
+            if not isinstance(raw.get(key), str) or not raw[key]:
+                raise RegistryFormatError(f"{at}: field {key!r} is required (a non-empty string)")
+        sha = raw["sha256"].lower()
+        if not _SHA_RE.match(sha):
+            raise RegistryFormatError(f"{at}: sha256 must be the full 64-hex-digit hash, got {raw['sha256']!r}")
+        filename = raw["filename"]
+        if "/" in filename or "\\" in filename or Path(filename).suffix not in WEIGHT_EXTS:
+            raise RegistryFormatError(
+                f"{at}: filename {filename!r} must be a bare file name ending in one of {WEIGHT_EXTS}"
+            )
+        if f"-{sha[:8]}." not in filename:
+            raise RegistryFormatError(
+                f"{at}: filename {filename!r} must carry the hash prefix: "
+                f"{unique_filename(name, sha, Path(filename).suffix)!r}"
+            )
+        for key in ("init_args", "meta"):
+            if not isinstance(raw.get(key, {}), dict):
+                raise RegistryFormatError(f"{at}: field {key!r} must be an object")
+        bad_args = [a for a in NON_PORTABLE_ARGS if a in raw.get("init_args", {})]
+        if bad_args:
+            raise RegistryFormatError(f"{at}: init_args must not contain {bad_args} (they point at other files)")
+        source = raw.get("source", {"kind": "local"})
+        _check_source(source, at)
+        return cls(
+            name=name, class_path=raw["class_path"], filename=filename, sha256=sha,
+            init_args=dict(raw.get("init_args", {})), source=dict(source), meta=dict(raw.get("meta", {})),
+        )
+
+
+def _check_source(source: Any, at: str) -> None:
+    """Sources must be pinned: HF by a 40-hex commit, huggingface.co URLs by a commit in the path."""
+    if not isinstance(source, dict) or source.get("kind") not in SOURCE_KINDS:
+        raise RegistryFormatError(f"{at}: source must be an object with kind in {SOURCE_KINDS}, got {source!r}")
+    kind = source["kind"]
+    if kind == "local":
+        if "path" in source and not isinstance(source["path"], str):
+            raise RegistryFormatError(f"{at}: source.path must be a string")
+    elif kind == "url":
+        url = source.get("url")
+        if not isinstance(url, str) or not url.startswith(("https://", "http://", "file://")):
+            raise RegistryFormatError(f"{at}: source.url must be an http(s):// or file:// URL, got {url!r}")
+        m = _HF_RESOLVE_RE.search(url)
+        if m and not _COMMIT_RE.match(m.group(1)):
+            raise RegistryFormatError(
+                f"{at}: Hugging Face URL must pin a 40-hex commit (…/resolve/<commit>/…), not {m.group(1)!r}"
+            )
+    else:
+        if not isinstance(source.get("repo"), str) or "/" not in source["repo"]:
+            raise RegistryFormatError(f"{at}: source.repo must be 'org/name', got {source.get('repo')!r}")
+        if not isinstance(source.get("revision"), str) or not _COMMIT_RE.match(source["revision"]):
+            raise RegistryFormatError(
+                f"{at}: source.revision must be a pinned 40-hex commit, got {source.get('revision')!r} "
+                "(branch names like 'main' move and are refused)"
+            )
+        if "path_in_repo" in source and not isinstance(source["path_in_repo"], str):
+            raise RegistryFormatError(f"{at}: source.path_in_repo must be a string")
+
+
+# --------------------------------------------------------------------------- index files
+def read_index(path: Path) -> list[HubEntry]:
+    """Entries of one index file (a missing user index is empty; a malformed one is an error)."""
+    if not path.is_file():
+        return []
+    try:
+        raw = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, json.JSONDecodeError) as exc:
+        raise RegistryFormatError(f"{path}: not a readable JSON index ({exc})") from exc
+    if not isinstance(raw, dict) or raw.get("version") != INDEX_VERSION or not isinstance(raw.get("entries"), list):
+        raise RegistryFormatError(f"{path}: expected {{'version': {INDEX_VERSION}, 'entries': [...]}}")
+    entries, seen = [], set()
+    for item in raw["entries"]:
+        e = HubEntry.from_json(item, str(path))
+        if e.name in seen:
+            raise RegistryFormatError(f"{path}: entry {e.name!r} appears twice")
+        seen.add(e.name)
+        e.index_path = path
+        entries.append(e)
+    return entries
+
+
+def write_index(path: Path, entries: list[HubEntry]) -> None:
+    """Write an index atomically (temp file + rename) so a crash never leaves half a JSON file."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    payload = {"version": INDEX_VERSION, "entries": [e.to_json() for e in sorted(entries, key=lambda e: e.name)]}
+    fd, tmp = tempfile.mkstemp(prefix=".index-", suffix=".json", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            json.dump(payload, f, indent=2, sort_keys=False)
+            f.write("\n")
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def user_index_path(directory: str | os.PathLike[str] | None = None) -> Path:
+    return hub_dir(directory) / USER_INDEX_NAME
+
+
+def load_registry(directory: str | os.PathLike[str] | None = None) -> dict[str, HubEntry]:
+    """Shipped entries with the user index (``<hub dir>/index.json``) merged over them by name."""
+    merged = {e.name: e for e in read_index(SHIPPED_INDEX)}
+    merged.update({e.name: e for e in read_index(user_index_path(directory))})
+    return merged
+
+
+def get_entry(name: str, directory: str | os.PathLike[str] | None = None) -> HubEntry:
+    """The entry called ``name``; an unknown name lists close matches."""
+    reg = load_registry(directory)
+    if name in reg:
+        return reg[name]
+    close = difflib.get_close_matches(name, list(reg), n=5, cutoff=0.5)
+    if close:
+        hint = f"; did you mean {close}?"
+    else:
+        hint = f"; known: {sorted(reg)[:10]}" if reg else "; the registry is empty"
+    raise UnknownWeightsError(
+        f"{name!r} is not a checkpoint file, an exported directory, nor a registered hub name{hint} "
+        f"(registries read: {SHIPPED_INDEX}, {user_index_path(directory)})"
+    )
+
+
+def register(entry: HubEntry, directory: str | os.PathLike[str] | None = None, overwrite: bool = True) -> Path:
+    """Add/replace ``entry`` in the user index of ``directory``; returns the index path."""
+    HubEntry.from_json(entry.to_json(), "new entry")  # same validation as on read
+    path = user_index_path(directory)
+    entries = {e.name: e for e in read_index(path)}
+    if entry.name in entries and not overwrite:
+        raise HubError(f"{path}: an entry named {entry.name!r} exists already")
+    entries[entry.name] = entry
+    write_index(path, list(entries.values()))
+    entry.index_path = path
+    return path

@@ -1,0 +1,358 @@
+"""Checkpoint hub: push/list/from_pretrained round trip, sha256 checks, offline errors, downloads (mocked)."""
+
+import io
+import json
+import sys
+import types
+from pathlib import Path
+
+import pytest
+import torch
+
+from floaff_zoo.cli import main as zoo_main
+from floaff_zoo.contract import collate_samples
+from floaff_zoo.data.synthetic import make_synthetic_sample
+from floaff_zoo.hub import (
+    ChecksumError,
+    HubEntry,
+    HubError,
+    RegistryFormatError,
+    UnknownWeightsError,
+    WeightsNotFoundError,
+    hub_dir,
+    load_registry,
+    register,
+    resolve_state_dict,
+    sha256_file,
+)
+from floaff_zoo.hub import io as hub_io
+from floaff_zoo.hub.registry import unique_filename
+from floaff_zoo.models.base import FloAffModule
+from floaff_zoo.models.tiny import TinyPointNetModule
+
+TINY = "floaff_zoo.models.tiny.TinyPointNetModule"
+NAME = "tiny-pointnet.synthetic.v1"
+
+
+class OtherTiny(FloAffModule):
+    """A different model class, to check that from_pretrained refuses a foreign checkpoint."""
+
+    def configure_models(self) -> None:
+        self.net = torch.nn.Linear(2, 1)
+
+    def forward(self, batch):
+        return torch.sigmoid(self.net(batch["floor_xyz"][..., :2]).squeeze(-1))
+
+
+@pytest.fixture(scope="module")
+def batch():
+    return collate_samples([make_synthetic_sample(i, num_points=128, floor_cells=6) for i in range(2)])
+
+
+def _model(seed: int, width: int = 8) -> TinyPointNetModule:
+    torch.manual_seed(seed)
+    return TinyPointNetModule(width=width).eval()
+
+
+def _lightning_ckpt(model: FloAffModule, path: Path, class_path: str = TINY, extra_state=None, callbacks=None) -> Path:
+    """A checkpoint shaped like Lightning + LightningCLI write it (hparams carry _class_path)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    state = {**model.state_dict(), **(extra_state or {})}
+    hp = {**dict(model.hparams), "_class_path": class_path, "_instantiator": "lightning.pytorch.cli.instantiate_module"}
+    torch.save({"state_dict": state, "hyper_parameters": hp, "callbacks": callbacks or {}, "epoch": 1}, path)
+    return path
+
+
+@pytest.fixture
+def run_dir(tmp_path):
+    """A run dir whose last.ckpt records a different best checkpoint (with teacher keys in it)."""
+    ckdir = tmp_path / "run" / "version_0" / "checkpoints"
+    best_model, last_model = _model(1), _model(2)
+    teacher = {"teacher.net.head.0.weight": torch.ones(3, 3)}
+    best = _lightning_ckpt(best_model, ckdir / "epoch001-val_rmse0.1200.ckpt", extra_state=teacher)
+    cb = {"ModelCheckpoint{'monitor': 'val_rmse', 'mode': 'min'}": {
+        "monitor": "val_rmse", "best_model_score": torch.tensor(0.12), "best_model_path": str(best)}}
+    _lightning_ckpt(last_model, ckdir / "last.ckpt", callbacks=cb)
+    return tmp_path / "run", best_model, last_model
+
+
+def _push(run, name=NAME, *extra):
+    return zoo_main(["hub", "push", str(run), "--name", name, "--dataset", "synthetic", "--license", "MIT", *extra])
+
+
+def test_push_list_from_pretrained_round_trip(run_dir, batch, capsys):
+    run, best_model, last_model = run_dir
+    assert _push(run) == 0
+    assert zoo_main(["hub", "list"]) == 0
+    out = capsys.readouterr().out
+    assert NAME in out and "TinyPointNetModule" in out
+    entry = load_registry()[NAME]
+    assert entry.filename == unique_filename(NAME, entry.sha256, ".safetensors")
+    assert entry.meta["metrics"] == pytest.approx({"val_rmse": 0.12})  # best score from the checkpoint
+    export = hub_dir() / NAME
+    cfg = json.loads((export / "config.json").read_text())
+    assert cfg["class_path"] == TINY and cfg["init_args"]["width"] == 8 and "weights" not in cfg["init_args"]
+    assert "# " + NAME in (export / "README.md").read_text()
+    state, _ = resolve_state_dict(str(export / entry.filename))
+    assert not any(k.startswith("teacher.") for k in state)  # the student does not carry its teacher
+
+    with torch.no_grad():
+        ref = best_model(batch)
+        loaded = TinyPointNetModule.from_pretrained(NAME)
+        assert torch.equal(loaded(batch), ref)  # the best checkpoint, not last
+        assert not torch.allclose(last_model(batch), ref)
+        init = TinyPointNetModule(width=8, weights=NAME).eval()
+        assert torch.equal(init(batch), ref)
+        assert torch.equal(TinyPointNetModule.from_pretrained(str(export))(batch), ref)  # exported dir
+        assert torch.equal(FloAffModule.from_pretrained(NAME)(batch), ref)
+
+
+def test_push_uses_report_json_metrics(run_dir, tmp_path):
+    run, _, _ = run_dir
+    (run / "report.json").write_text(json.dumps({"metrics": {"test_rmse": 0.2, "test_sim": 0.7, "note": "x"}}))
+    assert _push(run, "tiny.report.v1") == 0
+    assert load_registry()["tiny.report.v1"].meta["metrics"] == {"test_rmse": 0.2, "test_sim": 0.7}
+
+
+def test_info_and_verify_cli(run_dir, capsys):
+    run, _, _ = run_dir
+    assert _push(run) == 0
+    capsys.readouterr()
+    assert zoo_main(["hub", "info", NAME]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["name"] == NAME and info["class_path"] == TINY and info["local_file"].endswith(info["filename"])
+    assert zoo_main(["hub", "verify", NAME]) == 0
+    assert f"OK        {NAME}" in capsys.readouterr().out
+    weights = Path(info["local_file"])
+    weights.write_bytes(weights.read_bytes()[:-1] + b"\x00")
+    assert zoo_main(["hub", "verify"]) == 1
+    assert "MISMATCH" in capsys.readouterr().out
+    assert zoo_main(["hub", "info", "tiny-pointnet.synthetic.v2"]) == 2
+    assert NAME in capsys.readouterr().err  # close match suggested
+
+
+def test_tampered_file_is_refused(run_dir):
+    run, _, _ = run_dir
+    assert _push(run) == 0
+    entry = load_registry()[NAME]
+    weights = hub_dir() / NAME / entry.filename
+    data = bytearray(weights.read_bytes())
+    data[-5] ^= 0xFF  # flip bits inside a tensor payload: still a valid safetensors file
+    weights.write_bytes(bytes(data))
+    with pytest.raises(ChecksumError, match=entry.filename):
+        TinyPointNetModule.from_pretrained(NAME)
+    with pytest.raises(ChecksumError, match=entry.filename):
+        TinyPointNetModule(width=8, weights=NAME)
+    with pytest.raises(ChecksumError, match="config.json"):  # the exported dir records the hash too
+        TinyPointNetModule.from_pretrained(str(hub_dir() / NAME))
+
+
+def _safetensors(model: FloAffModule, path: Path) -> Path:
+    from safetensors.torch import save_file
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    save_file({k: v.contiguous() for k, v in model.state_dict().items()}, str(path))
+    return path
+
+
+def _url_entry(name: str, file: Path, url: str, width: int = 8) -> HubEntry:
+    sha = sha256_file(file)
+    return HubEntry(name=name, class_path=TINY, filename=unique_filename(name, sha, file.suffix), sha256=sha,
+                    init_args={"width": width}, source={"kind": "url", "url": url}, meta={})
+
+
+@pytest.fixture
+def transport(monkeypatch):
+    """Replace the URL transport by a dict url -> bytes; counts calls."""
+    served: dict[str, bytes] = {}
+    calls: list[str] = []
+
+    def fake_open(url, timeout=60.0):
+        calls.append(url)
+        if url not in served:
+            raise OSError(f"no route to {url}")
+        return io.BytesIO(served[url])
+
+    monkeypatch.setattr(hub_io, "_open_url", fake_open)
+    return served, calls
+
+
+def test_same_basename_does_not_collide(tmp_path, batch, transport, monkeypatch):
+    served, calls = transport
+    a, b = _model(10), _model(11)
+    fa = _safetensors(a, tmp_path / "a" / "model.safetensors")
+    fb = _safetensors(b, tmp_path / "b" / "model.safetensors")
+    ea = _url_entry("tiny.a.v1", fa, "https://example.org/a/model.safetensors")
+    eb = _url_entry("tiny.b.v1", fb, "https://example.org/b/model.safetensors")
+    served[ea.source["url"]], served[eb.source["url"]] = fa.read_bytes(), fb.read_bytes()
+    register(ea)
+    register(eb)
+    monkeypatch.setenv("FLOAFF_ZOO_OFFLINE", "0")
+    with torch.no_grad():
+        out_a = TinyPointNetModule.from_pretrained("tiny.a.v1")(batch)
+        out_b = TinyPointNetModule.from_pretrained("tiny.b.v1")(batch)
+        assert torch.equal(out_a, a(batch)) and torch.equal(out_b, b(batch))
+        assert not torch.allclose(out_a, out_b)
+    assert (hub_dir() / ea.filename).is_file() and (hub_dir() / eb.filename).is_file()
+    assert ea.filename != eb.filename and len(calls) == 2
+    monkeypatch.setenv("FLOAFF_ZOO_OFFLINE", "1")  # cached now: offline works, no transport call
+    with torch.no_grad():
+        assert torch.equal(TinyPointNetModule.from_pretrained("tiny.a.v1")(batch), out_a)
+    assert len(calls) == 2
+
+
+def test_offline_missing_file_names_file_and_folder(tmp_path, transport, monkeypatch):
+    _, calls = transport
+    f = _safetensors(_model(3), tmp_path / "m.safetensors")
+    e = _url_entry("tiny.offline.v1", f, "https://example.org/m.safetensors")
+    register(e)
+    with pytest.raises(WeightsNotFoundError) as err:
+        TinyPointNetModule.from_pretrained("tiny.offline.v1")
+    assert e.filename in str(err.value) and str(hub_dir()) in str(err.value)
+    monkeypatch.setenv("FLOAFF_ZOO_OFFLINE", "0")
+    with pytest.raises(WeightsNotFoundError, match="allow_download=False"):
+        resolve_state_dict("tiny.offline.v1", allow_download=False)
+    assert calls == []
+    # pre-seeding torch.hub's cache under the unique file name works offline
+    monkeypatch.setenv("FLOAFF_ZOO_OFFLINE", "1")
+    seeded = Path(torch.hub.get_dir()) / "checkpoints" / e.filename
+    seeded.parent.mkdir(parents=True)
+    seeded.write_bytes(f.read_bytes())
+    _, info = resolve_state_dict("tiny.offline.v1")
+    assert info["source"] == str(seeded) and info["sha256"] == e.sha256
+
+
+def test_download_hash_mismatch_is_rejected_and_not_cached(tmp_path, transport, monkeypatch):
+    served, calls = transport
+    good = _safetensors(_model(4), tmp_path / "good.safetensors")
+    e = _url_entry("tiny.dl.v1", good, "https://example.org/r/0123/good.safetensors")
+    register(e)
+    served[e.source["url"]] = _safetensors(_model(5), tmp_path / "evil.safetensors").read_bytes()
+    monkeypatch.setenv("FLOAFF_ZOO_OFFLINE", "0")
+    with pytest.raises(ChecksumError, match=e.filename):
+        TinyPointNetModule.from_pretrained("tiny.dl.v1")
+    assert len(calls) == 1
+    assert not any(hub_dir().glob(f"*{e.filename}*"))  # neither the file nor a .part leftover
+    served[e.source["url"]] = good.read_bytes()
+    assert zoo_main(["hub", "pull", "tiny.dl.v1"]) == 0
+    assert sha256_file(hub_dir() / e.filename) == e.sha256
+
+
+def test_hf_download_pinned_revision(tmp_path, monkeypatch, batch):
+    model = _model(6)
+    f = _safetensors(model, tmp_path / "model.safetensors")
+    sha = sha256_file(f)
+    rev = "a" * 40
+    e = HubEntry(name="tiny.hf.v1", class_path=TINY, filename=unique_filename("tiny.hf.v1", sha, ".safetensors"),
+                 sha256=sha, init_args={"width": 8},
+                 source={"kind": "hf", "repo": "org/tiny", "revision": rev, "path_in_repo": "model.safetensors"})
+    register(e)
+    seen = []
+
+    def hf_hub_download(repo_id, filename, revision, local_dir):
+        seen.append((repo_id, filename, revision))
+        dst = Path(local_dir) / filename
+        dst.write_bytes(payload)
+        return str(dst)
+
+    fake = types.ModuleType("huggingface_hub")
+    fake.hf_hub_download = hf_hub_download
+    monkeypatch.setitem(sys.modules, "huggingface_hub", fake)
+    monkeypatch.setenv("FLOAFF_ZOO_OFFLINE", "0")
+    monkeypatch.setenv("HF_HUB_OFFLINE", "1")  # huggingface_hub's own switch is honoured too
+    with pytest.raises(WeightsNotFoundError, match="HF_HUB_OFFLINE"):
+        resolve_state_dict("tiny.hf.v1")
+    monkeypatch.delenv("HF_HUB_OFFLINE")
+    payload = b"not the file"
+    with pytest.raises(ChecksumError):
+        resolve_state_dict("tiny.hf.v1")
+    assert not any(p.name != "index.json" for p in hub_dir().iterdir())  # temp dir cleaned, nothing cached
+    payload = f.read_bytes()
+    with torch.no_grad():
+        assert torch.equal(TinyPointNetModule.from_pretrained("tiny.hf.v1")(batch), model(batch))
+    assert seen[-1] == ("org/tiny", "model.safetensors", rev)
+    (hub_dir() / e.filename).unlink()
+    monkeypatch.setitem(sys.modules, "huggingface_hub", None)  # not installed
+    with pytest.raises(HubError, match="pip install huggingface_hub"):
+        resolve_state_dict("tiny.hf.v1")
+
+
+def test_other_model_class_is_a_type_error(tmp_path):
+    ckpt = _lightning_ckpt(OtherTiny(), tmp_path / "other.ckpt", class_path=f"{OtherTiny.__module__}.OtherTiny")
+    with pytest.raises(TypeError, match="OtherTiny"):
+        TinyPointNetModule.from_pretrained(str(ckpt))
+    assert isinstance(FloAffModule.from_pretrained(str(ckpt)), OtherTiny)
+
+
+def test_untrusted_class_paths_are_not_imported(tmp_path):
+    m = _model(7)
+    for path in ("untrusted_pkg_floaff_xyz.Model", "os.system"):
+        ckpt = _lightning_ckpt(m, tmp_path / f"{path}.ckpt", class_path=path)
+        with pytest.raises(HubError, match="outside floaff_zoo|not a FloAffModule"):
+            TinyPointNetModule.from_pretrained(str(ckpt))
+    assert "untrusted_pkg_floaff_xyz" not in sys.modules
+
+
+def test_code_in_pickle_is_refused(tmp_path):
+    bad = tmp_path / "bad.ckpt"
+    torch.save({"state_dict": {}, "hyper_parameters": {"x": OtherTiny}}, bad)
+    with pytest.raises(ValueError, match="weights-only"):
+        resolve_state_dict(str(bad))
+
+
+def test_unknown_name_and_missing_path():
+    register(HubEntry(name="cfar-pfal.floaff-sim-layouts.v1", class_path=TINY, sha256="0" * 64,
+                      filename="cfar-pfal.floaff-sim-layouts.v1-00000000.safetensors"))
+    with pytest.raises(UnknownWeightsError, match="cfar-pfal.floaff-sim-layouts.v1"):
+        resolve_state_dict("cfar-pfal.floaff-sim-layout.v1")
+    with pytest.raises(FileNotFoundError, match="nowhere/model.ckpt"):
+        resolve_state_dict("nowhere/model.ckpt")
+
+
+@pytest.mark.parametrize(
+    "patch, field",
+    [({"filename": "x.safetensors"}, "hash prefix"), ({"sha256": "abc"}, "64-hex"),
+     ({"source": {"kind": "hf", "repo": "org/x", "revision": "main"}}, "pinned 40-hex"),
+     ({"source": {"kind": "url", "url": "https://huggingface.co/o/r/resolve/main/x.safetensors"}}, "pin"),
+     ({"init_args": {"weights": "other.v1"}}, "weights")],
+)
+def test_malformed_user_index_names_file_and_field(patch, field):
+    sha = "1" * 64
+    raw = {"name": "tiny.bad.v1", "class_path": TINY, "filename": f"tiny.bad.v1-{sha[:8]}.safetensors", "sha256": sha}
+    path = hub_dir() / "index.json"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps({"version": 1, "entries": [{**raw, **patch}]}))
+    with pytest.raises(RegistryFormatError, match=field) as err:
+        load_registry()
+    assert str(path) in str(err.value)
+
+
+def test_shipped_index_is_valid():
+    from floaff_zoo.hub.registry import SHIPPED_INDEX, read_index
+
+    for e in read_index(SHIPPED_INDEX):
+        assert e.source["kind"] in ("url", "hf")  # shipped entries must be downloadable
+
+
+def test_push_upload_pins_the_commit(run_dir, monkeypatch):
+    run, _, _ = run_dir
+    uploads = []
+
+    class FakeApi:
+        def create_repo(self, repo_id, repo_type, exist_ok, private):
+            assert exist_ok
+
+        def upload_folder(self, folder_path, repo_id, repo_type, commit_message):
+            uploads.append(sorted(p.name for p in Path(folder_path).iterdir()))
+            return types.SimpleNamespace(oid="b" * 40)
+
+    fake = types.ModuleType("huggingface_hub")
+    fake.HfApi = FakeApi
+    monkeypatch.setitem(sys.modules, "huggingface_hub", fake)
+    assert _push(run, NAME, "--upload", "--repo", "org/tiny") == 2  # offline: refused before exporting
+    assert uploads == [] and NAME not in load_registry()
+    monkeypatch.setenv("FLOAFF_ZOO_OFFLINE", "0")
+    assert _push(run, NAME, "--upload", "--repo", "org/tiny") == 0
+    entry = load_registry()[NAME]
+    assert entry.source == {"kind": "hf", "repo": "org/tiny", "revision": "b" * 40, "path_in_repo": entry.filename}
+    assert uploads == [sorted(["README.md", "config.json", entry.filename])]
