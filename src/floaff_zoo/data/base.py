@@ -8,12 +8,49 @@ from typing import Any, Literal
 
 import lightning as L
 import torch
+import numpy as np
 from lightning.pytorch.utilities.exceptions import MisconfigurationException
 from torch.utils.data import DataLoader, Dataset
 
-from floaff_zoo.contract import Sample, collate_samples
+from floaff_zoo.contract import Sample, collate_samples, validate_sample
+from floaff_zoo.data.transforms import SampleTransform, apply_transforms
 
 Split = Literal["train", "val", "test", "predict"]
+_SPLIT_OFFSET = {"train": 0, "val": 1, "test": 2, "predict": 3}
+
+
+class TransformedDataset(Dataset):
+    """A split's dataset seen through the DataModule's per-sample transforms and hook.
+
+    Training draws a fresh generator per access (from torch's global RNG, which Lightning seeds and
+    re-seeds per worker); evaluation uses one generator per (seed, split, index) so metrics repeat.
+    """
+
+    def __init__(
+        self,
+        dataset: Dataset,
+        transforms: Sequence[SampleTransform],
+        hook: Callable[[Sample, str], Sample] | None,
+        split: str,
+        seed: int,
+    ) -> None:
+        self.dataset, self.transforms, self.hook, self.split, self.seed = dataset, list(transforms), hook, split, seed
+
+    def __len__(self) -> int:
+        return len(self.dataset)  # type: ignore[arg-type]
+
+    def __getitem__(self, i: int) -> Sample:
+        s = self.dataset[i]
+        if not self.transforms and self.hook is None:
+            return s
+        if "scene_mask" not in s or "floor_mask" not in s or not torch.is_tensor(s["scene_xyz"]):
+            s = validate_sample(s)
+        if self.split == "train":
+            rng = np.random.default_rng(int(torch.randint(0, 2**62, (1,)).item()))
+        else:
+            rng = np.random.default_rng([self.seed, _SPLIT_OFFSET.get(self.split, 9), i])
+        s = apply_transforms(s, self.transforms, rng)
+        return self.hook(s, self.split) if self.hook is not None else s
 
 
 class FloAffDataModule(L.LightningDataModule):
@@ -28,6 +65,13 @@ class FloAffDataModule(L.LightningDataModule):
         collate_mode: ``resample`` (fast mode: exactly ``num_points`` valid points) or ``pad``
             (faithful mode: truncate/zero-pad with masks).
         seed: seed of splits, resampling and augmentation.
+        train_transforms: per-sample transforms of the train split, in order (e.g.
+            ``YawPerturb``, ``Jitter``; any :class:`~floaff_zoo.data.transforms.SampleTransform`
+            subclass by ``class_path``).
+        eval_transforms: per-sample transforms of val/test/predict (seeded per sample index).
+
+    Subclasses (or a method's code) may override :meth:`sample_transform`, a hook applied to every
+    sample after the configured transforms.
     """
 
     def __init__(
@@ -39,8 +83,12 @@ class FloAffDataModule(L.LightningDataModule):
         num_floor: int | None = None,
         collate_mode: Literal["pad", "resample"] = "resample",
         seed: int = 0,
+        train_transforms: list[SampleTransform] | None = None,
+        eval_transforms: list[SampleTransform] | None = None,
     ) -> None:
         super().__init__()
+        self.train_transforms = list(train_transforms or [])
+        self.eval_transforms = list(eval_transforms or [])
         self.batch_size = batch_size
         self.eval_batch_size = eval_batch_size or batch_size
         self.num_workers = num_workers
@@ -59,6 +107,17 @@ class FloAffDataModule(L.LightningDataModule):
             generator=gen,
         )
 
+    def sample_transform(self, sample: Sample, split: str) -> Sample:
+        """Hook applied to every sample after the configured transforms (default: identity)."""
+        return sample
+
+    def transforms_for(self, split: str) -> list[SampleTransform]:
+        """The configured transform list of ``split``."""
+        return self.train_transforms if split == "train" else self.eval_transforms
+
+    def _has_hook(self) -> bool:
+        return type(self).sample_transform is not FloAffDataModule.sample_transform
+
     def _dataloader(self, split: str) -> DataLoader:
         ds = self.datasets.get(split)
         if ds is None:
@@ -67,6 +126,10 @@ class FloAffDataModule(L.LightningDataModule):
             )
         if len(ds) == 0:
             raise MisconfigurationException(f"{type(self).__name__}: the '{split}' split is empty")
+        transforms = self.transforms_for(split)
+        if transforms or self._has_hook():
+            ds = TransformedDataset(ds, transforms, self.sample_transform if self._has_hook() else None, split,
+                                    self.seed)
         return DataLoader(
             ds,
             batch_size=self.batch_size if split == "train" else self.eval_batch_size,

@@ -17,6 +17,7 @@ from torch.utils.data import Dataset
 
 from floaff_zoo.contract import Sample, validate_sample
 from floaff_zoo.data.base import FloAffDataModule
+from floaff_zoo.data.transforms import SampleTransform
 
 ROBOTS = np.array([[0.85, 1.03], [0.7, 0.33], [0.78, 1.03]], dtype=np.float32)
 
@@ -116,8 +117,11 @@ class SyntheticDataModule(FloAffDataModule):
         num_floor: int | None = None,
         collate_mode: Literal["pad", "resample"] = "resample",
         seed: int = 0,
+        train_transforms: list[SampleTransform] | None = None,
+        eval_transforms: list[SampleTransform] | None = None,
     ) -> None:
-        super().__init__(batch_size, eval_batch_size, num_workers, num_points, num_floor, collate_mode, seed)
+        super().__init__(batch_size, eval_batch_size, num_workers, num_points, num_floor, collate_mode, seed,
+                         train_transforms, eval_transforms)
         self.sizes = {"train": num_train, "val": num_val, "test": num_test}
         self.points_per_sample = points_per_sample
         self.floor_cells = floor_cells

@@ -1,0 +1,120 @@
+"""Benchmark the FloAff generator: render ms per view, wall time of the tiny preset (and small on request), and how
+generation time grows with the number of scenes.
+
+    python benchmarks/bench_generate.py [--small] [--workers 1] [--views 8] [--out DIR]
+
+Prints a small report; nothing is kept unless --out is given.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+
+
+def bench_render(n_views: int, image_size: int) -> dict[str, float]:
+    """Build one CloseDrawer scene and time view sampling + rendering (ms per view, by view kind)."""
+    from floaff_zoo.sim.kitchen import SceneSpec, build_scene
+    from floaff_zoo.sim.render import Renderer
+    from floaff_zoo.sim.views import ViewConfig, render_view, sample_view_poses
+
+    t0 = time.perf_counter()
+    scene = build_scene(SceneSpec(layout_id=0, style_id=0, seed=0, task="CloseDrawer"))
+    build_s = time.perf_counter() - t0
+    cfg = ViewConfig(image_size=image_size)
+    r = Renderer(scene.model, image_size, image_size)
+    out = {"build_s": build_s}
+    try:
+        for kind in ("front", "side"):
+            rng = np.random.default_rng(0)
+            t0 = time.perf_counter()
+            got = sample_view_poses(scene, r, kind, n_views, cfg, rng)
+            dt = time.perf_counter() - t0
+            out[f"{kind}_sample_ms_per_view"] = 1e3 * dt / max(1, len(got))
+            out[f"{kind}_views"] = len(got)
+            # pure render + back-projection cost at the accepted poses
+            t0 = time.perf_counter()
+            for pose, _ in got:
+                render_view(scene, r, pose, cfg, rng)
+            out[f"{kind}_render_ms_per_view"] = 1e3 * (time.perf_counter() - t0) / max(1, len(got))
+    finally:
+        r.close()
+    return out
+
+
+def bench_preset(name: str, workers: int, out: Path | None, **overrides) -> tuple[float, dict]:
+    from floaff_zoo.sim.generate import generate
+    from floaff_zoo.sim.presets import get_preset
+
+    tmp = Path(tempfile.mkdtemp(prefix=f"bench_{name}_")) if out is None else out / name
+    try:
+        t0 = time.perf_counter()
+        man = generate(tmp, get_preset(name, **overrides), seed=0, workers=workers, quiet=True)
+        return time.perf_counter() - t0, man
+    finally:
+        if out is None:
+            shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _phase_means(man: dict) -> str:
+    b, a, v = [], [], []
+    for s in man["scenes"].values():
+        for att in s.get("attempts", []):
+            b.append(att.get("build_s", 0.0))
+            a.append(att.get("annotate_s", 0.0))
+            if "views_s" in att:
+                v.append(att["views_s"])
+    f = lambda x: f"{np.mean(x):.2f}" if x else "n/a"  # noqa: E731
+    return f"per scene attempt: build {f(b)} s, annotate {f(a)} s, views+write {f(v)} s"
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--small", action="store_true", help="also time the small preset (long: many minutes)")
+    ap.add_argument("--workers", type=int, default=1)
+    ap.add_argument("--views", type=int, default=8, help="views per kind for the render benchmark")
+    ap.add_argument("--image-size", type=int, default=128)
+    ap.add_argument("--out", default=None, help="keep generated data here")
+    args = ap.parse_args(argv)
+    out = Path(args.out) if args.out else None
+
+    r = bench_render(args.views, args.image_size)
+    print(f"[render] scene build {r['build_s']:.2f} s; image {args.image_size}^2")
+    for kind in ("front", "side"):
+        print(f"[render] {kind}: {r[f'{kind}_views']} views, render+backproject {r[f'{kind}_render_ms_per_view']:.1f} "
+              f"ms/view, sampling incl. rejected poses {r[f'{kind}_sample_ms_per_view']:.1f} ms/view")
+
+    # growth with the number of scenes: tiny preset with 1, 2 and 4 scenes (1 or 2 tasks, train+test)
+    rows = []
+    for tasks, n_test in ((("CloseDrawer",), 0), (("CloseDrawer",), 1), (("CloseDrawer", "OpenSingleDoor"), 1)):
+        wall, man = bench_preset("tiny", args.workers, None, tasks=tasks, n_test=n_test)
+        n = len(man["scenes"])
+        rows.append((n, wall, man))
+        print(f"[scaling] tiny, {n} scene(s), workers={args.workers}: {wall:.1f} s ({wall / n:.1f} s/scene); "
+              + _phase_means(man))
+    if len(rows) >= 2:
+        (n0, w0, _), (n1, w1, _) = rows[0], rows[-1]
+        print(f"[scaling] marginal cost {(w1 - w0) / max(1, n1 - n0):.1f} s per extra scene")
+    wall, man = bench_preset("tiny", args.workers, out)
+    c = man["counts"]
+    print(f"[tiny] {c['scenes_ok']} scenes, {c['views_total']} views: {wall:.1f} s wall (workers={args.workers})")
+    if args.small:
+        wall, man = bench_preset("small", args.workers, out)
+        c = man["counts"]
+        print(f"[small] {c['scenes_ok']} scenes ok, {c['scenes_dropped']} dropped, {c['views_total']} views: "
+              f"{wall / 60:.1f} min wall (workers={args.workers}); " + _phase_means(man))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

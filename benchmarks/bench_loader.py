@@ -1,0 +1,178 @@
+"""Loader throughput vs a PointNet++ training step (samples/s), on the same machine.
+
+Usage::
+
+    python benchmarks/bench_loader.py                      # synthetic MoMa-Kitchen-sized data in a temp dir
+    python benchmarks/bench_loader.py --root data/moma_kitchen --max-samples 512
+    python benchmarks/bench_loader.py --dataset floaff --root data/floaff_sim
+
+Without ``--root`` it writes ``--samples`` samples in the official MoMa-Kitchen layout with the
+official cloud sizes (16,647 global / 10,701 floor points) into a temp dir. It reports:
+1. the cold setup (parse PLY/CSV + KD-tree flags, building the cache) in samples/s;
+2. the warm loader (cache hits, YawPerturb + Jitter, collate to ``--num-points``) in samples/s;
+3. a PointNet++ training step (forward + backward + Adam) on batches from that loader, in samples/s:
+   ``floaff_zoo.models.pointnet2.PointNet2Module`` when it exists, else the SSG
+   ``floaff_zoo.nn.pointnet2.PointNet2Seg`` per-point regressor on the scene cloud (printed).
+The target is loader >= 5x the train step.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+
+def write_moma_like(root: Path, n: int, seed: int = 0) -> None:
+    """n samples (n // 4 configurations x 4 views) in the official layout, official cloud sizes."""
+    import open3d as o3d
+
+    from floaff_zoo.data import moma_kitchen as mk
+
+    rng = np.random.default_rng(seed)
+
+    def ply(path: Path, xyz: np.ndarray) -> None:
+        pcd = o3d.geometry.PointCloud()
+        pcd.points = o3d.utility.Vector3dVector(xyz)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        o3d.io.write_point_cloud(str(path), pcd)
+
+    lines = []
+    for i in range(n):
+        cfg = f"RGBD-{100000 + i // 4 % 6}-target_1_bottle#1_barrier_01"
+        rel = f"{cfg}/position_{i}.0_1.0_0_orientation_0.0_0.0_1.0_6.123233995736766e-17"
+        d = root / "rgbd" / rel / mk.PCD_DIR
+        floor = np.c_[rng.uniform(0, 3, (mk.FLOOR_MAX, 2)), rng.uniform(0, 0.015, mk.FLOOR_MAX)]
+        target = np.array([1.6, 0.3, 0.9]) + rng.normal(scale=0.03, size=(300, 3))
+        barrier = np.array([1.7, -0.3, 0.9]) + rng.normal(scale=0.03, size=(200, 3))
+        rest = rng.uniform([0, -2, 0], [3, 2, 2], (mk.GLOBAL_MAX - 500 - 8000, 3))
+        ply(d / mk.GLOBAL_PLY, np.concatenate([floor[:8000], rest, target, barrier]))
+        ply(d / mk.FLOOR_PLY, floor)
+        ply(d / mk.TARGET_PLY, target)
+        ply(d / mk.BARRIER_PLY[0], barrier)
+        np.savetxt(root / "rgbd" / rel / mk.LABEL_TXT, np.c_[floor, rng.uniform(0, 1, mk.FLOOR_MAX)], delimiter=",",
+                   fmt="%.6f")
+        info = root / "info" / cfg[5:] / mk.INFO_JSON
+        info.parent.mkdir(parents=True, exist_ok=True)
+        info.write_text(json.dumps({"robot_name": "panda"}))
+        lines.append(rel)
+    (root / "data_split").mkdir(parents=True, exist_ok=True)
+    for split in ("train", "test"):
+        (root / "data_split" / f"kitchen_{split}.txt").write_text("\n".join(lines) + "\n")
+
+
+def make_dm(args: argparse.Namespace, root: Path):
+    from floaff_zoo.data.transforms import Jitter, YawPerturb
+
+    common = dict(batch_size=args.batch_size, num_workers=args.workers, num_points=args.num_points,
+                  collate_mode="resample", train_transforms=[YawPerturb(5.0), Jitter(0.005)], cache=True,
+                  cache_dir=str(root / ".cache_bench"))
+    if args.dataset == "moma":
+        from floaff_zoo.data.moma_kitchen import MoMaKitchenDataModule
+
+        return MoMaKitchenDataModule(root=str(root), val_fraction=0.0, max_samples=args.max_samples, **common)
+    from floaff_zoo.data.floaff_kitchen import FloAffKitchenDataModule
+
+    return FloAffKitchenDataModule(root=str(root), benchmark=args.benchmark, **common)
+
+
+def loader_rate(dm, epochs: int) -> tuple[float, list]:
+    loader = dm.train_dataloader()
+    n, batches = 0, []
+    t = time.perf_counter()
+    for _ in range(epochs):
+        for b in loader:
+            n += b["scene_xyz"].shape[0]
+            if len(batches) < 3:
+                batches.append(b)
+    return n / (time.perf_counter() - t), batches
+
+
+def train_step_rate(batches: list, steps: int) -> tuple[float, str]:
+    try:
+        from floaff_zoo.models.pointnet2 import PointNet2Module  # type: ignore[import-not-found]
+
+        model = PointNet2Module(feat_channels=1)
+        what = "floaff_zoo.models.pointnet2.PointNet2Module (default args)"
+
+        def step(b):
+            loss, _, _ = model.model_step(b)
+            return loss
+    except ImportError:
+        from floaff_zoo.nn.pointnet2 import PointNet2Seg
+
+        model = PointNet2Seg(
+            in_channels=1, npoints=[1024, 256, 64, 16], radii=[[0.1], [0.2], [0.4], [0.8]],
+            nsamples=[[32], [32], [32], [32]],
+            mlps=[[[32, 32, 64]], [[64, 64, 128]], [[128, 128, 256]], [[256, 256, 512]]],
+            fp_mlps=[[256, 256], [256, 256], [256, 128], [128, 128, 128]], head=[128],
+        )
+        what = "floaff_zoo.nn.pointnet2.PointNet2Seg (SSG, 4 levels 1024/256/64/16, per-point MSE on scene points)"
+
+        def step(b):
+            out = torch.sigmoid(model(b["scene_xyz"], b["scene_feat"][..., :1], b["scene_mask"]))
+            return ((out - (b["scene_feat"][..., 0] > 0).float()) ** 2).mean()
+    opt = torch.optim.Adam(model.parameters(), 1e-3)
+    model.train()
+    step(batches[0]).backward()  # warm-up
+    n = 0
+    t = time.perf_counter()
+    for i in range(steps):
+        b = batches[i % len(batches)]
+        opt.zero_grad()
+        step(b).backward()
+        opt.step()
+        n += b["scene_xyz"].shape[0]
+    return n / (time.perf_counter() - t), what
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--dataset", choices=["moma", "floaff"], default="moma")
+    p.add_argument("--root", default=None, help="dataset root (default: write MoMa-sized samples to a temp dir)")
+    p.add_argument("--benchmark", default="styles")
+    p.add_argument("--samples", type=int, default=32, help="samples to write when --root is not given")
+    p.add_argument("--max-samples", type=int, default=None)
+    p.add_argument("--num-points", type=int, default=4096)
+    p.add_argument("--batch-size", type=int, default=8)
+    p.add_argument("--workers", type=int, default=0)
+    p.add_argument("--epochs", type=int, default=3)
+    p.add_argument("--steps", type=int, default=3)
+    args = p.parse_args()
+    torch.set_num_threads(int(os.environ.get("OMP_NUM_THREADS", torch.get_num_threads())))
+    with tempfile.TemporaryDirectory() as tmp:
+        root = Path(args.root) if args.root else Path(tmp) / "moma"
+        if not args.root:
+            if args.dataset != "moma":
+                p.error("--dataset floaff needs --root (generate data with `floaff-zoo generate`)")
+            t = time.perf_counter()
+            write_moma_like(root, args.samples)
+            print(f"wrote {args.samples} MoMa-sized samples in {time.perf_counter() - t:.1f} s")
+        dm = make_dm(args, root)
+        t = time.perf_counter()
+        dm.setup("fit")
+        n = len(dm.datasets["train"])
+        cold = n / (time.perf_counter() - t)
+        dm2 = make_dm(args, root)
+        t = time.perf_counter()
+        dm2.setup("fit")
+        warm_setup = time.perf_counter() - t
+        rate, batches = loader_rate(dm2, args.epochs)
+        step_rate, what = train_step_rate(batches, args.steps)
+        print(f"\ntorch threads {torch.get_num_threads()}, loader workers {args.workers}, batch {args.batch_size}, "
+              f"num_points {args.num_points}, {n} train samples")
+        print(f"cold setup (parse + build cache): {cold:8.1f} samples/s")
+        print(f"warm setup (cache hits):          {warm_setup:8.2f} s")
+        print(f"loader (cached, transforms, collate): {rate:8.1f} samples/s")
+        print(f"train step [{what}]: {step_rate:8.2f} samples/s")
+        print(f"loader / train step = {rate / step_rate:.1f}x (target >= 5x)")
+
+
+if __name__ == "__main__":
+    main()

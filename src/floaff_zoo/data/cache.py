@@ -1,0 +1,233 @@
+"""Preprocessed sample cache and the record-backed Dataset every file DataModule uses.
+
+Loading a sample from its source files (PLY parsing, KD-tree flags, CSV labels, npz
+decompression) happens once: the validated tensors, after the deterministic ``pre_transforms``,
+are written to ``<cache_dir>/<dataset>-<config hash>/<sample hash>.pt``.
+
+* ``<config hash>`` = SHA-256 of the reader's settings (e.g. flag radius, robot table, yaw
+  estimator) and the ``pre_transforms`` config: changing any of them uses a fresh directory.
+* ``<sample hash>`` = SHA-256 of the record key and its source files' signature: (path, size,
+  mtime_ns) by default (``hash_mode="stat"``), or the file bytes (``hash_mode="content"``, slower:
+  reads every source file at setup). An edited source file therefore misses the cache.
+* A sample that failed to load leaves a small ``.skip`` marker with the reason, so the next setup
+  counts it again without re-reading it.
+
+Stale entries are never read again but stay on disk; delete the directory to reclaim space.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch.utils.data import Dataset
+
+from floaff_zoo.contract import TENSOR_KEYS, Sample, SampleError, validate_sample
+from floaff_zoo.data.readers import SampleRecord, SkipLog, source_signature
+from floaff_zoo.data.transforms import SampleTransform, apply_transforms
+
+CACHE_VERSION = 1
+
+
+def _sha(obj: Any) -> str:
+    return hashlib.sha256(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()
+
+
+class SampleCache:
+    """Directory of per-sample tensor files keyed by config and source hashes (module docstring).
+
+    Args:
+        directory: cache root (``<root>/.cache`` by default in the DataModules).
+        name: dataset name (directory prefix).
+        config: JSON-able reader + pre-transform settings.
+        hash_mode: ``stat`` or ``content`` (see module docstring).
+    """
+
+    def __init__(self, directory: str | Path, name: str, config: dict[str, Any], hash_mode: str = "stat") -> None:
+        if hash_mode not in ("stat", "content"):
+            raise ValueError(f"cache hash_mode must be 'stat' or 'content', got {hash_mode!r}")
+        self.config = {"version": CACHE_VERSION, **config}
+        self.dir = Path(directory) / f"{name}-{_sha(self.config)[:12]}"
+        self.hash_mode = hash_mode
+
+    def entry(self, record: SampleRecord) -> Path:
+        """Cache file of ``record`` (its name changes when a source file changes)."""
+        h = hashlib.sha256(record.key.encode() + source_signature(record.sources, self.hash_mode).encode())
+        return self.dir / f"{h.hexdigest()[:32]}.pt"
+
+    def get(self, path: Path) -> dict[str, torch.Tensor] | None:
+        """Cached tensors, or None on a miss or an unreadable entry."""
+        if not path.is_file():
+            return None
+        try:
+            return torch.load(path, map_location="cpu", weights_only=True)
+        except Exception:  # noqa: BLE001 - a torn/corrupt cache file is just a miss
+            return None
+
+    def put(self, path: Path, tensors: dict[str, torch.Tensor]) -> None:
+        """Atomically write one entry (temp file + os.replace)."""
+        self._atomic(path, lambda f: torch.save(tensors, f))
+
+    def skipped(self, path: Path) -> tuple[str, str] | None:
+        """(kind, problem) of a sample that failed before, or None."""
+        marker = path.with_suffix(".skip")
+        if not marker.is_file():
+            return None
+        try:
+            d = json.loads(marker.read_text())
+            return str(d["kind"]), str(d["problem"])
+        except (OSError, ValueError, KeyError):
+            return None
+
+    def mark_skipped(self, path: Path, kind: str, problem: str) -> None:
+        self._atomic(path.with_suffix(".skip"), lambda f: f.write(json.dumps({"kind": kind, "problem": problem}).encode()))
+
+    def _atomic(self, path: Path, write: Callable[[Any], None]) -> None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        if not (path.parent / "config.json").is_file():
+            (path.parent / "config.json").write_text(json.dumps(self.config, indent=1, sort_keys=True, default=str))
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".tmp", dir=path.parent)
+        try:
+            with os.fdopen(fd, "wb") as f:
+                write(f)
+            os.replace(tmp, path)
+        except BaseException:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+            raise
+
+
+def classify_error(exc: Exception) -> str:
+    """Skip kind of a load error: the ``kind`` attribute when the reader set one, else its class."""
+    return getattr(exc, "kind", None) or type(exc).__name__
+
+
+def _record_seed(seed: int, key: str) -> np.random.Generator:
+    return np.random.default_rng([seed, int(hashlib.sha256(key.encode()).hexdigest()[:15], 16)])
+
+
+class RecordDataset(Dataset):
+    """Samples from reader records, through the cache; ``build`` validates them all at setup.
+
+    Args:
+        records: the indexed samples.
+        loader: record -> contract sample (raises on a bad file; an exception ``kind`` attribute
+            names the skip kind).
+        cache: a :class:`SampleCache` or None (no cache: every access parses the sources).
+        pre_transforms: deterministic transforms applied once before caching (seeded per record).
+        seed: seed of the pre-transforms.
+        name: dataset name for messages.
+    """
+
+    def __init__(
+        self,
+        records: Sequence[SampleRecord],
+        loader: Callable[[SampleRecord], Sample],
+        cache: SampleCache | None = None,
+        pre_transforms: Sequence[SampleTransform] | None = None,
+        seed: int = 0,
+        name: str = "dataset",
+    ) -> None:
+        self.records = list(records)
+        self.loader = loader
+        self.cache = cache
+        self.pre_transforms = list(pre_transforms or [])
+        self.seed = seed
+        self.name = name
+        self.runtime_failures = 0
+
+    # ---------------------------------------------------------------- loading one record
+    def _parse(self, rec: SampleRecord) -> dict[str, torch.Tensor]:
+        """Read, validate and pre-transform one record (no cache). Raises on bad data."""
+        raw = self.loader(rec)
+        raw["meta"] = {**rec.meta, **(raw.get("meta") or {}), "path": rec.key}
+        s = validate_sample(raw)
+        s = apply_transforms(s, self.pre_transforms, _record_seed(self.seed, rec.key))
+        return {k: s[k].contiguous() for k in TENSOR_KEYS}
+
+    def _tensors(self, rec: SampleRecord) -> dict[str, torch.Tensor]:
+        if self.cache is None:
+            return self._parse(rec)
+        path = self.cache.entry(rec)
+        hit = self.cache.get(path)
+        if hit is not None:
+            return hit
+        t = self._parse(rec)
+        self.cache.put(path, t)
+        return t
+
+    def check(self, i: int) -> tuple[str, str] | None:
+        """Load record ``i`` (filling the cache); None if fine, else (kind, problem)."""
+        rec = self.records[i]
+        path = self.cache.entry(rec) if self.cache is not None else None
+        if path is not None:
+            if path.is_file():
+                return None
+            prev = self.cache.skipped(path)
+            if prev is not None:
+                return prev
+        try:
+            self._tensors(rec)
+            return None
+        except (SampleError, ValueError, OSError, RuntimeError, KeyError, IndexError) as exc:
+            kind, problem = classify_error(exc), str(exc)
+            if path is not None:
+                self.cache.mark_skipped(path, kind, problem)
+            return kind, problem
+
+    def build(self, skips: SkipLog, workers: int = 0) -> "RecordDataset":
+        """Validate every record now (setup time); drop the bad ones into ``skips`` (strict raises).
+
+        With ``workers > 0`` records are parsed in that many processes (cache misses only).
+        """
+        n = len(self.records)
+        if workers > 0 and n > 1:
+            with ProcessPoolExecutor(workers) as pool:
+                results = list(pool.map(self.check, range(n), chunksize=max(1, n // (8 * workers))))
+        else:
+            results = [self.check(i) for i in range(n)]
+        keep = []
+        for rec, res in zip(self.records, results):
+            if res is None:
+                keep.append(rec)
+            else:
+                # loaders name the file in the problem; generic contract errors name the record key
+                skips.add(res[0], "" if rec.key in res[1] or "/" in res[1] else rec.key, res[1])
+        self.records = keep
+        return self
+
+    # ---------------------------------------------------------------- Dataset API
+    def __len__(self) -> int:
+        return len(self.records)
+
+    def get(self, i: int) -> Sample:
+        """Sample ``i`` (tensors + meta with ``index`` = position in this split). Raises on bad data."""
+        rec = self.records[i]
+        s: Sample = dict(self._tensors(rec))
+        s["meta"] = {**rec.meta, "index": i}
+        return s
+
+    def __getitem__(self, i: int) -> Sample:
+        if not 0 <= i < len(self.records):
+            raise IndexError(i)
+        # Robust mid-epoch: a sample that broke after setup (file deleted/changed) is replaced by the next one.
+        for k in range(len(self.records)):
+            j = (i + k) % len(self.records)
+            try:
+                return self.get(j)
+            except (SampleError, ValueError, OSError, RuntimeError, KeyError) as exc:
+                self.runtime_failures += 1
+                if self.runtime_failures <= 3:
+                    print(f"{self.name}: sample {self.records[j].key} failed at load time ({exc}); using the next one")
+        raise SampleError(f"{self.name}: no sample of the split could be loaded")
+
+
+__all__ = ["CACHE_VERSION", "RecordDataset", "SampleCache", "classify_error"]

@@ -1,0 +1,237 @@
+"""FloAff-Kitchen (Styles / Layouts): scene-level splits over a FloAff reader (generated data by default).
+
+Splits follow the paper: per task, the benchmark's *train* scenes (5 in the paper) and one unseen
+*test* scene. Validation is carved from the train scenes at scene level: ``val_scenes`` scenes
+per task (seeded by ``seed``); a task with a single train scene instead gives a seeded
+``val_view_fraction`` of that scene's views to val (views of one scene share its label map, so
+this val split measures fit, not generalisation: documented, unavoidable with one scene).
+
+Every sample's ``meta`` carries ``dataset, task, view, scene_id, layout_id, style_id, sample_id,
+index`` and ``sim = {layout_id, style_id, seed, task, base_pose_world: [x, y, yaw], scene_dir,
+root}`` so a rollout callback can rebuild the scene and map base-frame poses to the world.
+
+Readers: ``reader`` is a name registered with :func:`floaff_zoo.data.readers.register_reader`
+(built in: ``generated``, the format of ``floaff-zoo generate``) or an import path
+``pkg.module:Class`` of a :class:`~floaff_zoo.data.readers.FloAffReader` subclass, e.g. one for the
+published FloAff-Kitchen release once its format is known.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+from lightning.pytorch.utilities.exceptions import MisconfigurationException
+
+from floaff_zoo.contract import TASKS, VIEWS, Sample
+from floaff_zoo.data.base import FloAffDataModule
+from floaff_zoo.data.cache import RecordDataset, SampleCache
+from floaff_zoo.data.readers import (
+    FloAffReader,
+    SampleRecord,
+    SceneEntry,
+    SkipLog,
+    ViewEntry,
+    check_names,
+    get_reader,
+)
+from floaff_zoo.data.transforms import SampleTransform, transforms_config
+
+BENCHMARKS: tuple[str, ...] = ("styles", "layouts")
+
+
+class _ViewLoader:
+    """Picklable record -> sample function (worker processes rebuild the reader from its class and root)."""
+
+    def __init__(self, reader: FloAffReader) -> None:
+        self.reader = reader
+
+    def __call__(self, rec: SampleRecord) -> Sample:
+        scene = SceneEntry(**{k: v for k, v in rec.payload["scene"].items() if k != "views"}, views=[])
+        s = self.reader.load_view(scene, ViewEntry(**rec.payload["view"]))
+        s["meta"] = {}
+        return s
+
+
+class FloAffKitchenDataModule(FloAffDataModule):
+    """FloAff-Kitchen benchmark data (module docstring).
+
+    Args:
+        root: dataset root (``floaff-zoo generate --out``).
+        benchmark: ``styles`` | ``layouts``.
+        tasks: any subset of PnPCounterToCab, OpenSingleDoor, CloseDrawer, CloseDoubleDoor (None = all;
+            one task = single-task run).
+        views: any subset of front, side (None = both).
+        reader: registered reader name or ``pkg.module:Class``.
+        val_scenes: train scenes per task held out as val (seeded; at least one scene stays in train).
+        val_view_fraction: share of the views of a single-train-scene task that go to val.
+        max_views_per_scene: keep the first N views (per kept view kind order) of each scene (smoke runs).
+        strict: raise on the first missing/corrupt file instead of skipping and counting.
+        validate: load every sample at setup (fills the cache; bad ones are skipped and counted).
+        cache / cache_dir / cache_hash / pre_transforms: see :class:`~floaff_zoo.data.cache.SampleCache`.
+        (the rest: see :class:`FloAffDataModule`)
+    """
+
+    def __init__(
+        self,
+        root: str = "data/floaff_sim",
+        benchmark: Literal["styles", "layouts"] = "styles",
+        tasks: list[str] | None = None,
+        views: list[str] | None = None,
+        reader: str = "generated",
+        val_scenes: int = 1,
+        val_view_fraction: float = 0.2,
+        max_views_per_scene: int | None = None,
+        strict: bool = False,
+        validate: bool = True,
+        cache: bool = True,
+        cache_dir: str | None = None,
+        cache_hash: Literal["stat", "content"] = "stat",
+        pre_transforms: list[SampleTransform] | None = None,
+        batch_size: int = 8,
+        eval_batch_size: int | None = None,
+        num_workers: int = 0,
+        num_points: int | None = 4096,
+        num_floor: int | None = None,
+        collate_mode: Literal["pad", "resample"] = "resample",
+        seed: int = 0,
+        train_transforms: list[SampleTransform] | None = None,
+        eval_transforms: list[SampleTransform] | None = None,
+    ) -> None:
+        super().__init__(batch_size, eval_batch_size, num_workers, num_points, num_floor, collate_mode, seed,
+                         train_transforms, eval_transforms)
+        self.benchmark = check_names("benchmark", [benchmark], BENCHMARKS)[0]
+        self.tasks = check_names("tasks", list(TASKS) if tasks is None else list(tasks), TASKS)
+        self.views = check_names("views", list(VIEWS) if views is None else list(views), VIEWS)
+        self.reader_cls = get_reader(reader)
+        if val_scenes < 0 or not 0.0 <= val_view_fraction < 1.0:
+            raise ValueError(f"val_scenes must be >= 0 and val_view_fraction in [0, 1); got {val_scenes}, "
+                             f"{val_view_fraction}")
+        self.root = Path(root)
+        self.val_scenes = val_scenes
+        self.val_view_fraction = val_view_fraction
+        self.max_views_per_scene = max_views_per_scene
+        self.strict = strict
+        self.validate = validate
+        self.use_cache = cache
+        self.cache_dir = Path(cache_dir) if cache_dir else self.root / ".cache"
+        self.cache_hash = cache_hash
+        self.pre_transforms = list(pre_transforms or [])
+        self.skips: SkipLog | None = None
+        self.split_scenes: dict[str, list[str]] = {}
+
+    # ------------------------------------------------------------------ indexing
+    def _records(self, scene: SceneEntry, views: list[ViewEntry]) -> list[SampleRecord]:
+        out = []
+        for v in views:
+            sim = {"layout_id": scene.layout_id, "style_id": scene.style_id, "seed": scene.seed, "task": scene.task,
+                   "base_pose_world": list(v.base_pose_world), "scene_dir": scene.dir, "root": str(self.root),
+                   "benchmark": scene.benchmark}
+            sample_id = f"{scene.benchmark}/{scene.scene_id}/{v.view_id}"
+            meta = {"dataset": f"floaff_kitchen_{scene.benchmark}", "task": scene.task, "view": v.view,
+                    "scene_id": scene.scene_id, "layout_id": scene.layout_id, "style_id": scene.style_id,
+                    "sample_id": sample_id, "sim": sim}
+            payload = {"scene": {k: val for k, val in asdict(scene).items() if k != "views"}, "view": asdict(v)}
+            out.append(SampleRecord(sample_id, [v.file, *scene.sources], meta, payload))
+        return out
+
+    def _views(self, scene: SceneEntry) -> list[ViewEntry]:
+        vs = [v for v in scene.views if v.view in self.views]
+        if self.max_views_per_scene is not None:
+            per: dict[str, int] = {}
+            keep = []
+            for v in vs:
+                per[v.view] = per.get(v.view, 0) + 1
+                if per[v.view] <= self.max_views_per_scene:
+                    keep.append(v)
+            vs = keep
+        return vs
+
+    def split_records(self, scenes: list[SceneEntry]) -> dict[str, list[SampleRecord]]:
+        """Scene-level train/val/test records (module docstring), ordered by task, scene, view."""
+        rng = np.random.default_rng(self.seed)
+        out: dict[str, list[SampleRecord]] = {"train": [], "val": [], "test": []}
+        self.split_scenes = {"train": [], "val": [], "test": []}
+        for task in self.tasks:
+            mine = [s for s in scenes if s.task == task]
+            train = [s for s in mine if s.split == "train"]
+            for s in (s for s in mine if s.split == "test"):
+                out["test"] += self._records(s, self._views(s))
+                self.split_scenes["test"].append(s.scene_id)
+            n_val = min(self.val_scenes, len(train) - 1)
+            if len(train) >= 2 and n_val > 0:
+                val_ids = set(rng.permutation([s.scene_id for s in train])[:n_val].tolist())
+                for s in train:
+                    split = "val" if s.scene_id in val_ids else "train"
+                    out[split] += self._records(s, self._views(s))
+                    self.split_scenes[split].append(s.scene_id)
+            elif len(train) == 1:
+                s = train[0]
+                vs = self._views(s)
+                k = int(round(self.val_view_fraction * len(vs)))
+                k = min(max(k, 1 if self.val_view_fraction > 0 and len(vs) > 1 else 0), max(len(vs) - 1, 0))
+                val_idx = set(rng.permutation(len(vs))[:k].tolist())
+                out["val"] += self._records(s, [v for i, v in enumerate(vs) if i in val_idx])
+                out["train"] += self._records(s, [v for i, v in enumerate(vs) if i not in val_idx])
+                self.split_scenes["train"].append(s.scene_id)
+                if k:
+                    self.split_scenes["val"].append(s.scene_id + " (views)")
+            else:
+                for s in train:
+                    out["train"] += self._records(s, self._views(s))
+                    self.split_scenes["train"].append(s.scene_id)
+        return out
+
+    # ------------------------------------------------------------------ setup
+    def setup(self, stage: str | None = None) -> None:
+        if self.datasets:
+            return
+        if not self.root.is_dir():
+            raise MisconfigurationException(
+                f"FloAffKitchenDataModule: root {self.root} does not exist (generate data with "
+                f"`floaff-zoo generate --preset tiny --out {self.root}` or set data.init_args.root)"
+            )
+        skips = SkipLog(f"floaff_kitchen {self.benchmark}", self.strict)
+        reader = self.reader_cls(self.root, skips)
+        scenes = reader.scenes(self.benchmark)
+        if not scenes:
+            raise MisconfigurationException(
+                f"FloAffKitchenDataModule: no usable '{self.benchmark}' scene under {self.root} "
+                f"(reader {self.reader_cls.name!r})\n{skips.summary()}"
+            )
+        records = self.split_records(scenes)
+        cache = None
+        if self.use_cache:
+            cfg = {**reader.config(), "pre_transforms": transforms_config(self.pre_transforms), "seed": self.seed}
+            cache = SampleCache(self.cache_dir, f"floaff_{self.benchmark}", cfg, self.cache_hash)
+        loader = _ViewLoader(reader)
+        for split, recs in records.items():
+            ds = RecordDataset(recs, loader, cache, self.pre_transforms, self.seed, f"floaff_{self.benchmark}/{split}")
+            if self.validate:
+                ds.build(skips, self.num_workers)
+            self.datasets[split] = ds
+        self.datasets["predict"] = self.datasets["test"]
+        self.skips = skips
+        empty = [t for t in self.tasks if not any(s.task == t for s in scenes)]
+        if empty:
+            print(f"FloAffKitchenDataModule: no '{self.benchmark}' scene for task(s) {empty} under {self.root}")
+        sizes = ", ".join(f"{s} {len(self.datasets[s])}" for s in ("train", "val", "test"))
+        print(f"FloAffKitchenDataModule[{self.benchmark}, tasks={self.tasks}, views={self.views}]: {sizes} samples. "
+              f"{skips.summary()}")
+        need = {"fit": ["train", "val"], "validate": ["val"], "test": ["test"], "predict": ["test"]}.get(
+            stage or "", [])
+        for split in need:
+            if len(self.datasets[split]) == 0:
+                raise MisconfigurationException(
+                    f"FloAffKitchenDataModule: the '{split}' split is empty for tasks {self.tasks}, views {self.views} "
+                    f"under {self.root}/{self.benchmark} (scenes per split: {self.split_scenes})"
+                )
+
+    def describe(self) -> dict[str, Any]:
+        """Scene ids per split (after setup): for logs and reports."""
+        return {k: list(v) for k, v in self.split_scenes.items()}
+
+
+__all__ = ["BENCHMARKS", "FloAffKitchenDataModule"]

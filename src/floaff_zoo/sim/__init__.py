@@ -1,0 +1,25 @@
+"""floaff_zoo.sim: procedural MuJoCo kitchens, scripted rollouts and floor-affordance annotation.
+
+Pure numpy + mujoco (+ robosuite's robot model API); never imports torch or lightning.
+Submodules are imported lazily so ``import floaff_zoo.sim`` stays cheap.
+"""
+from __future__ import annotations
+
+import importlib
+
+_LAZY = {
+    "SceneSpec": "kitchen", "SimScene": "kitchen", "TargetInfo": "kitchen", "build_scene": "kitchen",
+    "TASKS": "kitchen", "LAYOUTS": "kitchen", "STYLES": "kitchen",
+    "TASK_REGISTRY": "tasks", "candidate_region": "tasks",
+    "RolloutResult": "rollout", "rollout": "rollout", "RolloutService": "rollout", "heading_to_target": "rollout",
+    "Annotation": "annotate", "annotate_scene": "annotate",
+}
+
+__all__ = sorted(_LAZY)
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        mod = importlib.import_module(f"floaff_zoo.sim.{_LAZY[name]}")
+        return getattr(mod, name)
+    raise AttributeError(f"module 'floaff_zoo.sim' has no attribute {name!r}")

@@ -1,0 +1,149 @@
+"""Rollout-based floor-affordance annotation of one scene (paper appendix, "Cross-scene Floor Affordance Benchmark").
+
+Pipeline per scene:
+1. candidate grid in the TARGET frame (see ``tasks`` module doc): cells (x°, y°) on a regular
+   ``cell`` lattice with |x°| <= r_x, |y°| <= r_y (task dependent, ``tasks.candidate_region``),
+   heading toward the target centre (``rollout.heading_to_target``);
+2. collision-aware filtering: cells behind the target's front plane (y° > 0: inside the fixture,
+   the counter or the wall), cells separated from the target by a wall (outside the room), the N2M
+   footprint vs furniture footprints, then the robot's base, torso and arm (tuck pose, task reset
+   state) vs scene geometry; all counted as ``filtered_collision`` and never rolled out;
+3. reach filter ||b_xy - c|| < r_arm (task default ``Task.r_arm``);
+4. IK pre-filter: the scripted policy's own key-point IK check (``Policy.reset``); a candidate that
+   fails it would end the rollout at t = 0 with ``ik_unreachable``, so skipping it cannot change
+   the label (same code path);
+5. one rollout per remaining candidate -> binary label;
+6. Gaussian smoothing of the binary grid (``scipy.ndimage.gaussian_filter``, sigma = ``sigma_cells``
+   cells, mode "constant"), then max-normalised to 1 when any candidate succeeded.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from floaff_zoo.sim.controllers import default_policy
+from floaff_zoo.sim.kitchen import SimScene
+from floaff_zoo.sim.rollout import RolloutService, heading_to_target, rollout, start_rollout
+from floaff_zoo.sim.tasks import target_frame_to_world
+
+
+@dataclass
+class Annotation:
+    """Labels of one scene. Arrays are over M = H*W candidates in row-major (y°, x°) order."""
+
+    grid_xy: np.ndarray  # [M,2] world xy of the base origin
+    yaw: np.ndarray  # [M] heading toward the target
+    valid: np.ndarray  # [M] bool: passed collision + reach filtering
+    success: np.ndarray  # [M] bool: rollout succeeded (False where filtered/prefiltered)
+    label: np.ndarray  # [M] float32 smoothed, max-normalised
+    reasons: list[str]  # [M] "success" / failure reason / "filtered_collision" / "filtered_reach"
+    counts: dict
+    grid_shape: tuple[int, int]
+    cell: float
+    sigma_cells: float = 1.0
+    wall_seconds: float = 0.0
+    extra: dict = field(default_factory=dict)
+
+
+def candidate_grid(scene: SimScene, cell: float, r_x: float, r_y: float) -> tuple[np.ndarray, tuple[int, int], np.ndarray]:
+    """Target-frame lattice -> (world xy [M,2], (H, W), target-frame xy [M,2])."""
+    if not (cell > 0 and math.isfinite(cell)):
+        raise ValueError(f"cell must be > 0, got {cell}")
+    nx = int(math.floor(r_x / cell + 1e-9))
+    ny = int(math.floor(r_y / cell + 1e-9))
+    xs = np.arange(-nx, nx + 1) * cell
+    ys = np.arange(-ny, ny + 1) * cell
+    yy, xx = np.meshgrid(ys, xs, indexing="ij")
+    xo = np.stack([xx.ravel(), yy.ravel()], axis=1)
+    return target_frame_to_world(scene.target, xo), (len(ys), len(xs)), xo
+
+
+def _smooth(binary: np.ndarray, shape: tuple[int, int], sigma: float) -> np.ndarray:
+    from scipy.ndimage import gaussian_filter
+
+    g = binary.reshape(shape).astype(np.float64)
+    if sigma > 0:
+        g = gaussian_filter(g, sigma=sigma, mode="constant")
+    mx = g.max()
+    if mx > 0:
+        g = g / mx
+    return g.ravel().astype(np.float32)
+
+
+def annotate_scene(scene: SimScene, cell: float = 0.05, r_arm: float | None = None, sigma_cells: float = 1.0,
+                   workers: int = 1, max_candidates: int | None = None, seed: int = 0) -> Annotation:
+    """Label one scene's candidate grid with rollouts; see the module doc.
+
+    max_candidates: roll out at most this many filtered candidates (evenly spaced subset, the rest
+    are labelled failures with reason "skipped_budget"; for tests/CI).
+    """
+    t0 = time.perf_counter()
+    task = scene.task
+    r_x, r_y = task.candidate_region()
+    r_arm = task.r_arm if r_arm is None else float(r_arm)
+    xy, shape, xo = candidate_grid(scene, cell, r_x, r_y)
+    xy = np.round(xy, 6)  # the exact poses simulated, identical in every worker
+    M = len(xy)
+    yaws = np.round(np.array([heading_to_target(scene, x, y) for x, y in xy]), 6)
+    reasons = [""] * M
+    valid = np.zeros(M, dtype=bool)
+    c = scene.target.pos[:2]
+    counts = dict(candidates=M, filtered_collision=0, filtered_reach=0, prefiltered_ik=0, rolled_out=0, positives=0,
+                  skipped_budget=0)
+    scene.reset_task(np.random.default_rng(seed))
+    for i in range(M):
+        x, y = xy[i]
+        if float(np.hypot(x - c[0], y - c[1])) >= r_arm:
+            reasons[i] = "filtered_reach"
+            counts["filtered_reach"] += 1
+            continue
+        # behind the target's front plane (inside the fixture/counter/wall, y° > 0), outside the room
+        # (a wall between the base and the target) or overlapping a furniture footprint
+        if xo[i, 1] > 1e-9 or scene.wall_between(x, y, scene.target.pos[:2]) or not scene.footprint_free(x, y, yaws[i]):
+            reasons[i] = "filtered_collision"
+            counts["filtered_collision"] += 1
+            continue
+        scene.set_base_pose(x, y, yaws[i])
+        if scene.robot_collides():
+            reasons[i] = "filtered_collision"
+            counts["filtered_collision"] += 1
+            continue
+        valid[i] = True
+    # IK pre-filter with the policy's own key-point check
+    todo = []
+    for i in np.flatnonzero(valid):
+        pol = default_policy(scene.spec.task)
+        start_rollout(scene, (xy[i, 0], xy[i, 1], yaws[i]), pol, seed)
+        if pol.reason:
+            reasons[i] = pol.reason
+            counts["prefiltered_ik"] += 1
+        else:
+            todo.append(int(i))
+    if max_candidates is not None and len(todo) > max_candidates:
+        keep = set(np.linspace(0, len(todo) - 1, max_candidates).round().astype(int).tolist())
+        for k, i in enumerate(todo):
+            if k not in keep:
+                reasons[i] = "skipped_budget"
+                counts["skipped_budget"] += 1
+        todo = [i for k, i in enumerate(todo) if k in keep]
+    success = np.zeros(M, dtype=bool)
+    if workers > 1 and todo:
+        svc = RolloutService(workers=workers, cache_decimals=6, seed=seed)
+        try:
+            res = svc.run([(scene.spec, (float(xy[i, 0]), float(xy[i, 1]), float(yaws[i]))) for i in todo])
+        finally:
+            svc.close()
+    else:
+        res = [rollout(scene, (float(xy[i, 0]), float(xy[i, 1]), float(yaws[i])), None, seed) for i in todo]
+    for i, r in zip(todo, res):
+        success[i] = r.success
+        reasons[i] = r.reason
+    counts["rolled_out"] = len(todo)
+    counts["positives"] = int(success.sum())
+    scene.reset_task(np.random.default_rng(seed))
+    return Annotation(grid_xy=xy.astype(np.float64), yaw=yaws, valid=valid, success=success,
+                      label=_smooth(success, shape, sigma_cells), reasons=reasons, counts=counts, grid_shape=shape,
+                      cell=float(cell), sigma_cells=float(sigma_cells), wall_seconds=time.perf_counter() - t0)

@@ -1,0 +1,322 @@
+"""On-disk format of a generated FloAff benchmark (see docs/data_format.md), with atomic writers and checked readers.
+
+Layout::
+
+    <root>/manifest.json
+    <root>/<benchmark>/<scene_id>/scene.json          # committed last: a scene exists iff scene.json has status "ok"
+    <root>/<benchmark>/<scene_id>/views/<view_id>.npz
+    <root>/<benchmark>/<scene_id>/{topdown,front,side}.png
+
+A scene is built in ``<root>/<benchmark>/.staging/<scene_id>/`` (scene.json written last there) and moved into place
+with one ``os.replace`` of the directory, so a killed run never leaves a half-written scene directory behind.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = [
+    "FORMAT_VERSION",
+    "MANIFEST",
+    "SCENE_JSON",
+    "STAGING",
+    "VIEW_FIELDS",
+    "FormatError",
+    "atomic_save_npz",
+    "atomic_write_bytes",
+    "atomic_write_json",
+    "commit_scene_dir",
+    "iter_scenes",
+    "read_json",
+    "read_manifest",
+    "read_sample",
+    "read_scene",
+    "read_view",
+    "scene_dir",
+    "scene_is_done",
+    "staging_dir",
+    "validate_view",
+]
+
+FORMAT_VERSION = 1
+MANIFEST = "manifest.json"
+SCENE_JSON = "scene.json"
+STAGING = ".staging"
+BENCHMARKS = ("styles", "layouts")
+
+# name -> (dtype, shape pattern); "N"/"M"/"H"/"W" are free sizes shared across fields of one view
+VIEW_FIELDS: dict[str, tuple[str, tuple[Any, ...]]] = {
+    "scene_xyz": ("float32", ("N", 3)),
+    "scene_feat": ("float32", ("N", 4)),
+    "floor_xyz": ("float32", ("M", 3)),
+    "floor_label": ("float32", ("M",)),
+    "robot": ("float32", (2,)),
+    "target_xyz": ("float32", (3,)),
+    "target_yaw": ("float32", ()),
+    "base_pose_world": ("float32", (3,)),
+}
+OPTIONAL_VIEW_FIELDS: dict[str, tuple[str, tuple[Any, ...]]] = {
+    "rgb": ("uint8", ("H", "W", 3)),
+    "depth": ("float32", ("H", "W")),
+}
+
+
+class FormatError(ValueError):
+    """A dataset file is missing, corrupt or does not follow the format; the message names the file and field."""
+
+
+# ------------------------------------------------------------------------------------------------ atomic writes
+def atomic_write_bytes(path: str | Path, data: bytes) -> None:
+    """Write bytes to path via a temp file in the same directory + os.replace (never a partial file)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def _json_default(o: Any) -> Any:
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+def atomic_write_json(path: str | Path, obj: Any) -> None:
+    """JSON (indent 1, sorted keys, numpy arrays as lists) written atomically."""
+    atomic_write_bytes(path, json.dumps(obj, indent=1, sort_keys=True, default=_json_default).encode())
+
+
+def atomic_save_npz(path: str | Path, arrays: dict[str, np.ndarray]) -> None:
+    """np.savez_compressed to a temp file + os.replace. Path must end in .npz."""
+    path = Path(path)
+    if path.suffix != ".npz":
+        raise ValueError(f"{path}: view files must end in .npz")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".npz", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            np.savez_compressed(f, **arrays)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def read_json(path: str | Path) -> Any:
+    """Load a JSON file; FormatError naming the file when missing or corrupt."""
+    path = Path(path)
+    try:
+        return json.loads(path.read_text())
+    except FileNotFoundError as exc:
+        raise FormatError(f"{path}: file not found") from exc
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise FormatError(f"{path}: corrupt JSON ({exc})") from exc
+
+
+# ------------------------------------------------------------------------------------------------ scene dirs
+def scene_dir(root: str | Path, benchmark: str, scene_id: str) -> Path:
+    """Final directory of one scene."""
+    return Path(root) / benchmark / scene_id
+
+
+def staging_dir(root: str | Path, benchmark: str, scene_id: str) -> Path:
+    """Work directory of one scene while it is generated (removed or moved on commit)."""
+    return Path(root) / benchmark / STAGING / scene_id
+
+
+def scene_is_done(root: str | Path, benchmark: str, scene_id: str) -> bool:
+    """True when the scene's scene.json exists, parses and has status "ok" (resume skips such scenes)."""
+    p = scene_dir(root, benchmark, scene_id) / SCENE_JSON
+    try:
+        return json.loads(p.read_text()).get("status") == "ok"
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
+def commit_scene_dir(stage: Path, final: Path) -> None:
+    """Move a finished staging directory into place (scene.json must already be in it).
+
+    A stale final directory (a previous run died before committing, or the scene is being regenerated) is moved
+    aside first and deleted after the new one is in place.
+    """
+    if not (stage / SCENE_JSON).is_file():
+        raise FormatError(f"{stage}: refusing to commit a scene directory without {SCENE_JSON}")
+    final.parent.mkdir(parents=True, exist_ok=True)
+    trash = None
+    if final.exists():
+        trash = final.parent / STAGING / f"{final.name}.old.{os.getpid()}"
+        if trash.exists():
+            shutil.rmtree(trash)
+        os.replace(final, trash)
+    os.replace(stage, final)
+    if trash is not None:
+        shutil.rmtree(trash, ignore_errors=True)
+
+
+# ------------------------------------------------------------------------------------------------ validation
+def _check_shape(path: Path, name: str, arr: np.ndarray, dtype: str, pattern: tuple[Any, ...], sizes: dict) -> None:
+    if arr.dtype != np.dtype(dtype):
+        raise FormatError(f"{path}: field {name!r} has dtype {arr.dtype}, expected {dtype}")
+    if arr.ndim != len(pattern):
+        raise FormatError(f"{path}: field {name!r} has shape {arr.shape}, expected {pattern}")
+    for dim, want in zip(arr.shape, pattern):
+        if isinstance(want, str):
+            if sizes.setdefault(want, dim) != dim:
+                raise FormatError(f"{path}: field {name!r} has {want}={dim}, other fields have {want}={sizes[want]}")
+        elif dim != want:
+            raise FormatError(f"{path}: field {name!r} has shape {arr.shape}, expected {pattern}")
+    if arr.dtype.kind == "f" and not np.all(np.isfinite(arr)):
+        raise FormatError(f"{path}: field {name!r} contains NaN or inf")
+
+
+def validate_view(arrays: dict[str, np.ndarray], path: str | Path = "<view>") -> None:
+    """Check one view's arrays against VIEW_FIELDS (dtypes, shapes, shared N/M, finite, labels in [0,1])."""
+    path = Path(path)
+    sizes: dict[str, int] = {}
+    for name, (dtype, pattern) in VIEW_FIELDS.items():
+        if name not in arrays:
+            raise FormatError(f"{path}: missing field {name!r}")
+        _check_shape(path, name, np.asarray(arrays[name]), dtype, pattern, sizes)
+    for name, (dtype, pattern) in OPTIONAL_VIEW_FIELDS.items():
+        if name in arrays:
+            _check_shape(path, name, np.asarray(arrays[name]), dtype, pattern, sizes)
+    lab = np.asarray(arrays["floor_label"])
+    if lab.size and (lab.min() < 0.0 or lab.max() > 1.0):
+        raise FormatError(f"{path}: field 'floor_label' outside [0, 1] (min {lab.min()}, max {lab.max()})")
+    flag = np.asarray(arrays["scene_feat"])[:, 0]
+    if flag.size and not np.all(np.isin(flag, (-1.0, 0.0, 1.0))):
+        raise FormatError(f"{path}: field 'scene_feat' channel 0 (target flag) must be -1, 0 or +1")
+
+
+def read_view(path: str | Path) -> dict[str, np.ndarray]:
+    """Load and validate one ``views/<view_id>.npz``; FormatError naming the file/field on any problem."""
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files}
+    except FileNotFoundError as exc:
+        raise FormatError(f"{path}: file not found") from exc
+    except Exception as exc:  # noqa: BLE001 - zipfile.BadZipFile, EOFError, ValueError (pickled data), ...
+        raise FormatError(f"{path}: corrupt npz ({type(exc).__name__}: {exc})") from exc
+    validate_view(arrays, path)
+    return arrays
+
+
+_SCENE_KEYS = ("benchmark", "split", "spec", "task", "target", "candidates", "labels", "views", "status")
+
+
+def read_scene(scene_path: str | Path) -> dict[str, Any]:
+    """Load and check a scene.json (path to the file or its directory); adds key "dir" (the scene directory)."""
+    p = Path(scene_path)
+    if p.is_dir():
+        p = p / SCENE_JSON
+    rec = read_json(p)
+    if not isinstance(rec, dict):
+        raise FormatError(f"{p}: expected a JSON object")
+    for k in _SCENE_KEYS:
+        if k not in rec:
+            raise FormatError(f"{p}: missing key {k!r}")
+    m = len(rec["candidates"]["xy"])
+    for k in ("success", "label"):
+        if len(rec["labels"][k]) != m:
+            raise FormatError(f"{p}: labels.{k} has {len(rec['labels'][k])} entries, candidates.xy has {m}")
+    rec["dir"] = str(p.parent)
+    return rec
+
+
+def iter_scenes(
+    root: str | Path,
+    benchmark: str | None = None,
+    split: str | None = None,
+    task: str | None = None,
+) -> Iterator[dict[str, Any]]:
+    """Yield committed scenes (status "ok") under root, sorted by benchmark then scene_id, optionally filtered."""
+    root = Path(root)
+    if not root.is_dir():
+        raise FormatError(f"{root}: dataset root not found")
+    benches = [benchmark] if benchmark else list(BENCHMARKS)
+    for b in benches:
+        bdir = root / b
+        if not bdir.is_dir():
+            continue
+        for d in sorted(p for p in bdir.iterdir() if p.is_dir() and not p.name.startswith(".")):
+            if not (d / SCENE_JSON).is_file():
+                continue
+            rec = read_scene(d)
+            if rec.get("status") != "ok":
+                continue
+            if split and rec["split"] != split:
+                continue
+            if task and rec["task"] != task:
+                continue
+            yield rec
+
+
+def read_sample(scene: dict[str, Any], view: dict[str, Any], root: str | Path | None = None) -> dict[str, Any]:
+    """Build one sample-contract dict (COMMON.md) from a scene record (read_scene) and one of its view entries.
+
+    Masks are all True (no padding); meta carries dataset/task/view/scene ids and a 'sim' dict to rebuild the scene.
+    """
+    arr = read_view(Path(scene["dir"]) / view["file"])
+    spec = scene["spec"]
+    sim = {
+        "layout_id": spec.get("layout_id"),
+        "style_id": spec.get("style_id"),
+        "seed": spec.get("seed"),
+        "task": scene["task"],
+        "base_pose_world": [float(v) for v in arr["base_pose_world"]],
+        "root": str(root) if root is not None else str(Path(scene["dir"]).parent.parent),
+    }
+    meta = {
+        "dataset": f"floaff_sim_{scene['benchmark']}",
+        "task": scene["task"],
+        "view": view["view"],
+        "scene_id": scene["scene_id"],
+        "layout_id": spec.get("layout_id"),
+        "style_id": spec.get("style_id"),
+        "sample_id": f"{scene['benchmark']}/{scene['scene_id']}/{view['view_id']}",
+        "split": scene["split"],
+        "sim": sim,
+    }
+    return {
+        "scene_xyz": arr["scene_xyz"],
+        "scene_feat": arr["scene_feat"],
+        "scene_mask": np.ones(len(arr["scene_xyz"]), dtype=bool),
+        "floor_xyz": arr["floor_xyz"],
+        "floor_label": arr["floor_label"],
+        "floor_mask": np.ones(len(arr["floor_xyz"]), dtype=bool),
+        "robot": arr["robot"],
+        "target_xyz": arr["target_xyz"],
+        "target_yaw": arr["target_yaw"],
+        "meta": meta,
+    }
+
+
+def read_manifest(root: str | Path) -> dict[str, Any]:
+    """Load <root>/manifest.json (FormatError when missing or corrupt)."""
+    man = read_json(Path(root) / MANIFEST)
+    if not isinstance(man, dict) or "scenes" not in man:
+        raise FormatError(f"{Path(root) / MANIFEST}: not a FloAff manifest (no 'scenes')")
+    return man
+

@@ -1,0 +1,629 @@
+"""FloAff benchmark generator: build scenes, annotate floor candidates with rollouts, render front/side views, write.
+
+    floaff-zoo generate --preset small --out data/floaff_sim [--workers N] [--backend local|ray] [--seed S] ...
+
+Determinism: every scene slot (benchmark, task, split, index) gets its seed from a hash of (global seed, benchmark,
+task, split, index, attempt), never from worker order, and each scene is generated start to finish by one worker with
+single-threaded annotation, so the output does not depend on the worker count or back end. A slot whose scene has no
+positive candidate is dropped and retried with the next attempt's seed (up to ``max_seed_attempts``), as the paper
+drops scenes without positives. Wall times live only in manifest.json.
+
+Robustness: a scene is written into ``<benchmark>/.staging/<scene_id>`` and moved into place with one rename after its
+scene.json is written; resume skips scenes whose scene.json says status "ok". A job that raises or whose worker process
+dies is retried once, then reported "failed" in the manifest.
+"""
+
+from __future__ import annotations
+
+import argparse
+import concurrent.futures as cf
+import dataclasses
+import hashlib
+import multiprocessing as mp
+import os
+import shutil
+import sys
+import time
+import traceback
+from dataclasses import dataclass
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from floaff_zoo.sim import fileformat as ff
+from floaff_zoo.sim.presets import ALL_BENCHMARKS, ALL_TASKS, PRESETS, GenPreset, get_preset, view_counts
+
+__all__ = ["GENERATOR_VERSION", "SceneJob", "derive_seed", "generate", "main", "plan_jobs", "run_job"]
+
+GENERATOR_VERSION = "1.0.0"
+#: task reset seed of the rollouts (annotate_scene) and of the rendered views, so both see the same fixture state
+ANNOTATE_SEED = 0
+
+
+# ------------------------------------------------------------------------------------------------ planning
+def derive_seed(global_seed: int, *parts: Any) -> int:
+    """Deterministic 31-bit seed from the global seed and identifying parts (independent of PYTHONHASHSEED)."""
+    key = "|".join([str(int(global_seed))] + [str(p) for p in parts]).encode()
+    return int.from_bytes(hashlib.sha256(key).digest()[:4], "little") & 0x7FFFFFFF
+
+
+@dataclass(frozen=True)
+class SceneJob:
+    """One scene slot to fill. seeds: the per-attempt scene seeds (tried in order until a scene has a positive)."""
+
+    benchmark: str
+    task: str
+    split: str
+    slot: int
+    layout_id: int
+    style_id: int
+    seeds: tuple[int, ...]
+    n_front: int
+    n_side: int
+
+    @property
+    def key(self) -> str:
+        return f"{self.benchmark}/{self.task}/{self.split}{self.slot}"
+
+
+def _split_ids(ids: list[int], name: str) -> tuple[list[int], int]:
+    """Sorted ids -> (seen ids, held-out id = the last one)."""
+    if len(ids) < 2:
+        raise ValueError(f"need at least 2 {name} ids to hold one out for the test split, got {ids}")
+    ids = sorted(ids)
+    return ids[:-1], ids[-1]
+
+
+def plan_jobs(
+    preset: GenPreset,
+    seed: int,
+    layout_ids: list[int],
+    style_ids: list[int],
+) -> list[SceneJob]:
+    """All scene slots of a run, in a fixed order (benchmark, task, split, slot).
+
+    Styles: training scenes cycle over the seen layouts and seen styles; the test scene uses the first seen layout
+    with the held-out (unseen) style. Layouts: training scenes cycle over seen layouts (and seen styles); the test
+    scene uses the held-out layout with the first seen style.
+    """
+    seen_l, held_l = _split_ids(layout_ids, "layout")
+    seen_s, held_s = _split_ids(style_ids, "style")
+    jobs: list[SceneJob] = []
+    for bench in preset.benchmarks:
+        for ti, task in enumerate(preset.tasks):
+            for split, n in (("train", preset.n_train), ("test", preset.n_test)):
+                for i in range(n):
+                    if split == "train":
+                        lay = seen_l[(i + ti) % len(seen_l)]
+                        sty = seen_s[(i + 2 * ti) % len(seen_s)]
+                    elif bench == "styles":
+                        lay, sty = seen_l[(i + ti) % len(seen_l)], held_s
+                    else:
+                        lay, sty = held_l, seen_s[(i + ti) % len(seen_s)]
+                    seeds = tuple(
+                        derive_seed(seed, bench, task, split, i, a) for a in range(preset.max_seed_attempts)
+                    )
+                    nf, ns = view_counts(preset, bench, task, split, i)
+                    jobs.append(SceneJob(bench, task, split, i, lay, sty, seeds, nf, ns))
+    return jobs
+
+
+# ------------------------------------------------------------------------------------------------ one scene
+def _spec(job: SceneJob, seed: int):
+    from floaff_zoo.sim.kitchen import SceneSpec
+
+    return SceneSpec(layout_id=job.layout_id, style_id=job.style_id, seed=seed, task=job.task)
+
+
+def _scene_id(spec: Any) -> str:
+    sid = spec.scene_id
+    return sid() if callable(sid) else str(sid)
+
+
+def find_done(out: Path, job: SceneJob) -> str | None:
+    """scene_id of an already committed scene of this slot (any attempt), else None."""
+    for s in job.seeds:
+        sid = _scene_id(_spec(job, s))
+        if ff.scene_is_done(out, job.benchmark, sid):
+            rec = ff.read_json(ff.scene_dir(out, job.benchmark, sid) / ff.SCENE_JSON)
+            if rec.get("slot") == job.key:
+                return sid
+    return None
+
+
+def on_floor_mask(xy: np.ndarray, polys: list[np.ndarray]) -> np.ndarray:
+    """Cells [M,2] whose centre is outside every convex footprint polygon [K,2] (furniture, walls) -> bool [M].
+
+    These are the paper's ground cells; cells inside furniture are grid artefacts, not floor.
+    """
+    xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    inside = np.zeros(len(xy), dtype=bool)
+    for poly in polys:
+        p = np.asarray(poly, dtype=np.float64).reshape(-1, 2)
+        if len(p) < 3:
+            continue
+        e = np.roll(p, -1, axis=0) - p  # edges [K,2]
+        rel = xy[:, None, :] - p[None, :, :]  # [M,K,2]
+        cross = e[None, :, 0] * rel[..., 1] - e[None, :, 1] * rel[..., 0]  # [M,K]
+        inside |= np.all(cross > 1e-9, axis=1) | np.all(cross < -1e-9, axis=1)
+    return ~inside
+
+
+def _arr(x: Any, dtype: Any = np.float64) -> np.ndarray:
+    return np.asarray(x, dtype=dtype)
+
+
+def _write_scene(
+    out: Path,
+    job: SceneJob,
+    spec: Any,
+    scene: Any,
+    ann: Any,
+    preset: GenPreset,
+    save_images: bool,
+    rng_views: np.random.Generator,
+) -> dict[str, Any]:
+    """Render views, write everything into the staging dir, write scene.json last and commit. Returns view counts."""
+    from floaff_zoo.sim.pictures import render_topdown_png, rgb_png
+    from floaff_zoo.sim.render import Renderer
+    from floaff_zoo.sim.views import ROBOT_DESCRIPTOR, ViewConfig, make_view_sample, sample_view_poses
+
+    sid = _scene_id(spec)
+    stage = ff.staging_dir(out, job.benchmark, sid)
+    if stage.exists():
+        shutil.rmtree(stage)
+    (stage / "views").mkdir(parents=True)
+    vcfg = ViewConfig(
+        front_rx=preset.front_rx,
+        front_ry=preset.front_ry,
+        side_rx=preset.side_rx,
+        side_ry=preset.side_ry,
+        max_dist=preset.max_dist,
+        image_size=preset.image_size,
+        depth_max=preset.depth_max,
+        max_points=preset.max_points,
+        min_target_pixels=preset.min_target_pixels,
+        max_tries_per_view=preset.max_tries_per_view,
+    )
+    # views see the task's reset state used by the rollouts (e.g. the drawer open for CloseDrawer): annotate_scene
+    # resets with default_rng(ANNOTATE_SEED) before every rollout
+    scene.reset_task(np.random.default_rng(ANNOTATE_SEED))
+    grid_xy = _arr(ann.grid_xy).reshape(-1, 2)
+    label = _arr(ann.label, np.float32).reshape(-1)
+    tpos = _arr(scene.target.pos).reshape(3)
+    tyaw = float(scene.target.yaw)
+    outline = [np.asarray(p, dtype=np.float64) for p in scene.floor_outline()]
+    on_floor = on_floor_mask(grid_xy, outline) if preset.floor_only else np.ones(len(grid_xy), dtype=bool)
+    views: list[dict[str, Any]] = []
+    first_rgb: dict[str, np.ndarray] = {}
+    renderer = Renderer(scene.model, preset.image_size, preset.image_size)
+    try:
+        for kind, n in (("front", job.n_front), ("side", job.n_side)):
+            for pose, obs in sample_view_poses(scene, renderer, kind, n, vcfg, rng_views):
+                vid = f"{kind}_{sum(v['view'] == kind for v in views):04d}"
+                arrays = make_view_sample(obs, pose, tpos, tyaw, grid_xy[on_floor], label[on_floor],
+                                          save_images=save_images)
+                ff.validate_view(arrays, stage / "views" / f"{vid}.npz")
+                ff.atomic_save_npz(stage / "views" / f"{vid}.npz", arrays)
+                views.append(
+                    {"view_id": vid, "view": kind, "file": f"views/{vid}.npz", "base_pose_world": pose.tolist(),
+                     "n_points": int(len(obs.scene_xyz)), "n_target_points": int(obs.n_target)}
+                )
+                first_rgb.setdefault(kind, obs.rgb)
+    finally:
+        renderer.close()
+    valid = _arr(getattr(ann, "valid", np.ones(len(label), bool)), bool).reshape(-1)
+    title = f"{job.benchmark} {job.task} {job.split} L{spec.layout_id} S{spec.style_id}"
+    poses = np.array([v["base_pose_world"] + [v["view"] == "side"] for v in views], dtype=np.float64).reshape(-1, 4)
+    ff.atomic_write_bytes(
+        stage / "topdown.png",
+        render_topdown_png(outline, grid_xy[on_floor], label[on_floor], float(ann.cell), tpos[:2], tyaw, title, poses,
+                           preset.picture_size),
+    )
+    for kind in ("front", "side"):
+        if kind in first_rgb:
+            ff.atomic_write_bytes(stage / f"{kind}.png", rgb_png(first_rgb[kind], preset.picture_size))
+    counts = {k: (int(v) if isinstance(v, (int, np.integer)) else v) for k, v in dict(ann.counts).items()}
+    rec = {
+        "format_version": ff.FORMAT_VERSION,
+        "generator_version": GENERATOR_VERSION,
+        "benchmark": job.benchmark,
+        "split": job.split,
+        "slot": job.key,
+        "scene_id": sid,
+        "spec": spec.to_dict(),
+        "task": job.task,
+        "target": {"pos": tpos.tolist(), "yaw": tyaw},
+        "candidates": {
+            "xy": grid_xy.tolist(),
+            "yaw": _arr(ann.yaw).reshape(-1).tolist(),
+            "valid": valid.astype(int).tolist(),
+            "on_floor": on_floor.astype(int).tolist(),
+            "view_cells": "on_floor" if preset.floor_only else "all",
+            "grid_shape": [int(v) for v in ann.grid_shape],
+            "cell": float(ann.cell),
+        },
+        "labels": {
+            "success": _arr(ann.success).reshape(-1).astype(int).tolist(),
+            "label": label.astype(float).tolist(),
+            "reasons": [str(r) for r in getattr(ann, "reasons", [])],
+        },
+        "annotation_counts": counts,
+        "sigma": float(preset.sigma_cells),
+        "robot": [round(float(v), 6) for v in ROBOT_DESCRIPTOR],
+        "views": views,
+        "n_views": {"front": sum(v["view"] == "front" for v in views), "side": sum(v["view"] == "side" for v in views)},
+        "pictures": ["topdown.png"] + [f"{k}.png" for k in ("front", "side") if k in first_rgb],
+        "status": "ok",
+    }
+    ff.atomic_write_json(stage / ff.SCENE_JSON, rec)  # scene.json LAST: it commits the scene
+    ff.commit_scene_dir(stage, ff.scene_dir(out, job.benchmark, sid))
+    return rec["n_views"]
+
+
+def run_job(job: SceneJob, out: str, preset_dict: dict[str, Any], save_images: bool) -> dict[str, Any]:
+    """Fill one scene slot (runs in a worker). Never raises for scene problems: returns a status record.
+
+    status: "ok" (scene committed), "dropped" (no attempt had a positive candidate) or "error" (exception; the driver
+    retries once). Records the attempts (seed, scene_id, outcome) and timings.
+    """
+    from floaff_zoo.sim.annotate import annotate_scene
+    from floaff_zoo.sim.kitchen import build_scene
+
+    preset = GenPreset.from_dict(preset_dict)
+    outp = Path(out)
+    t0 = time.perf_counter()
+    attempts: list[dict[str, Any]] = []
+    try:
+        for seed in job.seeds:
+            spec = _spec(job, seed)
+            sid = _scene_id(spec)
+            ta = time.perf_counter()
+            scene = build_scene(spec)
+            tb = time.perf_counter()
+            ann = annotate_scene(
+                scene, cell=preset.cell, r_arm=preset.r_arm, sigma_cells=preset.sigma_cells, workers=1,
+                max_candidates=preset.max_candidates, seed=ANNOTATE_SEED,
+            )
+            tc = time.perf_counter()
+            n_pos = int(np.asarray(ann.success).sum())
+            att = {"seed": seed, "scene_id": sid, "n_candidates": int(len(np.asarray(ann.label).reshape(-1))),
+                   "n_positive": n_pos, "build_s": tb - ta, "annotate_s": tc - tb}
+            if n_pos == 0:
+                att["outcome"] = "dropped_no_positive"
+                attempts.append(att)
+                continue
+            nv = _write_scene(outp, job, spec, scene, ann, preset, save_images,
+                              np.random.default_rng(derive_seed(seed, "views")))
+            att.update(outcome="ok", views_s=time.perf_counter() - tc, n_views=nv)
+            attempts.append(att)
+            return {"key": job.key, "status": "ok", "scene_id": sid, "attempts": attempts,
+                    "wall_s": time.perf_counter() - t0, "pid": os.getpid()}
+        return {"key": job.key, "status": "dropped", "scene_id": None, "attempts": attempts,
+                "reason": f"no positive candidate in {len(job.seeds)} seed attempts",
+                "wall_s": time.perf_counter() - t0, "pid": os.getpid()}
+    except Exception as exc:  # noqa: BLE001 - reported to the driver, which retries once
+        return {"key": job.key, "status": "error", "scene_id": None, "attempts": attempts,
+                "reason": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc(),
+                "wall_s": time.perf_counter() - t0, "pid": os.getpid()}
+
+
+# ------------------------------------------------------------------------------------------------ execution
+def _worker_init() -> None:
+    # one BLAS/OpenMP thread per worker: pools oversubscribe otherwise (SIMULATOR.md §7 pitfall 14)
+    for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ[k] = "1"
+    os.environ.setdefault("MUJOCO_GL", "egl")
+
+
+class _Progress:
+    """tqdm when installed, else one line per finished scene on stderr."""
+
+    def __init__(self, total: int, quiet: bool) -> None:
+        self.total, self.n, self.quiet = total, 0, quiet
+        self._bar = None
+        if not quiet:
+            try:
+                from tqdm import tqdm
+
+                self._bar = tqdm(total=total, desc="scenes", unit="scene", file=sys.stderr)
+            except ImportError:
+                self._bar = None
+
+    def update(self, msg: str) -> None:
+        self.n += 1
+        if self.quiet:
+            return
+        if self._bar is not None:
+            self._bar.set_postfix_str(msg[:60])
+            self._bar.update(1)
+        else:
+            print(f"[generate] {self.n}/{self.total} {msg}", file=sys.stderr, flush=True)
+
+    def close(self) -> None:
+        if self._bar is not None:
+            self._bar.close()
+
+
+def _run_local(jobs, out, preset_dict, save_images, workers, on_result, job_fn=None) -> None:
+    """Run jobs; workers == 0 runs in this process (no crash isolation), else a spawn process pool.
+
+    A Python exception in a job comes back as status "error"; a dead worker process (BrokenProcessPool) fails every
+    job in flight, which is then resubmitted to a fresh pool. Each job gets at most 2 tries.
+    """
+    job_fn = job_fn or run_job
+    tries = {j.key: 0 for j in jobs}
+    pending = list(jobs)
+    if workers == 0:
+        for job in pending:
+            for _ in range(2):
+                tries[job.key] += 1
+                res = job_fn(job, out, preset_dict, save_images)
+                if res["status"] != "error":
+                    break
+            on_result(job, res, tries[job.key])
+        return
+    ctx = mp.get_context("spawn")
+    while pending:
+        retry: list[SceneJob] = []
+        with cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init) as pool:
+            futs = {}
+            for job in pending:
+                tries[job.key] += 1
+                futs[pool.submit(job_fn, job, out, preset_dict, save_images)] = job
+            broken = False
+            for fut in cf.as_completed(futs):
+                job = futs[fut]
+                try:
+                    res = fut.result()
+                except Exception as exc:  # noqa: BLE001 - BrokenProcessPool & co: the worker died
+                    broken = broken or isinstance(exc, cf.process.BrokenProcessPool)
+                    res = {"key": job.key, "status": "error", "scene_id": None, "attempts": [],
+                           "reason": f"worker died: {type(exc).__name__}: {exc}", "wall_s": None}
+                if res["status"] == "error" and tries[job.key] < 2:
+                    retry.append(job)
+                    continue
+                on_result(job, res, tries[job.key])
+        pending = retry
+
+
+def _run_ray(jobs, out, preset_dict, save_images, workers, address, on_result) -> None:
+    """Run jobs as ray tasks (one CPU each); a local cluster is started when no address is given."""
+    try:
+        import ray
+    except ImportError as exc:
+        raise SystemExit("--backend ray needs ray, which is not installed: pip install ray") from exc
+    started = False
+    if not ray.is_initialized():
+        if address:
+            ray.init(address=address, ignore_reinit_error=True, log_to_driver=False)
+        else:
+            ray.init(num_cpus=max(1, workers), ignore_reinit_error=True, log_to_driver=False, include_dashboard=False)
+        started = True
+    env = {"env_vars": {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
+                        "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}}
+    remote = ray.remote(num_cpus=1, max_retries=0, runtime_env=env)(run_job)
+    tries = {j.key: 0 for j in jobs}
+    try:
+        pending = list(jobs)
+        while pending:
+            refs = {}
+            for job in pending:
+                tries[job.key] += 1
+                refs[remote.remote(job, out, preset_dict, save_images)] = job
+            retry = []
+            waiting = list(refs)
+            while waiting:
+                done, waiting = ray.wait(waiting, num_returns=1)
+                job = refs[done[0]]
+                try:
+                    res = ray.get(done[0])
+                except Exception as exc:  # noqa: BLE001 - worker crash / ray system error
+                    res = {"key": job.key, "status": "error", "scene_id": None, "attempts": [],
+                           "reason": f"ray task failed: {type(exc).__name__}: {exc}", "wall_s": None}
+                if res["status"] == "error" and tries[job.key] < 2:
+                    retry.append(job)
+                    continue
+                on_result(job, res, tries[job.key])
+            pending = retry
+    finally:
+        if started:
+            ray.shutdown()
+
+
+def _package_versions() -> dict[str, str | None]:
+    from importlib import metadata
+
+    out: dict[str, str | None] = {}
+    for name in ("mujoco", "robosuite", "numpy", "scipy", "floaff-zoo"):
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            out[name] = None
+    return out
+
+
+def _summarise(manifest: dict[str, Any]) -> None:
+    """Fill manifest['counts'] and manifest['drops'] from manifest['scenes'] (in place)."""
+    counts: dict[str, Any] = {"scenes_ok": 0, "scenes_dropped": 0, "scenes_failed": 0, "scenes_pending": 0,
+                              "views_front": 0, "views_side": 0, "per": {}}
+    drops = []
+    for key, s in sorted(manifest["scenes"].items()):
+        st = s["status"]
+        counts[{"ok": "scenes_ok", "dropped": "scenes_dropped", "failed": "scenes_failed"}.get(st, "scenes_pending")] += 1
+        per = counts["per"].setdefault(f"{s['benchmark']}/{s['task']}/{s['split']}",
+                                       {"scenes": 0, "views_front": 0, "views_side": 0})
+        if st == "ok":
+            per["scenes"] += 1
+            nv = s.get("n_views", {})
+            per["views_front"] += int(nv.get("front", 0))
+            per["views_side"] += int(nv.get("side", 0))
+            counts["views_front"] += int(nv.get("front", 0))
+            counts["views_side"] += int(nv.get("side", 0))
+        for a in s.get("attempts", []):
+            if a.get("outcome") == "dropped_no_positive":
+                drops.append({"slot": key, "scene_id": a["scene_id"], "seed": a["seed"], "reason": "no positive candidate"})
+        if st in ("failed", "dropped"):
+            drops.append({"slot": key, "scene_id": None, "reason": f"{st}: {s.get('reason')}"})
+    counts["views_total"] = counts["views_front"] + counts["views_side"]
+    manifest["counts"] = counts
+    manifest["drops"] = drops
+
+
+def generate(
+    out: str | Path,
+    preset: GenPreset,
+    seed: int = 0,
+    workers: int = 1,
+    backend: str = "local",
+    address: str | None = None,
+    save_images: bool = False,
+    quiet: bool = False,
+    job_fn: Callable[..., dict[str, Any]] | None = None,
+) -> dict[str, Any]:
+    """Generate (or resume) a benchmark into `out`; returns the final manifest dict (also written to manifest.json).
+
+    job_fn: the per-slot function with run_job's signature (default run_job; replaced only by tests that simulate
+    crashing workers; it must be importable by name for process workers).
+    """
+    from floaff_zoo.sim.kitchen import LAYOUTS, STYLES
+
+    preset = preset.validate()
+    if backend not in ("local", "ray"):
+        raise ValueError(f"backend must be 'local' or 'ray', got {backend!r}")
+    if workers < 0:
+        raise ValueError(f"workers must be >= 0, got {workers}")
+    outp = Path(out)
+    outp.mkdir(parents=True, exist_ok=True)
+    jobs = plan_jobs(preset, seed, list(LAYOUTS), list(STYLES))
+    for b in preset.benchmarks:  # leftovers of killed runs
+        shutil.rmtree(outp / b / ff.STAGING, ignore_errors=True)
+    t0 = time.perf_counter()
+    manifest: dict[str, Any] = {
+        "format_version": ff.FORMAT_VERSION,
+        "generator_version": GENERATOR_VERSION,
+        "packages": _package_versions(),
+        "preset": preset.name,
+        "seed": int(seed),
+        "config": preset.to_dict(),
+        "save_images": bool(save_images),
+        "backend": backend,
+        "workers": int(workers),
+        "scenes": {},
+        "wall_s": None,
+        "status": "running",
+    }
+    old = None
+    if (outp / ff.MANIFEST).is_file():
+        try:
+            old = ff.read_manifest(outp)
+        except ff.FormatError:
+            old = None
+    todo: list[SceneJob] = []
+    for job in jobs:
+        base = {"benchmark": job.benchmark, "task": job.task, "split": job.split, "slot": job.slot,
+                "layout_id": job.layout_id, "style_id": job.style_id}
+        sid = find_done(outp, job)
+        if sid is not None:
+            prev = (old or {}).get("scenes", {}).get(job.key, {})
+            rec = ff.read_scene(ff.scene_dir(outp, job.benchmark, sid))
+            manifest["scenes"][job.key] = {**base, "status": "ok", "scene_id": sid, "resumed": True,
+                                           "n_views": rec.get("n_views", {}), "attempts": prev.get("attempts", []),
+                                           "wall_s": prev.get("wall_s")}
+        else:
+            manifest["scenes"][job.key] = {**base, "status": "pending"}
+            todo.append(job)
+    _summarise(manifest)
+    ff.atomic_write_json(outp / ff.MANIFEST, manifest)
+    prog = _Progress(len(todo), quiet)
+
+    def on_result(job: SceneJob, res: dict[str, Any], n_tries: int) -> None:
+        st = {"ok": "ok", "dropped": "dropped"}.get(res["status"], "failed")
+        entry = {**manifest["scenes"][job.key], "status": st, "scene_id": res.get("scene_id"), "tries": n_tries,
+                 "attempts": res.get("attempts", []), "wall_s": res.get("wall_s"), "resumed": False}
+        if st == "ok":
+            entry["n_views"] = ff.read_scene(ff.scene_dir(outp, job.benchmark, res["scene_id"]))["n_views"]
+        else:
+            entry["reason"] = res.get("reason")
+            if "traceback" in res:
+                entry["traceback"] = res["traceback"][-4000:]
+        manifest["scenes"][job.key] = entry
+        _summarise(manifest)
+        ff.atomic_write_json(outp / ff.MANIFEST, manifest)
+        prog.update(f"{job.key} {st}")
+
+    pdict = preset.to_dict()
+    try:
+        if backend == "ray":
+            _run_ray(todo, str(outp), pdict, save_images, max(1, workers), address, on_result)
+        else:
+            _run_local(todo, str(outp), pdict, save_images, workers, on_result, job_fn)
+    finally:
+        prog.close()
+        for b in preset.benchmarks:
+            shutil.rmtree(outp / b / ff.STAGING, ignore_errors=True)
+    manifest["wall_s"] = time.perf_counter() - t0
+    manifest["status"] = "done"
+    _summarise(manifest)
+    ff.atomic_write_json(outp / ff.MANIFEST, manifest)
+    return manifest
+
+
+# ------------------------------------------------------------------------------------------------ CLI
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="floaff-zoo generate",
+        description="Generate the simulated FloAff benchmark (Styles/Layouts) with MuJoCo rollouts.",
+    )
+    p.add_argument("--preset", default="small", choices=sorted(PRESETS), help="generation preset (default: small)")
+    p.add_argument("--out", default="data/floaff_sim", help="output directory (default: data/floaff_sim)")
+    p.add_argument("--workers", type=int, default=1, help="worker processes (0 = in this process; default 1)")
+    p.add_argument("--backend", default="local", choices=["local", "ray"], help="local process pool or ray")
+    p.add_argument("--address", default=None, help="ray cluster address (default: start a local cluster)")
+    p.add_argument("--seed", type=int, default=0, help="global seed (default 0)")
+    p.add_argument("--save-images", action="store_true", help="also store rgb/depth images in each view file")
+    p.add_argument("--benchmarks", nargs="+", choices=list(ALL_BENCHMARKS), default=None)
+    p.add_argument("--tasks", nargs="+", choices=list(ALL_TASKS), default=None)
+    p.add_argument("--n-train", type=int, default=None, help="override: training scenes per task")
+    p.add_argument("--n-test", type=int, default=None, help="override: test scenes per task")
+    p.add_argument("--cell", type=float, default=None, help="override: candidate grid cell (m)")
+    p.add_argument("--max-candidates", type=int, default=None,
+                   help="override: max rollouts per scene (0 = no cap)")
+    p.add_argument("--views", type=int, nargs=2, metavar=("FRONT", "SIDE"), default=None,
+                   help="override: front and side views per scene")
+    p.add_argument("--image-size", type=int, default=None, help="override: ego image size (pixels)")
+    p.add_argument("--quiet", action="store_true", help="no progress output")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    """CLI entry point; returns 0 when every slot is ok or dropped, 1 when some scene failed."""
+    args = build_parser().parse_args(argv)
+    preset = get_preset(
+        args.preset,
+        benchmarks=tuple(args.benchmarks) if args.benchmarks else None,
+        tasks=tuple(args.tasks) if args.tasks else None,
+        n_train=args.n_train,
+        n_test=args.n_test,
+        cell=args.cell,
+        max_candidates=args.max_candidates or None,
+        views_per_scene=tuple(args.views) if args.views else None,
+        image_size=args.image_size,
+    )
+    if args.max_candidates == 0:
+        preset = dataclasses.replace(preset, max_candidates=None)
+    man = generate(args.out, preset, seed=args.seed, workers=args.workers, backend=args.backend,
+                   address=args.address, save_images=args.save_images, quiet=args.quiet)
+    c = man["counts"]
+    print(
+        f"[generate] {args.out}: {c['scenes_ok']} scenes ok, {c['scenes_dropped']} dropped, {c['scenes_failed']} failed; "
+        f"{c['views_front']} front + {c['views_side']} side views; {man['wall_s']:.1f} s",
+        file=sys.stderr,
+    )
+    return 0 if c["scenes_failed"] == 0 else 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

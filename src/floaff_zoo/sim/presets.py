@@ -1,0 +1,170 @@
+"""Generation presets: ``tiny`` (tests/CI), ``small`` (demo) and ``paper`` (FloAff-Kitchen scene and view counts).
+
+Paper view totals come from the appendix table "Statistics of RoboCasa dataset" (per benchmark and task: train front,
+train side, test front, test side); they are spread over the scenes of a split (5 train, 1 test) as evenly as possible.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields, replace
+from typing import Any
+
+__all__ = ["PAPER_VIEW_TOTALS", "PRESETS", "GenPreset", "get_preset", "view_counts"]
+
+ALL_TASKS = ("PnPCounterToCab", "OpenSingleDoor", "CloseDrawer", "CloseDoubleDoor")
+ALL_BENCHMARKS = ("styles", "layouts")
+
+# benchmark -> task -> (train front, train side, test front, test side); totals 13,610 (Styles) + 11,172 (Layouts)
+PAPER_VIEW_TOTALS: dict[str, dict[str, tuple[int, int, int, int]]] = {
+    "styles": {
+        "PnPCounterToCab": (960, 1920, 200, 400),
+        "OpenSingleDoor": (1000, 2000, 200, 400),
+        "CloseDrawer": (1000, 1780, 200, 400),
+        "CloseDoubleDoor": (1000, 1630, 200, 320),
+    },
+    "layouts": {
+        "PnPCounterToCab": (1000, 1200, 200, 200),
+        "OpenSingleDoor": (1000, 1400, 200, 200),
+        "CloseDrawer": (1000, 1783, 200, 199),
+        "CloseDoubleDoor": (1000, 1190, 200, 200),
+    },
+}
+
+
+@dataclass
+class GenPreset:
+    """Everything that decides what a generation run produces (recorded in the manifest).
+
+    views_per_scene: (front, side) views per scene, used when use_paper_view_counts is False.
+    max_candidates: cap on the rollouts per scene passed to annotate_scene (None = every filtered candidate; the
+        cells over the cap are labelled failures "skipped_budget": for tests/CI only).
+    floor_only: views store only candidate cells on free floor (centre outside every furniture/wall footprint).
+    max_seed_attempts: a slot whose scene has no positive candidate is retried with the next derived seed.
+    View geometry (front_rx ... max_dist) and rendering (image_size, depth_max, max_points) mirror ViewConfig.
+    """
+
+    name: str = "custom"
+    tasks: tuple[str, ...] = ALL_TASKS
+    benchmarks: tuple[str, ...] = ALL_BENCHMARKS
+    n_train: int = 5
+    n_test: int = 1
+    cell: float = 0.05
+    sigma_cells: float = 1.0
+    r_arm: float | None = None
+    max_candidates: int | None = None
+    floor_only: bool = True
+    views_per_scene: tuple[int, int] = (8, 8)
+    use_paper_view_counts: bool = False
+    max_seed_attempts: int = 6
+    image_size: int = 128
+    depth_max: float = 4.0
+    max_points: int = 8192
+    front_rx: float = 0.45
+    front_ry: float = 0.55
+    side_rx: float = 0.75
+    side_ry: float = 0.9
+    max_dist: float = 2.4
+    min_target_pixels: int = 4
+    max_tries_per_view: int = 60
+    picture_size: int = 256
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["tasks"] = list(self.tasks)
+        d["benchmarks"] = list(self.benchmarks)
+        d["views_per_scene"] = list(self.views_per_scene)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "GenPreset":
+        known = {f.name for f in fields(cls)}
+        unknown = set(d) - known
+        if unknown:
+            raise ValueError(f"unknown preset fields: {sorted(unknown)}")
+        d = dict(d)
+        for k in ("tasks", "benchmarks", "views_per_scene"):
+            if k in d:
+                d[k] = tuple(d[k])
+        return cls(**d)
+
+    def validate(self) -> "GenPreset":
+        bad = [t for t in self.tasks if t not in ALL_TASKS]
+        if bad:
+            raise ValueError(f"unknown task(s) {bad}; choose from {list(ALL_TASKS)}")
+        bad = [b for b in self.benchmarks if b not in ALL_BENCHMARKS]
+        if bad:
+            raise ValueError(f"unknown benchmark(s) {bad}; choose from {list(ALL_BENCHMARKS)}")
+        if self.n_train < 0 or self.n_test < 0 or self.n_train + self.n_test == 0:
+            raise ValueError(f"need n_train >= 0, n_test >= 0 and at least one scene, got {self.n_train}/{self.n_test}")
+        if not self.cell > 0:
+            raise ValueError(f"cell must be > 0, got {self.cell}")
+        if self.max_seed_attempts < 1:
+            raise ValueError("max_seed_attempts must be >= 1")
+        if min(self.views_per_scene) < 0:
+            raise ValueError(f"views_per_scene must be >= 0, got {self.views_per_scene}")
+        return self
+
+
+PRESETS: dict[str, GenPreset] = {
+    # tests / CI: 2 tasks x (1 train + 1 test) scenes of the Styles benchmark, coarse grid, 64x64 images
+    "tiny": GenPreset(
+        name="tiny",
+        tasks=("CloseDrawer", "OpenSingleDoor"),
+        benchmarks=("styles",),
+        n_train=1,
+        n_test=1,
+        cell=0.2,
+        max_candidates=24,
+        views_per_scene=(2, 2),
+        image_size=64,
+        max_points=2048,
+        max_seed_attempts=4,
+        picture_size=128,
+    ),
+    # demo default: all tasks, both benchmarks, 5 + 1 scenes per task, coarser grid, fewer views
+    "small": GenPreset(
+        name="small",
+        cell=0.1,
+        max_candidates=80,
+        views_per_scene=(6, 6),
+        image_size=96,
+        max_points=4096,
+    ),
+    # the paper: 0.05 m grid and the appendix table's view counts (24,782 views)
+    "paper": GenPreset(
+        name="paper",
+        cell=0.05,
+        use_paper_view_counts=True,
+        image_size=128,
+        max_points=8192,
+    ),
+}
+
+
+def get_preset(name: str, **overrides: Any) -> GenPreset:
+    """A copy of a named preset with field overrides (None values are ignored)."""
+    if name not in PRESETS:
+        raise ValueError(f"unknown preset {name!r}; choose from {sorted(PRESETS)}")
+    ov = {k: v for k, v in overrides.items() if v is not None}
+    known = {f.name for f in fields(GenPreset)}
+    unknown = set(ov) - known
+    if unknown:
+        raise ValueError(f"unknown preset fields: {sorted(unknown)}")
+    return replace(PRESETS[name], **ov).validate()
+
+
+def _spread(total: int, n: int, i: int) -> int:
+    """Share of scene i when `total` items are spread over n scenes (earlier scenes get the remainder)."""
+    return total // n + (1 if i < total % n else 0)
+
+
+def view_counts(preset: GenPreset, benchmark: str, task: str, split: str, slot: int) -> tuple[int, int]:
+    """(front, side) number of views for one scene slot."""
+    if not preset.use_paper_view_counts:
+        return int(preset.views_per_scene[0]), int(preset.views_per_scene[1])
+    tf, ts, ef, es = PAPER_VIEW_TOTALS[benchmark][task]
+    if split == "train":
+        n = max(1, preset.n_train)
+        return _spread(tf, n, slot), _spread(ts, n, slot)
+    n = max(1, preset.n_test)
+    return _spread(ef, n, slot), _spread(es, n, slot)

@@ -1,0 +1,335 @@
+"""PandaOmron robot model, joint bookkeeping, base teleport and a small DLS IK.
+
+The robot MJCF comes from robosuite's model API (``create_robot("PandaOmron")`` ->
+``add_base(OmronMobileBase)`` -> ``add_gripper(PandaGripper)``; SIMULATOR.md §2.1). We only use
+robosuite for the model; control is our own:
+
+* the 7 arm torque motors are turned into MuJoCo position actuators (joint impedance with
+  implicit damping) and the arm bodies get gravity compensation, so no per-substep Python loop
+  is needed (SIMULATOR.md §5.1 recommendation);
+* the torso motor becomes a stiff position actuator;
+* the base keeps robosuite's velocity actuators, held at 0 (its joints also carry frictionloss 250).
+
+The base yaw joint pivots 0.21 m behind the base-frame origin: :func:`RobotIndex.set_base_pose`
+compensates so that ``(x, y, yaw)`` is always the pose of the base-frame origin (the point the
+arm is mounted above).
+"""
+from __future__ import annotations
+
+import functools
+import math
+import os
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+ARM_JOINTS: tuple[str, ...] = tuple(f"robot0_joint{i}" for i in range(1, 8))
+TORSO_JOINT = "mobilebase0_joint_torso_height"
+BASE_JOINTS: tuple[str, str, str] = (
+    "mobilebase0_joint_mobile_forward",
+    "mobilebase0_joint_mobile_side",
+    "mobilebase0_joint_mobile_yaw",
+)
+FINGER_JOINTS: tuple[str, str] = ("gripper0_finger_joint1", "gripper0_finger_joint2")
+GRIP_SITE = "gripper0_grip_site"
+HAND_BODY = "gripper0_right_gripper"
+BASE_BODY = "mobilebase0_base"
+EGO_CAMERA = "floaff_ego"
+
+#: arm rest pose used for collision filtering and as the rollout start: folded low and close to
+#: the torso so that it stays out of the ego camera and inside the base footprint.
+TUCK_ARM = np.array([0.0, -0.75, 0.0, -2.85, 0.0, 2.15, math.pi / 4])
+TUCK_TORSO = 0.10
+#: joint stiffness / damping of the arm position actuators (N m / rad, N m s / rad)
+ARM_KP = np.array([900.0, 900.0, 700.0, 700.0, 300.0, 200.0, 80.0])
+ARM_KV = np.array([90.0, 90.0, 70.0, 70.0, 25.0, 16.0, 6.0])
+ARM_FORCE = np.array([87.0, 87.0, 87.0, 87.0, 12.0, 12.0, 12.0])
+#: N2M footprint (REFERENCE.md §4): 0.63 m long, 0.5 m wide, 0.83 L behind / 0.17 L in front
+FOOTPRINT_LENGTH = 0.63
+FOOTPRINT_WIDTH = 0.50
+FOOTPRINT_FRONT = 0.17 * FOOTPRINT_LENGTH
+FOOTPRINT_BACK = 0.83 * FOOTPRINT_LENGTH
+#: nominal arm reach from the base origin, used as a robot descriptor [reach m, base height m]
+ARM_REACH = 0.855
+BASE_HEIGHT = 0.70
+
+
+@functools.lru_cache(maxsize=1)
+def robot_xml() -> str:
+    """PandaOmron MJCF string from robosuite's model API (cached per process, ~0.6-1.5 s once)."""
+    os.environ.setdefault("MUJOCO_GL", "egl")  # robosuite forces egl at import unless set
+    from robosuite.models.bases import robot_base_factory
+    from robosuite.models.grippers import gripper_factory
+    from robosuite.models.robots import create_robot
+
+    robot = create_robot("PandaOmron")
+    robot.add_base(robot_base_factory("OmronMobileBase"))
+    robot.add_gripper(gripper_factory("PandaGripper"))
+    return robot.get_xml()
+
+
+def _quat_from_mat(mat: np.ndarray) -> np.ndarray:
+    """3x3 rotation -> quaternion (w, x, y, z)."""
+    q = np.zeros(4)
+    mujoco.mju_mat2Quat(q, np.asarray(mat, dtype=np.float64).reshape(9))
+    return q
+
+
+def robot_spec() -> mujoco.MjSpec:
+    """MjSpec of the robot with position-controlled arm/torso, gravity compensation and the ego camera."""
+    spec = mujoco.MjSpec.from_string(robot_xml())
+    spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+    for i, name in enumerate(ARM_JOINTS):
+        act = spec.actuator(f"robot0_torq_j{i + 1}")
+        act.set_to_position(kp=float(ARM_KP[i]), kv=float(ARM_KV[i]))
+        act.ctrllimited = mujoco.mjtLimited.mjLIMITED_FALSE
+        act.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
+        act.forcerange = [-ARM_FORCE[i], ARM_FORCE[i]]
+    torso = spec.actuator("mobilebase0_actuator_torso_height")
+    torso.set_to_position(kp=2.0e5, kv=2.0e4)
+    torso.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
+    torso.ctrlrange = [0.0, 0.34]
+    torso.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
+    torso.forcerange = [-1.0e4, 1.0e4]
+    for body in spec.bodies:
+        if body.name.startswith("robot0_link") or body.name.startswith("gripper0_") or body.name in (
+            "robot0_right_hand",
+            "manipulator_mount",
+        ):
+            body.gravcomp = 1.0
+    base = spec.body(BASE_BODY)
+    pitch = math.radians(38.0)
+    # camera looks along its -z; x right, y up. Forward = +x of the base, pitched down.
+    xaxis = np.array([0.0, -1.0, 0.0])
+    yaxis = np.array([math.sin(pitch), 0.0, math.cos(pitch)])
+    zaxis = np.cross(xaxis, yaxis)
+    cam = base.add_camera(name=EGO_CAMERA)
+    cam.pos = [0.32, 0.0, 1.55]
+    cam.quat = _quat_from_mat(np.stack([xaxis, yaxis, zaxis], axis=1))
+    cam.fovy = 70.0
+    return spec
+
+
+@dataclass
+class RobotIndex:
+    """Addresses of the robot's joints/actuators/geoms in one compiled model."""
+
+    base_qadr: np.ndarray  # [3] qpos of forward, side, yaw
+    base_dadr: np.ndarray  # [3]
+    torso_qadr: int
+    torso_dadr: int
+    arm_qadr: np.ndarray  # [7]
+    arm_dadr: np.ndarray  # [7]
+    finger_qadr: np.ndarray  # [2]
+    ik_dadr: np.ndarray  # [8] torso + arm dofs (IK variables)
+    ik_qadr: np.ndarray  # [8]
+    ik_lo: np.ndarray  # [8]
+    ik_hi: np.ndarray  # [8]
+    arm_act: np.ndarray  # [7]
+    torso_act: int
+    base_act: np.ndarray  # [3]
+    finger_act: np.ndarray  # [2]
+    grip_site: int
+    hand_body: int
+    base_body: int
+    pivot: np.ndarray  # [2] yaw pivot in the base frame (x, y), e.g. (-0.21, 0)
+    geom_ids: np.ndarray  # robot collision geoms (contype/conaffinity != 0)
+    body_ids: np.ndarray  # all robot bodies
+
+    @classmethod
+    def from_model(cls, m: mujoco.MjModel) -> "RobotIndex":
+        def jid(name: str) -> int:
+            return mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, name)
+
+        def aid(name: str) -> int:
+            return mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_ACTUATOR, name)
+
+        base_j = [jid(n) for n in BASE_JOINTS]
+        arm_j = [jid(n) for n in ARM_JOINTS]
+        torso_j = jid(TORSO_JOINT)
+        ik_j = [torso_j] + arm_j
+        root = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "robot0_base")
+        bodies = [b for b in range(m.nbody) if _has_ancestor(m, b, root)]
+        geoms = [
+            g
+            for g in range(m.ngeom)
+            if m.geom_bodyid[g] in bodies and (m.geom_contype[g] or m.geom_conaffinity[g])
+        ]
+        return cls(
+            base_qadr=m.jnt_qposadr[base_j].copy(),
+            base_dadr=m.jnt_dofadr[base_j].copy(),
+            torso_qadr=int(m.jnt_qposadr[torso_j]),
+            torso_dadr=int(m.jnt_dofadr[torso_j]),
+            arm_qadr=m.jnt_qposadr[arm_j].copy(),
+            arm_dadr=m.jnt_dofadr[arm_j].copy(),
+            finger_qadr=m.jnt_qposadr[[jid(n) for n in FINGER_JOINTS]].copy(),
+            ik_dadr=m.jnt_dofadr[ik_j].copy(),
+            ik_qadr=m.jnt_qposadr[ik_j].copy(),
+            ik_lo=m.jnt_range[ik_j, 0] + 1e-3,
+            ik_hi=m.jnt_range[ik_j, 1] - 1e-3,
+            arm_act=np.array([aid(f"robot0_torq_j{i}") for i in range(1, 8)]),
+            torso_act=aid("mobilebase0_actuator_torso_height"),
+            base_act=np.array(
+                [aid(f"mobilebase0_actuator_mobile_{n}") for n in ("forward", "side", "yaw")]
+            ),
+            finger_act=np.array(
+                [aid("gripper0_gripper_finger_joint1"), aid("gripper0_gripper_finger_joint2")]
+            ),
+            grip_site=mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, GRIP_SITE),
+            hand_body=mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, HAND_BODY),
+            base_body=mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, BASE_BODY),
+            pivot=m.jnt_pos[base_j[2], :2].copy(),
+            geom_ids=np.array(geoms, dtype=np.int64),
+            body_ids=np.array(bodies, dtype=np.int64),
+        )
+
+    # ---- base pose ------------------------------------------------------------------------
+    def set_base_pose(self, data: mujoco.MjData, x: float, y: float, yaw: float) -> None:
+        """Teleport: write the 3 base qpos so the base-frame origin is at (x, y) with heading yaw.
+
+        The yaw hinge rotates about ``pivot`` (base frame), so origin = slide + p - R(yaw) p.
+        """
+        c, s = math.cos(yaw), math.sin(yaw)
+        px, py = float(self.pivot[0]), float(self.pivot[1])
+        data.qpos[self.base_qadr[0]] = x - px + (c * px - s * py)
+        data.qpos[self.base_qadr[1]] = y - py + (s * px + c * py)
+        data.qpos[self.base_qadr[2]] = yaw
+        data.qvel[self.base_dadr] = 0.0
+
+    def base_pose(self, data: mujoco.MjData) -> tuple[float, float, float]:
+        """Inverse of :meth:`set_base_pose` from qpos (no forward kinematics needed)."""
+        yaw = float(data.qpos[self.base_qadr[2]])
+        c, s = math.cos(yaw), math.sin(yaw)
+        px, py = float(self.pivot[0]), float(self.pivot[1])
+        x = float(data.qpos[self.base_qadr[0]]) + px - (c * px - s * py)
+        y = float(data.qpos[self.base_qadr[1]]) + py - (s * px + c * py)
+        return x, y, yaw
+
+    def set_tuck(self, data: mujoco.MjData) -> None:
+        """Arm in its rest pose, torso at TUCK_TORSO, gripper open; ctrl matches."""
+        data.qpos[self.arm_qadr] = TUCK_ARM
+        data.qpos[self.torso_qadr] = TUCK_TORSO
+        data.qpos[self.finger_qadr] = (0.04, -0.04)
+        data.qvel[self.arm_dadr] = 0.0
+        self.hold(data, TUCK_ARM, TUCK_TORSO, opened=True)
+
+    def hold(self, data: mujoco.MjData, arm_q: np.ndarray, torso: float, opened: bool) -> None:
+        """Write actuator targets: arm [7] joint positions, torso height, gripper, base velocity 0."""
+        data.ctrl[self.arm_act] = arm_q
+        data.ctrl[self.torso_act] = torso
+        data.ctrl[self.base_act] = 0.0
+        data.ctrl[self.finger_act] = (0.04, -0.04) if opened else (0.0, 0.0)
+
+    def ik_q(self, data: mujoco.MjData) -> np.ndarray:
+        """Current IK variables [8] = torso + 7 arm joints."""
+        return data.qpos[self.ik_qadr].copy()
+
+
+def _has_ancestor(m: mujoco.MjModel, body: int, root: int) -> bool:
+    while body > 0:
+        if body == root:
+            return True
+        body = int(m.body_parentid[body])
+    return False
+
+
+class DLSIK:
+    """Damped-least-squares IK for the grip site on torso + 7 arm DOF (8 variables).
+
+    Position is the main task; an optional approach direction (gripper z axis) is a soft task
+    weighted by ``w_rot``. Hand-written 3-vector maths and one 6x6 solve per iteration keep an
+    iteration at ~40 us. The solver works on its own scratch ``MjData`` so the simulation state
+    is never touched.
+    """
+
+    def __init__(self, model: mujoco.MjModel, index: RobotIndex, damping: float = 0.04) -> None:
+        self.m = model
+        self.ix = index
+        self.d = mujoco.MjData(model)
+        self.damping = damping
+        self._jacp = np.zeros((3, model.nv))
+        self._jacr = np.zeros((3, model.nv))
+        self._J = np.zeros((6, 8))
+
+    def sync(self, data: mujoco.MjData) -> None:
+        """Copy the full configuration (base pose, fixtures) from the simulation into the scratch."""
+        self.d.qpos[:] = data.qpos
+
+    def site_pose(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Grip-site position [3] and rotation [3,3] for IK variables q [8]."""
+        d = self.d
+        d.qpos[self.ix.ik_qadr] = q
+        mujoco.mj_kinematics(self.m, d)
+        s = self.ix.grip_site
+        return d.site_xpos[s].copy(), d.site_xmat[s].reshape(3, 3).copy()
+
+    def solve(
+        self,
+        target: np.ndarray,
+        q0: np.ndarray,
+        approach: np.ndarray | None = None,
+        w_rot: float = 0.3,
+        iters: int = 40,
+        tol: float = 0.004,
+        max_step: float = 0.25,
+    ) -> tuple[np.ndarray, float]:
+        """Solve for q [8] from q0 [8] so the grip site reaches target [3] (world).
+
+        Prioritised DLS: position first; the approach axis (desired gripper z, unit [3] world) is
+        tracked in the position task's null space with gain ``w_rot``, so it never costs position
+        accuracy. Returns (q, position error m).
+        """
+        m, d, ix = self.m, self.d, self.ix
+        q = np.clip(np.asarray(q0, dtype=np.float64).copy(), ix.ik_lo, ix.ik_hi)
+        site = ix.grip_site
+        dadr = ix.ik_dadr
+        lam2 = self.damping**2
+        err = 1e9
+        ep = np.zeros(3)
+        er = np.zeros(3)
+        eye8 = np.eye(8)
+        eye3l = lam2 * np.eye(3)
+        for it in range(iters + 1):
+            d.qpos[ix.ik_qadr] = q
+            mujoco.mj_kinematics(m, d)
+            p = d.site_xpos[site]
+            ep[0] = target[0] - p[0]
+            ep[1] = target[1] - p[1]
+            ep[2] = target[2] - p[2]
+            err = math.sqrt(ep[0] * ep[0] + ep[1] * ep[1] + ep[2] * ep[2])
+            align = 1.0
+            if approach is not None:
+                R = d.site_xmat[site]
+                zx, zy, zz = R[2], R[5], R[8]  # current gripper z axis (column 2)
+                ax, ay, az = approach[0], approach[1], approach[2]
+                er[0] = zy * az - zz * ay  # rotation vector aligning z to approach: z x a
+                er[1] = zz * ax - zx * az
+                er[2] = zx * ay - zy * ax
+                align = zx * ax + zy * ay + zz * az
+                if align < 0:  # opposite: rotate about any perpendicular axis
+                    er *= -1.0
+            if (err < tol and align > 0.97) or it == iters:
+                break
+            mujoco.mj_comPos(m, d)
+            mujoco.mj_jacSite(m, d, self._jacp, self._jacr, site)
+            Jp = self._jacp[:, dadr]
+            Jp_pinv = Jp.T @ np.linalg.inv(Jp @ Jp.T + eye3l)
+            dq = Jp_pinv @ ep
+            if approach is not None:
+                Jr = self._jacr[:, dadr]
+                N = eye8 - Jp_pinv @ Jp
+                JrN = Jr @ N
+                z = JrN.T @ np.linalg.solve(JrN @ JrN.T + eye3l, w_rot * er - Jr @ dq)
+                dq += N @ z
+            n = float(np.max(np.abs(dq)))
+            if n > max_step:
+                dq *= max_step / n
+            q += dq
+            np.clip(q, ix.ik_lo, ix.ik_hi, out=q)
+        if approach is not None and err > tol:
+            # joint limits can break the null-space split: fall back to position only from here
+            q2, err2 = self.solve(target, q, None, iters=iters, tol=tol, max_step=max_step)
+            if err2 < err:
+                return q2, err2
+        return q, float(err)

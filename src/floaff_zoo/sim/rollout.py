@@ -1,0 +1,206 @@
+"""One scripted rollout from a base pose, and a cached, optionally parallel rollout service.
+
+``rollout`` = reset the task (rng from ``seed``), teleport the base, tuck the arm, run the policy at
+20 Hz (25 x 2 ms physics substeps per tick) until success (early exit, as in the paper: "the
+rollout terminates once the task succeeds"), give-up (policy reason) or the task horizon.
+Results are deterministic: the same (scene spec, pose, seed) gives the same result in any process.
+"""
+from __future__ import annotations
+
+import math
+import os
+import time
+from dataclasses import dataclass, field
+
+import mujoco
+import numpy as np
+
+from floaff_zoo.sim.controllers import CTRL_DT, Policy, default_policy
+from floaff_zoo.sim.kitchen import SceneSpec, SimScene, TargetInfo, build_scene
+
+
+@dataclass
+class RolloutResult:
+    success: bool
+    reason: str  # "success" or a failure reason (ik_unreachable, collision, grasp_failed, not_closed, ...)
+    sim_seconds: float
+    wall_seconds: float
+    state: dict = field(default_factory=dict)
+
+
+def heading_to_target(scene_or_target: SimScene | TargetInfo, x: float, y: float) -> float:
+    """Yaw (rad) of a base at (x, y) facing the target centre's floor projection."""
+    t = scene_or_target.target if isinstance(scene_or_target, SimScene) else scene_or_target
+    return math.atan2(float(t.pos[1]) - y, float(t.pos[0]) - x)
+
+
+def _check_pose(pose) -> tuple[float, float, float]:
+    if len(pose) != 3:
+        raise ValueError(f"base_pose must be (x, y, yaw), got {pose!r}")
+    x, y, yaw = (float(v) for v in pose)
+    if not all(math.isfinite(v) for v in (x, y, yaw)):
+        raise ValueError(f"base_pose must be finite, got {pose!r}")
+    return x, y, yaw
+
+
+def start_rollout(scene: SimScene, base_pose, policy: Policy, seed: int = 0) -> None:
+    """Reset the task with rng(seed), teleport the base, tuck the arm, reset the policy (may set policy.reason)."""
+    x, y, yaw = _check_pose(base_pose)
+    scene.robot.set_base_pose(scene.data, x, y, yaw)
+    scene.reset_task(np.random.default_rng(int(seed)))
+    mujoco.mj_forward(scene.model, scene.data)
+    policy.reset(scene)
+
+
+def rollout(scene: SimScene | SceneSpec, base_pose: tuple[float, float, float], policy: Policy | None = None,
+            seed: int = 0) -> RolloutResult:
+    """Run one rollout; see the module doc. ``policy`` defaults to the task's scripted policy."""
+    t0 = time.perf_counter()
+    if isinstance(scene, SceneSpec):
+        scene = build_scene(scene)
+    if policy is None:
+        policy = default_policy(scene.spec.task)
+    task = scene.task
+    m, d = scene.model, scene.data
+    nsub = max(1, int(round(CTRL_DT / m.opt.timestep)))
+    start_rollout(scene, base_pose, policy, seed)
+    t = 0.0
+    reason = ""
+    ok = False
+    if getattr(policy, "reason", ""):
+        reason = policy.reason
+    else:
+        while t < task.horizon - 1e-9:
+            if not policy.act(scene, t):
+                reason = policy.reason or "gave_up"
+                break
+            mujoco.mj_step(m, d, nsub)
+            t += nsub * m.opt.timestep
+            if d.warning[mujoco.mjtWarning.mjWARN_BADQACC].number > 0:
+                reason = "unstable"
+                break
+            if task.success(scene):
+                ok, reason = True, "success"
+                break
+            if policy.done and t > 0 and _settled(scene):
+                break
+        if not reason:
+            reason = task.fail_reason if policy.done else "timeout"
+    return RolloutResult(success=ok, reason=reason, sim_seconds=round(t, 6), wall_seconds=time.perf_counter() - t0,
+                         state=task.state(scene))
+
+
+def _settled(scene: SimScene) -> bool:
+    """Fixture/object velocities small: nothing can still change the outcome."""
+    return float(np.max(np.abs(scene.data.qvel))) < 0.02
+
+
+# ----------------------------------------------------------------------------------------------
+# service
+# ----------------------------------------------------------------------------------------------
+_WORKER_SCENES: dict[SceneSpec, SimScene] = {}
+
+
+def _worker_init() -> None:
+    for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ[k] = "1"
+
+
+def _run_job(job: tuple[dict, tuple[float, float, float], int]) -> RolloutResult:
+    spec = SceneSpec.from_dict(job[0])
+    scene = _WORKER_SCENES.get(spec)
+    if scene is None:
+        scene = build_scene(spec)
+        _WORKER_SCENES[spec] = scene
+    return rollout(scene, job[1], None, job[2])
+
+
+class RolloutService:
+    """Evaluate many (spec, pose) jobs: per-process scene cache, result cache, optional workers.
+
+    Results are cached by (spec, pose rounded to ``cache_decimals``); the pose actually simulated
+    is the rounded one, so results do not depend on the worker count or on job order.
+    backend: "local" (multiprocessing, spawn, OMP_NUM_THREADS=1 in workers) or "ray" (needs ray).
+    """
+
+    def __init__(self, workers: int = 1, backend: str = "local", cache_decimals: int = 2, seed: int = 0) -> None:
+        if backend not in ("local", "ray"):
+            raise ValueError(f"backend must be 'local' or 'ray', got {backend!r}")
+        if backend == "ray":
+            try:
+                import ray  # noqa: F401
+            except ImportError as e:
+                raise ImportError("RolloutService(backend='ray') needs the 'ray' package, which is not installed; "
+                                  "use backend='local'") from e
+        if workers < 1:
+            raise ValueError(f"workers must be >= 1, got {workers}")
+        self.workers = int(workers)
+        self.backend = backend
+        self.cache_decimals = int(cache_decimals)
+        self.seed = int(seed)
+        self.cache: dict[tuple, RolloutResult] = {}
+        self._pool = None
+
+    def _key(self, spec: SceneSpec, pose) -> tuple:
+        x, y, yaw = _check_pose(pose)
+        r = self.cache_decimals
+        return (spec, round(x, r), round(y, r), round(yaw, r))
+
+    def run(self, jobs: list[tuple[SceneSpec, tuple[float, float, float]]], progress: bool = False) -> list[RolloutResult]:
+        keys = [self._key(s, p) for s, p in jobs]
+        todo = sorted({k for k in keys if k not in self.cache}, key=lambda k: (k[0].scene_id, k[1:]))
+        payload = [(k[0].to_dict(), (k[1], k[2], k[3]), self.seed) for k in todo]
+        t0 = time.perf_counter()
+        if self.workers == 1 or len(payload) <= 1:
+            results = []
+            for i, p in enumerate(payload):
+                results.append(_run_job(p))
+                if progress and (i + 1) % 10 == 0:
+                    print(f"[RolloutService] {i + 1}/{len(payload)} rollouts, {time.perf_counter() - t0:.1f}s", flush=True)
+        elif self.backend == "ray":
+            results = self._run_ray(payload)
+        else:
+            results = self._run_pool(payload)
+        for k, r in zip(todo, results):
+            self.cache[k] = r
+        if progress:
+            print(f"[RolloutService] {len(payload)} new rollouts in {time.perf_counter() - t0:.1f}s", flush=True)
+        return [self.cache[k] for k in keys]
+
+    def _run_pool(self, payload):
+        import multiprocessing as mp
+
+        if self._pool is None:
+            saved = {k: os.environ.get(k) for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
+            for k in saved:
+                os.environ[k] = "1"  # inherited by spawned workers before numpy loads
+            try:
+                self._pool = mp.get_context("spawn").Pool(self.workers, initializer=_worker_init)
+            finally:
+                for k, v in saved.items():
+                    if v is None:
+                        os.environ.pop(k, None)
+                    else:
+                        os.environ[k] = v
+        # group by scene so each worker builds few scenes
+        return self._pool.map(_run_job, payload, chunksize=max(1, len(payload) // (4 * self.workers)))
+
+    def _run_ray(self, payload):
+        import ray
+
+        if not ray.is_initialized():
+            ray.init(num_cpus=self.workers, runtime_env={"env_vars": {"OMP_NUM_THREADS": "1"}})
+        remote = ray.remote(_run_job)
+        return ray.get([remote.remote(p) for p in payload])
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.close()
+            self._pool.join()
+            self._pool = None
+
+    def __del__(self) -> None:
+        try:
+            self.close()
+        except Exception:
+            pass

@@ -1,0 +1,297 @@
+"""The four RoboCasa-v0.2-style tasks: target, reset, success check (REFERENCE.md §6).
+
+| task | target fixture | reset | success |
+|---|---|---|---|
+| PnPCounterToCab | wall cabinet (door opened 90-100 %) + object on the counter | object on counter | all 8 object-box corners inside the cabinet interior box (tol 0.05 m) and grip site > 0.25 m from the object |
+| OpenSingleDoor | microwave door | closed | door q / (pi/2) >= 0.90 |
+| CloseDrawer | top drawer of a drawer module | 90-100 % open | q / (0.55 * drawer depth) <= 0.05 |
+| CloseDoubleDoor | double-door base cabinet | both 90-100 % open | both q / (pi/2) <= 0.05 |
+
+Candidate region (paper eq. "supp_candidate"), in the TARGET frame: origin at ``TargetInfo.pos``
+projected on the floor, ``x°`` along the front (lateral, = fixture-local +y), ``y°`` = minus the
+distance along the outward normal, so the open floor in front of the target has ``y° < 0`` (the
+paper's front view is ``y° < -r_f^y``). Cells with ``|x°| <= r_x`` and ``|y°| <= r_y`` are candidates;
+the half behind the front is inside furniture and is removed by collision filtering.
+"""
+from __future__ import annotations
+
+import abc
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import mujoco
+import numpy as np
+
+if TYPE_CHECKING:
+    from floaff_zoo.sim.kitchen import SimScene, TargetInfo
+
+HALF_PI = math.pi / 2
+
+
+def _jq(scene: "SimScene", joint: str) -> int:
+    j = mujoco.mj_name2id(scene.model, mujoco.mjtObj.mjOBJ_JOINT, joint)
+    if j < 0:
+        raise KeyError(f"joint {joint!r} not in scene {scene.spec.scene_id}")
+    return int(scene.model.jnt_qposadr[j])
+
+
+def _body_geoms(scene: "SimScene", bodies: list[str]) -> np.ndarray:
+    m = scene.model
+    ids = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, b) for b in bodies]
+    return np.array([g for g in range(m.ngeom) if m.geom_bodyid[g] in ids], dtype=np.int64)
+
+
+def target_frame(target: "TargetInfo", xy: np.ndarray) -> np.ndarray:
+    """World xy [...,2] -> paper target frame (x° lateral, y° = -outward distance) [...,2]."""
+    loc = target.to_local(np.asarray(xy, dtype=np.float64))
+    return np.stack([loc[..., 1], -loc[..., 0]], axis=-1)
+
+
+def target_frame_to_world(target: "TargetInfo", xo: np.ndarray) -> np.ndarray:
+    """Paper target frame [...,2] -> world xy [...,2]."""
+    xo = np.asarray(xo, dtype=np.float64)
+    return target.to_world(np.stack([-xo[..., 1], xo[..., 0]], axis=-1))
+
+
+@dataclass(frozen=True)
+class Task(abc.ABC):
+    """Base class: one subclass per task. Times are simulated seconds."""
+
+    name: str = ""
+    fixture: str = ""
+    horizon: float = 5.0
+    r_x: float = 1.0
+    r_y: float = 1.2
+    r_arm: float = 1.25  # reach filter radius (m) between base origin and target centre (floor projection)
+    fail_reason: str = "task_failed"
+
+    def candidate_region(self) -> tuple[float, float]:
+        return (self.r_x, self.r_y)
+
+    @abc.abstractmethod
+    def target_info(self, scene: "SimScene") -> "TargetInfo":
+        """Task-specific; see the module table."""
+
+    @abc.abstractmethod
+    def reset(self, scene: "SimScene", rng: np.random.Generator | None) -> None:
+        """Task-specific; see the module table."""
+
+    @abc.abstractmethod
+    def state(self, scene: "SimScene") -> dict:
+        """Task-specific; see the module table."""
+
+    @abc.abstractmethod
+    def success(self, scene: "SimScene") -> bool:
+        """Task-specific; see the module table."""
+
+    @abc.abstractmethod
+    def set_success_state(self, scene: "SimScene") -> None:
+        """Task-specific; see the module table."""
+
+
+def _open_fraction(rng: np.random.Generator | None) -> float:
+    """Reset opening in [0.90, 1.00]; deterministic 0.95 without an rng."""
+    return 0.95 if rng is None else float(rng.uniform(0.90, 1.00))
+
+
+@dataclass(frozen=True)
+class CloseDrawer(Task):
+    name: str = "CloseDrawer"
+    fixture: str = "drawer"
+    horizon: float = 4.5
+    r_x: float = 1.0
+    r_y: float = 1.2
+    r_arm: float = 1.2
+    fail_reason: str = "not_closed"
+    threshold: float = 0.05
+
+    def target_info(self, scene):
+        from floaff_zoo.sim.kitchen import TargetInfo
+
+        f = scene.fixtures["drawer"]
+        return TargetInfo(pos=f["front"].copy(), yaw=float(f["yaw"]), kind="drawer", body_names=list(f["bodies"]),
+                          geom_ids=_body_geoms(scene, f["bodies"]), joint_names=[f["joint"]], extra=dict(f))
+
+    def opening(self, scene) -> float:
+        f = scene.fixtures["drawer"]
+        return float(scene.data.qpos[_jq(scene, f["joint"])]) / f["travel"]
+
+    def reset(self, scene, rng):
+        f = scene.fixtures["drawer"]
+        scene.data.qpos[_jq(scene, f["joint"])] = _open_fraction(rng) * f["travel"]
+
+    def state(self, scene):
+        return {"drawer_open": self.opening(scene)}
+
+    def success(self, scene):
+        return self.opening(scene) <= self.threshold
+
+    def set_success_state(self, scene):
+        scene.data.qpos[_jq(scene, scene.fixtures["drawer"]["joint"])] = 0.0
+        mujoco.mj_forward(scene.model, scene.data)
+
+
+@dataclass(frozen=True)
+class CloseDoubleDoor(Task):
+    name: str = "CloseDoubleDoor"
+    fixture: str = "double_door"
+    horizon: float = 7.5
+    r_x: float = 1.0
+    r_y: float = 1.2
+    r_arm: float = 1.25
+    fail_reason: str = "not_closed"
+    threshold: float = 0.05
+
+    def target_info(self, scene):
+        from floaff_zoo.sim.kitchen import TargetInfo
+
+        f = scene.fixtures["double_door"]
+        return TargetInfo(pos=f["front"].copy(), yaw=float(f["yaw"]), kind="double_door", body_names=list(f["bodies"]),
+                          geom_ids=_body_geoms(scene, f["bodies"]), joint_names=[d["joint"] for d in f["doors"]], extra=dict(f))
+
+    def openings(self, scene) -> list[float]:
+        return [float(scene.data.qpos[_jq(scene, d["joint"])]) / HALF_PI for d in scene.fixtures["double_door"]["doors"]]
+
+    def reset(self, scene, rng):
+        for d in scene.fixtures["double_door"]["doors"]:
+            scene.data.qpos[_jq(scene, d["joint"])] = _open_fraction(rng) * HALF_PI
+
+    def state(self, scene):
+        a, b = self.openings(scene)
+        return {"door_pos_open": a, "door_neg_open": b}
+
+    def success(self, scene):
+        return all(o <= self.threshold for o in self.openings(scene))
+
+    def set_success_state(self, scene):
+        for d in scene.fixtures["double_door"]["doors"]:
+            scene.data.qpos[_jq(scene, d["joint"])] = 0.0
+        mujoco.mj_forward(scene.model, scene.data)
+
+
+@dataclass(frozen=True)
+class OpenSingleDoor(Task):
+    name: str = "OpenSingleDoor"
+    fixture: str = "microwave"
+    horizon: float = 6.0
+    r_x: float = 1.0
+    r_y: float = 1.2
+    r_arm: float = 1.25
+    fail_reason: str = "not_open"
+    threshold: float = 0.90
+
+    def target_info(self, scene):
+        from floaff_zoo.sim.kitchen import TargetInfo
+
+        f = scene.fixtures["microwave"]
+        return TargetInfo(pos=f["front"].copy(), yaw=float(f["yaw"]), kind="microwave", body_names=list(f["bodies"]),
+                          geom_ids=_body_geoms(scene, f["bodies"]), joint_names=[f["joint"]], extra=dict(f))
+
+    def opening(self, scene) -> float:
+        return float(scene.data.qpos[_jq(scene, scene.fixtures["microwave"]["joint"])]) / HALF_PI
+
+    def reset(self, scene, rng):
+        scene.data.qpos[_jq(scene, scene.fixtures["microwave"]["joint"])] = 0.0
+
+    def state(self, scene):
+        return {"door_open": self.opening(scene)}
+
+    def success(self, scene):
+        return self.opening(scene) >= self.threshold
+
+    def set_success_state(self, scene):
+        scene.data.qpos[_jq(scene, scene.fixtures["microwave"]["joint"])] = HALF_PI
+        mujoco.mj_forward(scene.model, scene.data)
+
+
+@dataclass(frozen=True)
+class PnPCounterToCab(Task):
+    name: str = "PnPCounterToCab"
+    fixture: str = "wall_cab"
+    horizon: float = 9.0
+    r_x: float = 1.0
+    r_y: float = 1.2
+    r_arm: float = 1.25
+    fail_reason: str = "not_placed"
+    tol: float = 0.05
+    min_gripper_dist: float = 0.25
+
+    def target_info(self, scene):
+        from floaff_zoo.sim.kitchen import TargetInfo
+
+        f = scene.fixtures["wall_cab"]
+        extra = dict(f)
+        extra["object_geom_ids"] = _body_geoms(scene, [f["object"]])
+        return TargetInfo(pos=f["front"].copy(), yaw=float(f["yaw"]), kind="wall_cab", body_names=list(f["bodies"]),
+                          geom_ids=_body_geoms(scene, f["bodies"]), joint_names=[f["door"]["joint"]], extra=extra)
+
+    def _obj(self, scene) -> tuple[int, int]:
+        m = scene.model
+        b = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, scene.fixtures["wall_cab"]["object"])
+        return b, _jq(scene, "pnp_object_joint")
+
+    def reset(self, scene, rng):
+        f = scene.fixtures["wall_cab"]
+        scene.data.qpos[_jq(scene, f["door"]["joint"])] = _open_fraction(rng) * HALF_PI
+
+    def _corners_local(self, scene) -> np.ndarray:
+        """Object-box corners [8,3] in the cabinet frame (x outward, y lateral, z up), relative to the interior centre."""
+        f = scene.fixtures["wall_cab"]
+        b, qa = self._obj(scene)
+        pos = scene.data.qpos[qa:qa + 3]
+        R = np.zeros(9)
+        mujoco.mju_quat2Mat(R, scene.data.qpos[qa + 3:qa + 7])
+        R = R.reshape(3, 3)
+        h = f["object_half"]
+        signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], dtype=np.float64)
+        world = pos + (signs * h) @ R.T
+        c, s = math.cos(f["yaw"]), math.sin(f["yaw"])
+        d = world - f["interior_center"]
+        return np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1], d[:, 2]], axis=1)
+
+    def gripper_distance(self, scene) -> float:
+        b, qa = self._obj(scene)
+        site = scene.robot.grip_site
+        mujoco.mj_kinematics(scene.model, scene.data)
+        return float(np.linalg.norm(scene.data.site_xpos[site] - scene.data.qpos[qa:qa + 3]))
+
+    def object_inside(self, scene) -> bool:
+        half = scene.fixtures["wall_cab"]["interior_half"]
+        return bool(np.all(np.abs(self._corners_local(scene)) <= half + self.tol))
+
+    def state(self, scene):
+        f = scene.fixtures["wall_cab"]
+        return {"object_inside": self.object_inside(scene), "gripper_dist": self.gripper_distance(scene),
+                "cab_door_open": float(scene.data.qpos[_jq(scene, f["door"]["joint"])]) / HALF_PI}
+
+    def success(self, scene):
+        return self.object_inside(scene) and self.gripper_distance(scene) > self.min_gripper_dist
+
+    def set_success_state(self, scene):
+        f = scene.fixtures["wall_cab"]
+        _, qa = self._obj(scene)
+        p = f["interior_center"].copy()
+        p[2] = f["bottom_z"] + f["object_half"][2] + 0.001
+        scene.data.qpos[qa:qa + 3] = p
+        scene.data.qpos[qa + 3:qa + 7] = (math.cos(f["yaw"] / 2), 0.0, 0.0, math.sin(f["yaw"] / 2))
+        mujoco.mj_forward(scene.model, scene.data)
+
+
+TASK_REGISTRY: dict[str, Task] = {
+    "PnPCounterToCab": PnPCounterToCab(),
+    "OpenSingleDoor": OpenSingleDoor(),
+    "CloseDrawer": CloseDrawer(),
+    "CloseDoubleDoor": CloseDoubleDoor(),
+}
+
+
+def get_task(name: str) -> Task:
+    if name not in TASK_REGISTRY:
+        raise ValueError(f"unknown task {name!r}; valid tasks: {list(TASK_REGISTRY)}")
+    return TASK_REGISTRY[name]
+
+
+def candidate_region(task: str) -> tuple[float, float]:
+    """(r_x, r_y) in metres of the task's candidate region in the target frame (see module doc)."""
+    return get_task(task).candidate_region()

@@ -1,0 +1,278 @@
+"""Egocentric observation views around a manipulation target (paper appendix, "Multi-View Observation Collection").
+
+Target frame (x^o, y^o): origin at the target's floor projection c, the target's FRONT (its outward normal, world yaw
+``target.yaw``) points along -y^o, x^o is the lateral axis (outward normal rotated by +90 deg). View regions:
+
+    V_front = {|x^o| < r_f^x, y^o < -r_f^y}        V_side = {|x^o| > r_s^x, |y^o| < r_s^y}
+
+both capped at ``max_dist`` from c. A view pose is collision-free (``scene.footprint_free`` and ``robot_collides``),
+heads toward the target, and must see at least ``min_target_pixels`` target pixels.
+
+Robot base frame: origin at the base pose (x, y) on the floor, x forward (yaw), y left, z up, floor at z = 0.
+Every view of a scene shares the scene's floor labels; only their coordinates change with the view.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import Any, Literal
+
+import numpy as np
+
+from floaff_zoo.sim.render import Renderer, backproject
+
+__all__ = [
+    "EGO_CAMERA",
+    "ROBOT_DESCRIPTOR",
+    "ViewConfig",
+    "ViewObservation",
+    "base_to_world",
+    "heading_to",
+    "in_front_region",
+    "in_side_region",
+    "make_view_sample",
+    "render_view",
+    "sample_view_poses",
+    "target_to_world",
+    "world_to_base",
+    "world_to_target",
+    "wrap_angle",
+]
+
+EGO_CAMERA = "floaff_ego"
+# [arm reach m, base height m] of the PandaOmron-like robot, the MoMa-Kitchen style robot descriptor (COMMON.md)
+ROBOT_DESCRIPTOR = np.array([0.85, 1.03], dtype=np.float32)
+
+ViewKind = Literal["front", "side"]
+
+
+@dataclass
+class ViewConfig:
+    """Where views are sampled and how they are rendered.
+
+    front_rx/front_ry = r_f^x, r_f^y; side_rx/side_ry = r_s^x, r_s^y (m, paper values unknown: chosen so the robot
+    footprint fits in front of a counter and the target stays in the ego camera's field of view).
+    """
+
+    front_rx: float = 0.45
+    front_ry: float = 0.55
+    side_rx: float = 0.75
+    side_ry: float = 0.9
+    max_dist: float = 2.4
+    image_size: int = 128
+    depth_max: float = 4.0
+    max_points: int = 8192
+    min_target_pixels: int = 4
+    max_tries_per_view: int = 60
+    hide_robot: bool = True
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@dataclass
+class ViewObservation:
+    """One rendered view, already in the robot base frame.
+
+    scene_xyz [N,3] f32, scene_feat [N,4] f32 (flag, r, g, b in [0,1]), rgb [H,W,3] u8, depth [H,W] f32,
+    n_target int (target points kept).
+    """
+
+    scene_xyz: np.ndarray
+    scene_feat: np.ndarray
+    rgb: np.ndarray
+    depth: np.ndarray
+    n_target: int
+
+
+# ---------------------------------------------------------------------------------------------------- frames
+def wrap_angle(a: np.ndarray | float) -> np.ndarray | float:
+    """Wrap angles to [-pi, pi)."""
+    return (np.asarray(a) + np.pi) % (2.0 * np.pi) - np.pi if isinstance(a, np.ndarray) else (
+        (float(a) + math.pi) % (2.0 * math.pi) - math.pi
+    )
+
+
+def world_to_target(xy: np.ndarray, target_xy: np.ndarray, target_yaw: float) -> np.ndarray:
+    """World xy [K,2] -> target frame (x^o, y^o) [K,2]; the target's front direction maps to -y^o."""
+    d = np.asarray(xy, dtype=np.float64).reshape(-1, 2) - np.asarray(target_xy, dtype=np.float64)[:2]
+    n = np.array([math.cos(target_yaw), math.sin(target_yaw)])  # outward normal
+    lat = np.array([-n[1], n[0]])  # normal rotated +90 deg
+    return np.stack([d @ lat, -(d @ n)], axis=-1)
+
+
+def target_to_world(xo: np.ndarray, target_xy: np.ndarray, target_yaw: float) -> np.ndarray:
+    """Inverse of :func:`world_to_target`: [K,2] target frame -> [K,2] world."""
+    xo = np.asarray(xo, dtype=np.float64).reshape(-1, 2)
+    n = np.array([math.cos(target_yaw), math.sin(target_yaw)])
+    lat = np.array([-n[1], n[0]])
+    return np.asarray(target_xy, dtype=np.float64)[:2] + xo[:, :1] * lat - xo[:, 1:2] * n
+
+
+def world_to_base(p: np.ndarray, base_pose: np.ndarray) -> np.ndarray:
+    """World points [K,3] (or [K,2]) -> robot base frame; base_pose = (x, y, yaw) world."""
+    p = np.asarray(p, dtype=np.float64)
+    x, y, yaw = (float(v) for v in base_pose)
+    c, s = math.cos(yaw), math.sin(yaw)
+    dx, dy = p[..., 0] - x, p[..., 1] - y
+    out = p.copy()
+    out[..., 0] = c * dx + s * dy
+    out[..., 1] = -s * dx + c * dy
+    return out
+
+
+def base_to_world(p: np.ndarray, base_pose: np.ndarray) -> np.ndarray:
+    """Robot base frame points [K,3] (or [K,2]) -> world; inverse of :func:`world_to_base`."""
+    p = np.asarray(p, dtype=np.float64)
+    x, y, yaw = (float(v) for v in base_pose)
+    c, s = math.cos(yaw), math.sin(yaw)
+    out = p.copy()
+    out[..., 0] = c * p[..., 0] - s * p[..., 1] + x
+    out[..., 1] = s * p[..., 0] + c * p[..., 1] + y
+    return out
+
+
+def in_front_region(xo: np.ndarray, cfg: ViewConfig) -> np.ndarray:
+    """Target-frame points [K,2] -> bool [K]: inside V_front and within max_dist."""
+    xo = np.asarray(xo).reshape(-1, 2)
+    r = np.hypot(xo[:, 0], xo[:, 1])
+    return (np.abs(xo[:, 0]) < cfg.front_rx) & (xo[:, 1] < -cfg.front_ry) & (r <= cfg.max_dist)
+
+
+def in_side_region(xo: np.ndarray, cfg: ViewConfig) -> np.ndarray:
+    """Target-frame points [K,2] -> bool [K]: inside V_side and within max_dist."""
+    xo = np.asarray(xo).reshape(-1, 2)
+    r = np.hypot(xo[:, 0], xo[:, 1])
+    return (np.abs(xo[:, 0]) > cfg.side_rx) & (np.abs(xo[:, 1]) < cfg.side_ry) & (r <= cfg.max_dist)
+
+
+def _propose(kind: ViewKind, rng: np.random.Generator, cfg: ViewConfig) -> np.ndarray:
+    """One uniform proposal [2] in the target frame inside the bounding box of the region."""
+    if kind == "front":
+        return np.array([rng.uniform(-cfg.front_rx, cfg.front_rx), rng.uniform(-cfg.max_dist, -cfg.front_ry)])
+    side = rng.choice([-1.0, 1.0])
+    return np.array([side * rng.uniform(cfg.side_rx, cfg.max_dist), rng.uniform(-cfg.side_ry, cfg.side_ry)])
+
+
+def heading_to(xy: np.ndarray, target_xy: np.ndarray) -> float:
+    """Yaw (rad, world) of a base at xy [2] looking at target_xy [2]."""
+    d = np.asarray(target_xy, dtype=np.float64)[:2] - np.asarray(xy, dtype=np.float64)[:2]
+    return float(math.atan2(d[1], d[0]))
+
+
+# ---------------------------------------------------------------------------------------------------- rendering
+def render_view(
+    scene: Any,
+    renderer: Renderer,
+    base_pose: np.ndarray,
+    cfg: ViewConfig,
+    rng: np.random.Generator,
+) -> ViewObservation:
+    """Put the robot at base_pose (world x, y, yaw), render the ego camera and build the base-frame cloud.
+
+    The robot's own geoms (all geoms not in scene.scene_geom_ids) are hidden when cfg.hide_robot (so its arm does not
+    occlude the floor near the base; N2M moves the robot away for the same reason) and never enter the cloud;
+    background (depth >= depth_max) is dropped; target pixels
+    (scene.target.geom_ids) get flag +1, others 0. At most cfg.max_points points are kept (uniform, seeded by rng).
+    """
+    import mujoco  # local: render.py already chose the GL back end
+
+    scene.set_base_pose(float(base_pose[0]), float(base_pose[1]), float(base_pose[2]))
+    mujoco.mj_forward(scene.model, scene.data)
+    ng = scene.model.ngeom
+    is_scene = np.zeros(ng + 1, dtype=bool)  # last slot: sentinel for "no geom" (-1)
+    is_scene[np.asarray(scene.scene_geom_ids, dtype=np.int64).reshape(-1)] = True
+    # robot geoms = everything that is not scene (robot_geom_ids holds only its collision geoms)
+    robot_ids = np.flatnonzero(~is_scene[:ng])
+    res = renderer.render(scene.data, EGO_CAMERA, segmentation=True, hide_geoms=robot_ids if cfg.hide_robot else None)
+    pts, valid = backproject(res.depth, res.fovy, res.cam_pos, res.cam_mat, cfg.depth_max)
+    gid = res.geom_id.reshape(-1)
+    target = np.zeros(ng + 1, dtype=bool)
+    target[np.asarray(scene.target.geom_ids, dtype=np.int64).reshape(-1)] = True
+    gidx = np.where(gid >= 0, gid, ng)
+    keep = valid & is_scene[gidx]  # background, sites and robot pixels are dropped
+    idx = np.flatnonzero(keep)
+    if idx.size > cfg.max_points:
+        idx = np.sort(rng.choice(idx, size=cfg.max_points, replace=False))
+    flag = target[gidx[idx]].astype(np.float32)
+    rgb = res.rgb.reshape(-1, 3)[idx].astype(np.float32) / 255.0
+    xyz = world_to_base(pts[idx], base_pose).astype(np.float32)
+    feat = np.concatenate([flag[:, None], rgb], axis=1).astype(np.float32)
+    return ViewObservation(scene_xyz=xyz, scene_feat=feat, rgb=res.rgb, depth=res.depth, n_target=int(flag.sum()))
+
+
+def sample_view_poses(
+    scene: Any,
+    renderer: Renderer,
+    kind: ViewKind,
+    n: int,
+    cfg: ViewConfig,
+    rng: np.random.Generator,
+) -> list[tuple[np.ndarray, ViewObservation]]:
+    """Sample up to n collision-free view poses of one kind, each with its rendered observation.
+
+    Returns a list of (base_pose_world [3] float64, ViewObservation); fewer than n when the region has too little free
+    floor (n * cfg.max_tries_per_view proposals in total). Deterministic for a given rng state and scene.
+    """
+    if kind not in ("front", "side"):
+        raise ValueError(f"view kind must be 'front' or 'side', got {kind!r}")
+    in_region = in_front_region if kind == "front" else in_side_region
+    tpos = np.asarray(scene.target.pos, dtype=np.float64)
+    tyaw = float(scene.target.yaw)
+    out: list[tuple[np.ndarray, ViewObservation]] = []
+    for _ in range(max(0, n) * cfg.max_tries_per_view):
+        if len(out) >= n:
+            break
+        xo = _propose(kind, rng, cfg)
+        if not in_region(xo, cfg)[0]:
+            continue
+        xy = target_to_world(xo, tpos[:2], tyaw)[0]
+        yaw = heading_to(xy, tpos[:2])
+        if not scene.footprint_free(float(xy[0]), float(xy[1]), yaw):
+            continue
+        pose = np.array([xy[0], xy[1], yaw], dtype=np.float64)
+        scene.set_base_pose(*pose.tolist())
+        if scene.robot_collides():
+            continue
+        obs = render_view(scene, renderer, pose, cfg, rng)
+        if obs.n_target < cfg.min_target_pixels:
+            continue
+        out.append((pose, obs))
+    return out
+
+
+def make_view_sample(
+    obs: ViewObservation,
+    base_pose: np.ndarray,
+    target_pos: np.ndarray,
+    target_yaw: float,
+    grid_xy: np.ndarray,
+    label: np.ndarray,
+    save_images: bool = False,
+) -> dict[str, np.ndarray]:
+    """The per-view arrays stored in ``views/<view_id>.npz`` (sample-contract fields, robot base frame).
+
+    grid_xy [M,2] world candidate cells, label [M] -> floor_xyz [M,3] (z = 0), floor_label [M];
+    target_pos [3] world -> target_xyz [3]; target_yaw world -> base-frame yaw in [-pi, pi).
+    """
+    grid_xy = np.asarray(grid_xy, dtype=np.float64).reshape(-1, 2)
+    floor = np.concatenate([grid_xy, np.zeros((len(grid_xy), 1))], axis=1)
+    out = {
+        "scene_xyz": obs.scene_xyz.astype(np.float32),
+        "scene_feat": obs.scene_feat.astype(np.float32),
+        "floor_xyz": world_to_base(floor, base_pose).astype(np.float32),
+        "floor_label": np.asarray(label, dtype=np.float32).reshape(-1),
+        "robot": ROBOT_DESCRIPTOR.copy(),
+        "target_xyz": world_to_base(np.asarray(target_pos, dtype=np.float64).reshape(1, 3), base_pose)[0].astype(
+            np.float32
+        ),
+        "target_yaw": np.float32(wrap_angle(float(target_yaw) - float(base_pose[2]))),
+        "base_pose_world": np.asarray(base_pose, dtype=np.float32).reshape(3),
+    }
+    if out["floor_label"].shape[0] != out["floor_xyz"].shape[0]:
+        raise ValueError(f"label has {out['floor_label'].shape[0]} entries but the grid has {len(grid_xy)} cells")
+    if save_images:
+        out["rgb"] = np.asarray(obs.rgb, dtype=np.uint8)
+        out["depth"] = np.asarray(obs.depth, dtype=np.float32)
+    return out

@@ -1,0 +1,111 @@
+"""FloAffKitchenDataModule on a fixture in the generator's format (tests/data/floaff_fixture.py)."""
+
+import pytest
+from lightning.pytorch.utilities.exceptions import MisconfigurationException
+
+from floaff_zoo.data.floaff_kitchen import FloAffKitchenDataModule
+from floaff_zoo.data.readers import READERS, DataError, GeneratedReader, get_reader, register_reader
+
+
+def _dm(root, **kw):
+    args = dict(root=str(root), batch_size=2, num_points=128, cache=False)
+    args.update(kw)
+    return FloAffKitchenDataModule(**args)
+
+
+def test_scene_level_splits_meta_and_skips(floaff_root, capsys):
+    root, exp = floaff_root
+    dm = _dm(root, tasks=["CloseDrawer", "PnPCounterToCab"])
+    dm.setup("fit")
+    assert dict(dm.skips.counts) == exp["skips"]
+    assert "skipped 5 sample(s)" in capsys.readouterr().out
+    scenes = {s: {r.meta["scene_id"] for r in dm.datasets[s].records} for s in ("train", "val", "test")}
+    assert scenes["test"] == set(exp["scenes"]["styles"]["test"])
+    cd = {s: {x for x in v if x.startswith("CloseDrawer")} for s, v in scenes.items()}
+    assert len(cd["val"]) == 1 and len(cd["train"]) == 2 and not cd["val"] & cd["train"]  # scene-level
+    # PnP has one train scene: its views are split (seeded) between train and val
+    pnp_tr = [r.key for r in dm.datasets["train"].records if r.meta["task"] == "PnPCounterToCab"]
+    pnp_va = [r.key for r in dm.datasets["val"].records if r.meta["task"] == "PnPCounterToCab"]
+    assert len(pnp_va) == 1 and len(pnp_tr) == 3 and not set(pnp_tr) & set(pnp_va)
+    s = dm.datasets["test"][0]
+    m = s["meta"]
+    for k in ("dataset", "task", "view", "scene_id", "layout_id", "style_id", "sample_id", "index"):
+        assert k in m
+    assert m["dataset"] == "floaff_kitchen_styles" and m["index"] == 0
+    assert set(m["sim"]) >= {"layout_id", "style_id", "seed", "task", "base_pose_world", "scene_dir"}
+    assert len(m["sim"]["base_pose_world"]) == 3 and m["sim"]["scene_dir"].endswith(m["scene_id"])
+    assert s["scene_feat"].shape[1] == 4
+    b = next(iter(dm.val_dataloader()))
+    assert b["scene_xyz"].shape == (2, 128, 3) and isinstance(b["meta"][0]["sim"], dict)
+
+
+def test_single_task_views_filter_and_layouts(floaff_root):
+    root, exp = floaff_root
+    dm = _dm(root, benchmark="layouts", tasks=["OpenSingleDoor"], views=["front"])
+    dm.setup("fit")
+    views = {r.meta["view"] for s in ("train", "val", "test") for r in dm.datasets[s].records}
+    assert views == {"front"}
+    assert len(dm.datasets["train"]) == 2 and len(dm.datasets["val"]) == 2 and len(dm.datasets["test"]) == 2
+    assert all(r.meta["task"] == "OpenSingleDoor" for r in dm.datasets["train"].records)
+    # a task without scenes -> empty split at fit is a clear error
+    with pytest.raises(MisconfigurationException, match="split is empty"):
+        _dm(root, benchmark="layouts", tasks=["CloseDoubleDoor"]).setup("fit")
+
+
+def test_unknown_names_list_valid_ones(floaff_root):
+    root, _ = floaff_root
+    with pytest.raises(ValueError, match="valid tasks.*CloseDrawer"):
+        _dm(root, tasks=["CloseDrawr"])
+    with pytest.raises(ValueError, match="valid views.*front"):
+        _dm(root, views=["top"])
+    with pytest.raises(ValueError, match="valid benchmark.*styles"):
+        _dm(root, benchmark="kitchens")
+    with pytest.raises(ValueError, match="registered.*generated"):
+        _dm(root, reader="nope")
+    with pytest.raises(MisconfigurationException, match="does not exist"):
+        _dm(root / "missing").setup("fit")
+
+
+def test_strict_raises_naming_file(floaff_root):
+    root, _ = floaff_root
+    with pytest.raises(DataError, match="scene.json"):
+        _dm(root, strict=True).setup("fit")
+
+
+class _RenamedReader(GeneratedReader):
+    """A user reader: the generated format, with every scene's views restricted to the first one."""
+
+    def scenes(self, benchmark):
+        out = super().scenes(benchmark)
+        for s in out:
+            s.views = s.views[:1]
+        return out
+
+
+def test_custom_reader_by_registry_and_import_path(floaff_root):
+    root, _ = floaff_root
+    register_reader("first_view_only")(_RenamedReader)
+    try:
+        assert get_reader("first_view_only") is _RenamedReader
+        dm = _dm(root, reader="first_view_only", tasks=["CloseDrawer"])
+        dm.setup("test")
+        assert len(dm.datasets["test"]) == 1
+        dm2 = _dm(root, reader="tests.data.test_floaff_kitchen:_RenamedReader", tasks=["CloseDrawer"])
+        dm2.setup("test")
+        assert len(dm2.datasets["test"]) == 1
+    finally:
+        READERS.pop("first_view_only", None)
+    with pytest.raises(TypeError):
+        register_reader("bad")(dict)
+
+
+def test_cache_and_workers(floaff_root):
+    root, exp = floaff_root
+    dm = _dm(root, cache=True, num_workers=2, tasks=["CloseDrawer"])
+    dm.setup("fit")
+    n = sum(len(dm.datasets[s]) for s in ("train", "val", "test"))
+    assert len(list((root / ".cache").rglob("*.pt"))) == n
+    assert len(list((root / ".cache").rglob("*.skip"))) == 2  # bad views are remembered
+    dm2 = _dm(root, cache=True, tasks=["CloseDrawer"])
+    dm2.setup("fit")
+    assert dict(dm2.skips.counts) == {k: v for k, v in exp["skips"].items()}

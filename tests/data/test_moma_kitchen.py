@@ -1,0 +1,186 @@
+"""MoMaKitchenDataModule on a fixture in the exact official layout (tests/data/moma_kitchen/data.py)."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from lightning.pytorch.utilities.exceptions import MisconfigurationException
+
+from floaff_zoo.data.moma_kitchen import (
+    FLAG_RADIUS,
+    LABEL_TXT,
+    MoMaKitchenDataModule,
+    estimate_target_yaw,
+    read_ply,
+    target_flags,
+)
+from floaff_zoo.data.readers import DataError
+from floaff_zoo.data.transforms import OfficialNormalize
+
+
+def _dm(root, **kw):
+    args = dict(root=str(root), val_fraction=0.34, batch_size=2, num_points=256, cache=False)
+    args.update(kw)
+    return MoMaKitchenDataModule(**args)
+
+
+def test_skips_counted_and_summarised(moma_root, capsys):
+    root, exp = moma_root
+    dm = _dm(root)
+    dm.setup("fit")
+    dm.setup("test")
+    got = dict(dm.skips["train"].counts)
+    assert got == exp["skips"]
+    out = capsys.readouterr().out
+    assert "skipped 7 sample(s)" in out and "elephant" in out and "144 points" in out
+    kept = sorted(r.key for s in ("train", "val") for r in dm.datasets[s].records)
+    assert kept == sorted(exp["kept"]["train"])
+
+
+def test_split_order_index_and_scene_level_val(moma_root):
+    root, exp = moma_root
+    dm = _dm(root)
+    dm.setup("fit")
+    dm.setup("test")
+    test = dm.datasets["test"]
+    assert [r.key for r in test.records] == exp["kept"]["test"]  # split-file order, not sorted
+    metas = [test[i]["meta"] for i in range(len(test))]
+    assert [m["index"] for m in metas] == [0, 1, 2]
+    assert [m["split_line"] for m in metas] == [0, 1, 2]
+    tr = {r.meta["scene_id"] for r in dm.datasets["train"].records}
+    va = {r.meta["scene_id"] for r in dm.datasets["val"].records}
+    assert tr and va and not tr & va
+    again = _dm(root)
+    again.setup("fit")
+    assert [r.key for r in again.datasets["val"].records] == [r.key for r in dm.datasets["val"].records]
+    loader = dm.test_dataloader()
+    assert [m["sample_id"] for b in loader for m in b["meta"]] == exp["kept"]["test"]
+
+
+def test_sample_fields_flags_and_labels(moma_root):
+    root, exp = moma_root
+    dm = _dm(root)
+    dm.setup("fit")
+    ds = dm.datasets["train"]
+    i = [r.key for r in ds.records].index(exp["barrier_sample"])
+    s = ds[i]
+    n = s["scene_xyz"].shape[0]
+    assert s["scene_feat"].shape == (n, 1) and s["floor_xyz"].shape == (exp["floor_points"], 3)
+    assert s["robot"].tolist() == pytest.approx([0.7, 0.33])  # xarm
+    flag = s["scene_feat"][:, 0]
+    assert set(flag.unique().tolist()) == {-1.0, 0.0, 1.0}
+    d = root / "rgbd" / exp["barrier_sample"]
+    target = read_ply(d / "point_cloud_transformed" / "target_pcd_transformed.ply")
+    assert torch.allclose(s["target_xyz"], torch.tensor(target.mean(0), dtype=torch.float32), atol=1e-5)
+    assert (flag == 1).sum() >= len(target) - 2  # target points are in the global cloud
+    # labels: CSV column 3, one row per floor point, in order
+    csv = np.loadtxt(d / LABEL_TXT, delimiter=",")
+    assert np.allclose(s["floor_label"].numpy(), csv[:, 3], atol=1e-6)
+    assert np.allclose(s["floor_xyz"].numpy(), csv[:, :3], atol=1e-5)
+    # yaw estimate: from the target toward the robot origin
+    t = s["target_xyz"]
+    assert float(s["target_yaw"]) == pytest.approx(math.atan2(-t[1], -t[0]), abs=1e-5)
+
+
+def test_flag_radius_and_barrier_override():
+    scene = np.array([[0, 0, 0], [0.03, 0, 0], [0.05, 0, 0], [1, 0, 0], [1.02, 0, 0.0]])
+    target = np.array([[0, 0, 0], [1.0, 0, 0]])
+    barrier = np.array([[1.0, 0.0, 0.0]])
+    f = target_flags(scene, target, [], FLAG_RADIUS)
+    assert f.tolist() == [1, 1, 0, 1, 1]
+    f = target_flags(scene, target, [barrier], FLAG_RADIUS)
+    assert f.tolist() == [1, 1, 0, -1, -1]
+
+
+def test_yaw_estimators():
+    tc = np.array([2.0, 0.0, 1.0])
+    floor = np.array([[1.0, 1.0, 0], [1.0, -1.0, 0], [3.0, 0.0, 0]])
+    assert abs(estimate_target_yaw("toward_origin", tc, floor, np.ones(3), None)) == pytest.approx(math.pi)
+    assert estimate_target_yaw("toward_view", tc, floor, np.ones(3), (2.0, 5.0)) == pytest.approx(math.pi / 2)
+    assert estimate_target_yaw("label_centroid", tc, floor, np.array([1.0, 0, 0]), None) == pytest.approx(
+        math.atan2(1, -1))
+    with pytest.raises(ValueError, match="toward_origin"):
+        estimate_target_yaw("nope", tc, floor, np.ones(3), None)
+
+
+def test_strict_names_file_and_problem(moma_root):
+    root, _ = moma_root
+    with pytest.raises(DataError, match="world_pcd_transformed.ply: file missing"):
+        _dm(root, strict=True).setup("fit")
+
+
+def test_extra_robot_keeps_sample(moma_root):
+    root, exp = moma_root
+    dm = _dm(root, extra_robots={"elephant": [0.6, 0.5]})
+    dm.setup("fit")
+    assert "unknown_robot" not in dm.skips["train"].counts
+    robots = {r.meta["robot_name"] for s in ("train", "val") for r in dm.datasets[s].records}
+    assert "elephant" in robots
+
+
+def test_faithful_pad_mode_and_official_normalize(moma_root):
+    root, _ = moma_root
+    dm = _dm(root, collate_mode="pad", num_points=300, num_floor=200, val_fraction=0.0,
+             pre_transforms=[OfficialNormalize()])
+    dm.setup("fit")
+    assert dm.datasets["val"] is dm.datasets["test"]  # official: evaluate test every epoch
+    b = next(iter(dm.val_dataloader()))
+    assert b["scene_xyz"].shape == (2, 300, 3) and b["floor_xyz"].shape == (2, 200, 3)
+    assert b["scene_mask"].all()  # clouds longer than 300 are truncated
+    assert b["floor_mask"].sum(1).tolist() == [144, 144] and not b["floor_mask"][:, 144:].any()
+    assert (b["floor_label"][:, 144:] == 0).all()
+    r = b["scene_xyz"].norm(dim=-1)
+    assert r.max() <= 1.0 + 1e-5  # normalised global cloud (truncation keeps a subset)
+
+
+def test_bad_roots_and_empty_split(moma_root, tmp_path):
+    root, _ = moma_root
+    with pytest.raises(MisconfigurationException, match="does not exist"):
+        _dm(tmp_path / "nowhere").setup("fit")
+    (root / "data_split" / "kitchen_test.txt").write_text("\n")
+    with pytest.raises(MisconfigurationException, match="kitchen_test.txt is empty"):
+        _dm(root).setup("test")
+    with pytest.raises(ValueError, match="yaw_estimator"):
+        _dm(root, yaw_estimator="sideways")
+
+
+def test_cache_hit_and_invalidation(moma_root, monkeypatch):
+    root, exp = moma_root
+    dm = _dm(root, cache=True)
+    dm.setup("test")
+    first = dm.datasets["test"][0]
+    entries = list((root / ".cache").rglob("*.pt"))
+    assert len(entries) == 3 and list((root / ".cache").rglob("config.json"))
+    # second setup: everything from the cache, the PLY reader is never called
+    calls = []
+    import floaff_zoo.data.moma_kitchen as mk
+
+    real = mk.read_ply
+    monkeypatch.setattr(mk, "read_ply", lambda *a, **k: calls.append(a) or real(*a, **k))
+    dm2 = _dm(root, cache=True)
+    dm2.setup("test")
+    assert torch.equal(dm2.datasets["test"][0]["scene_xyz"], first["scene_xyz"]) and not calls
+    # editing a source file (new size/mtime) misses the cache for that sample only
+    rel = exp["kept"]["test"][0]
+    csv = root / "rgbd" / rel / LABEL_TXT
+    rows = np.loadtxt(csv, delimiter=",")
+    rows[:, 3] = 0.5
+    np.savetxt(csv, rows, delimiter=",", fmt="%.7f")
+    dm3 = _dm(root, cache=True)
+    dm3.setup("test")
+    assert len(calls) == 3  # global, floor, target of one sample
+    assert torch.allclose(dm3.datasets["test"][0]["floor_label"], torch.full((144,), 0.5))
+    # a different reader setting uses a different cache directory
+    _dm(root, cache=True, flag_radius=0.05).setup("test")
+    assert len({p.parent for p in (root / ".cache").rglob("*.pt")}) == 2
+
+
+def test_robust_getitem_after_file_loss(moma_root, capsys):
+    root, exp = moma_root
+    dm = _dm(root)
+    dm.setup("test")
+    (root / "rgbd" / exp["kept"]["test"][0] / "point_cloud_transformed" / "world_pcd_transformed.ply").unlink()
+    s = dm.datasets["test"][0]  # replaced by the next sample, not a crash mid-epoch
+    assert s["meta"]["sample_id"] == exp["kept"]["test"][1]
+    assert "failed at load time" in capsys.readouterr().out

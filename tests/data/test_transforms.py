@@ -1,0 +1,123 @@
+"""Per-sample transforms and how the DataModule applies them."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from floaff_zoo.contract import validate_sample
+from floaff_zoo.data.plot import plot
+from floaff_zoo.data.synthetic import SyntheticDataModule, make_synthetic_sample
+from floaff_zoo.data.transforms import (
+    Jitter,
+    OfficialNormalize,
+    ResamplePoints,
+    SampleTransform,
+    YawPerturb,
+    fps_indices,
+    rotate_sample,
+    transforms_config,
+)
+
+
+def _sample():
+    s = make_synthetic_sample(3, num_points=200, floor_cells=6)
+    s["meta"]["sim"] = {"base_pose_world": [1.0, 2.0, 0.3]}
+    return s
+
+
+def test_resample_random_and_fps():
+    s = _sample()
+    s["scene_mask"][150:] = False
+    rng = np.random.default_rng(0)
+    out = ResamplePoints(64)(s, rng)
+    assert out["scene_xyz"].shape == (64, 3) and out["scene_mask"].all()
+    valid = {tuple(p) for p in s["scene_xyz"][:150].tolist()}
+    assert all(tuple(p) in valid for p in out["scene_xyz"].tolist())  # only valid points drawn
+    up = ResamplePoints(400)(s, rng)
+    assert up["scene_xyz"].shape == (400, 3)
+    fps = ResamplePoints(16, method="fps")(s, np.random.default_rng(1))
+    assert len({tuple(p) for p in fps["scene_xyz"].tolist()}) == 16
+    # FPS spreads points: its minimum pairwise distance beats a random subset's
+    xyz = np.random.default_rng(0).uniform(size=(500, 3))
+    idx = fps_indices(xyz, 20)
+    d = np.linalg.norm(xyz[idx, None] - xyz[None, idx], axis=-1) + np.eye(20) * 9
+    rnd = xyz[:20]
+    d2 = np.linalg.norm(rnd[:, None] - rnd[None], axis=-1) + np.eye(20) * 9
+    assert d.min() > d2.min()
+    with pytest.raises(ValueError, match="method"):
+        ResamplePoints(8, method="grid")
+
+
+def test_yaw_perturb_is_consistent():
+    s = _sample()
+    out = YawPerturb(5.0)(s, np.random.default_rng(4))
+    ang = math.atan2(float(out["target_xyz"][1]), float(out["target_xyz"][0])) - math.atan2(
+        float(s["target_xyz"][1]), float(s["target_xyz"][0]))
+    assert abs(ang) <= math.radians(5) + 1e-6 and abs(ang) > 0
+    # rigid rotation about the robot origin: distances to the target, radii and z are preserved
+    for key in ("scene_xyz", "floor_xyz"):
+        d0 = (s[key] - s["target_xyz"]).norm(dim=1)
+        d1 = (out[key] - out["target_xyz"]).norm(dim=1)
+        assert torch.allclose(d0, d1, atol=1e-5)
+        assert torch.allclose(s[key].norm(dim=1), out[key].norm(dim=1), atol=1e-5)
+    assert float(out["target_yaw"]) == pytest.approx(float(s["target_yaw"]) + ang, abs=1e-5)
+    assert out["meta"]["sim"]["base_pose_world"][2] == pytest.approx(0.3 - ang)
+    assert s["meta"]["sim"]["base_pose_world"][2] == 0.3  # input untouched
+    back = rotate_sample(out, -ang)
+    assert torch.allclose(back["scene_xyz"], s["scene_xyz"], atol=1e-5)
+
+
+def test_jitter_and_official_normalize():
+    s = _sample()
+    out = Jitter(0.005)(s, np.random.default_rng(0))
+    diff = out["scene_xyz"] - s["scene_xyz"]
+    assert 0.003 < float(diff.std()) < 0.007 and torch.equal(out["floor_xyz"], s["floor_xyz"])
+    clipped = Jitter(0.1, clip=0.01)(s, np.random.default_rng(0))
+    assert float((clipped["scene_xyz"] - s["scene_xyz"]).abs().max()) <= 0.01 + 1e-6
+    n = OfficialNormalize()(s, np.random.default_rng(0))
+    assert torch.allclose(n["scene_xyz"].mean(0), torch.zeros(3), atol=1e-5)
+    assert float(n["scene_xyz"].norm(dim=1).max()) == pytest.approx(1.0)
+    assert torch.equal(n["floor_xyz"], s["floor_xyz"])
+
+
+def test_transforms_config_and_datamodule_application():
+    assert transforms_config([YawPerturb(3.0)])[0] == {"class": "floaff_zoo.data.transforms.YawPerturb",
+                                                        "max_deg": 3.0}
+
+    class Flip(SampleTransform):
+        def __call__(self, sample, rng):
+            out = dict(sample)
+            out["scene_xyz"] = -sample["scene_xyz"]
+            return out
+
+    dm = SyntheticDataModule(num_train=4, num_val=4, num_test=4, batch_size=4, num_points=None, collate_mode="pad",
+                             train_transforms=[YawPerturb(5.0)], eval_transforms=[Flip()])
+    dm.setup("fit")
+    raw = dm.datasets["val"][0]["scene_xyz"]
+    v1 = next(iter(dm.val_dataloader()))["scene_xyz"][0]
+    v2 = next(iter(dm.val_dataloader()))["scene_xyz"][0]
+    assert torch.allclose(v1, -raw) and torch.equal(v1, v2)  # eval: deterministic
+    torch.manual_seed(0)
+    t1 = next(iter(dm.train_dataloader()))
+    t2 = next(iter(dm.train_dataloader()))
+    assert not torch.equal(t1["target_yaw"], t2["target_yaw"])  # train: fresh draws
+
+    class Hooked(SyntheticDataModule):
+        def sample_transform(self, sample, split):
+            sample = dict(sample)
+            sample["robot"] = sample["robot"] * 0 + (1.0 if split == "train" else 2.0)
+            return sample
+
+    h = Hooked(num_train=2, num_val=2, num_test=2, batch_size=2)
+    h.setup("fit")
+    assert (next(iter(h.train_dataloader()))["robot"] == 1).all()
+    assert (next(iter(h.val_dataloader()))["robot"] == 2).all()
+
+
+def test_plot_writes_png(tmp_path):
+    s = validate_sample(_sample())
+    s["scene_feat"][:5, 0] = -1
+    fig = plot(s, tmp_path / "a.png", scores=torch.rand(s["floor_xyz"].shape[0]))
+    assert (tmp_path / "a.png").stat().st_size > 1000 and fig is not None

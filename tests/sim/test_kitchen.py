@@ -1,0 +1,93 @@
+import math
+
+import numpy as np
+import pytest
+
+from floaff_zoo.sim.kitchen import LAYOUTS, STYLES, TASKS, SceneSpec, build_scene
+
+
+def test_spec_validation_lists_valid_ids():
+    with pytest.raises(ValueError, match=r"valid ids: \[0, 1, 2, 3, 4, 5\]"):
+        SceneSpec(99, 0, 0, "CloseDrawer")
+    with pytest.raises(ValueError, match="valid ids"):
+        SceneSpec(0, 42, 0, "CloseDrawer")
+    with pytest.raises(ValueError, match="CloseDrawer"):
+        SceneSpec(0, 0, 0, "FlyAway")
+
+
+def test_spec_roundtrip_and_id():
+    s = SceneSpec(2, 5, 17, "CloseDrawer")
+    assert s.scene_id == "L2_S5_s17_CloseDrawer"
+    assert SceneSpec.from_dict(s.to_dict()) == s
+    with pytest.raises(ValueError, match="missing"):
+        SceneSpec.from_dict({"layout_id": 1})
+
+
+def test_variety_counts():
+    assert len(LAYOUTS) >= 6 and len(STYLES) >= 8 and len(TASKS) == 4
+
+
+@pytest.mark.parametrize("layout", sorted(LAYOUTS))
+def test_every_layout_builds_with_all_targets(layout):
+    for task in TASKS:
+        sc = build_scene(SceneSpec(layout, layout % len(STYLES), 1, task))
+        assert sc.target.geom_ids.size > 0
+        assert np.isfinite(sc.target.pos).all()
+        # target front faces open floor: a point 0.8 m in front is free for the robot footprint
+        n = np.array([math.cos(sc.target.yaw), math.sin(sc.target.yaw)])
+        p = sc.target.pos[:2] + 0.7 * n
+        assert sc.footprint_free(p[0], p[1], sc.target.yaw + math.pi), (layout, task)
+
+
+def test_build_is_deterministic():
+    a = build_scene(SceneSpec(3, 2, 5, "CloseDrawer"))
+    from floaff_zoo.sim import kitchen
+
+    kitchen._CACHE.clear()
+    b = build_scene(SceneSpec(3, 2, 5, "CloseDrawer"))
+    assert a.model.ngeom == b.model.ngeom
+    np.testing.assert_array_equal(a.model.geom_pos, b.model.geom_pos)
+    np.testing.assert_array_equal(a.target.pos, b.target.pos)
+
+
+def test_styles_change_geometry():
+    a = build_scene(SceneSpec(0, 0, 0, "CloseDrawer"))
+    b = build_scene(SceneSpec(0, 3, 0, "CloseDrawer"))
+    assert a.fixtures["drawer"]["z1"] != b.fixtures["drawer"]["z1"]
+    assert a.model.ngeom != b.model.ngeom or not np.allclose(a.model.geom_size, b.model.geom_size)
+
+
+def test_base_pose_roundtrip_and_pivot(scene_factory):
+    sc = scene_factory("CloseDrawer")
+    for pose in [(0.3, -2.0, 0.0), (-0.5, -1.7, 1.2), (1.0, -2.2, -2.9)]:
+        sc.set_base_pose(*pose)
+        got = sc.base_pose()
+        assert np.allclose(got, pose, atol=1e-9)
+        # the base body origin is where we asked, despite the 0.21 m yaw pivot
+        assert np.allclose(sc.data.xpos[sc.robot.base_body][:2], pose[:2], atol=1e-9)
+
+
+def test_collision_and_footprint(scene_factory):
+    sc = scene_factory("CloseDrawer")
+    sc.reset_task(None)
+    t = sc.target
+    n = np.array([math.cos(t.yaw), math.sin(t.yaw)])
+    inside = t.pos[:2] - 0.3 * n  # inside the cabinet
+    assert not sc.footprint_free(inside[0], inside[1], t.yaw + math.pi)
+    sc.set_base_pose(inside[0], inside[1], t.yaw + math.pi)
+    assert sc.robot_collides()
+    free = t.pos[:2] + 1.1 * n
+    assert sc.footprint_free(free[0], free[1], t.yaw + math.pi)
+    sc.set_base_pose(free[0], free[1], t.yaw + math.pi)
+    assert not sc.robot_collides()
+    outline = sc.floor_outline()
+    assert outline and all(p.shape == (4, 2) for p in outline)
+
+
+def test_ego_camera_and_groups(scene_factory):
+    import mujoco
+
+    sc = scene_factory("CloseDrawer")
+    assert mujoco.mj_name2id(sc.model, mujoco.mjtObj.mjOBJ_CAMERA, "floaff_ego") >= 0
+    assert (sc.model.geom_group[sc.scene_geom_ids] >= 1).all()
+    assert not sc.model.light_castshadow.any()
