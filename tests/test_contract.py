@@ -82,10 +82,22 @@ def test_floor_grid_round_trip():
 def test_best_pose_tie_break_and_heading():
     floor = torch.tensor([[1.0, 0, 0], [2.0, 0, 0], [0.5, 0.5, 0]])
     target = torch.tensor([3.0, 0, 0.9])
-    # constant map: nearest point to the target wins
-    (x, y, yaw), = best_pose(floor, torch.zeros(3), None, target)
+    # "nearest": a constant map picks the point closest to the target
+    (x, y, yaw), = best_pose(floor, torch.zeros(3), None, target, tie_break="nearest")
     assert (x, y) == (2.0, 0.0) and abs(yaw) < 1e-9
     poses = best_pose(floor, torch.tensor([0.1, 0.2, 0.9]), torch.tensor([True, True, False]), target, k=2)
     assert poses[0][:2] == (2.0, 0.0) and poses[1][:2] == (1.0, 0.0)
     (x, y, yaw), = best_pose(floor, torch.tensor([0.0, 0.0, 1.0]), None, target)
     assert math.isclose(yaw, math.atan2(-0.5, 2.5))
+
+
+def test_best_pose_random_tie_break_is_seeded_and_uniform():
+    floor = torch.stack([torch.arange(10.0), torch.zeros(10), torch.zeros(10)], 1)
+    target = torch.tensor([20.0, 0, 0])
+    flat = torch.zeros(10)
+    picks = [best_pose(floor, flat, None, target, seed=s)[0][0] for s in range(400)]
+    assert picks[:20] == [best_pose(floor, flat, None, target, seed=s)[0][0] for s in range(20)]
+    counts = np.bincount(np.asarray(picks, dtype=int), minlength=10)
+    assert counts.min() > 15 and counts.max() < 70  # roughly uniform (expected 40 each)
+    # a strict maximum always wins, whatever the seed
+    assert all(best_pose(floor, torch.eye(10)[3], None, target, seed=s)[0][0] == 3.0 for s in range(20))

@@ -89,7 +89,7 @@ class FloAffCLI(LightningCLI):
     def instantiate_trainer(self, **kwargs: Any) -> L.Trainer:
         cfg = self.config_init[self.subcommand]["trainer"]
         extra = list(kwargs.pop("callbacks", None) or [])
-        user = cfg.get("callbacks") or []
+        user = list(cfg.get("callbacks") or [])
         if cfg.get("enable_progress_bar", True) is not False and not any(
             isinstance(c, TQDMProgressBar) for c in user
         ):
@@ -110,7 +110,13 @@ class FloAffCLI(LightningCLI):
                     auto_insert_metric_name=False,
                 )
             )
-        return super().instantiate_trainer(callbacks=extra, **kwargs)
+        if self.subcommand == "test":
+            from floaff_zoo.callbacks import TestReport
+
+            if not any(isinstance(c, TestReport) for c in user):
+                extra.append(TestReport())  # every `floaff-zoo test` writes report.json/report.md
+        # Lightning merges {**trainer_config, **kwargs}: pass the configured callbacks along too.
+        return super().instantiate_trainer(callbacks=[*user, *extra], **kwargs)
 
     def _guard_eval(self) -> None:
         cfg = self.config_init[self.subcommand]

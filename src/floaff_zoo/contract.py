@@ -317,11 +317,15 @@ def best_pose(
     mask: Tensor | np.ndarray | None,
     target_xyz: Tensor | np.ndarray,
     k: int = 1,
+    tie_break: Literal["random", "nearest"] = "random",
+    seed: int = 0,
 ) -> list[tuple[float, float, float]]:
     """Top-``k`` SE(2) base poses (x, y, yaw facing the target) from per-point scores.
 
-    Tie-break (documented, deterministic): among equal scores the point closest to the target
-    wins, then the lower index. So a constant or all-zero map picks the nearest candidate.
+    Scores equal to 6 decimals are ties. ``tie_break="random"`` (default) orders tied candidates
+    by a permutation drawn from ``seed``, so a constant or all-zero map picks a uniformly random
+    candidate (its success rate is then the base rate) and the same call always gives the same
+    pose; ``"nearest"`` prefers the candidate closest to the target, then the lower index.
 
     Args:
         floor_xyz: [M, 3]; scores: [M]; mask: [M] bool or None; target_xyz: [3].
@@ -335,9 +339,14 @@ def best_pose(
     if not valid.any():
         raise SampleError("best_pose: no valid floor point with a finite score")
     t = np.asarray(torch.as_tensor(target_xyz).detach().cpu(), dtype=np.float64).reshape(3)
-    dist = np.hypot(xyz[:, 0] - t[0], xyz[:, 1] - t[1])
     idx = np.nonzero(valid)[0]
-    order = np.lexsort((idx, dist[idx], -np.round(sc[idx], 6)))
+    if tie_break == "random":
+        secondary = np.random.default_rng(seed).permutation(sc.shape[0])[idx]
+    elif tie_break == "nearest":
+        secondary = np.hypot(xyz[idx, 0] - t[0], xyz[idx, 1] - t[1])
+    else:
+        raise ValueError(f"tie_break must be 'random' or 'nearest', got {tie_break!r}")
+    order = np.lexsort((idx, secondary, -np.round(sc[idx], 6)))
     poses = []
     for n in idx[order][:k]:
         yaw = math.atan2(t[1] - xyz[n, 1], t[0] - xyz[n, 0])

@@ -1,0 +1,312 @@
+"""TestReport: write ``report.json``, ``report.md`` and qualitative figures at the end of ``test``.
+
+The run directory is ``out_dir`` when given, else ``trainer.log_dir`` (the logger's version dir,
+where LightningCLI saves ``config.yaml``), else ``trainer.default_root_dir``.
+
+``report.json`` (schema ``floaff-zoo/report`` version 1) holds: every ``test_*`` metric, the SR
+table from a ``RolloutSuccessRate`` callback in the same trainer (or ``available: false`` with the
+reason: "SR n/a"), the resolved CLI config (``<log_dir>/config.yaml``), the model class and its
+hparams, the seed, the checkpoint path and sha256, dataset/benchmark/tasks/views, sim_variant and
+metric_reduction, package versions, an optional ``label`` (row name for ablation tables) and the
+figure paths. ``floaff-zoo table`` reads only these files.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import hashlib
+import json
+import math
+import os
+import warnings
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+import lightning as L
+import numpy as np
+import torch
+
+from floaff_zoo.report.figures import FigureSample, write_figures
+
+SCHEMA = "floaff-zoo/report"
+SCHEMA_VERSION = 1
+PACKAGES = ("floaff-zoo", "torch", "lightning", "torchmetrics", "numpy", "scipy", "mujoco", "robosuite", "jsonargparse")
+#: metric display names and decimals (paper: RMSE/PCC/SIM 3, logMSE 4, SR 2)
+MAP_METRICS = (("rmse", "RMSE", 3), ("logmse", "logMSE", 4), ("pcc", "PCC", 3), ("sim", "SIM", 3),
+               ("mae", "MAE", 3), ("ciou", "cIoU", 3))
+
+
+def sha256_file(path: str | Path, chunk: int = 1 << 20) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        while block := f.read(chunk):
+            h.update(block)
+    return h.hexdigest()
+
+
+def package_versions() -> dict[str, str | None]:
+    out: dict[str, str | None] = {}
+    for name in PACKAGES:
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            out[name] = None
+    return out
+
+
+def _jsonable(x: Any) -> Any:
+    """Convert tensors/numpy/paths inside ``x`` to JSON types (NaN/Inf -> None)."""
+    if isinstance(x, dict):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if torch.is_tensor(x):
+        x = x.detach().cpu()
+        return _jsonable(x.item() if x.numel() == 1 else x.tolist())
+    if isinstance(x, np.generic):
+        return _jsonable(x.item())
+    if isinstance(x, np.ndarray):
+        return _jsonable(x.tolist())
+    if isinstance(x, float):
+        return x if math.isfinite(x) else None
+    if isinstance(x, (str, int, bool)) or x is None:
+        return x
+    return str(x)
+
+
+def read_config(run_dir: Path) -> dict[str, Any] | None:
+    """The resolved CLI config LightningCLI saved in the run directory (None when absent/unreadable)."""
+    path = run_dir / "config.yaml"
+    if not path.is_file():
+        return None
+    import yaml
+
+    try:
+        cfg = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        warnings.warn(f"TestReport: {path} is not valid YAML ({exc}); config left out of the report", stacklevel=2)
+        return None
+    return _jsonable(cfg) if isinstance(cfg, dict) else None
+
+
+class TestReport(L.Callback):
+    """Write the test report of a run (see module docstring).
+
+    Args:
+        out_dir: where to write; default the run's log dir (``trainer.log_dir``) or ``default_root_dir``.
+        label: row name in ``floaff-zoo table`` (e.g. ``w/o SDL``); default the logger's name or the
+            model class name.
+        figures: write qualitative PNG figures.
+        figures_per_group: samples drawn per (task, view).
+        write_episodes: also write ``sr_episodes.json`` (one record per rolled-out sample).
+    """
+
+    __test__ = False  # not a pytest test class despite its name
+
+    def __init__(
+        self,
+        out_dir: str | None = None,
+        label: str | None = None,
+        figures: bool = True,
+        figures_per_group: int = 2,
+        write_episodes: bool = True,
+    ) -> None:
+        super().__init__()
+        if figures_per_group < 0:
+            raise ValueError(f"TestReport: figures_per_group must be >= 0, got {figures_per_group}")
+        self.out_dir = out_dir
+        self.label = label
+        self.figures = figures
+        self.figures_per_group = figures_per_group
+        self.write_episodes = write_episodes
+        self._samples: list[FigureSample] = []
+        self._counts: dict[tuple[str, str], int] = {}
+        self._seen: dict[str, set[str]] = {}
+        self._n = 0
+        #: paths written by the last test run
+        self.written: dict[str, Any] = {}
+
+    # ------------------------------------------------------------------------------ collection
+    def on_test_epoch_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        self._samples, self._counts, self._n = [], {}, 0
+        self._seen = {"dataset": set(), "task": set(), "view": set()}
+
+    def on_test_batch_end(self, trainer, pl_module, outputs, batch, batch_idx, dataloader_idx=0) -> None:
+        metas = batch["meta"]
+        self._n += len(metas)
+        for m in metas:
+            for key in self._seen:
+                if m.get(key):
+                    self._seen[key].add(str(m[key]))
+        if not self.figures or self.figures_per_group == 0:
+            return
+        scores = getattr(pl_module, "last_test_scores", None)
+        for i, m in enumerate(metas):
+            key = (str(m.get("task", "")), str(m.get("view", "")))
+            if self._counts.get(key, 0) >= self.figures_per_group:
+                continue
+            if scores is None or scores.shape != batch["floor_mask"].shape:
+                with torch.no_grad():
+                    scores = pl_module(batch)
+            self._counts[key] = self._counts.get(key, 0) + 1
+            valid = batch["floor_mask"][i].detach().cpu().numpy().astype(bool)
+            self._samples.append(
+                FigureSample(
+                    floor_xyz=batch["floor_xyz"][i].detach().cpu().numpy()[valid],
+                    label=batch["floor_label"][i].detach().cpu().numpy()[valid],
+                    scores=scores[i].detach().float().cpu().numpy()[valid],
+                    target_xyz=batch["target_xyz"][i].detach().cpu().numpy(),
+                    target_yaw=float(batch["target_yaw"][i]),
+                    meta=dict(m),
+                )
+            )
+
+    # ------------------------------------------------------------------------------ writing
+    def run_dir(self, trainer: L.Trainer) -> Path:
+        return Path(self.out_dir or trainer.log_dir or trainer.default_root_dir)
+
+    def on_test_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        if not trainer.is_global_zero:
+            return
+        run_dir = self.run_dir(trainer)
+        run_dir.mkdir(parents=True, exist_ok=True)
+        rollout = next((c for c in trainer.callbacks if type(c).__name__ == "RolloutSuccessRate"), None)
+        report = self.build_report(trainer, pl_module, run_dir, rollout)
+        episodes = rollout.episodes.get("test", []) if rollout is not None else []
+        if self.figures and self._samples:
+            by_id = {e["sample_id"]: e for e in episodes}
+            for s in self._samples:
+                ep = by_id.get(str(s.meta.get("sample_id", "")))
+                if ep is not None:  # draw the pose that was actually rolled out (top-k may differ from argmax)
+                    s.chosen, s.success = tuple(ep["pose"]), ep.get("success")
+                    s.oracle = tuple(ep["oracle_pose"]) if "oracle_pose" in ep else None
+                    s.oracle_success = ep.get("oracle_success")
+            paths = write_figures(self._samples, run_dir / "figures")
+            report["figures"] = [p.relative_to(run_dir).as_posix() for p in paths]
+        if self.write_episodes and episodes:
+            (run_dir / "sr_episodes.json").write_text(json.dumps(_jsonable(episodes), indent=1))
+        report = _jsonable(report)
+        (run_dir / "report.json").write_text(json.dumps(report, indent=2, sort_keys=False))
+        (run_dir / "report.md").write_text(render_markdown(report))
+        self.written = {"run_dir": str(run_dir), "report_json": str(run_dir / "report.json"),
+                        "report_md": str(run_dir / "report.md"), "figures": report.get("figures", [])}
+
+    def build_report(
+        self, trainer: L.Trainer, pl_module: L.LightningModule, run_dir: Path, rollout: Any | None
+    ) -> dict[str, Any]:
+        hp = dict(pl_module.hparams) if hasattr(pl_module, "hparams") else {}
+        metrics = {k: v for k, v in sorted(trainer.callback_metrics.items()) if k.startswith("test_")}
+        test_metrics = getattr(pl_module, "test_metrics", None)
+        configured = sorted(test_metrics.keys()) if test_metrics is not None else []
+        missing = [k for k in configured if k not in metrics]
+        if missing:
+            warnings.warn(f"TestReport: configured metric(s) {missing} were not logged", stacklevel=2)
+        config = read_config(Path(trainer.log_dir)) if trainer.log_dir else None
+        if config is None and self.out_dir:
+            config = read_config(run_dir)
+        seed = (config or {}).get("seed_everything")
+        if seed is None and os.environ.get("PL_GLOBAL_SEED") is not None:
+            seed = int(os.environ["PL_GLOBAL_SEED"])
+        ckpt = trainer.ckpt_path
+        checkpoint = None
+        if ckpt and Path(ckpt).is_file():
+            checkpoint = {"path": str(Path(ckpt).resolve()), "sha256": sha256_file(ckpt)}
+        elif hp.get("weights"):
+            w = str(hp["weights"])
+            checkpoint = {"path": w, "sha256": sha256_file(w) if Path(w).is_file() else None}
+        dm = trainer.datamodule
+        datasets = sorted(self._seen.get("dataset", ()))
+        benchmark = getattr(dm, "benchmark", None) or (datasets[0] if len(datasets) == 1 else "+".join(datasets))
+        logger_name = getattr(trainer.logger, "name", None) if trainer.logger is not None else None
+        sr = (rollout.summaries.get("test") if rollout is not None else None) or {
+            "available": False,
+            "reason": "no RolloutSuccessRate callback in this run" if rollout is None else "RolloutSuccessRate did not run on test",
+        }
+        return {
+            "schema": SCHEMA,
+            "version": SCHEMA_VERSION,
+            "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+            "run_dir": str(run_dir.resolve()),
+            "label": self.label or logger_name or type(pl_module).__name__,
+            "model": {
+                "class_path": f"{type(pl_module).__module__}.{type(pl_module).__qualname__}",
+                "name": type(pl_module).__name__,
+                "hparams": hp,
+            },
+            "seed": seed,
+            "checkpoint": checkpoint,
+            "data": {
+                "datamodule": f"{type(dm).__module__}.{type(dm).__qualname__}" if dm is not None else None,
+                "dataset": datasets[0] if len(datasets) == 1 else datasets,
+                "benchmark": benchmark,
+                "tasks": sorted(self._seen.get("task", ())),
+                "views": sorted(self._seen.get("view", ())),
+                "num_samples": self._n,
+            },
+            "sim_variant": hp.get("sim_variant"),
+            "metric_reduction": hp.get("metric_reduction"),
+            "configured_metrics": configured,
+            "metrics": metrics,
+            "sr": sr,
+            "config": config,
+            "versions": package_versions(),
+            "figures": [],
+        }
+
+
+# ------------------------------------------------------------------------------------------ markdown
+def _fmt(v: Any, decimals: int) -> str:
+    return "n/a" if v is None else f"{float(v):.{decimals}f}"
+
+
+def _sr_cell(cell: dict | None) -> str:
+    return "n/a" if not cell else f"{cell['mean']:.2f} ± {cell['std']:.2f} (n={cell['n']})"
+
+
+def render_markdown(report: dict[str, Any]) -> str:
+    """Readable summary of a report dict: run facts, map metrics, SR table, figures."""
+    m = report.get("metrics", {})
+    ck = report.get("checkpoint") or {}
+    data = report.get("data", {})
+    lines = [
+        f"# Test report: {report.get('label')}",
+        "",
+        f"- model: `{report['model']['class_path']}`",
+        f"- checkpoint: `{ck.get('path', 'none')}` (sha256 `{(ck.get('sha256') or 'n/a')[:16]}…`)",
+        f"- seed: {report.get('seed')}",
+        f"- data: {data.get('dataset')} | benchmark {data.get('benchmark')} | tasks {', '.join(data.get('tasks', [])) or '-'}"
+        f" | views {', '.join(data.get('views', [])) or '-'} | {data.get('num_samples')} samples",
+        f"- sim_variant: {report.get('sim_variant')}, metric_reduction: {report.get('metric_reduction')}",
+        "",
+        "## Floor-affordance map metrics",
+        "",
+    ]
+    shown = [(k, name, d) for k, name, d in MAP_METRICS if f"test_{k}" in m]
+    lines += ["| " + " | ".join(n for _, n, _ in shown) + " |", "|" + "---|" * len(shown)]
+    lines.append("| " + " | ".join(_fmt(m.get(f"test_{k}"), d) for k, _, d in shown) + " |")
+    others = {k: v for k, v in m.items() if not any(k == f"test_{x}" for x, _, _ in shown) and "_sr_" not in k}
+    if others:
+        lines += ["", "Other logged values: " + ", ".join(f"`{k}` = {_fmt(v, 4)}" for k, v in others.items())]
+    lines += ["", "## Success rate (rollouts in the simulator)", ""]
+    sr = report.get("sr") or {}
+    if not sr.get("available"):
+        lines.append(f"SR: n/a ({sr.get('reason', 'not evaluated')})")
+    else:
+        model, oracle = sr.get("model") or {}, sr.get("oracle") or {}
+        lines += ["| | SR_front | SR_side | SR_all |", "|---|---|---|---|"]
+        for name, t in (("model", model), ("Oracle", oracle)):
+            if t:
+                lines.append(f"| {name} | {_sr_cell(t.get('front'))} | {_sr_cell(t.get('side'))} | {_sr_cell(t.get('all'))} |")
+        tasks = sorted(set(model.get("tasks", {})) | set(oracle.get("tasks", {})))
+        if tasks:
+            lines += ["", "| | " + " | ".join(tasks) + " |", "|---|" + "---|" * len(tasks)]
+            for name, t in (("model", model), ("Oracle", oracle)):
+                if t:
+                    lines.append(f"| {name} | " + " | ".join(_sr_cell(t.get("tasks", {}).get(x)) for x in tasks) + " |")
+        lines += ["", f"± = {sr.get('std_method')}; {sr.get('n_evaluated')} evaluated, {sr.get('n_skipped')} skipped"
+                  f" (no sim metadata); top_k = {sr.get('top_k')}; rollouts took {sr.get('seconds', 0):.1f} s."]
+    if report.get("figures"):
+        lines += ["", "## Figures (ground truth | prediction; x = chosen base pose)", ""]
+        lines += [f"![{Path(f).stem}]({f})" for f in report["figures"]]
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,296 @@
+"""Predict API: a floor-affordance map and a base pose from one RGB-D view or a point cloud.
+
+``predict(model, rgb, depth, intrinsics, camera_pose, target_mask, robot)`` back-projects the
+depth image with the pinhole model into the robot base frame, flags the target pixels and calls
+``predict_from_points``, which scores candidate floor points and returns a :class:`Prediction`.
+
+Conventions:
+
+* ``intrinsics`` = (fx, fy, cx, cy) in pixels (pixel centres at +0.5); ``depth`` [H, W] metres
+  along the optical axis (<= 0, NaN/Inf or >= ``max_depth`` = invalid, e.g. the far plane).
+* ``camera_pose`` = 4x4 camera-to-base transform. ``convention="opengl"`` (default, MuJoCo):
+  the camera looks along its -z, x right, y up; ``"opencv"``: looks along +z, x right, y down.
+* The base frame is the contract's: x forward, y left, z up, floor at z = 0.
+* ``floor_xyz=None``: a default candidate grid (``cell`` m, default 0.05) on the disc of radius
+  ``grid_radius`` around the target's floor projection, keeping cells farther than
+  ``min_target_dist`` from it and at least ``clearance`` m from every observed point with
+  0.05 m < z < 2.0 m (furniture, walls: the cell must look free).
+* ``target_yaw=None``: the target's front is assumed to face the observing camera, i.e. the yaw of
+  the direction from the target to the base origin.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import types
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import torch
+
+from floaff_zoo.contract import FloorGrid, SampleError, best_pose, collate_samples, validate_sample
+
+Pose = tuple[float, float, float]
+
+
+@dataclass
+class Prediction:
+    """Output of :func:`predict` / :func:`predict_from_points` (robot base frame).
+
+    floor_xyz [M, 3] candidates; scores [M] in [0, 1]; grid/raster: the map rasterised on a
+    FloorGrid (raster [H, W], NaN where no candidate); best_pose (x, y, yaw facing the target);
+    top_poses: the ``k`` best poses, best first (ties: contract.best_pose's seeded random tie-break).
+    """
+
+    floor_xyz: np.ndarray
+    scores: np.ndarray
+    grid: FloorGrid
+    raster: np.ndarray
+    best_pose: Pose
+    top_poses: list[Pose]
+    target_xyz: np.ndarray
+    target_yaw: float
+
+
+# ------------------------------------------------------------------------------------------ model
+def resolve_model(model: Any, model_class: type | str | None = None, device: str = "cpu") -> torch.nn.Module:
+    """A ready-to-run module from a module, a checkpoint path or a hub name.
+
+    Args:
+        model_class: when given, the resolved model must be an instance of it (class or class name);
+            a checkpoint of another model class raises a TypeError naming both.
+    """
+    if isinstance(model, (str, Path)):
+        from floaff_zoo.hub import load_model
+
+        try:
+            model = load_model(str(model), map_location=device)
+        except FileNotFoundError as exc:
+            raise FileNotFoundError(f"predict: model {str(model)!r} is neither a checkpoint file nor a known hub name ({exc})") from exc
+    if not isinstance(model, torch.nn.Module):
+        raise TypeError(f"predict: model must be a FloAffModule, a checkpoint path or a hub name, got {type(model).__name__}")
+    if model_class is not None:
+        name = model_class if isinstance(model_class, str) else model_class.__name__
+        ok = type(model).__name__ == name if isinstance(model_class, str) else isinstance(model, model_class)
+        if not ok:
+            raise TypeError(f"predict: expected a {name} but the checkpoint/model is a {type(model).__name__}")
+    return model.to(device).eval()
+
+
+# ------------------------------------------------------------------------------------------ geometry
+def backproject_depth(
+    depth: np.ndarray,
+    intrinsics: tuple[float, float, float, float] | np.ndarray,
+    camera_pose: np.ndarray,
+    convention: Literal["opengl", "opencv"] = "opengl",
+    max_depth: float = 5.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Depth [H, W] -> base-frame points [H*W, 3] (row-major pixels) and valid [H*W] bool."""
+    d = np.asarray(depth, dtype=np.float64)
+    if d.ndim != 2:
+        raise ValueError(f"predict: depth must be [H, W], got shape {d.shape}")
+    k = np.asarray(intrinsics, dtype=np.float64).reshape(-1)
+    if k.size == 9:  # a 3x3 K matrix
+        k = np.array([k[0], k[4], k[2], k[5]])
+    if k.size != 4 or k[0] <= 0 or k[1] <= 0:
+        raise ValueError(f"predict: intrinsics must be (fx, fy, cx, cy) with fx, fy > 0 or a 3x3 K, got {intrinsics!r}")
+    pose = np.asarray(camera_pose, dtype=np.float64)
+    if pose.shape != (4, 4) or not np.isfinite(pose).all():
+        raise ValueError(f"predict: camera_pose must be a finite 4x4 camera-to-base matrix, got shape {pose.shape}")
+    if convention not in ("opengl", "opencv"):
+        raise ValueError(f"predict: convention must be 'opengl' or 'opencv', got {convention!r}")
+    fx, fy, cx, cy = k
+    h, w = d.shape
+    uu, vv = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
+    x = (uu - cx) * d / fx
+    y = (vv - cy) * d / fy
+    if convention == "opengl":
+        pc = np.stack([x, -y, -d], axis=-1)
+    else:
+        pc = np.stack([x, y, d], axis=-1)
+    pc = pc.reshape(-1, 3)
+    flat = d.reshape(-1)
+    valid = np.isfinite(flat) & (flat > 0) & (flat < max_depth)
+    pc[~valid] = 0.0
+    return pc @ pose[:3, :3].T + pose[:3, 3], valid
+
+
+def default_floor_grid(
+    target_xyz: np.ndarray,
+    scene_xyz: np.ndarray | None = None,
+    radius: float = 1.5,
+    cell: float = 0.05,
+    min_target_dist: float = 0.2,
+    clearance: float = 0.1,
+) -> np.ndarray:
+    """Candidate floor points [M, 3] around the target (see module docstring)."""
+    t = np.asarray(target_xyz, dtype=np.float64).reshape(3)
+    n = int(math.floor(radius / cell))
+    g = np.arange(-n, n + 1) * cell
+    gx, gy = np.meshgrid(g, g)
+    xy = np.stack([gx.reshape(-1) + t[0], gy.reshape(-1) + t[1]], axis=1)
+    r = np.hypot(xy[:, 0] - t[0], xy[:, 1] - t[1])
+    keep = (r <= radius + 1e-9) & (r >= min_target_dist)
+    if scene_xyz is not None and len(scene_xyz) and clearance > 0:
+        p = np.asarray(scene_xyz, dtype=np.float64)
+        obst = p[(p[:, 2] > 0.05) & (p[:, 2] < 2.0)][:, :2]
+        if len(obst):
+            from scipy.spatial import cKDTree
+
+            d, _ = cKDTree(obst).query(xy, k=1)
+            keep &= d >= clearance
+    xy = xy[keep]
+    if len(xy) == 0:
+        raise SampleError(f"predict: the default floor grid around the target {t.round(3).tolist()} has no free cell")
+    return np.c_[xy, np.zeros(len(xy))].astype(np.float32)
+
+
+def candidate_spacing(floor_xyz: np.ndarray, default: float = 0.05) -> float:
+    """Median nearest-neighbour distance of candidates [M, 2+] (their grid cell); ``default`` if < 2 points."""
+    pts = np.asarray(floor_xyz, dtype=np.float64)[:, :2]
+    if len(pts) < 2:
+        return default
+    from scipy.spatial import cKDTree
+
+    d = cKDTree(pts).query(pts, k=2)[0][:, 1]
+    step = float(np.median(d))
+    return step if step > 1e-6 else default
+
+
+# ------------------------------------------------------------------------------------------ predict
+def predict_from_points(
+    model: Any,
+    scene_xyz: np.ndarray,
+    scene_feat: np.ndarray,
+    floor_xyz: np.ndarray | None,
+    robot: np.ndarray | list[float],
+    target_xyz: np.ndarray | list[float],
+    target_yaw: float | None = None,
+    k: int = 5,
+    num_points: int | None = 4096,
+    cell: float | None = None,
+    grid_radius: float = 1.5,
+    model_class: type | str | None = None,
+    device: str = "cpu",
+    seed: int = 0,
+) -> Prediction:
+    """Score candidate floor points for one observation (robot base frame).
+
+    Args:
+        model: a FloAffModule, a ``.ckpt`` path or a hub name.
+        scene_xyz [N, 3], scene_feat [N, C] (channel 0 = target flag, then RGB in [0, 1]).
+        floor_xyz [M, 3] candidates, or None for the default grid (module docstring).
+        robot [R] descriptor (default MoMa-Kitchen style: [arm reach m, base height m]).
+        target_xyz [3]; target_yaw: yaw of the target's front normal (None: faces the robot).
+        k: number of top poses returned.
+        num_points: scene points fed to the model (random subset / repeats, seeded); None = all.
+        cell: cell (m) of the default grid and of the returned raster; None = 0.05 m for the
+            default grid, else the candidates' own spacing (median nearest-neighbour distance).
+    """
+    net = resolve_model(model, model_class, device)
+    t = np.asarray(target_xyz, dtype=np.float32).reshape(-1)
+    if t.size != 3 or not np.isfinite(t).all():
+        raise ValueError(f"predict: target_xyz must be 3 finite values, got {target_xyz!r}")
+    if target_yaw is None:
+        target_yaw = math.atan2(-float(t[1]), -float(t[0]))
+    xyz = np.asarray(scene_xyz, dtype=np.float32)
+    if floor_xyz is None:
+        cell = cell or 0.05
+        floor_xyz = default_floor_grid(t, xyz, radius=grid_radius, cell=cell)
+    floor = np.asarray(floor_xyz, dtype=np.float32)
+    if floor.ndim == 2 and floor.shape[1] == 2:
+        floor = np.c_[floor, np.zeros(len(floor), np.float32)]
+    sample = validate_sample({
+        "scene_xyz": xyz,
+        "scene_feat": np.asarray(scene_feat, dtype=np.float32),
+        "floor_xyz": floor,
+        "floor_label": np.zeros(len(floor), np.float32),  # unknown at inference; never read
+        "robot": np.asarray(robot, dtype=np.float32),
+        "target_xyz": t,
+        "target_yaw": np.float32(target_yaw),
+        "meta": {"dataset": "predict", "task": "", "view": "", "sample_id": "predict"},
+    })
+    gen = torch.Generator().manual_seed(seed)
+    batch = collate_samples([sample], num_points=num_points, mode="resample" if num_points else "pad", generator=gen)
+    dev = next(net.parameters(), torch.empty(0)).device
+    batch = {key: (v.to(dev) if torch.is_tensor(v) else v) for key, v in batch.items()}
+    check = getattr(net, "check_inputs", None)
+    if callable(check):
+        check(batch)
+    with torch.no_grad():
+        scores = net(batch)[0].float().cpu().numpy()
+    if not np.isfinite(scores).all():
+        raise FloatingPointError(f"predict: {type(net).__name__} returned {int((~np.isfinite(scores)).sum())} NaN/Inf score(s)")
+    poses = best_pose(floor, scores, None, t, k=max(1, k))
+    grid = FloorGrid.from_points(floor, cell=cell or candidate_spacing(floor))
+    return Prediction(floor_xyz=floor, scores=scores, grid=grid, raster=grid.rasterize(floor, scores),
+                      best_pose=poses[0], top_poses=poses, target_xyz=t, target_yaw=float(target_yaw))
+
+
+def predict(
+    model: Any,
+    rgb: np.ndarray | None,
+    depth: np.ndarray,
+    intrinsics: tuple[float, float, float, float] | np.ndarray,
+    camera_pose: np.ndarray,
+    target_mask: np.ndarray,
+    robot: np.ndarray | list[float],
+    floor_xyz: np.ndarray | None = None,
+    target_yaw: float | None = None,
+    convention: Literal["opengl", "opencv"] = "opengl",
+    max_depth: float = 5.0,
+    k: int = 5,
+    num_points: int | None = 4096,
+    cell: float | None = None,
+    grid_radius: float = 1.5,
+    model_class: type | str | None = None,
+    device: str = "cpu",
+    seed: int = 0,
+) -> Prediction:
+    """Floor affordance from one RGB-D view (see the module docstring for frames and defaults).
+
+    Args:
+        rgb [H, W, 3] uint8 or float in [0, 1] (None: no colour channels); depth [H, W] metres;
+        target_mask [H, W] bool: the target's pixels (its points get flag +1, others 0);
+        the rest as in :func:`predict_from_points`.
+    """
+    d = np.asarray(depth)
+    mask = np.asarray(target_mask).astype(bool)
+    if mask.shape != d.shape:
+        raise ValueError(f"predict: target_mask {mask.shape} and depth {d.shape} must have the same shape")
+    xyz, valid = backproject_depth(d, intrinsics, camera_pose, convention, max_depth)
+    flag = mask.reshape(-1).astype(np.float32)
+    feats = [flag[:, None]]
+    if rgb is not None:
+        c = np.asarray(rgb)
+        if c.shape[:2] != d.shape or c.ndim != 3 or c.shape[2] < 3:
+            raise ValueError(f"predict: rgb must be [H, W, 3] like depth {d.shape}, got {c.shape}")
+        c = c[..., :3].reshape(-1, 3).astype(np.float32)
+        feats.append(c / 255.0 if np.asarray(rgb).dtype == np.uint8 else np.clip(c, 0.0, 1.0))
+    feat = np.concatenate(feats, axis=1)
+    tgt = valid & (flag > 0)
+    if not tgt.any():
+        raise SampleError("predict: target_mask marks no pixel with valid depth; cannot locate the target")
+    target_xyz = xyz[tgt].mean(axis=0)
+    return predict_from_points(
+        model, xyz[valid], feat[valid], floor_xyz, robot, target_xyz, target_yaw=target_yaw, k=k,
+        num_points=num_points, cell=cell, grid_radius=grid_radius, model_class=model_class, device=device, seed=seed,
+    )
+
+
+class _CallableModule(types.ModuleType):
+    """Makes ``floaff_zoo.predict(...)`` work however the package exposes it.
+
+    Importing the submodule ``floaff_zoo.predict`` sets the package attribute ``predict`` to this
+    module (the import system does so after any lazy re-export), so the module itself forwards
+    calls to :func:`predict`.
+    """
+
+    def __call__(self, *args: Any, **kwargs: Any) -> Prediction:
+        return predict(*args, **kwargs)
+
+
+sys.modules[__name__].__class__ = _CallableModule

@@ -1,0 +1,176 @@
+"""Qualitative figures like the paper's: ground-truth map beside the predicted map, chosen pose marked.
+
+With simulator metadata the maps are drawn in the world frame over a top-down outline of the
+rebuilt kitchen (``SimScene.floor_outline``) with ``floaff_zoo.sim.pictures.plot_floor_map``;
+without it (MoMa-Kitchen, synthetic) as a plain scatter in the view's robot base frame.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from floaff_zoo.callbacks.rollout import base_to_world, pose_to_world
+from floaff_zoo.contract import best_pose
+
+
+@dataclass
+class FigureSample:
+    """One sample to draw (valid floor points only; base frame of the view).
+
+    floor_xyz [M, 3], label [M], scores [M], target_xyz [3], target_yaw (rad); meta as in the
+    contract; ``chosen`` / ``oracle`` are optional world (sim samples) or base-frame poses chosen elsewhere
+    (e.g. by RolloutSuccessRate with top-k), ``success`` / ``oracle_success`` their rollout outcomes.
+    """
+
+    floor_xyz: np.ndarray
+    label: np.ndarray
+    scores: np.ndarray
+    target_xyz: np.ndarray
+    target_yaw: float
+    meta: dict[str, Any] = field(default_factory=dict)
+    chosen: tuple[float, float, float] | None = None
+    oracle: tuple[float, float, float] | None = None
+    success: bool | None = None
+    oracle_success: bool | None = None
+
+
+def _plt():
+    import matplotlib
+
+    if matplotlib.get_backend().lower() != "agg":
+        matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def grid_spacing(xy: np.ndarray, default: float = 0.05) -> float:
+    """Median nearest-neighbour distance of floor points [M, 2+] (the candidate grid's cell size)."""
+    pts = np.asarray(xy, dtype=np.float64)[:, :2]
+    if len(pts) < 2:
+        return default
+    from scipy.spatial import cKDTree
+
+    d, _ = cKDTree(pts).query(pts, k=2)
+    step = float(np.median(d[:, 1]))
+    return step if step > 1e-6 else default
+
+
+def _safe(name: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("_") or "sample"
+
+
+def _outcome(ok: bool | None) -> str:
+    return "" if ok is None else (" (success)" if ok else " (fail)")
+
+
+def draw_sample(
+    fig_sample: FigureSample,
+    path: str | Path,
+    outline: Sequence[np.ndarray] | None = None,
+) -> Path:
+    """Write one PNG: [ground truth | prediction].
+
+    Args:
+        outline: world polygons of the kitchen (sim samples); None draws the plain base-frame scatter.
+    """
+    plt = _plt()
+    s = fig_sample
+    sim = (s.meta or {}).get("sim") if outline is not None else None
+    base = sim["base_pose_world"] if sim is not None else None
+
+    def frame_pose(given, values):
+        # given poses are in the drawing frame (world for sim samples); computed ones start in the base frame
+        if given is not None and (base is not None or not (s.meta or {}).get("sim")):
+            return tuple(given)
+        p = best_pose(s.floor_xyz, values, None, s.target_xyz, 1)[0]
+        return pose_to_world(p, base) if base is not None else p
+
+    gt_pose, pr_pose = frame_pose(s.oracle, s.label), frame_pose(s.chosen, s.scores)
+    fig, axes = plt.subplots(1, 2, figsize=(8.6, 4.0), dpi=100)
+    try:
+        title = f"{s.meta.get('task', '')} | {s.meta.get('view', '') or '-'} | {s.meta.get('sample_id', '')}"
+        fig.suptitle(title, fontsize=9)
+        panels = (("ground truth", s.label, gt_pose, s.oracle_success), ("prediction", s.scores, pr_pose, s.success))
+        if sim is not None:
+            from floaff_zoo.sim.pictures import plot_floor_map
+
+            xy = base_to_world(s.floor_xyz[:, :2], base)
+            t = base_to_world(np.asarray(s.target_xyz, dtype=np.float64)[None, :2], base)[0]
+            tyaw = float(s.target_yaw) + float(base[2])
+            cell = grid_spacing(xy)
+            for ax, (name, values, pose, ok) in zip(axes, panels):
+                pc = plot_floor_map(ax, list(outline), xy, np.clip(values, 0, 1), cell, t, tyaw,
+                                    chosen_xy=np.array(pose[:2]), title=name + _outcome(ok))
+            fig.colorbar(pc, ax=list(axes), fraction=0.03, pad=0.02)
+        else:
+            for ax, (name, values, pose, ok) in zip(axes, panels):
+                sc = ax.scatter(s.floor_xyz[:, 0], s.floor_xyz[:, 1], c=np.clip(values, 0, 1), s=14, marker="s",
+                                cmap="viridis", vmin=0.0, vmax=1.0)
+                t = np.asarray(s.target_xyz, dtype=np.float64)
+                ax.plot(t[0], t[1], marker="*", color="red", markersize=12)
+                ln = 0.3
+                ax.annotate("", xy=(t[0] + ln * math.cos(s.target_yaw), t[1] + ln * math.sin(s.target_yaw)),
+                            xytext=(t[0], t[1]), arrowprops=dict(arrowstyle="->", color="red", lw=1.5))
+                ax.plot(pose[0], pose[1], marker="x", color="black", markersize=10, mew=2.0)
+                ax.plot(0.0, 0.0, marker="^", color="tab:orange", markersize=8)  # the observing robot
+                ax.set_aspect("equal")
+                ax.set_xlabel("x [m] (robot base frame)")
+                ax.set_ylabel("y [m]")
+                ax.set_title(name + _outcome(ok), fontsize=9)
+            fig.colorbar(sc, ax=list(axes), fraction=0.03, pad=0.02)
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fig.savefig(path, format="png")
+        return path
+    finally:
+        plt.close(fig)
+
+
+def write_figures(
+    samples: Sequence[FigureSample],
+    out_dir: str | Path,
+    outline_fn: Callable[[dict[str, Any]], Sequence[np.ndarray]] | None = None,
+) -> list[Path]:
+    """Draw every sample into ``out_dir`` (``<task>_<view>_<k>.png``); returns the written paths.
+
+    outline_fn: ``meta['sim'] -> world polygons``; default rebuilds the scene with
+    ``floaff_zoo.sim.kitchen.build_scene`` (one build per scene). A sample whose scene cannot be
+    rebuilt is drawn as a plain scatter (the failure is named in a warning).
+    """
+    import warnings
+
+    outlines: dict[str, Sequence[np.ndarray] | None] = {}
+    counts: dict[tuple[str, str], int] = {}
+    paths: list[Path] = []
+    for s in samples:
+        sim = (s.meta or {}).get("sim")
+        outline = None
+        if sim and "base_pose_world" in sim:
+            key = repr(sorted((k, str(v)) for k, v in sim.items() if k in ("layout_id", "style_id", "seed", "task")))
+            if key not in outlines:
+                try:
+                    outlines[key] = (outline_fn or default_outline)(sim)
+                except Exception as exc:  # drawing must not fail a finished test run
+                    warnings.warn(f"figures: cannot rebuild scene {sim!r} ({exc}); drawing a plain scatter", stacklevel=2)
+                    outlines[key] = None
+            outline = outlines[key]
+        task, view = str(s.meta.get("task", "task")), str(s.meta.get("view", "") or "view")
+        k = counts.get((task, view), 0)
+        counts[(task, view)] = k + 1
+        paths.append(draw_sample(s, Path(out_dir) / f"{_safe(task)}_{_safe(view)}_{k}.png", outline))
+    return paths
+
+
+def default_outline(sim: dict[str, Any]) -> list[np.ndarray]:
+    """Furniture/wall footprints (world polygons) of the scene ``meta['sim']`` describes."""
+    from floaff_zoo.sim.kitchen import SceneSpec, build_scene
+
+    return build_scene(SceneSpec.from_dict(sim)).floor_outline()

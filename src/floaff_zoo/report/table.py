@@ -1,0 +1,464 @@
+"""``floaff-zoo table``: paper-style tables (mean ± std over seeds) from ``report.json`` files.
+
+Usage::
+
+    floaff-zoo table --runs runs/cfar* runs/navaff --group-by model --format md --preset sr_views --out t.md
+
+Each ``--runs`` entry is a run directory, a glob, or a ``report.json`` file; directories are
+searched recursively for ``report.json`` (written by the ``TestReport`` callback). Only
+``report.json`` files are read, never logger files. A directory without one (or an unreadable
+one) is named on stderr and skipped.
+
+Presets (shaped like the FloAff-Kitchen paper's tables):
+
+* ``map`` (Table 1): RMSE ↓, logMSE ↓, PCC ↑, SIM ↑; one section per benchmark, one row per group.
+* ``sr_views`` (Table 2): SR_front, SR_side, SR_all per benchmark; an Oracle row (ground-truth maps).
+* ``sr_tasks`` (Table 3): SR per task (all views); one section per benchmark; an Oracle row.
+* ``ablation`` (Tables 4-5): map metrics, rows grouped by the report's ``label`` by default.
+* ``sweep`` (crop-radius study): map metrics, rows grouped by ``model.hparams.crop_radius`` by
+  default and sorted numerically.
+
+Cells are the mean over the runs of a row ± their sample standard deviation (ddof=1, i.e. over
+seeds); a row with a single run shows its SR bootstrap std (see ``RolloutSuccessRate``) and no
+± for map metrics. The best mean of each column within a section is bold (the Oracle row never).
+``--group-by`` takes ``model`` (class name), ``label``, ``benchmark`` or any dotted path into
+``report.json`` (``model.hparams.crop_radius``, ``config.data.init_args.crop_radius``, ``seed``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import glob
+import json
+import math
+import statistics
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+PRESETS = ("map", "sr_views", "sr_tasks", "ablation", "sweep")
+FORMATS = ("md", "latex", "csv")
+#: (metric key, display name, decimals, lower is better)
+MAP_COLUMNS = (("rmse", "RMSE", 3, True), ("logmse", "logMSE", 4, True), ("pcc", "PCC", 3, False), ("sim", "SIM", 3, False))
+TASK_SHORT = {"PnPCounterToCab": "PnPC2C", "OpenSingleDoor": "OpenSD", "CloseDrawer": "CloseD", "CloseDoubleDoor": "CloseDD"}
+VIEWS = ("front", "side", "all")
+DEFAULT_GROUP = {"map": "model", "sr_views": "model", "sr_tasks": "model", "ablation": "label",
+                 "sweep": "model.hparams.crop_radius"}
+
+
+#: files that mark a Lightning run directory (used only to name run dirs lacking report.json)
+RUN_MARKERS = ("config.yaml", "hparams.yaml", "metrics.csv")
+
+
+class TableError(ValueError):
+    """A user-facing error of ``floaff-zoo table`` (bad arguments, no usable report)."""
+
+
+# ------------------------------------------------------------------------------------------ loading
+def load_reports(runs: list[str]) -> tuple[list[tuple[Path, dict[str, Any]]], list[tuple[str, str]]]:
+    """Find and parse report.json files.
+
+    Args:
+        runs: run directories, globs or report.json paths.
+    Returns:
+        ([(path, report)] sorted by path, [(entry, reason)] for every skipped entry).
+    """
+    found: dict[Path, None] = {}
+    skipped: list[tuple[str, str]] = []
+    for entry in runs:
+        matches = sorted(glob.glob(entry, recursive=True)) if glob.has_magic(entry) else [entry]
+        if not matches:
+            skipped.append((entry, "no such file or directory"))
+        for m in matches:
+            p = Path(m)
+            if p.is_file():
+                if p.name == "report.json":
+                    found[p.resolve()] = None
+                else:
+                    skipped.append((m, "not a run directory or report.json"))
+            elif p.is_dir():
+                reports = sorted(p.rglob("report.json"))
+                if not reports:
+                    skipped.append((m, "no report.json (run `floaff-zoo test` with the TestReport callback)"))
+                for r in reports:
+                    found[r.resolve()] = None
+                # run directories (logger/config files) below p that hold no report.json are named too
+                have = {r.parent for r in reports}
+                for d in sorted({q.parent for marker in RUN_MARKERS for q in p.rglob(marker)}):
+                    if d != p and not any(h == d or h.is_relative_to(d) or d.is_relative_to(h) for h in have):
+                        skipped.append((str(d), "no report.json (run `floaff-zoo test` with the TestReport callback)"))
+            else:
+                skipped.append((m, "no such file or directory"))
+    loaded: list[tuple[Path, dict[str, Any]]] = []
+    for path in sorted(found):
+        try:
+            rep = json.loads(path.read_text())
+        except (OSError, json.JSONDecodeError) as exc:
+            skipped.append((str(path), f"unreadable report.json ({exc})"))
+            continue
+        if not isinstance(rep, dict) or rep.get("schema") != "floaff-zoo/report":
+            skipped.append((str(path), "not a floaff-zoo report (schema field missing)"))
+            continue
+        loaded.append((path, rep))
+    return loaded, skipped
+
+
+def lookup(report: dict[str, Any], key: str) -> Any:
+    """Group value of a report: ``model`` = class name, ``benchmark``, ``label``, or a dotted path."""
+    if key == "model":
+        return (report.get("model") or {}).get("name")
+    if key == "benchmark":
+        return (report.get("data") or {}).get("benchmark")
+    cur: Any = report
+    for part in key.split("."):
+        if isinstance(cur, dict) and part in cur:
+            cur = cur[part]
+        elif isinstance(cur, dict) and part == "hparams" and "init_args" in cur:
+            cur = cur["init_args"]
+        else:
+            return None
+    return cur
+
+
+def benchmark_name(report: dict[str, Any]) -> str:
+    """Display name of a report's benchmark (paper names where recognised)."""
+    raw = str(lookup(report, "benchmark") or (report.get("data") or {}).get("dataset") or "unknown")
+    low = raw.lower()
+    if "layout" in low:
+        return "FloAff-Kitchen (Layouts)"
+    if "style" in low:
+        return "FloAff-Kitchen (Styles)"
+    if "moma" in low:
+        return "MoMa-Kitchen"
+    return raw
+
+
+# ------------------------------------------------------------------------------------------ table model
+@dataclass
+class Cell:
+    mean: float
+    std: float | None
+    n: int
+
+
+@dataclass
+class Column:
+    name: str
+    decimals: int
+    lower_better: bool
+    group: str = ""  # header group (benchmark in sr_views)
+    arrow: bool = False  # show the better direction (map metrics)
+
+
+@dataclass
+class Row:
+    name: str
+    cells: list[Cell | None]
+    runs: int
+    oracle: bool = False
+
+
+@dataclass
+class Section:
+    title: str
+    rows: list[Row] = field(default_factory=list)
+
+
+@dataclass
+class Table:
+    title: str
+    row_header: str
+    columns: list[Column]
+    sections: list[Section]
+    note: str = ""
+
+
+def aggregate(values: list[float], inner_std: list[float | None]) -> Cell | None:
+    """Mean ± std over runs (ddof=1); a single run keeps its own std (SR bootstrap) if any."""
+    vals = [float(v) for v in values if v is not None and math.isfinite(float(v))]
+    if not vals:
+        return None
+    if len(vals) == 1:
+        s = inner_std[0] if inner_std and inner_std[0] is not None else None
+        return Cell(vals[0], s, 1)
+    return Cell(statistics.fmean(vals), statistics.stdev(vals), len(vals))
+
+
+def _metric(report: dict[str, Any], key: str) -> tuple[float | None, float | None]:
+    v = (report.get("metrics") or {}).get(f"test_{key}")
+    return (float(v) if v is not None else None), None
+
+
+def _sr(report: dict[str, Any], who: str, view: str | None = None, task: str | None = None) -> tuple[float | None, float | None]:
+    sr = report.get("sr") or {}
+    if not sr.get("available"):
+        return None, None
+    t = sr.get(who) or {}
+    cell = (t.get("tasks") or {}).get(task) if task else t.get(view)
+    return (cell["mean"], cell.get("std")) if cell else (None, None)
+
+
+def _cell(reports: list[dict[str, Any]], getter) -> Cell | None:
+    pairs = [getter(r) for r in reports]
+    pairs = [p for p in pairs if p[0] is not None]
+    return aggregate([p[0] for p in pairs], [p[1] for p in pairs])
+
+
+def _group_rows(reports: list[dict[str, Any]], group_by: str, numeric: bool) -> list[tuple[str, list[dict]]]:
+    groups: dict[str, list[dict]] = {}
+    keys: dict[str, Any] = {}
+    for r in reports:
+        v = lookup(r, group_by)
+        if v is None:
+            raise TableError(f"--group-by {group_by}: report {r.get('run_dir', '?')} has no such field")
+        name = _fmt_key(v)
+        groups.setdefault(name, []).append(r)
+        keys[name] = v
+    names = list(groups)
+    if numeric:
+        try:
+            names.sort(key=lambda n: float(keys[n]))
+        except (TypeError, ValueError) as exc:
+            raise TableError(f"--group-by {group_by}: values {sorted(groups)} are not numeric") from exc
+    return [(n, groups[n]) for n in names]
+
+
+def _fmt_key(v: Any) -> str:
+    if isinstance(v, float):
+        return f"{v:.2f}"
+    return str(v)
+
+
+BENCH_ORDER = ("MoMa-Kitchen", "FloAff-Kitchen (Styles)", "FloAff-Kitchen (Layouts)")
+
+
+def _sections(reports: list[dict[str, Any]]) -> list[tuple[str, list[dict]]]:
+    """Reports split by benchmark, in the paper's order (MoMa-Kitchen, Styles, Layouts, then others A-Z)."""
+    out: dict[str, list[dict]] = {}
+    for r in reports:
+        out.setdefault(benchmark_name(r), []).append(r)
+    rank = {b: i for i, b in enumerate(BENCH_ORDER)}
+    return sorted(out.items(), key=lambda kv: (rank.get(kv[0], len(rank)), kv[0]))
+
+
+def _short(bench: str) -> str:
+    """Column-group name: ``FloAff-Kitchen (Styles)`` -> ``Styles``."""
+    return bench.split("(", 1)[1].rstrip(")") if bench.startswith("FloAff-Kitchen (") else bench
+
+
+def build_table(reports: list[dict[str, Any]], preset: str = "map", group_by: str | None = None,
+                oracle: bool = True) -> Table:
+    """A Table of one preset from parsed reports (rows = groups; cells = mean ± std over runs)."""
+    if preset not in PRESETS:
+        raise TableError(f"unknown preset {preset!r}; choose from {list(PRESETS)}")
+    if not reports:
+        raise TableError("no report.json to tabulate")
+    group_by = group_by or DEFAULT_GROUP[preset]
+    numeric = preset == "sweep"
+    note = ("mean ± std over the runs of each row (sample std over seeds); a single run shows its SR bootstrap std "
+            "and no ± for map metrics; best mean per column in bold")
+    if preset in ("map", "ablation", "sweep"):
+        columns = [Column(n, d, lo, arrow=True) for _, n, d, lo in MAP_COLUMNS]
+        sections = []
+        for title, reps in _sections(reports):
+            sec = Section(title)
+            for name, group in _group_rows(reps, group_by, numeric):
+                cells = [_cell(group, lambda r, k=k: _metric(r, k)) for k, _, _, _ in MAP_COLUMNS]
+                sec.rows.append(Row(name, cells, len(group)))
+            sections.append(sec)
+        header = {"map": "Method", "ablation": "Ablation", "sweep": group_by.rsplit(".", 1)[-1]}[preset]
+        return Table(preset, header, columns, sections, note)
+    if preset == "sr_views":
+        benches = _sections(reports)
+        columns = [Column(f"SR_{v}", 2, False, group=_short(b)) for b, _ in benches for v in VIEWS]
+        names: dict[str, None] = {}
+        for _, reps in benches:
+            for name, _ in _group_rows(reps, group_by, False):
+                names[name] = None
+        sec = Section("")
+        for name in names:
+            cells: list[Cell | None] = []
+            runs = 0
+            for _, reps in benches:
+                group = [r for r in reps if _fmt_key(lookup(r, group_by)) == name]
+                runs += len(group)
+                cells += [_cell(group, lambda r, v=v: _sr(r, "model", view=v)) for v in VIEWS]
+            sec.rows.append(Row(name, cells, runs))
+        if oracle:
+            cells = [_cell(reps, lambda r, v=v: _sr(r, "oracle", view=v)) for _, reps in benches for v in VIEWS]
+            if any(c is not None for c in cells):
+                sec.rows.append(Row("Oracle", cells, len(reports), oracle=True))
+        return Table(preset, "Method", columns, [sec], note)
+    # sr_tasks
+    tasks = [t for t in TASK_SHORT if any(t in ((r.get("sr") or {}).get("model") or {}).get("tasks", {}) for r in reports)]
+    tasks += sorted({t for r in reports for t in ((r.get("sr") or {}).get("model") or {}).get("tasks", {})} - set(tasks))
+    if not tasks:
+        raise TableError("preset sr_tasks: no report has per-task SR (was RolloutSuccessRate active on simulated data?)")
+    columns = [Column(TASK_SHORT.get(t, t), 2, False) for t in tasks]
+    sections = []
+    for title, reps in _sections(reports):
+        sec = Section(title)
+        for name, group in _group_rows(reps, group_by, False):
+            sec.rows.append(Row(name, [_cell(group, lambda r, t=t: _sr(r, "model", task=t)) for t in tasks], len(group)))
+        if oracle:
+            cells = [_cell(reps, lambda r, t=t: _sr(r, "oracle", task=t)) for t in tasks]
+            if any(c is not None for c in cells):
+                sec.rows.append(Row("Oracle", cells, len(reps), oracle=True))
+        sections.append(sec)
+    return Table(preset, "Method", columns, sections, note)
+
+
+# ------------------------------------------------------------------------------------------ rendering
+def _best(section: Section, j: int, col: Column) -> float | None:
+    vals = [r.cells[j].mean for r in section.rows if not r.oracle and r.cells[j] is not None]
+    if len(vals) < 2:
+        return None
+    return min(vals) if col.lower_better else max(vals)
+
+
+def _text(cell: Cell | None, col: Column, pm: str) -> str:
+    if cell is None:
+        return "n/a"
+    s = f"{cell.mean:.{col.decimals}f}"
+    if cell.std is not None:
+        s += f"{pm}{cell.std:.{col.decimals}f}"
+    return s
+
+
+def _is_best(cell: Cell | None, best: float | None, col: Column) -> bool:
+    return cell is not None and best is not None and round(cell.mean, col.decimals) == round(best, col.decimals)
+
+
+def _col_title(col: Column, latex: bool = False) -> str:
+    """Header text: ``RMSE ↓`` (map metrics carry their direction), ``Styles SR_front``, ``PnPC2C``."""
+    if latex:
+        name = f"$SR_{{\\text{{{col.name[3:]}}}}}$" if col.name.startswith("SR_") else f"\\textbf{{{_tex(col.name)}}}"
+        return name + ((" $\\downarrow$" if col.lower_better else " $\\uparrow$") if col.arrow else "")
+    head = f"{col.group} {col.name}" if col.group else col.name
+    return head + ((" ↓" if col.lower_better else " ↑") if col.arrow else "")
+
+
+def render_markdown(table: Table) -> str:
+    cols = table.columns
+    lines = ["| " + " | ".join([table.row_header] + [_col_title(c) for c in cols]) + " |",
+             "|" + "---|" + "---:|" * len(cols)]
+    for sec in table.sections:
+        if sec.title:
+            lines.append(f"| **{sec.title}** |" + " |" * len(cols))
+        bests = [_best(sec, j, c) for j, c in enumerate(cols)]
+        for row in sec.rows:
+            cells = []
+            for j, c in enumerate(cols):
+                t = _text(row.cells[j], c, " ± ")
+                cells.append(f"**{t}**" if _is_best(row.cells[j], bests[j], c) and not row.oracle else t)
+            lines.append("| " + " | ".join([row.name] + cells) + " |")
+    runs = "; ".join(f"{r.name}{f' ({_short(sec.title)})' if sec.title else ''}: {r.runs}"
+                     for sec in table.sections for r in sec.rows if not r.oracle)
+    lines += ["", f"_{table.note}. Runs per row: {runs}._"]
+    return "\n".join(lines) + "\n"
+
+
+def _tex(s: str) -> str:
+    return s.replace("\\", "\\textbackslash{}").replace("&", "\\&").replace("%", "\\%").replace("_", "\\_").replace("#", "\\#")
+
+
+def render_latex(table: Table) -> str:
+    cols = table.columns
+    out = ["\\begin{tabular}{l" + "c" * len(cols) + "}", "\\toprule"]
+    groups = [c.group for c in cols]
+    if any(groups):
+        spans, start = [], 0
+        for j in range(1, len(cols) + 1):
+            if j == len(cols) or groups[j] != groups[start]:
+                spans.append((groups[start], start, j))
+                start = j
+        out.append(" & " + " & ".join(f"\\multicolumn{{{b - a}}}{{c}}{{\\textbf{{\\emph{{{_tex(g)}}}}}}}" for g, a, b in spans) + " \\\\")
+        out.append(" ".join(f"\\cmidrule(lr){{{a + 2}-{b + 1}}}" for _, a, b in spans))
+    out.append(" & ".join([f"\\textbf{{{_tex(table.row_header)}}}"] + [_col_title(c, latex=True) for c in cols]) + " \\\\")
+    out.append("\\midrule")
+    for k, sec in enumerate(table.sections):
+        if k:
+            out.append("\\midrule")
+        if sec.title:
+            out.append(f"\\multicolumn{{{len(cols) + 1}}}{{l}}{{\\textbf{{\\emph{{{_tex(sec.title)}}}}}}} \\\\")
+        bests = [_best(sec, j, c) for j, c in enumerate(cols)]
+        for row in sec.rows:
+            if row.oracle:
+                out.append("\\midrule")
+            cells = []
+            for j, c in enumerate(cols):
+                t = _text(row.cells[j], c, " $\\pm$ ")
+                cells.append(f"\\textbf{{{t}}}" if _is_best(row.cells[j], bests[j], c) and not row.oracle else t)
+            out.append(" & ".join([_tex(row.name)] + cells) + " \\\\")
+    out += ["\\bottomrule", "\\end{tabular}"]
+    return "\n".join(out) + "\n"
+
+
+def render_csv(table: Table) -> str:
+    import csv
+    import io
+
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    head = ["section", table.row_header, "runs"]
+    for c in table.columns:
+        name = f"{c.group} {c.name}".strip()
+        head += [f"{name} mean", f"{name} std", f"{name} n"]
+    w.writerow(head)
+    for sec in table.sections:
+        for row in sec.rows:
+            line: list[Any] = [sec.title, row.name, row.runs]
+            for cell in row.cells:
+                line += ["", "", 0] if cell is None else [
+                    f"{cell.mean:.6g}", "" if cell.std is None else f"{cell.std:.6g}", cell.n]
+            w.writerow(line)
+    return buf.getvalue()
+
+
+def render(table: Table, fmt: str) -> str:
+    if fmt not in FORMATS:
+        raise TableError(f"unknown format {fmt!r}; choose from {list(FORMATS)}")
+    return {"md": render_markdown, "latex": render_latex, "csv": render_csv}[fmt](table)
+
+
+# ------------------------------------------------------------------------------------------ CLI
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="floaff-zoo table",
+        description="Aggregate report.json files (written by `floaff-zoo test`) into paper-style tables: "
+        "mean ± std over seeds, best value in bold.",
+    )
+    p.add_argument("--runs", nargs="+", required=True, help="run directories, globs or report.json files")
+    p.add_argument("--group-by", default=None,
+                   help="row key: model | label | benchmark | a dotted path into report.json "
+                   "(default per preset: model; ablation: label; sweep: model.hparams.crop_radius)")
+    p.add_argument("--format", choices=FORMATS, default="md")
+    p.add_argument("--preset", choices=PRESETS, default="map")
+    p.add_argument("--no-oracle", action="store_true", help="leave out the Oracle row of SR presets")
+    p.add_argument("--out", default=None, help="write the table here instead of stdout")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of ``floaff-zoo table``; returns an exit code (0 ok, 2 nothing to tabulate / bad args)."""
+    args = build_parser().parse_args(argv)
+    reports, skipped = load_reports(args.runs)
+    for entry, reason in skipped:
+        print(f"floaff-zoo table: skipped {entry}: {reason}", file=sys.stderr)
+    if not reports:
+        print(f"floaff-zoo table: error: no report.json found in {args.runs}", file=sys.stderr)
+        return 2
+    try:
+        table = build_table([r for _, r in reports], args.preset, args.group_by, oracle=not args.no_oracle)
+        text = render(table, args.format)
+    except TableError as exc:
+        print(f"floaff-zoo table: error: {exc}", file=sys.stderr)
+        return 2
+    if args.out:
+        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.out).write_text(text)
+        print(f"floaff-zoo table: wrote {args.out} ({len(reports)} report(s), {len(skipped)} skipped)", file=sys.stderr)
+    else:
+        sys.stdout.write(text)
+    return 0

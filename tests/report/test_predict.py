@@ -1,0 +1,153 @@
+"""The predict API: back-projection conventions, default grid, outputs, bad input."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from floaff_zoo.contract import FloorGrid
+from floaff_zoo.models.tiny import TinyPointNetModule
+from floaff_zoo.predict import Prediction, backproject_depth, default_floor_grid, predict, predict_from_points
+from tests.report._fake_world import ConstantModule
+
+
+def _cam_pose():
+    """A camera 1.2 m up looking forward (+x base) and pitched 20 deg down, OpenGL axes (looks along -z)."""
+    p = math.radians(20)
+    fwd = np.array([math.cos(p), 0.0, -math.sin(p)])
+    right = np.array([0.0, -1.0, 0.0])
+    up = np.cross(-fwd, right)  # camera axes: x = right, z = -forward, y = z cross x
+    m = np.eye(4)
+    m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = right, up, -fwd, [0.0, 0.0, 1.2]
+    return m
+
+
+def _floor_depth(h=48, w=64, f=50.0):
+    """Depth image of the plane z = 0 seen by _cam_pose (ray casting), intrinsics (f, f, w/2, h/2)."""
+    pose = _cam_pose()
+    uu, vv = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
+    dirs = np.stack([(uu - w / 2) / f, -(vv - h / 2) / f, -np.ones_like(uu)], -1)  # camera frame, depth 1
+    world = dirs @ pose[:3, :3].T
+    t = -pose[2, 3] / world[..., 2]
+    depth = np.where(world[..., 2] < 0, t, 0.0)  # rays above the horizon: invalid
+    return depth, (f, f, w / 2, h / 2), pose
+
+
+def test_backprojection_lands_on_the_floor_in_both_conventions():
+    depth, k, pose = _floor_depth()
+    pts, valid = backproject_depth(depth, k, pose, "opengl", max_depth=20.0)
+    assert valid.sum() > 1000 and np.abs(pts[valid, 2]).max() < 1e-6
+    assert (pts[valid, 0] > 0).all()  # in front of the robot
+    cv_pose = pose @ np.diag([1.0, -1.0, -1.0, 1.0])  # OpenCV axes: y down, looks along +z
+    pts_cv, _ = backproject_depth(depth, k, cv_pose, "opencv", max_depth=20.0)
+    assert np.allclose(pts_cv[valid], pts[valid], atol=1e-9)
+
+
+def test_backprojection_matches_the_simulator_renderer():
+    render = pytest.importorskip("floaff_zoo.sim.render")
+    depth, _, pose = _floor_depth(h=48, w=48)
+    f, cx, cy = render.camera_intrinsics(48, 48, 60.0)
+    ours, v1 = backproject_depth(depth, (f, f, cx, cy), pose, "opengl", max_depth=5.0)
+    theirs, v2 = render.backproject(depth, 60.0, pose[:3, 3], pose[:3, :3], depth_max=5.0)
+    assert (v1 == v2).all() and np.allclose(ours[v1], theirs[v2])
+
+
+def _scene():
+    rng = np.random.default_rng(0)
+    t = np.array([1.6, 0.2, 0.9])
+    counter = np.c_[rng.uniform(1.7, 2.3, 300), rng.uniform(-1, 1, 300), rng.uniform(0.0, 0.85, 300)]
+    blob = t + rng.normal(scale=0.03, size=(60, 3))
+    xyz = np.r_[counter, blob].astype(np.float32)
+    feat = np.r_[np.zeros(300), np.ones(60)].astype(np.float32)[:, None]
+    return xyz, feat, t
+
+
+def test_predict_from_points_outputs_and_default_grid():
+    torch.manual_seed(0)
+    xyz, feat, t = _scene()
+    model = TinyPointNetModule(width=16)
+    out = predict_from_points(model, xyz, feat, None, [0.85, 1.03], t, k=4, num_points=256)
+    assert isinstance(out, Prediction)
+    m = len(out.floor_xyz)
+    assert out.scores.shape == (m,) and ((out.scores >= 0) & (out.scores <= 1)).all()
+    # default grid: within 1.5 m of the target, >= 0.1 m from every observed obstacle point
+    r = np.hypot(out.floor_xyz[:, 0] - t[0], out.floor_xyz[:, 1] - t[1])
+    assert r.max() <= 1.5 + 1e-6 and r.min() >= 0.2 - 1e-6
+    obst = xyz[(xyz[:, 2] > 0.05) & (xyz[:, 2] < 2.0), :2]
+    gap = np.hypot(*(out.floor_xyz[:, None, :2] - obst[None]).transpose(2, 0, 1)).min(1)
+    assert gap.min() >= 0.1 - 1e-6 and len(out.floor_xyz) > 100
+    assert isinstance(out.grid, FloorGrid) and out.raster.shape == out.grid.shape
+    assert np.nanmax(out.raster) == pytest.approx(out.scores.max(), abs=1e-6)
+    top = [int(np.argmin(np.hypot(out.floor_xyz[:, 0] - p[0], out.floor_xyz[:, 1] - p[1]))) for p in out.top_poses]
+    assert len(top) == 4 and list(out.scores[top]) == sorted(out.scores[top], reverse=True)
+    assert out.best_pose == out.top_poses[0] and out.scores[top[0]] == out.scores.max()
+    x, y, yaw = out.best_pose
+    assert yaw == pytest.approx(math.atan2(t[1] - y, t[0] - x))
+    assert out.target_yaw == pytest.approx(math.atan2(-t[1], -t[0]))  # default: front faces the robot
+
+
+def test_constant_prediction_uses_the_tie_break():
+    xyz, feat, t = _scene()
+    floor = np.array([[0.2, 0.0, 0.0], [1.0, 0.1, 0.0], [0.6, -0.5, 0.0]], np.float32)
+    out = predict_from_points(ConstantModule(), xyz, feat, floor, [0.85, 1.03], t, k=3)
+    again = predict_from_points(ConstantModule(), xyz, feat, floor, [0.85, 1.03], t, k=3)
+    assert out.best_pose == again.best_pose  # the seeded tie-break is repeatable
+    assert sorted(p[:2] for p in out.top_poses) == sorted(tuple(map(float, f[:2])) for f in floor)
+
+
+def test_predict_from_rgbd(tmp_path):
+    depth, k, pose = _floor_depth()
+    mask = np.zeros(depth.shape, bool)
+    mask[20:24, 30:34] = True  # a patch on the floor plays the target
+    rgb = np.full(depth.shape + (3,), 128, np.uint8)
+    model = TinyPointNetModule(width=16, feat_channels=4)
+    out = predict(model, rgb, depth, k, pose, mask, [0.85, 1.03], num_points=512, max_depth=20.0)
+    assert out.scores.shape == (len(out.floor_xyz),) and np.isfinite(out.scores).all()
+    assert abs(out.target_xyz[2]) < 1e-5 and out.target_xyz[0] > 0
+    with pytest.raises(ValueError, match="target_mask"):
+        predict(model, rgb, depth, k, pose, mask[:-1], [0.85, 1.03])
+    with pytest.raises(Exception, match="no pixel"):
+        predict(model, rgb, depth, k, pose, np.zeros_like(mask), [0.85, 1.03])
+
+
+def test_checkpoint_of_another_model_class_is_a_clear_error(tmp_path):
+    m = TinyPointNetModule(width=16)
+    ckpt = tmp_path / "tiny.ckpt"
+    hp = dict(m.hparams, _class_path="floaff_zoo.models.tiny.TinyPointNetModule")
+    torch.save({"state_dict": m.state_dict(), "hyper_parameters": hp}, ckpt)
+    xyz, feat, t = _scene()
+    out = predict_from_points(str(ckpt), xyz, feat, None, [0.85, 1.03], t, num_points=128,
+                              model_class="TinyPointNetModule")
+    assert np.isfinite(out.scores).all()
+    with pytest.raises(TypeError, match="expected a PointNet2Module .* TinyPointNetModule"):
+        predict_from_points(str(ckpt), xyz, feat, None, [0.85, 1.03], t, model_class="PointNet2Module")
+    with pytest.raises(FileNotFoundError, match="no_such.ckpt"):
+        predict_from_points(str(tmp_path / "no_such.ckpt"), xyz, feat, None, [0.85, 1.03], t)
+    from floaff_zoo.contract import SampleError
+
+    with pytest.raises(SampleError, match="robot"):
+        predict_from_points(m, xyz, feat, None, [0.85, 1.03, 0.5], t)
+
+
+def test_default_grid_without_free_floor_is_named():
+    from floaff_zoo.contract import SampleError
+
+    g = np.arange(-2.0, 2.0, 0.05)
+    wall = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
+    xyz = np.c_[wall, np.full(len(wall), 0.5)]  # furniture everywhere around the target
+    with pytest.raises(SampleError, match="no free cell"):
+        default_floor_grid(np.array([0.0, 0.0, 0.9]), xyz)
+    assert len(default_floor_grid(np.array([0.0, 0.0, 0.9]), None, radius=0.5, cell=0.1)) == 81 - 9  # lattice points with r <= 5 cells minus r < 2 cells
+
+
+def test_package_level_call():
+    import floaff_zoo
+    import floaff_zoo.predict  # noqa: F401  (the submodule import must not break floaff_zoo.predict(...))
+
+    xyz, feat, t = _scene()
+    depth, k, pose = _floor_depth()
+    mask = np.zeros(depth.shape, bool)
+    mask[20:24, 30:34] = True
+    out = floaff_zoo.predict(ConstantModule(), None, depth, k, pose, mask, [0.85, 1.03], max_depth=20.0)
+    assert isinstance(out, Prediction) and callable(floaff_zoo.predict.predict_from_points)

@@ -1,0 +1,67 @@
+"""`floaff-zoo test` with the report callbacks, through the real CLI, on the synthetic tiny data."""
+
+import json
+from pathlib import Path
+
+import pytest
+import torch
+
+from floaff_zoo.cli import run_lightning
+from floaff_zoo.report.table import main as table_main
+from tests.conftest import quiet_trainer_args
+
+DATA = "configs/data/synthetic_tiny.yaml"
+MODEL = "configs/models/tiny_pointnet.yaml"
+
+
+@pytest.fixture(scope="module")
+def fitted(tmp_path_factory):
+    root = Path(__file__).resolve().parents[2]
+    tmp = tmp_path_factory.mktemp("fit")
+    mp = pytest.MonkeyPatch()
+    mp.chdir(root)
+    try:
+        base = ["--config", DATA, "--config", MODEL, *quiet_trainer_args(tmp)]
+        cli = run_lightning(["fit", *base, "--trainer.max_epochs", "1"])
+        yield base, cli.trainer.checkpoint_callback.best_model_path, root
+    finally:
+        mp.undo()
+
+
+def test_test_writes_report_with_every_metric(fitted, monkeypatch):
+    base, ckpt, root = fitted
+    monkeypatch.chdir(root)
+    cli = run_lightning(["test", *base, "--config", "configs/trainer/eval_sr.yaml", "--ckpt_path", ckpt,
+                         "--trainer.callbacks.figures_per_group", "1"])
+    run_dir = Path(cli.trainer.log_dir)
+    rep = json.loads((run_dir / "report.json").read_text())
+    configured = [f"test_{k}" for k in cli.model.test_metrics.keys(keep_base=True)]
+    assert len(configured) >= 4 and set(rep["configured_metrics"]) == set(configured)
+    for k in configured:
+        assert isinstance(rep["metrics"][k], float), k
+        assert rep["metrics"][k] == pytest.approx(float(cli.trainer.callback_metrics[k]))
+    assert rep["sr"]["available"] is False and "meta['sim']" in rep["sr"]["reason"]
+    assert rep["model"]["name"] == "TinyPointNetModule" and rep["model"]["hparams"]["width"] == 32
+    assert rep["checkpoint"]["path"] == str(Path(ckpt).resolve()) and len(rep["checkpoint"]["sha256"]) == 64
+    assert rep["seed"] == 0 and rep["config"]["model"]["init_args"]["width"] == 32
+    assert rep["data"]["dataset"] == "synthetic" and rep["data"]["num_samples"] == 4
+    assert rep["sim_variant"] == "cosine" and rep["metric_reduction"] == "per_sample"
+    assert rep["versions"]["torch"] and rep["versions"]["lightning"]
+    md = (run_dir / "report.md").read_text()
+    assert "SR: n/a" in md and "| RMSE |" in md
+    assert rep["figures"] and all((run_dir / f).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" for f in rep["figures"])
+    # the table command reads the new report
+    assert table_main(["--runs", str(run_dir), "--out", str(run_dir / "t.md")]) == 0
+    assert "TinyPointNetModule" in (run_dir / "t.md").read_text()
+
+
+def test_report_without_callbacks_in_config_is_opt_in(fitted, monkeypatch, tmp_path):
+    base, ckpt, root = fitted
+    monkeypatch.chdir(root)
+    args = [a if a != str(Path(base[base.index("--trainer.default_root_dir") + 1])) else str(tmp_path) for a in base]
+    cli = run_lightning(["test", *args, "--ckpt_path", ckpt, "--trainer.callbacks+=floaff_zoo.callbacks.TestReport",
+                         "--trainer.callbacks.figures", "false", "--trainer.callbacks.label", "w/o SDL"])
+    rep = json.loads((Path(cli.trainer.log_dir) / "report.json").read_text())
+    assert rep["label"] == "w/o SDL" and rep["figures"] == []
+    assert "no RolloutSuccessRate" in rep["sr"]["reason"]
+    assert torch.isfinite(torch.tensor(rep["metrics"]["test_rmse"]))

@@ -1,0 +1,122 @@
+"""RolloutSuccessRate with a fake rollout service (success = deterministic function of the world pose)."""
+
+import math
+import warnings
+
+import lightning as L
+import numpy as np
+import pytest
+
+from floaff_zoo.callbacks.rollout import (
+    RolloutSuccessRate,
+    base_to_world,
+    bootstrap_std,
+    choose_pose,
+    pose_to_world,
+    summarize_episodes,
+)
+from tests.report._fake_world import BASE_RATE, ConstantModule, FakeService, LabelModule, loader, make_samples
+
+
+def _trainer(cb):
+    return L.Trainer(accelerator="cpu", logger=False, enable_progress_bar=False, enable_model_summary=False,
+                     enable_checkpointing=False, callbacks=[cb])
+
+
+def test_base_to_world_round_trip():
+    pose = (1.0, -2.0, math.pi / 2)
+    p = base_to_world(np.array([[1.0, 0.0, 0.3]]), pose)
+    assert np.allclose(p, [[1.0, -1.0, 0.3]])  # x forward of a base facing +y is world +y
+    w = pose_to_world((1.0, 0.0, 0.0), pose)
+    assert np.allclose(w, (1.0, -1.0, math.pi / 2))
+
+
+def test_choose_pose_top_k_skips_blocked_footprints():
+    floor = np.array([[1.0, 0, 0], [2.0, 0, 0], [3.0, 0, 0]])
+    scores = np.array([0.9, 0.8, 0.1])
+    target = np.array([0.0, 0.0, 0.9])
+    base = (0.0, 0.0, 0.0)
+    assert choose_pose(floor, scores, None, target, base, top_k=1)[0][:2] == (1.0, 0.0)
+    pose, rank = choose_pose(floor, scores, None, target, base, top_k=3, is_free=lambda x, y, yaw: x > 1.5)
+    assert (pose[:2], rank) == ((2.0, 0.0), 1)
+    assert math.isclose(pose[2], math.pi)  # heading toward the target
+    # nothing free -> top-1
+    assert choose_pose(floor, scores, None, target, base, top_k=3, is_free=lambda *a: False)[1] == 0
+
+
+def test_constant_map_uses_documented_tie_break():
+    floor = np.array([[3.0, 0, 0], [1.0, 0, 0], [2.0, 0, 0]])
+    picks = {choose_pose(floor, np.zeros(3), None, np.zeros(3), (0.0, 0.0, 0.0), seed=s)[0][:2] for s in range(30)}
+    assert picks == {(3.0, 0.0), (1.0, 0.0), (2.0, 0.0)}  # seeded random tie-break covers every candidate
+    assert choose_pose(floor, np.zeros(3), None, np.zeros(3), (0.0, 0.0, 0.0), seed=7) == \
+        choose_pose(floor, np.zeros(3), None, np.zeros(3), (0.0, 0.0, 0.0), seed=7)
+
+
+def test_summary_and_bootstrap():
+    eps = [{"task": "A", "view": "front", "success": True, "oracle_success": True},
+           {"task": "A", "view": "side", "success": False, "oracle_success": True},
+           {"task": "B", "view": "side", "success": False, "oracle_success": True},
+           {"task": "B", "view": "front", "success": True, "oracle_success": False}]
+    s = summarize_episodes(eps, n_bootstrap=500)
+    assert s["model"]["front"]["mean"] == 1.0 and s["model"]["side"]["mean"] == 0.0
+    assert s["model"]["all"] == {"mean": 0.5, "std": pytest.approx(0.25, abs=0.05), "n": 4}
+    assert s["oracle"]["tasks"]["B"]["mean"] == 0.5
+    assert bootstrap_std([1, 1, 1]) == 0.0 and bootstrap_std([1]) == 0.0
+    # bootstrap std of a mean of 400 fair coins ~ sqrt(.25/400) = 0.025
+    assert bootstrap_std(np.arange(400) % 2, 2000) == pytest.approx(0.025, abs=0.004)
+
+
+def test_oracle_and_perfect_model_succeed_constant_map_scores_base_rate():
+    samples = make_samples(160)
+    cb = RolloutSuccessRate(service=FakeService, progress=False)
+    res = _trainer(cb).test(LabelModule(), dataloaders=loader(samples), verbose=False)[0]
+    assert res["test_sr_all"] == 1.0 and res["test_oracle_sr_all"] == 1.0
+    for key in ("test_sr_front", "test_sr_side", "test_sr_CloseDrawer", "test_sr_OpenSingleDoor", "test_sr_all_std",
+                "test_oracle_sr_front", "test_oracle_sr_CloseDrawer", "test_rollout_seconds"):
+        assert key in res, key
+    assert cb.summaries["test"]["n_evaluated"] == 160 and cb.summaries["test"]["model"]["front"]["n"] == 80
+
+    cb = RolloutSuccessRate(service=FakeService, progress=False)
+    res = _trainer(cb).test(ConstantModule(), dataloaders=loader(samples), verbose=False)[0]
+    assert res["test_oracle_sr_all"] == 1.0
+    assert abs(res["test_sr_all"] - BASE_RATE) < 0.12, res["test_sr_all"]
+    svc = FakeService.instances[-1]
+    assert svc.closed  # the service is closed at teardown
+    # model and oracle jobs are deduplicated by (scene, rounded pose)
+    keys = {(s.scene_id, round(p[0], 2), round(p[1], 2), round(p[2], 2)) for s, p in svc.jobs}
+    assert len(keys) == len(svc.jobs) <= 320
+
+
+def test_validation_every_n_epochs_logs_val_rollout_success():
+    samples = make_samples(8)
+    cb = RolloutSuccessRate(service=FakeService, progress=False, every_n_val_epochs=2, max_val_samples=4, on_test=False)
+    trainer = L.Trainer(accelerator="cpu", logger=False, enable_progress_bar=False, enable_model_summary=False,
+                        enable_checkpointing=False, callbacks=[cb], max_epochs=2, num_sanity_val_steps=1,
+                        limit_train_batches=1)
+    n0 = len(FakeService.instances)
+    trainer.fit(LabelModule(), train_dataloaders=loader(samples), val_dataloaders=loader(samples, 2))
+    assert trainer.callback_metrics["val_rollout_success"] == 1.0
+    assert cb.summaries["val"]["n_evaluated"] == 4  # capped
+    assert len(FakeService.instances) == n0 + 1  # one service for the whole fit (its cache persists)
+
+
+def test_samples_without_sim_are_skipped_with_one_warning():
+    samples = make_samples(6)
+    for s in samples:
+        s["meta"].pop("sim")
+    cb = RolloutSuccessRate(service=FakeService, progress=False)
+    with warnings.catch_warnings(record=True) as rec:
+        warnings.simplefilter("always")
+        res = _trainer(cb).test(ConstantModule(), dataloaders=loader(samples, 2), verbose=False)[0]
+    msgs = [str(w.message) for w in rec if "RolloutSuccessRate" in str(w.message)]
+    assert len(msgs) == 1 and "skipped 6" in msgs[0]
+    assert not any(k.startswith("test_sr") for k in res)
+    assert cb.summaries["test"]["available"] is False
+
+
+def test_bad_sim_metadata_is_named():
+    samples = make_samples(2)
+    samples[1]["meta"]["sim"]["layout_id"] = 99
+    cb = RolloutSuccessRate(service=FakeService, progress=False)
+    with pytest.raises(ValueError, match="fake1.*layout_id"):
+        _trainer(cb).test(ConstantModule(), dataloaders=loader(samples), verbose=False)

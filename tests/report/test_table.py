@@ -1,0 +1,93 @@
+"""`floaff-zoo table` on fixture report.json files (golden Markdown tables, hand-checked)."""
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+
+from floaff_zoo.cli import main as cli_main
+from floaff_zoo.report.table import build_table, load_reports, main, render
+
+FIX = Path(__file__).parent / "fixtures"
+RUNS = FIX / "runs"
+
+
+@pytest.mark.parametrize("preset", ["map", "sr_views"])
+def test_golden_markdown(preset, tmp_path, capsys):
+    out = tmp_path / "t.md"
+    assert main(["--runs", str(RUNS), "--preset", preset, "--format", "md", "--out", str(out)]) == 0
+    assert out.read_text() == (FIX / f"golden_{preset}.md").read_text()
+    err = capsys.readouterr().err
+    assert "skipped" in err and "crashed_run" in err and "no report.json" in err
+
+
+def test_golden_values_by_hand():
+    """Cells the golden file must contain: CFAR Styles RMSE (0.030, 0.028, 0.029) -> 0.029 ± 0.001 (ddof=1)."""
+    text = (FIX / "golden_map.md").read_text()
+    assert "| CFARModule | **0.029 ± 0.001** | **0.0004 ± 0.0000** | **0.860 ± 0.010** | **0.862 ± 0.002** |" in text
+    assert "| NavAffModule | 0.065 ± 0.001 | 0.0026 ± 0.0001 | 0.395 ± 0.007 | 0.335 ± 0.007 |" in text
+    sr = (FIX / "golden_sr_views.md").read_text()
+    # Layouts has one CFAR run: its bootstrap std is shown; NavAff has no Layouts run
+    assert "| CFARModule | **0.85 ± 0.01** | **0.85 ± 0.02** | **0.85 ± 0.01** | 0.81 ± 0.02 | 0.77 ± 0.02 | 0.79 ± 0.01 |" in sr
+    assert "| NavAffModule | 0.29 ± 0.01 | 0.45 ± 0.01 | 0.37 ± 0.00 | n/a | n/a | n/a |" in sr
+    assert sr.index("| Oracle |") > sr.index("| NavAffModule |")
+
+
+def test_globs_dedupe_and_cli_dispatch(tmp_path, capsys):
+    assert cli_main(["table", "--runs", str(RUNS / "cfar_*"), str(RUNS / "cfar_styles_s0" / "report.json"),
+                     "--preset", "sr_tasks"]) == 0
+    out = capsys.readouterr().out
+    assert out.splitlines()[0] == "| Method | PnPC2C | OpenSD |"
+    assert out.count("| CFARModule |") == 2  # one row per benchmark section, 3 Styles runs merged
+    assert "0.83 ± 0.01" in out  # PnP Styles: (0.82, 0.84, 0.83)
+
+
+def test_latex_and_csv(capsys):
+    assert main(["--runs", str(RUNS), "--preset", "sr_views", "--format", "latex"]) == 0
+    tex = capsys.readouterr().out
+    assert tex.startswith("\\begin{tabular}{lcccccc}") and "\\textbf{0.85 $\\pm$ 0.01}" in tex
+    assert "\\multicolumn{3}{c}{\\textbf{\\emph{Styles}}}" in tex and tex.rstrip().endswith("\\end{tabular}")
+    assert main(["--runs", str(RUNS), "--preset", "map", "--format", "csv"]) == 0
+    rows = [r.split(",") for r in capsys.readouterr().out.strip().splitlines()]
+    assert rows[0][:4] == ["section", "Method", "runs", "RMSE mean"]
+    cfar = next(r for r in rows if r[1] == "CFARModule" and "Styles" in r[0])
+    assert float(cfar[3]) == pytest.approx(0.029) and float(cfar[4]) == pytest.approx(0.001)
+
+
+def test_bad_inputs_are_named_and_skipped(tmp_path, capsys):
+    bad = tmp_path / "bad_run"
+    bad.mkdir()
+    (bad / "report.json").write_text("{not json")
+    assert main(["--runs", str(bad), str(tmp_path / "missing")]) == 2
+    err = capsys.readouterr().err
+    assert "bad_run" in err and "unreadable" in err and "missing" in err and "no report.json found" in err
+    with pytest.raises(SystemExit):
+        main(["--runs", str(RUNS), "--preset", "nope"])
+    assert main(["--runs", str(RUNS), "--group-by", "model.hparams.no_such"]) == 2
+    assert "no_such" in capsys.readouterr().err
+
+
+def test_sweep_sorts_numerically_and_ablation_groups_by_label(tmp_path):
+    src = json.loads((RUNS / "cfar_styles_s0" / "report.json").read_text())
+    for i, (crop, label) in enumerate([(1.3, "Ours (Full)"), (1.1, "w/o SDL"), (1.25, "w/o Crop")]):
+        rep = dict(src, label=label, model=dict(src["model"], hparams=dict(src["model"]["hparams"], crop_radius=crop)))
+        rep["metrics"] = dict(src["metrics"], test_rmse=0.02 + 0.01 * i)
+        (tmp_path / f"r{i}").mkdir()
+        (tmp_path / f"r{i}" / "report.json").write_text(json.dumps(rep))
+    reports = [r for _, r in load_reports([str(tmp_path)])[0]]
+    sweep = render(build_table(reports, "sweep"), "md")
+    rows = [ln.split("|")[1].strip() for ln in sweep.splitlines() if ln.startswith("| 1.")]
+    assert rows == ["1.10", "1.25", "1.30"] and sweep.startswith("| crop_radius |")
+    assert "**0.020**" in sweep  # lowest RMSE in bold
+    abl = render(build_table(reports, "ablation"), "md")
+    assert "| w/o SDL |" in abl and "| Ours (Full) |" in abl and abl.startswith("| Ablation |")
+
+
+def test_reads_only_report_json(tmp_path):
+    run = tmp_path / "run"
+    shutil.copytree(RUNS / "navaff_styles_s0", run)
+    (run / "metrics.csv").write_text("test_rmse\n0.5\n")
+    (reports, skipped) = load_reports([str(run)])
+    assert len(reports) == 1 and not skipped
+    assert reports[0][1]["metrics"]["test_rmse"] == 0.064
