@@ -1,6 +1,7 @@
 """Simulator benchmark: rollout cost per task, labelling throughput, IK pre-filter agreement.
 
-Usage: OMP_NUM_THREADS=1 python benchmarks/bench_sim.py [--cell 0.1] [--layout 0] [--style 0] [--agree 20]
+Usage: OMP_NUM_THREADS=1 python benchmarks/bench_sim.py [--quick] [--cell 0.1] [--layout 0] [--style 0] [--agree 20]
+(--quick: cell 0.2 m and 5 agreement checks, ~1-2 min on one core)
 Prints, per task: mean wall time of full rollouts (targets: close/open <= 0.3 s, pick-and-place <= 1 s),
 candidates labelled per second including filtering (target >= 10/s/core), the ratio to the
 robosuite env stack (0.8 s per 4 s rollout, SIMULATOR.md §2.2), and the agreement of the IK
@@ -28,7 +29,10 @@ def main() -> None:
     ap.add_argument("--style", type=int, default=0)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--agree", type=int, default=20)
+    ap.add_argument("--quick", action="store_true", help="coarse grid (cell 0.2) and 5 agreement checks")
     args = ap.parse_args()
+    if args.quick:
+        args.cell, args.agree = 0.2, 5
     t0 = time.perf_counter()
     build_scene(SceneSpec(args.layout, args.style, args.seed, TASKS[0]))
     print(f"build_scene (first, incl. robot model) {time.perf_counter() - t0:.2f}s")

@@ -59,6 +59,25 @@ def test_paper_view_counts_match_the_appendix_table():
         get_preset("tiny", tasks=("Nope",))
 
 
+def test_floor_cells_drop_furniture_and_behind_the_wall():
+    # target at the origin facing -y (yaw -pi/2); a counter 0.6 deep behind it (y in [0, 0.6]) and a thin wall
+    # behind the counter (y in [0.6, 0.65]) spanning the whole grid; the grid covers y in [-1, 1]
+    cell = 0.1
+    xs = np.arange(-10, 11) * cell
+    ys = np.arange(-10, 11) * cell
+    yy, xx = np.meshgrid(ys, xs, indexing="ij")
+    grid = np.stack([xx.ravel(), yy.ravel()], axis=1)
+    counter = np.array([[-3, 0.0], [3, 0.0], [3, 0.6], [-3, 0.6]])
+    wall = np.array([[-3, 0.6], [3, 0.6], [3, 0.65], [-3, 0.65]])
+    m = gen.floor_cells(grid, (21, 21), [counter, wall], np.zeros(2), -np.pi / 2, cell)
+    y = grid[:, 1]
+    assert m[y < -0.01].all()  # everything in front of the counter is floor
+    assert not m[(y > 0.01) & (y < 0.6)].any()  # inside the counter
+    assert not m[y > 0.66].any()  # behind the wall: free of furniture but not part of the room
+    with pytest.raises(ValueError, match="grid_shape"):
+        gen.floor_cells(grid, (20, 21), [counter], np.zeros(2), 0.0, cell)
+
+
 def _view(n=5, m=4):
     return {
         "scene_xyz": np.zeros((n, 3), np.float32), "scene_feat": np.zeros((n, 4), np.float32),

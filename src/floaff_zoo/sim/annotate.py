@@ -102,7 +102,7 @@ def annotate_scene(scene: SimScene, cell: float = 0.05, r_arm: float | None = No
             continue
         # behind the target's front plane (inside the fixture/counter/wall, y° > 0), outside the room
         # (a wall between the base and the target) or overlapping a furniture footprint
-        if xo[i, 1] > 1e-9 or scene.wall_between(x, y, scene.target.pos[:2]) or not scene.footprint_free(x, y, yaws[i]):
+        if xo[i, 1] > -1e-9 or scene.wall_between(x, y, scene.target.pos[:2]) or not scene.footprint_free(x, y, yaws[i]):
             reasons[i] = "filtered_collision"
             counts["filtered_collision"] += 1
             continue

@@ -9,7 +9,7 @@ SIMULATOR.md §5) and then executes segments at a 20 Hz control rate:
 * ``_Grip``: open/close the gripper, optionally switching the grasp assist.
 
 Failure reasons: ``ik_unreachable`` (key point or path not reachable), ``collision`` (the hand is
-blocked > 8 cm away from its command for 0.6 s, or the base is shoved > 5 cm / 0.1 rad),
+blocked > 8 cm away from its last 0.2 s of commands for 0.6 s, or the base is shoved > 5 cm / 0.1 rad),
 ``grasp_failed`` (closed fingers not around the handle/object), plus the task's own
 ``not_closed`` / ``not_open`` / ``not_placed`` when the script ends without success.
 
@@ -166,6 +166,7 @@ class ScriptedPolicy:
                 return
             sols.append(best[0])
             q_prev = best[0]
+        self.key_q = sols  # IK solutions [8] of the key points (segments may move to them in joint space)
         self._segs = self.segments(scene, sols[0])
         self.feasible = True
 
@@ -301,26 +302,27 @@ class CloseDrawerPolicy(ScriptedPolicy):
 
 
 class CloseDoubleDoorPolicy(ScriptedPolicy):
-    """Sweep each open door shut by pushing its outer face near the top of the free edge, one door after the other.
+    """Sweep each open door shut by pushing its outer face at the top of the free edge, one door after the other.
 
     A door opened to ~90 deg sticks out of the cabinet with its outer (front) face turned sideways,
-    away from the opening, so a closing push must come from outside the door pair: the closed
-    fingers (45 deg down approach, gripper axis into the face) are placed just outside the face at
-    ``R_FRAC`` of the door width from the hinge, ``Z_BELOW_TOP`` below its top edge, then follow the
-    door's arc (commanded 2 cm into the face so the fingers keep pushing) to slightly past closed.
-    The door nearer to the base is closed first; the hand then backs out and goes around the
-    other door's free edge. No grasp and no assist: contact forces alone move the doors.
+    away from the opening, so a closing push must come from outside the door pair. The gripper
+    points straight down with closed fingers; the fingertips go down just outside the face at
+    ``R_FRAC`` of the door width from the hinge and ``Z_BELOW_TOP`` below the top edge (the hand
+    stays above the door), then follow the door's arc to slightly past closed. The door nearer to the
+    base goes first; the hand then rises above the door tops and goes around the other door's
+    free edge. No grasp and no assist: contact forces alone move the doors.
     """
 
     task = "CloseDoubleDoor"
     R_FRAC = 0.80  # contact radius as a fraction of the door width
-    Z_BELOW_TOP = 0.09  # m below the door's top edge
-    STANDOFF = 0.10  # m outside the face before moving in
-    PRESS = -0.015  # m grip-site offset from the face while sweeping (< 0: commanded into the door)
-    Q_END = -0.08  # rad, sweep target past closed (the hinge stops at 0)
+    Z_BELOW_TOP = 0.06  # m, grip site below the door's top edge
+    STANDOFF = 0.08  # m outside the face before moving in
+    PRESS = 0.004  # m, grip-site offset from the face while sweeping (fingers ~1 cm thick: they press)
+    Q_END = -0.04  # rad, sweep target past closed (the hinge stops at 0)
+    LIFT = 0.10  # m above the push height while moving between the doors
 
     def _doors(self, scene):
-        """[(hinge world [3] at z=0, e, q, radius, z, body)] ordered nearest-to-the-base first."""
+        """yaw, [(hinge world [3] at z=0, e, q, radius, z, width)] ordered nearest-to-the-base first."""
         f = scene.fixtures["double_door"]
         yaw = f["yaw"]
         c, s = math.cos(yaw), math.sin(yaw)
@@ -330,41 +332,37 @@ class CloseDoubleDoorPolicy(ScriptedPolicy):
             hl = dd["hinge_local"]
             hinge = np.array([f["origin"][0] + c * hl[0] - s * hl[1], f["origin"][1] + s * hl[0] + c * hl[1], 0.0])
             qa = scene.model.jnt_qposadr[mujoco.mj_name2id(scene.model, mujoco.mjtObj.mjOBJ_JOINT, dd["joint"])]
-            r = self.R_FRAC * float(dd["width"])
-            out.append((hinge, int(dd["e"]), float(scene.data.qpos[qa]), r, float(dd["z1"]) - self.Z_BELOW_TOP, dd["body"]))
-        # nearest contact point first (deterministic given the pose)
+            wd = float(dd["width"])
+            out.append((hinge, int(dd["e"]), float(scene.data.qpos[qa]), self.R_FRAC * wd, float(dd["z1"]) - self.Z_BELOW_TOP, wd))
+
         def dist(d):
-            p = _door_point(d[0], yaw, d[1], d[2], np.array([0.0, -d[1] * d[3], 0.0]))
-            return math.hypot(p[0] - bx, p[1] - by)
+            p = self._pt(yaw, d, d[2], 0.0)
+            return (round(math.hypot(p[0] - bx, p[1] - by), 6), d[1])
+
         out.sort(key=dist)
         return yaw, out
 
     @staticmethod
-    def _approach(yaw, e, q):
-        return _approach_push(_door_normal(yaw, e, q))
+    def _pt(yaw, door, q, off, r=None, dz=0.0):
+        """Point ``off`` outside the door's outer face at radius r (default: contact radius), door at angle q."""
+        hinge, e, _, rc, z, _ = door
+        return _door_point(hinge, yaw, e, q, np.array([off, -e * (rc if r is None else r), z + dz]))
 
-    def _pt(self, yaw, door, q, off, dr=0.0):
-        hinge, e, _, r, z, _ = door
-        return _door_point(hinge, yaw, e, q, np.array([off, -e * (r + dr), z]))
-
-    def _around(self, yaw, door) -> tuple[np.ndarray, np.ndarray]:
-        """Waypoints [3] past the free edge of an open door: in line with the door, then outside its face."""
-        wd = door[3] / self.R_FRAC
-        dr = wd + 0.14 - door[3]
-        return self._pt(yaw, door, door[2], 0.0, dr=dr), self._pt(yaw, door, door[2], self.STANDOFF + 0.04, dr=dr)
+    def _path_points(self, yaw, doors):
+        """Key points per door: (above-outside, outside, touching, half-closed, closed)."""
+        out = []
+        for d in doors:
+            q0 = d[2]
+            out.append((self._pt(yaw, d, q0, self.STANDOFF, dz=self.LIFT), self._pt(yaw, d, q0, self.STANDOFF),
+                        self._pt(yaw, d, q0, self.PRESS), self._pt(yaw, d, 0.5 * q0, self.PRESS),
+                        self._pt(yaw, d, 0.0, self.PRESS)))
+        return out
 
     def keypoints(self, scene):
         yaw, doors = self._doors(scene)
         kps = []
-        for k, d in enumerate(doors):
-            q0 = d[2]
-            if k > 0:  # in front of, then around the free edge of the second door
-                for p in self._around(yaw, d):
-                    kps.append((p, self._approach(yaw, d[1], q0)))
-            kps.append((self._pt(yaw, d, q0, self.STANDOFF), self._approach(yaw, d[1], q0)))
-            qm = 0.5 * q0
-            kps.append((self._pt(yaw, d, qm, self.PRESS), self._approach(yaw, d[1], qm)))
-            kps.append((self._pt(yaw, d, 0.0, self.PRESS), self._approach(yaw, d[1], 0.0)))
+        for k, pts in enumerate(self._path_points(yaw, doors)):
+            kps += [(p, DOWN) for p in (pts[1:] if k == 0 else pts)]
         return kps
 
     def segments(self, scene, q_first):
@@ -375,35 +373,30 @@ class CloseDoubleDoorPolicy(ScriptedPolicy):
             return lambda s: a + _smooth(s) * (b - a)
 
         prev = None
-        for k, d in enumerate(doors):
-            e, q0 = d[1], d[2]
-            a0 = self._approach(yaw, e, q0)
-            pre = self._pt(yaw, d, q0, self.STANDOFF)
-            touch = self._pt(yaw, d, q0, self.PRESS)
+        for k, (d, pts) in enumerate(zip(doors, self._path_points(yaw, doors))):
+            above, out, touch = pts[0], pts[1], pts[2]
+            q0 = d[2]
             if k == 0:
                 segs.append(_Joint(1.0, q_first, opened=False))
             else:
-                tip, around = self._around(yaw, d)
-                a_prev = self._approach(yaw, doors[k - 1][1], 0.0)
-
-                def turn(s, a_prev=a_prev, a0=a0):  # rotate the wrist gradually while backing out
-                    return _unit(a_prev + _smooth(s) * (a0 - a_prev))
-
-                segs.append(_Cart(0.6, line(prev, tip), turn, opened=False))
-                segs.append(_Cart(0.35, line(tip, around), a0, opened=False))
-                segs.append(_Cart(0.35, line(around, pre), a0, opened=False))
-            segs.append(_Cart(0.35, line(pre, touch), a0, opened=False))
+                # around the free edge of the second door, above the door tops
+                wd = d[5]
+                tip = self._pt(yaw, d, q0, -0.02, r=wd + 0.10, dz=self.LIFT)
+                segs.append(_Cart(1.1, line(prev, tip), DOWN, opened=False))
+                segs.append(_Cart(0.4, line(tip, above), DOWN, opened=False))
+                segs.append(_Cart(0.35, line(above, out), DOWN, opened=False))
+            segs.append(_Cart(0.3, line(out, touch), DOWN, opened=False))
 
             def arc(s, d=d, q0=q0):
                 return self._pt(yaw, d, q0 + _smooth(s) * (self.Q_END - q0), self.PRESS)
 
-            def arc_a(s, e=e, q0=q0):
-                return self._approach(yaw, e, max(0.0, q0 + _smooth(s) * (self.Q_END - q0)))
-
-            segs.append(_Cart(1.2, arc, arc_a, opened=False))
+            segs.append(_Cart(1.2, arc, DOWN, opened=False))
             end = arc(1.0)
-            prev = self._pt(yaw, d, 0.0, self.STANDOFF + 0.06)
-            segs.append(_Cart(0.3, line(end, prev), arc_a(1.0), opened=False))
+            back = self._pt(yaw, d, 0.0, self.STANDOFF + 0.06)  # out from under the counter edge, then up
+            prev = back + np.array([0.0, 0.0, self.LIFT])
+            segs.append(_Cart(0.3, line(end, back), DOWN, opened=False))
+            if k + 1 < len(doors):
+                segs.append(_Cart(0.25, line(back, prev), DOWN, opened=False))
         return segs
 
 

@@ -133,13 +133,10 @@ def find_done(out: Path, job: SceneJob) -> str | None:
     return None
 
 
-def on_floor_mask(xy: np.ndarray, polys: list[np.ndarray]) -> np.ndarray:
-    """Cells [M,2] whose centre is outside every convex footprint polygon [K,2] (furniture, walls) -> bool [M].
-
-    These are the paper's ground cells; cells inside furniture are grid artefacts, not floor.
-    """
+def _inside_polys(xy: np.ndarray, polys: list[np.ndarray], margin: float = 0.0) -> np.ndarray:
+    """Points [M,2] inside (or within `margin` of) any convex polygon [K,2] -> bool [M]."""
     xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
-    inside = np.zeros(len(xy), dtype=bool)
+    hit = np.zeros(len(xy), dtype=bool)
     for poly in polys:
         p = np.asarray(poly, dtype=np.float64).reshape(-1, 2)
         if len(p) < 3:
@@ -147,8 +144,60 @@ def on_floor_mask(xy: np.ndarray, polys: list[np.ndarray]) -> np.ndarray:
         e = np.roll(p, -1, axis=0) - p  # edges [K,2]
         rel = xy[:, None, :] - p[None, :, :]  # [M,K,2]
         cross = e[None, :, 0] * rel[..., 1] - e[None, :, 1] * rel[..., 0]  # [M,K]
-        inside |= np.all(cross > 1e-9, axis=1) | np.all(cross < -1e-9, axis=1)
-    return ~inside
+        hit |= np.all(cross > 0, axis=1) | np.all(cross < 0, axis=1)
+        if margin > 0:  # distance to each edge segment
+            t = np.clip((rel * e[None]).sum(-1) / np.maximum((e * e).sum(-1), 1e-12)[None], 0.0, 1.0)
+            d = np.linalg.norm(rel - t[..., None] * e[None], axis=-1).min(axis=1)
+            hit |= d < margin
+    return hit
+
+
+def floor_cells(
+    grid_xy: np.ndarray,
+    grid_shape: tuple[int, int],
+    polys: list[np.ndarray],
+    target_xy: np.ndarray,
+    target_yaw: float,
+    cell: float,
+) -> np.ndarray:
+    """Grid cells [M,2] (row-major, grid_shape (H, W)) that are free floor of the room in front of the target.
+
+    A cell is floor when its centre is outside every furniture/wall footprint and it is connected (4-neighbours)
+    to the cell nearest 0.7 m in front of the target without crossing footprints grown by half a cell (so thin
+    walls cannot be leaked through): this drops cells inside furniture and behind walls, which are no ground points.
+    Returns bool [M].
+    """
+    from collections import deque
+
+    from floaff_zoo.sim.views import world_to_target
+
+    xy = np.asarray(grid_xy, dtype=np.float64).reshape(-1, 2)
+    h, w = (int(v) for v in grid_shape)
+    if h * w != len(xy):
+        raise ValueError(f"grid_shape {grid_shape} does not match {len(xy)} cells")
+    inside = _inside_polys(xy, polys)
+    blocked = (inside | _inside_polys(xy, polys, margin=cell / 2)).reshape(h, w)
+    xo = world_to_target(xy, target_xy, target_yaw)
+    open_idx = np.flatnonzero(~blocked.ravel())
+    if open_idx.size == 0:
+        return ~inside
+    seed = open_idx[np.argmin(np.hypot(xo[open_idx, 0], xo[open_idx, 1] + 0.7))]
+    reach = np.zeros((h, w), dtype=bool)
+    q = deque([divmod(int(seed), w)])
+    reach[q[0]] = True
+    while q:
+        r, c = q.popleft()
+        for rr, cc in ((r + 1, c), (r - 1, c), (r, c + 1), (r, c - 1)):
+            if 0 <= rr < h and 0 <= cc < w and not reach[rr, cc] and not blocked[rr, cc]:
+                reach[rr, cc] = True
+                q.append((rr, cc))
+    # the ring next to the reached area (near a footprint but outside it) is floor too
+    ring = np.zeros_like(reach)
+    ring[1:] |= reach[:-1]
+    ring[:-1] |= reach[1:]
+    ring[:, 1:] |= reach[:, :-1]
+    ring[:, :-1] |= reach[:, 1:]
+    return ((reach | ring).ravel()) & ~inside
 
 
 def _arr(x: Any, dtype: Any = np.float64) -> np.ndarray:
@@ -195,7 +244,11 @@ def _write_scene(
     tpos = _arr(scene.target.pos).reshape(3)
     tyaw = float(scene.target.yaw)
     outline = [np.asarray(p, dtype=np.float64) for p in scene.floor_outline()]
-    on_floor = on_floor_mask(grid_xy, outline) if preset.floor_only else np.ones(len(grid_xy), dtype=bool)
+    on_floor = (
+        floor_cells(grid_xy, tuple(ann.grid_shape), outline, tpos[:2], tyaw, float(ann.cell))
+        if preset.floor_only
+        else np.ones(len(grid_xy), dtype=bool)
+    )
     views: list[dict[str, Any]] = []
     first_rgb: dict[str, np.ndarray] = {}
     renderer = Renderer(scene.model, preset.image_size, preset.image_size)

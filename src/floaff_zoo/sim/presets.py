@@ -125,7 +125,7 @@ PRESETS: dict[str, GenPreset] = {
     "small": GenPreset(
         name="small",
         cell=0.1,
-        max_candidates=80,
+        max_candidates=60,
         views_per_scene=(6, 6),
         image_size=96,
         max_points=4096,
