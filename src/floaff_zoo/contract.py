@@ -17,7 +17,8 @@ floor_mask    bool    [M]      valid floor points (False marks padding)
 robot         float32 [R]      robot descriptor (MoMa-Kitchen: [arm reach m, base height m])
 target_xyz    float32 [3]      target centre (robot base frame)
 target_yaw    float32 []       yaw of the target's front-facing outward normal (robot base frame);
-                               CFAR rotates by R(pi - yaw) so that every front faces -y
+                               CFAR rotates by R(-pi/2 - yaw) about the target so that every front
+                               faces -y (the paper writes R(pi - theta_o) for its own angle origin)
 meta          dict             dataset, task, view (front/side/''), scene_id, layout_id,
                                style_id, sample_id, index (position in the split) and, for
                                simulated data, ``sim`` (JSON-able, enough to rebuild the scene)

@@ -191,6 +191,14 @@ class FloAffModule(L.LightningModule):
         raise MisconfigurationException(f"unknown scheduler {h['scheduler']!r}")
 
     # ----------------------------------------------------------------- pretrained weights
+    def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        # The state dict already holds the pretrained weights: record where they came from, but
+        # save ``weights: null`` so reloading the checkpoint never needs that source again.
+        hp = checkpoint.get("hyper_parameters")
+        if hp and hp.get("weights"):
+            checkpoint.setdefault("floaff_lineage", {})["weights"] = hp["weights"]
+            checkpoint["hyper_parameters"] = {**hp, "weights": None}
+
     def load_pretrained(self, name_or_path: str) -> None:
         """Initialise from a checkpoint/hub name; layers whose shapes differ are dropped with a warning."""
         from floaff_zoo.hub import resolve_state_dict

@@ -88,10 +88,10 @@ class ViewObservation:
 
 # ---------------------------------------------------------------------------------------------------- frames
 def wrap_angle(a: np.ndarray | float) -> np.ndarray | float:
-    """Wrap angles to [-pi, pi)."""
-    return (np.asarray(a) + np.pi) % (2.0 * np.pi) - np.pi if isinstance(a, np.ndarray) else (
-        (float(a) + math.pi) % (2.0 * math.pi) - math.pi
-    )
+    """Wrap angles to [-pi, pi) (arrays stay arrays, scalars become float)."""
+    if isinstance(a, np.ndarray):
+        return (a + np.pi) % (2.0 * np.pi) - np.pi
+    return (float(a) + math.pi) % (2.0 * math.pi) - math.pi
 
 
 def world_to_target(xy: np.ndarray, target_xy: np.ndarray, target_yaw: float) -> np.ndarray:

@@ -1,0 +1,214 @@
+"""Speed of the zoo's point models on CPU, with a reference-style PointNet++ measured in the same run.
+
+Prints, per model (shipped ``configs/models/<name>.yaml`` sizes): parameters, train samples/s
+(B = 8 x 4096 points: forward, loss, backward, Adam step) and single-sample predict latency
+(eval, ``inference_mode``). Then the PointNet++ parity/speed check against
+``benchmarks/reference_pointnet2.py`` (Conv2d layout, sort ball query, naive FPS): same weights and
+FPS indices -> max |difference| of the outputs, and throughput ratios per mode (fp32 eager, bf16,
+compile, compile + bf16). Absolute numbers move with machine load; the ratios carry over.
+
+    python benchmarks/bench_models.py --quick            # few iterations, no compile modes
+    python benchmarks/bench_models.py --models navaff n2m --iters 5
+    python benchmarks/bench_models.py --modes eager bf16 compile compile_bf16 --skip-models
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import importlib.util
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import torch
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+MODELS = ["pointnet2_ssg", "pointnet2_msg", "votenet", "h3dnet", "navaff", "n2m", "c2f_exp"]
+#: PointNet++ SSG of PERFORMANCE.md §5 (1 M parameters class)
+SEG = dict(
+    in_channels=1,
+    npoints=[1024, 256, 64],
+    radii=[[0.1], [0.2], [0.4]],
+    nsamples=[[32], [32], [32]],
+    mlps=[[[64, 64, 128]], [[128, 128, 256]], [[256, 384, 512]]],
+    fp_mlps=[[256, 256], [256, 128], [128, 128, 128]],
+    head=[],
+    xyz_first=True,
+)
+
+
+def load_reference():
+    spec = importlib.util.spec_from_file_location("reference_pointnet2", ROOT / "benchmarks" / "reference_pointnet2.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def make_batch(b: int, n: int, floor_cells: int):
+    from floaff_zoo.contract import collate_samples
+    from floaff_zoo.data.synthetic import make_synthetic_sample
+
+    return collate_samples([make_synthetic_sample(i, num_points=n, floor_cells=floor_cells) for i in range(b)])
+
+
+def build(name: str, **overrides):
+    cfg = yaml.safe_load((ROOT / "configs" / "models" / f"{name}.yaml").read_text())["model"]
+    mod_name, cls_name = cfg["class_path"].rsplit(".", 1)
+    cls = getattr(importlib.import_module(mod_name), cls_name)
+    return cls(**{**(cfg.get("init_args") or {}), **overrides})
+
+
+def timed(fn, iters: int, warmup: int) -> list[float]:
+    for _ in range(warmup):
+        fn()
+    out = []
+    for _ in range(iters):
+        t = time.perf_counter()
+        fn()
+        out.append(time.perf_counter() - t)
+    return out
+
+
+def fmt(ts: list[float]) -> str:
+    return f"min {1e3 * min(ts):8.1f} ms  median {1e3 * statistics.median(ts):8.1f} ms"
+
+
+def bench_model(name: str, batch, single, iters: int, warmup: int, mode: str) -> dict:
+    torch.manual_seed(0)
+    model = build(name, bf16="bf16" in mode, compile="compile" in mode) if name != "c2f_exp" else build(name)
+    params = sum(p.numel() for p in model.parameters())
+    res = {"name": name, "mode": mode, "params": params}
+    if model.trainable:
+        opt = torch.optim.Adam(model.parameters(), lr=1e-4)
+        model.train()
+
+        def step():
+            opt.zero_grad(set_to_none=True)
+            loss, _, _ = model.model_step(batch)
+            loss.backward()
+            opt.step()
+
+        ts = timed(step, iters, warmup)
+        res["train_sps"] = batch["scene_xyz"].shape[0] / statistics.median(ts)
+        res["train"] = ts
+    model.eval()
+
+    def pred():
+        with torch.inference_mode():
+            model(single)
+
+    ts = timed(pred, max(iters, 3), warmup)
+    res["predict"] = ts
+    res["predict_ms"] = 1e3 * statistics.median(ts)
+    return res
+
+
+def bench_reference(n: int, b: int, iters: int, warmup: int, modes: list[str]) -> None:
+    from floaff_zoo.nn.ops import fps_backend
+    from floaff_zoo.nn.pointnet2 import PointNet2Seg
+
+    ref_mod = load_reference()
+    torch.manual_seed(0)
+    ref = ref_mod.RefPointNet2Seg(**SEG)
+    ours = PointNet2Seg(**SEG)
+    ref_mod.convert_to_channels_last(ref, ours)
+    g = torch.Generator().manual_seed(0)
+    xyz = torch.rand(b, n, 3, generator=g)
+    xyz[..., 2] *= 0.3
+    feat = torch.randn(b, n, 1, generator=g)
+    target = torch.rand(b, n, generator=g)
+    fps = ours.encoder.sample(xyz, None)
+    ref.eval()
+    ours.eval()
+    with torch.no_grad():
+        diff = (ref(xyz, feat, fps) - ours(xyz, feat, None, fps)).abs().max().item()
+    print(f"\n== PointNet++ SSG ({sum(p.numel() for p in ours.parameters()) / 1e6:.3f} M params), B={b} x {n} points, "
+          f"FPS backend {fps_backend()}")
+    print(f"parity (same weights + FPS indices, eval, fp32): max |ref - ours| = {diff:.2e}")
+
+    def train_step(model, opt, fwd):
+        def step():
+            opt.zero_grad(set_to_none=True)
+            loss = torch.nn.functional.binary_cross_entropy_with_logits(fwd(), target)
+            loss.backward()
+            opt.step()
+
+        return step
+
+    ref.train()
+    opt = torch.optim.Adam(ref.parameters(), 1e-4)
+    ts_ref = timed(train_step(ref, opt, lambda: ref(xyz, feat)), iters, warmup)  # naive FPS inside, as the port
+    ref.eval()
+    with torch.inference_mode():
+        lat_ref = timed(lambda: ref(xyz[:1], feat[:1]), max(iters, 3), warmup)
+    sps_ref = b / statistics.median(ts_ref)
+    print(f"reference (Conv2d, sort, naive FPS)  train {sps_ref:6.2f} samples/s ({fmt(ts_ref)}); "
+          f"predict B=1 {1e3 * statistics.median(lat_ref):7.1f} ms")
+    for mode in modes:
+        torch.manual_seed(0)
+        net = PointNet2Seg(**SEG)
+        if "compile" in mode:
+            net.compile()
+        bf16 = "bf16" in mode
+
+        def fwd(x=xyz, f=feat):
+            idx = net.encoder.sample(x, None)  # FPS outside compile/autocast
+            with torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):
+                return net(x, f, None, idx).float()
+
+        net.train()
+        opt = torch.optim.Adam(net.parameters(), 1e-4)
+        t0 = time.perf_counter()
+        train_step(net, opt, fwd)()
+        first = time.perf_counter() - t0
+        ts = timed(train_step(net, opt, fwd), iters, max(0, warmup - 1))
+        net.eval()
+        with torch.inference_mode():
+            lat = timed(lambda: fwd(xyz[:1], feat[:1]), max(iters, 3), warmup + (1 if "compile" in mode else 0))
+        sps = b / statistics.median(ts)
+        print(f"ours {mode:<13} first step {first:5.1f} s  train {sps:6.2f} samples/s ({fmt(ts)}) "
+              f"x{sps / sps_ref:4.2f} vs reference; predict B=1 {1e3 * statistics.median(lat):7.1f} ms "
+              f"(x{statistics.median(lat_ref) / statistics.median(lat):4.2f})")
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--quick", action="store_true", help="2 timed iterations, 1 warm-up, eager modes only")
+    p.add_argument("--models", nargs="*", default=MODELS, choices=MODELS)
+    p.add_argument("--skip-models", action="store_true", help="only the reference comparison")
+    p.add_argument("--skip-reference", action="store_true")
+    p.add_argument("--modes", nargs="*", default=None, choices=["eager", "bf16", "compile", "compile_bf16"])
+    p.add_argument("--model-mode", default="eager", choices=["eager", "bf16", "compile", "compile_bf16"])
+    p.add_argument("--batch", type=int, default=8)
+    p.add_argument("--points", type=int, default=4096)
+    p.add_argument("--floor-cells", type=int, default=32, help="floor grid side (32 -> 1024 floor points)")
+    p.add_argument("--iters", type=int, default=None)
+    p.add_argument("--threads", type=int, default=None)
+    p.add_argument("--warmup", type=int, default=1, help="untimed calls before timing (compile modes add one)")
+    a = p.parse_args(argv)
+    if a.threads:
+        torch.set_num_threads(a.threads)
+    iters = a.iters or (2 if a.quick else 5)
+    warmup = a.warmup
+    modes = a.modes or (["eager", "bf16"] if a.quick else ["eager", "bf16", "compile", "compile_bf16"])
+    print(f"torch {torch.__version__}, threads {torch.get_num_threads()}, cpu {torch.backends.cpu.get_cpu_capability()}")
+    if not a.skip_models:
+        batch = make_batch(a.batch, a.points, a.floor_cells)
+        single = make_batch(1, a.points, a.floor_cells)
+        print(f"\n== models, mode {a.model_mode}: train B={a.batch} x {a.points} points "
+              f"({a.floor_cells ** 2} floor points), predict B=1")
+        for name in a.models:
+            r = bench_model(name, batch, single, iters, warmup, a.model_mode)
+            train = f"train {r['train_sps']:6.2f} samples/s ({fmt(r['train'])})" if "train_sps" in r else "training-free"
+            print(f"{name:<14} {r['params'] / 1e6:7.3f} M params  {train}; predict {r['predict_ms']:7.1f} ms", flush=True)
+    if not a.skip_reference:
+        bench_reference(a.points, a.batch, iters, warmup, modes)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.path.insert(0, str(ROOT / "src"))
+    sys.exit(main())

@@ -1,0 +1,367 @@
+"""``floaff-zoo curriculum``: run a PFAL curriculum, a list of ordinary ``fit`` stages.
+
+Each stage is one ``floaff-zoo fit`` through the same LightningCLI (``floaff_zoo.cli.run_lightning``),
+built from config files plus per-stage overrides. A stage can take the best checkpoint of an earlier
+stage as an init argument (``from_stages``), e.g. PFAL stage 2 uses stage 1's best as both
+``model.init_args.weights`` (initialisation) and ``model.init_args.teacher`` (distillation), and CFAR
+stages take the AxisNet stage's best as ``model.init_args.axisnet``. ``--ckpt_path`` is only used to
+resume a stage that was killed (its ``last.ckpt``).
+
+Experiment file (YAML; paths relative to the working directory, ``extends`` relative to the file)::
+
+    extends: pfal_layouts.yaml        # optional: deep-merge onto another experiment (lists replace)
+    root: runs/pfal_layouts           # run directory (``--root`` overrides)
+    data: [configs/data/x.yaml]       # --config files, in this order: data, model, trainer
+    model: [configs/models/cfar.yaml]
+    trainer: []
+    overrides: {trainer.max_epochs: 30, model.init_args.crop_radius: 1.2}   # every shared stage
+    stages:
+      - name: axisnet                 # unique; the stage directory is <root>/<name> ...
+        root: runs/axisnet_layouts    # ... or this (lets several experiments share a stage)
+        shared: false                 # ignore the top-level model files / overrides / --extra-config
+        model: [configs/models/axisnet.yaml]
+        tasks: [PnPCounterToCab, OpenSingleDoor, CloseDoubleDoor, CloseDrawer]
+        overrides: {trainer.max_epochs: 200}
+      - name: stage1_pnp
+        tasks: [PnPCounterToCab]      # -> --data.init_args.tasks
+        from_stages: {model.init_args.axisnet: axisnet}
+
+Order of the fit arguments (later wins): data, model, trainer files, top-level overrides, stage
+overrides, ``--extra-config`` files (so an ablation/sweep file beats the experiment's own values),
+tasks, ``from_stages``, ``--set``, ``--trainer.default_root_dir``.
+
+Resuming: every finished stage writes ``<stage dir>/stage.json`` and the run writes
+``<root>/lineage.json`` (stage, configs, fit arguments, checkpoint, sha256, metrics, teacher/weights).
+A rerun skips stages whose record is ``done`` with the same fit arguments and an intact checkpoint
+(sha256 checked); a stage that was killed resumes from its newest ``last.ckpt``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+__all__ = ["CurriculumError", "build_stage_args", "load_experiment", "main", "run_curriculum"]
+
+STAGE_FILE = "stage.json"
+LINEAGE_FILE = "lineage.json"
+_STAGE_KEYS = {"name", "root", "shared", "model", "tasks", "overrides", "from_stages", "configs"}
+_TOP_KEYS = {"extends", "root", "data", "model", "trainer", "overrides", "stages", "description"}
+
+
+class CurriculumError(ValueError):
+    """A user-facing problem with an experiment file or a stage (printed without a traceback)."""
+
+
+# --------------------------------------------------------------------------- experiment files
+def _merge(base: Any, over: Any) -> Any:
+    if isinstance(base, dict) and isinstance(over, dict):
+        out = dict(base)
+        for k, v in over.items():
+            out[k] = _merge(base.get(k), v) if k in base else v
+        return out
+    return over
+
+
+def load_experiment(path: str | Path, _seen: tuple[Path, ...] = ()) -> dict[str, Any]:
+    """Read an experiment YAML (following ``extends``) and check its structure.
+
+    Raises:
+        CurriculumError: naming the file and the problem.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise CurriculumError(f"experiment config {path}: no such file")
+    if path.resolve() in _seen:
+        raise CurriculumError(f"experiment config {path}: 'extends' cycle {[str(p) for p in _seen]}")
+    try:
+        cfg = yaml.safe_load(path.read_text()) or {}
+    except yaml.YAMLError as exc:
+        raise CurriculumError(f"experiment config {path}: invalid YAML ({exc})") from exc
+    if not isinstance(cfg, dict):
+        raise CurriculumError(f"experiment config {path}: expected a mapping at the top level")
+    unknown = set(cfg) - _TOP_KEYS
+    if unknown:
+        raise CurriculumError(f"experiment config {path}: unknown key(s) {sorted(unknown)}; allowed {sorted(_TOP_KEYS)}")
+    if cfg.get("extends"):
+        parent = load_experiment(path.parent / cfg["extends"], _seen + (path.resolve(),))
+        cfg = _merge(parent, {k: v for k, v in cfg.items() if k != "extends"})
+    cfg.setdefault("root", f"runs/{path.stem}")
+    _check(cfg, path)
+    return cfg
+
+
+def _as_list(value: Any, where: str) -> list[str]:
+    if value is None:
+        return []
+    if isinstance(value, str):
+        return [value]
+    if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+        raise CurriculumError(f"{where}: expected a list of file names, got {value!r}")
+    return list(value)
+
+
+def _check(cfg: dict[str, Any], path: Path) -> None:
+    stages = cfg.get("stages")
+    if not isinstance(stages, list) or not stages:
+        raise CurriculumError(f"experiment config {path}: 'stages' must be a non-empty list")
+    names: list[str] = []
+    for i, st in enumerate(stages):
+        where = f"experiment config {path}: stage {i}"
+        if not isinstance(st, dict) or not st.get("name"):
+            raise CurriculumError(f"{where}: every stage needs a 'name'")
+        unknown = set(st) - _STAGE_KEYS
+        if unknown:
+            raise CurriculumError(f"{where} ({st['name']}): unknown key(s) {sorted(unknown)}; allowed {sorted(_STAGE_KEYS)}")
+        if st["name"] in names:
+            raise CurriculumError(f"{where}: duplicate stage name {st['name']!r}")
+        for key, ref in (st.get("from_stages") or {}).items():
+            if ref not in names:
+                raise CurriculumError(
+                    f"{where} ({st['name']}): from_stages {key}: {ref!r} is not an earlier stage (earlier: {names})"
+                )
+        if st.get("tasks") is not None and not isinstance(st["tasks"], list):
+            raise CurriculumError(f"{where} ({st['name']}): 'tasks' must be a list")
+        names.append(st["name"])
+    for key in ("overrides",):
+        if cfg.get(key) is not None and not isinstance(cfg[key], dict):
+            raise CurriculumError(f"experiment config {path}: '{key}' must be a mapping key -> value")
+
+
+# --------------------------------------------------------------------------- fit arguments
+def _value(v: Any) -> str:
+    """A CLI value: scalars as text, lists/dicts as JSON (jsonargparse parses both)."""
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if v is None:
+        return "null"
+    if isinstance(v, (list, dict)):
+        return json.dumps(v)
+    return str(v)
+
+
+def _flags(overrides: dict[str, Any] | None) -> list[str]:
+    out: list[str] = []
+    for k, v in (overrides or {}).items():
+        out += [f"--{k.lstrip('-')}", _value(v)]
+    return out
+
+
+def parse_sets(items: list[str] | None) -> list[str]:
+    """``["trainer.max_epochs=1", ...]`` -> ``["--trainer.max_epochs", "1", ...]``."""
+    out: list[str] = []
+    for item in items or []:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise CurriculumError(f"--set {item!r}: expected key=value, e.g. trainer.max_epochs=1")
+        out += [f"--{key.strip().lstrip('-')}", value]
+    return out
+
+
+def stage_dir(cfg: dict[str, Any], stage: dict[str, Any], root: Path) -> Path:
+    return Path(stage["root"]) if stage.get("root") else root / stage["name"]
+
+
+def build_stage_args(
+    cfg: dict[str, Any],
+    stage: dict[str, Any],
+    root: Path,
+    best: dict[str, str],
+    extra_configs: list[str] | None = None,
+    sets: list[str] | None = None,
+) -> list[str]:
+    """The ``fit`` argument list of one stage (without ``--ckpt_path``)."""
+    shared = stage.get("shared", True)
+    files = _as_list(cfg.get("data"), "data")
+    files += _as_list(stage.get("model"), f"stage {stage['name']}: model") if stage.get("model") else (
+        _as_list(cfg.get("model"), "model") if shared else []
+    )
+    files += _as_list(cfg.get("trainer"), "trainer") + _as_list(stage.get("configs"), f"stage {stage['name']}: configs")
+    args = ["fit"]
+    for f in files:
+        args += ["--config", f]
+    if shared:
+        args += _flags(cfg.get("overrides"))
+    args += _flags(stage.get("overrides"))
+    if shared:  # after the overrides: jsonargparse applies arguments in order, so these files win
+        for f in extra_configs or []:
+            args += ["--config", f]
+    if stage.get("tasks"):
+        args += ["--data.init_args.tasks", json.dumps(list(stage["tasks"]))]
+    for key, ref in (stage.get("from_stages") or {}).items():
+        args += [f"--{key.lstrip('-')}", best.get(ref, f"<best checkpoint of {ref}>")]
+    args += list(sets or [])
+    args += ["--trainer.default_root_dir", str(stage_dir(cfg, stage, root))]
+    return args
+
+
+# --------------------------------------------------------------------------- running
+def _sha256(path: str | Path) -> str:
+    from floaff_zoo.hub.registry import sha256_file
+
+    return sha256_file(Path(path))
+
+
+def _read_json(path: Path) -> dict[str, Any] | None:
+    if not path.is_file():
+        return None
+    try:
+        return json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError):
+        return None
+
+
+def _write_json(path: Path, data: dict[str, Any]) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(data, indent=2, sort_keys=False))
+    tmp.replace(path)  # atomic: a kill never leaves half a record
+
+
+def _finished(record: dict[str, Any] | None, args: list[str]) -> tuple[bool, str]:
+    if not record or record.get("status") != "done":
+        return False, "not finished"
+    if record.get("args") != args:
+        return False, "its fit arguments changed since it finished"
+    ckpt = record.get("checkpoint")
+    if not ckpt or not Path(ckpt).is_file():
+        return False, f"its checkpoint {ckpt} is missing"
+    if record.get("sha256") and _sha256(ckpt) != record["sha256"]:
+        return False, f"its checkpoint {ckpt} changed (sha256 mismatch)"
+    return True, ""
+
+
+def _metrics(cli: Any) -> dict[str, float]:
+    out = {}
+    for k, v in dict(cli.trainer.callback_metrics).items():
+        try:
+            out[k] = float(v)
+        except (TypeError, ValueError):
+            continue
+    return out
+
+
+def run_curriculum(
+    config: str | Path,
+    root: str | Path | None = None,
+    sets: list[str] | None = None,
+    extra_configs: list[str] | None = None,
+    dry_run: bool = False,
+    runner: Callable[[list[str]], Any] | None = None,
+    on_stage_end: Callable[[str, Any], None] | None = None,
+    out: Any = None,
+) -> list[dict[str, Any]]:
+    """Run (or print) every stage of an experiment; returns the lineage records.
+
+    Args:
+        config: experiment YAML; root: run directory override (default: the file's ``root``, with the
+            stems of ``extra_configs`` appended so e.g. each crop-radius sweep point gets its own run);
+        sets: ``key=value`` overrides for every stage; extra_configs: extra ``--config`` files for
+            every shared stage; dry_run: print the fit commands only; runner: the fit function
+            (default ``floaff_zoo.cli.run_lightning``); on_stage_end: ``(stage name, cli)`` hook.
+    """
+    out = out or sys.stdout
+    cfg = load_experiment(config)
+    extra = list(extra_configs or [])
+    for f in extra + [f for key in ("data", "model", "trainer") for f in _as_list(cfg.get(key), key)]:
+        if not Path(f).is_file() and not dry_run:
+            raise CurriculumError(f"{config}: config file {f} does not exist (paths are relative to {Path.cwd()})")
+    if root is None:
+        root = cfg["root"] + ("__" + "+".join(Path(f).stem for f in extra) if extra else "")
+    root = Path(root)
+    flags = parse_sets(sets)
+    if runner is None:
+        from floaff_zoo.cli import run_lightning
+
+        runner = run_lightning
+    lineage_path = root / LINEAGE_FILE
+    lineage = {"experiment": str(config), "root": str(root), "extra_configs": extra, "sets": list(sets or []), "stages": []}
+    best: dict[str, str] = {}
+    for stage in cfg["stages"]:
+        name = stage["name"]
+        sdir = stage_dir(cfg, stage, root)
+        args = build_stage_args(cfg, stage, root, best, extra, flags)
+        if dry_run:
+            print(f"# stage {name}\nfloaff-zoo {shlex.join(args)}", file=out)
+            best[name] = f"<best checkpoint of {name}>"
+            continue
+        record = _read_json(sdir / STAGE_FILE)
+        done, why = _finished(record, args)
+        if done:
+            print(f"[curriculum] stage {name}: already finished ({record['checkpoint']}), skipping", file=out)
+        else:
+            if record and record.get("status") == "done":
+                print(f"[curriculum] stage {name}: rerunning, {why}", file=out)
+            resume = None
+            if record and record.get("status") == "running" and record.get("args") == args:
+                lasts = sorted(sdir.rglob("last*.ckpt"), key=lambda p: p.stat().st_mtime)
+                resume = str(lasts[-1]) if lasts else None
+            fit_args = args + (["--ckpt_path", resume] if resume else [])
+            print(f"[curriculum] stage {name}: floaff-zoo {shlex.join(fit_args)}", file=out)
+            started = time.time()
+            _write_json(sdir / STAGE_FILE, {"stage": name, "status": "running", "args": args, "started": started})
+            cli = runner(fit_args)
+            cb = cli.trainer.checkpoint_callback
+            ckpt = (cb.best_model_path or cb.last_model_path) if cb is not None else ""
+            if not ckpt or not Path(ckpt).is_file():
+                raise CurriculumError(f"stage {name}: the fit wrote no checkpoint (enable checkpointing)")
+            score = getattr(cb, "best_model_score", None)
+            record = {
+                "stage": name,
+                "status": "done",
+                "args": args,
+                "resumed_from": resume,
+                "configs": [args[i + 1] for i, a in enumerate(args) if a == "--config"],
+                "tasks": stage.get("tasks"),
+                "from_stages": {k: best.get(ref) for k, ref in (stage.get("from_stages") or {}).items()},
+                "checkpoint": str(ckpt),
+                "sha256": _sha256(ckpt),
+                "monitor": getattr(cb, "monitor", None),
+                "best_score": float(score) if score is not None else None,
+                "metrics": _metrics(cli),
+                "started": started,
+                "finished": time.time(),
+            }
+            _write_json(sdir / STAGE_FILE, record)
+            if on_stage_end is not None:
+                on_stage_end(name, cli)
+        best[name] = record["checkpoint"]
+        lineage["stages"].append(record)
+        _write_json(lineage_path, lineage)
+    return lineage["stages"]
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``floaff-zoo curriculum --config <experiment.yaml> [--root DIR] [--set k=v ...] [--extra-config F ...] [--dry-run]``."""
+    parser = argparse.ArgumentParser(
+        prog="floaff-zoo curriculum",
+        description="Run a PFAL curriculum: one `floaff-zoo fit` per stage, chained by best checkpoints.",
+    )
+    parser.add_argument("--config", required=True, help="experiment YAML (e.g. configs/experiments/pfal_layouts.yaml)")
+    parser.add_argument("--root", default=None, help="run directory (default: the experiment's 'root')")
+    parser.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
+                        help="override for every stage, e.g. trainer.max_epochs=1 (repeatable)")
+    parser.add_argument("--extra-config", dest="extra", action="append", default=[], metavar="FILE",
+                        help="extra --config file for every shared stage, e.g. an ablation or sweep file (repeatable)")
+    parser.add_argument("--dry-run", action="store_true", help="print the fit commands and exit")
+    ns = parser.parse_args(argv)
+    try:
+        run_curriculum(ns.config, ns.root, ns.sets, ns.extra, ns.dry_run)
+    except CurriculumError as exc:
+        print(f"floaff-zoo curriculum: error: {exc}", file=sys.stderr)
+        if argv is not None:
+            raise
+        return 2
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

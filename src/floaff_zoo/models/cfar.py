@@ -1,0 +1,377 @@
+"""CFARModule: Canonical FloAff Representation + PFAL feature distillation (the FloAff-Kitchen method).
+
+Pipeline per batch: T(P, S) (crop r around the target, centre, rotate the target's front to -y;
+``floaff_zoo.nn.cfar``) -> :class:`~floaff_zoo.nn.cfar.CFARNet` -> one score per floor point, in the
+input floor order (so scores need no mapping back to the robot frame; ``predict`` also returns the
+4x4 canonical -> robot transform for pictures).
+
+Yaw of the target (theta_o):
+
+* ``yaw_source`` (training): ``gt`` = ``batch["target_yaw"]`` (simulator / annotation), ``axisnet`` =
+  the frozen AxisNet, ``none`` = no rotation (the w/o-Align ablation, same as ``use_align: false``).
+* ``eval_yaw_source`` (validation, test, predict): default ``axisnet`` when an AxisNet is configured,
+  otherwise the training source (``gt``, or ``none`` without alignment). The paper trains with simulator
+  yaw and estimates it with AxisNet at inference; validation then scores the deployed pipeline, so the
+  best checkpoint is chosen with AxisNet in the loop.
+* ``yaw_jitter_deg`` (training only): the paper's "random yaw perturbations within +-5 deg". A rotation
+  of the whole scene (scene, floor, target pose) is a no-op for a gt-aligned CFAR, so the perturbation is
+  applied to the alignment itself: the canonical cloud and floor turn by a uniform angle in +-5 deg about
+  the target, which also teaches the net to tolerate AxisNet errors. (A data-side ``YawPerturb`` stays
+  harmless but useless here.)
+
+AxisNet (``axisnet``: checkpoint path or hub name) is loaded frozen (eval, no grad, kept in eval by
+``train()``) and **kept in the student checkpoint** (``axisnet.*`` weights); its architecture, source and
+sha256 are recorded in the ``axisnet_arch`` hparam, which is filled automatically so the student
+checkpoint rebuilds the AxisNet without the original file.
+
+PFAL teacher (``teacher``: checkpoint path or hub name of the previous stage's best): loaded lazily in
+``setup("fit")`` (so test/predict/``load_from_checkpoint`` never need the file), frozen, in eval mode,
+never saved (``teacher.*`` is stripped in ``on_save_checkpoint`` and re-inserted in ``on_load_checkpoint``
+when resuming, so loading stays strict for every other key). Its name and sha256 are stored in the
+checkpoint under ``"floaff_lineage"`` (primitives only). ``L_pro = L_aff + distill_weight * L_shared``
+with ``L_shared = mean_b ||g_teacher(P_hat) - g_student(P_hat)||^2``, g = the canonical-cloud encoder's
+pooled global feature (output of its group-all level, before fusion with floor/robot codes).
+``distill_bn="batch"`` (default) runs the teacher's BatchNorm on the current batch statistics, like the
+student in training, without touching its buffers: teacher and student then compute the same function at
+the start of a stage (L_shared = 0 at the first step) and the term measures drift of the weights only.
+``"running"`` uses the teacher's running statistics (classic eval-mode teacher).
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from collections.abc import Iterator
+from contextlib import contextmanager, nullcontext
+from typing import Any, Literal
+
+import torch
+from lightning.pytorch.utilities.exceptions import MisconfigurationException
+from torch import Tensor, nn
+
+from floaff_zoo.contract import Batch
+from floaff_zoo.losses import build_loss
+from floaff_zoo.models.base import FloAffModule
+from floaff_zoo.nn.axisnet import AxisNet, axis_inputs, yaw_from_vector
+from floaff_zoo.nn.cfar import CanonicalCloud, CFARNet, canonical_transform, robot_from_canonical, sample_levels
+
+YawSource = Literal["gt", "axisnet", "none"]
+TEACHER_PREFIX = "teacher."
+DISTILLED_PREFIX = "net.local_encoder."
+
+
+@contextmanager
+def batch_statistics(module: nn.Module) -> Iterator[None]:
+    """Run ``module``'s BatchNorm layers on batch statistics without updating their running buffers."""
+    bns = [m for m in module.modules() if isinstance(m, nn.modules.batchnorm._BatchNorm)]
+    saved = [(m.training, m.track_running_stats) for m in bns]
+    for m in bns:
+        m.training, m.track_running_stats = True, False
+    try:
+        yield
+    finally:
+        for m, (tr, track) in zip(bns, saved):
+            m.training, m.track_running_stats = tr, track
+
+
+def _sha256(path: str) -> str | None:
+    from pathlib import Path
+
+    from floaff_zoo.hub.registry import sha256_file
+
+    return sha256_file(Path(path)) if Path(path).is_file() else None
+
+
+def _names(batch: Batch) -> list[str]:
+    return [str(m.get("sample_id", i)) for i, m in enumerate(batch.get("meta") or [])]
+
+
+class CFARModule(FloAffModule):
+    """CFAR (+ PFAL distillation when ``teacher`` is set). See the module docstring for the design.
+
+    Args:
+        crop_radius: crop radius r (m): 1.3 Styles, 1.2 Layouts (paper).
+        use_crop: False = w/o-Crop ablation (whole scene, still centred/rotated).
+        use_align: False = w/o-Align ablation (no rotation; overrides ``yaw_source``).
+        use_sdl: False = w/o-SDL ablation (``loss: aff`` becomes plain MSE).
+        use_fd: False = w/o-FD ablation (no distillation even with a teacher; still initialise from
+            ``weights``).
+        yaw_source / eval_yaw_source: where theta_o comes from in training / evaluation.
+        axisnet: frozen AxisNet (checkpoint path or hub name).
+        axisnet_arch: filled automatically (AxisNet architecture + source + sha256); leave None.
+        yaw_jitter_deg: training perturbation of the alignment (deg; paper 5).
+        teacher: previous PFAL stage (checkpoint path or hub name); distill_weight: lambda (paper 1.0);
+        distill_bn: teacher BatchNorm mode, ``batch`` or ``running``.
+        local_* / floor_* / robot_mlp / head: :class:`~floaff_zoo.nn.cfar.CFARNet` architecture.
+        (the rest: see :class:`FloAffModule`; paper: Adam 2e-4, batch 8, 30 epochs/stage, beta = 1.)
+    """
+
+    def __init__(
+        self,
+        crop_radius: float = 1.3,
+        use_crop: bool = True,
+        use_align: bool = True,
+        use_sdl: bool = True,
+        use_fd: bool = True,
+        yaw_source: YawSource = "gt",
+        eval_yaw_source: YawSource | None = None,
+        axisnet: str | None = None,
+        axisnet_arch: dict[str, Any] | None = None,
+        yaw_jitter_deg: float = 5.0,
+        teacher: str | None = None,
+        distill_weight: float = 1.0,
+        distill_bn: Literal["batch", "running"] = "batch",
+        local_npoints: list[int] | None = None,
+        local_radii: list[float] | None = None,
+        local_nsamples: list[int] | None = None,
+        local_mlps: list[list[int]] | None = None,
+        local_global_mlp: list[int] | None = None,
+        floor_npoints: list[int] | None = None,
+        floor_radii: list[float] | None = None,
+        floor_nsamples: list[int] | None = None,
+        floor_mlps: list[list[int]] | None = None,
+        floor_fp_mlps: list[list[int]] | None = None,
+        robot_mlp: list[int] | None = None,
+        head: list[int] | None = None,
+        feat_channels: int = 1,
+        robot_dim: int = 2,
+        loss: Literal["mse", "aff", "navaff"] = "aff",
+        sdl_beta: float = 1.0,
+        optimizer: Literal["adam", "adamw"] = "adam",
+        lr: float = 2e-4,
+        weight_decay: float = 0.0,
+        scheduler: Literal["cosine", "plateau", "none"] = "none",
+        sim_variant: Literal["cosine", "hist"] = "cosine",
+        metric_reduction: Literal["per_sample", "official_batchwise"] = "per_sample",
+        weights: str | None = None,
+    ) -> None:
+        super().__init__(
+            feat_channels=feat_channels, robot_dim=robot_dim, loss=loss, sdl_beta=sdl_beta, optimizer=optimizer,
+            lr=lr, weight_decay=weight_decay, scheduler=scheduler, sim_variant=sim_variant,
+            metric_reduction=metric_reduction, weights=weights,
+        )
+
+    # ----------------------------------------------------------------- hooks
+    def configure_models(self) -> None:
+        h = self.hparams
+        if h["crop_radius"] <= 0:
+            raise MisconfigurationException(f"CFARModule: crop_radius must be > 0, got {h['crop_radius']}")
+        if h["distill_weight"] < 0:
+            raise MisconfigurationException(f"CFARModule: distill_weight must be >= 0, got {h['distill_weight']}")
+        arch = {k: h[k] for k in ("local_npoints", "local_radii", "local_nsamples", "local_mlps", "local_global_mlp",
+                                  "floor_npoints", "floor_radii", "floor_nsamples", "floor_mlps", "floor_fp_mlps",
+                                  "robot_mlp", "head") if h[k] is not None}
+        self.net = CFARNet(feat_channels=h["feat_channels"], robot_dim=h["robot_dim"], **arch)
+        self.axisnet: AxisNet | None = None
+        self.axis_radius = 0.0
+        if h["axisnet_arch"]:
+            self._build_axisnet(h["axisnet_arch"])
+        elif h["axisnet"]:
+            self._load_axisnet(h["axisnet"])
+        for name, src in (("yaw_source", self.train_yaw_source), ("eval_yaw_source", self.eval_yaw_source)):
+            if src == "axisnet" and self.axisnet is None:
+                raise MisconfigurationException(
+                    f"CFARModule: {name} resolves to 'axisnet' but no AxisNet is given; set model.init_args.axisnet "
+                    "to an AxisNetModule checkpoint or hub name"
+                )
+        self.teacher: nn.Module | None = None
+        self.teacher_info: dict[str, Any] | None = None
+
+    def configure_losses(self) -> None:
+        name = self.hparams["loss"]
+        if not self.hparams["use_sdl"] and name == "aff":
+            name = "mse"  # w/o-SDL ablation
+        self.criterion = build_loss(name, beta=self.hparams["sdl_beta"])
+
+    # ----------------------------------------------------------------- yaw sources
+    @property
+    def train_yaw_source(self) -> str:
+        return "none" if not self.hparams["use_align"] else self.hparams["yaw_source"]
+
+    @property
+    def eval_yaw_source(self) -> str:
+        h = self.hparams
+        if not h["use_align"]:
+            return "none"
+        if h["eval_yaw_source"] is not None:
+            return h["eval_yaw_source"]
+        if h["axisnet"] or h["axisnet_arch"]:
+            return "axisnet"
+        return "none" if h["yaw_source"] == "none" else "gt"
+
+    # ----------------------------------------------------------------- AxisNet
+    def _build_axisnet(self, arch: dict[str, Any]) -> None:
+        try:
+            self.axisnet = AxisNet(4, list(arch["widths"]), list(arch["head"]))
+            self.axis_radius = float(arch["crop_radius"])
+        except (KeyError, TypeError) as exc:
+            raise MisconfigurationException(f"CFARModule: axisnet_arch {arch!r} is not a recorded AxisNet ({exc})") from exc
+        self.axisnet.requires_grad_(False).eval()
+
+    def _load_axisnet(self, name: str) -> None:
+        from floaff_zoo.hub import resolve_state_dict
+
+        state, info = resolve_state_dict(name)
+        cls = str(info.get("class_path") or "")
+        if cls and not cls.endswith("AxisNetModule"):
+            raise MisconfigurationException(f"CFARModule: axisnet {name!r} is a {cls} checkpoint, not an AxisNetModule")
+        args = info.get("init_args") or {}
+        arch = {
+            "crop_radius": float(args.get("crop_radius", 1.3)),
+            "widths": list(args.get("widths") or [64, 128, 256]),
+            "head": list(args["head"]) if args.get("head") is not None else [128, 64],
+            "source": str(name),
+            "sha256": info.get("sha256") or _sha256(info.get("source", name)),
+        }
+        self._build_axisnet(arch)
+        sub = {k[len("net."):]: v for k, v in state.items() if k.startswith("net.")}
+        missing, unexpected = self.axisnet.load_state_dict(sub, strict=False)
+        if missing or unexpected:
+            raise MisconfigurationException(
+                f"CFARModule: axisnet {name!r} does not fit AxisNet{arch['widths']}: missing {missing}, unexpected {unexpected}"
+            )
+        self.hparams["axisnet_arch"] = arch  # saved with the checkpoint: rebuilds without the file
+
+    def estimate_yaw(self, batch: Batch) -> Tensor:
+        """AxisNet's front-yaw estimate [B] (rad, robot frame)."""
+        if self.axisnet is None:
+            raise MisconfigurationException("CFARModule: no AxisNet configured")
+        with torch.no_grad():
+            x, mask = axis_inputs(batch["scene_xyz"], batch["scene_feat"], batch["scene_mask"], batch["target_xyz"],
+                                  self.axis_radius, _names(batch))
+            return yaw_from_vector(self.axisnet(x, mask))
+
+    # ----------------------------------------------------------------- teacher
+    def setup(self, stage: str) -> None:
+        if stage == "fit" and self.hparams["teacher"] and self.teacher is None:
+            self.load_teacher(self.hparams["teacher"])
+
+    @property
+    def distill_active(self) -> bool:
+        return bool(self.teacher is not None and self.hparams["use_fd"] and self.hparams["distill_weight"] > 0)
+
+    def load_teacher(self, name: str) -> None:
+        """Load the previous stage's canonical-cloud encoder, frozen.
+
+        Raises:
+            ValueError: listing missing / unexpected / shape-mismatched keys when the teacher's
+                encoder does not match the student's.
+        """
+        from floaff_zoo.hub import resolve_state_dict
+
+        state, info = resolve_state_dict(name)
+        t_state = {k[len(DISTILLED_PREFIX):]: v for k, v in state.items() if k.startswith(DISTILLED_PREFIX)}
+        own = self.net.local_encoder.state_dict()
+        missing = sorted(set(own) - set(t_state))
+        unexpected = sorted(set(t_state) - set(own))
+        shapes = [f"{DISTILLED_PREFIX}{k}: teacher {tuple(t_state[k].shape)} vs student {tuple(own[k].shape)}"
+                  for k in own if k in t_state and t_state[k].shape != own[k].shape]
+        if missing or unexpected or shapes:
+            raise ValueError(
+                f"teacher {name!r} ({info.get('class_path') or 'unknown class'}) does not match the student's "
+                f"canonical-cloud encoder ({DISTILLED_PREFIX}*): missing {[DISTILLED_PREFIX + k for k in missing]}, "
+                f"unexpected {[DISTILLED_PREFIX + k for k in unexpected]}, shape mismatches {shapes}"
+            )
+        teacher = copy.deepcopy(self.net.local_encoder)
+        teacher.load_state_dict(t_state, strict=True)
+        teacher.requires_grad_(False).eval()
+        self.teacher = teacher.to(next(self.net.parameters()).device)
+        self.teacher_info = {"name": str(name), "sha256": info.get("sha256") or _sha256(info.get("source", name))}
+
+    def train(self, mode: bool = True) -> "CFARModule":
+        super().train(mode)
+        for frozen in (self.axisnet, self.teacher):
+            if frozen is not None:
+                frozen.eval()
+        return self
+
+    def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        super().on_save_checkpoint(checkpoint)
+        state = checkpoint.get("state_dict") or {}
+        for k in [k for k in state if k.startswith(TEACHER_PREFIX)]:
+            del state[k]
+        arch = self.hparams.get("axisnet_arch") or {}
+        checkpoint.setdefault("floaff_lineage", {}).update({
+            "teacher": self.teacher_info["name"] if self.teacher_info else self.hparams["teacher"],
+            "teacher_sha256": self.teacher_info["sha256"] if self.teacher_info else None,
+            "weights": self.hparams["weights"],
+            "axisnet": arch.get("source"),
+            "axisnet_sha256": arch.get("sha256"),
+        })
+
+    def on_load_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        # resuming a stage: the checkpoint has no teacher.* keys; keep the teacher loaded from its file
+        if self.teacher is not None and "state_dict" in checkpoint:
+            for k, v in self.teacher.state_dict().items():
+                checkpoint["state_dict"].setdefault(TEACHER_PREFIX + k, v)
+
+    # ----------------------------------------------------------------- forward
+    def canonicalize(self, batch: Batch) -> tuple[CanonicalCloud, Tensor | None]:
+        """T(P, S) of a batch with the yaw source of the current mode. Returns (canonical cloud, yaw [B] | None)."""
+        source = self.train_yaw_source if self.training else self.eval_yaw_source
+        match source:
+            case "gt":
+                yaw = batch["target_yaw"].reshape(-1)
+            case "axisnet":
+                yaw = self.estimate_yaw(batch)
+            case _:
+                yaw = None
+        extra = None
+        jitter = self.hparams["yaw_jitter_deg"]
+        if self.training and jitter > 0:
+            b = batch["scene_xyz"].shape[0]
+            extra = (torch.rand(b, device=batch["scene_xyz"].device) * 2 - 1) * math.radians(jitter)
+        canon = canonical_transform(
+            batch["scene_xyz"], batch["scene_mask"], batch["floor_xyz"], batch["target_xyz"], yaw,
+            self.hparams["crop_radius"] if self.hparams["use_crop"] else None, extra, _names(batch),
+        )
+        return canon, yaw
+
+    def _run(self, batch: Batch) -> tuple[Tensor, Tensor, CanonicalCloud, Tensor | None]:
+        canon, yaw = self.canonicalize(batch)
+        feat = batch["scene_feat"][..., : self.hparams["feat_channels"]]
+        scores, g = self.net(canon.xyz, feat, canon.mask, canon.floor_xyz, batch["floor_mask"], batch["robot"])
+        return scores, g, canon, yaw
+
+    def forward(self, batch: Batch) -> Tensor:
+        """Scores [B, M] in [0, 1], one per floor point in the input order."""
+        return self._run(batch)[0]
+
+    def teacher_features(self, canon: CanonicalCloud, feat: Tensor) -> Tensor:
+        """The teacher's pooled canonical-cloud feature [B, C_g] (no grad)."""
+        assert self.teacher is not None
+        ctx = batch_statistics(self.teacher) if self.hparams["distill_bn"] == "batch" else nullcontext()
+        with torch.no_grad(), ctx:
+            fps = sample_levels(self.teacher, canon.xyz, canon.mask)
+            return self.teacher(canon.xyz, feat, canon.mask, fps)[-1][1][:, 0]
+
+    def model_step(self, batch: Batch) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
+        """L_aff (+ distill_weight * L_shared while training with a teacher)."""
+        scores, g, canon, _ = self._run(batch)
+        loss = self.affordance_loss(scores, batch)
+        extra: dict[str, Tensor] = {}
+        if self.training and self.distill_active:
+            feat = batch["scene_feat"][..., : self.hparams["feat_channels"]]
+            shared = ((g - self.teacher_features(canon, feat)) ** 2).sum(-1).mean()
+            loss = loss + self.hparams["distill_weight"] * shared
+            extra["distill"] = shared.detach()
+            if self._trainer is not None:
+                self.log("train_distill_step", shared.detach(), on_step=True, on_epoch=False,
+                         batch_size=batch["scene_xyz"].shape[0])
+        return loss, scores, extra
+
+    def predict_step(self, batch: Batch, batch_idx: int, dataloader_idx: int = 0) -> dict[str, Any]:
+        """Scores plus the canonical -> robot transform [B, 4, 4], the yaw used [B] and the crop radius used [B]."""
+        self.check_inputs(batch)
+        scores, _, canon, yaw = self._run(batch)
+        b = scores.shape[0]
+        return {
+            "scores": scores.detach().cpu(),
+            "floor_xyz": batch["floor_xyz"].cpu(),
+            "floor_mask": batch["floor_mask"].cpu(),
+            "target_xyz": batch["target_xyz"].cpu(),
+            "yaw": (yaw.detach() if yaw is not None else torch.full((b,), float("nan"))).cpu(),
+            "robot_from_canonical": robot_from_canonical(canon.centre, canon.angle).detach().cpu(),
+            "crop_radius": canon.radius.detach().cpu(),
+            "meta": batch["meta"],
+        }

@@ -1,0 +1,121 @@
+"""H3DNetModule: an H3DNet-style (hybrid geometric primitives) adaptation to floor affordance."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import torch
+from torch import Tensor
+
+from floaff_zoo.contract import Batch
+from floaff_zoo.models.base import FloAffModule
+from floaff_zoo.models.pointnet2 import floor_inputs, maybe_bf16, maybe_compile, scene_inputs
+from floaff_zoo.nn.nets import PRIMITIVES, H3DNetNet, target_primitives
+
+
+class H3DNetModule(FloAffModule):
+    """H3DNet-style floor affordance with hybrid primitive votes.
+
+    How H3DNet maps onto this task: H3DNet predicts a hybrid set of geometric primitives (box
+    centres, face centres, edge centres) by voting, then fuses them to refine detections. Here
+    the primitives are those of the **target**: its centre (``target_xyz``), its front-face centre
+    (``face_offset`` m along the front normal given by ``target_yaw``) and its two front edges
+    (``edge_half_width`` m to either side of the face centre) -- the target's extent is not part
+    of the sample contract, so these two sizes are configuration. Seeds (PointNet++ SSG + robot
+    code, FP to the second SA level) vote for each primitive (one vote module per type, L1 vote
+    loss on seeds within ``vote_radius`` of the target, all seeds if none); per type the votes are
+    clustered into proposals (FPS + grouping + PointNet) and pooled into one predicted primitive
+    location. Each floor point fuses, per type, the interpolated proposal features and its offset /
+    distance to the predicted primitive; a per-point sigmoid head gives the map. Loss =
+    affordance loss + ``vote_weight`` x mean primitive vote loss.
+
+    Args:
+        npoints, radii, nsamples, mlps, seed_fp: backbone (as VoteNetModule).
+        num_proposals, proposal_radius, proposal_nsample, proposal_width: per-primitive aggregation.
+        fuse_width, robot_width, head_width, dropout: fusion / head sizes.
+        face_offset, edge_half_width: primitive geometry (m); vote_radius: seeds that vote (m).
+        vote_weight: weight of the primitive vote loss; compile, bf16: opt-in speed modes.
+        (the rest: see :class:`FloAffModule`)
+    """
+
+    def __init__(
+        self,
+        npoints: list[int] = [1024, 256, 64],  # noqa: B006
+        radii: list[list[float]] = [[0.2], [0.4], [0.8]],  # noqa: B006
+        nsamples: list[list[int]] = [[32], [32], [32]],  # noqa: B006
+        mlps: list[list[list[int]]] = [[[64, 64, 128]], [[128, 128, 256]], [[256, 256, 256]]],  # noqa: B006
+        seed_fp: list[list[int]] = [[256, 256]],  # noqa: B006
+        num_proposals: int = 32,
+        proposal_radius: float = 0.3,
+        proposal_nsample: int = 16,
+        proposal_width: int = 64,
+        fuse_width: int = 128,
+        robot_width: int = 64,
+        head_width: int = 64,
+        dropout: float = 0.1,
+        face_offset: float = 0.25,
+        edge_half_width: float = 0.3,
+        vote_radius: float = 1.0,
+        vote_weight: float = 1.0,
+        compile: bool = False,
+        bf16: bool = False,
+        feat_channels: int = 1,
+        robot_dim: int = 2,
+        loss: Literal["mse", "aff", "navaff"] = "mse",
+        sdl_beta: float = 1.0,
+        optimizer: Literal["adam", "adamw"] = "adam",
+        lr: float = 1e-3,
+        weight_decay: float = 0.0,
+        scheduler: Literal["cosine", "plateau", "none"] = "cosine",
+        sim_variant: Literal["cosine", "hist"] = "cosine",
+        metric_reduction: Literal["per_sample", "official_batchwise"] = "per_sample",
+        weights: str | None = None,
+    ) -> None:
+        super().__init__(
+            feat_channels=feat_channels, robot_dim=robot_dim, loss=loss, sdl_beta=sdl_beta, optimizer=optimizer,
+            lr=lr, weight_decay=weight_decay, scheduler=scheduler, sim_variant=sim_variant,
+            metric_reduction=metric_reduction, weights=weights,
+        )
+
+    def configure_models(self) -> None:
+        h = self.hparams
+        self.net = H3DNetNet(
+            h["feat_channels"], h["robot_dim"], h["npoints"], h["radii"], h["nsamples"], h["mlps"], h["seed_fp"],
+            num_proposals=h["num_proposals"], proposal_radius=h["proposal_radius"],
+            proposal_nsample=h["proposal_nsample"], proposal_width=h["proposal_width"], fuse_width=h["fuse_width"],
+            robot_width=h["robot_width"], head_width=h["head_width"], dropout=h["dropout"],
+        )
+        maybe_compile(self.net, h["compile"])
+
+    def forward_with_aux(self, batch: Batch) -> tuple[Tensor, dict[str, Tensor]]:
+        """Scores [B, M] and the primitive geometry (seed xyz, votes [B,4,S,3], primitives [B,4,3])."""
+        xyz, feat, mask = scene_inputs(batch, self.hparams["feat_channels"])
+        fxyz, fmask = floor_inputs(batch)
+        fps = self.net.sample(xyz, mask)
+        with maybe_bf16(self.hparams["bf16"], xyz.device):
+            scores, aux = self.net(xyz, feat, mask, fxyz, fmask, batch["robot"].float(), batch["target_xyz"].float(), fps=fps)
+        return scores.float(), aux
+
+    def forward(self, batch: Batch) -> Tensor:
+        return self.forward_with_aux(batch)[0]
+
+    def primitive_loss(self, batch: Batch, aux: dict[str, Tensor]) -> Tensor:
+        """Mean L1 vote error to the target primitives over the voting seeds."""
+        h = self.hparams
+        gt = target_primitives(
+            batch["target_xyz"].float(), batch["target_yaw"].float().reshape(-1), h["face_offset"], h["edge_half_width"]
+        )  # [B, 4, 3]
+        seed = aux["seed_xyz"].float()
+        near = (seed[..., :2] - batch["target_xyz"].float()[:, None, :2]).norm(dim=-1) <= h["vote_radius"]
+        w = torch.where(near.any(dim=1, keepdim=True), near, torch.ones_like(near)).float()  # [B, S]
+        err = (aux["vote_xyz"].float() - gt[:, :, None, :]).abs().sum(-1)  # [B, 4, S]
+        return ((err * w[:, None]).sum(-1) / w.sum(-1)[:, None]).mean()
+
+    def model_step(self, batch: Batch) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
+        scores, aux = self.forward_with_aux(batch)
+        pl = self.primitive_loss(batch, aux)
+        aff = self.affordance_loss(scores, batch)
+        return aff + self.hparams["vote_weight"] * pl, scores, {"vote_loss": pl.detach(), "aff_loss": aff.detach()}
+
+
+__all__ = ["PRIMITIVES", "H3DNetModule"]

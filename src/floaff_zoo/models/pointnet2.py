@@ -1,0 +1,154 @@
+"""PointNet2Module: PointNet++ (SSG or MSG) adapted to floor affordance (MoMa-Kitchen baseline).
+
+Also home of the small helpers the other point models share (input extraction, bf16 autocast,
+in-place ``torch.compile``).
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Iterator
+from typing import Any, Literal
+
+import torch
+from torch import Tensor, nn
+
+from floaff_zoo.contract import Batch
+from floaff_zoo.models.base import FloAffModule
+from floaff_zoo.nn.nets import PointNet2Net, check_inputs, require_valid
+
+#: default PointNet++ sizes for scenes in metres (robot base frame, a few metres across)
+SSG_DEFAULTS: dict[str, Any] = {
+    "npoints": [1024, 256, 64],
+    "radii": [[0.2], [0.4], [0.8]],
+    "nsamples": [[32], [32], [32]],
+    "mlps": [[[64, 64, 128]], [[128, 128, 256]], [[256, 256, 512]]],
+    "fp_mlps": [[256, 256], [256, 128], [128, 128]],
+}
+MSG_DEFAULTS: dict[str, Any] = {
+    "npoints": [1024, 256, 64],
+    "radii": [[0.1, 0.2], [0.2, 0.4], [0.4, 0.8]],
+    "nsamples": [[16, 32], [16, 32], [16, 32]],
+    "mlps": [
+        [[32, 32, 64], [64, 64, 128]],
+        [[64, 64, 128], [128, 128, 256]],
+        [[128, 196, 256], [128, 196, 256]],
+    ],
+    "fp_mlps": [[256, 256], [256, 128], [128, 128]],
+}
+
+
+# ----------------------------------------------------------------------------- shared helpers
+def scene_inputs(batch: Batch, feat_channels: int) -> tuple[Tensor, Tensor, Tensor]:
+    """(scene_xyz [B,N,3] f32, scene_feat [B,N,C] f32, scene_mask [B,N] bool), checked."""
+    xyz = batch["scene_xyz"].float()
+    feat = batch["scene_feat"][..., :feat_channels].float()
+    mask = batch.get("scene_mask")
+    mask = torch.ones(xyz.shape[:2], dtype=torch.bool, device=xyz.device) if mask is None else mask.bool()
+    check_inputs(scene_xyz=xyz, scene_feat=feat)
+    require_valid("scene_mask", mask)
+    return xyz, feat, mask
+
+
+def floor_inputs(batch: Batch) -> tuple[Tensor, Tensor]:
+    """(floor_xyz [B,M,3] f32, floor_mask [B,M] bool), checked."""
+    xyz = batch["floor_xyz"].float()
+    mask = batch.get("floor_mask")
+    mask = torch.ones(xyz.shape[:2], dtype=torch.bool, device=xyz.device) if mask is None else mask.bool()
+    check_inputs(floor_xyz=xyz)
+    require_valid("floor_mask", mask)
+    return xyz, mask
+
+
+@contextlib.contextmanager
+def maybe_bf16(enabled: bool, device: torch.device) -> Iterator[None]:
+    """bf16 autocast around the MLPs when ``enabled`` (neighbour search stays fp32 inside the ops)."""
+    if enabled:
+        with torch.autocast(device_type=device.type, dtype=torch.bfloat16):
+            yield
+    else:
+        yield
+
+
+def maybe_compile(net: nn.Module, enabled: bool) -> None:
+    """``torch.compile`` the net's forward in place (state-dict keys unchanged); FPS stays outside."""
+    if enabled:
+        net.compile()
+
+
+def resolve_sizes(variant: str, **given: Any) -> dict[str, Any]:
+    """Fill ``None`` size arguments from the variant's defaults."""
+    base = SSG_DEFAULTS if variant == "ssg" else MSG_DEFAULTS
+    return {k: (v if v is not None else base[k]) for k, v in given.items()}
+
+
+class PointNet2Module(FloAffModule):
+    """PointNet++ encoder over the observation + robot MLP + FP onto the floor points + sigmoid head.
+
+    The scene cloud (xyz + the first ``feat_channels`` feature channels: target flag [, RGB]) goes
+    through SSG or MSG set abstraction; the robot descriptor's MLP code is concatenated to the
+    deepest level; feature propagation climbs back to the first level's centres and then onto the
+    floor points (skip features: floor xyz, xy offset and distance to the target); a per-point
+    head gives the score in [0, 1].
+
+    Args:
+        variant: ``ssg`` (single scale) or ``msg`` (multi scale).
+        npoints, radii, nsamples, mlps, fp_mlps: sizes; ``None`` = the variant's defaults
+            (``SSG_DEFAULTS``/``MSG_DEFAULTS``). ``fp_mlps`` has one entry per SA level; the last is
+            the FP onto the floor points.
+        robot_width, head_width, dropout: robot MLP width, head width, head dropout.
+        compile: ``torch.compile`` the net (opt-in; 30-50 s first step on CPU).
+        bf16: bf16 autocast for the MLPs (opt-in; needs AVX512-BF16/AMX to pay off on CPU).
+        (the rest: see :class:`FloAffModule`)
+    """
+
+    def __init__(
+        self,
+        variant: Literal["ssg", "msg"] = "ssg",
+        npoints: list[int] | None = None,
+        radii: list[list[float]] | None = None,
+        nsamples: list[list[int]] | None = None,
+        mlps: list[list[list[int]]] | None = None,
+        fp_mlps: list[list[int]] | None = None,
+        robot_width: int = 64,
+        head_width: int = 64,
+        dropout: float = 0.1,
+        compile: bool = False,
+        bf16: bool = False,
+        feat_channels: int = 1,
+        robot_dim: int = 2,
+        loss: Literal["mse", "aff", "navaff"] = "mse",
+        sdl_beta: float = 1.0,
+        optimizer: Literal["adam", "adamw"] = "adam",
+        lr: float = 1e-3,
+        weight_decay: float = 0.0,
+        scheduler: Literal["cosine", "plateau", "none"] = "cosine",
+        sim_variant: Literal["cosine", "hist"] = "cosine",
+        metric_reduction: Literal["per_sample", "official_batchwise"] = "per_sample",
+        weights: str | None = None,
+    ) -> None:
+        super().__init__(
+            feat_channels=feat_channels, robot_dim=robot_dim, loss=loss, sdl_beta=sdl_beta, optimizer=optimizer,
+            lr=lr, weight_decay=weight_decay, scheduler=scheduler, sim_variant=sim_variant,
+            metric_reduction=metric_reduction, weights=weights,
+        )
+
+    def configure_models(self) -> None:
+        h = self.hparams
+        sizes = resolve_sizes(
+            h["variant"], npoints=h["npoints"], radii=h["radii"], nsamples=h["nsamples"], mlps=h["mlps"],
+            fp_mlps=h["fp_mlps"],
+        )
+        self.net = PointNet2Net(
+            h["variant"], h["feat_channels"], h["robot_dim"], robot_width=h["robot_width"],
+            head_width=h["head_width"], dropout=h["dropout"], **sizes,
+        )
+        maybe_compile(self.net, h["compile"])
+
+    def forward(self, batch: Batch) -> Tensor:
+        xyz, feat, mask = scene_inputs(batch, self.hparams["feat_channels"])
+        fxyz, fmask = floor_inputs(batch)
+        fps = self.net.sample(xyz, mask)
+        with maybe_bf16(self.hparams["bf16"], xyz.device):
+            out = self.net(xyz, feat, mask, fxyz, fmask, batch["robot"].float(), batch["target_xyz"].float(), fps=fps)
+        return out.float()

@@ -1,0 +1,129 @@
+"""VoteNetModule: a VoteNet-style adaptation to floor affordance (MoMa-Kitchen baseline)."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import torch
+from torch import Tensor
+
+from floaff_zoo.contract import Batch
+from floaff_zoo.models.base import FloAffModule
+from floaff_zoo.models.pointnet2 import floor_inputs, maybe_bf16, maybe_compile, scene_inputs
+from floaff_zoo.nn.nets import VoteNetNet
+
+
+def good_floor_points(batch: Batch, rel_threshold: float) -> tuple[Tensor, Tensor]:
+    """Floor points whose label is at least ``rel_threshold`` x the sample's best label.
+
+    Returns:
+        (floor_xyz [B,M,3], selected [B,M] bool); the argmax point is always selected.
+    """
+    label = batch["floor_label"].float().masked_fill(~batch["floor_mask"].bool(), -1.0)
+    best = label.amax(dim=1, keepdim=True)
+    sel = (label >= rel_threshold * best) & batch["floor_mask"].bool()
+    sel = sel | (torch.arange(label.shape[1], device=label.device)[None] == label.argmax(dim=1, keepdim=True))
+    return batch["floor_xyz"].float(), sel
+
+
+def vote_loss(votes: Tensor, gt_xyz: Tensor, gt_sel: Tensor) -> Tensor:
+    """Min-over-GT L1 distance of every vote (VoteNet's vote loss with a set of GT positions).
+
+    Args:
+        votes: [B, S, 3]; gt_xyz: [B, M, 3]; gt_sel: [B, M] bool (at least one True per sample).
+    Returns:
+        scalar mean over votes.
+    """
+    d = (votes[:, :, None, :] - gt_xyz[:, None, :, :]).abs().sum(-1)  # [B, S, M]
+    d = d.masked_fill(~gt_sel[:, None, :], float("inf"))
+    return d.amin(dim=-1).mean()
+
+
+class VoteNetModule(FloAffModule):
+    """VoteNet-style floor affordance.
+
+    How VoteNet maps onto this task: VoteNet's seeds (PointNet++ backbone points) vote for object
+    centres; here the seeds (PointNet++ SSG over the observation, robot code fused, FP back to
+    the second SA level) vote for **good base positions**: each vote is the seed plus a predicted
+    offset, supervised by the vote loss = L1 distance to the nearest floor point whose label is at
+    least ``vote_label_threshold`` x the sample's best label (VoteNet's min-over-GT vote loss).
+    VoteNet's proposal module becomes the aggregation: FPS over the votes, ball grouping and a
+    PointNet give proposal features and an objectness-like score; instead of boxes, the floor
+    map is read out of the proposals by 3-NN feature propagation (plus the distance to the nearest
+    proposal) and a per-point sigmoid head. Loss = affordance loss + ``vote_weight`` x vote loss.
+
+    Args:
+        npoints, radii, nsamples, mlps: SSG backbone; seed_fp: FP widths from the deepest level
+            to the seed level (one entry per FP).
+        num_proposals, proposal_radius, proposal_nsample, proposal_width: vote aggregation.
+        floor_fp: widths of the FP onto the floor points; robot_width, head_width, dropout.
+        vote_weight, vote_label_threshold: vote loss weight and GT selection.
+        compile, bf16: opt-in speed modes.
+        (the rest: see :class:`FloAffModule`)
+    """
+
+    def __init__(
+        self,
+        npoints: list[int] = [1024, 256, 64],  # noqa: B006
+        radii: list[list[float]] = [[0.2], [0.4], [0.8]],  # noqa: B006
+        nsamples: list[list[int]] = [[32], [32], [32]],  # noqa: B006
+        mlps: list[list[list[int]]] = [[[64, 64, 128]], [[128, 128, 256]], [[256, 256, 256]]],  # noqa: B006
+        seed_fp: list[list[int]] = [[256, 256]],  # noqa: B006
+        num_proposals: int = 64,
+        proposal_radius: float = 0.3,
+        proposal_nsample: int = 16,
+        proposal_width: int = 128,
+        floor_fp: list[int] = [128, 128],  # noqa: B006
+        robot_width: int = 64,
+        head_width: int = 64,
+        dropout: float = 0.1,
+        vote_weight: float = 1.0,
+        vote_label_threshold: float = 0.8,
+        compile: bool = False,
+        bf16: bool = False,
+        feat_channels: int = 1,
+        robot_dim: int = 2,
+        loss: Literal["mse", "aff", "navaff"] = "mse",
+        sdl_beta: float = 1.0,
+        optimizer: Literal["adam", "adamw"] = "adam",
+        lr: float = 1e-3,
+        weight_decay: float = 0.0,
+        scheduler: Literal["cosine", "plateau", "none"] = "cosine",
+        sim_variant: Literal["cosine", "hist"] = "cosine",
+        metric_reduction: Literal["per_sample", "official_batchwise"] = "per_sample",
+        weights: str | None = None,
+    ) -> None:
+        super().__init__(
+            feat_channels=feat_channels, robot_dim=robot_dim, loss=loss, sdl_beta=sdl_beta, optimizer=optimizer,
+            lr=lr, weight_decay=weight_decay, scheduler=scheduler, sim_variant=sim_variant,
+            metric_reduction=metric_reduction, weights=weights,
+        )
+
+    def configure_models(self) -> None:
+        h = self.hparams
+        self.net = VoteNetNet(
+            h["feat_channels"], h["robot_dim"], h["npoints"], h["radii"], h["nsamples"], h["mlps"], h["seed_fp"],
+            num_proposals=h["num_proposals"], proposal_radius=h["proposal_radius"],
+            proposal_nsample=h["proposal_nsample"], proposal_width=h["proposal_width"], floor_fp=h["floor_fp"],
+            robot_width=h["robot_width"], head_width=h["head_width"], dropout=h["dropout"],
+        )
+        maybe_compile(self.net, h["compile"])
+
+    def forward_with_aux(self, batch: Batch) -> tuple[Tensor, dict[str, Tensor]]:
+        """Scores [B, M] and the vote geometry (seed/vote/proposal xyz)."""
+        xyz, feat, mask = scene_inputs(batch, self.hparams["feat_channels"])
+        fxyz, fmask = floor_inputs(batch)
+        fps = self.net.sample(xyz, mask)
+        with maybe_bf16(self.hparams["bf16"], xyz.device):
+            scores, aux = self.net(xyz, feat, mask, fxyz, fmask, batch["robot"].float(), batch["target_xyz"].float(), fps=fps)
+        return scores.float(), aux
+
+    def forward(self, batch: Batch) -> Tensor:
+        return self.forward_with_aux(batch)[0]
+
+    def model_step(self, batch: Batch) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
+        scores, aux = self.forward_with_aux(batch)
+        gt_xyz, gt_sel = good_floor_points(batch, self.hparams["vote_label_threshold"])
+        vl = vote_loss(aux["vote_xyz"].float(), gt_xyz, gt_sel)
+        aff = self.affordance_loss(scores, batch)
+        return aff + self.hparams["vote_weight"] * vl, scores, {"vote_loss": vl.detach(), "aff_loss": aff.detach()}

@@ -1,0 +1,390 @@
+"""CFAR: the canonical transform T(P, S) (pure torch functions) and the CFAR network.
+
+Canonical transform (paper eqs. crop + rotation), on padded batches with masks:
+
+1. crop: keep scene points with ``||p - t|| <= r`` (cropped points get mask False and zero coordinates);
+2. align: ``p_hat = R_z(phi) (p - t)`` with ``phi = -pi/2 - yaw`` so that the target's front-facing
+   outward normal (``target_yaw``, the contract's convention: angle of the normal from +x, CCW)
+   points along **-y** in the canonical frame.
+
+   The paper writes the rotation as ``R(pi - theta_o)``; with the contract's ``yaw`` that literal formula
+   would send the front to -x, not to -y as the paper (and the contract) state. The two agree when the
+   paper's ``theta_o = yaw - pi/2`` (its angle is measured from a reference axis turned by 90 deg), so we
+   implement the stated goal, front -> -y. Any constant offset only rotates the whole canonical frame.
+
+Floor points go through the same rigid map (centre + rotation) but are **not** cropped: every floor
+point keeps its score, and the order of floor points is never changed, so mapping predictions back to
+the robot frame is the identity on the score vector. :func:`robot_from_canonical` gives the 4x4
+canonical -> robot transform for pictures.
+
+Empty crop: when a sample keeps no valid point, its radius grows x1.25 up to 3 times; if it is still
+empty a :class:`~floaff_zoo.contract.SampleError` names the sample.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor, nn
+
+from floaff_zoo.contract import SampleError
+from floaff_zoo.nn.pointnet2 import FeaturePropagation, PointNet2Encoder, SharedMLP
+
+__all__ = [
+    "CFARNet",
+    "CanonicalCloud",
+    "CROP_GROWTH",
+    "CROP_RETRIES",
+    "alignment_angle",
+    "canonical_transform",
+    "canonical_to_robot",
+    "crop_mask",
+    "plain_mlp",
+    "robot_from_canonical",
+    "rotate_z",
+    "sample_levels",
+    "stable_three_interpolate",
+    "tolerant_fps",
+]
+
+#: empty-crop fallback: the radius grows by this factor ...
+CROP_GROWTH = 1.25
+#: ... at most this many times before the sample is rejected
+CROP_RETRIES = 3
+
+
+def rotate_z(xyz: Tensor, angle: Tensor) -> Tensor:
+    """Rotate points about +z. xyz [B, N, 3], angle [B] (rad) -> [B, N, 3]."""
+    c, s = torch.cos(angle)[:, None], torch.sin(angle)[:, None]
+    x, y, z = xyz.unbind(-1)
+    return torch.stack([c * x - s * y, s * x + c * y, z], dim=-1)
+
+
+def alignment_angle(yaw: Tensor | None, batch: int, device: torch.device, dtype: torch.dtype) -> Tensor:
+    """Rotation angle phi [B] that sends a front normal of angle ``yaw`` [B] to -y; zeros when yaw is None."""
+    if yaw is None:
+        return torch.zeros(batch, device=device, dtype=dtype)
+    return -0.5 * math.pi - yaw.to(dtype).reshape(batch)
+
+
+def crop_mask(
+    xyz: Tensor,
+    mask: Tensor,
+    centre: Tensor,
+    radius: float | None,
+    names: Sequence[str] | None = None,
+) -> tuple[Tensor, Tensor]:
+    """Sphere crop with the empty-crop fallback.
+
+    Args:
+        xyz: [B, N, 3]; mask: [B, N] bool; centre: [B, 3]; radius: metres, or None (no crop);
+        names: sample names for the error message (default: batch positions).
+    Returns:
+        (mask [B, N] bool: valid and within the radius used, radius_used [B] float).
+    Raises:
+        SampleError: a sample has no valid point even at ``radius * 1.25**3`` (or no valid point at all).
+    """
+    b = xyz.shape[0]
+    if radius is None:
+        empty = ~mask.any(dim=1)
+        if empty.any():
+            raise SampleError(f"CFAR crop: sample(s) {_names(empty, names)} have no valid scene point")
+        return mask, torch.full((b,), float("inf"), device=xyz.device)
+    if radius <= 0:
+        raise ValueError(f"crop radius must be > 0, got {radius}")
+    d2 = ((xyz - centre[:, None, :]) ** 2).sum(-1)  # [B, N]
+    used = torch.full((b,), float(radius), device=xyz.device, dtype=xyz.dtype)
+    keep = mask & (d2 <= used[:, None] ** 2)
+    for _ in range(CROP_RETRIES):
+        empty = ~keep.any(dim=1)
+        if not empty.any():
+            break
+        used = torch.where(empty, used * CROP_GROWTH, used)
+        keep = mask & (d2 <= used[:, None] ** 2)
+    empty = ~keep.any(dim=1)
+    if empty.any():
+        r_max = radius * CROP_GROWTH**CROP_RETRIES
+        raise SampleError(
+            f"CFAR crop: sample(s) {_names(empty, names)} keep no scene point within {radius:.3g} m of the "
+            f"target centre, even after growing the radius x{CROP_GROWTH} {CROP_RETRIES} times (to {r_max:.3g} m); "
+            "check target_xyz / scene_xyz of these samples"
+        )
+    return keep, used
+
+
+def _names(flags: Tensor, names: Sequence[str] | None) -> list[str]:
+    idx = torch.nonzero(flags).flatten().tolist()
+    return [str(names[i]) if names is not None and i < len(names) else f"#{i}" for i in idx]
+
+
+@dataclass
+class CanonicalCloud:
+    """Output of :func:`canonical_transform` (all tensors in the canonical frame).
+
+    xyz [B, N, 3] (zeros where mask is False), mask [B, N], floor_xyz [B, M, 3], angle [B] (phi, rad),
+    centre [B, 3] (target centre, robot frame), radius [B] (crop radius used; inf without crop).
+    """
+
+    xyz: Tensor
+    mask: Tensor
+    floor_xyz: Tensor
+    angle: Tensor
+    centre: Tensor
+    radius: Tensor
+
+
+def canonical_transform(
+    scene_xyz: Tensor,
+    scene_mask: Tensor,
+    floor_xyz: Tensor,
+    target_xyz: Tensor,
+    yaw: Tensor | None,
+    radius: float | None,
+    extra_angle: Tensor | None = None,
+    names: Sequence[str] | None = None,
+) -> CanonicalCloud:
+    """T(P, S): crop around the target, centre on it, rotate its front to -y.
+
+    Args:
+        scene_xyz: [B, N, 3]; scene_mask: [B, N]; floor_xyz: [B, M, 3]; target_xyz: [B, 3];
+        yaw: [B] front-normal yaw (rad, robot frame) or None (no alignment, w/o-Align ablation);
+        radius: crop radius (m) or None (w/o-Crop ablation);
+        extra_angle: [B] additional rotation (rad) about the target, e.g. the +-5 deg training
+            perturbation of the alignment;
+        names: sample names for error messages.
+    Returns:
+        :class:`CanonicalCloud`.
+    """
+    b = scene_xyz.shape[0]
+    keep, used = crop_mask(scene_xyz, scene_mask, target_xyz, radius, names)
+    angle = alignment_angle(yaw, b, scene_xyz.device, scene_xyz.dtype)
+    if extra_angle is not None:
+        angle = angle + extra_angle.to(angle.dtype)
+    xyz = rotate_z(scene_xyz - target_xyz[:, None, :], angle)
+    xyz = torch.where(keep[..., None], xyz, torch.zeros_like(xyz))
+    floor = rotate_z(floor_xyz - target_xyz[:, None, :], angle)
+    return CanonicalCloud(xyz=xyz, mask=keep, floor_xyz=floor, angle=angle, centre=target_xyz, radius=used)
+
+
+def canonical_to_robot(xyz: Tensor, centre: Tensor, angle: Tensor) -> Tensor:
+    """Inverse of the rigid part of T: canonical [B, N, 3] -> robot frame [B, N, 3] (centre [B, 3], angle [B])."""
+    return rotate_z(xyz, -angle) + centre[:, None, :]
+
+
+def robot_from_canonical(centre: Tensor, angle: Tensor) -> Tensor:
+    """Homogeneous canonical -> robot transform [B, 4, 4] (p_robot = T @ [p_canonical; 1])."""
+    b = centre.shape[0]
+    c, s = torch.cos(-angle), torch.sin(-angle)
+    out = torch.zeros(b, 4, 4, dtype=centre.dtype, device=centre.device)
+    out[:, 0, 0], out[:, 0, 1], out[:, 1, 0], out[:, 1, 1] = c, -s, s, c
+    out[:, 2, 2] = 1.0
+    out[:, :3, 3] = centre
+    out[:, 3, 3] = 1.0
+    return out
+
+
+#: squared-distance tolerance (m^2) under which FPS treats candidates as tied (see ``tolerant_fps``)
+FPS_TIE_TOL = 1e-4
+
+
+@torch.no_grad()
+def tolerant_fps(xyz: Tensor, mask: Tensor | None, npoint: int, tol: float = FPS_TIE_TOL) -> Tensor:
+    """Farthest point sampling whose choice does not flip under float noise.
+
+    Exact FPS breaks ties by rounding noise; on a regular floor grid almost every step is a tie, so
+    a rotated copy of the same scene (equal up to 1e-6 m after canonicalisation) would pick other
+    centres. Here every candidate within ``tol`` (m^2) of the farthest distance counts as tied and the
+    lowest index wins. Starts at the first valid point; padded points are never chosen (fewer valid
+    points than ``npoint`` -> valid points repeat).
+
+    Args:
+        xyz: [B, N, 3]; mask: [B, N] bool or None; npoint: centres; tol: tie tolerance (m^2).
+    Returns:
+        [B, npoint] int64.
+    """
+    b, n, _ = xyz.shape
+    mask = torch.ones(b, n, dtype=torch.bool, device=xyz.device) if mask is None else mask
+    if not mask.any(dim=1).all():
+        raise ValueError("tolerant_fps: a cloud of the batch has no valid point")
+    pts = xyz.detach().float()  # float32 noise (~1e-6 m^2) is far below tol
+    dist = torch.where(mask, torch.full((b, n), float("inf"), dtype=pts.dtype, device=xyz.device), -1.0)
+    cur = mask.long().argmax(dim=1)
+    out = torch.empty(b, npoint, dtype=torch.long, device=xyz.device)
+    ar = torch.arange(n, device=xyz.device)
+    for j in range(npoint):
+        out[:, j] = cur
+        d = ((pts - pts[torch.arange(b), cur][:, None]) ** 2).sum(-1)
+        dist = torch.where(mask, torch.minimum(dist, d), dist)
+        best = dist.amax(dim=1, keepdim=True)
+        tied = dist >= best - tol
+        cur = torch.where(tied, ar, n).amin(dim=1)
+    return out
+
+
+def stable_three_interpolate(unknown: Tensor, known: Tensor, known_feat: Tensor, tol: float = FPS_TIE_TOL) -> Tensor:
+    """Inverse-squared-distance interpolation from 3 neighbours chosen without float-noise flips.
+
+    Like PointNet++ FP (weights ``1 / (d^2 + 1e-8)``), but each neighbour is the lowest-index point
+    among those within ``tol`` (m^2) of the nearest remaining distance, so equidistant grid neighbours
+    are chosen the same way in a rotated copy of the scene.
+
+    Args:
+        unknown: [B, n, 3]; known: [B, m, 3] (all valid); known_feat: [B, m, C].
+    Returns:
+        [B, n, C].
+    """
+    b, n, _ = unknown.shape
+    m = known.shape[1]
+    if m == 1:
+        return known_feat.expand(b, n, known_feat.shape[-1])
+    d = ((unknown.double()[:, :, None] - known.double()[:, None]) ** 2).sum(-1)  # [B, n, m]
+    ar = torch.arange(m, device=unknown.device)
+    idx, dist = [], []
+    for _ in range(min(3, m)):
+        best = d.amin(dim=-1, keepdim=True)
+        pick = torch.where(d <= best + tol, ar, m).amin(dim=-1, keepdim=True)  # [B, n, 1]
+        idx.append(pick)
+        dist.append(d.gather(-1, pick))
+        d = d.scatter(-1, pick, float("inf"))
+    idx_t = torch.cat(idx, -1)
+    recip = 1.0 / (torch.cat(dist, -1).to(known_feat.dtype) + 1e-8)
+    weight = recip / recip.sum(-1, keepdim=True)
+    flat = idx_t.reshape(b, -1)
+    grouped = torch.gather(known_feat, 1, flat[..., None].expand(-1, -1, known_feat.shape[-1]))
+    return (grouped.reshape(b, n, -1, known_feat.shape[-1]) * weight[..., None]).sum(2)
+
+
+def sample_levels(encoder: PointNet2Encoder, xyz: Tensor, mask: Tensor | None) -> list[Tensor | None]:
+    """Tie-tolerant FPS indices for every level of ``encoder`` (drop-in for ``encoder.sample``)."""
+    out: list[Tensor | None] = []
+    cur, cur_mask = xyz, mask
+    for sa in encoder.levels:
+        if sa.group_all:
+            out.append(None)
+            break
+        idx = tolerant_fps(cur, cur_mask, sa.npoint)
+        out.append(idx)
+        cur, cur_mask = torch.gather(cur, 1, idx[..., None].expand(-1, -1, 3)), None
+    return out
+
+
+#: ball-query radii are scaled by this so floor-grid points at exactly r (0.05 m grid, r = 0.2 m)
+#: are inside whatever the float noise of the canonical transform
+BALL_MARGIN = 1.0 + 1e-4
+
+
+def plain_mlp(in_channels: int, widths: Sequence[int]) -> nn.Sequential:
+    """Linear + ReLU per layer on [..., C_in] -> [..., widths[-1]] (identity when widths is empty)."""
+    layers: list[nn.Module] = []
+    c = in_channels
+    for w in widths:
+        layers += [nn.Linear(c, w), nn.ReLU()]
+        c = w
+    return nn.Sequential(*layers)
+
+
+class CFARNet(nn.Module):
+    """The CFAR predictor on canonical inputs.
+
+    * local encoder: PointNet++ SSG on the canonical local cloud with the first ``feat_channels``
+      scene features (channel 0 = target flag), ending in a group-all level: its pooled output
+      ``g`` [B, C_g] is the global code (and the feature PFAL distils, ``L_shared``);
+    * floor encoder: PointNet++ SSG on the canonical floor points + feature propagation back to
+      every floor point;
+    * robot MLP on the robot descriptor;
+    * fusion/decoder: per floor point ``[floor feature, g, robot code, local context]`` -> MLP -> sigmoid,
+      where the local context is the last local SA level's features interpolated (3-NN in the
+      horizontal plane) at the floor point, giving each floor cell the nearby geometry.
+
+    Args:
+        feat_channels: scene feature channels used; robot_dim: robot descriptor size;
+        local_npoints / local_radii / local_nsamples / local_mlps: SSG levels of the local encoder
+            (one radius / nsample / width list per level); local_global_mlp: group-all widths (C_g = last);
+        floor_npoints / floor_radii / floor_nsamples / floor_mlps: floor encoder levels;
+        floor_fp_mlps: FP widths, deepest first (one per floor level);
+        robot_mlp: robot MLP widths; head: decoder hidden widths.
+    """
+
+    def __init__(
+        self,
+        feat_channels: int = 1,
+        robot_dim: int = 2,
+        local_npoints: Sequence[int] = (512, 128),
+        local_radii: Sequence[float] = (0.1, 0.3),
+        local_nsamples: Sequence[int] = (32, 32),
+        local_mlps: Sequence[Sequence[int]] = ((32, 32, 64), (64, 64, 128)),
+        local_global_mlp: Sequence[int] = (128, 256),
+        floor_npoints: Sequence[int] = (256, 64),
+        floor_radii: Sequence[float] = (0.2, 0.5),
+        floor_nsamples: Sequence[int] = (16, 16),
+        floor_mlps: Sequence[Sequence[int]] = ((32, 32, 64), (64, 64, 128)),
+        floor_fp_mlps: Sequence[Sequence[int]] = ((128, 128), (128, 64)),
+        robot_mlp: Sequence[int] = (32, 64),
+        head: Sequence[int] = (256, 128),
+    ) -> None:
+        super().__init__()
+        if not local_npoints or not floor_npoints:
+            raise ValueError("CFARNet needs at least one local and one floor set-abstraction level")
+        self.feat_channels = feat_channels
+        self.local_encoder = PointNet2Encoder(
+            feat_channels, list(local_npoints), [[r * BALL_MARGIN] for r in local_radii], [[k] for k in local_nsamples],
+            [[list(m)] for m in local_mlps], xyz_first=True, group_all_mlp=list(local_global_mlp),
+        )
+        self.floor_encoder = PointNet2Encoder(
+            0, list(floor_npoints), [[r * BALL_MARGIN] for r in floor_radii], [[k] for k in floor_nsamples],
+            [[list(m)] for m in floor_mlps], xyz_first=True,
+        )
+        if len(floor_fp_mlps) != len(floor_npoints):
+            raise ValueError(f"floor_fp_mlps needs {len(floor_npoints)} entries (one per floor level)")
+        ch = [3] + self.floor_encoder.level_channels[1:]  # level-0 skip = floor xyz
+        self.floor_fp = nn.ModuleList()
+        cur = ch[-1]
+        for lvl, widths in zip(range(len(floor_npoints) - 1, -1, -1), floor_fp_mlps):
+            fp = FeaturePropagation(ch[lvl] + cur, list(widths))
+            self.floor_fp.append(fp)
+            cur = fp.out_channels
+        # plain Linear+ReLU (no BatchNorm): one vector per sample, a batch of 1 must still train
+        self.robot_mlp = plain_mlp(robot_dim, list(robot_mlp))
+        self.global_channels = self.local_encoder.out_channels
+        context_channels = self.local_encoder.level_channels[-2]
+        fused = cur + self.global_channels + (robot_mlp[-1] if robot_mlp else robot_dim) + context_channels + 3
+        self.head = SharedMLP(fused, list(head))
+        self.out = nn.Linear(head[-1] if head else fused, 1)
+
+    def encode_local(self, xyz: Tensor, feat: Tensor, mask: Tensor) -> tuple[Tensor, list[tuple[Tensor, Tensor | None]]]:
+        """Canonical cloud xyz [B,N,3], feat [B,N,C], mask [B,N] -> (g [B, C_g], all levels)."""
+        fps = sample_levels(self.local_encoder, xyz, mask)
+        levels = self.local_encoder(xyz, feat[..., : self.feat_channels], mask, fps)
+        return levels[-1][1][:, 0], levels
+
+    def forward(
+        self, xyz: Tensor, feat: Tensor, mask: Tensor, floor_xyz: Tensor, floor_mask: Tensor, robot: Tensor
+    ) -> tuple[Tensor, Tensor]:
+        """Canonical inputs -> (scores [B, M] in [0, 1], g [B, C_g]).
+
+        xyz [B,N,3], feat [B,N,C], mask [B,N] (canonical local cloud), floor_xyz [B,M,3] (canonical),
+        floor_mask [B,M], robot [B,R].
+        """
+        g, levels = self.encode_local(xyz, feat, mask)
+        flv = self.floor_encoder(floor_xyz, None, floor_mask, sample_levels(self.floor_encoder, floor_xyz, floor_mask))
+        skips: list[Tensor | None] = [floor_xyz] + [f for _, f in flv[1:]]
+        cur = flv[-1][1]
+        n = len(flv) - 1
+        for j, fp in enumerate(self.floor_fp):
+            lvl = n - 1 - j
+            interp = stable_three_interpolate(flv[lvl][0], flv[lvl + 1][0], cur)
+            skip = skips[lvl]
+            cur = fp.mlp(interp if skip is None else torch.cat([skip, interp], dim=-1))
+        # local context: last SA level (before group-all), interpolated in the horizontal plane
+        cxyz, cfeat = levels[-2]
+        flat = torch.tensor([1.0, 1.0, 0.0], device=floor_xyz.device, dtype=floor_xyz.dtype)
+        ctx = stable_three_interpolate(floor_xyz * flat, cxyz * flat, cfeat)
+        m = floor_xyz.shape[1]
+        rob = self.robot_mlp(robot)
+        z = torch.cat(
+            [cur, g[:, None].expand(-1, m, -1), rob[:, None].expand(-1, m, -1), ctx, floor_xyz], dim=-1
+        )
+        return torch.sigmoid(self.out(self.head(z)).squeeze(-1)), g

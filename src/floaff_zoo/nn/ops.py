@@ -1,0 +1,288 @@
+"""Pure-PyTorch point operations (CPU and GPU) used by every point network of the zoo.
+
+Conventions: points are channels-last ``[B, N, 3]``, features ``[B, N, C]``, masks ``[B, N]``
+bool (True = valid). Invalid (padded) points are never chosen as FPS centres, ball-query or kNN
+neighbours, or interpolation sources: they get ``+inf`` distance.
+
+Neighbour search always runs in float32 with autocast disabled, so bf16 autocast only touches the
+MLPs (PERFORMANCE.md §5).
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from floaff_zoo.nn import _fps_ext
+
+__all__ = [
+    "ball_query",
+    "ball_query_multi",
+    "check_finite",
+    "farthest_point_sample",
+    "farthest_point_sample_torch",
+    "fps_backend",
+    "index_points",
+    "knn",
+    "square_distance",
+    "three_interpolate",
+    "three_nn",
+]
+
+#: elements of a [B, S, N] distance/key matrix above which ball query chunks over centres
+_CHUNK_ELEMS = 1 << 24
+
+
+def check_finite(name: str, x: Tensor) -> None:
+    """Raise ``ValueError`` naming ``name`` when ``x`` holds NaN or Inf."""
+    if x.is_floating_point() and not torch.isfinite(x).all():
+        bad = int((~torch.isfinite(x)).sum())
+        raise ValueError(f"{name} contains {bad} NaN/Inf value(s)")
+
+
+def _check_points(name: str, xyz: Tensor) -> None:
+    if xyz.ndim != 3 or xyz.shape[-1] != 3:
+        raise ValueError(f"{name} must be [B, N, 3], got {list(xyz.shape)}")
+
+
+def _full_mask(xyz: Tensor, mask: Tensor | None, name: str) -> Tensor:
+    if mask is None:
+        return torch.ones(xyz.shape[:2], dtype=torch.bool, device=xyz.device)
+    if mask.shape != xyz.shape[:2]:
+        raise ValueError(f"{name} must be {list(xyz.shape[:2])}, got {list(mask.shape)}")
+    return mask.bool()
+
+
+def square_distance(src: Tensor, dst: Tensor) -> Tensor:
+    """Squared Euclidean distances, float32, autocast off.
+
+    Args:
+        src: [B, N, 3]; dst: [B, M, 3].
+    Returns:
+        [B, N, M] = |src|^2 + |dst|^2 - 2 src.dst (the classic PointNet++ formula and order).
+    """
+    with torch.autocast(device_type=src.device.type, enabled=False):
+        src = src.float()
+        dst = dst.float()
+        dist = -2 * torch.matmul(src, dst.transpose(1, 2))
+        dist = dist + torch.sum(src**2, -1)[:, :, None]
+        dist = dist + torch.sum(dst**2, -1)[:, None, :]
+    return dist
+
+
+def index_points(points: Tensor, idx: Tensor) -> Tensor:
+    """Gather points/features by index.
+
+    Args:
+        points: [B, N, C]; idx: [B, *S] int64 in [0, N).
+    Returns:
+        [B, *S, C]. Uses ``torch.gather`` (fast backward) when gradients flow, advanced indexing
+        (faster forward) otherwise.
+    """
+    b = points.shape[0]
+    if points.requires_grad and torch.is_grad_enabled():
+        flat = idx.reshape(b, -1)
+        out = torch.gather(points, 1, flat[..., None].expand(-1, -1, points.shape[-1]))
+        return out.reshape(*idx.shape, points.shape[-1])
+    batch = torch.arange(b, device=points.device).view(b, *([1] * (idx.ndim - 1)))
+    return points[batch, idx]
+
+
+# ----------------------------------------------------------------------------- FPS
+def fps_backend() -> str:
+    """Which FPS implementation ``farthest_point_sample`` uses right now: ``cpp`` or ``torch``."""
+    return "cpp" if _fps_ext.load_kernel() is not None else "torch"
+
+
+def _fps_prepare(xyz: Tensor, mask: Tensor | None, npoint: int) -> Tensor:
+    _check_points("xyz", xyz)
+    if npoint < 1:
+        raise ValueError(f"npoint must be >= 1, got {npoint}")
+    mask = _full_mask(xyz, mask, "mask")
+    counts = mask.sum(dim=1)
+    if (counts == 0).any():
+        bad = torch.nonzero(counts == 0).flatten().tolist()
+        raise ValueError(f"farthest_point_sample: cloud(s) {bad} of the batch have no valid point")
+    return mask
+
+
+@torch.no_grad()
+def farthest_point_sample_torch(xyz: Tensor, mask: Tensor | None, npoint: int) -> Tensor:
+    """Vectorised pure-torch FPS (structure-of-arrays loop over ``npoint``); see ``farthest_point_sample``."""
+    mask = _fps_prepare(xyz, mask, npoint)
+    pts = xyz.detach().float().transpose(1, 2).contiguous()  # [B, 3, N] SoA
+    x, y, z = pts[:, 0], pts[:, 1], pts[:, 2]
+    b, n = mask.shape
+    dist = torch.where(mask, torch.full_like(x, 1e10), torch.full_like(x, -1.0))
+    out = torch.empty(b, npoint, dtype=torch.long, device=xyz.device)
+    far = mask.long().argmax(dim=1)  # first valid index (0 when valid)
+    d = torch.empty_like(x)
+    tmp = torch.empty_like(x)
+    for j in range(npoint):
+        out[:, j] = far
+        c = far[:, None]
+        torch.sub(x, x.gather(1, c), out=d)
+        d.mul_(d)
+        # separate mul/add (no FMA) so the sums round exactly like the C++ kernel
+        torch.sub(y, y.gather(1, c), out=tmp)
+        d.add_(tmp.mul_(tmp))
+        torch.sub(z, z.gather(1, c), out=tmp)
+        d.add_(tmp.mul_(tmp))
+        # invalid points keep -1 (never the argmax while a valid point exists)
+        torch.where(dist < 0, dist, torch.minimum(dist, d), out=dist)
+        far = dist.argmax(dim=1)
+    return out
+
+
+@torch.no_grad()
+def farthest_point_sample(xyz: Tensor, mask: Tensor | None, npoint: int) -> Tensor:
+    """Exact farthest point sampling, deterministic start at the first valid point (index 0 if valid).
+
+    Padded points are never selected. When a cloud has fewer valid points than ``npoint``, the
+    remaining centres repeat valid points (all distances are 0, so the lowest-index valid point
+    is repeated): this documented fallback keeps shapes static; the result is still a valid
+    subset with duplicates.
+
+    Args:
+        xyz: [B, N, 3]; mask: [B, N] bool or None (all valid); npoint: number of centres.
+    Returns:
+        [B, npoint] int64 indices into N.
+    Raises:
+        ValueError: when a cloud has no valid point, or shapes are wrong.
+    """
+    mask = _fps_prepare(xyz, mask, npoint)
+    kernel = _fps_ext.load_kernel() if xyz.device.type == "cpu" else None
+    if kernel is None:
+        return farthest_point_sample_torch(xyz, mask, npoint)
+    return kernel.fps_forward(xyz.detach().float().contiguous(), mask.contiguous(), int(npoint))
+
+
+# ----------------------------------------------------------------------------- neighbours
+def ball_query(
+    radius: float, nsample: int, xyz: Tensor, new_xyz: Tensor, mask: Tensor | None = None
+) -> Tensor:
+    """First ``nsample`` valid points (in index order) within ``radius`` of each centre.
+
+    Same output as the classic sort-based query (``idx[d > r^2] = N; sort; [:K]``; pad with the
+    first neighbour), computed with ``topk`` on an index key (4x faster on CPU). A centre with no
+    valid point in its ball (possible only for centres not drawn from ``xyz``) falls back to its
+    nearest valid point.
+
+    Args:
+        radius: ball radius (m); nsample: K; xyz: [B, N, 3]; new_xyz: [B, S, 3]; mask: [B, N].
+    Returns:
+        [B, S, K] int64 indices into N.
+    """
+    return ball_query_multi([radius], [nsample], xyz, new_xyz, mask)[0]
+
+
+def ball_query_multi(
+    radii: list[float], nsamples: list[int], xyz: Tensor, new_xyz: Tensor, mask: Tensor | None = None
+) -> list[Tensor]:
+    """``ball_query`` for several (radius, K) pairs sharing one distance matrix (MSG levels).
+
+    Chunks over centres so the [B, S, N] matrices stay below ~16 M elements.
+
+    Returns:
+        one [B, S, K_i] int64 tensor per scale.
+    """
+    _check_points("xyz", xyz)
+    _check_points("new_xyz", new_xyz)
+    if len(radii) != len(nsamples):
+        raise ValueError(f"radii {radii} and nsamples {nsamples} differ in length")
+    mask = _full_mask(xyz, mask, "mask")
+    if not mask.any(dim=1).all():
+        raise ValueError("ball_query: a cloud of the batch has no valid point")
+    b, n, _ = xyz.shape
+    s = new_xyz.shape[1]
+    chunk = max(1, _CHUNK_ELEMS // max(1, b * n))
+    parts: list[list[Tensor]] = [[] for _ in radii]
+    ar = torch.arange(n, device=xyz.device, dtype=torch.long)
+    for start in range(0, s, chunk):
+        sqr = square_distance(new_xyz[:, start : start + chunk], xyz)  # [B, s, N]
+        sqr = sqr.masked_fill(~mask[:, None, :], float("inf"))
+        nearest = None
+        for i, (radius, nsample) in enumerate(zip(radii, nsamples)):
+            key = torch.where(sqr <= radius**2, ar, n)  # out-of-ball -> N (sorted last)
+            k = min(nsample, n)
+            idx = key.topk(k, dim=-1, largest=False, sorted=True).values
+            first = idx[..., :1]
+            empty = first == n
+            if empty.any():
+                nearest = sqr.argmin(dim=-1, keepdim=True) if nearest is None else nearest
+                first = torch.where(empty, nearest, first)
+            idx = torch.where(idx == n, first, idx)
+            if k < nsample:
+                idx = torch.cat([idx, first.expand(-1, -1, nsample - k)], dim=-1)
+            parts[i].append(idx)
+    return [p[0] if len(p) == 1 else torch.cat(p, dim=1) for p in parts]
+
+
+def knn(k: int, xyz: Tensor, new_xyz: Tensor, mask: Tensor | None = None) -> tuple[Tensor, Tensor]:
+    """k nearest valid neighbours of each query point.
+
+    Args:
+        k: neighbours; xyz: [B, N, 3]; new_xyz: [B, S, 3]; mask: [B, N].
+    Returns:
+        (sq_dist [B, S, k] ascending, idx [B, S, k]). When fewer than k points are valid the
+        tail repeats the nearest neighbour (distance repeated too).
+    """
+    _check_points("xyz", xyz)
+    _check_points("new_xyz", new_xyz)
+    mask = _full_mask(xyz, mask, "mask")
+    if not mask.any(dim=1).all():
+        raise ValueError("knn: a cloud of the batch has no valid point")
+    sqr = square_distance(new_xyz, xyz).masked_fill(~mask[:, None, :], float("inf"))
+    kk = min(k, xyz.shape[1])
+    dist, idx = sqr.topk(kk, dim=-1, largest=False, sorted=True)
+    bad = torch.isinf(dist)
+    if bad.any():
+        dist = torch.where(bad, dist[..., :1], dist)
+        idx = torch.where(bad, idx[..., :1], idx)
+    if kk < k:
+        dist = torch.cat([dist, dist[..., :1].expand(-1, -1, k - kk)], dim=-1)
+        idx = torch.cat([idx, idx[..., :1].expand(-1, -1, k - kk)], dim=-1)
+    return dist, idx
+
+
+def three_nn(unknown: Tensor, known: Tensor, known_mask: Tensor | None = None) -> tuple[Tensor, Tensor]:
+    """Three nearest valid known points of every unknown point.
+
+    Returns:
+        (sq_dist [B, n, 3], idx [B, n, 3]); with fewer than 3 valid known points the missing
+        slots get distance ``inf`` (zero interpolation weight) and index 0.
+    """
+    sqr = square_distance(unknown, known)
+    if known_mask is not None:
+        sqr = sqr.masked_fill(~known_mask[:, None, :].bool(), float("inf"))
+    k = min(3, known.shape[1])
+    dist, idx = sqr.topk(k, dim=-1, largest=False, sorted=True)
+    if k < 3:
+        pad = 3 - k
+        dist = torch.cat([dist, dist.new_full((*dist.shape[:2], pad), float("inf"))], dim=-1)
+        idx = torch.cat([idx, idx.new_zeros((*idx.shape[:2], pad))], dim=-1)
+    idx = torch.where(torch.isinf(dist), torch.zeros_like(idx), idx)
+    return dist, idx
+
+
+def three_interpolate(
+    unknown: Tensor, known: Tensor, known_feat: Tensor, known_mask: Tensor | None = None
+) -> Tensor:
+    """Inverse-squared-distance interpolation from the 3 nearest known points (PointNet++ FP).
+
+    Weights are ``1 / (d^2 + 1e-8)`` normalised, ``d^2`` the squared distance (as the classic
+    PyTorch port). A single known point is broadcast.
+
+    Args:
+        unknown: [B, n, 3]; known: [B, m, 3]; known_feat: [B, m, C]; known_mask: [B, m].
+    Returns:
+        [B, n, C] in ``known_feat``'s dtype.
+    """
+    b, n, _ = unknown.shape
+    if known.shape[1] == 1:
+        return known_feat.expand(b, n, known_feat.shape[-1])
+    dist, idx = three_nn(unknown, known, known_mask)
+    recip = 1.0 / (dist + 1e-8)  # inf distance -> weight 0
+    weight = recip / recip.sum(dim=-1, keepdim=True)
+    grouped = index_points(known_feat, idx)  # [B, n, 3, C]
+    return (grouped * weight[..., None].to(grouped.dtype)).sum(dim=2)

@@ -1,0 +1,276 @@
+"""PointNet++ building blocks in channels-last form (Linear + BatchNorm1d, PERFORMANCE.md §5).
+
+Layer semantics follow the classic PyTorch port (``yanx27/Pointnet_Pointnet2_pytorch``, on which
+the public NavAff code relies): MSG levels group ``[features, xyz - centre]``, SSG levels group
+``[xyz - centre, features]``, FP concatenates ``[skip features, interpolated]``. Each shared MLP
+layer is ``Linear(bias=True)`` + ``BatchNorm1d`` + ``ReLU`` (not in-place: in-place ReLU on reshaped
+views costs ~17 % of a step), parameter-for-parameter the Conv 1x1 + BN layout of the port, so
+weights convert one to one (``Conv2d.weight[:, :, 0, 0]`` = ``Linear.weight``).
+
+FPS indices can be computed up front (``PointNet2Encoder.sample``), outside any compiled
+region or autocast, and passed to ``forward``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from floaff_zoo.nn.ops import ball_query_multi, farthest_point_sample, index_points, three_interpolate
+
+__all__ = ["FeaturePropagation", "PointNet2Encoder", "PointNet2Seg", "SetAbstraction", "SharedMLP", "masked_max"]
+
+
+class SharedMLP(nn.Module):
+    """Per-point MLP on the last dim: (Linear -> BatchNorm1d -> ReLU) per layer.
+
+    Args:
+        in_channels: input width; widths: output width of each layer; last_act: apply BN+ReLU on
+            the last layer too (True for PointNet++ MLPs).
+    """
+
+    def __init__(self, in_channels: int, widths: Sequence[int], last_act: bool = True) -> None:
+        super().__init__()
+        self.linears = nn.ModuleList()
+        self.norms = nn.ModuleList()
+        c = in_channels
+        for i, w in enumerate(widths):
+            self.linears.append(nn.Linear(c, w))
+            act = last_act or i < len(widths) - 1
+            self.norms.append(nn.BatchNorm1d(w) if act else nn.Identity())
+            c = w
+        self.out_channels = c
+
+    def forward(self, x: Tensor) -> Tensor:
+        """x [..., C_in] -> [..., C_out]."""
+        shape = x.shape[:-1]
+        h = x.reshape(-1, x.shape[-1])
+        last = len(self.linears) - 1
+        for i, (lin, norm) in enumerate(zip(self.linears, self.norms)):
+            h = lin(h)
+            if not isinstance(norm, nn.Identity):
+                h = F.relu(norm(h))
+            elif i < last:
+                h = F.relu(h)
+        return h.reshape(*shape, h.shape[-1])
+
+
+def masked_max(x: Tensor, mask: Tensor | None, dim: int) -> Tensor:
+    """Max over ``dim`` ignoring entries where ``mask`` is False (mask broadcast over the last dim)."""
+    if mask is None:
+        return x.amax(dim=dim)
+    neg = torch.finfo(x.dtype).min
+    return x.masked_fill(~mask[..., None], neg).amax(dim=dim)
+
+
+class SetAbstraction(nn.Module):
+    """One PointNet++ set-abstraction level: FPS centres, ball query per scale, shared MLP, max-pool.
+
+    Args:
+        npoint: centres (ignored when ``group_all``); radii / nsamples: one entry per scale;
+        in_channels: feature channels D of the input (xyz not counted); mlps: one width list per
+        scale; group_all: pool the whole cloud into one centre (final SSG level);
+        xyz_first: channel order of the grouped input: ``[xyz, feat]`` (SSG port) or
+        ``[feat, xyz]`` (MSG port).
+    """
+
+    def __init__(
+        self,
+        npoint: int,
+        radii: Sequence[float],
+        nsamples: Sequence[int],
+        in_channels: int,
+        mlps: Sequence[Sequence[int]],
+        group_all: bool = False,
+        xyz_first: bool = False,
+    ) -> None:
+        super().__init__()
+        if not group_all and not (len(radii) == len(nsamples) == len(mlps)):
+            raise ValueError(f"radii {radii}, nsamples {nsamples}, mlps {mlps}: one entry per scale needed")
+        self.npoint = int(npoint)
+        self.radii = [float(r) for r in radii]
+        self.nsamples = [int(k) for k in nsamples]
+        self.group_all = group_all
+        self.xyz_first = xyz_first
+        self.in_channels = in_channels
+        self.mlps = nn.ModuleList(SharedMLP(in_channels + 3, m) for m in mlps)
+        self.out_channels = sum(m.out_channels for m in self.mlps)
+
+    def _cat(self, rel: Tensor, feat: Tensor | None) -> Tensor:
+        if feat is None:
+            return rel
+        return torch.cat([rel, feat] if self.xyz_first else [feat, rel], dim=-1)
+
+    def sample(self, xyz: Tensor, mask: Tensor | None) -> Tensor | None:
+        """FPS centre indices [B, npoint] (None for group-all)."""
+        return None if self.group_all else farthest_point_sample(xyz, mask, self.npoint)
+
+    def forward(
+        self, xyz: Tensor, feat: Tensor | None, mask: Tensor | None = None, fps_idx: Tensor | None = None
+    ) -> tuple[Tensor, Tensor]:
+        """xyz [B,N,3], feat [B,N,D] | None, mask [B,N] | None, fps_idx [B,S] | None -> (new_xyz [B,S,3], new_feat [B,S,C_out])."""
+        if self.group_all:
+            grouped = self._cat(xyz, feat)  # classic port: raw xyz, centre at the origin
+            out = masked_max(self.mlps[0](grouped), mask, dim=1)[:, None]
+            return xyz.new_zeros(xyz.shape[0], 1, 3), out
+        if fps_idx is None:
+            fps_idx = farthest_point_sample(xyz, mask, self.npoint)
+        new_xyz = index_points(xyz, fps_idx)
+        groups = ball_query_multi(self.radii, self.nsamples, xyz, new_xyz, mask)
+        outs = []
+        for idx, mlp in zip(groups, self.mlps):
+            rel = index_points(xyz, idx) - new_xyz[:, :, None]  # [B, S, K, 3]
+            gfeat = index_points(feat, idx) if feat is not None else None
+            outs.append(mlp(self._cat(rel, gfeat)).amax(dim=2))
+        return new_xyz, outs[0] if len(outs) == 1 else torch.cat(outs, dim=-1)
+
+
+class FeaturePropagation(nn.Module):
+    """PointNet++ feature propagation: 3-NN interpolation from sparse to dense + shared MLP.
+
+    Args:
+        in_channels: C_skip + C_sparse; widths: MLP widths.
+    """
+
+    def __init__(self, in_channels: int, widths: Sequence[int]) -> None:
+        super().__init__()
+        self.mlp = SharedMLP(in_channels, widths)
+        self.out_channels = self.mlp.out_channels
+
+    def forward(
+        self,
+        xyz_dense: Tensor,
+        xyz_sparse: Tensor,
+        feat_dense: Tensor | None,
+        feat_sparse: Tensor,
+        mask_sparse: Tensor | None = None,
+    ) -> Tensor:
+        """xyz_dense [B,n,3], xyz_sparse [B,m,3], feat_dense [B,n,C1] | None, feat_sparse [B,m,C2] -> [B,n,C_out]."""
+        interp = three_interpolate(xyz_dense, xyz_sparse, feat_sparse, mask_sparse)
+        h = interp if feat_dense is None else torch.cat([feat_dense.to(interp.dtype), interp], dim=-1)
+        return self.mlp(h)
+
+
+class PointNet2Encoder(nn.Module):
+    """A stack of set-abstraction levels.
+
+    Args:
+        in_channels: per-point feature channels D fed with xyz (0 = xyz only; the classic port then
+            feeds xyz as features, see ``xyz_as_feat``).
+        npoints: centres per level; radii / nsamples / mlps: per level, per scale.
+        group_all_last: append a group-all level with ``group_all_mlp`` (SSG classification style).
+        xyz_first: grouped channel order (True for SSG, False for MSG, as the classic port).
+        xyz_as_feat: feed xyz as level-0 features (``l0_points = xyz``, NavAff/IAGNet encoders).
+    """
+
+    def __init__(
+        self,
+        in_channels: int,
+        npoints: Sequence[int],
+        radii: Sequence[Sequence[float]],
+        nsamples: Sequence[Sequence[int]],
+        mlps: Sequence[Sequence[Sequence[int]]],
+        xyz_first: bool = True,
+        xyz_as_feat: bool = False,
+        group_all_mlp: Sequence[int] | None = None,
+    ) -> None:
+        super().__init__()
+        if not (len(npoints) == len(radii) == len(nsamples) == len(mlps)):
+            raise ValueError("npoints, radii, nsamples and mlps need one entry per level")
+        self.xyz_as_feat = xyz_as_feat
+        c = in_channels + (3 if xyz_as_feat else 0)
+        self.levels = nn.ModuleList()
+        for npoint, r, k, m in zip(npoints, radii, nsamples, mlps):
+            sa = SetAbstraction(npoint, r, k, c, m, xyz_first=xyz_first)
+            self.levels.append(sa)
+            c = sa.out_channels
+        if group_all_mlp:
+            sa = SetAbstraction(1, [], [], c, [group_all_mlp], group_all=True, xyz_first=xyz_first)
+            self.levels.append(sa)
+            c = sa.out_channels
+        self.in_channels = in_channels
+        self.out_channels = c
+        self.level_channels = [in_channels + (3 if xyz_as_feat else 0)] + [sa.out_channels for sa in self.levels]
+
+    @torch.no_grad()
+    def sample(self, xyz: Tensor, mask: Tensor | None) -> list[Tensor | None]:
+        """All FPS indices, level by level (level i samples level i-1's centres)."""
+        out: list[Tensor | None] = []
+        cur, cur_mask = xyz, mask
+        for sa in self.levels:
+            idx = sa.sample(cur, cur_mask)
+            out.append(idx)
+            if idx is None:
+                break
+            cur, cur_mask = index_points(cur, idx), None
+        return out
+
+    def forward(
+        self, xyz: Tensor, feat: Tensor | None, mask: Tensor | None = None, fps: list[Tensor | None] | None = None
+    ) -> list[tuple[Tensor, Tensor | None]]:
+        """Returns [(xyz_l, feat_l)] for l = 0..L (level 0 is the input)."""
+        if self.xyz_as_feat:
+            feat = xyz if feat is None else torch.cat([xyz, feat], dim=-1)
+        if fps is None:
+            fps = self.sample(xyz, mask)
+        levels: list[tuple[Tensor, Tensor | None]] = [(xyz, feat)]
+        cur_mask = mask
+        for sa, idx in zip(self.levels, fps):
+            xyz, feat = sa(xyz, feat, cur_mask, idx)
+            cur_mask = None  # centres are valid points
+            levels.append((xyz, feat))
+        return levels
+
+
+class PointNet2Seg(nn.Module):
+    """PointNet++ per-point network: encoder, FP decoder back to the input points, per-point head.
+
+    Level-0 skip features are ``[xyz, feat]``. Output: one logit per point (no sigmoid).
+
+    Args:
+        in_channels: D; npoints/radii/nsamples/mlps: encoder (see ``PointNet2Encoder``);
+        fp_mlps: decoder widths from the deepest FP to FP1; head: hidden widths before the logit;
+        xyz_first: grouped channel order (True = SSG port, False = MSG port).
+    """
+
+    def __init__(
+        self,
+        in_channels: int,
+        npoints: Sequence[int],
+        radii: Sequence[Sequence[float]],
+        nsamples: Sequence[Sequence[int]],
+        mlps: Sequence[Sequence[Sequence[int]]],
+        fp_mlps: Sequence[Sequence[int]],
+        head: Sequence[int] = (),
+        xyz_first: bool = True,
+    ) -> None:
+        super().__init__()
+        self.encoder = PointNet2Encoder(in_channels, npoints, radii, nsamples, mlps, xyz_first=xyz_first)
+        if len(fp_mlps) != len(npoints):
+            raise ValueError(f"fp_mlps needs {len(npoints)} entries (one per level), got {len(fp_mlps)}")
+        ch = [3 + in_channels] + self.encoder.level_channels[1:]
+        self.fps_layers = nn.ModuleList()
+        cur = ch[-1]
+        for lvl, widths in zip(range(len(npoints) - 1, -1, -1), fp_mlps):
+            fp = FeaturePropagation(ch[lvl] + cur, widths)
+            self.fps_layers.append(fp)
+            cur = fp.out_channels
+        self.head = SharedMLP(cur, list(head)) if head else nn.Identity()
+        self.out = nn.Linear(head[-1] if head else cur, 1)
+
+    def forward(
+        self, xyz: Tensor, feat: Tensor | None, mask: Tensor | None = None, fps: list[Tensor | None] | None = None
+    ) -> Tensor:
+        """xyz [B,N,3], feat [B,N,D] | None, mask [B,N] -> logits [B,N]."""
+        levels = self.encoder(xyz, feat, mask, fps)
+        skip0 = xyz if feat is None else torch.cat([xyz, feat], dim=-1)
+        skips = [skip0] + [f for _, f in levels[1:]]
+        cur = levels[-1][1]
+        n = len(levels) - 1
+        for j, fp in enumerate(self.fps_layers):
+            lvl = n - 1 - j
+            cur = fp(levels[lvl][0], levels[lvl + 1][0], skips[lvl], cur)
+        return self.out(self.head(cur)).squeeze(-1)

@@ -1,0 +1,186 @@
+"""PFAL through the curriculum runner: two tiny stages, teacher handling, lineage and resuming."""
+
+import csv
+import json
+from pathlib import Path
+
+import pytest
+import torch
+import yaml
+
+from floaff_zoo.cli import run_lightning
+from floaff_zoo.curriculum import CurriculumError, main, run_curriculum
+from floaff_zoo.hub.registry import sha256_file
+from floaff_zoo.models.cfar import CFARModule
+
+EXP = "tests/configs/pfal_tiny.yaml"
+SETS = ["trainer.accelerator=cpu", "data.init_args.num_val=2", "trainer.limit_train_batches=3"]
+
+
+def _distill_steps(stage_dir: Path) -> list[float]:
+    rows = list(csv.DictReader(next(stage_dir.rglob("metrics.csv")).open()))
+    return [float(r["train_distill_step"]) for r in rows if r.get("train_distill_step")]
+
+
+@pytest.fixture(scope="module")
+def pfal_run(tmp_path_factory):
+    """Run the two stages once for the whole module (the expensive part, ~10 s)."""
+    root = tmp_path_factory.mktemp("pfal")
+    captured = {}
+
+    def on_end(name, cli):
+        if cli.model.teacher is not None:
+            captured["teacher_state"] = {k: v.clone() for k, v in cli.model.teacher.state_dict().items()}
+            captured["teacher_grads"] = [p.grad for p in cli.model.teacher.parameters()]
+            captured["teacher_training"] = cli.model.teacher.training
+
+    old = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        records = run_curriculum(EXP, root=root, sets=SETS, on_stage_end=on_end)
+    finally:
+        torch.set_num_threads(old)
+    return root, records, captured
+
+
+def test_stage2_starts_from_stage1_and_distils_from_it(pfal_run, root):
+    run_root, records, captured = pfal_run
+    s1, s2 = records
+    assert s1["status"] == s2["status"] == "done"
+    assert s2["from_stages"] == {"model.init_args.weights": s1["checkpoint"], "model.init_args.teacher": s1["checkpoint"]}
+    stage1 = torch.load(s1["checkpoint"], weights_only=True)
+    # the student built with the stage-2 arguments holds stage 1's weights exactly
+    args = yaml.safe_load((root / "tests/configs/cfar_tiny.yaml").read_text())["model"]["init_args"]
+    student = CFARModule(**args, weights=s1["checkpoint"])
+    for k, v in student.state_dict().items():
+        if k.startswith("net."):
+            assert torch.equal(v, stage1["state_dict"][k]), k
+    # teacher: unchanged by stage 2 (parameters and BN buffers), no grads, eval mode
+    for k, v in captured["teacher_state"].items():
+        assert torch.equal(v, stage1["state_dict"]["net.local_encoder." + k]), k
+    assert all(g is None for g in captured["teacher_grads"])
+    assert captured["teacher_training"] is False
+    # distillation: exactly zero at the first step (student == teacher), positive once weights moved
+    steps = _distill_steps(run_root / "stage2_drawer")
+    assert len(steps) >= 3
+    assert abs(steps[0]) < 1e-10
+    assert max(steps[1:]) > 0
+    assert not _distill_steps_in(run_root / "stage1_pnp")
+
+
+def _distill_steps_in(stage_dir: Path) -> list[float]:
+    rows = list(csv.DictReader(next(stage_dir.rglob("metrics.csv")).open()))
+    return [r for r in rows if r.get("train_distill_step")]
+
+
+def test_student_checkpoint_has_no_teacher_and_records_lineage(pfal_run):
+    run_root, records, _ = pfal_run
+    s1, s2 = records
+    for ckpt in Path(s2["checkpoint"]).parent.glob("*.ckpt"):
+        state = torch.load(ckpt, weights_only=True)
+        assert not [k for k in state["state_dict"] if k.startswith("teacher.")], ckpt
+        assert state["floaff_lineage"]["teacher_sha256"] == sha256_file(s1["checkpoint"])
+    # reloads without the teacher file being needed for loading
+    m = CFARModule.load_from_checkpoint(s2["checkpoint"], weights_only=True)
+    assert m.teacher is None
+    lineage = json.loads((run_root / "lineage.json").read_text())
+    assert [s["stage"] for s in lineage["stages"]] == ["stage1_pnp", "stage2_drawer"]
+    for s in lineage["stages"]:
+        assert s["sha256"] == sha256_file(s["checkpoint"]) and "val_rmse" in s["metrics"]
+        assert s["configs"] == ["configs/data/synthetic_tiny.yaml", "tests/configs/cfar_tiny.yaml"]
+
+
+def test_rerun_skips_finished_and_resumes_killed_stage(pfal_run, capsys):
+    run_root, records, _ = pfal_run
+
+    def refuse(args):
+        raise AssertionError(f"a finished stage was rerun: {args}")
+
+    again = run_curriculum(EXP, root=run_root, sets=SETS, runner=refuse)
+    assert [r["checkpoint"] for r in again] == [r["checkpoint"] for r in records]
+    assert capsys.readouterr().out.count("already finished") == 2
+    # simulate a kill during stage 2: it resumes from its last.ckpt through --ckpt_path
+    stage_file = run_root / "stage2_drawer" / "stage.json"
+    rec = json.loads(stage_file.read_text())
+    stage_file.write_text(json.dumps({"stage": rec["stage"], "status": "running", "args": rec["args"]}))
+    seen = []
+
+    def spy(args):
+        seen.append(args)
+        old = torch.get_num_threads()
+        torch.set_num_threads(1)
+        try:
+            return run_lightning(args)
+        finally:
+            torch.set_num_threads(old)
+
+    run_curriculum(EXP, root=run_root, sets=SETS, runner=spy)
+    assert len(seen) == 1 and "--ckpt_path" in seen[0]
+    assert seen[0][seen[0].index("--ckpt_path") + 1].endswith(".ckpt")
+    assert json.loads(stage_file.read_text())["status"] == "done"
+
+
+def test_teacher_with_another_architecture_lists_the_keys(pfal_run, root):
+    _, records, _ = pfal_run
+    args = yaml.safe_load((root / "tests/configs/cfar_tiny.yaml").read_text())["model"]["init_args"]
+    args["local_mlps"] = [[16, 16], [16, 24]]
+    student = CFARModule(**args, teacher=records[0]["checkpoint"])
+    with pytest.raises(ValueError, match=r"net\.local_encoder\.levels\.1\.mlps\.0\.linears\.1\.weight"):
+        student.setup("fit")
+
+
+def test_dry_run_and_bad_experiment(tmp_path, root, monkeypatch, capsys):
+    monkeypatch.chdir(root)
+    assert main(["--config", EXP, "--dry-run", "--set", "trainer.max_epochs=1", "--root", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert out.count("floaff-zoo fit") == 2 and "--model.init_args.teacher" in out and "<best checkpoint of stage1_pnp>" in out
+    assert not (tmp_path / "lineage.json").exists()
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(yaml.safe_dump({"stages": [{"name": "a", "from_stages": {"model.init_args.teacher": "zz"}}]}))
+    with pytest.raises(CurriculumError, match="zz"):
+        main(["--config", str(bad), "--dry-run"])
+    with pytest.raises(CurriculumError, match="key=value"):
+        main(["--config", EXP, "--dry-run", "--set", "trainer.max_epochs"])
+
+
+EXPERIMENTS = sorted(str(p.relative_to(Path(__file__).resolve().parents[2]))
+                     for p in (Path(__file__).resolve().parents[2] / "configs" / "experiments").glob("*.yaml"))
+OVERRIDE_FILES = sorted(str(p.relative_to(Path(__file__).resolve().parents[2]))
+                        for p in (Path(__file__).resolve().parents[2] / "configs" / "experiments").glob("*/*.yaml"))
+
+
+@pytest.mark.parametrize("exp", EXPERIMENTS)
+def test_every_experiment_stage_parses(exp, root, monkeypatch, capsys):
+    """Each stage's fit command of each shipped experiment is accepted by the real CLI parser."""
+    from floaff_zoo.curriculum import build_stage_args, load_experiment
+
+    monkeypatch.chdir(root)
+    cfg = load_experiment(exp)
+    best = {s["name"]: "some/best.ckpt" for s in cfg["stages"]}
+    for stage in cfg["stages"]:
+        args = build_stage_args(cfg, stage, Path("runs/x"), best)
+        with pytest.raises(SystemExit) as ex:
+            run_lightning([*args, "--print_config"])
+        assert ex.value.code in (0, None), (exp, stage["name"])
+    assert "class_path" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("override", OVERRIDE_FILES)
+def test_ablation_and_sweep_files_override_cfar(override, root, monkeypatch, capsys):
+    monkeypatch.chdir(root)
+    with pytest.raises(SystemExit):
+        run_lightning(["fit", "--config", "configs/data/synthetic_tiny.yaml", "--config", "configs/models/cfar.yaml",
+                       "--model.init_args.crop_radius", "1.2", "--config", override, "--print_config"])
+    printed = yaml.safe_load(capsys.readouterr().out)
+    init = printed["model"]["init_args"]
+    name = Path(override).stem
+    if name.startswith("r1."):
+        assert init["crop_radius"] == pytest.approx(float(name[1:]))
+        assert printed["trainer"]["default_root_dir"].endswith(name)  # distinct run per radius
+    else:
+        assert init["use_" + name.removeprefix("no_")] is False
+
+
+def test_sweep_covers_the_paper_radii(root):
+    radii = sorted(float(p.stem[1:]) for p in (root / "configs/experiments/sweep_crop").glob("r*.yaml"))
+    assert radii == pytest.approx([1.10, 1.15, 1.20, 1.25, 1.30, 1.35, 1.40])

@@ -1,0 +1,257 @@
+"""Baseline models (PointNet++, VoteNet-, H3DNet-, NavAff, N2M-, C2F-Exp-style): shapes, masks,
+gradients, NavAff parameter count, N2M NLL, C2F-Exp determinism, bad inputs, CLI round trips."""
+
+from __future__ import annotations
+
+import glob
+from pathlib import Path
+
+import pytest
+import torch
+import yaml
+
+from floaff_zoo.contract import collate_samples
+from floaff_zoo.data.synthetic import make_synthetic_sample
+from floaff_zoo.models.c2f_exp import C2FExpModule
+from floaff_zoo.models.h3dnet import H3DNetModule
+from floaff_zoo.models.n2m import N2MModule
+from floaff_zoo.models.navaff import NavAffModule
+from floaff_zoo.models.pointnet2 import PointNet2Module
+from floaff_zoo.models.votenet import VoteNetModule
+
+ROOT = Path(__file__).resolve().parents[2]
+TINY = ROOT / "tests" / "configs" / "models"
+NAMES = ["pointnet2_ssg", "pointnet2_msg", "votenet", "h3dnet", "navaff", "n2m", "c2f_exp"]
+CLASSES = {
+    "PointNet2Module": PointNet2Module,
+    "VoteNetModule": VoteNetModule,
+    "H3DNetModule": H3DNetModule,
+    "NavAffModule": NavAffModule,
+    "N2MModule": N2MModule,
+    "C2FExpModule": C2FExpModule,
+}
+
+
+def tiny_model(name: str):
+    cfg = yaml.safe_load((TINY / f"{name}_tiny.yaml").read_text())["model"]
+    cls = CLASSES[cfg["class_path"].rsplit(".", 1)[1]]
+    return cls(**cfg.get("init_args", {}))
+
+
+@pytest.fixture
+def batch():
+    """Two synthetic samples; the second padded (fewer scene and floor points)."""
+    a = make_synthetic_sample(0, num_points=256, floor_cells=8)
+    b = make_synthetic_sample(1, num_points=200, floor_cells=6)
+    return collate_samples([a, b])
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_forward_shapes_range_grads_and_padding(name, batch):
+    torch.manual_seed(0)
+    model = tiny_model(name)
+    scores = model(batch)
+    assert scores.shape == batch["floor_label"].shape
+    assert torch.isfinite(scores).all() and scores.min() >= 0 and scores.max() <= 1
+    if not model.trainable:
+        return
+    loss, out, extra = model.model_step(batch)
+    loss.backward()
+    grads = [p.grad for p in model.parameters() if p.requires_grad]
+    assert all(g is not None and torch.isfinite(g).all() for g in grads)
+    assert any(g.abs().sum() > 0 for g in grads)
+    # padding content never matters (eval mode: no batch statistics, no dropout)
+    model.eval()
+    with torch.no_grad():
+        ref = model(batch)
+        moved = dict(batch)
+        moved["scene_xyz"] = batch["scene_xyz"].clone()
+        moved["scene_xyz"][1, 200:] = 9.0
+        moved["floor_xyz"] = batch["floor_xyz"].clone()
+        moved["floor_xyz"][1, 36:] = -9.0
+        out2 = model(moved)
+    assert torch.allclose(ref[:, :36], out2[:, :36], atol=1e-5)
+
+
+def _lin(i: int, o: int) -> int:
+    return i * o + o
+
+
+def _chain(i: int, widths: list[int]) -> int:
+    """Linear(+bias) + BatchNorm (2 params per channel) per layer."""
+    total = 0
+    for w in widths:
+        total += _lin(i, w) + 2 * w
+        i = w
+    return total
+
+
+def test_navaff_parameter_count_matches_architecture():
+    """Official layer list (REFERENCE.md §3), counted by hand; the dead Conv1D1/Conv1D2 are not built."""
+    sa1 = [[32, 32, 64], [64, 64, 128], [64, 96, 128]]
+    sa23 = [[128, 128, 256], [128, 196, 256]]
+
+    def encoder(first_in: int) -> int:  # grouped input = l0 points + relative xyz
+        return (
+            sum(_chain(first_in, m) for m in sa1)
+            + sum(_chain(320 + 3, m) for m in sa23)
+            + sum(_chain(512 + 3, m) for m in sa23)
+        )
+
+    expected = (
+        encoder(4 + 3)  # global: xyz + flag
+        + encoder(3 + 3)  # floor: xyz
+        + _lin(2, 256) + _lin(256, 512)  # robot token
+        + 512 * 512 + 512 * 1024 + _lin(512, 512)  # q, kv (no bias), proj
+        + _chain(1024, [768, 512]) + _chain(832, [768, 512]) + _chain(518, [512, 512])
+        + _lin(512, 64) + 2 * 64 + _lin(64, 1)  # head
+    )
+    model = NavAffModule()
+    assert sum(p.numel() for p in model.parameters()) == expected == 4_977_937
+    assert model.hparams["loss"] == "navaff" and model.hparams["lr"] == 8e-4 and model.hparams["weight_decay"] == 1e-3
+
+
+def test_navaff_attention_has_no_residual():
+    from floaff_zoo.nn.nets import CrossAttention
+
+    attn = CrossAttention(16, 8, 0.0)
+    for p in attn.parameters():
+        torch.nn.init.zeros_(p)
+    q = torch.randn(1, 4, 16)
+    assert torch.equal(attn(q, torch.randn(1, 5, 16)), torch.zeros(1, 4, 16))
+
+
+def test_n2m_nll_decreases(batch):
+    torch.manual_seed(0)
+    model = tiny_model("n2m")
+    model.hparams["dropout"] = 0.0
+    model.configure_models()
+    opt = torch.optim.Adam(model.parameters(), lr=3e-3)
+    first = None
+    for _ in range(15):
+        loss, _, _ = model.model_step(batch)
+        first = loss.item() if first is None else first
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    model.eval()
+    with torch.no_grad():
+        final = model.nll(model.gmm(batch), batch).item()
+    assert final < first - 0.5, (first, final)
+
+
+def test_n2m_propose_pose_collision_free(batch):
+    torch.manual_seed(0)
+    model = tiny_model("n2m").eval()
+    item = {k: (v[0] if torch.is_tensor(v) else v[0]) for k, v in batch.items()}
+    x, y, yaw = model.propose_pose(item)
+    assert all(map(lambda v: isinstance(v, float), (x, y, yaw))) and -3.2 < yaw < 3.2
+    assert model.propose_pose(item) == (x, y, yaw)  # deterministic
+    from floaff_zoo.nn.placement import footprint_collides, occupied_cells
+
+    cells = occupied_cells(batch["scene_xyz"][0], batch["scene_mask"][0])
+    assert not footprint_collides(cells, torch.tensor([[x, y, yaw]]))[0]
+
+
+def test_footprint_geometry():
+    from floaff_zoo.nn.placement import footprint_collides
+
+    cells = torch.tensor([[0.1, 0.0]])  # 0.1 m ahead: inside (front part 0.17 * 0.63 = 0.107)
+    assert footprint_collides(cells, torch.tensor([[0.0, 0.0, 0.0]]))[0]
+    # turned around, the cell is 0.1 m behind: still inside (0.52 m of footprint behind)
+    assert footprint_collides(cells, torch.tensor([[0.0, 0.0, 3.14159]]))[0]
+    assert not footprint_collides(torch.tensor([[-0.6, 0.0]]), torch.tensor([[0.0, 0.0, 3.14159]]))[0]
+    behind = torch.tensor([[-0.5, 0.0]])  # 0.5 m behind: inside (0.83 * 0.63 = 0.52)
+    assert footprint_collides(behind, torch.tensor([[0.0, 0.0, 0.0]]))[0]
+    assert not footprint_collides(torch.tensor([[0.2, 0.0]]), torch.tensor([[0.0, 0.0, 0.0]]))[0]
+    assert not footprint_collides(torch.tensor([[0.0, 0.3]]), torch.tensor([[0.0, 0.0, 0.0]]))[0]
+
+
+def test_c2f_exp_deterministic_in_range_and_training_free(batch):
+    model = C2FExpModule()
+    a, b = model(batch), model(batch)
+    assert torch.equal(a, b)
+    assert a.min() >= 0 and a.max() <= 1 and (a.amax(dim=1) == 1).all()
+    assert (a[~batch["floor_mask"]] == 0).all()
+    assert C2FExpModule.trainable is False and sum(p.numel() for p in model.parameters()) == 0
+    pose = model.propose_pose({k: (v[0] if torch.is_tensor(v) else v[0]) for k, v in batch.items()})
+    assert pose == model.propose_pose({k: (v[0] if torch.is_tensor(v) else v[0]) for k, v in batch.items()})
+    g = batch["target_xyz"][0, :2]
+    d = float(torch.dist(torch.tensor(pose[:2]), g))
+    assert 0.4 <= d <= 1.2
+
+
+def test_c2f_exp_alpha_schedule_and_scorers():
+    from floaff_zoo.nn.c2f import alpha_schedule, resolve_scorer
+
+    alphas = [alpha_schedule(t, 3, 0.5) for t in range(4)]
+    assert alphas == sorted(alphas) and 0 < alphas[0] < 0.25 < alphas[-1] <= 0.5
+    assert resolve_scorer("floaff_zoo.nn.c2f:clearance_scorer") is resolve_scorer("clearance")
+    with pytest.raises(ValueError, match="unknown C2F-Exp scorer"):
+        resolve_scorer("gpt4o")
+
+
+def test_bad_inputs(batch):
+    model = tiny_model("pointnet2_ssg")
+    bad = dict(batch)
+    bad["scene_xyz"] = batch["scene_xyz"].clone()
+    bad["scene_xyz"][0, 3, 1] = float("nan")
+    with pytest.raises(ValueError, match="scene_xyz contains 1 NaN"):
+        model(bad)
+    empty = dict(batch)
+    empty["scene_mask"] = batch["scene_mask"].clone()
+    empty["scene_mask"][1] = False
+    with pytest.raises(ValueError, match=r"scene_mask: sample\(s\) \[1\]"):
+        model(empty)
+    nofloor = dict(batch)
+    nofloor["floor_mask"] = torch.zeros_like(batch["floor_mask"])
+    with pytest.raises(ValueError, match="floor_mask"):
+        tiny_model("navaff")(nofloor)
+
+
+def test_fewer_valid_points_than_centres_fall_back(batch):
+    """A scene with 20 valid points and 64 first-level centres: FPS repeats valid points."""
+    model = tiny_model("pointnet2_ssg").eval()
+    few = dict(batch)
+    few["scene_mask"] = batch["scene_mask"].clone()
+    few["scene_mask"][0, 20:] = False
+    with torch.no_grad():
+        out = model(few)
+    assert torch.isfinite(out).all()
+
+
+def test_bf16_flag_runs(batch):
+    torch.manual_seed(0)
+    cfg = yaml.safe_load((TINY / "pointnet2_ssg_tiny.yaml").read_text())["model"]["init_args"]
+    m32 = PointNet2Module(**cfg).eval()
+    m16 = PointNet2Module(**{**cfg, "bf16": True}).eval()
+    m16.load_state_dict(m32.state_dict())
+    with torch.no_grad():
+        a, b = m32(batch), m16(batch)
+    assert b.dtype == torch.float32 and (a - b).abs().max() < 0.05
+
+
+# --------------------------------------------------------------------------- CLI round trips
+def _cli_common(tmp_path: Path) -> list[str]:
+    return [
+        "--trainer.default_root_dir", str(tmp_path), "--trainer.accelerator", "cpu",
+        "--trainer.enable_progress_bar", "false",
+    ]
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_cli_round_trip(name, tmp_path):
+    from floaff_zoo.cli import main
+
+    cfg = ["--config", str(ROOT / "configs/data/synthetic_tiny.yaml"), "--config", str(TINY / f"{name}_tiny.yaml")]
+    if name == "c2f_exp":
+        with pytest.raises(Exception, match="training-free"):
+            main(["fit", *cfg, "--trainer.fast_dev_run", "2", *_cli_common(tmp_path)])
+        assert main(["test", *cfg, *_cli_common(tmp_path)]) == 0
+        assert main(["predict", *cfg, *_cli_common(tmp_path)]) == 0
+        return
+    assert main(["fit", *cfg, "--trainer.fast_dev_run", "2", *_cli_common(tmp_path)]) == 0
+    ckpts = sorted(glob.glob(str(tmp_path / "**" / "*.ckpt"), recursive=True))
+    assert ckpts, "fit wrote no checkpoint"
+    assert main(["test", *cfg, "--ckpt_path", ckpts[-1], *_cli_common(tmp_path)]) == 0
+    assert main(["predict", *cfg, "--ckpt_path", ckpts[-1], *_cli_common(tmp_path)]) == 0

@@ -1,0 +1,194 @@
+"""Point ops against brute-force implementations (CPU, small sizes)."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from floaff_zoo.nn import _fps_ext, ops
+
+
+def naive_fps(xyz: torch.Tensor, mask: torch.Tensor, npoint: int) -> torch.Tensor:
+    """Python loop over one cloud at a time, start at the first valid point."""
+    out = []
+    for b in range(xyz.shape[0]):
+        valid = torch.nonzero(mask[b]).flatten().tolist()
+        dist = {i: float("inf") for i in valid}
+        cur = valid[0]
+        picks = []
+        for _ in range(npoint):
+            picks.append(cur)
+            c = xyz[b, cur]
+            for i in valid:
+                d = float(((xyz[b, i] - c) ** 2).sum())
+                dist[i] = min(dist[i], d)
+            best = max(dist.values())
+            cur = min(i for i in valid if dist[i] == best)
+        out.append(picks)
+    return torch.tensor(out)
+
+
+def brute_ball(radius, k, xyz, new_xyz, mask):
+    b, s = new_xyz.shape[:2]
+    out = torch.empty(b, s, k, dtype=torch.long)
+    for i in range(b):
+        for j in range(s):
+            d = ((xyz[i] - new_xyz[i, j]) ** 2).sum(-1)
+            inside = [t for t in range(xyz.shape[1]) if mask[i, t] and d[t] <= radius**2]
+            inside = inside[:k]
+            out[i, j] = torch.tensor(inside + [inside[0]] * (k - len(inside)))
+    return out
+
+
+@pytest.fixture
+def cloud():
+    g = torch.Generator().manual_seed(0)
+    xyz = torch.rand(3, 96, 3, generator=g)
+    mask = torch.ones(3, 96, dtype=torch.bool)
+    mask[1, 60:] = False
+    mask[2, ::3] = False  # index 0 invalid: start moves to the first valid point
+    return xyz, mask
+
+
+def test_fps_torch_matches_naive_loop(cloud):
+    xyz, mask = cloud
+    got = ops.farthest_point_sample_torch(xyz, mask, 20)
+    assert torch.equal(got, naive_fps(xyz, mask, 20))
+    assert mask.gather(1, got).all()
+    assert got[0, 0] == 0 and got[2, 0] == 1
+
+
+def test_fps_default_backend_matches_torch(cloud):
+    xyz, mask = cloud
+    assert torch.equal(ops.farthest_point_sample(xyz, mask, 24), ops.farthest_point_sample_torch(xyz, mask, 24))
+
+
+def test_fps_cpp_kernel_when_available(monkeypatch):
+    """The C++ kernel (if a compiler exists) is exact on a larger batch; skipped otherwise."""
+    monkeypatch.setenv("FLOAFF_ZOO_FPS_BACKEND", "auto")
+    kernel = _fps_ext.load_kernel()
+    if kernel is None:
+        pytest.skip(f"C++ FPS kernel unavailable: {_fps_ext._state['error']}")
+    xyz = torch.rand(4, 2048, 3, generator=torch.Generator().manual_seed(1))
+    mask = torch.rand(4, 2048, generator=torch.Generator().manual_seed(2)) > 0.2
+    got = kernel.fps_forward(xyz, mask, 256)
+    assert torch.equal(got, ops.farthest_point_sample_torch(xyz, mask, 256))
+
+
+def test_fps_force_fallback_env(monkeypatch):
+    monkeypatch.setenv("FLOAFF_ZOO_FPS_BACKEND", "torch")
+    assert ops.fps_backend() == "torch"
+    monkeypatch.setenv("FLOAFF_ZOO_FPS_BACKEND", "bogus")
+    with pytest.raises(ValueError, match="FLOAFF_ZOO_FPS_BACKEND"):
+        ops.fps_backend()
+
+
+def test_fps_fewer_valid_points_repeats_valid(cloud):
+    xyz, _ = cloud
+    mask = torch.zeros(1, 96, dtype=torch.bool)
+    mask[0, [5, 17, 40]] = True
+    idx = ops.farthest_point_sample(xyz[:1], mask, 8)
+    assert set(idx[0, :3].tolist()) == {5, 17, 40}
+    assert mask.gather(1, idx).all()  # the tail repeats valid points, never padding
+
+
+def test_fps_no_valid_point_raises(cloud):
+    xyz, mask = cloud
+    mask = mask.clone()
+    mask[1] = False
+    with pytest.raises(ValueError, match=r"cloud\(s\) \[1\]"):
+        ops.farthest_point_sample(xyz, mask, 4)
+
+
+def test_ball_query_matches_brute_force_and_sort_version(cloud):
+    xyz, mask = cloud
+    centres = ops.index_points(xyz, ops.farthest_point_sample(xyz, mask, 12))
+    got = ops.ball_query(0.3, 8, xyz, centres, mask)
+    assert torch.equal(got, brute_ball(0.3, 8, xyz, centres, mask))
+    assert mask.gather(1, got.flatten(1)).all()
+    # classic sort-based version (all points valid)
+    full = torch.ones_like(mask)
+    n = xyz.shape[1]
+    key = torch.arange(n).repeat(3, 12, 1)
+    key[ops.square_distance(centres, xyz) > 0.3**2] = n
+    key = key.sort(dim=-1)[0][..., :8]
+    key = torch.where(key == n, key[..., :1], key)
+    assert torch.equal(ops.ball_query(0.3, 8, xyz, centres, full), key)
+
+
+def test_ball_query_chunked_equals_unchunked(cloud, monkeypatch):
+    xyz, mask = cloud
+    centres = xyz[:, :30]
+    ref = ops.ball_query(0.25, 6, xyz, centres, mask)
+    monkeypatch.setattr(ops, "_CHUNK_ELEMS", 3 * 96 * 7)
+    assert torch.equal(ops.ball_query(0.25, 6, xyz, centres, mask), ref)
+
+
+def test_ball_query_empty_ball_uses_nearest_valid():
+    xyz = torch.tensor([[[0.0, 0, 0], [1.0, 0, 0], [5.0, 0, 0]]])
+    mask = torch.tensor([[False, True, True]])
+    idx = ops.ball_query(0.1, 4, xyz, torch.tensor([[[0.0, 0, 0]]]), mask)
+    assert idx.tolist() == [[[1, 1, 1, 1]]]
+
+
+def test_knn_matches_brute_force(cloud):
+    xyz, mask = cloud
+    q = torch.rand(3, 10, 3)
+    d, idx = ops.knn(5, xyz, q, mask)
+    for b in range(3):
+        for j in range(10):
+            dist = ((xyz[b] - q[b, j]) ** 2).sum(-1).masked_fill(~mask[b], float("inf"))
+            ref = dist.argsort()[:5]
+            assert idx[b, j].tolist() == ref.tolist()
+            assert torch.allclose(d[b, j], dist[ref], atol=1e-5)
+
+
+def test_three_interpolate_matches_brute_force(cloud):
+    xyz, mask = cloud
+    feat = torch.randn(3, 96, 4)
+    q = torch.rand(3, 7, 3)
+    got = ops.three_interpolate(q, xyz, feat, mask)
+    for b in range(3):
+        for j in range(7):
+            d = ((xyz[b] - q[b, j]) ** 2).sum(-1).masked_fill(~mask[b], float("inf"))
+            nn3 = d.argsort()[:3]
+            w = 1.0 / (d[nn3] + 1e-8)
+            ref = (feat[b, nn3] * (w / w.sum())[:, None]).sum(0)
+            assert torch.allclose(got[b, j], ref, atol=1e-5)
+
+
+def test_three_interpolate_few_known_points():
+    known = torch.tensor([[[0.0, 0, 0], [1.0, 0, 0]]])
+    feat = torch.tensor([[[1.0], [3.0]]])
+    out = ops.three_interpolate(torch.tensor([[[0.5, 0, 0]]]), known, feat)
+    assert torch.allclose(out, torch.tensor([[[2.0]]]))
+    single = ops.three_interpolate(torch.rand(1, 4, 3), known[:, :1], feat[:, :1])
+    assert torch.equal(single, torch.ones(1, 4, 1))
+    masked = ops.three_interpolate(torch.rand(1, 4, 3), known, feat, torch.tensor([[False, True]]))
+    assert torch.allclose(masked, torch.full((1, 4, 1), 3.0))
+
+
+def test_index_points_gradients_flow():
+    feat = torch.randn(2, 10, 3, requires_grad=True)
+    idx = torch.randint(0, 10, (2, 4, 5))
+    out = ops.index_points(feat, idx)
+    assert out.shape == (2, 4, 5, 3)
+    assert torch.equal(out.detach(), feat.detach()[torch.arange(2)[:, None, None], idx])
+    out.sum().backward()
+    assert feat.grad is not None and feat.grad.sum() == 2 * 4 * 5 * 3
+
+
+def test_neighbour_search_runs_fp32_under_bf16_autocast(cloud):
+    xyz, mask = cloud
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        d = ops.square_distance(xyz, xyz)
+    assert d.dtype == torch.float32
+
+
+def test_bad_shapes_and_nan():
+    with pytest.raises(ValueError, match="xyz must be"):
+        ops.farthest_point_sample(torch.rand(2, 5, 2), None, 2)
+    with pytest.raises(ValueError, match="scene_xyz contains 1 NaN"):
+        x = torch.rand(2, 5, 3)
+        x[0, 0, 0] = float("nan")
+        ops.check_finite("scene_xyz", x)
