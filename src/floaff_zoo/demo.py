@@ -20,9 +20,9 @@ import sys
 import time
 from pathlib import Path
 
-EXPERIMENT = "configs/experiments/demo/pfal_demo.yaml"
-DATA_CONFIG = "configs/experiments/demo/data_demo.yaml"
-BASELINE_CONFIG = "configs/experiments/demo/pointnet2_demo.yaml"
+EXPERIMENT = "configs/demo/pfal_demo.yaml"
+DATA_CONFIG = "configs/demo/data_demo.yaml"
+BASELINE_CONFIG = "configs/demo/pointnet2_demo.yaml"
 EVAL_CONFIG = "configs/trainer/eval_sr.yaml"
 
 

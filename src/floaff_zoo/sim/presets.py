@@ -121,7 +121,20 @@ PRESETS: dict[str, GenPreset] = {
         max_seed_attempts=4,
         picture_size=128,
     ),
-    # demo default: all tasks, both benchmarks, 5 + 1 scenes per task, coarser grid, fewer views
+    # `floaff-zoo demo`: the Layouts benchmark, all tasks, 2 + 1 scenes per task (one train scene per task is
+    # held out for validation), the small preset's grid and views: a few minutes on 2 cores
+    "demo": GenPreset(
+        name="demo",
+        benchmarks=("layouts",),
+        n_train=2,
+        n_test=1,
+        cell=0.1,
+        max_candidates=60,
+        views_per_scene=(6, 6),
+        image_size=96,
+        max_points=4096,
+    ),
+    # all tasks, both benchmarks, 5 + 1 scenes per task, coarser grid, fewer views
     "small": GenPreset(
         name="small",
         cell=0.1,

@@ -1,0 +1,84 @@
+"""Run every benchmark script and collect their printed figures into docs/performance.md.
+
+    python benchmarks/run_all.py            # quick modes (about 10-20 minutes on 2 idle cores)
+    python benchmarks/run_all.py --full     # the scripts' default (longer) settings
+
+Each script prints its own figures and ratios against a reference measured in the same run
+(absolute numbers move with machine load; ratios carry over). This runner only executes them one
+after another, records the machine and the exact commands, and writes their output verbatim.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+
+#: (title, script, quick args, full args)
+SUITE: list[tuple[str, str, list[str], list[str]]] = [
+    ("Simulator: rollouts, candidates labelled per second, IK pre-filter agreement", "bench_sim.py", ["--quick"], []),
+    ("Generator: render ms per view, tiny preset wall time, growth with scenes", "bench_generate.py", [], ["--small"]),
+    ("Loader: samples/s vs a PointNet++ training step", "bench_loader.py", ["--samples", "16"], []),
+    ("Models: train samples/s, predict latency, PointNet++ vs the reference-style port", "bench_models.py",
+     ["--quick"], []),
+]
+
+
+def _machine() -> str:
+    cpu = "unknown CPU"
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    load = os.getloadavg() if hasattr(os, "getloadavg") else ("?",)
+    return f"{cpu}; {os.cpu_count()} logical cores; Python {platform.python_version()}; load average at start {load}"
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--full", action="store_true", help="the scripts' default (longer) settings")
+    ap.add_argument("--out", default=str(ROOT / "docs" / "performance.md"))
+    ap.add_argument("--only", nargs="*", default=None, help="script names to run (default: all)")
+    args = ap.parse_args(argv)
+    env = dict(os.environ, MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"))
+    sections = [
+        "# Performance\n",
+        f"Written by `python benchmarks/run_all.py{' --full' if args.full else ''}` on {time.strftime('%Y-%m-%d')}.",
+        f"Machine: {_machine()}.",
+        "Figures are printed by each script with its in-run reference; compare ratios, not absolute values.\n",
+    ]
+    failed = 0
+    for title, script, quick, full in SUITE:
+        if args.only and script not in args.only:
+            continue
+        cmd = [sys.executable, str(HERE / script), *(full if args.full else quick)]
+        print(f"[run_all] {' '.join(cmd[1:])}", flush=True)
+        t0 = time.time()
+        proc = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True)
+        wall = time.time() - t0
+        status = "ok" if proc.returncode == 0 else f"FAILED (exit {proc.returncode})"
+        failed += proc.returncode != 0
+        out = proc.stdout.strip() or "(no output)"
+        if proc.returncode != 0:
+            out += "\n--- stderr (tail) ---\n" + "\n".join(proc.stderr.strip().splitlines()[-20:])
+        rel = " ".join(["python", f"benchmarks/{script}", *cmd[2:]])
+        sections.append(f"## {title}\n\n`{rel}` — {status}, {wall:.0f} s wall\n\n```\n{out}\n```\n")
+        print(out, flush=True)
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.out).write_text("\n".join(sections))
+    print(f"[run_all] wrote {args.out}")
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
