@@ -170,7 +170,11 @@ def _dispatch(command: str, argv: list[str]) -> int:
 
 def run_lightning(args: list[str]) -> FloAffCLI:
     """Run a trainer command; returns the CLI object (tests read ``cli.trainer``/``cli.model``)."""
+    import warnings
+
     _import_registries()
+    # `floaff-zoo demo`/`curriculum` call this with args while sys.argv holds their own command.
+    warnings.filterwarnings("ignore", message=".*LightningCLI's args parameter is intended.*")
     return FloAffCLI(
         FloAffModule,
         FloAffDataModule,

@@ -443,7 +443,12 @@ def _run_local(jobs, out, preset_dict, save_images, workers, on_result, job_fn=N
 
 
 def _run_ray(jobs, out, preset_dict, save_images, workers, address, on_result) -> None:
-    """Run jobs as ray tasks (one CPU each); a local cluster is started when no address is given."""
+    """Run jobs as ray tasks (one CPU each); a local cluster is started when no address is given.
+
+    Workers write scene dirs under ``out`` and the driver reads them back, so with a multi-machine cluster ``out``
+    must be on a file system shared by every node (mounted at the same path).
+    """
+    out = str(Path(out).resolve())  # ray workers do not share the driver's working directory
     try:
         import ray
     except ImportError as exc:

@@ -140,6 +140,7 @@ class RolloutService:
         self.seed = int(seed)
         self.cache: dict[tuple, RolloutResult] = {}
         self._pool = None
+        self._ray_started = False  # this service called ray.init, so close() shuts it down
 
     def _key(self, spec: SceneSpec, pose) -> tuple:
         x, y, yaw = _check_pose(pose)
@@ -186,11 +187,16 @@ class RolloutService:
         return self._pool.map(_run_job, payload, chunksize=max(1, len(payload) // (4 * self.workers)))
 
     def _run_ray(self, payload):
+        """Ray tasks (1 CPU each) on the connected cluster; without one, start a local ``workers``-CPU cluster
+        that ``close()`` shuts down. Call ``ray.init(address=...)`` first to use a multi-machine cluster."""
         import ray
 
         if not ray.is_initialized():
-            ray.init(num_cpus=self.workers, runtime_env={"env_vars": {"OMP_NUM_THREADS": "1"}})
-        remote = ray.remote(_run_job)
+            ray.init(num_cpus=self.workers, include_dashboard=False, log_to_driver=False)
+            self._ray_started = True
+        # one BLAS/OpenMP thread per worker, as in _worker_init (set before the worker process imports numpy)
+        env = {"env_vars": {k: "1" for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}}
+        remote = ray.remote(num_cpus=1, runtime_env=env)(_run_job)
         return ray.get([remote.remote(p) for p in payload])
 
     def close(self) -> None:
@@ -198,6 +204,11 @@ class RolloutService:
             self._pool.close()
             self._pool.join()
             self._pool = None
+        if self._ray_started:
+            import ray
+
+            ray.shutdown()
+            self._ray_started = False
 
     def __del__(self) -> None:
         try:

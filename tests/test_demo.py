@@ -1,0 +1,40 @@
+"""The demo command: its wiring (fast) and the whole pipeline (slow, about 10 minutes on 2 cores)."""
+
+import json
+from pathlib import Path
+
+import pytest
+
+from floaff_zoo.cli import main
+
+
+def test_demo_help_and_configs_exist(root, monkeypatch, capsys):
+    monkeypatch.chdir(root)
+    with pytest.raises(SystemExit) as ex:
+        main(["demo", "--help"])
+    assert ex.value.code == 0
+    assert "--preset" in capsys.readouterr().out
+    from floaff_zoo import demo
+
+    for cfg in (demo.EXPERIMENT, demo.DATA_CONFIG, demo.BASELINE_CONFIG, demo.EVAL_CONFIG):
+        assert (root / cfg).is_file(), cfg
+
+
+def test_demo_curriculum_dry_run_lists_three_stages(root, monkeypatch, capsys):
+    monkeypatch.chdir(root)
+    from floaff_zoo import curriculum, demo
+
+    assert curriculum.main(["--config", demo.EXPERIMENT, "--dry-run"]) == 0
+    out = capsys.readouterr().out
+    assert out.count("# stage") == 3 and "stage2_door_drawer" in out and "model.init_args.teacher" in out
+
+
+@pytest.mark.slow
+def test_demo_end_to_end(root, monkeypatch, tmp_path):
+    monkeypatch.chdir(root)
+    assert main(["demo", "--data", str(tmp_path / "data"), "--runs", str(tmp_path / "runs"), "--epochs", "2"]) == 0
+    reports = sorted(Path(tmp_path / "runs").rglob("report.json"))
+    assert len(reports) == 2
+    for rep in reports:
+        data = json.loads(rep.read_text())
+        assert data["sr"]["available"] and data["sr"]["oracle"]["all"]["mean"] >= 0.9
