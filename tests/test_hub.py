@@ -330,8 +330,14 @@ def test_malformed_user_index_names_file_and_field(patch, field):
 def test_shipped_index_is_valid():
     from floaff_zoo.hub.registry import SHIPPED_INDEX, read_index
 
+    from floaff_zoo.hub import sha256_file
+
     for e in read_index(SHIPPED_INDEX):
-        assert e.source["kind"] in ("url", "hf")  # shipped entries must be downloadable
+        if e.source["kind"] == "local":  # shipped inside the package, next to the index
+            path = Path(SHIPPED_INDEX).parent / e.source["path"]
+            assert path.is_file() and sha256_file(path) == e.sha256, e.name
+        else:
+            assert e.source["kind"] in ("url", "hf")  # otherwise it must be downloadable
 
 
 def test_push_upload_pins_the_commit(run_dir, monkeypatch):

@@ -281,11 +281,3 @@ def test_tiny_same_seed_same_arrays_for_one_or_two_workers(tiny_run, tmp_path):
     assert _labels(tmp_path) == _labels(src)
 
 
-@needs_sim
-def test_ray_backend_local_cluster(tmp_path):
-    pytest.importorskip("ray", reason="ray not installed (optional: pip install ray)")
-    p = get_preset("tiny", **dict(MINI, n_test=0))
-    man = gen.generate(tmp_path / "ray", p, seed=0, workers=2, backend="ray", quiet=True)
-    loc = gen.generate(tmp_path / "loc", p, seed=0, workers=0, quiet=True)
-    assert man["counts"]["scenes_ok"] == loc["counts"]["scenes_ok"] == 1
-    assert _labels(tmp_path / "ray") == _labels(tmp_path / "loc")
