@@ -42,6 +42,11 @@ def test_fit_test_predict_round_trip(tmp_path, root, monkeypatch):
     preds = cli_p.trainer.predict_loop.predictions
     assert preds and preds[0]["scores"].shape[0] == 2
     assert ((preds[0]["scores"] >= 0) & (preds[0]["scores"] <= 1)).all()
+    # a newer run in the same root: `--config <first run>/config.yaml --ckpt_path best` still picks the first run's
+    run_lightning(["fit", *base, "--trainer.max_epochs", "1", "--model.init_args.width", "16"])
+    first_cfg = Path(ckpt).parents[1] / "config.yaml"
+    cli_r = run_lightning(["test", "--config", str(first_cfg), *quiet_trainer_args(tmp_path), "--ckpt_path", "best"])
+    assert Path(cli_r.config_init["test"]["ckpt_path"]).resolve() == Path(ckpt).resolve()
     # same checkpoint loads outside the CLI
     from floaff_zoo.models.tiny import TinyPointNetModule
 

@@ -122,9 +122,9 @@ class FloAffCLI(LightningCLI):
         cfg = self.config_init[self.subcommand]
         ckpt = cfg.get("ckpt_path")
         if ckpt in ("best", "last"):
-            cfg["ckpt_path"] = resolve_ckpt_alias(ckpt, self.trainer.default_root_dir)
+            cfg["ckpt_path"] = resolve_ckpt_alias(ckpt, self._run_dir())
             ckpt = cfg["ckpt_path"]
-        if ckpt is None and self.model.trainable and not self.model.hparams.get("weights"):
+        if ckpt is None and self.model.trainable and not self.model.base_cfg.get("weights"):
             raise CLIError(
                 f"`floaff-zoo {self.subcommand}` needs trained weights: pass --ckpt_path <file|best|last> "
                 "(e.g. `floaff-zoo test --config <run>/config.yaml --ckpt_path best`) or "
@@ -132,6 +132,15 @@ class FloAffCLI(LightningCLI):
             )
         if ckpt is not None and not Path(ckpt).is_file():
             raise CLIError(f"--ckpt_path {ckpt}: no such file")
+
+    def _run_dir(self) -> Path:
+        """Where ``best``/``last`` are looked up: the run a ``--config <run>/config.yaml`` came from
+        (the folder next to its ``checkpoints/``), else ``trainer.default_root_dir``."""
+        for path in reversed(self.config[self.subcommand].get("config") or []):
+            folder = Path(str(getattr(path, "absolute", path))).parent
+            if (folder / "checkpoints").is_dir():
+                return folder
+        return Path(self.trainer.default_root_dir)
 
     def before_fit(self) -> None:
         if not self.model.trainable:
