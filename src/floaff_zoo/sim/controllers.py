@@ -146,7 +146,7 @@ class ScriptedPolicy:
         self._seg_i = 0
         self._seg_t0 = 0.0
         self._blocked = 0.0
-        self._recent: list[np.ndarray] = []
+        self._recent: list[tuple[float, float, float]] = []  # last BLOCK_LAG commanded points
         self._base0 = np.array(scene.base_pose())
         self._assist = None
         kps = self.keypoints(scene)
@@ -208,10 +208,10 @@ class ScriptedPolicy:
                 self.reason = "ik_unreachable"
                 return False
             self._write(scene, q, seg.opened)
-            hand = d.site_xpos[scene.robot.grip_site]
+            hx, hy, hz = d.site_xpos[scene.robot.grip_site].tolist()
             # the joint impedance lags a moving command by ~0.1 s: compare with the recent commands too
-            self._recent = self._recent[-(BLOCK_LAG - 1):] + [p]
-            if min(float(np.linalg.norm(hand - r)) for r in self._recent) > BLOCK_DIST:
+            self._recent = self._recent[-(BLOCK_LAG - 1):] + [(float(p[0]), float(p[1]), float(p[2]))]
+            if min(math.sqrt((hx - x) ** 2 + (hy - y) ** 2 + (hz - z) ** 2) for x, y, z in self._recent) > BLOCK_DIST:
                 self._blocked += CTRL_DT
                 if self._blocked > BLOCK_TIME:
                     self.reason = "collision"
