@@ -192,3 +192,19 @@ def test_bad_shapes_and_nan():
         x = torch.rand(2, 5, 3)
         x[0, 0, 0] = float("nan")
         ops.check_finite("scene_xyz", x)
+
+
+def test_ball_query_and_three_nn_kernels_match_the_torch_path(cloud, monkeypatch):
+    """The C++ selection kernels (when built) give the torch path's neighbours, in any chunking."""
+    if ops._select_kernel(torch.device("cpu")) is None:
+        pytest.skip("C++ point-op kernels unavailable (no compiler): only the torch path exists")
+    xyz, mask = cloud
+    centres = xyz[:, :30]
+    fast = ops.ball_query(0.25, 6, xyz, centres, mask)
+    monkeypatch.setattr(ops, "_KERNEL_CHUNK_ELEMS", 7)  # many tiny chunks
+    assert torch.equal(ops.ball_query(0.25, 6, xyz, centres, mask), fast)
+    d_fast, i_fast = ops.three_nn(centres, xyz, mask)
+    monkeypatch.setattr(ops, "_select_kernel", lambda device: None)  # force the torch path
+    assert torch.equal(ops.ball_query(0.25, 6, xyz, centres, mask), fast)
+    d_ref, i_ref = ops.three_nn(centres, xyz, mask)
+    assert torch.allclose(d_fast, d_ref)  # indices may swap only at exactly tied distances

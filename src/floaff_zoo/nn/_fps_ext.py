@@ -1,13 +1,16 @@
-"""Optional C++ farthest-point-sampling kernel, compiled on first use with ``load_inline``.
+"""Optional C++ point kernels (FPS, ball-query and 3-NN selection), compiled on first use with ``load_inline``.
 
 The build is cached in ``TORCH_EXTENSIONS_DIR`` (torch's default: ``~/.cache/torch_extensions``),
-so only the first process on a machine pays the one-off g++ compile (~25 s). Any failure (no
-compiler, no ninja, read-only cache) is remembered and callers fall back to the pure-torch loop.
-Set ``FLOAFF_ZOO_FPS_BACKEND=torch`` to skip the kernel altogether.
+so only the first process on a machine pays the one-off g++ compile (~25-40 s). Any failure (no
+compiler, no ninja, read-only cache) is remembered and callers fall back to pure torch.
+Set ``FLOAFF_ZOO_FPS_BACKEND=torch`` to skip the kernels altogether.
 
-The arithmetic matches the torch fallback bit for bit: squared distances are
-``(dx*dx + dy*dy) + dz*dz`` in float32 with FMA contraction disabled, ties go to the lowest index,
-invalid points carry distance -1 so they are never selected.
+FPS matches the torch fallback bit for bit: squared distances are ``(dx*dx + dy*dy) + dz*dz`` in
+float32 with FMA contraction disabled, ties go to the lowest index, invalid points carry distance
+-1 so they are never selected. The selection kernels take the torch matmul ``-2 src.dst`` and add
+the squared norms in the order of ``ops.square_distance`` (plain float adds, no FMA), so they see
+the same distances as the torch path; they replace the mask/``where``/``topk`` passes over the
+[B, S, N] matrix by one scan that stops once K neighbours are found.
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ from typing import Any
 _CPP_SOURCE = r"""
 #include <torch/extension.h>
 #include <ATen/Parallel.h>
+#include <limits>
 #include <vector>
 
 torch::Tensor fps_forward(torch::Tensor xyz, torch::Tensor mask, int64_t npoint) {
@@ -63,9 +67,101 @@ torch::Tensor fps_forward(torch::Tensor xyz, torch::Tensor mask, int64_t npoint)
   });
   return out;
 }
+
+// First K valid points (index order) with d <= r2, d = (mm + ssq) + dsq summed in this order so it
+// equals ops.square_distance bit for bit (mm = the torch matmul of -2*src and dst^T). Empty ball ->
+// nearest valid point (lowest index on ties); slots past the count repeat the first neighbour.
+torch::Tensor ball_select(torch::Tensor mm, torch::Tensor ssq, torch::Tensor dsq, torch::Tensor mask,
+                          double r2, int64_t K) {
+  TORCH_CHECK(mm.dim() == 3 && mm.scalar_type() == torch::kFloat && mm.is_contiguous(), "mm must be contiguous float [B, S, N]");
+  const int64_t B = mm.size(0), S = mm.size(1), N = mm.size(2);
+  TORCH_CHECK(ssq.is_contiguous() && ssq.numel() == B * S && ssq.scalar_type() == torch::kFloat, "ssq must be float [B, S]");
+  TORCH_CHECK(dsq.is_contiguous() && dsq.numel() == B * N && dsq.scalar_type() == torch::kFloat, "dsq must be float [B, N]");
+  TORCH_CHECK(mask.is_contiguous() && mask.numel() == B * N && mask.scalar_type() == torch::kBool, "mask must be bool [B, N]");
+  auto out = torch::empty({B, S, K}, torch::kLong);
+  const float* Mm = mm.data_ptr<float>();
+  const float* Ss = ssq.data_ptr<float>();
+  const float* Ds = dsq.data_ptr<float>();
+  const bool* Mk = mask.data_ptr<bool>();
+  int64_t* O = out.data_ptr<int64_t>();
+  const float rr = static_cast<float>(r2);
+  at::parallel_for(0, B * S, 16, [&](int64_t r0, int64_t r1) {
+    for (int64_t r = r0; r < r1; ++r) {
+      const int64_t b = r / S;
+      const float* row = Mm + r * N;
+      const float* t = Ds + b * N;
+      const bool* m = Mk + b * N;
+      const float s = Ss[r];
+      int64_t* o = O + r * K;
+      int64_t cnt = 0;
+      for (int64_t i = 0; i < N && cnt < K; ++i) {
+        const float d = (row[i] + s) + t[i];
+        if (m[i] && d <= rr) o[cnt++] = i;
+      }
+      if (cnt == 0) {  // no valid point in the ball: nearest valid point
+        float best = 0.0f;
+        int64_t besti = -1;
+        for (int64_t i = 0; i < N; ++i) {
+          if (!m[i]) continue;
+          const float d = (row[i] + s) + t[i];
+          if (besti < 0 || d < best) { best = d; besti = i; }
+        }
+        o[0] = besti < 0 ? 0 : besti;
+        cnt = 1;
+      }
+      for (int64_t j = cnt; j < K; ++j) o[j] = o[0];
+    }
+  });
+  return out;
+}
+
+// Three nearest valid points, d = (mm + ssq) + dsq as above, ascending, ties to the lowest index.
+// Missing slots (fewer than 3 valid points): distance +inf, index 0.
+std::vector<torch::Tensor> three_nn_select(torch::Tensor mm, torch::Tensor ssq, torch::Tensor dsq, torch::Tensor mask) {
+  TORCH_CHECK(mm.dim() == 3 && mm.scalar_type() == torch::kFloat && mm.is_contiguous(), "mm must be contiguous float [B, S, N]");
+  const int64_t B = mm.size(0), S = mm.size(1), N = mm.size(2);
+  TORCH_CHECK(ssq.is_contiguous() && ssq.numel() == B * S && ssq.scalar_type() == torch::kFloat, "ssq must be float [B, S]");
+  TORCH_CHECK(dsq.is_contiguous() && dsq.numel() == B * N && dsq.scalar_type() == torch::kFloat, "dsq must be float [B, N]");
+  TORCH_CHECK(mask.is_contiguous() && mask.numel() == B * N && mask.scalar_type() == torch::kBool, "mask must be bool [B, N]");
+  auto dist = torch::empty({B, S, 3}, torch::kFloat);
+  auto idx = torch::empty({B, S, 3}, torch::kLong);
+  const float* Mm = mm.data_ptr<float>();
+  const float* Ss = ssq.data_ptr<float>();
+  const float* Ds = dsq.data_ptr<float>();
+  const bool* Mk = mask.data_ptr<bool>();
+  float* OD = dist.data_ptr<float>();
+  int64_t* OI = idx.data_ptr<int64_t>();
+  const float inf = std::numeric_limits<float>::infinity();
+  at::parallel_for(0, B * S, 16, [&](int64_t r0, int64_t r1) {
+    for (int64_t r = r0; r < r1; ++r) {
+      const int64_t b = r / S;
+      const float* row = Mm + r * N;
+      const float* t = Ds + b * N;
+      const bool* m = Mk + b * N;
+      const float s = Ss[r];
+      float d0 = inf, d1 = inf, d2 = inf;
+      int64_t i0 = 0, i1 = 0, i2 = 0;
+      for (int64_t i = 0; i < N; ++i) {
+        const float d = (row[i] + s) + t[i];
+        if (!m[i] || !(d < d2)) continue;
+        if (d < d1) {
+          d2 = d1; i2 = i1;
+          if (d < d0) { d1 = d0; i1 = i0; d0 = d; i0 = i; } else { d1 = d; i1 = i; }
+        } else { d2 = d; i2 = i; }
+      }
+      OD[3 * r] = d0; OD[3 * r + 1] = d1; OD[3 * r + 2] = d2;
+      OI[3 * r] = d0 == inf ? 0 : i0; OI[3 * r + 1] = d1 == inf ? 0 : i1; OI[3 * r + 2] = d2 == inf ? 0 : i2;
+    }
+  });
+  return {dist, idx};
+}
 """
 
-_CPP_DECL = "torch::Tensor fps_forward(torch::Tensor xyz, torch::Tensor mask, int64_t npoint);"
+_CPP_DECL = """
+torch::Tensor fps_forward(torch::Tensor xyz, torch::Tensor mask, int64_t npoint);
+torch::Tensor ball_select(torch::Tensor mm, torch::Tensor ssq, torch::Tensor dsq, torch::Tensor mask, double r2, int64_t K);
+std::vector<torch::Tensor> three_nn_select(torch::Tensor mm, torch::Tensor ssq, torch::Tensor dsq, torch::Tensor mask);
+"""
 
 _lock = threading.Lock()
 _state: dict[str, Any] = {"module": None, "error": None}
@@ -94,9 +190,9 @@ def load_kernel() -> Any | None:
                 from torch.utils.cpp_extension import load_inline
 
                 _state["module"] = load_inline(
-                    name="floaff_zoo_fps_v1",
+                    name="floaff_zoo_point_ops_v2",
                     cpp_sources=[_CPP_DECL, _CPP_SOURCE],
-                    functions=["fps_forward"],
+                    functions=["fps_forward", "ball_select", "three_nn_select"],
                     extra_cflags=["-O3", "-ffp-contract=off"],
                     verbose=False,
                 )

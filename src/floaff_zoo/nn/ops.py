@@ -31,6 +31,8 @@ __all__ = [
 
 #: elements of a [B, S, N] distance/key matrix above which ball query chunks over centres
 _CHUNK_ELEMS = 1 << 24
+#: the same for the C++ selection path: small enough that the matmul chunk stays in cache
+_KERNEL_CHUNK_ELEMS = 1 << 18
 
 
 def check_finite(name: str, x: Tensor) -> None:
@@ -53,21 +55,39 @@ def _full_mask(xyz: Tensor, mask: Tensor | None, name: str) -> Tensor:
     return mask.bool()
 
 
+def _distance_parts(src: Tensor, dst: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """fp32 pieces of ``square_distance``: (mm [B,N,M] = -2 src.dst, |src|^2 [B,N], |dst|^2 [B,M]).
+
+    ``-2`` scales ``src`` before the matmul instead of the product after it: a power of two, so
+    the result is bit-identical and saves one pass over the [B, N, M] matrix.
+    """
+    with torch.autocast(device_type=src.device.type, enabled=False):
+        src = src.float()
+        dst = dst.float()
+        mm = torch.matmul(src * -2.0, dst.transpose(1, 2))
+        return mm, torch.sum(src**2, -1), torch.sum(dst**2, -1)
+
+
 def square_distance(src: Tensor, dst: Tensor) -> Tensor:
     """Squared Euclidean distances, float32, autocast off.
 
     Args:
         src: [B, N, 3]; dst: [B, M, 3].
     Returns:
-        [B, N, M] = |src|^2 + |dst|^2 - 2 src.dst (the classic PointNet++ formula and order).
+        [B, N, M] = (-2 src.dst + |src|^2) + |dst|^2 (the classic PointNet++ formula and order).
     """
-    with torch.autocast(device_type=src.device.type, enabled=False):
-        src = src.float()
-        dst = dst.float()
-        dist = -2 * torch.matmul(src, dst.transpose(1, 2))
-        dist = dist + torch.sum(src**2, -1)[:, :, None]
-        dist = dist + torch.sum(dst**2, -1)[:, None, :]
-    return dist
+    mm, ssq, dsq = _distance_parts(src, dst)
+    return mm.add_(ssq[:, :, None]).add_(dsq[:, None, :])
+
+
+def _select_kernel(device: torch.device):
+    """The C++ selection kernels for CPU tensors in eager mode, else None (torch path).
+
+    Under ``torch.compile`` the torch path is traced instead (a pybind call would break the graph).
+    """
+    if device.type != "cpu" or torch.compiler.is_compiling():
+        return None
+    return _fps_ext.load_kernel()
 
 
 def index_points(points: Tensor, idx: Tensor) -> Tensor:
@@ -164,7 +184,8 @@ def ball_query(
     """First ``nsample`` valid points (in index order) within ``radius`` of each centre.
 
     Same output as the classic sort-based query (``idx[d > r^2] = N; sort; [:K]``; pad with the
-    first neighbour), computed with ``topk`` on an index key (4x faster on CPU). A centre with no
+    first neighbour), computed by the C++ selection kernel on CPU (one scan per centre that stops
+    at K hits) or else with ``topk`` on an index key (4x faster than the sort). A centre with no
     valid point in its ball (possible only for centres not drawn from ``xyz``) falls back to its
     nearest valid point.
 
@@ -181,7 +202,8 @@ def ball_query_multi(
 ) -> list[Tensor]:
     """``ball_query`` for several (radius, K) pairs sharing one distance matrix (MSG levels).
 
-    Chunks over centres so the [B, S, N] matrices stay below ~16 M elements.
+    Chunks over centres so the [B, S, N] matrices stay below ~16 M elements (torch path) or
+    ~256 K elements, i.e. in cache, on the C++ path.
 
     Returns:
         one [B, S, K_i] int64 tensor per scale.
@@ -195,12 +217,28 @@ def ball_query_multi(
         raise ValueError("ball_query: a cloud of the batch has no valid point")
     b, n, _ = xyz.shape
     s = new_xyz.shape[1]
+    kernel = _select_kernel(xyz.device)
+    if kernel is not None:
+        # one scan per row of the (L2-sized) matmul chunk, stopping at K hits
+        chunk = max(1, _KERNEL_CHUNK_ELEMS // max(1, b * n))
+        mask_c = mask.contiguous()
+        kparts: list[list[Tensor]] = [[] for _ in radii]
+        dsq = None
+        for start in range(0, s, chunk):
+            mm, ssq, dsq_c = _distance_parts(new_xyz[:, start : start + chunk], xyz)
+            dsq = dsq_c.contiguous() if dsq is None else dsq
+            mm, ssq = mm.contiguous(), ssq.contiguous()
+            for i, (radius, nsample) in enumerate(zip(radii, nsamples)):
+                kparts[i].append(kernel.ball_select(mm, ssq, dsq, mask_c, float(radius) ** 2, int(nsample)))
+        return [p[0] if len(p) == 1 else torch.cat(p, dim=1) for p in kparts]
     chunk = max(1, _CHUNK_ELEMS // max(1, b * n))
     parts: list[list[Tensor]] = [[] for _ in radii]
     ar = torch.arange(n, device=xyz.device, dtype=torch.long)
+    all_valid = not torch.compiler.is_compiling() and bool(mask.all())  # no data-dependent branch in graphs
     for start in range(0, s, chunk):
         sqr = square_distance(new_xyz[:, start : start + chunk], xyz)  # [B, s, N]
-        sqr = sqr.masked_fill(~mask[:, None, :], float("inf"))
+        if not all_valid:
+            sqr = sqr.masked_fill_(~mask[:, None, :], float("inf"))
         nearest = None
         for i, (radius, nsample) in enumerate(zip(radii, nsamples)):
             key = torch.where(sqr <= radius**2, ar, n)  # out-of-ball -> N (sorted last)
@@ -252,6 +290,13 @@ def three_nn(unknown: Tensor, known: Tensor, known_mask: Tensor | None = None) -
         (sq_dist [B, n, 3], idx [B, n, 3]); with fewer than 3 valid known points the missing
         slots get distance ``inf`` (zero interpolation weight) and index 0.
     """
+    kernel = _select_kernel(unknown.device)
+    if kernel is not None:
+        mm, ssq, dsq = _distance_parts(unknown, known)
+        if known_mask is None:
+            known_mask = torch.ones(known.shape[:2], dtype=torch.bool, device=known.device)
+        dist, idx = kernel.three_nn_select(mm.contiguous(), ssq.contiguous(), dsq.contiguous(), known_mask.bool().contiguous())
+        return dist, idx
     sqr = square_distance(unknown, known)
     if known_mask is not None:
         sqr = sqr.masked_fill(~known_mask[:, None, :].bool(), float("inf"))
