@@ -69,9 +69,22 @@ class Task(abc.ABC):
     def candidate_region(self) -> tuple[float, float]:
         return (self.r_x, self.r_y)
 
-    @abc.abstractmethod
     def target_info(self, scene: "SimScene") -> "TargetInfo":
-        """Task-specific; see the module table."""
+        """The target of this task: its fixture's front centre, outward yaw, bodies and joints."""
+        from floaff_zoo.sim.kitchen import TargetInfo
+
+        f = scene.fixtures[self.fixture]
+        return TargetInfo(pos=f["front"].copy(), yaw=float(f["yaw"]), kind=self.fixture, body_names=list(f["bodies"]),
+                          geom_ids=_body_geoms(scene, f["bodies"]), joint_names=self.joint_names(f),
+                          extra=self.target_extra(scene, f))
+
+    def joint_names(self, fixture: dict) -> list[str]:
+        """The fixture joints this task moves."""
+        return [fixture["joint"]]
+
+    def target_extra(self, scene: "SimScene", fixture: dict) -> dict:
+        """Fixture facts the controller needs, carried in ``TargetInfo.extra``."""
+        return dict(fixture)
 
     @abc.abstractmethod
     def reset(self, scene: "SimScene", rng: np.random.Generator | None) -> None:
@@ -106,13 +119,6 @@ class CloseDrawer(Task):
     fail_reason: str = "not_closed"
     threshold: float = 0.05
 
-    def target_info(self, scene):
-        from floaff_zoo.sim.kitchen import TargetInfo
-
-        f = scene.fixtures["drawer"]
-        return TargetInfo(pos=f["front"].copy(), yaw=float(f["yaw"]), kind="drawer", body_names=list(f["bodies"]),
-                          geom_ids=_body_geoms(scene, f["bodies"]), joint_names=[f["joint"]], extra=dict(f))
-
     def opening(self, scene) -> float:
         f = scene.fixtures["drawer"]
         return float(scene.data.qpos[_jq(scene, f["joint"])]) / f["travel"]
@@ -143,12 +149,8 @@ class CloseDoubleDoor(Task):
     fail_reason: str = "not_closed"
     threshold: float = 0.05
 
-    def target_info(self, scene):
-        from floaff_zoo.sim.kitchen import TargetInfo
-
-        f = scene.fixtures["double_door"]
-        return TargetInfo(pos=f["front"].copy(), yaw=float(f["yaw"]), kind="double_door", body_names=list(f["bodies"]),
-                          geom_ids=_body_geoms(scene, f["bodies"]), joint_names=[d["joint"] for d in f["doors"]], extra=dict(f))
+    def joint_names(self, fixture: dict) -> list[str]:
+        return [d["joint"] for d in fixture["doors"]]
 
     def openings(self, scene) -> list[float]:
         return [float(scene.data.qpos[_jq(scene, d["joint"])]) / HALF_PI for d in scene.fixtures["double_door"]["doors"]]
@@ -181,13 +183,6 @@ class OpenSingleDoor(Task):
     fail_reason: str = "not_open"
     threshold: float = 0.90
 
-    def target_info(self, scene):
-        from floaff_zoo.sim.kitchen import TargetInfo
-
-        f = scene.fixtures["microwave"]
-        return TargetInfo(pos=f["front"].copy(), yaw=float(f["yaw"]), kind="microwave", body_names=list(f["bodies"]),
-                          geom_ids=_body_geoms(scene, f["bodies"]), joint_names=[f["joint"]], extra=dict(f))
-
     def opening(self, scene) -> float:
         return float(scene.data.qpos[_jq(scene, scene.fixtures["microwave"]["joint"])]) / HALF_PI
 
@@ -217,14 +212,11 @@ class PnPCounterToCab(Task):
     tol: float = 0.05
     min_gripper_dist: float = 0.25
 
-    def target_info(self, scene):
-        from floaff_zoo.sim.kitchen import TargetInfo
+    def joint_names(self, fixture: dict) -> list[str]:
+        return [fixture["door"]["joint"]]
 
-        f = scene.fixtures["wall_cab"]
-        extra = dict(f)
-        extra["object_geom_ids"] = _body_geoms(scene, [f["object"]])
-        return TargetInfo(pos=f["front"].copy(), yaw=float(f["yaw"]), kind="wall_cab", body_names=list(f["bodies"]),
-                          geom_ids=_body_geoms(scene, f["bodies"]), joint_names=[f["door"]["joint"]], extra=extra)
+    def target_extra(self, scene, fixture: dict) -> dict:
+        return {**fixture, "object_geom_ids": _body_geoms(scene, [fixture["object"]])}
 
     def _obj(self, scene) -> tuple[int, int]:
         m = scene.model
