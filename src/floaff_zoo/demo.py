@@ -63,18 +63,18 @@ def _fit_baseline(data: str, root: Path, epochs: int) -> Path:
 
 
 def _test(run_dir: Path, data: str, ckpt: str | None = None) -> Path:
+    """Test a fit run on every task with the rollout callback; returns its report.json.
+
+    ``best`` resolves inside ``run_dir`` (the run the ``--config`` came from); the report lands in the
+    next ``version_<n>`` directory beside the fit run (the saved config carries its logger).
+    """
     from floaff_zoo.cli import run_lightning
 
-    args = [
+    cli = run_lightning([
         "test", "--config", str(run_dir / "config.yaml"), "--config", EVAL_CONFIG,
         "--data.init_args.root", data, "--data.init_args.tasks", json.dumps(list(ALL_TASKS)),
-        "--trainer.default_root_dir", str(run_dir / "test"), "--ckpt_path", ckpt or "best",
-    ]
-    if ckpt is None:  # resolve 'best' in the fit run, not in the fresh test directory
-        from floaff_zoo.cli import resolve_ckpt_alias
-
-        args[-1] = resolve_ckpt_alias("best", run_dir)
-    cli = run_lightning(args)
+        "--ckpt_path", ckpt or "best",
+    ])
     report = Path(cli.trainer.log_dir) / "report.json"
     if not report.is_file():
         raise RuntimeError(f"test of {run_dir} wrote no report.json")
