@@ -112,6 +112,13 @@ def test_push_uses_report_json_metrics(run_dir, tmp_path):
     (run / "report.json").write_text(json.dumps({"metrics": {"test_rmse": 0.2, "test_sim": 0.7, "note": "x"}}))
     assert _push(run, "tiny.report.v1") == 0
     assert load_registry()["tiny.report.v1"].meta["metrics"] == {"test_rmse": 0.2, "test_sim": 0.7}
+    # an explicit report (e.g. the test run's, which lands beside the fit run) wins over the run's own
+    other = tmp_path / "elsewhere" / "report.json"
+    other.parent.mkdir()
+    other.write_text(json.dumps({"metrics": {"test_sr_all": 0.5, "test_rmse": 0.1}}))
+    assert zoo_main(["hub", "push", str(run), "--name", "tiny.report.v2", "--report", str(other)]) == 0
+    assert load_registry()["tiny.report.v2"].meta["metrics"] == {"test_sr_all": 0.5, "test_rmse": 0.1}
+    assert zoo_main(["hub", "push", str(run), "--name", "tiny.report.v3", "--report", str(tmp_path / "no.json")]) == 2
 
 
 def test_info_and_verify_cli(run_dir, capsys):

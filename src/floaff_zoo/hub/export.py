@@ -62,11 +62,14 @@ def find_run_checkpoint(run: str | os.PathLike[str]) -> Path:
         raise HubError(f"{p}: no last.ckpt found in the run directory; pass the .ckpt file instead") from exc
 
 
-def _report_metrics(ckpt_path: Path, run: Path | None) -> dict[str, float]:
-    """Numbers from a ``report.json`` (its ``metrics`` object, else its top-level numbers)."""
+def _report_metrics(ckpt_path: Path, run: Path | None, report: Path | None = None) -> dict[str, float]:
+    """Numbers from a ``report.json`` (its ``metrics`` object, else its top-level numbers): ``report`` when
+    given, else the first one in the run, checkpoint or run-version directory."""
+    if report is not None and not report.is_file():
+        raise HubError(f"{report}: no such report file")
     dirs = [d for d in (run, ckpt_path.parent, ckpt_path.parent.parent) if d is not None and d.is_dir()]
-    for d in dirs:
-        report = d / "report.json"
+    candidates = [report] if report is not None else [d / "report.json" for d in dirs]
+    for report in candidates:
         if report.is_file():
             try:
                 raw = json.loads(report.read_text(encoding="utf-8"))
@@ -148,6 +151,7 @@ def export_checkpoint(
     directory: str | os.PathLike[str] | None = None,
     class_path: str | None = None,
     meta: dict[str, Any] | None = None,
+    report: str | os.PathLike[str] | None = None,
 ) -> tuple[HubEntry, Path]:
     """Export a run's best checkpoint into ``<hub dir>/<name>/`` and register it in the user index.
 
@@ -157,6 +161,9 @@ def export_checkpoint(
         directory: hub directory (default ``$FLOAFF_ZOO_HUB``).
         class_path: model class when the checkpoint does not record ``_class_path``.
         meta: extra metadata (dataset, benchmark, license, description); ``metrics`` is filled in.
+        report: a ``report.json`` of ``floaff-zoo test`` on this checkpoint whose metrics (map metrics and
+            success rates) are recorded; default: one found in the run directory, else the best
+            validation score.
     Returns:
         (the registered entry, the export directory).
     """
@@ -183,7 +190,8 @@ def export_checkpoint(
     except TypeError as exc:
         raise HubError(f"{ckpt_path}: hyper_parameters are not JSON primitives ({exc})") from exc
     state = _portable_state(ckpt["state_dict"], ckpt_path)
-    metrics = _report_metrics(ckpt_path, run) or _best_score(ckpt_path, ckpt, run)
+    metrics = _report_metrics(ckpt_path, run, Path(report) if report is not None else None)
+    metrics = metrics or _best_score(ckpt_path, ckpt, run)
     meta = {**(meta or {}), "metrics": metrics}
 
     out = hub_dir(directory) / name

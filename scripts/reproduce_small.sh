@@ -1,0 +1,139 @@
+#!/usr/bin/env bash
+# The experiments of docs/results.md ("small preset") on a 2-core CPU machine, two jobs at a time.
+#
+#   scripts/reproduce_small.sh                 # every job, in the order of JOBS below
+#   scripts/reproduce_small.sh cfar_pfal_s0 pointnet2_s0   # only these
+#   PAR=1 scripts/reproduce_small.sh ...       # one at a time (each job then may use both cores)
+#
+# Needs the data: floaff-zoo generate --preset small --benchmarks layouts styles --out data/floaff_small --workers 2
+# Every job trains (a `fit` or a PFAL `curriculum`), tests on all four tasks with the rollout success-rate
+# callback, and copies its report.json/report.md to docs/results/small/<benchmark>/<job>/ (machine paths
+# stripped). A job whose report is already there is skipped; a killed job resumes (the curriculum skips
+# finished stages, fit resumes from last.ckpt). Logs: runs/small/logs/<job>.log.
+# Then: floaff-zoo table --runs docs/results/small/layouts/... (the commands are in docs/results.md).
+set -euo pipefail
+SELF=$(realpath "$0")
+cd "$(dirname "$SELF")/.."
+# the project's virtual environment (make setup) when floaff-zoo is not on PATH
+if ! command -v floaff-zoo > /dev/null && [ -x .venv/bin/floaff-zoo ]; then PATH=$PWD/.venv/bin:$PATH; fi
+
+FZ=${FZ:-floaff-zoo}
+RUNS=${RUNS:-runs/small}
+OUT=${OUT:-docs/results/small}
+PAR=${PAR:-2}
+TASKS='["PnPCounterToCab","OpenSingleDoor","CloseDrawer","CloseDoubleDoor"]'
+EVAL=configs/trainer/eval_sr.yaml
+
+JOBS=(
+  cfar_pfal_s0 pointnet2_s0 c2f_exp
+  cfar_pfal_s1 pointnet2_s1 cfar_pfal_s2 pointnet2_s2
+  navaff votenet h3dnet n2m
+  no_crop no_align no_sdl no_fd
+  styles_cfar_pfal styles_pointnet2 styles_c2f_exp
+  r1.10 r1.30 r1.40 r1.15 r1.25 r1.35
+)
+
+# test_run RUN_DIR LABEL BENCH JOB [CKPT]: test a fit run on all tasks, copy its report
+test_run() {
+  local run=$1 label=$2 bench=$3 job=$4 ckpt=${5:-best}
+  local before=$run/../.tested_$job
+  touch "$before"
+  "$FZ" test --config "$run/config.yaml" --config "$EVAL" --data.init_args.tasks "$TASKS" \
+    --ckpt_path "$ckpt" --trainer.callbacks.init_args.label "$label"
+  # the report lands in the next version_<n> beside the fit run: the newest report.json there
+  local report
+  report=$(find "$run/.." -name report.json -newer "$before" | head -n 1)
+  [ -n "$report" ] || { echo "no report.json written for $job" >&2; return 1; }
+  mkdir -p "$OUT/$bench/$job"
+  sed "s#$PWD/##g" "$report" > "$OUT/$bench/$job/report.json"
+  sed "s#$PWD/##g" "$(dirname "$report")/report.md" > "$OUT/$bench/$job/report.md"
+}
+
+# newest fit run (directory with config.yaml) under a root
+latest_run() { find "$1" -name config.yaml -printf '%T@ %h\n' | sort -n | tail -n 1 | cut -d' ' -f2; }
+
+# curriculum JOB BENCH SEED LABEL [--extra-config FILE]: PFAL, then test the last stage's best
+curriculum() {
+  local job=$1 bench=$2 seed=$3 label=$4; shift 4
+  "$FZ" curriculum --config "configs/experiments/pfal_small_$bench.yaml" --root "$RUNS/$bench/$job" \
+    --set "seed_everything=$seed" "$@"
+  local ckpt stage
+  ckpt=$(python3 -c "import json,sys; print(json.load(open(sys.argv[1]))['stages'][-1]['checkpoint'])" \
+    "$RUNS/$bench/$job/lineage.json")
+  stage=$(dirname "$(dirname "$ckpt")")
+  test_run "$stage" "$label" "$bench" "$job" "$ckpt"
+}
+
+# baseline JOB BENCH SEED MODEL_CONFIG LABEL: fit (resumed from last.ckpt when killed), then test
+baseline() {
+  local job=$1 bench=$2 seed=$3 model=$4 label=$5 root=$RUNS/$2/$1 last=()
+  if [ -d "$root" ]; then
+    local prev; prev=$(find "$root" -name last.ckpt | head -n 1)
+    if [ -n "$prev" ]; then last=(--ckpt_path "$prev"); fi
+  fi
+  "$FZ" fit --config "configs/data/floaff_small_$bench.yaml" --config "$model" \
+    --seed_everything "$seed" --trainer.default_root_dir "$root" --trainer.max_epochs 20 "${last[@]}"
+  test_run "$(latest_run "$root")" "$label" "$bench" "$job"
+}
+
+# training-free C2F-Exp-style: test only
+training_free() {
+  local job=$1 bench=$2 root=$RUNS/$2/$1
+  "$FZ" test --config "configs/data/floaff_small_$bench.yaml" --config configs/models/c2f_exp.yaml \
+    --config "$EVAL" --trainer.default_root_dir "$root" --trainer.callbacks.init_args.label C2F-Exp
+  local report; report=$(find "$root" -name report.json | head -n 1)
+  mkdir -p "$OUT/$bench/$job"
+  sed "s#$PWD/##g" "$report" > "$OUT/$bench/$job/report.json"
+  sed "s#$PWD/##g" "$(dirname "$report")/report.md" > "$OUT/$bench/$job/report.md"
+}
+
+run_job() {
+  local job=$1
+  case $job in
+    cfar_pfal_s[0-9]) curriculum "$job" layouts "${job#cfar_pfal_s}" "CFAR+PFAL" ;;
+    pointnet2_s[0-9]) baseline "$job" layouts "${job#pointnet2_s}" configs/demo/pointnet2_demo.yaml "PointNet++" ;;
+    navaff)  baseline navaff layouts 0 configs/demo/navaff_demo.yaml NavAff ;;
+    votenet) baseline votenet layouts 0 configs/demo/votenet_demo.yaml VoteNet ;;
+    h3dnet)  baseline h3dnet layouts 0 configs/demo/h3dnet_demo.yaml H3DNet ;;
+    n2m)     baseline n2m layouts 0 configs/demo/n2m_demo.yaml N2M ;;
+    c2f_exp) training_free c2f_exp layouts ;;
+    no_crop|no_align|no_sdl|no_fd)
+      curriculum "$job" layouts 0 "w/o ${job#no_}" --extra-config "configs/experiments/ablations/$job.yaml" ;;
+    r1.[0-9]*)
+      # the sweep file sets CFAR's crop radius only (not AxisNet's); the curriculum's --root beats its
+      # default_root_dir
+      curriculum "sweep_$job" layouts 0 "r=${job#r}" --extra-config "configs/experiments/sweep_crop/$job.yaml" ;;
+    styles_cfar_pfal) curriculum cfar_pfal_s0 styles 0 "CFAR+PFAL" ;;
+    styles_pointnet2) baseline pointnet2_s0 styles 0 configs/demo/pointnet2_demo.yaml "PointNet++" ;;
+    styles_c2f_exp) training_free c2f_exp styles ;;
+    *) echo "unknown job '$job'; jobs: ${JOBS[*]}" >&2; return 2 ;;
+  esac
+}
+
+job_out() {  # where a job's report goes, under $OUT
+  case $1 in
+    styles_c2f_exp) echo styles/c2f_exp ;;
+    styles_*) echo "styles/${1#styles_}_s0" ;;
+    r1.*) echo "layouts/sweep_$1" ;;
+    *) echo "layouts/$1" ;;
+  esac
+}
+
+if [ "${1:-}" = "--one" ]; then
+  shift
+  job=$1
+  if [ -f "$OUT/$(job_out "$job")/report.json" ]; then echo "[$job] report exists, skipped"; exit 0; fi
+  mkdir -p "$RUNS/logs"
+  t0=$(date +%s)
+  if OMP_NUM_THREADS=${OMP_NUM_THREADS:-1} run_job "$job" > "$RUNS/logs/$job.log" 2>&1; then
+    echo "[$job] done in $(( $(date +%s) - t0 )) s"
+  else
+    echo "[$job] FAILED after $(( $(date +%s) - t0 )) s, see $RUNS/logs/$job.log"
+    exit 1
+  fi
+  exit 0
+fi
+
+[ $# -gt 0 ] && JOBS=("$@")
+[ "$PAR" -gt 1 ] || export OMP_NUM_THREADS=${OMP_NUM_THREADS:-2}
+printf '%s\n' "${JOBS[@]}" | xargs -P "$PAR" -I{} "$SELF" --one {}
