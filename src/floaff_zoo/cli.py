@@ -2,7 +2,7 @@
 
 Trainer commands (``fit``, ``validate``, ``test``, ``predict``) are a LightningCLI in subclass
 mode, so ``model: {class_path: PointNet2Module}`` and ``--model CFARModule`` resolve. The other
-commands (``generate``, ``curriculum``, ``table``, ``hub``, ``demo``) are dispatched to their own
+commands (``generate``, ``curriculum``, ``table``, ``montage``, ``hub``, ``demo``) are dispatched to their own
 modules' ``main`` before LightningCLI sees the arguments.
 """
 
@@ -29,6 +29,7 @@ OTHER_COMMANDS: dict[str, tuple[str, str]] = {
     "generate": ("floaff_zoo.sim.generate:main", "generate a FloAff-Kitchen-style benchmark in MuJoCo"),
     "curriculum": ("floaff_zoo.curriculum:main", "run a PFAL curriculum (a list of fit stages)"),
     "table": ("floaff_zoo.report.table:main", "aggregate report.json files into paper-style tables"),
+    "montage": ("floaff_zoo.report.montage:main", "compare the test figures of several runs side by side"),
     "hub": ("floaff_zoo.hub.cli:main", "list / info / pull / push / verify pretrained checkpoints"),
     "demo": ("floaff_zoo.demo:main", "run the end-to-end demo on generated data"),
 }

@@ -1,0 +1,108 @@
+"""``floaff-zoo montage``: one picture comparing methods case by case, like the paper's Figures 4 and 6.
+
+Every ``floaff-zoo test`` draws the ground truth beside its prediction for the first samples of each
+(task, view) (``<run>/figures/<task>_<view>_<k>.png``, listed in ``report.json``). The test loader's
+order is fixed, so the k-th figure of a (task, view) shows the same scene and view in every run of the
+same test split. This command puts those figures side by side: one row per case, one column per run::
+
+    floaff-zoo montage --runs docs/results/small/layouts/{cfar_pfal_s0,pointnet2_s0,c2f_exp} \\
+        --cases CloseDrawer_front_0 OpenSingleDoor_side_0 --out docs/results/small/fig4_layouts.png
+
+A run is a report.json or a directory holding one; its figures are looked up in the report's
+``run_dir`` (where the test wrote them), so the runs must still be on disk.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+__all__ = ["MontageError", "find_figure", "main", "montage"]
+
+
+class MontageError(ValueError):
+    """A missing report or figure (printed without a traceback)."""
+
+
+def _load_report(run: str | Path) -> tuple[Path, dict[str, Any]]:
+    path = Path(run)
+    if path.is_dir():
+        path = path / "report.json"
+    if not path.is_file():
+        raise MontageError(f"{run}: no report.json")
+    try:
+        return path, json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, json.JSONDecodeError) as exc:
+        raise MontageError(f"{path}: unreadable report ({exc})") from exc
+
+
+def find_figure(report_path: Path, report: dict[str, Any], case: str) -> Path:
+    """The PNG of ``case`` (``<task>_<view>_<k>``) written by the test run of ``report``.
+
+    Looked up beside the report first, then in the report's ``run_dir``.
+    """
+    names = [f for f in report.get("figures") or [] if Path(f).stem == case]
+    if not names:
+        listed = sorted(Path(f).stem for f in report.get("figures") or [])
+        raise MontageError(f"{report_path}: no figure {case!r} in the report (it has: {', '.join(listed) or 'none'})")
+    roots = [report_path.parent]
+    if report.get("run_dir"):
+        roots.append(Path(report["run_dir"]))
+    for root in roots:
+        if (root / names[0]).is_file():
+            return root / names[0]
+    raise MontageError(f"{report_path}: figure {names[0]} not found in {', '.join(str(r) for r in roots)}")
+
+
+def montage(runs: list[str | Path], cases: list[str], out: str | Path, labels: list[str] | None = None,
+            width: float = 3.2) -> Path:
+    """Draw ``len(cases)`` rows x ``len(runs)`` columns of the runs' figures into ``out`` (PNG).
+
+    labels: column titles (default each report's ``label``); width: inches per column.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    reports = [_load_report(r) for r in runs]
+    if labels is not None and len(labels) != len(runs):
+        raise MontageError(f"--labels: {len(labels)} given for {len(runs)} runs")
+    titles = labels or [str(rep.get("label") or rep.get("model", {}).get("name") or p.parent.name) for p, rep in reports]
+    images = [[plt.imread(find_figure(p, rep, case)) for p, rep in reports] for case in cases]
+    h, w = images[0][0].shape[:2]
+    fig, axes = plt.subplots(len(cases), len(runs), figsize=(width * len(runs), width * len(runs) * h / w
+                                                             * len(cases) / len(runs)), squeeze=False)
+    for i, row in enumerate(images):
+        for j, img in enumerate(row):
+            ax = axes[i][j]
+            ax.imshow(img)
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if i == 0:
+                ax.set_title(titles[j], fontsize=10)
+            if j == 0:
+                ax.set_ylabel(cases[i], fontsize=8)
+    fig.tight_layout()
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="floaff-zoo montage", description=__doc__.split("\n\n")[0])
+    p.add_argument("--runs", nargs="+", required=True, help="report.json files or directories holding one")
+    p.add_argument("--cases", nargs="+", required=True, help="figure names <task>_<view>_<k>, one row each")
+    p.add_argument("--labels", nargs="+", default=None, help="column titles (default: each report's label)")
+    p.add_argument("--out", required=True, help="PNG to write")
+    args = p.parse_args(argv)
+    try:
+        path = montage(args.runs, args.cases, args.out, args.labels)
+    except MontageError as exc:
+        p.exit(2, f"floaff-zoo montage: error: {exc}\n")
+    print(path)
+    return 0

@@ -1,0 +1,52 @@
+"""floaff-zoo montage: the test figures of several runs side by side (paper Figures 4/6)."""
+
+import json
+
+import numpy as np
+import pytest
+
+from floaff_zoo.cli import main as zoo_main
+
+
+def _run(tmp_path, name, value, cases=("CloseDrawer_front_0", "OpenSingleDoor_side_0"), copy_figures=False):
+    """A fake test run: figures under <run_dir>/figures, report.json copied elsewhere (like docs/results)."""
+    import matplotlib.pyplot as plt
+
+    run_dir = tmp_path / "runs" / name / "version_1"
+    (run_dir / "figures").mkdir(parents=True)
+    for case in cases:
+        img = np.full((40, 60, 3), value, dtype=np.float32)
+        plt.imsave(run_dir / "figures" / f"{case}.png", img)
+    report = {"label": name, "run_dir": str(run_dir), "figures": [f"figures/{c}.png" for c in cases]}
+    out = tmp_path / "docs" / name
+    out.mkdir(parents=True)
+    (out / "report.json").write_text(json.dumps(report))
+    return out
+
+
+def test_montage_puts_runs_in_columns_and_cases_in_rows(tmp_path, capsys):
+    import matplotlib.pyplot as plt
+
+    a, b = _run(tmp_path, "CFAR+PFAL", 0.1), _run(tmp_path, "PointNet++", 0.9)
+    out = tmp_path / "fig4.png"
+    assert zoo_main(["montage", "--runs", str(a), str(b / "report.json"),
+                     "--cases", "CloseDrawer_front_0", "OpenSingleDoor_side_0", "--out", str(out)]) == 0
+    assert str(out) in capsys.readouterr().out
+    img = plt.imread(out)[..., :3]
+    h, w = img.shape[:2]
+    # the dark run is on the left, the light one on the right, in both rows
+    for row in (h // 4, 3 * h // 4):
+        left, right = img[row, : w // 2].mean(), img[row, w // 2 :].mean()
+        assert left < right
+
+
+def test_montage_names_the_missing_case_and_report(tmp_path, capsys):
+    a = _run(tmp_path, "CFAR+PFAL", 0.1)
+    with pytest.raises(SystemExit) as ex:
+        zoo_main(["montage", "--runs", str(a), "--cases", "CloseDrawer_side_3", "--out", str(tmp_path / "x.png")])
+    assert ex.value.code == 2
+    err = capsys.readouterr().err
+    assert "CloseDrawer_side_3" in err and "CloseDrawer_front_0" in err and "report.json" in err
+    with pytest.raises(SystemExit):
+        zoo_main(["montage", "--runs", str(tmp_path / "nope"), "--cases", "a_b_0", "--out", str(tmp_path / "x.png")])
+    assert "nope: no report.json" in capsys.readouterr().err
