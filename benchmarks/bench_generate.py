@@ -85,6 +85,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--views", type=int, default=8, help="views per kind for the render benchmark")
     ap.add_argument("--image-size", type=int, default=128)
     ap.add_argument("--out", default=None, help="keep generated data here")
+    ap.add_argument("--data", default="data", help="also report the wall time recorded in the manifest of every "
+                    "benchmark generated under this folder (by `floaff-zoo generate`)")
     args = ap.parse_args(argv)
     out = Path(args.out) if args.out else None
 
@@ -113,7 +115,33 @@ def main(argv: list[str] | None = None) -> int:
         c = man["counts"]
         print(f"[small] {c['scenes_ok']} scenes ok, {c['scenes_dropped']} dropped, {c['views_total']} views: "
               f"{wall / 60:.1f} min wall (workers={args.workers}); " + _phase_means(man))
+    for line in manifest_walls(Path(args.data)):
+        print(line)
     return 0
+
+
+def manifest_walls(root: Path) -> list[str]:
+    """One line per finished benchmark under ``root``: preset, scenes, views, workers and the wall time its
+    ``floaff-zoo generate`` run recorded (a resumed run records only its own part)."""
+    import json
+
+    lines = []
+    for path in sorted(root.glob("*/manifest.json")):
+        try:
+            man = json.loads(path.read_text())
+        except (OSError, ValueError) as exc:
+            lines.append(f"[manifest] {path}: unreadable ({exc}); skipped")
+            continue
+        if man.get("status") != "done" or not man.get("wall_s"):
+            continue
+        c, cfg = man["counts"], man["config"]
+        resumed = sum(1 for sc in man["scenes"].values() if sc.get("resumed"))
+        lines.append(
+            f"[preset {man['preset']}] {path.parent.name}: {'+'.join(cfg['benchmarks'])}, {c['scenes_ok']} scenes ok, "
+            f"{c['scenes_dropped']} dropped, {c['views_total']} views, max {cfg['max_candidates']} rollouts/scene: "
+            f"{man['wall_s']:.0f} s wall with {man['workers']} worker(s) ({man['wall_s'] / max(1, c['scenes_ok']):.1f} "
+            f"s/scene)" + (f"; {resumed} scene(s) resumed from an earlier run" if resumed else ""))
+    return lines
 
 
 if __name__ == "__main__":
