@@ -54,6 +54,21 @@ def test_fit_test_predict_round_trip(tmp_path, root, monkeypatch):
     assert m.hparams.width == 32
 
 
+def test_command_line_model_args_beat_checkpoint_hparams(tmp_path, root, monkeypatch):
+    """With --ckpt_path <file> Lightning takes the model config from the checkpoint; explicit evaluation-time
+    overrides on the command line must still apply (they used to be dropped silently)."""
+    monkeypatch.chdir(root)
+    base = ["--config", DATA, "--config", MODEL, *quiet_trainer_args(tmp_path)]
+    cli = run_lightning(["fit", *base, "--trainer.max_epochs", "1", "--model.init_args.width", "16"])
+    ckpt = cli.trainer.checkpoint_callback.best_model_path
+    plain = run_lightning(["test", "--config", DATA, *quiet_trainer_args(tmp_path), "--model", "TinyPointNetModule",
+                           "--ckpt_path", ckpt])
+    assert plain.model.hparams.width == 16 and plain.model.hparams.sim_variant == "cosine"  # from the checkpoint
+    over = run_lightning(["test", "--config", DATA, *quiet_trainer_args(tmp_path), "--model", "TinyPointNetModule",
+                          "--ckpt_path", ckpt, "--model.init_args.sim_variant=hist"])
+    assert over.model.hparams.width == 16 and over.model.hparams.sim_variant == "hist"
+
+
 def test_test_without_checkpoint_refuses(tmp_path, root, monkeypatch):
     monkeypatch.chdir(root)
     with pytest.raises(CLIError, match="needs trained weights"):

@@ -70,11 +70,63 @@ def resolve_ckpt_alias(alias: str, root: str | Path) -> str:
     return str(last)
 
 
+def explicit_model_args(args: list[str]) -> list[str]:
+    """Model init-arg keys given on the command line: ``--model.init_args.k v``, ``--model.init_args.k=v`` or the
+    short ``--model.k v`` -> ``["k", ...]`` (dotted for nested keys)."""
+    keys = []
+    for tok in args:
+        if not tok.startswith("--model."):
+            continue
+        key = tok[len("--model."):].split("=", 1)[0]
+        key = key.removeprefix("init_args.")
+        if key and key not in ("class_path", "init_args", "dict_kwargs", "help"):
+            keys.append(key)
+    return keys
+
+
+def _import_class(path: Any) -> Any:
+    """The class a dotted path names (``floaff_zoo.models.X`` and ``floaff_zoo.models.x.X`` are one), else the path."""
+    try:
+        mod, name = str(path).rsplit(".", 1)
+        return getattr(importlib.import_module(mod), name)
+    except (ValueError, ImportError, AttributeError):
+        return path
+
+
 class FloAffCLI(LightningCLI):
     """LightningCLI with the zoo's defaults and guards."""
 
     def add_arguments_to_parser(self, parser: Any) -> None:
         parser.set_defaults({"trainer.default_root_dir": "runs"})
+
+    def parse_arguments(self, parser: Any, args: Any) -> None:
+        raw = args if isinstance(args, list) else (sys.argv[1:] if args is None else [])
+        self._explicit_model_args = explicit_model_args([str(a) for a in raw])
+        super().parse_arguments(parser, args)
+
+    def _parse_ckpt_path(self) -> None:
+        """Lightning rebuilds the model config from the hyper-parameters of a ``--ckpt_path`` file (so the trained
+        architecture is used whatever the config says). That would also silently drop evaluation-time choices
+        given on the command line (e.g. ``--model.init_args.eval_yaw_source gt``): those are applied again."""
+        sub = self.config.get("subcommand")
+        before = self.config[sub].get("model") if sub else None
+        before = before.clone() if before is not None else None
+        super()._parse_ckpt_path()
+        keys = getattr(self, "_explicit_model_args", [])
+        if before is None or not keys:
+            return
+        after = self.config[sub].model
+        if _import_class(after.get("class_path")) is not _import_class(before.get("class_path")):
+            return  # another model class: the command-line values belong to the config's class
+        kept = []
+        for key in keys:
+            full = f"init_args.{key}"
+            if full in before:
+                after[full] = before[full]
+                kept.append(key)
+        if kept and self.config[sub].get("ckpt_path") and Path(str(self.config[sub].ckpt_path)).is_file():
+            print(f"floaff-zoo: model hyper-parameters from {self.config[sub].ckpt_path}, except "
+                  f"{', '.join(kept)} (given on the command line)", file=sys.stderr)
 
     def before_instantiate_classes(self) -> None:
         cfg = self.config[self.subcommand]
