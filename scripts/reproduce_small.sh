@@ -4,6 +4,7 @@
 #   scripts/reproduce_small.sh                 # every job, in the order of JOBS below
 #   scripts/reproduce_small.sh cfar_pfal_s0 pointnet2_s0   # only these
 #   PAR=1 scripts/reproduce_small.sh ...       # one at a time (each job then may use both cores)
+#   RETEST=1 scripts/reproduce_small.sh ...    # only test the finished runs again (e.g. after adding test scenes)
 #
 # Needs the data: floaff-zoo generate --preset small --benchmarks layouts styles --out data/floaff_small --workers 2
 # Every job trains (a `fit` or a PFAL `curriculum`), tests on all four tasks with the rollout success-rate
@@ -49,14 +50,17 @@ test_run() {
   sed "s#$PWD/##g" "$(dirname "$report")/report.md" > "$OUT/$bench/$job/report.md"
 }
 
-# newest fit run (directory with config.yaml) under a root
-latest_run() { find "$1" -name config.yaml -printf '%T@ %h\n' | sort -n | tail -n 1 | cut -d' ' -f2; }
+# newest fit run (the directory holding checkpoints/last.ckpt) under a root
+latest_run() { dirname "$(find "$1" -name last.ckpt -printf '%T@ %h\n' | sort -n | tail -n 1 | cut -d' ' -f2)"; }
+RETEST=${RETEST:-0}
 
 # curriculum JOB BENCH SEED LABEL [--extra-config FILE]: PFAL, then test the last stage's best
 curriculum() {
   local job=$1 bench=$2 seed=$3 label=$4; shift 4
-  "$FZ" curriculum --config "configs/experiments/pfal_small_$bench.yaml" --root "$RUNS/$bench/$job" \
-    --set "seed_everything=$seed" "$@"
+  if [ "$RETEST" = 0 ]; then
+    "$FZ" curriculum --config "configs/experiments/pfal_small_$bench.yaml" --root "$RUNS/$bench/$job" \
+      --set "seed_everything=$seed" "$@"
+  fi
   local ckpt stage
   ckpt=$(python3 -c "import json,sys; print(json.load(open(sys.argv[1]))['stages'][-1]['checkpoint'])" \
     "$RUNS/$bench/$job/lineage.json")
@@ -71,17 +75,21 @@ baseline() {
     local prev; prev=$(find "$root" -name last.ckpt | head -n 1)
     if [ -n "$prev" ]; then last=(--ckpt_path "$prev"); fi
   fi
-  "$FZ" fit --config "configs/data/floaff_small_$bench.yaml" --config "$model" \
-    --seed_everything "$seed" --trainer.default_root_dir "$root" --trainer.max_epochs 20 "${last[@]}"
+  if [ "$RETEST" = 0 ]; then
+    "$FZ" fit --config "configs/data/floaff_small_$bench.yaml" --config "$model" \
+      --seed_everything "$seed" --trainer.default_root_dir "$root" --trainer.max_epochs 20 "${last[@]}"
+  fi
   test_run "$(latest_run "$root")" "$label" "$bench" "$job"
 }
 
 # training-free C2F-Exp-style: test only
 training_free() {
   local job=$1 bench=$2 root=$RUNS/$2/$1
+  local before=$RUNS/.tested_${bench}_$job
+  mkdir -p "$RUNS"; touch "$before"
   "$FZ" test --config "configs/data/floaff_small_$bench.yaml" --config configs/models/c2f_exp.yaml \
     --config "$EVAL" --trainer.default_root_dir "$root" --trainer.callbacks.init_args.label C2F-Exp
-  local report; report=$(find "$root" -name report.json | head -n 1)
+  local report; report=$(find "$root" -name report.json -newer "$before" | head -n 1)
   mkdir -p "$OUT/$bench/$job"
   sed "s#$PWD/##g" "$report" > "$OUT/$bench/$job/report.json"
   sed "s#$PWD/##g" "$(dirname "$report")/report.md" > "$OUT/$bench/$job/report.md"
@@ -122,7 +130,7 @@ job_out() {  # where a job's report goes, under $OUT
 if [ "${1:-}" = "--one" ]; then
   shift
   job=$1
-  if [ -f "$OUT/$(job_out "$job")/report.json" ]; then echo "[$job] report exists, skipped"; exit 0; fi
+  if [ "${RETEST:-0}" = 0 ] && [ -f "$OUT/$(job_out "$job")/report.json" ]; then echo "[$job] report exists, skipped"; exit 0; fi
   mkdir -p "$RUNS/logs"
   t0=$(date +%s)
   if OMP_NUM_THREADS=${OMP_NUM_THREADS:-1} run_job "$job" > "$RUNS/logs/$job.log" 2>&1; then

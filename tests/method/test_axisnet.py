@@ -1,5 +1,6 @@
 """AxisNet: the yaw metric, augmentation consistency and a short real fit through the CLI."""
 
+import json
 import math
 from pathlib import Path
 
@@ -92,3 +93,8 @@ def test_axisnet_learns_yaw_in_a_short_fit(tmp_path, root, monkeypatch):
     out = best.predict_step(b, 0)
     assert out["yaw"].shape == (32,) and "scores" not in out
     assert Path(ckpt_cb.best_model_path).is_file()
+    # `floaff-zoo test` on an AxisNet run: the angle error is reported, the figure step (floor maps) is skipped
+    cfg = Path(ckpt_cb.best_model_path).parents[1] / "config.yaml"
+    cli_t = run_lightning(["test", "--config", str(cfg), *quiet_trainer_args(tmp_path), "--ckpt_path", "best"])
+    report = json.loads((Path(cli_t.trainer.log_dir) / "report.json").read_text())
+    assert report["metrics"]["test_angle_error_deg"] < 10.0 and not report.get("figures")

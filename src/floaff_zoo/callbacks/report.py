@@ -149,6 +149,8 @@ class TestReport(L.Callback):
             if scores is None or scores.shape != batch["floor_mask"].shape:
                 with torch.no_grad():
                     scores = pl_module(batch)
+            if not torch.is_tensor(scores) or scores.shape != batch["floor_mask"].shape:
+                return  # not a floor-map model (e.g. AxisNet predicts a yaw): nothing to draw
             self._counts[key] = self._counts.get(key, 0) + 1
             valid = batch["floor_mask"][i].detach().cpu().numpy().astype(bool)
             self._samples.append(
