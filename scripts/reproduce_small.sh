@@ -32,15 +32,16 @@ JOBS=(
   no_crop no_align no_sdl no_fd
   styles_cfar_pfal styles_pointnet2 styles_c2f_exp
   r1.10 r1.30 r1.40 r1.15 r1.25 r1.35
+  gtyaw_s0 gtyaw_s1 gtyaw_s2 stage1_s0 stage1_s1 stage1_s2
 )
 
-# test_run RUN_DIR LABEL BENCH JOB [CKPT]: test a fit run on all tasks, copy its report
+# test_run RUN_DIR LABEL BENCH JOB [CKPT [TEST ARGS...]]: test a fit run on all tasks, copy its report
 test_run() {
-  local run=$1 label=$2 bench=$3 job=$4 ckpt=${5:-best}
+  local run=$1 label=$2 bench=$3 job=$4 ckpt=${5:-best}; shift 5 || shift $#
   local before=$run/../.tested_$job
   touch "$before"
   "$FZ" test --config "$run/config.yaml" --config "$EVAL" --data.init_args.tasks "$TASKS" \
-    --ckpt_path "$ckpt" --trainer.callbacks.init_args.label "$label"
+    --ckpt_path "$ckpt" --trainer.callbacks.init_args.label "$label" "$@"
   # the report lands in the next version_<n> beside the fit run: the newest report.json there
   local report
   report=$(find "$run/.." -name report.json -newer "$before" | head -n 1)
@@ -66,6 +67,16 @@ curriculum() {
     "$RUNS/$bench/$job/lineage.json")
   stage=$(dirname "$(dirname "$ckpt")")
   test_run "$stage" "$label" "$bench" "$job" "$ckpt"
+}
+
+# stage_test JOB SOURCE_JOB STAGE_INDEX LABEL [TEST ARGS...]: test one stage of a finished curriculum again
+# with other evaluation settings (diagnostics; no training)
+stage_test() {
+  local job=$1 src=$2 idx=$3 label=$4; shift 4
+  local ckpt
+  ckpt=$(python3 -c "import json,sys; print(json.load(open(sys.argv[1]))['stages'][int(sys.argv[2])]['checkpoint'])" \
+    "$RUNS/layouts/$src/lineage.json" "$idx")
+  test_run "$(dirname "$(dirname "$ckpt")")" "$label" layouts "$job" "$ckpt" "$@"
 }
 
 # baseline JOB BENCH SEED MODEL_CONFIG LABEL: fit (resumed from last.ckpt when killed), then test
@@ -111,6 +122,10 @@ run_job() {
       # the sweep file sets CFAR's crop radius only (not AxisNet's); the curriculum's --root beats its
       # default_root_dir
       curriculum "sweep_$job" layouts 0 "r=${job#r}" --extra-config "configs/experiments/sweep_crop/$job.yaml" ;;
+    gtyaw_s[0-9]) # the final model with the simulator's target yaw instead of AxisNet's (upper bound of Align)
+      stage_test "$job" "cfar_pfal_s${job#gtyaw_s}" -1 "CFAR+PFAL, simulator yaw" --model.init_args.eval_yaw_source gt ;;
+    stage1_s[0-9]) # PFAL stage 1 alone (trained on PnPCounterToCab only), tested on all four tasks
+      stage_test "$job" "cfar_pfal_s${job#stage1_s}" 1 "CFAR, stage 1 only" ;;
     styles_cfar_pfal) curriculum cfar_pfal_s0 styles 0 "CFAR+PFAL" ;;
     styles_pointnet2) baseline pointnet2_s0 styles 0 configs/demo/pointnet2_demo.yaml "PointNet++" ;;
     styles_c2f_exp) training_free c2f_exp styles ;;

@@ -1,0 +1,49 @@
+#!/usr/bin/env bash
+# The tables and pictures of docs/results.md ("small preset") from the committed report.json files:
+#   scripts/results_tables.sh > /tmp/tables.md      (pictures need the runs/ of scripts/reproduce_small.sh)
+set -euo pipefail
+SELF=$(realpath "$0")
+cd "$(dirname "$SELF")/.."
+if ! command -v floaff-zoo > /dev/null && [ -x .venv/bin/floaff-zoo ]; then PATH=$PWD/.venv/bin:$PATH; fi
+R=${OUT:-docs/results/small}
+
+MAIN=()   # the method and every baseline, both benchmarks (rows: the report's label, seeds pooled)
+for d in "$R"/layouts/{cfar_pfal_s?,pointnet2_s?,navaff,votenet,h3dnet,n2m,c2f_exp} \
+         "$R"/styles/{cfar_pfal_s?,pointnet2_s?,c2f_exp}; do
+  [ -f "$d/report.json" ] && MAIN+=("$d")
+done
+table() { floaff-zoo table --format md --group-by label "$@"; echo; }
+
+echo "### Map metrics (analogue of Table 1)"; echo
+table --runs "${MAIN[@]}" --preset map
+echo "### Multi-task success rate by view (analogue of Table 2)"; echo
+table --runs "${MAIN[@]}" --preset sr_views
+echo "### Success rate by task (analogue of Table 3)"; echo
+table --runs "${MAIN[@]}" --preset sr_tasks
+
+ABL=("$R"/layouts/cfar_pfal_s0)
+for d in "$R"/layouts/no_{crop,align,sdl,fd}; do [ -f "$d/report.json" ] && ABL+=("$d"); done
+echo "### Ablations on Layouts (analogue of Tables 4-5; seed 0 each)"; echo
+table --runs "${ABL[@]}" --preset ablation
+table --runs "${ABL[@]}" --preset sr_views --no-oracle
+
+SWEEP=("$R"/layouts/cfar_pfal_s0)
+for d in "$R"/layouts/sweep_r*; do [ -f "$d/report.json" ] && SWEEP+=("$d"); done
+echo "### Crop-radius sweep on Layouts (seed 0 each)"; echo
+floaff-zoo table --format md --runs "${SWEEP[@]}" --preset sweep; echo
+
+DIAG=()
+for d in "$R"/layouts/{cfar_pfal_s?,gtyaw_s?,stage1_s?}; do [ -f "$d/report.json" ] && DIAG+=("$d"); done
+echo "### Diagnostics: AxisNet yaw vs the simulator's yaw, stage 1 alone (Layouts, 3 seeds)"; echo
+table --runs "${DIAG[@]}" --preset sr_tasks
+
+if [ -d runs/small ]; then  # pictures like the paper's Figures 4 and 6 (need the runs' figures on disk)
+  for bench in layouts styles; do
+    cols=("$R/$bench/cfar_pfal_s0" "$R/$bench/pointnet2_s0" "$R/$bench/c2f_exp")
+    [ "$bench" = layouts ] && cols+=("$R/layouts/navaff" "$R/layouts/n2m")
+    floaff-zoo montage --runs "${cols[@]}" --cases CloseDrawer_front_0 CloseDrawer_side_0 OpenSingleDoor_front_0 \
+      OpenSingleDoor_side_0 --out "$R/fig4_$bench.png" >&2 || echo "fig4_$bench not drawn" >&2
+    floaff-zoo montage --runs "${cols[@]}" --cases PnPCounterToCab_front_0 PnPCounterToCab_side_0 \
+      CloseDoubleDoor_front_0 CloseDoubleDoor_side_0 --out "$R/fig6_$bench.png" >&2 || echo "fig6_$bench not drawn" >&2
+  done
+fi
