@@ -73,8 +73,8 @@ def montage(runs: list[str | Path], cases: list[str], out: str | Path, labels: l
     titles = labels or [str(rep.get("label") or rep.get("model", {}).get("name") or p.parent.name) for p, rep in reports]
     images = [[plt.imread(find_figure(p, rep, case)) for p, rep in reports] for case in cases]
     h, w = images[0][0].shape[:2]
-    fig, axes = plt.subplots(len(cases), len(runs), figsize=(width * len(runs), width * len(runs) * h / w
-                                                             * len(cases) / len(runs)), squeeze=False)
+    size = (width * len(runs), width * h / w * len(cases))  # every panel keeps the figures' aspect ratio
+    fig, axes = plt.subplots(len(cases), len(runs), figsize=size, squeeze=False)
     for i, row in enumerate(images):
         for j, img in enumerate(row):
             ax = axes[i][j]
