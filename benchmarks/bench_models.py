@@ -26,7 +26,7 @@ import torch
 import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
-MODELS = ["pointnet2_ssg", "pointnet2_msg", "votenet", "h3dnet", "navaff", "n2m", "c2f_exp"]
+MODELS = ["pointnet2_ssg", "pointnet2_msg", "votenet", "h3dnet", "navaff", "n2m", "c2f_exp", "cfar"]
 #: PointNet++ SSG of PERFORMANCE.md §5 (1 M parameters class)
 SEG = dict(
     in_channels=1,
@@ -55,10 +55,14 @@ def make_batch(b: int, n: int, floor_cells: int):
 
 
 def build(name: str, **overrides):
+    """The shipped config's model; overrides the class does not take (e.g. ``bf16`` for CFAR) are dropped."""
+    import inspect
+
     cfg = yaml.safe_load((ROOT / "configs" / "models" / f"{name}.yaml").read_text())["model"]
     mod_name, cls_name = cfg["class_path"].rsplit(".", 1)
     cls = getattr(importlib.import_module(mod_name), cls_name)
-    return cls(**{**(cfg.get("init_args") or {}), **overrides})
+    accepted = inspect.signature(cls.__init__).parameters
+    return cls(**{**(cfg.get("init_args") or {}), **{k: v for k, v in overrides.items() if k in accepted}})
 
 
 def timed(fn, iters: int, warmup: int) -> list[float]:
@@ -78,7 +82,7 @@ def fmt(ts: list[float]) -> str:
 
 def bench_model(name: str, batch, single, iters: int, warmup: int, mode: str) -> dict:
     torch.manual_seed(0)
-    model = build(name, bf16="bf16" in mode, compile="compile" in mode) if name != "c2f_exp" else build(name)
+    model = build(name, bf16="bf16" in mode, compile="compile" in mode)
     params = sum(p.numel() for p in model.parameters())
     res = {"name": name, "mode": mode, "params": params}
     if model.trainable:
@@ -188,6 +192,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--iters", type=int, default=None)
     p.add_argument("--threads", type=int, default=None)
     p.add_argument("--warmup", type=int, default=1, help="untimed calls before timing (compile modes add one)")
+    p.add_argument("--points-sweep", type=int, nargs="*", default=[],
+                   help="also time --sweep-models at these cloud sizes (how time grows with points)")
+    p.add_argument("--sweep-models", nargs="*", default=["pointnet2_ssg", "cfar"], choices=MODELS)
     a = p.parse_args(argv)
     if a.threads:
         torch.set_num_threads(a.threads)
@@ -204,6 +211,17 @@ def main(argv: list[str] | None = None) -> int:
             r = bench_model(name, batch, single, iters, warmup, a.model_mode)
             train = f"train {r['train_sps']:6.2f} samples/s ({fmt(r['train'])})" if "train_sps" in r else "training-free"
             print(f"{name:<14} {r['params'] / 1e6:7.3f} M params  {train}; predict {r['predict_ms']:7.1f} ms", flush=True)
+    if a.points_sweep:
+        print(f"\n== growth with points, mode {a.model_mode}: train B={a.batch}, predict B=1, {a.floor_cells ** 2} floor points")
+        for name in a.sweep_models:
+            base = None
+            for n in a.points_sweep:
+                r = bench_model(name, make_batch(a.batch, n, a.floor_cells), make_batch(1, n, a.floor_cells), iters,
+                                warmup, a.model_mode)
+                base = base or (n, r.get("train_sps"), r["predict_ms"])
+                rel = f" (x{base[1] / r['train_sps']:.2f} step time vs {base[0]} points)" if r.get("train_sps") else ""
+                train = f"train {r['train_sps']:6.2f} samples/s{rel}" if "train_sps" in r else "training-free"
+                print(f"{name:<14} {n:6d} points  {train}; predict {r['predict_ms']:7.1f} ms", flush=True)
     if not a.skip_reference:
         bench_reference(a.points, a.batch, iters, warmup, modes)
     return 0

@@ -30,6 +30,8 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--agree", type=int, default=20)
     ap.add_argument("--quick", action="store_true", help="coarse grid (cell 0.2) and 5 agreement checks")
+    ap.add_argument("--growth-cells", type=float, nargs="*", default=[0.3, 0.2, 0.14, 0.1],
+                    help="grid cells (m) of the growth-with-candidates measurement on CloseDrawer (none: skip)")
     args = ap.parse_args()
     if args.quick:
         args.cell, args.agree = 0.2, 5
@@ -59,6 +61,24 @@ def main() -> None:
         if pre:
             print(f"{'':16s} IK pre-filter agreement with full rollouts (no pre-check): {agree}/{len(pre)}")
     print(f"mean candidates labelled per second (one core): {float(np.mean(rates)):.1f}")
+    growth(args, args.growth_cells)
+
+
+def growth(args: argparse.Namespace, cells: list[float]) -> None:
+    """How labelling time grows with the number of candidates: one CloseDrawer scene at finer and finer grids."""
+    if not cells:
+        return
+    sc = build_scene(SceneSpec(args.layout, args.style, args.seed, "CloseDrawer"))
+    rows = []
+    for cell in cells:
+        a = annotate_scene(sc, cell=cell)
+        c = a.counts
+        rows.append((c["candidates"], a.wall_seconds))
+        print(f"[growth] CloseDrawer cell {cell:.2f} m: {c['candidates']:5d} candidates, {c['rolled_out']:4d} rolled out, "
+              f"annotate {a.wall_seconds:6.2f} s ({1e3 * a.wall_seconds / c['candidates']:.1f} ms/candidate)")
+    if len(rows) >= 2:
+        (n0, w0), (n1, w1) = rows[0], rows[-1]
+        print(f"[growth] {n1 / max(1, n0):.1f}x the candidates -> {w1 / max(1e-9, w0):.1f}x the time")
 
 
 if __name__ == "__main__":

@@ -23,11 +23,13 @@ ROOT = HERE.parent
 
 #: (title, script, quick args, full args)
 SUITE: list[tuple[str, str, list[str], list[str]]] = [
-    ("Simulator: rollouts, candidates labelled per second, IK pre-filter agreement", "bench_sim.py", ["--quick"], []),
-    ("Generator: render ms per view, tiny preset wall time, growth with scenes", "bench_generate.py", [], ["--small"]),
+    ("Simulator: rollouts, candidates labelled per second, IK pre-filter agreement, growth with candidates",
+     "bench_sim.py", ["--quick"], []),
+    ("Generator: render ms per view, wall time per preset, growth with scenes", "bench_generate.py", [], ["--small"]),
     ("Loader: samples/s vs a PointNet++ training step", "bench_loader.py", ["--samples", "16"], []),
-    ("Models: train samples/s, predict latency, PointNet++ vs the reference-style port", "bench_models.py",
-     ["--quick"], []),
+    ("Models: train samples/s, predict latency, growth with points, PointNet++ vs the reference-style port",
+     "bench_models.py", ["--quick", "--points-sweep", "1024", "2048", "4096", "8192"],
+     ["--points-sweep", "1024", "2048", "4096", "8192"]),
 ]
 
 
