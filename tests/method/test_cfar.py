@@ -173,3 +173,15 @@ def test_axisnet_is_frozen_embedded_and_used_at_eval(tmp_path, root, monkeypatch
     assert yaw.shape == (2,)
     out = re.predict_step(b, 0)
     assert torch.allclose(out["yaw"], yaw)
+    # swapping the orientation estimator of the trained model at test time: the named AxisNet is used
+    axis2 = run_lightning(["fit", "--config", DATA, "--config", AXIS, *quiet_trainer_args(tmp_path / "axis2"),
+                           "--trainer.max_epochs", "1", "--seed_everything", "7"])
+    axis2_ckpt = axis2.trainer.checkpoint_callback.best_model_path
+    swapped = run_lightning(["test", "--config", DATA, "--config", CFAR, *quiet_trainer_args(tmp_path / "cfar"),
+                             "--ckpt_path", student, "--model.init_args.axisnet", axis2_ckpt])
+    axis2_state = torch.load(axis2_ckpt, weights_only=True)["state_dict"]
+    for k, v in swapped.model.axisnet.state_dict().items():
+        assert torch.equal(v, axis2_state["net." + k]), k
+    assert swapped.model.hparams.axisnet_arch["source"] == axis2_ckpt
+    for k, v in swapped.model.net.state_dict().items():  # the CFAR weights are still the student's
+        assert torch.equal(v, re.net.state_dict()[k]), k

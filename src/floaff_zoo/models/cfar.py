@@ -22,7 +22,9 @@ Yaw of the target (theta_o):
 AxisNet (``axisnet``: checkpoint path or hub name) is loaded frozen (eval, no grad, kept in eval by
 ``train()``) and **kept in the student checkpoint** (``axisnet.*`` weights); its architecture, source and
 sha256 are recorded in the ``axisnet_arch`` hparam, which is filled automatically so the student
-checkpoint rebuilds the AxisNet without the original file.
+checkpoint rebuilds the AxisNet without the original file. Training uses the simulator's yaw, so the
+AxisNet of a trained model can be swapped: when ``axisnet`` names another AxisNet than the recorded
+``axisnet_arch['source']``, that one is loaded and its weights replace the checkpoint's ``axisnet.*``.
 
 PFAL teacher (``teacher``: checkpoint path or hub name of the previous stage's best): loaded lazily in
 ``setup("fit")`` (so test/predict/``load_from_checkpoint`` never need the file), frozen, in eval mode,
@@ -164,9 +166,12 @@ class CFARModule(FloAffModule):
         self.net = CFARNet(feat_channels=h["feat_channels"], robot_dim=h["robot_dim"], **arch)
         self.axisnet: AxisNet | None = None
         self.axis_radius = 0.0
-        if h["axisnet_arch"]:
-            self._build_axisnet(h["axisnet_arch"])
+        arch = h["axisnet_arch"]
+        if arch and (not h["axisnet"] or str(arch.get("source")) == str(h["axisnet"])):
+            self._build_axisnet(arch)  # weights come with the checkpoint; the file is not needed
         elif h["axisnet"]:
+            # no record yet, or `axisnet` now names another AxisNet than the recorded one (swapping the
+            # orientation estimator of a trained model): load it; on_load_checkpoint keeps its weights
             self._load_axisnet(h["axisnet"])
         for name, src in (("yaw_source", self.train_yaw_source), ("eval_yaw_source", self.eval_yaw_source)):
             if src == "axisnet" and self.axisnet is None:
@@ -304,6 +309,14 @@ class CFARModule(FloAffModule):
         if self.teacher is not None and "state_dict" in checkpoint:
             for k, v in self.teacher.state_dict().items():
                 checkpoint["state_dict"].setdefault(TEACHER_PREFIX + k, v)
+        # another AxisNet was configured than the one stored in the checkpoint (e.g. `floaff-zoo test
+        # --ckpt_path stage2.ckpt --model.init_args.axisnet better_axisnet.ckpt`): keep the configured one
+        own = (self.hparams.get("axisnet_arch") or {}).get("sha256")
+        stored = ((checkpoint.get("hyper_parameters") or {}).get("axisnet_arch") or {}).get("sha256")
+        if self.axisnet is not None and own and stored and own != stored and "state_dict" in checkpoint:
+            for k, v in self.axisnet.state_dict().items():
+                checkpoint["state_dict"]["axisnet." + k] = v
+            checkpoint["hyper_parameters"]["axisnet_arch"] = dict(self.hparams["axisnet_arch"])
 
     # ----------------------------------------------------------------- forward
     def canonicalize(self, batch: Batch) -> tuple[CanonicalCloud, Tensor | None]:
