@@ -33,6 +33,7 @@ JOBS=(
   styles_cfar_pfal styles_pointnet2 styles_c2f_exp
   r1.10 r1.30 r1.40 r1.15 r1.25 r1.35
   gtyaw_s0 gtyaw_s1 gtyaw_s2 stage1_s0 stage1_s1 stage1_s2
+  axisnet_longer axis100_s0 axis100_s1 axis100_s2
 )
 
 # test_run RUN_DIR LABEL BENCH JOB [CKPT [TEST ARGS...]]: test a fit run on all tasks, copy its report
@@ -106,6 +107,37 @@ training_free() {
   sed "s#$PWD/##g" "$(dirname "$report")/report.md" > "$OUT/$bench/$job/report.md"
 }
 
+# axisnet_longer: AxisNet trained 100 epochs with a cosine schedule (the PFAL recipe trains 30), and the test
+# angle error per task of both; the CFAR+PFAL models are then tested with it (axis100_s<seed>): training
+# uses the simulator's yaw, so only the estimator used at test time changes
+axisnet_longer() {
+  local root=$RUNS/layouts/axisnet100 out=$OUT/layouts/axisnet_yaw_error.md
+  if [ "$RETEST" = 0 ] && [ -z "$(find "$root" -name last.ckpt 2>/dev/null)" ]; then
+    "$FZ" fit --config configs/data/floaff_small_layouts.yaml --config configs/models/axisnet.yaml \
+      --model.init_args.crop_radius 1.2 --model.init_args.lr 0.001 --model.init_args.scheduler cosine \
+      --data.init_args.batch_size 8 --data.init_args.train_transforms '[]' --trainer.max_epochs 100 \
+      --trainer.default_root_dir "$root"
+  fi
+  local new old
+  new=$(find "$root" -name 'epoch*.ckpt' | head -n 1)
+  old=$(python3 -c "import json,sys; print(json.load(open(sys.argv[1]))['stages'][0]['checkpoint'])" \
+    "$RUNS/layouts/cfar_pfal_s0/lineage.json")
+  { echo "| AxisNet | $(echo "$TASKS" | tr -d '[]"' | sed 's/,/ | /g') |"; echo "|---|---:|---:|---:|---:|"; } > "$out.tmp"
+  local ck name row t err
+  for ck in "$old" "$new"; do
+    name="30 epochs (PFAL recipe, seed 0)"; [ "$ck" = "$new" ] && name="100 epochs, cosine"
+    row="| $name |"
+    for t in PnPCounterToCab OpenSingleDoor CloseDrawer CloseDoubleDoor; do
+      err=$("$FZ" test --config "$(dirname "$(dirname "$ck")")/config.yaml" --ckpt_path "$ck" \
+        --data.init_args.tasks "[$t]" --trainer.logger.init_args.save_dir "$RUNS/layouts/axisnet_test" \
+        --trainer.enable_progress_bar false 2>/dev/null | awk '/test_angle_error_deg/ {print $2}')
+      row="$row $(printf '%.1f' "$err")° |"
+    done
+    echo "$row" >> "$out.tmp"
+  done
+  mv "$out.tmp" "$out"
+}
+
 run_job() {
   local job=$1
   case $job in
@@ -124,6 +156,10 @@ run_job() {
       curriculum "sweep_$job" layouts 0 "r=${job#r}" --extra-config "configs/experiments/sweep_crop/$job.yaml" ;;
     gtyaw_s[0-9]) # the final model with the simulator's target yaw instead of AxisNet's (upper bound of Align)
       stage_test "$job" "cfar_pfal_s${job#gtyaw_s}" -1 "CFAR+PFAL, simulator yaw" --model.init_args.eval_yaw_source gt ;;
+    axisnet_longer) axisnet_longer ;;
+    axis100_s[0-9]) # the final model with the longer-trained AxisNet (job axisnet_longer first)
+      stage_test "$job" "cfar_pfal_s${job#axis100_s}" -1 "CFAR+PFAL, AxisNet 100 epochs" \
+        --model.init_args.axisnet "$(find "$RUNS/layouts/axisnet100" -name 'epoch*.ckpt' | head -n 1)" ;;
     stage1_s[0-9]) # PFAL stage 1 alone (trained on PnPCounterToCab only), tested on all four tasks
       stage_test "$job" "cfar_pfal_s${job#stage1_s}" 1 "CFAR, stage 1 only" ;;
     styles_cfar_pfal) curriculum cfar_pfal_s0 styles 0 "CFAR+PFAL" ;;
@@ -133,19 +169,20 @@ run_job() {
   esac
 }
 
-job_out() {  # where a job's report goes, under $OUT
+job_out() {  # the file a finished job has written, under $OUT
   case $1 in
-    styles_c2f_exp) echo styles/c2f_exp ;;
-    styles_*) echo "styles/${1#styles_}_s0" ;;
-    r1.*) echo "layouts/sweep_$1" ;;
-    *) echo "layouts/$1" ;;
+    axisnet_longer) echo layouts/axisnet_yaw_error.md ;;
+    styles_c2f_exp) echo styles/c2f_exp/report.json ;;
+    styles_*) echo "styles/${1#styles_}_s0/report.json" ;;
+    r1.*) echo "layouts/sweep_$1/report.json" ;;
+    *) echo "layouts/$1/report.json" ;;
   esac
 }
 
 if [ "${1:-}" = "--one" ]; then
   shift
   job=$1
-  if [ "${RETEST:-0}" = 0 ] && [ -f "$OUT/$(job_out "$job")/report.json" ]; then echo "[$job] report exists, skipped"; exit 0; fi
+  if [ "${RETEST:-0}" = 0 ] && [ -f "$OUT/$(job_out "$job")" ]; then echo "[$job] report exists, skipped"; exit 0; fi
   mkdir -p "$RUNS/logs"
   t0=$(date +%s)
   if OMP_NUM_THREADS=${OMP_NUM_THREADS:-1} run_job "$job" > "$RUNS/logs/$job.log" 2>&1; then
