@@ -33,9 +33,12 @@ echo "### Crop-radius sweep on Layouts (seed 0 each)"; echo
 floaff-zoo table --format md --runs "${SWEEP[@]}" --preset sweep; echo
 
 DIAG=()
-for d in "$R"/layouts/{cfar_pfal_s?,gtyaw_s?,stage1_s?}; do [ -f "$d/report.json" ] && DIAG+=("$d"); done
-echo "### Diagnostics: AxisNet yaw vs the simulator's yaw, stage 1 alone (Layouts, 3 seeds)"; echo
-table --runs "${DIAG[@]}" --preset sr_tasks
+for d in "$R"/layouts/{cfar_pfal_s?,gtyaw_s?,axis100_s?,stage1_s?}; do [ -f "$d/report.json" ] && DIAG+=("$d"); done
+echo "### Diagnostics: where the target yaw comes from, and PFAL stage 1 alone (Layouts, 3 seeds)"; echo
+[ -f "$R/layouts/axisnet_yaw_error.md" ] && { echo "AxisNet test angle error per task:"; echo; cat "$R/layouts/axisnet_yaw_error.md"; echo; }
+table --runs "${DIAG[@]}" --preset map
+table --runs "${DIAG[@]}" --preset sr_views --no-oracle
+table --runs "${DIAG[@]}" --preset sr_tasks --no-oracle
 
 if [ -d runs/small ]; then  # pictures like the paper's Figures 4 and 6 (need the runs' figures on disk)
   for bench in layouts styles; do
