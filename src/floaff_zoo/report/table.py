@@ -205,6 +205,16 @@ def _cell(reports: list[dict[str, Any]], getter) -> Cell | None:
     return aggregate([p[0] for p in pairs], [p[1] for p in pairs])
 
 
+def _oracle_cell(reports: list[dict[str, Any]], getter) -> Cell | None:
+    """The Oracle does not depend on the model: runs on one test split report the same episodes, so identical
+    values are shown once with their bootstrap std (a std over runs would read 0); differing ones (several
+    test splits) are pooled like a model row."""
+    pairs = [p for p in (getter(r) for r in reports) if p[0] is not None]
+    if pairs and max(p[0] for p in pairs) - min(p[0] for p in pairs) < 1e-9:
+        pairs = pairs[:1]
+    return aggregate([p[0] for p in pairs], [p[1] for p in pairs])
+
+
 def _group_rows(reports: list[dict[str, Any]], group_by: str, numeric: bool) -> list[tuple[str, list[dict]]]:
     groups: dict[str, list[dict]] = {}
     keys: dict[str, Any] = {}
@@ -286,7 +296,7 @@ def build_table(reports: list[dict[str, Any]], preset: str = "map", group_by: st
                 cells += [_cell(group, lambda r, v=v: _sr(r, "model", view=v)) for v in VIEWS]
             sec.rows.append(Row(name, cells, runs))
         if oracle:
-            cells = [_cell(reps, lambda r, v=v: _sr(r, "oracle", view=v)) for _, reps in benches for v in VIEWS]
+            cells = [_oracle_cell(reps, lambda r, v=v: _sr(r, "oracle", view=v)) for _, reps in benches for v in VIEWS]
             if any(c is not None for c in cells):
                 sec.rows.append(Row("Oracle", cells, len(reports), oracle=True))
         return Table(preset, "Method", columns, [sec], note)
@@ -302,7 +312,7 @@ def build_table(reports: list[dict[str, Any]], preset: str = "map", group_by: st
         for name, group in _group_rows(reps, group_by, False):
             sec.rows.append(Row(name, [_cell(group, lambda r, t=t: _sr(r, "model", task=t)) for t in tasks], len(group)))
         if oracle:
-            cells = [_cell(reps, lambda r, t=t: _sr(r, "oracle", task=t)) for t in tasks]
+            cells = [_oracle_cell(reps, lambda r, t=t: _sr(r, "oracle", task=t)) for t in tasks]
             if any(c is not None for c in cells):
                 sec.rows.append(Row("Oracle", cells, len(reps), oracle=True))
         sections.append(sec)
