@@ -136,11 +136,13 @@ def manifest_walls(root: Path) -> list[str]:
             continue
         c, cfg = man["counts"], man["config"]
         resumed = sum(1 for sc in man["scenes"].values() if sc.get("resumed"))
+        made = sum(1 for sc in man["scenes"].values() if not sc.get("resumed"))  # incl. dropped slots
         lines.append(
             f"[preset {man['preset']}] {path.parent.name}: {'+'.join(cfg['benchmarks'])}, {c['scenes_ok']} scenes ok, "
             f"{c['scenes_dropped']} dropped, {c['views_total']} views, max {cfg['max_candidates']} rollouts/scene: "
-            f"{man['wall_s']:.0f} s wall with {man['workers']} worker(s) ({man['wall_s'] / max(1, c['scenes_ok']):.1f} "
-            f"s/scene)" + (f"; {resumed} scene(s) resumed from an earlier run" if resumed else ""))
+            f"{man['wall_s']:.0f} s wall with {man['workers']} worker(s) for the {made} scene slot(s) this run filled "
+            f"({man['wall_s'] / max(1, made):.1f} s/slot)"
+            + (f"; {resumed} scene(s) came from an earlier run" if resumed else ""))
     return lines
 
 

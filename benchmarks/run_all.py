@@ -46,11 +46,24 @@ def _machine() -> str:
     return f"{cpu}; {os.cpu_count()} logical cores; Python {platform.python_version()}; load average at start {load}"
 
 
+def _merge_sections(old: str, new: list[str]) -> list[str]:
+    """The old report with its ``## `` sections replaced by the new ones of the same title (header: new)."""
+    def split(text: str) -> list[str]:
+        parts = text.split("\n## ")
+        return [parts[0]] + ["## " + p for p in parts[1:]]
+
+    fresh = {s.split("\n", 1)[0]: s for s in new if s.startswith("## ")}
+    head = [s for s in new if not s.startswith("## ")]
+    body = [fresh.get(s.split("\n", 1)[0], s) for s in split(old)[1:]]
+    return head + [s.rstrip("\n") + "\n" for s in body]
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--full", action="store_true", help="the scripts' default (longer) settings")
     ap.add_argument("--out", default=str(ROOT / "docs" / "performance.md"))
-    ap.add_argument("--only", nargs="*", default=None, help="script names to run (default: all)")
+    ap.add_argument("--only", nargs="*", default=None,
+                    help="script names to run (default: all); their sections replace those of an existing --out")
     args = ap.parse_args(argv)
     env = dict(os.environ, MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"))
     sections = [
@@ -76,8 +89,11 @@ def main(argv: list[str] | None = None) -> int:
         rel = " ".join(["python", f"benchmarks/{script}", *cmd[2:]])
         sections.append(f"## {title}\n\n`{rel}` — {status}, {wall:.0f} s wall\n\n```\n{out}\n```\n")
         print(out, flush=True)
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text("\n".join(sections))
+    out_path = Path(args.out)
+    if args.only and out_path.is_file():  # refresh only these sections of an existing report
+        sections = _merge_sections(out_path.read_text(), sections)
+    out_path.parent.mkdir(parents=True, exist_ok=True)
+    out_path.write_text("\n".join(sections))
     print(f"[run_all] wrote {args.out}")
     return 1 if failed else 0
 
