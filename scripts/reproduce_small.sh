@@ -6,12 +6,15 @@
 #   PAR=1 scripts/reproduce_small.sh ...       # one at a time (each job then may use both cores)
 #   RETEST=1 scripts/reproduce_small.sh ...    # only test the finished runs again (e.g. after adding test scenes)
 #
-# Needs the data: floaff-zoo generate --preset small --benchmarks layouts styles --out data/floaff_small --workers 2
+# Needs the data:
+#   floaff-zoo generate --preset small --benchmarks layouts styles --out data/floaff_small --workers 2 --n-test 4
 # Every job trains (a `fit` or a PFAL `curriculum`), tests on all four tasks with the rollout success-rate
 # callback, and copies its report.json/report.md to docs/results/small/<benchmark>/<job>/ (machine paths
 # stripped). A job whose report is already there is skipped; a killed job resumes (the curriculum skips
 # finished stages, fit resumes from last.ckpt). Logs: runs/small/logs/<job>.log.
-# Then: floaff-zoo table --runs docs/results/small/layouts/... (the commands are in docs/results.md).
+# Then: scripts/results_tables.sh (the tables and pictures of docs/results.md).
+# Order matters for the diagnostic jobs: gtyaw_*, stage1_*, axisnet_longer need cfar_pfal_s<seed> finished,
+# axis100_* need axisnet_longer (a job whose input is missing fails with a message; rerun it later).
 set -euo pipefail
 SELF=$(realpath "$0")
 cd "$(dirname "$SELF")/.."
@@ -31,9 +34,9 @@ JOBS=(
   navaff votenet h3dnet n2m
   no_crop no_align no_sdl no_fd
   styles_cfar_pfal styles_pointnet2 styles_c2f_exp
+  axisnet_longer gtyaw_s0 gtyaw_s1 gtyaw_s2 stage1_s0 stage1_s1 stage1_s2
   r1.10 r1.30 r1.40 r1.15 r1.25 r1.35
-  gtyaw_s0 gtyaw_s1 gtyaw_s2 stage1_s0 stage1_s1 stage1_s2
-  axisnet_longer axis100_s0 axis100_s1 axis100_s2
+  axis100_s0 axis100_s1 axis100_s2
 )
 
 # test_run RUN_DIR LABEL BENCH JOB [CKPT [TEST ARGS...]]: test a fit run on all tasks, copy its report
@@ -158,8 +161,9 @@ run_job() {
       stage_test "$job" "cfar_pfal_s${job#gtyaw_s}" -1 "CFAR+PFAL, simulator yaw" --model.init_args.eval_yaw_source gt ;;
     axisnet_longer) axisnet_longer ;;
     axis100_s[0-9]) # the final model with the longer-trained AxisNet (job axisnet_longer first)
-      stage_test "$job" "cfar_pfal_s${job#axis100_s}" -1 "CFAR+PFAL, AxisNet 100 epochs" \
-        --model.init_args.axisnet "$(find "$RUNS/layouts/axisnet100" -name 'epoch*.ckpt' | head -n 1)" ;;
+      local axis; axis=$(find "$RUNS/layouts/axisnet100" -name 'epoch*.ckpt' 2>/dev/null | head -n 1)
+      [ -n "$axis" ] || { echo "$job: no AxisNet under $RUNS/layouts/axisnet100; run the job axisnet_longer first" >&2; return 1; }
+      stage_test "$job" "cfar_pfal_s${job#axis100_s}" -1 "CFAR+PFAL, AxisNet 100 epochs" --model.init_args.axisnet "$axis" ;;
     stage1_s[0-9]) # PFAL stage 1 alone (trained on PnPCounterToCab only), tested on all four tasks
       stage_test "$job" "cfar_pfal_s${job#stage1_s}" 1 "CFAR, stage 1 only" ;;
     styles_cfar_pfal) curriculum cfar_pfal_s0 styles 0 "CFAR+PFAL" ;;
