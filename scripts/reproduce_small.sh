@@ -49,10 +49,15 @@ test_run() {
   # the report lands in the next version_<n> beside the fit run: the newest report.json there
   local report
   report=$(find "$run/.." -name report.json -newer "$before" | head -n 1)
-  [ -n "$report" ] || { echo "no report.json written for $job" >&2; return 1; }
-  mkdir -p "$OUT/$bench/$job"
-  sed "s#$PWD/##g" "$report" > "$OUT/$bench/$job/report.json"
-  sed "s#$PWD/##g" "$(dirname "$report")/report.md" > "$OUT/$bench/$job/report.md"
+  copy_report "$report" "$bench" "$job"
+}
+
+# copy_report REPORT_JSON BENCH JOB: report.json + report.md to $OUT/BENCH/JOB/, machine paths stripped
+copy_report() {
+  [ -n "$1" ] || { echo "no report.json written for $3" >&2; return 1; }
+  mkdir -p "$OUT/$2/$3"
+  sed "s#$PWD/##g" "$1" > "$OUT/$2/$3/report.json"
+  sed "s#$PWD/##g" "$(dirname "$1")/report.md" > "$OUT/$2/$3/report.md"
 }
 
 # newest fit run (the directory holding checkpoints/last.ckpt) under a root
@@ -104,10 +109,7 @@ training_free() {
   mkdir -p "$RUNS"; touch "$before"
   "$FZ" test --config "configs/data/floaff_small_$bench.yaml" --config configs/models/c2f_exp.yaml \
     --config "$EVAL" --trainer.default_root_dir "$root" --trainer.callbacks.init_args.label C2F-Exp
-  local report; report=$(find "$root" -name report.json -newer "$before" | head -n 1)
-  mkdir -p "$OUT/$bench/$job"
-  sed "s#$PWD/##g" "$report" > "$OUT/$bench/$job/report.json"
-  sed "s#$PWD/##g" "$(dirname "$report")/report.md" > "$OUT/$bench/$job/report.md"
+  copy_report "$(find "$root" -name report.json -newer "$before" | head -n 1)" "$bench" "$job"
 }
 
 # axisnet_longer: AxisNet trained 100 epochs with a cosine schedule (the PFAL recipe trains 30), and the test

@@ -145,8 +145,11 @@ def test_knn_matches_brute_force(cloud):
 
 def test_three_interpolate_matches_brute_force(cloud):
     xyz, mask = cloud
-    feat = torch.randn(3, 96, 4)
-    q = torch.rand(3, 7, 3)
+    # seeded: unseeded queries failed once in a full run, most likely a near-tie for the 3rd neighbour
+    # (float32 matmul distances vs the exact ones below pick different points)
+    g = torch.Generator().manual_seed(3)
+    feat = torch.randn(3, 96, 4, generator=g)
+    q = torch.rand(3, 7, 3, generator=g)
     got = ops.three_interpolate(q, xyz, feat, mask)
     for b in range(3):
         for j in range(7):

@@ -69,12 +69,12 @@ def _report_metrics(ckpt_path: Path, run: Path | None, report: Path | None = Non
         raise HubError(f"{report}: no such report file")
     dirs = [d for d in (run, ckpt_path.parent, ckpt_path.parent.parent) if d is not None and d.is_dir()]
     candidates = [report] if report is not None else [d / "report.json" for d in dirs]
-    for report in candidates:
-        if report.is_file():
+    for path in candidates:
+        if path.is_file():
             try:
-                raw = json.loads(report.read_text(encoding="utf-8"))
+                raw = json.loads(path.read_text(encoding="utf-8"))
             except (OSError, json.JSONDecodeError) as exc:
-                raise HubError(f"{report}: unreadable report ({exc})") from exc
+                raise HubError(f"{path}: unreadable report ({exc})") from exc
             src = raw.get("metrics", raw) if isinstance(raw, dict) else {}
             if not isinstance(src, dict):
                 src = {}

@@ -68,30 +68,37 @@ torch::Tensor fps_forward(torch::Tensor xyz, torch::Tensor mask, int64_t npoint)
   return out;
 }
 
+// The inputs of the selection kernels: mm [B, S, N] (torch matmul of -2*src and dst^T), ssq [B, S] and
+// dsq [B, N] (squared norms), mask [B, N]; Row r = b * S + j gives the distances of centre j of cloud b.
+struct Selection {
+  int64_t B, S, N;
+  const float* mm; const float* ssq; const float* dsq; const bool* mask;
+  Selection(torch::Tensor& mm_, torch::Tensor& ssq_, torch::Tensor& dsq_, torch::Tensor& mask_) {
+    TORCH_CHECK(mm_.dim() == 3 && mm_.scalar_type() == torch::kFloat && mm_.is_contiguous(), "mm must be contiguous float [B, S, N]");
+    B = mm_.size(0); S = mm_.size(1); N = mm_.size(2);
+    TORCH_CHECK(ssq_.is_contiguous() && ssq_.numel() == B * S && ssq_.scalar_type() == torch::kFloat, "ssq must be float [B, S]");
+    TORCH_CHECK(dsq_.is_contiguous() && dsq_.numel() == B * N && dsq_.scalar_type() == torch::kFloat, "dsq must be float [B, N]");
+    TORCH_CHECK(mask_.is_contiguous() && mask_.numel() == B * N && mask_.scalar_type() == torch::kBool, "mask must be bool [B, N]");
+    mm = mm_.data_ptr<float>(); ssq = ssq_.data_ptr<float>(); dsq = dsq_.data_ptr<float>(); mask = mask_.data_ptr<bool>();
+  }
+};
+
 // First K valid points (index order) with d <= r2, d = (mm + ssq) + dsq summed in this order so it
 // equals ops.square_distance bit for bit (mm = the torch matmul of -2*src and dst^T). Empty ball ->
 // nearest valid point (lowest index on ties); slots past the count repeat the first neighbour.
 torch::Tensor ball_select(torch::Tensor mm, torch::Tensor ssq, torch::Tensor dsq, torch::Tensor mask,
                           double r2, int64_t K) {
-  TORCH_CHECK(mm.dim() == 3 && mm.scalar_type() == torch::kFloat && mm.is_contiguous(), "mm must be contiguous float [B, S, N]");
-  const int64_t B = mm.size(0), S = mm.size(1), N = mm.size(2);
-  TORCH_CHECK(ssq.is_contiguous() && ssq.numel() == B * S && ssq.scalar_type() == torch::kFloat, "ssq must be float [B, S]");
-  TORCH_CHECK(dsq.is_contiguous() && dsq.numel() == B * N && dsq.scalar_type() == torch::kFloat, "dsq must be float [B, N]");
-  TORCH_CHECK(mask.is_contiguous() && mask.numel() == B * N && mask.scalar_type() == torch::kBool, "mask must be bool [B, N]");
+  const Selection sel(mm, ssq, dsq, mask);
+  const int64_t B = sel.B, S = sel.S, N = sel.N;
   auto out = torch::empty({B, S, K}, torch::kLong);
-  const float* Mm = mm.data_ptr<float>();
-  const float* Ss = ssq.data_ptr<float>();
-  const float* Ds = dsq.data_ptr<float>();
-  const bool* Mk = mask.data_ptr<bool>();
   int64_t* O = out.data_ptr<int64_t>();
   const float rr = static_cast<float>(r2);
   at::parallel_for(0, B * S, 16, [&](int64_t r0, int64_t r1) {
     for (int64_t r = r0; r < r1; ++r) {
-      const int64_t b = r / S;
-      const float* row = Mm + r * N;
-      const float* t = Ds + b * N;
-      const bool* m = Mk + b * N;
-      const float s = Ss[r];
+      const float* row = sel.mm + r * N;
+      const float* t = sel.dsq + (r / S) * N;
+      const bool* m = sel.mask + (r / S) * N;
+      const float s = sel.ssq[r];
       int64_t* o = O + r * K;
       int64_t cnt = 0;
       for (int64_t i = 0; i < N && cnt < K; ++i) {
@@ -118,27 +125,19 @@ torch::Tensor ball_select(torch::Tensor mm, torch::Tensor ssq, torch::Tensor dsq
 // Three nearest valid points, d = (mm + ssq) + dsq as above, ascending, ties to the lowest index.
 // Missing slots (fewer than 3 valid points): distance +inf, index 0.
 std::vector<torch::Tensor> three_nn_select(torch::Tensor mm, torch::Tensor ssq, torch::Tensor dsq, torch::Tensor mask) {
-  TORCH_CHECK(mm.dim() == 3 && mm.scalar_type() == torch::kFloat && mm.is_contiguous(), "mm must be contiguous float [B, S, N]");
-  const int64_t B = mm.size(0), S = mm.size(1), N = mm.size(2);
-  TORCH_CHECK(ssq.is_contiguous() && ssq.numel() == B * S && ssq.scalar_type() == torch::kFloat, "ssq must be float [B, S]");
-  TORCH_CHECK(dsq.is_contiguous() && dsq.numel() == B * N && dsq.scalar_type() == torch::kFloat, "dsq must be float [B, N]");
-  TORCH_CHECK(mask.is_contiguous() && mask.numel() == B * N && mask.scalar_type() == torch::kBool, "mask must be bool [B, N]");
+  const Selection sel(mm, ssq, dsq, mask);
+  const int64_t B = sel.B, S = sel.S, N = sel.N;
   auto dist = torch::empty({B, S, 3}, torch::kFloat);
   auto idx = torch::empty({B, S, 3}, torch::kLong);
-  const float* Mm = mm.data_ptr<float>();
-  const float* Ss = ssq.data_ptr<float>();
-  const float* Ds = dsq.data_ptr<float>();
-  const bool* Mk = mask.data_ptr<bool>();
   float* OD = dist.data_ptr<float>();
   int64_t* OI = idx.data_ptr<int64_t>();
   const float inf = std::numeric_limits<float>::infinity();
   at::parallel_for(0, B * S, 16, [&](int64_t r0, int64_t r1) {
     for (int64_t r = r0; r < r1; ++r) {
-      const int64_t b = r / S;
-      const float* row = Mm + r * N;
-      const float* t = Ds + b * N;
-      const bool* m = Mk + b * N;
-      const float s = Ss[r];
+      const float* row = sel.mm + r * N;
+      const float* t = sel.dsq + (r / S) * N;
+      const bool* m = sel.mask + (r / S) * N;
+      const float s = sel.ssq[r];
       float d0 = inf, d1 = inf, d2 = inf;
       int64_t i0 = 0, i1 = 0, i2 = 0;
       for (int64_t i = 0; i < N; ++i) {
@@ -190,7 +189,7 @@ def load_kernel() -> Any | None:
                 from torch.utils.cpp_extension import load_inline
 
                 _state["module"] = load_inline(
-                    name="floaff_zoo_point_ops_v2",
+                    name="floaff_zoo_point_ops_v3",
                     cpp_sources=[_CPP_DECL, _CPP_SOURCE],
                     functions=["fps_forward", "ball_select", "three_nn_select"],
                     extra_cflags=["-O3", "-ffp-contract=off"],
