@@ -27,7 +27,7 @@ import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 MODELS = ["pointnet2_ssg", "pointnet2_msg", "votenet", "h3dnet", "navaff", "n2m", "c2f_exp", "cfar"]
-#: PointNet++ SSG of PERFORMANCE.md §5 (1 M parameters class)
+#: PointNet++ SSG of the layout study in docs/background.md §6 (1 M parameters class)
 SEG = dict(
     in_channels=1,
     npoints=[1024, 256, 64],
@@ -158,7 +158,7 @@ def bench_reference(n: int, b: int, iters: int, warmup: int, modes: list[str]) -
             net.compile()
         bf16 = "bf16" in mode
 
-        def fwd(x=xyz, f=feat):
+        def fwd(x=xyz, f=feat, net=net, bf16=bf16):  # bound now: the closure runs inside this iteration only
             idx = net.encoder.sample(x, None)  # FPS outside compile/autocast
             with torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):
                 return net(x, f, None, idx).float()
@@ -212,7 +212,8 @@ def main(argv: list[str] | None = None) -> int:
             train = f"train {r['train_sps']:6.2f} samples/s ({fmt(r['train'])})" if "train_sps" in r else "training-free"
             print(f"{name:<14} {r['params'] / 1e6:7.3f} M params  {train}; predict {r['predict_ms']:7.1f} ms", flush=True)
     if a.points_sweep:
-        print(f"\n== growth with points, mode {a.model_mode}: train B={a.batch}, predict B=1, {a.floor_cells ** 2} floor points")
+        print(f"\n== growth with points, mode {a.model_mode}: train B={a.batch}, predict B=1, "
+              f"{a.floor_cells ** 2} floor points")
         for name in a.sweep_models:
             base = None
             for n in a.points_sweep:

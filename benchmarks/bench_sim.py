@@ -4,7 +4,7 @@ Usage: OMP_NUM_THREADS=1 python benchmarks/bench_sim.py [--quick] [--cell 0.1] [
 (--quick: cell 0.2 m and 5 agreement checks, ~1-2 min on one core)
 Prints, per task: mean wall time of full rollouts (targets: close/open <= 0.3 s, pick-and-place <= 1 s),
 candidates labelled per second including filtering (target >= 10/s/core), the ratio to the
-robosuite env stack (0.8 s per 4 s rollout, SIMULATOR.md §2.2), and the agreement of the IK
+robosuite env stack (0.8 s per 4 s rollout, docs/background.md §5), and the agreement of the IK
 pre-filter with full rollouts run without the pre-check on up to --agree pre-filtered candidates.
 """
 from __future__ import annotations
@@ -52,7 +52,8 @@ def main() -> None:
         mean_full = float(np.mean(full)) if full else float("nan")
         print(f"{task:16s} grid {a.grid_shape} {a.counts}")
         print(f"{'':16s} annotate {a.wall_seconds:.1f}s -> {rate:.1f} candidates/s; full rollout mean {mean_full:.3f}s "
-              f"(n={len(full)}), ratio vs robosuite 0.8s: {ROBOSUITE_ROLLOUT_S / mean_full if full else float('nan'):.1f}x")
+              f"(n={len(full)}), ratio vs robosuite 0.8s: "
+              f"{ROBOSUITE_ROLLOUT_S / mean_full if full else float('nan'):.1f}x")
         pre = [i for i, r in enumerate(a.reasons) if r == "ik_unreachable"][: args.agree]
         agree = 0
         for i in pre:
@@ -74,7 +75,8 @@ def growth(args: argparse.Namespace, cells: list[float]) -> None:
         a = annotate_scene(sc, cell=cell)
         c = a.counts
         rows.append((c["candidates"], a.wall_seconds))
-        print(f"[growth] CloseDrawer cell {cell:.2f} m: {c['candidates']:5d} candidates, {c['rolled_out']:4d} rolled out, "
+        print(f"[growth] CloseDrawer cell {cell:.2f} m: {c['candidates']:5d} candidates, "
+              f"{c['rolled_out']:4d} rolled out, "
               f"annotate {a.wall_seconds:6.2f} s ({1e3 * a.wall_seconds / c['candidates']:.1f} ms/candidate)")
     if len(rows) >= 2:
         (n0, w0), (n1, w1) = rows[0], rows[-1]

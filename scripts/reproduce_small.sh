@@ -119,7 +119,7 @@ axisnet_longer() {
   local root=$RUNS/layouts/axisnet100 out=$OUT/layouts/axisnet_yaw_error.md
   if [ "$RETEST" = 0 ] && [ -z "$(find "$root" -name last.ckpt 2>/dev/null)" ]; then
     "$FZ" fit --config configs/data/floaff_small_layouts.yaml --config configs/models/axisnet.yaml \
-      --model.init_args.crop_radius 1.2 --model.init_args.lr 0.001 --model.init_args.scheduler cosine \
+      --model.init_args.crop_radius 1.2 --model.init_args.train.lr 0.001 --model.init_args.train.scheduler cosine \
       --data.init_args.batch_size 8 --data.init_args.train_transforms '[]' --trainer.max_epochs 100 \
       --trainer.default_root_dir "$root"
   fi

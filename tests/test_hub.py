@@ -295,7 +295,7 @@ def test_untrusted_class_paths_are_not_imported(tmp_path):
     m = _model(7)
     for path in ("untrusted_pkg_floaff_xyz.Model", "os.system"):
         ckpt = _lightning_ckpt(m, tmp_path / f"{path}.ckpt", class_path=path)
-        with pytest.raises(HubError, match="outside floaff_zoo|not a FloAffModule"):
+        with pytest.raises(HubError, match="outside floaff_zoo|not a model of the zoo"):
             TinyPointNetModule.from_pretrained(str(ckpt))
     assert "untrusted_pkg_floaff_xyz" not in sys.modules
 
@@ -335,9 +335,8 @@ def test_malformed_user_index_names_file_and_field(patch, field):
 
 
 def test_shipped_index_is_valid():
-    from floaff_zoo.hub.registry import SHIPPED_INDEX, read_index
-
     from floaff_zoo.hub import sha256_file
+    from floaff_zoo.hub.registry import SHIPPED_INDEX, read_index
 
     for e in read_index(SHIPPED_INDEX):
         if e.source["kind"] == "local":  # shipped inside the package, next to the index
@@ -345,6 +344,32 @@ def test_shipped_index_is_valid():
             assert path.is_file() and sha256_file(path) == e.sha256, e.name
         else:
             assert e.source["kind"] in ("url", "hf")  # otherwise it must be downloadable
+
+
+@pytest.fixture(scope="module")
+def shipped_entries():
+    from floaff_zoo.hub.registry import SHIPPED_INDEX, read_index
+
+    return [e for e in read_index(SHIPPED_INDEX) if e.source["kind"] == "local"]
+
+
+def test_every_shipped_entry_loads(shipped_entries, batch):
+    """The shipped entries and export folders were written before the `train` group (training args flat):
+    loading moves those into `train`, and the weights load strictly."""
+    from floaff_zoo.hub import load_model
+    from floaff_zoo.hub.registry import SHIPPED_INDEX
+
+    assert shipped_entries
+    for e in shipped_entries:
+        recorded = e.init_args.get("train") or e.init_args  # flat (old) or grouped
+        by_name = load_model(e.name)
+        by_dir = load_model(Path(SHIPPED_INDEX).parent / e.name)
+        for m in (by_name, by_dir):
+            assert f"{type(m).__module__}.{type(m).__name__}" == e.class_path
+            assert "lr" not in m.hparams and m.train_cfg.lr == recorded["lr"], e.name
+            assert m.train_cfg.loss == recorded["loss"] and m.train_cfg.scheduler == recorded["scheduler"]
+        with torch.no_grad():
+            assert torch.equal(by_name(batch), by_dir(batch)), e.name
 
 
 def test_push_upload_pins_the_commit(run_dir, monkeypatch):

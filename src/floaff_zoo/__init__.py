@@ -1,6 +1,6 @@
 """floaff-zoo: a PyTorch Lightning model zoo for Floor Affordance (FloAff) prediction."""
 
-__version__ = "0.1.0"
+from floaff_zoo._version import __version__
 
 __all__ = ["__version__", "predict", "predict_from_points", "Prediction"]
 

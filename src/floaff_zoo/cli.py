@@ -18,10 +18,12 @@ from lightning.pytorch.callbacks import ModelCheckpoint, TQDMProgressBar
 from lightning.pytorch.cli import LightningCLI
 from lightning.pytorch.utilities.exceptions import MisconfigurationException
 
-from floaff_zoo import __version__
+from floaff_zoo import quiet
+from floaff_zoo._version import __version__
 from floaff_zoo.contract import SampleError
 from floaff_zoo.data.base import FloAffDataModule
-from floaff_zoo.models.base import FloAffModule
+from floaff_zoo.models.base import ZooModule
+from floaff_zoo.runs import RunError, resolve_ckpt_alias
 
 TRAINER_COMMANDS = ("fit", "validate", "test", "predict")
 #: non-trainer command -> "module:function" taking argv and returning an exit code
@@ -43,31 +45,6 @@ def _import_registries() -> None:
     """Import the model and data packages so bare class names resolve in configs."""
     import floaff_zoo.data  # noqa: F401
     import floaff_zoo.models  # noqa: F401
-
-
-def resolve_ckpt_alias(alias: str, root: str | Path) -> str:
-    """Turn ``best``/``last`` into a checkpoint file found under a run directory.
-
-    ``last`` is the newest ``last.ckpt``; ``best`` is the ``best_model_path`` its ModelCheckpoint
-    state recorded (falling back to ``last`` when none was monitored).
-    """
-    import torch
-
-    lasts = sorted(Path(root).rglob("last*.ckpt"), key=lambda p: p.stat().st_mtime)
-    if not lasts:
-        raise CLIError(f"--ckpt_path {alias}: no last.ckpt under {root}; pass a checkpoint file instead")
-    last = lasts[-1]
-    if alias == "last":
-        return str(last)
-    state = torch.load(last, map_location="cpu", weights_only=True)
-    for key, cb in (state.get("callbacks") or {}).items():
-        if key.startswith("ModelCheckpoint") and cb.get("best_model_path"):
-            best = Path(cb["best_model_path"])
-            if not best.is_file():  # run dir moved: look next to last.ckpt
-                best = last.parent / best.name
-            if best.is_file():
-                return str(best)
-    return str(last)
 
 
 def explicit_model_args(args: list[str]) -> list[str]:
@@ -93,6 +70,19 @@ def _import_class(path: Any) -> Any:
         return path
 
 
+def _upgrade_legacy_model_args(model: Any) -> None:
+    """A checkpoint written before the ``train`` group lands its flat training args (``lr``, ``loss``...) in the
+    model's ``dict_kwargs``: move them into ``init_args.train`` (``ZooModule.upgrade_init_args``)."""
+    extra = dict(model.get("dict_kwargs") or {}) if model is not None else {}
+    cls = _import_class(model.get("class_path")) if extra else None
+    if not (isinstance(cls, type) and issubclass(cls, ZooModule)):
+        return
+    upgraded = cls.upgrade_init_args(extra)
+    for key, value in upgraded.pop("train", {}).items():
+        model[f"init_args.train.{key}"] = value
+    model["dict_kwargs"] = upgraded
+
+
 class FloAffCLI(LightningCLI):
     """LightningCLI with the zoo's defaults and guards."""
 
@@ -112,6 +102,8 @@ class FloAffCLI(LightningCLI):
         before = self.config[sub].get("model") if sub else None
         before = before.clone() if before is not None else None
         super()._parse_ckpt_path()
+        if sub:
+            _upgrade_legacy_model_args(self.config[sub].get("model"))
         keys = getattr(self, "_explicit_model_args", [])
         if before is None or not keys:
             return
@@ -177,7 +169,7 @@ class FloAffCLI(LightningCLI):
         if ckpt in ("best", "last"):
             cfg["ckpt_path"] = resolve_ckpt_alias(ckpt, self._run_dir())
             ckpt = cfg["ckpt_path"]
-        if ckpt is None and self.model.trainable and not self.model.base_cfg.get("weights"):
+        if ckpt is None and self.model.trainable and not self.model.hparams.get("weights"):
             raise CLIError(
                 f"`floaff-zoo {self.subcommand}` needs trained weights: pass --ckpt_path <file|best|last> "
                 "(e.g. `floaff-zoo test --config <run>/config.yaml --ckpt_path best`) or "
@@ -201,10 +193,30 @@ class FloAffCLI(LightningCLI):
                 f"{type(self.model).__name__} is training-free (no weights to fit); "
                 "use `floaff-zoo test`/`predict` with it directly"
             )
+        self._stage_line(None)
 
-    before_validate = _guard_eval
-    before_test = _guard_eval
-    before_predict = _guard_eval
+    def _before_eval(self) -> None:
+        self._guard_eval()
+        self._stage_line(self.config_init[self.subcommand].get("ckpt_path"))
+
+    before_validate = _before_eval
+    before_test = _before_eval
+    before_predict = _before_eval
+
+    def _stage_line(self, ckpt: str | None) -> None:
+        """One line per stage (Lightning's own banners and model summary are off unless --verbose)."""
+        n = sum(p.numel() for p in self.model.parameters())
+        weights = f" with weights {ckpt}" if ckpt else ""
+        print(f"floaff-zoo {self.subcommand}: {type(self.model).__name__} ({n / 1e6:.3f} M params){weights} on "
+              f"{type(self.datamodule).__name__} -> {self.trainer.log_dir}", flush=True)
+
+    def after_fit(self) -> None:
+        cb = self.trainer.checkpoint_callback
+        best = getattr(cb, "best_model_path", "") or getattr(cb, "last_model_path", "")
+        score = getattr(cb, "best_model_score", None)
+        metric = f" ({cb.monitor} {float(score):.4f})" if score is not None and getattr(cb, "monitor", None) else ""
+        print(f"floaff-zoo fit: done after {self.trainer.current_epoch} epoch(s); checkpoint {best or 'none'}{metric}",
+              flush=True)
 
 
 def _print_overview() -> None:
@@ -215,7 +227,8 @@ def _print_overview() -> None:
     print("\nother commands (`floaff-zoo <command> --help`):")
     for c, (_, text) in OTHER_COMMANDS.items():
         print(f"  {c:<11} {text}")
-    print("\noptions:\n  -h, --help  show this overview\n  --version   print the version")
+    print("\noptions:\n  -h, --help  show this overview\n  --version   print the version\n"
+          "  --verbose   (anywhere) show all third-party output: warnings, Lightning banners, robosuite notices")
 
 
 def _dispatch(command: str, argv: list[str]) -> int:
@@ -238,7 +251,7 @@ def run_lightning(args: list[str]) -> FloAffCLI:
     # `floaff-zoo demo`/`curriculum` call this with args while sys.argv holds their own command.
     warnings.filterwarnings("ignore", message=".*LightningCLI's args parameter is intended.*")
     return FloAffCLI(
-        FloAffModule,
+        ZooModule,
         FloAffDataModule,
         subclass_mode_model=True,
         subclass_mode_data=True,
@@ -253,6 +266,10 @@ def run_lightning(args: list[str]) -> FloAffCLI:
 def main(args: list[str] | None = None) -> int:
     """Entry point of ``floaff-zoo`` and ``python -m floaff_zoo``."""
     argv = list(sys.argv[1:] if args is None else args)
+    if "--verbose" in argv:  # ours on every command (no subcommand defines it): strip before they parse
+        argv = [a for a in argv if a != "--verbose"]
+        quiet.set_verbose(True)
+    quiet.install()
     if not argv or argv[0] in ("-h", "--help"):
         _print_overview()
         return 0
@@ -268,7 +285,7 @@ def main(args: list[str] | None = None) -> int:
             )
         run_lightning(argv)
         return 0
-    except (CLIError, SampleError, MisconfigurationException) as exc:
+    except (CLIError, RunError, SampleError, MisconfigurationException) as exc:
         print(f"floaff-zoo: error: {exc}", file=sys.stderr)
         if args is not None:  # called from Python (tests, curriculum): let callers see the exception
             raise

@@ -49,7 +49,7 @@ from typing import Any
 
 import yaml
 
-__all__ = ["CurriculumError", "build_stage_args", "load_experiment", "main", "run_curriculum"]
+__all__ = ["CurriculumError", "build_stage_args", "load_experiment", "main", "read_lineage", "run_curriculum"]
 
 STAGE_FILE = "stage.json"
 LINEAGE_FILE = "lineage.json"
@@ -211,12 +211,33 @@ def _sha256(path: str | Path) -> str:
 
 
 def _read_json(path: Path) -> dict[str, Any] | None:
+    """A record this runner wrote (None when absent). Records are written atomically, so a file that does
+    not parse was damaged by something else: an error naming it, never a silent fresh start."""
     if not path.is_file():
         return None
     try:
-        return json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError):
-        return None
+        record = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise CurriculumError(
+            f"{path}: corrupt curriculum record ({exc}); fix or delete it to rerun the stage") from exc
+    if not isinstance(record, dict):
+        raise CurriculumError(f"{path}: expected a JSON object, got {type(record).__name__}; fix or delete it")
+    return record
+
+
+def read_lineage(root: str | Path) -> dict[str, Any]:
+    """``<root>/lineage.json`` of a finished curriculum run.
+
+    Raises:
+        CurriculumError: the file is missing, corrupt or has no ``stages`` list (names the file).
+    """
+    path = Path(root) / LINEAGE_FILE
+    lineage = _read_json(path)
+    if lineage is None:
+        raise CurriculumError(f"{path}: no lineage record; run the curriculum first")
+    if not isinstance(lineage.get("stages"), list) or not lineage["stages"]:
+        raise CurriculumError(f"{path}: 'stages' must be a non-empty list of stage records")
+    return lineage
 
 
 def _write_json(path: Path, data: dict[str, Any]) -> None:
@@ -283,6 +304,7 @@ def run_curriculum(
 
         runner = run_lightning
     lineage_path = root / LINEAGE_FILE
+    _read_json(lineage_path)  # a damaged lineage of an earlier run is reported, not silently replaced
     lineage = {"experiment": str(config), "root": str(root), "extra_configs": extra, "sets": list(sets or []), "stages": []}
     best: dict[str, str] = {}
     for stage in cfg["stages"]:
@@ -340,7 +362,8 @@ def run_curriculum(
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``floaff-zoo curriculum --config <experiment.yaml> [--root DIR] [--set k=v ...] [--extra-config F ...] [--dry-run]``."""
+    """``floaff-zoo curriculum --config <experiment.yaml> [--root DIR] [--set k=v ...] [--extra-config F ...]
+    [--dry-run]``."""
     parser = argparse.ArgumentParser(
         prog="floaff-zoo curriculum",
         description="Run a PFAL curriculum: one `floaff-zoo fit` per stage, chained by best checkpoints.",

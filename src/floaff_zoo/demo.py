@@ -9,7 +9,8 @@
 
 Everything goes through the same commands a user runs (``generate``, ``curriculum``, ``fit``,
 ``test``, ``table``); a rerun reuses finished steps (generation resumes, the curriculum skips
-finished stages, a baseline run with a ``last.ckpt`` is not retrained).
+finished stages, a baseline run that wrote ``finished.json`` is not retrained; one killed before that
+is fitted again).
 """
 
 from __future__ import annotations
@@ -38,27 +39,33 @@ def _check_configs() -> None:
         raise FileNotFoundError(f"demo configs not found: {missing}; run the demo from the repository root")
 
 
-def _latest_run(root: Path) -> Path | None:
-    """Newest run directory (one holding config.yaml) under ``root``."""
-    runs = sorted((p.parent for p in root.rglob("config.yaml")), key=lambda p: p.stat().st_mtime)
-    return runs[-1] if runs else None
-
-
 def _fit_baseline(data: str, root: Path, epochs: int) -> Path:
-    from floaff_zoo.cli import run_lightning
+    """The newest finished baseline run under ``root``, fitting one first when none finished.
 
-    done = _latest_run(root)
-    if done is not None and any(done.rglob("last.ckpt")):
-        print(f"  reusing {done}")
-        return done
-    run_lightning([
+    A run counts as finished only with its ``finished.json`` (written below after ``fit`` returns): a
+    killed fit leaves a ``last.ckpt`` too, and reusing it would test a half-trained model.
+    """
+    from floaff_zoo.cli import run_lightning
+    from floaff_zoo.runs import finished_runs, mark_finished
+
+    done = finished_runs(root)
+    if done:
+        print(f"  reusing {done[-1][0]} (finished {done[-1][1]['finished']})")
+        return done[-1][0]
+    unfinished = sorted({p.parents[1] for p in root.rglob("last*.ckpt")})
+    if unfinished:
+        print(f"  {', '.join(map(str, unfinished))}: fit did not finish (no finished.json); fitting again")
+    cli = run_lightning([
         "fit", "--config", DATA_CONFIG, "--config", BASELINE_CONFIG,
         "--data.init_args.root", data,
         "--trainer.default_root_dir", str(root), "--trainer.max_epochs", str(epochs),
     ])
-    run = _latest_run(root)
-    if run is None:
-        raise RuntimeError(f"baseline fit wrote no run directory under {root}")
+    cb = cli.trainer.checkpoint_callback
+    ckpt = (cb.best_model_path or cb.last_model_path) if cb is not None else ""
+    run = Path(cli.trainer.log_dir or "")
+    if not ckpt or not Path(ckpt).is_file() or not (run / "config.yaml").is_file():
+        raise RuntimeError(f"baseline fit under {root} wrote no checkpoint or config.yaml")
+    mark_finished(run, ckpt, {"epochs": int(cli.trainer.current_epoch)})
     return run
 
 
@@ -82,6 +89,19 @@ def _test(run_dir: Path, data: str, ckpt: str | None = None) -> Path:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from floaff_zoo.curriculum import CurriculumError
+    from floaff_zoo.runs import RunError
+
+    try:
+        return _run(argv)
+    except (CurriculumError, RunError) as exc:  # damaged run records: name the file, no traceback
+        print(f"floaff-zoo demo: error: {exc}", file=sys.stderr)
+        if argv is not None:
+            raise
+        return 2
+
+
+def _run(argv: list[str] | None) -> int:
     p = argparse.ArgumentParser(prog="floaff-zoo demo", description=__doc__.split("\n\n")[0])
     p.add_argument("--preset", default="demo", help="generation preset (default: demo; see `floaff-zoo generate --help`)")
     p.add_argument("--data", default="data/floaff_demo", help="where the benchmark is generated / reused")
@@ -112,8 +132,7 @@ def main(argv: list[str] | None = None) -> int:
     rc = curriculum.main(["--config", EXPERIMENT, "--root", str(runs / "cfar_pfal"), *sets])
     if rc:
         return rc
-    lineage = json.loads((runs / "cfar_pfal" / "lineage.json").read_text())
-    last_stage = lineage["stages"][-1]
+    last_stage = curriculum.read_lineage(runs / "cfar_pfal")["stages"][-1]
 
     _step(3, n, "baseline: PointNet++ SSG on all four tasks")
     baseline = _fit_baseline(args.data, runs / "pointnet2", args.epochs or 20)

@@ -10,8 +10,8 @@ gives 0 (with a graph attached), never NaN.
   whose label map is all zero and whose prediction is near zero, instead of pushing such samples at full
   strength (with a tiny eps an all-zero label gives a loss of ~1 for any non-zero prediction).
 * ``affordance_loss``: the paper's L_aff = L_mse + beta * L_sdl.
-* ``navaff_weighted_mse``: NavAff's training loss (``MoMaKitchen/MoMaKitchen:train.py@64ca7a4``, REFERENCE.md
-  section 3): weight 0.7 where the label is 0 *and* a fresh Bernoulli(0.5) draw fires, else 1;
+* ``navaff_weighted_mse``: NavAff's training loss (``MoMaKitchen/MoMaKitchen:train.py@64ca7a4``,
+  docs/background.md §3): weight 0.7 where the label is 0 *and* a fresh Bernoulli(0.5) draw fires, else 1;
   mean(w (p - g)^2) over valid points (expected weight 0.85 on zero-label points).
 """
 

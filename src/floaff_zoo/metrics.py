@@ -3,7 +3,7 @@
 Every metric takes ``update(preds [B, M], target [B, M], mask [B, M] bool | None, index [B] long | None)``.
 Masked (padding) floor points never count. Definitions follow MoMa-Kitchen's official evaluation
 (``MoMaKitchen/MoMaKitchen:utils/cal_metric.py@64ca7a4``, ``utils/cal_metric_new.py@64ca7a4``; see
-REFERENCE.md section 2). An **element** is the unit a metric is computed on before averaging:
+docs/background.md §2). An **element** is the unit a metric is computed on before averaging:
 
 * ``reduction="per_sample"``: one element per sample (its valid floor points).
 * ``reduction="official_batchwise"``: one element per *chunk* of ``chunk_size`` (64) consecutive samples in

@@ -11,10 +11,14 @@ Conventions:
 * ``camera_pose`` = 4x4 camera-to-base transform. ``convention="opengl"`` (default, MuJoCo):
   the camera looks along its -z, x right, y up; ``"opencv"``: looks along +z, x right, y down.
 * The base frame is the contract's: x forward, y left, z up, floor at z = 0.
-* ``floor_xyz=None``: a default candidate grid (``cell`` m, default 0.05) on the disc of radius
-  ``grid_radius`` around the target's floor projection, keeping cells farther than
-  ``min_target_dist`` from it and at least ``clearance`` m from every observed point with
-  0.05 m < z < 2.0 m (furniture, walls: the cell must look free).
+* ``floor_xyz=None``: the **observed floor cells** of the given cloud, by the rule of the generated
+  benchmark's views (format v2, ``floaff_zoo.floor``): cells of ``cell`` m (default
+  :data:`DEFAULT_FLOOR_CELL`) of a lattice centred on the target's floor projection and aligned with
+  its front (``target_yaw``), inside ``window`` (default the benchmark's label window, |x°| <= 1.0 m
+  along the front, |y°| <= 1.2 m along its normal) and, when given, within ``grid_radius`` of the
+  target, that hold at least one ground point (z < ``FLOOR_Z_MAX`` = 0.02 m). Nothing else is
+  needed: no simulator field, no free-space guess. Pass the cell of the model's training data
+  (the generator's ``--cell``; 0.1 m for the demo/small presets) when it differs.
 * ``target_yaw=None``: the target's front is assumed to face the observing camera, i.e. the yaw of
   the direction from the target to the base origin.
 """
@@ -32,8 +36,11 @@ import numpy as np
 import torch
 
 from floaff_zoo.contract import FloorGrid, SampleError, best_pose, collate_samples, validate_sample
+from floaff_zoo.floor import CANDIDATE_WINDOW, FLOOR_Z_MAX, FloorLattice, observed_cells
 
 Pose = tuple[float, float, float]
+#: m: default floor cell, the grid of the demo/small generation presets the shipped models were trained on
+DEFAULT_FLOOR_CELL = 0.1
 
 
 @dataclass
@@ -118,33 +125,43 @@ def backproject_depth(
     return pc @ pose[:3, :3].T + pose[:3, 3], valid
 
 
+def default_target_yaw(target_xyz: np.ndarray) -> float:
+    """Front yaw assumed when none is given: the target faces the base origin (the observing robot)."""
+    t = np.asarray(target_xyz, dtype=np.float64).reshape(-1)
+    return math.atan2(-float(t[1]), -float(t[0]))
+
+
 def default_floor_grid(
     target_xyz: np.ndarray,
-    scene_xyz: np.ndarray | None = None,
-    radius: float = 1.5,
-    cell: float = 0.05,
-    min_target_dist: float = 0.2,
-    clearance: float = 0.1,
+    scene_xyz: np.ndarray,
+    target_yaw: float | None = None,
+    cell: float = DEFAULT_FLOOR_CELL,
+    window: tuple[float, float] = CANDIDATE_WINDOW,
+    radius: float | None = None,
+    z_max: float = FLOOR_Z_MAX,
+    min_points: int = 1,
 ) -> np.ndarray:
-    """Candidate floor points [M, 3] around the target (see module docstring)."""
-    t = np.asarray(target_xyz, dtype=np.float64).reshape(3)
-    n = int(math.floor(radius / cell))
-    g = np.arange(-n, n + 1) * cell
-    gx, gy = np.meshgrid(g, g)
-    xy = np.stack([gx.reshape(-1) + t[0], gy.reshape(-1) + t[1]], axis=1)
-    r = np.hypot(xy[:, 0] - t[0], xy[:, 1] - t[1])
-    keep = (r <= radius + 1e-9) & (r >= min_target_dist)
-    if scene_xyz is not None and len(scene_xyz) and clearance > 0:
-        p = np.asarray(scene_xyz, dtype=np.float64)
-        obst = p[(p[:, 2] > 0.05) & (p[:, 2] < 2.0)][:, :2]
-        if len(obst):
-            from scipy.spatial import cKDTree
+    """The observed floor cells of a cloud around the target (module docstring): [M, 3] float32, z = 0.
 
-            d, _ = cKDTree(obst).query(xy, k=1)
-            keep &= d >= clearance
-    xy = xy[keep]
-    if len(xy) == 0:
-        raise SampleError(f"predict: the default floor grid around the target {t.round(3).tolist()} has no free cell")
+    Args:
+        target_xyz [3]; scene_xyz [N, 3] (robot base frame, floor at z = 0); target_yaw: front yaw
+        (None: faces the base origin); cell (m); window (r_x, r_y) m in the target frame;
+        radius: optional disc cut (m) around the target; z_max / min_points: ground rule.
+    Raises:
+        SampleError: the cloud shows no ground point in the window.
+    """
+    t = np.asarray(target_xyz, dtype=np.float64).reshape(3)
+    yaw = default_target_yaw(t) if target_yaw is None else float(target_yaw)
+    lattice = FloorLattice.target_window(t[:2], yaw, float(cell), float(window[0]), float(window[1]))
+    seen = observed_cells(np.asarray(scene_xyz, dtype=np.float64).reshape(-1, 3), lattice, z_max, min_points)
+    if radius is not None:
+        seen &= lattice.within(float(radius))
+    if not seen.any():
+        raise SampleError(
+            f"predict: no observed floor cell around the target {t.round(3).tolist()}: the cloud has no ground point "
+            f"(z < {z_max} m) in the {window[0]} x {window[1]} m window; pass floor_xyz explicitly"
+        )
+    xy = lattice.centers()[seen]
     return np.c_[xy, np.zeros(len(xy))].astype(np.float32)
 
 
@@ -172,34 +189,40 @@ def predict_from_points(
     k: int = 5,
     num_points: int | None = 4096,
     cell: float | None = None,
-    grid_radius: float = 1.5,
+    grid_radius: float | None = None,
     model_class: type | str | None = None,
     device: str = "cpu",
     seed: int = 0,
+    window: tuple[float, float] = CANDIDATE_WINDOW,
+    task: str = "",
 ) -> Prediction:
     """Score candidate floor points for one observation (robot base frame).
 
     Args:
         model: a FloAffModule, a ``.ckpt`` path or a hub name.
         scene_xyz [N, 3], scene_feat [N, C] (channel 0 = target flag, then RGB in [0, 1]).
-        floor_xyz [M, 3] candidates, or None for the default grid (module docstring).
+        floor_xyz [M, 3] candidates, or None for the observed floor cells of the cloud (module docstring).
         robot [R] descriptor (default MoMa-Kitchen style: [arm reach m, base height m]).
         target_xyz [3]; target_yaw: yaw of the target's front normal (None: faces the robot).
         k: number of top poses returned.
         num_points: scene points fed to the model (random subset / repeats, seeded); None = all.
-        cell: cell (m) of the default grid and of the returned raster; None = 0.05 m for the
-            default grid, else the candidates' own spacing (median nearest-neighbour distance).
+        cell: cell (m) of the default grid and of the returned raster; None = DEFAULT_FLOOR_CELL for
+            the default grid, else the candidates' own spacing (median nearest-neighbour distance).
+        grid_radius / window: disc cut (m, None = none) and target-frame window (r_x, r_y) m of the
+            default grid.
+        task: the task asked (``meta['task']``; needed by models that condition on it, e.g. the
+            canonical prior).
     """
     net = resolve_model(model, model_class, device)
     t = np.asarray(target_xyz, dtype=np.float32).reshape(-1)
     if t.size != 3 or not np.isfinite(t).all():
         raise ValueError(f"predict: target_xyz must be 3 finite values, got {target_xyz!r}")
     if target_yaw is None:
-        target_yaw = math.atan2(-float(t[1]), -float(t[0]))
+        target_yaw = default_target_yaw(t)
     xyz = np.asarray(scene_xyz, dtype=np.float32)
     if floor_xyz is None:
-        cell = cell or 0.05
-        floor_xyz = default_floor_grid(t, xyz, radius=grid_radius, cell=cell)
+        cell = cell or DEFAULT_FLOOR_CELL
+        floor_xyz = default_floor_grid(t, xyz, target_yaw, cell=cell, window=window, radius=grid_radius)
     floor = np.asarray(floor_xyz, dtype=np.float32)
     if floor.ndim == 2 and floor.shape[1] == 2:
         floor = np.c_[floor, np.zeros(len(floor), np.float32)]
@@ -211,7 +234,7 @@ def predict_from_points(
         "robot": np.asarray(robot, dtype=np.float32),
         "target_xyz": t,
         "target_yaw": np.float32(target_yaw),
-        "meta": {"dataset": "predict", "task": "", "view": "", "sample_id": "predict"},
+        "meta": {"dataset": "predict", "task": task, "view": "", "sample_id": "predict"},
     })
     gen = torch.Generator().manual_seed(seed)
     batch = collate_samples([sample], num_points=num_points, mode="resample" if num_points else "pad", generator=gen)
@@ -245,10 +268,12 @@ def predict(
     k: int = 5,
     num_points: int | None = 4096,
     cell: float | None = None,
-    grid_radius: float = 1.5,
+    grid_radius: float | None = None,
     model_class: type | str | None = None,
     device: str = "cpu",
     seed: int = 0,
+    window: tuple[float, float] = CANDIDATE_WINDOW,
+    task: str = "",
 ) -> Prediction:
     """Floor affordance from one RGB-D view (see the module docstring for frames and defaults).
 
@@ -278,6 +303,7 @@ def predict(
     return predict_from_points(
         model, xyz[valid], feat[valid], floor_xyz, robot, target_xyz, target_yaw=target_yaw, k=k,
         num_points=num_points, cell=cell, grid_radius=grid_radius, model_class=model_class, device=device, seed=seed,
+        window=window, task=task,
     )
 
 

@@ -5,6 +5,9 @@ CloseDrawer 3 train scenes + 1 test scene, PnPCounterToCab 1 train scene (view-l
 scene, each scene 2 front + 2 side views; plus a ``layouts`` benchmark with OpenSingleDoor 2 train +
 1 test scene. Problems: a scene directory without scene.json, a corrupt scene.json, a corrupt view
 npz, a view with NaN coordinates and a view file listed but missing.
+
+``version`` 2 (default, the current format) stores ``floor_known`` (the last floor cell of every view
+is marked not known) and ``floor_index``; ``version`` 1 writes the generator-1.x layout without them.
 """
 
 from __future__ import annotations
@@ -24,20 +27,25 @@ PLAN = {
 VIEWS = [("front_0000", "front"), ("front_0001", "front"), ("side_0000", "side"), ("side_0001", "side")]
 
 
-def _view_arrays(seed: int, task: str, rng: np.random.Generator) -> dict[str, np.ndarray]:
+def _view_arrays(seed: int, task: str, rng: np.random.Generator, version: int = 2) -> dict[str, np.ndarray]:
     s = make_synthetic_sample(seed, num_points=160, floor_cells=6, task=task)
     n = s["scene_xyz"].shape[0]
     feat = np.c_[s["scene_feat"].numpy(), rng.uniform(0, 1, (n, 3))].astype(np.float32)
-    return {
+    out = {
         "scene_xyz": s["scene_xyz"].numpy(), "scene_feat": feat, "floor_xyz": s["floor_xyz"].numpy(),
         "floor_label": s["floor_label"].numpy(), "robot": s["robot"].numpy(), "target_xyz": s["target_xyz"].numpy(),
         "target_yaw": np.float32(s["target_yaw"]),
         "base_pose_world": rng.uniform(-1, 1, 3).astype(np.float32),
     }
+    if version >= 2:
+        m = len(out["floor_xyz"])
+        out["floor_known"] = np.arange(m) < m - 1
+        out["floor_index"] = np.arange(m, dtype=np.int32)
+    return out
 
 
-def make_floaff_dataset(root: str | Path, seed: int = 0, problems: bool = True) -> dict:
-    """Write the dataset; return {benchmark: {split: [scene_id]}} and the expected skip kinds."""
+def make_floaff_dataset(root: str | Path, seed: int = 0, problems: bool = True, version: int = ff.FORMAT_VERSION) -> dict:
+    """Write the dataset in format ``version``; return {benchmark: {split: [scene_id]}} and the expected skip kinds."""
     root = Path(root)
     rng = np.random.default_rng(seed)
     scenes: dict[str, dict[str, list[str]]] = {}
@@ -50,14 +58,14 @@ def make_floaff_dataset(root: str | Path, seed: int = 0, problems: bool = True) 
                 d = ff.scene_dir(root, bench, sid)
                 views = []
                 for vid, kind in VIEWS:
-                    arr = _view_arrays(seed * 1000 + k * 10 + len(views), task, rng)
+                    arr = _view_arrays(seed * 1000 + k * 10 + len(views), task, rng, version)
                     ff.atomic_save_npz(d / "views" / f"{vid}.npz", arr)
                     views.append({"view_id": vid, "view": kind, "file": f"views/{vid}.npz",
                                   "base_pose_world": arr["base_pose_world"].tolist(),
                                   "n_points": int(arr["scene_xyz"].shape[0]), "n_target_points": 1})
                 m = 36
                 rec = {
-                    "format_version": ff.FORMAT_VERSION, "benchmark": bench, "split": split, "scene_id": sid,
+                    "format_version": version, "benchmark": bench, "split": split, "scene_id": sid,
                     "slot": f"{bench}/{task}/{split}{i}",
                     "spec": {"layout_id": k % 3, "style_id": k % 5, "seed": 1000 + k, "task": task},
                     "task": task, "target": {"pos": [1.0, 2.0, 0.9], "yaw": 0.5},
@@ -68,7 +76,7 @@ def make_floaff_dataset(root: str | Path, seed: int = 0, problems: bool = True) 
                 }
                 ff.atomic_write_json(d / ff.SCENE_JSON, rec)
                 scenes.setdefault(bench, {}).setdefault(split, []).append(sid)
-    ff.atomic_write_json(root / ff.MANIFEST, {"format_version": ff.FORMAT_VERSION, "scenes": {}, "status": "done"})
+    ff.atomic_write_json(root / ff.MANIFEST, {"format_version": version, "scenes": {}, "status": "done"})
     expected_skips: dict[str, int] = {}
     if problems:
         (root / "styles" / "zz-no-scene-json" / "views").mkdir(parents=True)

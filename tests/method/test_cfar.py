@@ -106,7 +106,7 @@ def test_yaw_invariance_of_canonical_cloud_and_scores(root, seed):
     assert torch.equal(c0.mask, c1.mask)
     assert (c0.xyz - c1.xyz).abs().max() < 1e-5
     assert (c0.floor_xyz - c1.floor_xyz).abs().max() < 1e-5
-    model = CFARModule(**tiny_args(root), yaw_source="gt").eval()
+    model = CFARModule(**tiny_args(root), yaw_source="gt", eval_yaw_source="gt").eval()
     with torch.no_grad():
         s0, s1 = model(b), model(r)
     assert (s0 - s1).abs().max() < 1e-4
@@ -145,7 +145,7 @@ def test_fit_test_predict_and_reload_outside_cli(tmp_path, root, monkeypatch):
     pred = cli_p.trainer.predict_loop.predictions[0]
     assert pred["robot_from_canonical"].shape == (2, 4, 4) and pred["scores"].shape[0] == 2
     m = CFARModule.load_from_checkpoint(ckpt, weights_only=True)
-    assert m.hparams.crop_radius == 1.3 and m.hparams.loss == "aff"
+    assert m.hparams.crop_radius == 1.3 and m.train_cfg.loss == "aff" and m.train_cfg.lr == 0.003
 
 
 def test_axisnet_is_frozen_embedded_and_used_at_eval(tmp_path, root, monkeypatch):

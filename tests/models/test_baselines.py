@@ -87,7 +87,7 @@ def _chain(i: int, widths: list[int]) -> int:
 
 
 def test_navaff_parameter_count_matches_architecture():
-    """Official layer list (REFERENCE.md §3), counted by hand; the dead Conv1D1/Conv1D2 are not built."""
+    """Official layer list (docs/background.md §3), counted by hand; the dead Conv1D1/Conv1D2 are not built."""
     sa1 = [[32, 32, 64], [64, 64, 128], [64, 96, 128]]
     sa23 = [[128, 128, 256], [128, 196, 256]]
 
@@ -108,7 +108,7 @@ def test_navaff_parameter_count_matches_architecture():
     )
     model = NavAffModule()
     assert sum(p.numel() for p in model.parameters()) == expected == 4_977_937
-    assert model.hparams["loss"] == "navaff" and model.hparams["lr"] == 8e-4 and model.hparams["weight_decay"] == 1e-3
+    assert model.hparams["train"] == {**model.hparams["train"], "loss": "navaff", "lr": 8e-4, "weight_decay": 1e-3}
 
 
 def test_navaff_attention_has_no_residual():

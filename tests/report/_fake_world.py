@@ -10,15 +10,9 @@ import torch
 
 from floaff_zoo.contract import collate_samples, validate_sample
 from floaff_zoo.models.base import FloAffModule
+from tests.report._fake_jobs import fake_success
 
-BASE_RATE = 0.3
 TASKS = ("CloseDrawer", "OpenSingleDoor")
-
-
-def fake_success(x: float, y: float) -> bool:
-    """Pseudo-random but deterministic in the pose rounded to 2 decimals; P(success) = BASE_RATE."""
-    h = math.sin(round(x, 2) * 12.9898 + round(y, 2) * 78.233) * 43758.5453
-    return (h - math.floor(h)) < BASE_RATE
 
 
 @dataclass

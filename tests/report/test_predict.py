@@ -6,9 +6,17 @@ import numpy as np
 import pytest
 import torch
 
-from floaff_zoo.contract import FloorGrid
+from floaff_zoo.contract import FloorGrid, SampleError
+from floaff_zoo.floor import FloorLattice
 from floaff_zoo.models.tiny import TinyPointNetModule
-from floaff_zoo.predict import Prediction, backproject_depth, default_floor_grid, predict, predict_from_points
+from floaff_zoo.predict import (
+    DEFAULT_FLOOR_CELL,
+    Prediction,
+    backproject_depth,
+    default_floor_grid,
+    predict,
+    predict_from_points,
+)
 from tests.report._fake_world import ConstantModule
 
 
@@ -45,7 +53,8 @@ def test_backprojection_lands_on_the_floor_in_both_conventions():
 
 
 def test_backprojection_matches_the_simulator_renderer():
-    render = pytest.importorskip("floaff_zoo.sim.render")
+    from floaff_zoo.sim import render
+
     depth, _, pose = _floor_depth(h=48, w=48)
     f, cx, cy = render.camera_intrinsics(48, 48, 60.0)
     ours, v1 = backproject_depth(depth, (f, f, cx, cy), pose, "opengl", max_depth=5.0)
@@ -54,29 +63,48 @@ def test_backprojection_matches_the_simulator_renderer():
 
 
 def _scene():
+    """A counter (x in [1.7, 2.3], z in [0.05, 0.85]) with the target on its front edge, and the floor the robot
+    sees in front of it: x in [0.5, 1.65], y in [-0.8, 0.9], z = 0 (a strip y in [0.3, 0.5] is occluded)."""
     rng = np.random.default_rng(0)
     t = np.array([1.6, 0.2, 0.9])
-    counter = np.c_[rng.uniform(1.7, 2.3, 300), rng.uniform(-1, 1, 300), rng.uniform(0.0, 0.85, 300)]
+    counter = np.c_[rng.uniform(1.7, 2.3, 300), rng.uniform(-1, 1, 300), rng.uniform(0.05, 0.85, 300)]
     blob = t + rng.normal(scale=0.03, size=(60, 3))
-    xyz = np.r_[counter, blob].astype(np.float32)
-    feat = np.r_[np.zeros(300), np.ones(60)].astype(np.float32)[:, None]
+    floor = np.c_[rng.uniform(0.5, 1.65, 3000), rng.uniform(-0.8, 0.9, 3000), np.zeros(3000)]
+    floor = floor[(floor[:, 1] < 0.3) | (floor[:, 1] > 0.5)]
+    xyz = np.r_[counter, blob, floor].astype(np.float32)
+    feat = np.r_[np.zeros(300), np.ones(60), np.zeros(len(floor))].astype(np.float32)[:, None]
     return xyz, feat, t
+
+
+def test_default_floor_is_the_observed_floor_cells():
+    xyz, _, t = _scene()
+    yaw = math.pi  # the counter front faces -x, toward the robot
+    floor = default_floor_grid(t, xyz, yaw, cell=0.1)
+    assert floor.dtype == np.float32 and floor.shape[1] == 3 and (floor[:, 2] == 0).all()
+    # cells of the target-aligned lattice (centred on the target): each holds a ground point ...
+    lat = FloorLattice.target_window(t[:2], yaw, 0.1, 1.0, 1.2)
+    idx, inside = lat.index_of(floor)
+    assert inside.all() and np.allclose(lat.centers()[idx], floor[:, :2], atol=1e-5)
+    ground = xyz[xyz[:, 2] < 0.02]
+    gidx, gin = lat.index_of(ground)
+    assert set(idx.tolist()) == set(gidx[gin].tolist())  # ... and every cell with a ground point is asked
+    # the occluded strip and the counter are not asked; the observed floor is, out to the window's edge
+    assert not ((floor[:, 1] > 0.33) & (floor[:, 1] < 0.47)).any() and floor[:, 0].max() < 1.7
+    assert floor[:, 0].min() < 0.6 and abs(np.abs(floor[:, 1] - t[1]).max() - 1.0) < 1e-5
+    assert len(default_floor_grid(t, xyz, yaw, cell=0.1, radius=0.5)) < len(floor)
+    # without a yaw the front faces the robot: the same lattice here (yaw ~ atan2(-0.2, -1.6))
+    assert len(default_floor_grid(t, xyz, None, cell=0.1)) > 0.8 * len(floor)
 
 
 def test_predict_from_points_outputs_and_default_grid():
     torch.manual_seed(0)
     xyz, feat, t = _scene()
     model = TinyPointNetModule(width=16)
-    out = predict_from_points(model, xyz, feat, None, [0.85, 1.03], t, k=4, num_points=256)
+    out = predict_from_points(model, xyz, feat, None, [0.85, 1.03], t, target_yaw=math.pi, k=4, num_points=256)
     assert isinstance(out, Prediction)
     m = len(out.floor_xyz)
     assert out.scores.shape == (m,) and ((out.scores >= 0) & (out.scores <= 1)).all()
-    # default grid: within 1.5 m of the target, >= 0.1 m from every observed obstacle point
-    r = np.hypot(out.floor_xyz[:, 0] - t[0], out.floor_xyz[:, 1] - t[1])
-    assert r.max() <= 1.5 + 1e-6 and r.min() >= 0.2 - 1e-6
-    obst = xyz[(xyz[:, 2] > 0.05) & (xyz[:, 2] < 2.0), :2]
-    gap = np.hypot(*(out.floor_xyz[:, None, :2] - obst[None]).transpose(2, 0, 1)).min(1)
-    assert gap.min() >= 0.1 - 1e-6 and len(out.floor_xyz) > 100
+    assert np.allclose(out.floor_xyz, default_floor_grid(t, xyz, math.pi, cell=DEFAULT_FLOOR_CELL), atol=1e-5)
     assert isinstance(out.grid, FloorGrid) and out.raster.shape == out.grid.shape
     assert np.nanmax(out.raster) == pytest.approx(out.scores.max(), abs=1e-6)
     top = [int(np.argmin(np.hypot(out.floor_xyz[:, 0] - p[0], out.floor_xyz[:, 1] - p[1]))) for p in out.top_poses]
@@ -84,7 +112,9 @@ def test_predict_from_points_outputs_and_default_grid():
     assert out.best_pose == out.top_poses[0] and out.scores[top[0]] == out.scores.max()
     x, y, yaw = out.best_pose
     assert yaw == pytest.approx(math.atan2(t[1] - y, t[0] - x))
-    assert out.target_yaw == pytest.approx(math.atan2(-t[1], -t[0]))  # default: front faces the robot
+    assert out.target_yaw == pytest.approx(math.pi)
+    plain = predict_from_points(ConstantModule(), xyz, feat, None, [0.85, 1.03], t)
+    assert plain.target_yaw == pytest.approx(math.atan2(-t[1], -t[0]))  # default: front faces the robot
 
 
 def test_constant_prediction_uses_the_tie_break():
@@ -130,15 +160,15 @@ def test_checkpoint_of_another_model_class_is_a_clear_error(tmp_path):
         predict_from_points(m, xyz, feat, None, [0.85, 1.03, 0.5], t)
 
 
-def test_default_grid_without_free_floor_is_named():
-    from floaff_zoo.contract import SampleError
-
+def test_default_grid_without_observed_floor_is_named():
     g = np.arange(-2.0, 2.0, 0.05)
-    wall = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
-    xyz = np.c_[wall, np.full(len(wall), 0.5)]  # furniture everywhere around the target
-    with pytest.raises(SampleError, match="no free cell"):
+    top = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
+    xyz = np.c_[top, np.full(len(top), 0.5)]  # furniture everywhere around the target: no ground point
+    with pytest.raises(SampleError, match="no observed floor cell"):
         default_floor_grid(np.array([0.0, 0.0, 0.9]), xyz)
-    assert len(default_floor_grid(np.array([0.0, 0.0, 0.9]), None, radius=0.5, cell=0.1)) == 81 - 9  # lattice points with r <= 5 cells minus r < 2 cells
+    xyz[:, 2] = 0.0  # all floor: the whole window (|x°| <= 5, |y°| <= 6 cells of 0.2 m), or its disc
+    assert len(default_floor_grid(np.array([0.0, 0.0, 0.9]), xyz, 0.3, cell=0.2)) == 11 * 13
+    assert len(default_floor_grid(np.array([0.0, 0.0, 0.9]), xyz, 0.3, cell=0.2, radius=0.5)) == 21
 
 
 def test_package_level_call():

@@ -15,7 +15,8 @@ from floaff_zoo.callbacks.rollout import (
     pose_to_world,
     summarize_episodes,
 )
-from tests.report._fake_world import BASE_RATE, ConstantModule, FakeService, LabelModule, loader, make_samples
+from tests.report._fake_jobs import BASE_RATE
+from tests.report._fake_world import ConstantModule, FakeService, LabelModule, loader, make_samples
 
 
 def _trainer(cb):

@@ -8,13 +8,13 @@ import pytest
 
 from floaff_zoo.callbacks import RolloutSuccessRate, TestReport
 from floaff_zoo.contract import validate_sample
+from floaff_zoo.sim import fileformat as ff
+from floaff_zoo.sim import generate as gen
 from tests.report._fake_world import ConstantModule, LabelModule, loader
 
 
 @pytest.fixture(scope="module")
 def sim_samples(tmp_path_factory):
-    gen = pytest.importorskip("floaff_zoo.sim.generate")
-    ff = pytest.importorskip("floaff_zoo.sim.fileformat")
     out = tmp_path_factory.mktemp("gen")
     rc = gen.main(["--preset", "tiny", "--out", str(out), "--tasks", "CloseDrawer", "OpenSingleDoor",
                    "--n-train", "0", "--n-test", "1", "--workers", "0", "--quiet"])

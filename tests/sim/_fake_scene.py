@@ -2,7 +2,8 @@
 
 Room 6 x 6 m; a counter (box) against the +x wall whose front face is at x = 1.0; a red handle (the target) on the
 counter front at height 0.8 facing -x (target yaw = pi); a 'robot' = planar x/y/yaw joints carrying a box body
-(collision geom in group 0, a visual 'arm' box in group 1 right in the camera's view) and the ego camera 'floaff_ego' looking forward, pitched down.
+(collision geom in group 0, a visual 'arm' box in group 1 right in the camera's view) and the ego camera
+'floaff_ego' looking forward, pitched down.
 """
 
 from __future__ import annotations

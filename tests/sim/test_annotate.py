@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from floaff_zoo.sim.annotate import annotate_scene
+from floaff_zoo.sim.annotate import FILTERED, ROLLED_OUT, SKIPPED, annotate_scene
 from floaff_zoo.sim.rollout import heading_to_target, rollout
 from floaff_zoo.sim.tasks import target_frame, target_frame_to_world
 
@@ -29,6 +29,16 @@ def test_determinism_and_filtering(scene_factory):
     assert c["filtered_collision"] + c["filtered_reach"] + c["prefiltered_ik"] + c["rolled_out"] + c["skipped_budget"] == H * W
     assert c["filtered_collision"] > 0
     assert a.label.max() == pytest.approx(1.0) if a.success.any() else a.label.max() == 0.0
+    _check_status(a)
+
+
+def _check_status(a) -> None:
+    """Per-cell status: rolled out = the rollouts, skipped = over the budget, filtered = the rest (never successful)."""
+    c = a.counts
+    assert a.status.shape == a.label.shape and set(np.unique(a.status)) <= {FILTERED, ROLLED_OUT, SKIPPED}
+    assert (a.status == ROLLED_OUT).sum() == c["rolled_out"] and (a.status == SKIPPED).sum() == c["skipped_budget"]
+    assert not a.success[a.status != ROLLED_OUT].any()
+    assert all(r == "skipped_budget" for r in np.asarray(a.reasons)[a.status == SKIPPED])
 
 
 @pytest.mark.parametrize("task,cell,budget", [
@@ -39,6 +49,7 @@ def test_determinism_and_filtering(scene_factory):
 def test_positive_and_negative(scene_factory, task, cell, budget):
     sc = scene_factory(task)
     a = annotate_scene(sc, cell=cell, max_candidates=budget)
+    _check_status(a)
     assert a.counts["positives"] >= 1, a.counts
     assert (~a.success).sum() >= 1
     assert a.label.max() == pytest.approx(1.0)

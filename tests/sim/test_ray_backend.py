@@ -1,6 +1,6 @@
 """Ray backend on a local cluster: same bytes as the local backend for generate, same outcomes for RolloutService.
 
-Skipped when ray (optional extra ``floaff-zoo[ray]``) is not installed.
+ray is part of the dev extra (``pip install -e .[dev]``), so these tests always run in development and CI.
 """
 
 from __future__ import annotations
@@ -8,17 +8,15 @@ from __future__ import annotations
 import os
 
 import pytest
+import ray
 
-ray = pytest.importorskip("ray", reason="ray not installed (optional: pip install ray)")
-pytest.importorskip("floaff_zoo.sim.kitchen")
+from floaff_zoo.sim import generate as gen
+from floaff_zoo.sim.kitchen import SceneSpec
+from floaff_zoo.sim.presets import get_preset
+from floaff_zoo.sim.rollout import RolloutService
 
-from floaff_zoo.sim import generate as gen  # noqa: E402
-from floaff_zoo.sim.kitchen import SceneSpec  # noqa: E402
-from floaff_zoo.sim.presets import get_preset  # noqa: E402
-from floaff_zoo.sim.rollout import RolloutService  # noqa: E402
-
-from .test_generate import MINI, _labels  # noqa: E402
-from .test_rollout import _front_pose  # noqa: E402
+from .test_generate import MINI, _labels
+from .test_rollout import _front_pose
 
 
 def _ray_children() -> list[str]:

@@ -1,12 +1,12 @@
-"""Headless rendering and depth back-projection (SIMULATOR.md §3.3) on a throwaway scene with known geometry."""
+"""Headless rendering and depth back-projection (docs/background.md §5) on a throwaway scene with known geometry."""
 
 from __future__ import annotations
 
+import mujoco
 import numpy as np
 import pytest
 
-render = pytest.importorskip("floaff_zoo.sim.render")
-mujoco = pytest.importorskip("mujoco")
+from floaff_zoo.sim import render
 
 # camera at (0.5, 0, 0.5) looking along +x (camera -z = world +x, camera x = world -y, camera y = world +z);
 # red box face at x = 1.7 (1.2 m away); blue marker box high up (image top) and green low (image bottom);

@@ -9,9 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-pytest.importorskip("mujoco")
-views = pytest.importorskip("floaff_zoo.sim.views")
-from floaff_zoo.sim.render import Renderer  # noqa: E402
+from floaff_zoo.sim import views
+from floaff_zoo.sim.render import Renderer
 
 sys.path.insert(0, str(Path(__file__).parent))
 from _fake_scene import COUNTER_X, FakeScene  # noqa: E402

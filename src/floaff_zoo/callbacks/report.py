@@ -141,16 +141,13 @@ class TestReport(L.Callback):
                     self._seen[key].add(str(m[key]))
         if not self.figures or self.figures_per_group == 0:
             return
-        scores = getattr(pl_module, "last_test_scores", None)
+        scores = outputs.get("scores") if isinstance(outputs, dict) else None
+        if scores is None:
+            return  # not a floor-map model (AxisNet's test_step gives a yaw): nothing to draw
         for i, m in enumerate(metas):
             key = (str(m.get("task", "")), str(m.get("view", "")))
             if self._counts.get(key, 0) >= self.figures_per_group:
                 continue
-            if scores is None or scores.shape != batch["floor_mask"].shape:
-                with torch.no_grad():
-                    scores = pl_module(batch)
-            if not torch.is_tensor(scores) or scores.shape != batch["floor_mask"].shape:
-                return  # not a floor-map model (e.g. AxisNet predicts a yaw): nothing to draw
             self._counts[key] = self._counts.get(key, 0) + 1
             valid = batch["floor_mask"][i].detach().cpu().numpy().astype(bool)
             self._samples.append(
@@ -246,8 +243,8 @@ class TestReport(L.Callback):
                 "views": sorted(self._seen.get("view", ())),
                 "num_samples": self._n,
             },
-            "sim_variant": hp.get("sim_variant"),
-            "metric_reduction": hp.get("metric_reduction"),
+            "sim_variant": (hp.get("train") or {}).get("sim_variant"),
+            "metric_reduction": (hp.get("train") or {}).get("metric_reduction"),
             "configured_metrics": configured,
             "metrics": metrics,
             "sr": sr,
@@ -277,7 +274,8 @@ def render_markdown(report: dict[str, Any]) -> str:
         f"- model: `{report['model']['class_path']}`",
         f"- checkpoint: `{ck.get('path', 'none')}` (sha256 `{(ck.get('sha256') or 'n/a')[:16]}…`)",
         f"- seed: {report.get('seed')}",
-        f"- data: {data.get('dataset')} | benchmark {data.get('benchmark')} | tasks {', '.join(data.get('tasks', [])) or '-'}"
+        f"- data: {data.get('dataset')} | benchmark {data.get('benchmark')} | "
+        f"tasks {', '.join(data.get('tasks', [])) or '-'}"
         f" | views {', '.join(data.get('views', [])) or '-'} | {data.get('num_samples')} samples",
         f"- sim_variant: {report.get('sim_variant')}, metric_reduction: {report.get('metric_reduction')}",
         "",

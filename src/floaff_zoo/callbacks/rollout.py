@@ -30,7 +30,6 @@ when no sample has sim metadata nothing is logged and the summary says ``availab
 
 from __future__ import annotations
 
-import math
 import time
 import warnings
 from collections.abc import Callable, Sequence
@@ -42,30 +41,17 @@ import torch
 from lightning.pytorch.utilities import rank_zero_warn
 
 from floaff_zoo.contract import best_pose
+from floaff_zoo.frames import Pose, base_to_world, pose_to_world
 
-Pose = tuple[float, float, float]
+__all__ = [
+    "RolloutSuccessRate", "base_to_world", "bootstrap_std", "choose_pose", "pose_to_world", "summarize_episodes",
+    "summary_to_logs",
+]
+
 STD_METHOD = "bootstrap std of the mean over evaluated episodes"
 
 
-# ----------------------------------------------------------------------------------------------- geometry
-def base_to_world(xyz: np.ndarray, base_pose_world: Sequence[float]) -> np.ndarray:
-    """Points in the view's robot base frame -> world. xyz [K, 2+] -> same shape (z untouched)."""
-    p = np.array(xyz, dtype=np.float64, copy=True)
-    x0, y0, yaw = (float(v) for v in base_pose_world)
-    c, s = math.cos(yaw), math.sin(yaw)
-    px, py = p[..., 0].copy(), p[..., 1].copy()
-    p[..., 0] = c * px - s * py + x0
-    p[..., 1] = s * px + c * py + y0
-    return p
-
-
-def pose_to_world(pose: Pose, base_pose_world: Sequence[float]) -> Pose:
-    """An SE(2) pose (x, y, yaw) in the base frame -> world (yaw wrapped to (-pi, pi])."""
-    xy = base_to_world(np.array([[pose[0], pose[1]]]), base_pose_world)[0]
-    yaw = math.atan2(math.sin(pose[2] + float(base_pose_world[2])), math.cos(pose[2] + float(base_pose_world[2])))
-    return float(xy[0]), float(xy[1]), float(yaw)
-
-
+# ----------------------------------------------------------------------------------------------- poses
 def choose_pose(
     floor_xyz: np.ndarray,
     scores: np.ndarray,
@@ -373,11 +359,9 @@ class RolloutSuccessRate(L.Callback):
     def on_test_batch_end(self, trainer, pl_module, outputs, batch, batch_idx, dataloader_idx=0) -> None:
         if not self._active.get("test"):
             return
-        scores = getattr(pl_module, "last_test_scores", None)
-        if scores is None or scores.shape != batch["floor_mask"].shape:
-            with torch.no_grad():
-                scores = pl_module(batch)
-        self._collect("test", batch, scores)
+        scores = outputs.get("scores") if isinstance(outputs, dict) else None
+        if scores is not None:  # None: not a floor-map model (AxisNet's test_step gives a yaw)
+            self._collect("test", batch, scores)
 
     def on_test_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         self._finish(trainer, pl_module, "test")
@@ -394,9 +378,9 @@ class RolloutSuccessRate(L.Callback):
             return
         if self.max_val_samples is not None and len(self._pending["val"]) >= self.max_val_samples:
             return
-        with torch.no_grad():  # validation_step keeps no scores: one extra forward on evaluated epochs only
-            scores = pl_module(batch)
-        self._collect("val", batch, scores)
+        scores = outputs.get("scores") if isinstance(outputs, dict) else None
+        if scores is not None:  # validation_step returns the scores it computed: no second forward
+            self._collect("val", batch, scores)
 
     def on_validation_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         self._finish(trainer, pl_module, "val")

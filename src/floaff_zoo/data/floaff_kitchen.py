@@ -217,6 +217,11 @@ class FloAffKitchenDataModule(FloAffDataModule):
         empty = [t for t in self.tasks if not any(s.task == t for s in scenes)]
         if empty:
             print(f"FloAffKitchenDataModule: no '{self.benchmark}' scene for task(s) {empty} under {self.root}")
+        old = sum(s.format_version == 1 for s in scenes)
+        if old:  # docs/data_format.md "Versions"
+            print(f"FloAffKitchenDataModule: {old} of {len(scenes)} scene(s) under {self.root} are format 1: their floor "
+                  "points are the filtered candidate set, not the observed floor predict() asks about; regenerate "
+                  "with `floaff-zoo generate` (format 2) to train models for deployment")
         sizes = ", ".join(f"{s} {len(self.datasets[s])}" for s in ("train", "val", "test"))
         print(f"FloAffKitchenDataModule[{self.benchmark}, tasks={self.tasks}, views={self.views}]: {sizes} samples. "
               f"{skips.summary()}")

@@ -158,6 +158,7 @@ class SceneEntry:
     dir: str
     views: list[ViewEntry]
     sources: list[str] = field(default_factory=list)  # scene-level files (e.g. scene.json)
+    format_version: int | None = None  # generated data's on-disk format (1 or 2, docs/data_format.md); else None
 
 
 class FloAffReader(abc.ABC):
@@ -221,7 +222,12 @@ def get_reader(name: str) -> type[FloAffReader]:
 
 @register_reader("generated")
 class GeneratedReader(FloAffReader):
-    """Reads the format written by ``floaff-zoo generate`` through ``floaff_zoo.sim.fileformat``."""
+    """Reads the format written by ``floaff-zoo generate`` through ``floaff_zoo.sim.fileformat``.
+
+    Both format versions (docs/data_format.md): 1 (every view holds the scene's filtered candidate cells) and 2
+    (every view holds the label-grid cells it observes as ground). Samples carry the extra key ``floor_known``
+    [M] bool (all true in version 1); a scene of an unknown version is skipped as ``corrupt_scene_json``.
+    """
 
     def scenes(self, benchmark: str) -> list[SceneEntry]:
         from floaff_zoo.sim import fileformat as ff
@@ -254,7 +260,7 @@ class GeneratedReader(FloAffReader):
             out.append(SceneEntry(
                 scene_id=str(rec.get("scene_id", d.name)), benchmark=benchmark, split=rec["split"], task=rec["task"],
                 layout_id=spec.get("layout_id"), style_id=spec.get("style_id"), seed=spec.get("seed"), dir=str(d),
-                views=views, sources=[str(sj)],
+                views=views, sources=[str(sj)], format_version=int(rec["format_version"]),
             ))
         return out
 
@@ -263,7 +269,8 @@ class GeneratedReader(FloAffReader):
 
         rec = {"dir": scene.dir, "spec": {"layout_id": scene.layout_id, "style_id": scene.style_id,
                                           "seed": scene.seed},
-               "task": scene.task, "benchmark": scene.benchmark, "scene_id": scene.scene_id, "split": scene.split}
+               "task": scene.task, "benchmark": scene.benchmark, "scene_id": scene.scene_id, "split": scene.split,
+               "format_version": scene.format_version or 1}
         try:
             s = ff.read_sample(rec, {"file": os.path.relpath(view.file, scene.dir), "view": view.view,
                                      "view_id": view.view_id}, root=self.root)

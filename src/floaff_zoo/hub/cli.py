@@ -109,7 +109,7 @@ def cmd_push(args: argparse.Namespace) -> int:
     if args.upload and is_offline():  # fail before exporting anything
         raise HubError("refusing to --upload: FLOAFF_ZOO_OFFLINE is set (unset it or set it to 0)")
     meta = {k: getattr(args, k) for k in ("dataset", "benchmark", "license", "description") if getattr(args, k)}
-    from floaff_zoo import __version__
+    from floaff_zoo._version import __version__
 
     meta["zoo_version"] = __version__
     entry, out = export_checkpoint(args.run, args.name, args.hub_dir, class_path=args.class_path, meta=meta,

@@ -7,6 +7,9 @@ Layout written by :func:`export_checkpoint` (also a valid Hugging Face model rep
         config.json                       class_path, init_args, weights, sha256, metrics, meta
         README.md                         model card
     <hub dir>/index.json                  user index, entry registered with source {"kind": "local"}
+
+:func:`save_model_dir` (``model.save_pretrained(directory)``) writes the same format for a model in
+memory, unregistered: ``config.json`` + ``model.safetensors``.
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ import json
 import math
 import os
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -22,11 +26,12 @@ import torch
 
 from floaff_zoo.hub.io import (
     CONFIG_NAME,
+    DEFAULT_WEIGHTS_NAME,
     SAFETENSORS_META_KEY,
     TEACHER_PREFIX,
-    fit_init_args,
     import_model_class,
     load_model,
+    looks_like_path,
 )
 from floaff_zoo.hub.registry import (
     NON_PORTABLE_ARGS,
@@ -39,6 +44,7 @@ from floaff_zoo.hub.registry import (
     sha256_file,
     unique_filename,
 )
+from floaff_zoo.runs import RunError, resolve_ckpt_alias
 
 
 def find_run_checkpoint(run: str | os.PathLike[str]) -> Path:
@@ -54,11 +60,9 @@ def find_run_checkpoint(run: str | os.PathLike[str]) -> Path:
         return p
     if not p.is_dir():
         raise FileNotFoundError(f"{p}: no such run directory or checkpoint file")
-    from floaff_zoo.cli import CLIError, resolve_ckpt_alias
-
     try:
         return Path(resolve_ckpt_alias("best", p))
-    except CLIError as exc:
+    except RunError as exc:
         raise HubError(f"{p}: no last.ckpt found in the run directory; pass the .ckpt file instead") from exc
 
 
@@ -108,8 +112,11 @@ def _best_score(ckpt_path: Path, ckpt: dict[str, Any], run: Path | None) -> dict
     return {}
 
 
-def _portable_state(state: dict[str, Any], where: Path) -> dict[str, torch.Tensor]:
-    """Tensors only, teacher dropped, contiguous private copies (safetensors refuses shared storage)."""
+def _portable_state(state: dict[str, Any], where: Path, allow_empty: bool = False) -> dict[str, torch.Tensor]:
+    """Tensors only, teacher dropped, contiguous private copies (safetensors refuses shared storage).
+
+    ``allow_empty``: a model without weights (training-free, e.g. C2F-Exp) may be saved as its config.
+    """
     out = {}
     for k, v in state.items():
         if k.startswith(TEACHER_PREFIX):
@@ -117,8 +124,77 @@ def _portable_state(state: dict[str, Any], where: Path) -> dict[str, torch.Tenso
         if not isinstance(v, torch.Tensor):
             raise HubError(f"{where}: state entry {k!r} is a {type(v).__name__}, not a tensor; cannot export")
         out[k] = v.detach().to("cpu").contiguous().clone()
-    if not out:
+    if not out and not allow_empty:
         raise HubError(f"{where}: the checkpoint holds no (student) weights")
+    return out
+
+
+def _portable_init_args(cls: type, hparams: dict[str, Any], where: Path) -> dict[str, Any]:
+    """The init args an export records: today's form (``cls.upgrade_init_args``: old checkpoints hold the
+    training args flat), without Lightning's private keys and the args that name other files."""
+    args = {k: v for k, v in hparams.items() if not k.startswith("_") and k not in NON_PORTABLE_ARGS}
+    args = cls.upgrade_init_args(args)
+    try:
+        json.dumps(args)
+    except TypeError as exc:
+        raise HubError(f"{where}: hyper_parameters are not JSON primitives ({exc})") from exc
+    return _without_local_paths(args)
+
+
+def _without_local_paths(value: Any) -> Any:
+    """``value`` with every string that names a local file (``runs/.../x.ckpt``, ``/abs/path``) set to None.
+
+    An entry travels to other machines: a path of the exporting machine means nothing there, and a CFAR's
+    AxisNet is rebuilt from the recorded ``axisnet_arch`` (its sha256 stays as the lineage), not from a file.
+    Hub names (``axisnet.floaff-layouts.v1``) are portable and kept.
+    """
+    if isinstance(value, dict):
+        return {k: _without_local_paths(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_without_local_paths(v) for v in value]
+    if isinstance(value, str) and looks_like_path(value):
+        return None
+    return value
+
+
+def _write_weights(out: Path, state: dict[str, torch.Tensor], header: dict[str, Any],
+                   filename: str | Callable[[str], str]) -> tuple[str, str]:
+    """Write ``state`` as safetensors into ``out`` atomically, ``header`` (JSON) in its metadata.
+
+    Args:
+        filename: a fixed name, or a function of the file's sha256 (the hub's ``<name>-<sha[:8]>``).
+    Returns:
+        (file name, sha256).
+    """
+    from safetensors.torch import save_file
+
+    out.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkstemp(prefix=".export-", suffix=".safetensors", dir=out)[1])
+    try:
+        save_file(state, str(tmp), metadata={SAFETENSORS_META_KEY: json.dumps(header)})
+        sha = sha256_file(tmp)
+        name = filename(sha) if callable(filename) else filename
+        os.replace(tmp, out / name)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return name, sha
+
+
+def save_model_dir(model: torch.nn.Module, directory: str | os.PathLike[str]) -> Path:
+    """``model`` as an exported directory, ``config.json`` + ``model.safetensors`` (``save_pretrained``).
+
+    ``from_pretrained``/``load_model`` read it back (strictly); no checkpoint, run or CLI is needed.
+    Returns the directory.
+    """
+    out = Path(directory).expanduser()
+    cls = type(model)
+    class_path = f"{cls.__module__}.{cls.__qualname__}"
+    init_args = _portable_init_args(cls, dict(getattr(model, "hparams", {})), out)
+    state = _portable_state(model.state_dict(), out, allow_empty=True)
+    filename, sha = _write_weights(out, state, {"class_path": class_path, "init_args": init_args}, DEFAULT_WEIGHTS_NAME)
+    config = {"class_path": class_path, "init_args": init_args, "weights": filename, "sha256": sha}
+    (out / CONFIG_NAME).write_text(json.dumps(config, indent=2) + "\n", encoding="utf-8")
     return out
 
 
@@ -180,37 +256,18 @@ def export_checkpoint(
     hp.pop("_instantiator", None)
     if not cls_path:
         raise HubError(f"{ckpt_path}: the checkpoint does not record its model class; pass --class-path")
-    init_args = {k: v for k, v in hp.items() if k not in NON_PORTABLE_ARGS}
-    try:  # keep exactly the class's own init args (base hparams it does not expose are dropped)
-        init_args = fit_init_args(import_model_class(cls_path, str(ckpt_path)), init_args, str(ckpt_path))
-    except TypeError as exc:
-        raise HubError(str(exc)) from exc
-    try:
-        json.dumps(init_args)
-    except TypeError as exc:
-        raise HubError(f"{ckpt_path}: hyper_parameters are not JSON primitives ({exc})") from exc
+    init_args = _portable_init_args(import_model_class(cls_path, str(ckpt_path)), hp, ckpt_path)
     state = _portable_state(ckpt["state_dict"], ckpt_path)
     metrics = _report_metrics(ckpt_path, run, Path(report) if report is not None else None)
     metrics = metrics or _best_score(ckpt_path, ckpt, run)
     meta = {**(meta or {}), "metrics": metrics}
 
     out = hub_dir(directory) / name
-    out.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkstemp(prefix=".export-", suffix=".safetensors", dir=out)[1])
-    try:
-        from safetensors.torch import save_file
-
-        header = {SAFETENSORS_META_KEY: json.dumps({"name": name, "class_path": cls_path, "init_args": init_args})}
-        save_file(state, str(tmp), metadata=header)
-        sha = sha256_file(tmp)
-        filename = unique_filename(name, sha, ".safetensors")
-        for old in out.glob(f"{name}-*.safetensors"):  # an earlier export of the same name
-            if old.name != filename:
-                old.unlink()
-        os.replace(tmp, out / filename)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    header = {"name": name, "class_path": cls_path, "init_args": init_args}
+    filename, sha = _write_weights(out, state, header, lambda sha: unique_filename(name, sha, ".safetensors"))
+    for old in out.glob(f"{name}-*.safetensors"):  # an earlier export of the same name
+        if old.name != filename:
+            old.unlink()
     try:
         entry = HubEntry(
             name=name, class_path=cls_path, filename=filename, sha256=sha, init_args=init_args,

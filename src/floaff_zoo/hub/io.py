@@ -12,6 +12,11 @@ Resolution order of ``resolve_state_dict`` / ``load_model``:
 
 Loading never executes code from a file: safetensors, or ``torch.load(weights_only=True)``; the
 model class is imported only from ``floaff_zoo`` or from modules the caller has already imported.
+
+Layering: this module and :mod:`floaff_zoo.hub.registry` sit below the models (``from_pretrained``,
+teachers and AxisNets of ``floaff_zoo.models`` read weights through them) and import no model and no CLI;
+a checkpoint's class is found by the dotted name it records, like a config's ``class_path``.
+``hub.export`` and ``hub.cli`` (``floaff-zoo hub push``) sit above the models.
 """
 
 from __future__ import annotations
@@ -47,6 +52,9 @@ SAFETENSORS_META_KEY = "floaff_zoo"
 #: state-dict prefixes dropped on load and export (a PFAL student must not carry its teacher)
 TEACHER_PREFIX = "teacher."
 URL_TIMEOUT_S = 60.0
+#: where bare class names live, and the class every loadable model derives from
+MODELS_PACKAGE = "floaff_zoo.models"
+MODEL_BASE_CLASS = "floaff_zoo.models.base.ZooModule"
 
 Info = dict[str, Any]
 
@@ -161,7 +169,7 @@ def _open_url(url: str, timeout: float = URL_TIMEOUT_S) -> IO[bytes]:
     """The transport (tests replace it): a readable binary stream of ``url``."""
     import urllib.request
 
-    from floaff_zoo import __version__
+    from floaff_zoo._version import __version__
 
     req = urllib.request.Request(url, headers={"User-Agent": f"floaff-zoo/{__version__}"})
     return urllib.request.urlopen(req, timeout=timeout)  # noqa: S310 - scheme checked by the registry
@@ -263,7 +271,8 @@ def fetch(
 
 
 # --------------------------------------------------------------------------- resolution
-def _looks_like_path(s: str) -> bool:
+def looks_like_path(s: str) -> bool:
+    """True for strings that name a file rather than a hub entry (a separator, ``~``/``.``, a weights suffix)."""
     return any(sep in s for sep in ("/", "\\", os.sep)) or s.startswith(("~", ".")) or Path(s).suffix in WEIGHT_EXTS
 
 
@@ -301,7 +310,7 @@ def resolve_state_dict(
             _verify(weights_path, sha, f"{path / CONFIG_NAME}")
         state, _file_info = read_weights(weights_path)
         info = {"class_path": cfg.get("class_path"), "init_args": dict(cfg.get("init_args") or {})}
-    elif _looks_like_path(target) and not _is_registered(target, hub_dir):
+    elif looks_like_path(target) and not _is_registered(target, hub_dir):
         raise FileNotFoundError(f"weights {target!r}: no such file or directory")
     else:
         kind = "hub"
@@ -324,56 +333,33 @@ def _is_registered(name: str, directory: str | os.PathLike[str] | None) -> bool:
 
 
 def import_model_class(class_path: str, where: str) -> type:
-    """The FloAffModule subclass ``class_path`` names, importing only trusted modules.
+    """The model class ``class_path`` names, importing only trusted modules.
 
     ``floaff_zoo.*`` modules are imported on demand; other modules must already be imported by the
-    caller (a weights file must never make us import arbitrary code). Bare names resolve in
-    ``floaff_zoo.models``.
+    caller (a weights file must never make us import arbitrary code). A bare name means
+    ``floaff_zoo.models.<name>``. The class is found by its dotted name, like a config's
+    ``class_path``: this module sits below ``floaff_zoo.models`` and imports none of them itself.
     """
-    from floaff_zoo.models.base import FloAffModule
-
     if "." not in class_path:
-        import floaff_zoo.models as models
-
-        obj = getattr(models, class_path, None)
-    else:
-        mod_name, cls_name = class_path.rsplit(".", 1)
-        if mod_name.split(".")[0] != "floaff_zoo" and mod_name not in sys.modules:
-            raise HubError(
-                f"{where}: model class {class_path!r} lives outside floaff_zoo; import {mod_name} "
-                "yourself before loading (the hub never imports a module because a file names it)"
-            )
-        try:
-            obj = getattr(importlib.import_module(mod_name), cls_name, None)
-        except ImportError as exc:
-            raise HubError(f"{where}: cannot import model module {mod_name!r} ({exc})") from exc
-    if not (isinstance(obj, type) and issubclass(obj, FloAffModule)):
-        raise HubError(f"{where}: class_path {class_path!r} is not a FloAffModule subclass")
+        class_path = f"{MODELS_PACKAGE}.{class_path}"
+    mod_name, cls_name = class_path.rsplit(".", 1)
+    if mod_name.split(".")[0] != "floaff_zoo" and mod_name not in sys.modules:
+        raise HubError(
+            f"{where}: model class {class_path!r} lives outside floaff_zoo; import {mod_name} "
+            "yourself before loading (the hub never imports a module because a file names it)"
+        )
+    try:
+        obj = getattr(importlib.import_module(mod_name), cls_name, None)
+    except ImportError as exc:
+        raise HubError(f"{where}: cannot import model module {mod_name!r} ({exc})") from exc
+    if not (isinstance(obj, type) and _is_model_class(obj)):
+        raise HubError(f"{where}: class_path {class_path!r} is not a model of the zoo (a ZooModule subclass)")
     return obj
 
 
-def fit_init_args(cls: type, init_args: dict[str, Any], where: str) -> dict[str, Any]:
-    """``init_args`` restricted to what ``cls.__init__`` takes.
-
-    Base-class hparams a subclass does not expose (``save_hyperparameters`` records them too, e.g.
-    ``optimizer``) are dropped, as Lightning's ``load_from_checkpoint`` does; any other unknown
-    argument is an error (a checkpoint from another version of the class).
-    """
-    import inspect
-
-    def params(c: type) -> tuple[set[str], bool]:
-        sig = inspect.signature(c.__init__)
-        names = {n for n, p in sig.parameters.items() if p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)}
-        return names - {"self"}, any(p.kind == p.VAR_KEYWORD for p in sig.parameters.values())
-
-    own, varkw = params(cls)
-    if varkw:
-        return dict(init_args)
-    inherited = set().union(*(params(b)[0] for b in cls.__mro__[1:] if "__init__" in vars(b) and b is not object))
-    unknown = sorted(k for k in init_args if k not in own and k not in inherited)
-    if unknown:
-        raise TypeError(f"{where}: init_args {unknown} are not arguments of {cls.__name__}")
-    return {k: v for k, v in init_args.items() if k in own}
+def _is_model_class(cls: type) -> bool:
+    """True for subclasses of ``floaff_zoo.models.base.ZooModule`` (compared by qualified name)."""
+    return any(f"{c.__module__}.{c.__qualname__}" == MODEL_BASE_CLASS for c in cls.__mro__)
 
 
 def load_model(
@@ -405,7 +391,8 @@ def load_model(
         )
     if expected is not None and not issubclass(cls, expected):
         raise TypeError(f"{name_or_path!r} holds a {cls.__name__} checkpoint, not a {expected.__name__}")
-    init_args = fit_init_args(cls, info["init_args"], where)
+    # configs and checkpoints written before the `train` group hold the training args flat
+    init_args = cls.upgrade_init_args(info["init_args"])
     try:
         model = cls(**init_args)
     except TypeError as exc:

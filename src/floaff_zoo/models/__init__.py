@@ -8,11 +8,13 @@ from floaff_zoo.models.h3dnet import H3DNetModule
 from floaff_zoo.models.n2m import N2MModule
 from floaff_zoo.models.navaff import NavAffModule
 from floaff_zoo.models.pointnet2 import PointNet2Module
+from floaff_zoo.models.prior import CanonicalPriorModule
 from floaff_zoo.models.tiny import TinyPointNetModule
 from floaff_zoo.models.votenet import VoteNetModule
 
 __all__ = [
     "AxisNetModule",
+    "CanonicalPriorModule",
     "C2FExpModule",
     "CFARModule",
     "FloAffModule",

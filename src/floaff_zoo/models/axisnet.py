@@ -1,7 +1,8 @@
 """AxisNetModule: trains/evaluates AxisNet, the target-yaw estimator CFAR uses at inference.
 
-It is a :class:`FloAffModule` only so it shares the CLI, optimiser, checkpoints and hub; it does not
-predict floor scores. Training, validation, test and predict steps work on the target yaw:
+It shares :class:`~floaff_zoo.models.base.ZooModule` (CLI, ``train`` recipe, optimiser, checkpoints, hub,
+``save_pretrained``) with the floor-map models but predicts no floor scores: training, validation, test and
+predict steps work on the target yaw (``validation_step``/``test_step`` return ``{"loss", "yaw" [B]}``):
 
 * loss: MSE between the predicted unit vector ``(sin, cos)`` and the ground-truth one (paper);
 * augmentation (training only): a uniform yaw in ``[-rot_aug_deg, +rot_aug_deg]`` about the vertical
@@ -14,14 +15,14 @@ predict floor scores. Training, validation, test and predict steps work on the t
 from __future__ import annotations
 
 import math
-from typing import Any, ClassVar, Literal
+from typing import Any, ClassVar
 
 import torch
 from torch import Tensor
 from torchmetrics import Metric, MetricCollection
 
-from floaff_zoo.contract import Batch, SampleError, check_batch
-from floaff_zoo.models.base import FloAffModule
+from floaff_zoo.contract import Batch
+from floaff_zoo.models.base import TrainConfig, ZooModule, sample_names
 from floaff_zoo.nn.axisnet import AxisNet, angle_error_deg, axis_inputs, rotate_about_target, yaw_from_vector, yaw_to_vector
 
 
@@ -52,7 +53,7 @@ class AngleErrorDeg(Metric):
         return (self.total / self.count).float()
 
 
-class AxisNetModule(FloAffModule):
+class AxisNetModule(ZooModule):
     """AxisNet (paper appendix): PointNet on ``[p - t (scaled by 1/r); target flag]`` -> unit (sin, cos).
 
     Args:
@@ -61,14 +62,15 @@ class AxisNetModule(FloAffModule):
         widths: shared per-point MLP widths; head: global MLP widths.
         rot_aug_deg: training yaw augmentation half-range (paper: 90).
         jitter_sigma: training Gaussian coordinate jitter (m; paper: 0.005).
-        feat_channels: scene_feat channels required (channel 0, the target flag, is used).
-        optimizer / lr / weight_decay / scheduler / weights: see :class:`FloAffModule`
-            (paper: Adam 1e-4, batch 32, 200 epochs, best validation checkpoint).
-        robot_dim, loss, sdl_beta, sim_variant, metric_reduction: unused (kept for the shared schema).
+        train: optimiser recipe (:class:`~floaff_zoo.models.base.TrainConfig`; paper: Adam 1e-4, no
+            schedule, batch 32, 200 epochs, best validation checkpoint).
+        weights: pretrained initialisation (see :class:`~floaff_zoo.models.base.ZooModule`).
     """
 
     monitor: ClassVar[str] = "val_angle_error_deg"
     mode: ClassVar[str] = "min"
+    output_key: ClassVar[str] = "yaw"
+    metrics_in_progress_bar: ClassVar[bool] = True
 
     def __init__(
         self,
@@ -77,23 +79,10 @@ class AxisNetModule(FloAffModule):
         head: list[int] | None = None,
         rot_aug_deg: float = 90.0,
         jitter_sigma: float = 0.005,
-        feat_channels: int = 1,
-        robot_dim: int = 2,
-        loss: Literal["mse", "aff", "navaff"] = "mse",
-        sdl_beta: float = 1.0,
-        optimizer: Literal["adam", "adamw"] = "adam",
-        lr: float = 1e-4,
-        weight_decay: float = 0.0,
-        scheduler: Literal["cosine", "plateau", "none"] = "none",
-        sim_variant: Literal["cosine", "hist"] = "cosine",
-        metric_reduction: Literal["per_sample", "official_batchwise"] = "per_sample",
+        train: TrainConfig = TrainConfig(lr=1e-4, scheduler="none"),  # noqa: B008 - frozen
         weights: str | None = None,
     ) -> None:
-        super().__init__(
-            feat_channels=feat_channels, robot_dim=robot_dim, loss=loss, sdl_beta=sdl_beta, optimizer=optimizer,
-            lr=lr, weight_decay=weight_decay, scheduler=scheduler, sim_variant=sim_variant,
-            metric_reduction=metric_reduction, weights=weights,
-        )
+        super().__init__(train=train, weights=weights)
 
     # ----------------------------------------------------------------- hooks
     def configure_models(self) -> None:
@@ -109,11 +98,6 @@ class AxisNetModule(FloAffModule):
         for stage in ("train", "val", "test"):
             setattr(self, f"{stage}_metrics", MetricCollection({"angle_error_deg": AngleErrorDeg()}, prefix=f"{stage}_"))
 
-    def check_inputs(self, batch: Batch) -> None:
-        check_batch(batch)
-        if batch["scene_feat"].shape[-1] < 1:
-            raise SampleError("AxisNetModule: scene_feat needs channel 0 (target flag)")
-
     # ----------------------------------------------------------------- inference API
     def estimate_yaw(self, scene_xyz: Tensor, scene_feat: Tensor, scene_mask: Tensor, target_xyz: Tensor,
                      names: list[str] | None = None) -> Tensor:
@@ -124,36 +108,31 @@ class AxisNetModule(FloAffModule):
     def forward(self, batch: Batch) -> Tensor:
         """Yaw estimate [B] (not floor scores: AxisNet has no floor output)."""
         return self.estimate_yaw(batch["scene_xyz"], batch["scene_feat"], batch["scene_mask"], batch["target_xyz"],
-                                 _names(batch))
+                                 sample_names(batch))
 
     # ----------------------------------------------------------------- steps
-    def model_step(self, batch: Batch) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
-        """(loss, predicted yaw [B], {}) with the training augmentation when ``self.training``."""
-        xyz, target, yaw = batch["scene_xyz"], batch["target_xyz"], batch["target_yaw"].reshape(-1)
+    def augment(self, batch: Batch) -> Batch:
+        """A uniform yaw in +-``rot_aug_deg`` about the target (label turned with it) + xyz jitter."""
         h = self.hparams
-        if self.training and h["rot_aug_deg"] > 0:
+        xyz, yaw = batch["scene_xyz"], batch["target_yaw"].reshape(-1)
+        if h["rot_aug_deg"] > 0:
             delta = (torch.rand(yaw.shape, device=yaw.device) * 2 - 1) * math.radians(h["rot_aug_deg"])
-            xyz = rotate_about_target(xyz, target, delta)
+            xyz = rotate_about_target(xyz, batch["target_xyz"], delta)
             yaw = yaw + delta
-        if self.training and h["jitter_sigma"] > 0:
+        if h["jitter_sigma"] > 0:
             xyz = xyz + torch.randn_like(xyz) * h["jitter_sigma"]
-        x, mask = axis_inputs(xyz, batch["scene_feat"], batch["scene_mask"], target, h["crop_radius"], _names(batch))
+        return {**batch, "scene_xyz": xyz, "target_yaw": yaw.reshape(batch["target_yaw"].shape)}
+
+    def model_step(self, batch: Batch) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
+        """(loss, predicted yaw [B], {}): MSE between the predicted and the true (sin, cos)."""
+        x, mask = axis_inputs(batch["scene_xyz"], batch["scene_feat"], batch["scene_mask"], batch["target_xyz"],
+                              self.hparams["crop_radius"], sample_names(batch))
         q = self.net(x, mask)
-        loss = self.criterion(q, yaw_to_vector(yaw).to(q.dtype))
-        self._yaw_target = yaw  # the (augmented) label the metric compares against
+        loss = self.criterion(q, yaw_to_vector(batch["target_yaw"].reshape(-1)).to(q.dtype))
         return loss, yaw_from_vector(q), {}
 
-    def _shared_step(self, batch: Batch, stage: str) -> tuple[Tensor, Tensor]:
-        self.check_inputs(batch)
-        loss, pred, _ = self.model_step(batch)
-        if not torch.isfinite(loss):
-            raise FloatingPointError(f"{stage} loss is {loss.item()} on samples {_names(batch)[:4]}")
-        bsz = batch["scene_xyz"].shape[0]
-        self.log(f"{stage}_loss", loss, batch_size=bsz, prog_bar=stage != "test", on_epoch=True, on_step=stage == "train")
-        metrics = getattr(self, f"{stage}_metrics")
-        metrics.update(pred.detach(), self._yaw_target.detach())
-        self.log_dict(metrics, batch_size=bsz, on_epoch=True, on_step=False, prog_bar=stage == "val")
-        return loss, pred
+    def update_metrics(self, metrics: MetricCollection, pred: Tensor, batch: Batch) -> None:
+        metrics.update(pred, batch["target_yaw"].reshape(-1))
 
     def predict_step(self, batch: Batch, batch_idx: int, dataloader_idx: int = 0) -> dict[str, Any]:
         self.check_inputs(batch)
@@ -166,7 +145,3 @@ class AxisNetModule(FloAffModule):
             "target_xyz": batch["target_xyz"].cpu(),
             "meta": batch["meta"],
         }
-
-
-def _names(batch: Batch) -> list[str]:
-    return [str(m.get("sample_id", i)) for i, m in enumerate(batch.get("meta") or [])]

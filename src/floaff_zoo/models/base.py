@@ -1,14 +1,34 @@
-"""FloAffModule: the base LightningModule every model of the zoo derives from (torchgeo style).
+"""The LightningModules every model of the zoo derives from (torchgeo style).
 
-Subclasses declare their typed, defaulted init args (the LightningCLI schema), pass the shared
-ones to ``super().__init__`` and implement ``configure_models`` (build ``self.net``) and
-``forward(batch) -> [B, M]`` scores in [0, 1]. Losses, metrics, optimiser, scheduler, pretrained
-weights and input checks live here once.
+:class:`ZooModule` holds what every model shares: the training recipe (one ``train`` argument, a
+:class:`TrainConfig`), optimiser and scheduler, pretrained weights, input checks, the step/logging
+skeleton and ``save_pretrained``/``from_pretrained``. Two families derive from it:
+
+* :class:`FloAffModule`: floor-affordance maps, ``forward(batch) -> [B, M]`` scores in [0, 1], with the
+  affordance losses and metrics (its ``train`` is a :class:`FloAffTrainConfig`);
+* :class:`~floaff_zoo.models.axisnet.AxisNetModule`: the target's yaw, ``forward(batch) -> [B]``.
+
+Subclasses declare their typed, defaulted init args (the LightningCLI schema): their own, the family's
+(``feat_channels``, ``robot_dim``), ``train`` with the model's default recipe and ``weights``; they pass
+the shared ones to ``super().__init__`` and implement ``configure_models`` (build ``self.net``) and
+``forward(batch)``. ``validation_step``/``test_step`` return ``{"loss": ..., output_key: prediction}``
+(``scores`` [B, M] or ``yaw`` [B]); callbacks read the prediction from the ``outputs`` of their hooks.
+
+Checkpoints and hub configs written before the ``train`` group hold the training arguments flat
+(``lr: 0.001`` beside the model's own): :meth:`ZooModule.upgrade_init_args` moves them into ``train``
+(``load_from_checkpoint``, the hub and ``--ckpt_path`` go through it).
 """
 
 from __future__ import annotations
 
-from typing import Any, ClassVar, Literal
+import dataclasses
+import inspect
+import os
+import typing
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import IO, Any, ClassVar, Literal
 
 import lightning as L
 import torch
@@ -21,59 +41,162 @@ from floaff_zoo.losses import build_loss
 from floaff_zoo.metrics import affordance_metrics
 
 
-class FloAffModule(L.LightningModule):
-    """Base task: floor-affordance regression on the sample contract (see ``floaff_zoo.contract``).
+# ----------------------------------------------------------------------------- training recipe
+@dataclass(frozen=True)
+class TrainConfig:
+    """How a model is optimised: ``model.init_args.train`` in a config (one group, every model).
 
     Args:
-        feat_channels: how many ``scene_feat`` channels the net consumes (channel 0 = target flag).
-        robot_dim: size of the robot descriptor.
+        optimizer: ``adam`` or ``adamw``.
+        lr: learning rate (> 0).
+        weight_decay: weight decay (>= 0).
+        scheduler: ``cosine`` (T_max = max_epochs, eta_min 1e-6), ``plateau`` on the model's monitor,
+            or ``none``.
+    """
+
+    optimizer: Literal["adam", "adamw"] = "adam"
+    lr: float = 1e-3
+    weight_decay: float = 0.0
+    scheduler: Literal["cosine", "plateau", "none"] = "cosine"
+
+    def __post_init__(self) -> None:
+        # the CLI validates choices itself; dicts from checkpoints, hub configs and Python land here
+        for name, hint in typing.get_type_hints(type(self)).items():
+            choices = typing.get_args(hint) if typing.get_origin(hint) is Literal else ()
+            if choices and getattr(self, name) not in choices:
+                raise ValueError(f"train.{name}: {getattr(self, name)!r} is not one of {list(choices)}")
+        if not self.lr > 0:
+            raise ValueError(f"train.lr must be > 0, got {self.lr}")
+        if not self.weight_decay >= 0:
+            raise ValueError(f"train.weight_decay must be >= 0, got {self.weight_decay}")
+
+
+@dataclass(frozen=True)
+class FloAffTrainConfig(TrainConfig):
+    """:class:`TrainConfig` plus the floor-map objective and metric settings.
+
+    Args:
         loss: ``mse``; ``aff`` = MSE + ``sdl_beta`` x Soft Dice (paper); ``navaff`` = NavAff's
             randomised 0.7-weighted MSE.
-        sdl_beta: weight of the Soft Dice term for ``loss="aff"``.
-        optimizer: ``adam`` or ``adamw``.
-        lr: learning rate.
-        weight_decay: weight decay.
-        scheduler: ``cosine`` (T_max = max_epochs, eta_min 1e-6), ``plateau`` on ``val_rmse``, or ``none``.
+        sdl_beta: weight of the Soft Dice term for ``loss="aff"`` (>= 0).
         sim_variant: SIM metric variant, ``cosine`` (FloAff paper) or ``hist`` (MoMa-Kitchen code).
         metric_reduction: ``per_sample`` or ``official_batchwise`` (64-sample chunks, MoMa-Kitchen).
+        optimizer, lr, weight_decay, scheduler: see :class:`TrainConfig`.
+    """
+
+    loss: Literal["mse", "aff", "navaff"] = "mse"
+    sdl_beta: float = 1.0
+    sim_variant: Literal["cosine", "hist"] = "cosine"
+    metric_reduction: Literal["per_sample", "official_batchwise"] = "per_sample"
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if not self.sdl_beta >= 0:
+            raise ValueError(f"train.sdl_beta must be >= 0, got {self.sdl_beta}")
+
+
+#: the arguments every model took flat before the ``train`` group (older checkpoints and hub configs)
+LEGACY_FLAT_ARGS = (
+    "feat_channels", "robot_dim", "loss", "sdl_beta", "optimizer", "lr", "weight_decay", "scheduler",
+    "sim_variant", "metric_reduction", "weights",
+)
+
+
+def init_arg_names(cls: type) -> set[str] | None:
+    """The argument names ``cls.__init__`` takes; None when it takes ``**kwargs`` (anything goes)."""
+    params = inspect.signature(cls.__init__).parameters.values()
+    if any(p.kind is p.VAR_KEYWORD for p in params):
+        return None
+    return {p.name for p in params if p.kind is not p.VAR_POSITIONAL} - {"self"}
+
+
+def default_train(cls: type[ZooModule]) -> TrainConfig:
+    """The ``train`` default of ``cls``'s constructor (the model's recipe), else its family's."""
+    for c in cls.__mro__:
+        if "__init__" in vars(c):
+            p = inspect.signature(c.__init__).parameters.get("train")
+            if p is not None and isinstance(p.default, TrainConfig):
+                return p.default
+    return cls.train_config()
+
+
+def as_train_config(value: TrainConfig | Mapping[str, Any], default: TrainConfig, owner: str) -> TrainConfig:
+    """``value`` (a train config or a dict of some of its fields) over ``default``, as ``default``'s type.
+
+    Raises:
+        ValueError: naming the model and the field for an unknown field or a bad value.
+    """
+    if type(value) is type(default):
+        return value
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        value = dataclasses.asdict(value)
+    if not isinstance(value, Mapping):
+        raise TypeError(f"{owner}: train must be a {type(default).__name__} or a dict, got {type(value).__name__}")
+    names = [f.name for f in dataclasses.fields(default)]
+    unknown = sorted(set(value) - set(names))
+    if unknown:
+        raise ValueError(f"{owner}: train has no field(s) {unknown}; its fields are {names}")
+    try:
+        return dataclasses.replace(default, **value)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{owner}: {exc}") from exc
+
+
+def sample_names(batch: Batch) -> list[str]:
+    """``sample_id`` of every sample of a batch (its index when missing), for error messages."""
+    return [str(m.get("sample_id", i)) for i, m in enumerate(batch.get("meta") or [])]
+
+
+def _checkpoint_hparams(path: Any, weights_only: bool | None) -> dict[str, Any]:
+    """``hyper_parameters`` of a local checkpoint file; {} for streams, remote paths and unreadable files
+    (Lightning's own loader then reports those)."""
+    if not isinstance(path, (str, os.PathLike)) or not Path(path).is_file():
+        return {}
+    try:  # mmap: only the small hparams are read, not the weights
+        ckpt = torch.load(path, map_location="cpu", weights_only=weights_only is not False, mmap=True)
+    except Exception:  # noqa: BLE001
+        return {}
+    return dict(ckpt.get("hyper_parameters") or {}) if isinstance(ckpt, dict) else {}
+
+
+# ----------------------------------------------------------------------------- common parent
+class ZooModule(L.LightningModule):
+    """Parent of every model of the zoo: training recipe, optimiser, weights, steps, export.
+
+    Args:
+        train: the training recipe (:class:`TrainConfig`, or the family's extension of it); a dict of
+            some of its fields is taken too and filled from the model's default recipe.
         weights: pretrained initialisation: a ``.ckpt``/``.safetensors`` path, an exported
             directory or a hub name. Not for resuming (use ``--ckpt_path``).
     """
 
-    monitor: ClassVar[str] = "val_rmse"
+    monitor: ClassVar[str] = "val_loss"
     mode: ClassVar[str] = "min"
     #: models without learnable parameters (C2F-Exp) set this False; ``fit`` then refuses.
     trainable: ClassVar[bool] = True
+    #: the type of the ``train`` argument
+    train_config: ClassVar[type[TrainConfig]] = TrainConfig
+    #: name of the prediction in the outputs of ``validation_step``/``test_step``
+    output_key: ClassVar[str] = "pred"
+    #: show the validation metrics in the progress bar (for models with one or two metrics)
+    metrics_in_progress_bar: ClassVar[bool] = False
 
-    def __init__(
-        self,
-        feat_channels: int = 1,
-        robot_dim: int = 2,
-        loss: Literal["mse", "aff", "navaff"] = "mse",
-        sdl_beta: float = 1.0,
-        optimizer: Literal["adam", "adamw"] = "adam",
-        lr: float = 1e-3,
-        weight_decay: float = 0.0,
-        scheduler: Literal["cosine", "plateau", "none"] = "cosine",
-        sim_variant: Literal["cosine", "hist"] = "cosine",
-        metric_reduction: Literal["per_sample", "official_batchwise"] = "per_sample",
-        weights: str | None = None,
-    ) -> None:
+    def __init__(self, train: TrainConfig = TrainConfig(), weights: str | None = None) -> None:  # noqa: B008 - frozen
         super().__init__()
-        self.save_hyperparameters()
-        # The values the base actually received: subclasses may not expose every base argument,
-        # so these are read from here (hparams hold only the subclass's own signature, which keeps
-        # checkpoints loadable by that signature).
-        self.base_cfg: dict = {
-            "feat_channels": feat_channels, "robot_dim": robot_dim, "loss": loss, "sdl_beta": sdl_beta,
-            "optimizer": optimizer, "lr": lr, "weight_decay": weight_decay, "scheduler": scheduler,
-            "sim_variant": sim_variant, "metric_reduction": metric_reduction, "weights": weights,
-        }
+        train = as_train_config(train, default_train(type(self)), type(self).__name__)
+        self.save_hyperparameters()  # the init args of the whole class chain (or the CLI's config)
+        # ... with the train group as a plain dict: checkpoints stay weights_only-loadable, hub configs JSON
+        self.save_hyperparameters({**self.hparams, "train": dataclasses.asdict(train)})
         self.configure_models()
         self.configure_losses()
         self.configure_metrics()
         if weights:
             self.load_pretrained(weights)
+
+    @property
+    def train_cfg(self) -> TrainConfig:
+        """The training recipe (typed view of ``hparams["train"]``)."""
+        return as_train_config(self.hparams["train"], default_train(type(self)), type(self).__name__)
 
     # ----------------------------------------------------------------- hooks for subclasses
     def configure_models(self) -> None:
@@ -81,88 +204,62 @@ class FloAffModule(L.LightningModule):
         raise MisconfigurationException(f"{type(self).__name__} must implement configure_models()")
 
     def configure_losses(self) -> None:
-        """Set ``self.criterion(pred [B,M], target [B,M], mask [B,M]) -> scalar``."""
-        self.criterion = build_loss(self.base_cfg["loss"], beta=self.base_cfg["sdl_beta"])
+        """Set ``self.criterion``."""
 
     def configure_metrics(self) -> None:
-        """One MetricCollection per stage (train keeps the cheap ones)."""
-        full = affordance_metrics(
-            sim_variant=self.base_cfg["sim_variant"],
-            reduction=self.base_cfg["metric_reduction"],
-        )
-        self.val_metrics = full.clone(prefix="val_")
-        self.test_metrics = full.clone(prefix="test_")
-        self.train_metrics = MetricCollection({k: full[k].clone() for k in ("rmse", "mae")}, prefix="train_")
-
-    def forward(self, batch: Batch) -> Tensor:  # pragma: no cover - abstract
-        """Scores in [0, 1] for every floor point: [B, M]."""
-        raise MisconfigurationException(f"{type(self).__name__} must implement forward(batch)")
-
-    # ----------------------------------------------------------------- shared machinery
-    def affordance_loss(self, scores: Tensor, batch: Batch) -> Tensor:
-        """Masked affordance loss of ``scores`` [B, M] against ``batch['floor_label']``."""
-        return self.criterion(scores, batch["floor_label"], batch["floor_mask"])
+        """Set ``self.{train,val,test}_metrics`` (one MetricCollection per stage)."""
+        for stage in ("train", "val", "test"):
+            setattr(self, f"{stage}_metrics", MetricCollection({}, prefix=f"{stage}_"))
 
     def model_step(self, batch: Batch) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
-        """Forward + loss. Returns (loss, scores [B, M], extra scalars to log)."""
-        scores = self(batch)
-        return self.affordance_loss(scores, batch), scores, {}
+        """Forward + loss. Returns (loss, prediction, extra scalars to log). Subclasses must override."""
+        raise MisconfigurationException(f"{type(self).__name__} must implement model_step(batch)")
+
+    def update_metrics(self, metrics: MetricCollection, pred: Tensor, batch: Batch) -> None:
+        """Feed one batch's (detached) prediction to a stage's metrics."""
+
+    def augment(self, batch: Batch) -> Batch:
+        """Training-only augmentation that also changes the labels (AxisNet's rotation); identity here."""
+        return batch
 
     def check_inputs(self, batch: Batch) -> None:
         """Fail early and clearly when the data does not fit the model's configuration."""
         check_batch(batch)
-        c = batch["scene_feat"].shape[-1]
-        if c < self.base_cfg["feat_channels"]:
+        need, c = int(self.hparams.get("feat_channels", 1)), batch["scene_feat"].shape[-1]
+        if c < need:
+            hint = "; lower model.init_args.feat_channels or add features" if "feat_channels" in self.hparams else ""
             raise SampleError(
-                f"{type(self).__name__}: model.feat_channels={self.base_cfg['feat_channels']} but the data "
-                f"gives scene_feat with {c} channel(s); lower model.init_args.feat_channels or add features"
-            )
-        r = batch["robot"].shape[-1]
-        if r != self.base_cfg["robot_dim"]:
-            raise SampleError(
-                f"{type(self).__name__}: model.robot_dim={self.base_cfg['robot_dim']} but the data gives "
-                f"robot descriptors of size {r}; set model.init_args.robot_dim: {r}"
+                f"{type(self).__name__}: model.feat_channels={need} but the data gives scene_feat with {c} "
+                f"channel(s) (channel 0 = target flag){hint}"
             )
 
-    def _shared_step(self, batch: Batch, stage: str) -> tuple[Tensor, Tensor]:
+    # ----------------------------------------------------------------- steps
+    def _shared_step(self, batch: Batch, stage: str) -> dict[str, Tensor]:
+        """Checks, (training) augmentation, loss, logging and metrics: ``{"loss", output_key}``."""
         self.check_inputs(batch)
-        loss, scores, extra = self.model_step(batch)
+        if stage == "train":
+            batch = self.augment(batch)
+        loss, pred, extra = self.model_step(batch)
         if not torch.isfinite(loss):
-            names = [m.get("sample_id", "?") for m in batch["meta"]]
-            raise FloatingPointError(f"{stage} loss is {loss.item()} on samples {names[:4]}")
+            raise FloatingPointError(f"{stage} loss is {loss.item()} on samples {sample_names(batch)[:4]}")
         bsz = batch["scene_xyz"].shape[0]
         self.log(f"{stage}_loss", loss, batch_size=bsz, prog_bar=stage != "test", on_epoch=True, on_step=stage == "train")
         for name, value in extra.items():
             self.log(f"{stage}_{name}", value, batch_size=bsz, on_epoch=True, on_step=False)
         metrics = getattr(self, f"{stage}_metrics")
-        index = torch.as_tensor(
-            [int(m.get("index", -1)) for m in batch["meta"]], device=scores.device, dtype=torch.long
-        )
-        metrics.update(scores.detach().float(), batch["floor_label"], batch["floor_mask"], index if (index >= 0).all() else None)
-        self.log_dict(metrics, batch_size=bsz, on_epoch=True, on_step=False)
-        return loss, scores
+        self.update_metrics(metrics, pred.detach(), batch)
+        self.log_dict(metrics, batch_size=bsz, on_epoch=True, on_step=False,
+                      prog_bar=self.metrics_in_progress_bar and stage == "val")
+        return {"loss": loss, self.output_key: pred.detach()}
 
     def training_step(self, batch: Batch, batch_idx: int) -> Tensor:
-        return self._shared_step(batch, "train")[0]
+        return self._shared_step(batch, "train")["loss"]
 
-    def validation_step(self, batch: Batch, batch_idx: int) -> Tensor:
-        return self._shared_step(batch, "val")[0]
+    def validation_step(self, batch: Batch, batch_idx: int) -> dict[str, Tensor]:
+        return self._shared_step(batch, "val")
 
-    def test_step(self, batch: Batch, batch_idx: int) -> Tensor:
-        loss, scores = self._shared_step(batch, "test")
-        self.last_test_scores = scores.detach()
-        return loss
-
-    def predict_step(self, batch: Batch, batch_idx: int, dataloader_idx: int = 0) -> dict[str, Any]:
-        self.check_inputs(batch)
-        scores = self(batch)
-        return {
-            "scores": scores.detach().cpu(),
-            "floor_xyz": batch["floor_xyz"].cpu(),
-            "floor_mask": batch["floor_mask"].cpu(),
-            "target_xyz": batch["target_xyz"].cpu(),
-            "meta": batch["meta"],
-        }
+    def test_step(self, batch: Batch, batch_idx: int) -> dict[str, Tensor]:
+        return self._shared_step(batch, "test")
 
     def on_fit_start(self) -> None:
         if not self.trainable:
@@ -175,10 +272,10 @@ class FloAffModule(L.LightningModule):
         params = [p for p in self.parameters() if p.requires_grad]
         if not params:
             raise MisconfigurationException(f"{type(self).__name__} has no trainable parameters")
-        h = self.base_cfg
-        cls = torch.optim.AdamW if h["optimizer"] == "adamw" else torch.optim.Adam
-        opt = cls(params, lr=h["lr"], weight_decay=h["weight_decay"])
-        match h["scheduler"]:
+        t = self.train_cfg
+        cls = torch.optim.AdamW if t.optimizer == "adamw" else torch.optim.Adam
+        opt = cls(params, lr=t.lr, weight_decay=t.weight_decay)
+        match t.scheduler:
             case "none":
                 return opt
             case "cosine":
@@ -188,9 +285,9 @@ class FloAffModule(L.LightningModule):
             case "plateau":
                 sched = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, mode=self.mode, patience=3)
                 return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "monitor": self.monitor}}
-        raise MisconfigurationException(f"unknown scheduler {h['scheduler']!r}")
+        raise MisconfigurationException(f"unknown scheduler {t.scheduler!r}")
 
-    # ----------------------------------------------------------------- pretrained weights
+    # ----------------------------------------------------------------- weights in and out
     def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
         # The state dict already holds the pretrained weights: record where they came from, but
         # save ``weights: null`` so reloading the checkpoint never needs that source again.
@@ -206,15 +303,153 @@ class FloAffModule(L.LightningModule):
         state, _info = resolve_state_dict(name_or_path)
         load_matching_state(self, state, source=name_or_path)
 
+    def save_pretrained(self, directory: str | os.PathLike[str]) -> Path:
+        """Write ``config.json`` + ``model.safetensors`` into ``directory``, without CLI or checkpoint.
+
+        ``from_pretrained(directory)`` (or ``weights: <directory>``) rebuilds the model; the export is
+        the hub's format (``floaff_zoo.hub.export``), weights only (no pickle). Returns ``directory``.
+        """
+        from floaff_zoo.hub.export import save_model_dir
+
+        return save_model_dir(self, directory)
+
     @classmethod
-    def from_pretrained(cls, name_or_path: str, map_location: str = "cpu") -> "FloAffModule":
-        """Build the model a checkpoint/hub entry describes and load its weights (no code is executed)."""
+    def from_pretrained(cls, name_or_path: str | os.PathLike[str], map_location: str = "cpu") -> ZooModule:
+        """Build the model a checkpoint/export/hub entry describes and load its weights (no code is executed)."""
         from floaff_zoo.hub import load_model
 
         model = load_model(name_or_path, map_location=map_location, expected=cls)
         if not isinstance(model, cls):
             raise TypeError(f"{name_or_path!r} holds a {type(model).__name__}, not a {cls.__name__}")
         return model
+
+    @classmethod
+    def upgrade_init_args(cls, init_args: Mapping[str, Any]) -> dict[str, Any]:
+        """``init_args`` of an older checkpoint or hub config, in today's form.
+
+        The training arguments used to be flat (``lr: 0.001`` beside the model's own): the ones ``train``
+        has move into it (an explicit ``train`` entry wins). The old shared ones this class does not take
+        (AxisNet's ``loss``, C2F-Exp's ``weights``) are dropped: the old base class took them, nothing
+        used them. Anything else is kept, so a really unknown argument still fails in the constructor.
+        """
+        names = init_arg_names(cls)
+        fields = {f.name for f in dataclasses.fields(cls.train_config)}
+        out: dict[str, Any] = {}
+        moved: dict[str, Any] = {}
+        for k, v in init_args.items():
+            if names is not None and k in names:
+                out[k] = v
+            elif k in fields:
+                moved[k] = v
+            elif k not in LEGACY_FLAT_ARGS:
+                out[k] = v
+        if moved:
+            given = out.get("train") or {}
+            out["train"] = {**moved, **(dataclasses.asdict(given) if dataclasses.is_dataclass(given) else given)}
+        return out
+
+    @classmethod
+    def load_from_checkpoint(  # type: ignore[override]
+        cls,
+        checkpoint_path: str | os.PathLike[str] | IO[bytes],
+        map_location: Any = None,
+        hparams_file: str | os.PathLike[str] | None = None,
+        strict: bool | None = None,
+        weights_only: bool | None = None,
+        **kwargs: Any,
+    ) -> ZooModule:
+        """Lightning's ``load_from_checkpoint``, also for checkpoints with the old flat training arguments
+        (see :meth:`upgrade_init_args`; ``kwargs`` may use either form too)."""
+        saved = {k: v for k, v in _checkpoint_hparams(checkpoint_path, weights_only).items() if not k.startswith("_")}
+        given = {**saved, **kwargs}
+        upgraded = cls.upgrade_init_args(given)
+        kwargs = {k: v for k, v in kwargs.items() if k in upgraded}  # legacy names given by the caller
+        if "train" in upgraded and upgraded["train"] != given.get("train"):
+            kwargs["train"] = upgraded["train"]
+        return super().load_from_checkpoint(
+            checkpoint_path, map_location=map_location, hparams_file=hparams_file, strict=strict,
+            weights_only=weights_only, **kwargs,
+        )
+
+
+# ----------------------------------------------------------------------------- floor maps
+class FloAffModule(ZooModule):
+    """Floor-affordance regression on the sample contract (see ``floaff_zoo.contract``).
+
+    ``forward(batch) -> [B, M]`` scores in [0, 1], one per floor point; losses and map metrics live here.
+
+    Args:
+        feat_channels: how many ``scene_feat`` channels the net consumes (channel 0 = target flag).
+        robot_dim: size of the robot descriptor.
+        train: optimiser, schedule, loss and metric settings (:class:`FloAffTrainConfig`).
+        weights: pretrained initialisation (see :class:`ZooModule`).
+    """
+
+    monitor: ClassVar[str] = "val_rmse"
+    train_config: ClassVar[type[TrainConfig]] = FloAffTrainConfig
+    output_key: ClassVar[str] = "scores"
+
+    def __init__(
+        self,
+        feat_channels: int = 1,
+        robot_dim: int = 2,
+        train: FloAffTrainConfig = FloAffTrainConfig(),  # noqa: B008 - frozen
+        weights: str | None = None,
+    ) -> None:
+        super().__init__(train=train, weights=weights)
+
+    def configure_losses(self) -> None:
+        """Set ``self.criterion(pred [B,M], target [B,M], mask [B,M]) -> scalar``."""
+        t: FloAffTrainConfig = self.train_cfg  # type: ignore[assignment]
+        self.criterion = build_loss(t.loss, beta=t.sdl_beta)
+
+    def configure_metrics(self) -> None:
+        """One MetricCollection per stage (train keeps the cheap ones)."""
+        t: FloAffTrainConfig = self.train_cfg  # type: ignore[assignment]
+        full = affordance_metrics(sim_variant=t.sim_variant, reduction=t.metric_reduction)
+        self.val_metrics = full.clone(prefix="val_")
+        self.test_metrics = full.clone(prefix="test_")
+        self.train_metrics = MetricCollection({k: full[k].clone() for k in ("rmse", "mae")}, prefix="train_")
+
+    def forward(self, batch: Batch) -> Tensor:  # pragma: no cover - abstract
+        """Scores in [0, 1] for every floor point: [B, M]."""
+        raise MisconfigurationException(f"{type(self).__name__} must implement forward(batch)")
+
+    def affordance_loss(self, scores: Tensor, batch: Batch) -> Tensor:
+        """Masked affordance loss of ``scores`` [B, M] against ``batch['floor_label']``."""
+        return self.criterion(scores, batch["floor_label"], batch["floor_mask"])
+
+    def model_step(self, batch: Batch) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
+        """Forward + loss. Returns (loss, scores [B, M], extra scalars to log)."""
+        scores = self(batch)
+        return self.affordance_loss(scores, batch), scores, {}
+
+    def check_inputs(self, batch: Batch) -> None:
+        super().check_inputs(batch)
+        r, want = batch["robot"].shape[-1], self.hparams["robot_dim"]
+        if r != want:
+            raise SampleError(
+                f"{type(self).__name__}: model.robot_dim={want} but the data gives robot descriptors of size {r}; "
+                f"set model.init_args.robot_dim: {r}"
+            )
+
+    def update_metrics(self, metrics: MetricCollection, pred: Tensor, batch: Batch) -> None:
+        """Map metrics of scores [B, M] (per-sample ``index`` from the metadata when every sample has one)."""
+        index = torch.as_tensor(
+            [int(m.get("index", -1)) for m in batch["meta"]], device=pred.device, dtype=torch.long
+        )
+        metrics.update(pred.float(), batch["floor_label"], batch["floor_mask"], index if (index >= 0).all() else None)
+
+    def predict_step(self, batch: Batch, batch_idx: int, dataloader_idx: int = 0) -> dict[str, Any]:
+        self.check_inputs(batch)
+        scores = self(batch)
+        return {
+            "scores": scores.detach().cpu(),
+            "floor_xyz": batch["floor_xyz"].cpu(),
+            "floor_mask": batch["floor_mask"].cpu(),
+            "target_xyz": batch["target_xyz"].cpu(),
+            "meta": batch["meta"],
+        }
 
 
 def load_matching_state(module: torch.nn.Module, state: dict[str, Tensor], source: str) -> list[str]:

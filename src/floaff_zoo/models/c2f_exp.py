@@ -8,8 +8,9 @@ import torch
 from torch import Tensor
 
 from floaff_zoo.contract import Batch
-from floaff_zoo.models.base import FloAffModule
+from floaff_zoo.models.base import FloAffModule, FloAffTrainConfig
 from floaff_zoo.models.pointnet2 import floor_inputs, scene_inputs
+from floaff_zoo.models.yaw import estimate_yaw
 from floaff_zoo.nn.c2f import C2FConfig, C2FPlanner, resolve_scorer
 
 
@@ -27,7 +28,9 @@ class C2FExpModule(FloAffModule):
     **What replaces the VLM**: C2F-Exp asks GPT-4o (with SAM/DINOv2 affordance points) to choose
     the affordance point, the approach arrow and the best candidates. Here g is the target centre
     from the sample, the initial semantic mean is ``r_star`` along the target's front normal
-    (``target_yaw``), and the candidate choice is a pluggable ``scorer``: by default
+    (``yaw_source``: ``manhattan`` (default) = the training-free estimate of ``floaff_zoo.models.yaw``,
+    ``heading`` = towards the robot, ``gt`` = the simulator's ``target_yaw``, privileged: label such runs
+    "C2F-Exp, simulator yaw"), and the candidate choice is a pluggable ``scorer``: by default
     ``"geometric"``, deterministic and purely geometric (it ranks by w itself); ``"clearance"``
     adds an obstacle-distance bonus; any ``"package.module:function"`` with the signature
     ``(candidates [n,2], weights [n], context) -> scores [n]`` can stand in for a VLM. Random draws
@@ -57,16 +60,14 @@ class C2FExpModule(FloAffModule):
         clearance: float = 0.25,
         scorer: str = "geometric",
         seed: int = 0,
+        yaw_source: Literal["gt", "manhattan", "heading"] = "manhattan",
+        manhattan_radius: float = 1.2,
         feat_channels: int = 1,
         robot_dim: int = 2,
-        loss: Literal["mse", "aff", "navaff"] = "mse",
-        sim_variant: Literal["cosine", "hist"] = "cosine",
-        metric_reduction: Literal["per_sample", "official_batchwise"] = "per_sample",
+        train: FloAffTrainConfig = FloAffTrainConfig(),  # noqa: B008 - frozen
     ) -> None:
-        super().__init__(
-            feat_channels=feat_channels, robot_dim=robot_dim, loss=loss, sim_variant=sim_variant,
-            metric_reduction=metric_reduction, weights=None,
-        )
+        # training-free: ``train`` only sets the logged loss and the metrics; there are no weights
+        super().__init__(feat_channels=feat_channels, robot_dim=robot_dim, train=train, weights=None)
 
     def configure_models(self) -> None:
         h = self.hparams
@@ -80,8 +81,10 @@ class C2FExpModule(FloAffModule):
 
     def _searches(self, batch: Batch) -> list[dict[str, Any]]:
         xyz, _, mask = scene_inputs(batch, 1)
+        yaw = estimate_yaw(batch, self.hparams["yaw_source"], None, 0.0, self.hparams["manhattan_radius"],
+                           type(self).__name__).float()
         return [
-            self.net.search(xyz[i].cpu(), mask[i].cpu(), batch["target_xyz"][i].float().cpu(), batch["target_yaw"].reshape(-1)[i].cpu())
+            self.net.search(xyz[i].cpu(), mask[i].cpu(), batch["target_xyz"][i].float().cpu(), yaw[i].cpu())
             for i in range(xyz.shape[0])
         ]
 

@@ -51,14 +51,26 @@ import torch
 from lightning.pytorch.utilities.exceptions import MisconfigurationException
 from torch import Tensor, nn
 
-from floaff_zoo.contract import Batch
+from floaff_zoo.contract import TASKS, Batch
+from floaff_zoo.hub.io import resolve_state_dict
+from floaff_zoo.hub.registry import sha256_file
 from floaff_zoo.losses import build_loss
-from floaff_zoo.models.base import FloAffModule
-from floaff_zoo.nn.axisnet import AxisNet, axis_inputs, yaw_from_vector
+from floaff_zoo.models.base import FloAffModule, FloAffTrainConfig
+from floaff_zoo.models.yaw import (
+    YawSource,
+    build_axisnet,
+    estimate_yaw,
+    keep_configured_axisnet,
+    load_axisnet,
+    sample_names,
+)
+from floaff_zoo.nn.axisnet import AxisNet
 from floaff_zoo.nn.cfar import CanonicalCloud, CFARNet, canonical_transform, robot_from_canonical, sample_levels
+from floaff_zoo.nn.prior import CanonicalLabelGrid
 
-YawSource = Literal["gt", "axisnet", "none"]
 TEACHER_PREFIX = "teacher."
+#: the prior is clamped to [eps, 1 - eps] before its logit
+PRIOR_EPS = 1e-3
 DISTILLED_PREFIX = "net.local_encoder."
 
 
@@ -79,13 +91,7 @@ def batch_statistics(module: nn.Module) -> Iterator[None]:
 def _sha256(path: str) -> str | None:
     from pathlib import Path
 
-    from floaff_zoo.hub.registry import sha256_file
-
     return sha256_file(Path(path)) if Path(path).is_file() else None
-
-
-def _names(batch: Batch) -> list[str]:
-    return [str(m.get("sample_id", i)) for i, m in enumerate(batch.get("meta") or [])]
 
 
 class CFARModule(FloAffModule):
@@ -105,6 +111,10 @@ class CFARModule(FloAffModule):
         teacher: previous PFAL stage (checkpoint path or hub name); distill_weight: lambda (paper 1.0);
         distill_bn: teacher BatchNorm mode, ``batch`` or ``running``.
         local_* / floor_* / robot_mlp / head: :class:`~floaff_zoo.nn.cfar.CFARNet` architecture.
+        floor_encoder: ``set`` (paper) or ``pointwise`` (query-independent floor features; departure).
+        prior_residual: predict a residual over the canonical prior (departure, see module docstring).
+        prior_tasks: tasks the prior keeps a grid for (default: the four tasks).
+        manhattan_radius: neighbourhood (m) of the Manhattan face estimate (``*manhattan`` yaw sources).
         (the rest: see :class:`FloAffModule`; paper: Adam 2e-4, batch 8, 30 epochs/stage, beta = 1.)
     """
 
@@ -135,23 +145,16 @@ class CFARModule(FloAffModule):
         floor_fp_mlps: list[list[int]] | None = None,
         robot_mlp: list[int] | None = None,
         head: list[int] | None = None,
+        floor_encoder: Literal["set", "pointwise"] = "set",
+        prior_residual: bool = False,
+        prior_tasks: list[str] | None = None,
+        manhattan_radius: float = 1.2,
         feat_channels: int = 1,
         robot_dim: int = 2,
-        loss: Literal["mse", "aff", "navaff"] = "aff",
-        sdl_beta: float = 1.0,
-        optimizer: Literal["adam", "adamw"] = "adam",
-        lr: float = 2e-4,
-        weight_decay: float = 0.0,
-        scheduler: Literal["cosine", "plateau", "none"] = "none",
-        sim_variant: Literal["cosine", "hist"] = "cosine",
-        metric_reduction: Literal["per_sample", "official_batchwise"] = "per_sample",
+        train: FloAffTrainConfig = FloAffTrainConfig(loss="aff", lr=2e-4, scheduler="none"),  # noqa: B008 - frozen
         weights: str | None = None,
     ) -> None:
-        super().__init__(
-            feat_channels=feat_channels, robot_dim=robot_dim, loss=loss, sdl_beta=sdl_beta, optimizer=optimizer,
-            lr=lr, weight_decay=weight_decay, scheduler=scheduler, sim_variant=sim_variant,
-            metric_reduction=metric_reduction, weights=weights,
-        )
+        super().__init__(feat_channels=feat_channels, robot_dim=robot_dim, train=train, weights=weights)
 
     # ----------------------------------------------------------------- hooks
     def configure_models(self) -> None:
@@ -163,7 +166,14 @@ class CFARModule(FloAffModule):
         arch = {k: h[k] for k in ("local_npoints", "local_radii", "local_nsamples", "local_mlps", "local_global_mlp",
                                   "floor_npoints", "floor_radii", "floor_nsamples", "floor_mlps", "floor_fp_mlps",
                                   "robot_mlp", "head") if h[k] is not None}
-        self.net = CFARNet(feat_channels=h["feat_channels"], robot_dim=h["robot_dim"], **arch)
+        self.net = CFARNet(feat_channels=h["feat_channels"], robot_dim=h["robot_dim"],
+                           floor_encoder=h["floor_encoder"], **arch)
+        self.prior: CanonicalLabelGrid | None = None
+        if h["prior_residual"]:
+            self.prior = CanonicalLabelGrid(list(h["prior_tasks"] or TASKS))
+            # the residual starts at zero: an untrained model predicts the prior
+            nn.init.zeros_(self.net.out.weight)
+            nn.init.zeros_(self.net.out.bias)
         self.axisnet: AxisNet | None = None
         self.axis_radius = 0.0
         arch = h["axisnet_arch"]
@@ -183,10 +193,9 @@ class CFARModule(FloAffModule):
         self.teacher_info: dict[str, Any] | None = None
 
     def configure_losses(self) -> None:
-        name = self.hparams["loss"]
-        if not self.hparams["use_sdl"] and name == "aff":
-            name = "mse"  # w/o-SDL ablation
-        self.criterion = build_loss(name, beta=self.hparams["sdl_beta"])
+        t = self.train_cfg
+        name = "mse" if not self.hparams["use_sdl"] and t.loss == "aff" else t.loss  # w/o-SDL ablation
+        self.criterion = build_loss(name, beta=t.sdl_beta)
 
     # ----------------------------------------------------------------- yaw sources
     @property
@@ -202,49 +211,21 @@ class CFARModule(FloAffModule):
             return h["eval_yaw_source"]
         if h["axisnet"] or h["axisnet_arch"]:
             return "axisnet"
-        return "none" if h["yaw_source"] == "none" else "gt"
+        # never the simulator's yaw unless asked for (eval_yaw_source: gt): a robot does not have it
+        return "none" if h["yaw_source"] == "none" else "manhattan"
 
     # ----------------------------------------------------------------- AxisNet
     def _build_axisnet(self, arch: dict[str, Any]) -> None:
-        try:
-            self.axisnet = AxisNet(4, list(arch["widths"]), list(arch["head"]))
-            self.axis_radius = float(arch["crop_radius"])
-        except (KeyError, TypeError) as exc:
-            raise MisconfigurationException(f"CFARModule: axisnet_arch {arch!r} is not a recorded AxisNet ({exc})") from exc
-        self.axisnet.requires_grad_(False).eval()
+        self.axisnet, self.axis_radius = build_axisnet(arch, type(self).__name__)
 
     def _load_axisnet(self, name: str) -> None:
-        from floaff_zoo.hub import resolve_state_dict
-
-        state, info = resolve_state_dict(name)
-        cls = str(info.get("class_path") or "")
-        if cls and not cls.endswith("AxisNetModule"):
-            raise MisconfigurationException(f"CFARModule: axisnet {name!r} is a {cls} checkpoint, not an AxisNetModule")
-        args = info.get("init_args") or {}
-        arch = {
-            "crop_radius": float(args.get("crop_radius", 1.3)),
-            "widths": list(args.get("widths") or [64, 128, 256]),
-            "head": list(args["head"]) if args.get("head") is not None else [128, 64],
-            "source": str(name),
-            "sha256": info.get("sha256") or _sha256(info.get("source", name)),
-        }
-        self._build_axisnet(arch)
-        sub = {k[len("net."):]: v for k, v in state.items() if k.startswith("net.")}
-        missing, unexpected = self.axisnet.load_state_dict(sub, strict=False)
-        if missing or unexpected:
-            raise MisconfigurationException(
-                f"CFARModule: axisnet {name!r} does not fit AxisNet{arch['widths']}: missing {missing}, unexpected {unexpected}"
-            )
+        self.axisnet, self.axis_radius, arch = load_axisnet(name, type(self).__name__)
         self.hparams["axisnet_arch"] = arch  # saved with the checkpoint: rebuilds without the file
 
-    def estimate_yaw(self, batch: Batch) -> Tensor:
-        """AxisNet's front-yaw estimate [B] (rad, robot frame)."""
-        if self.axisnet is None:
-            raise MisconfigurationException("CFARModule: no AxisNet configured")
-        with torch.no_grad():
-            x, mask = axis_inputs(batch["scene_xyz"], batch["scene_feat"], batch["scene_mask"], batch["target_xyz"],
-                                  self.axis_radius, _names(batch))
-            return yaw_from_vector(self.axisnet(x, mask))
+    def estimate_yaw(self, batch: Batch, source: str = "axisnet") -> Tensor | None:
+        """The target's front yaw [B] (rad, robot frame) from ``source`` (``floaff_zoo.models.yaw``)."""
+        return estimate_yaw(batch, source, self.axisnet, self.axis_radius, self.hparams["manhattan_radius"],
+                            type(self).__name__)
 
     # ----------------------------------------------------------------- teacher
     def setup(self, stage: str) -> None:
@@ -262,8 +243,6 @@ class CFARModule(FloAffModule):
             ValueError: listing missing / unexpected / shape-mismatched keys when the teacher's
                 encoder does not match the student's.
         """
-        from floaff_zoo.hub import resolve_state_dict
-
         state, info = resolve_state_dict(name)
         t_state = {k[len(DISTILLED_PREFIX):]: v for k, v in state.items() if k.startswith(DISTILLED_PREFIX)}
         own = self.net.local_encoder.state_dict()
@@ -313,22 +292,14 @@ class CFARModule(FloAffModule):
         # --ckpt_path stage2.ckpt --model.init_args.axisnet better_axisnet.ckpt`): keep the configured one
         own = (self.hparams.get("axisnet_arch") or {}).get("sha256")
         stored = ((checkpoint.get("hyper_parameters") or {}).get("axisnet_arch") or {}).get("sha256")
-        if self.axisnet is not None and own and stored and own != stored and "state_dict" in checkpoint:
-            for k, v in self.axisnet.state_dict().items():
-                checkpoint["state_dict"]["axisnet." + k] = v
-            checkpoint["hyper_parameters"]["axisnet_arch"] = dict(self.hparams["axisnet_arch"])
+        if own and stored and own != stored:
+            keep_configured_axisnet(checkpoint, self.axisnet, self.hparams.get("axisnet_arch"))
 
     # ----------------------------------------------------------------- forward
     def canonicalize(self, batch: Batch) -> tuple[CanonicalCloud, Tensor | None]:
         """T(P, S) of a batch with the yaw source of the current mode. Returns (canonical cloud, yaw [B] | None)."""
         source = self.train_yaw_source if self.training else self.eval_yaw_source
-        match source:
-            case "gt":
-                yaw = batch["target_yaw"].reshape(-1)
-            case "axisnet":
-                yaw = self.estimate_yaw(batch)
-            case _:
-                yaw = None
+        yaw = self.estimate_yaw(batch, source)
         extra = None
         jitter = self.hparams["yaw_jitter_deg"]
         if self.training and jitter > 0:
@@ -336,15 +307,54 @@ class CFARModule(FloAffModule):
             extra = (torch.rand(b, device=batch["scene_xyz"].device) * 2 - 1) * math.radians(jitter)
         canon = canonical_transform(
             batch["scene_xyz"], batch["scene_mask"], batch["floor_xyz"], batch["target_xyz"], yaw,
-            self.hparams["crop_radius"] if self.hparams["use_crop"] else None, extra, _names(batch),
+            self.hparams["crop_radius"] if self.hparams["use_crop"] else None, extra, sample_names(batch),
         )
         return canon, yaw
 
     def _run(self, batch: Batch) -> tuple[Tensor, Tensor, CanonicalCloud, Tensor | None]:
         canon, yaw = self.canonicalize(batch)
         feat = batch["scene_feat"][..., : self.hparams["feat_channels"]]
-        scores, g = self.net(canon.xyz, feat, canon.mask, canon.floor_xyz, batch["floor_mask"], batch["robot"])
-        return scores, g, canon, yaw
+        logits, g = self.net.logits(canon.xyz, feat, canon.mask, canon.floor_xyz, batch["floor_mask"], batch["robot"])
+        if self.prior is not None:
+            tasks = self.prior.task_index([str(m.get("task")) for m in batch["meta"]])
+            p = self.prior.read(tasks, canon.floor_xyz[..., :2]).to(logits.dtype).clamp(PRIOR_EPS, 1 - PRIOR_EPS)
+            logits = logits + torch.log(p) - torch.log1p(-p)
+        return torch.sigmoid(logits), g, canon, yaw
+
+    # ----------------------------------------------------------------- prior
+    def on_fit_start(self) -> None:
+        super().on_fit_start()
+        if self.prior is not None:
+            self.fill_prior()
+
+    @torch.no_grad()
+    def fill_prior(self) -> None:
+        """Average the training labels of tasks the prior has not seen yet (one pass, training yaw, no jitter).
+
+        Tasks already in the prior (a resumed fit, or stage 1's task when stage 2 starts from its weights)
+        keep their grid.
+        """
+        assert self.prior is not None
+        dm = getattr(self.trainer, "datamodule", None)
+        if dm is None:
+            raise MisconfigurationException("CFARModule: prior_residual needs a datamodule to average its labels")
+        fresh = CanonicalLabelGrid(self.prior.tasks, self.prior.cell, self.prior.extent,
+                                   self.prior.smooth_sigma_cells, self.prior.fill).to(self.prior.sums.device)
+        source = self.train_yaw_source if self.train_yaw_source in ("gt", "none") else "gt"
+        for batch in dm.train_dataloader():
+            batch = self._on_device(batch)
+            yaw = self.estimate_yaw(batch, source)
+            canon = canonical_transform(batch["scene_xyz"], batch["scene_mask"], batch["floor_xyz"],
+                                        batch["target_xyz"], yaw, None, None, sample_names(batch))
+            tasks = fresh.task_index([str(m.get("task")) for m in batch["meta"]])
+            fresh.add(tasks, canon.floor_xyz[..., :2], batch["floor_label"], batch["floor_mask"])
+        new = (self.prior.counts.sum((1, 2)) == 0) & (fresh.counts.sum((1, 2)) > 0)
+        self.prior.sums[new] = fresh.sums[new]
+        self.prior.counts[new] = fresh.counts[new]
+
+    def _on_device(self, batch: Batch) -> Batch:
+        dev = self.device
+        return {k: (v.to(dev) if isinstance(v, Tensor) else v) for k, v in batch.items()}
 
     def forward(self, batch: Batch) -> Tensor:
         """Scores [B, M] in [0, 1], one per floor point in the input order."""

@@ -2,18 +2,17 @@
 
 from __future__ import annotations
 
-from typing import Literal
-
 import torch
 from torch import Tensor
 
 from floaff_zoo.contract import Batch
-from floaff_zoo.models.base import FloAffModule
-from floaff_zoo.models.pointnet2 import floor_inputs, maybe_bf16, maybe_compile, scene_inputs
+from floaff_zoo.models.base import FloAffTrainConfig
+from floaff_zoo.models.pointnet2 import maybe_compile
+from floaff_zoo.models.votenet import SeedVotingModule
 from floaff_zoo.nn.nets import PRIMITIVES, H3DNetNet, target_primitives
 
 
-class H3DNetModule(FloAffModule):
+class H3DNetModule(SeedVotingModule):
     """H3DNet-style floor affordance with hybrid primitive votes.
 
     How H3DNet maps onto this task: H3DNet predicts a hybrid set of geometric primitives (box
@@ -61,21 +60,10 @@ class H3DNetModule(FloAffModule):
         bf16: bool = False,
         feat_channels: int = 1,
         robot_dim: int = 2,
-        loss: Literal["mse", "aff", "navaff"] = "mse",
-        sdl_beta: float = 1.0,
-        optimizer: Literal["adam", "adamw"] = "adam",
-        lr: float = 1e-3,
-        weight_decay: float = 0.0,
-        scheduler: Literal["cosine", "plateau", "none"] = "cosine",
-        sim_variant: Literal["cosine", "hist"] = "cosine",
-        metric_reduction: Literal["per_sample", "official_batchwise"] = "per_sample",
+        train: FloAffTrainConfig = FloAffTrainConfig(),  # noqa: B008 - frozen
         weights: str | None = None,
     ) -> None:
-        super().__init__(
-            feat_channels=feat_channels, robot_dim=robot_dim, loss=loss, sdl_beta=sdl_beta, optimizer=optimizer,
-            lr=lr, weight_decay=weight_decay, scheduler=scheduler, sim_variant=sim_variant,
-            metric_reduction=metric_reduction, weights=weights,
-        )
+        super().__init__(feat_channels=feat_channels, robot_dim=robot_dim, train=train, weights=weights)
 
     def configure_models(self) -> None:
         h = self.hparams
@@ -87,20 +75,8 @@ class H3DNetModule(FloAffModule):
         )
         maybe_compile(self.net, h["compile"])
 
-    def forward_with_aux(self, batch: Batch) -> tuple[Tensor, dict[str, Tensor]]:
-        """Scores [B, M] and the primitive geometry (seed xyz, votes [B,4,S,3], primitives [B,4,3])."""
-        xyz, feat, mask = scene_inputs(batch, self.hparams["feat_channels"])
-        fxyz, fmask = floor_inputs(batch)
-        fps = self.net.sample(xyz, mask)
-        with maybe_bf16(self.hparams["bf16"], xyz.device):
-            scores, aux = self.net(xyz, feat, mask, fxyz, fmask, batch["robot"].float(), batch["target_xyz"].float(), fps=fps)
-        return scores.float(), aux
-
-    def forward(self, batch: Batch) -> Tensor:
-        return self.forward_with_aux(batch)[0]
-
-    def primitive_loss(self, batch: Batch, aux: dict[str, Tensor]) -> Tensor:
-        """Mean L1 vote error to the target primitives over the voting seeds."""
+    def vote_loss(self, batch: Batch, aux: dict[str, Tensor]) -> Tensor:
+        """Mean L1 vote error to the target primitives (votes [B,4,S,3]) over the voting seeds."""
         h = self.hparams
         gt = target_primitives(
             batch["target_xyz"].float(), batch["target_yaw"].float().reshape(-1), h["face_offset"], h["edge_half_width"]
@@ -110,12 +86,6 @@ class H3DNetModule(FloAffModule):
         w = torch.where(near.any(dim=1, keepdim=True), near, torch.ones_like(near)).float()  # [B, S]
         err = (aux["vote_xyz"].float() - gt[:, :, None, :]).abs().sum(-1)  # [B, 4, S]
         return ((err * w[:, None]).sum(-1) / w.sum(-1)[:, None]).mean()
-
-    def model_step(self, batch: Batch) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
-        scores, aux = self.forward_with_aux(batch)
-        pl = self.primitive_loss(batch, aux)
-        aff = self.affordance_loss(scores, batch)
-        return aff + self.hparams["vote_weight"] * pl, scores, {"vote_loss": pl.detach(), "aff_loss": aff.detach()}
 
 
 __all__ = ["PRIMITIVES", "H3DNetModule"]

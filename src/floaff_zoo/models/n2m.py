@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import math
-from typing import Any, Literal
+from typing import Any
 
 import torch
 from torch import Tensor
 
 from floaff_zoo.contract import Batch
-from floaff_zoo.models.base import FloAffModule
+from floaff_zoo.models.base import FloAffModule, FloAffTrainConfig
 from floaff_zoo.models.pointnet2 import floor_inputs, maybe_bf16, maybe_compile, scene_inputs
 from floaff_zoo.nn.nets import N2MNet, gmm_log_prob
 from floaff_zoo.nn.placement import footprint_collides, heading_to, occupied_cells
@@ -71,7 +71,7 @@ class N2MModule(FloAffModule):
         npoints, radii, nsamples, mlps: SSG encoder; decoder: MLP widths; num_components: K (1-2);
         dropout; positive_threshold; lambda_weights, lambda_components: entropy terms;
         num_pose_samples, footprint_*, occupancy_*: placement; seed: sampling seed;
-        compile, bf16: opt-in speed modes. ``loss`` is only used for the logged affordance loss.
+        compile, bf16: opt-in speed modes. ``train.loss`` is only used for the logged affordance loss.
         (the rest: see :class:`FloAffModule`)
     """
 
@@ -98,21 +98,10 @@ class N2MModule(FloAffModule):
         bf16: bool = False,
         feat_channels: int = 1,
         robot_dim: int = 2,
-        loss: Literal["mse", "aff", "navaff"] = "mse",
-        sdl_beta: float = 1.0,
-        optimizer: Literal["adam", "adamw"] = "adam",
-        lr: float = 1e-4,
-        weight_decay: float = 0.0,
-        scheduler: Literal["cosine", "plateau", "none"] = "cosine",
-        sim_variant: Literal["cosine", "hist"] = "cosine",
-        metric_reduction: Literal["per_sample", "official_batchwise"] = "per_sample",
+        train: FloAffTrainConfig = FloAffTrainConfig(lr=1e-4),  # noqa: B008 - frozen
         weights: str | None = None,
     ) -> None:
-        super().__init__(
-            feat_channels=feat_channels, robot_dim=robot_dim, loss=loss, sdl_beta=sdl_beta, optimizer=optimizer,
-            lr=lr, weight_decay=weight_decay, scheduler=scheduler, sim_variant=sim_variant,
-            metric_reduction=metric_reduction, weights=weights,
-        )
+        super().__init__(feat_channels=feat_channels, robot_dim=robot_dim, train=train, weights=weights)
 
     def configure_models(self) -> None:
         h = self.hparams

@@ -1,7 +1,7 @@
 """PointNet2Module: PointNet++ (SSG or MSG) adapted to floor affordance (MoMa-Kitchen baseline).
 
-Also home of the small helpers the other point models share (input extraction, bf16 autocast,
-in-place ``torch.compile``).
+Also home of the small helpers the other point models share (input extraction, the scene + floor
+forward, bf16 autocast, in-place ``torch.compile``).
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import torch
 from torch import Tensor, nn
 
 from floaff_zoo.contract import Batch
-from floaff_zoo.models.base import FloAffModule
+from floaff_zoo.models.base import FloAffModule, FloAffTrainConfig
 from floaff_zoo.nn.nets import PointNet2Net, check_inputs, require_valid
 
 #: default PointNet++ sizes for scenes in metres (robot base frame, a few metres across)
@@ -70,6 +70,19 @@ def maybe_bf16(enabled: bool, device: torch.device) -> Iterator[None]:
         yield
 
 
+def run_scene_floor_net(net: nn.Module, batch: Batch, feat_channels: int, bf16: bool) -> Any:
+    """``net(scene, floor, robot, target, fps=...)`` on a batch (PointNet++, VoteNet- and H3DNet-style nets).
+
+    Inputs are checked; FPS runs first, outside autocast; the MLPs run in bf16 when ``bf16``.
+    Returns what the net returns (scores [B, M], possibly with aux geometry), not cast.
+    """
+    xyz, feat, mask = scene_inputs(batch, feat_channels)
+    fxyz, fmask = floor_inputs(batch)
+    fps = net.sample(xyz, mask)
+    with maybe_bf16(bf16, xyz.device):
+        return net(xyz, feat, mask, fxyz, fmask, batch["robot"].float(), batch["target_xyz"].float(), fps=fps)
+
+
 def maybe_compile(net: nn.Module, enabled: bool) -> None:
     """``torch.compile`` the net's forward in place (state-dict keys unchanged); FPS stays outside."""
     if enabled:
@@ -117,21 +130,10 @@ class PointNet2Module(FloAffModule):
         bf16: bool = False,
         feat_channels: int = 1,
         robot_dim: int = 2,
-        loss: Literal["mse", "aff", "navaff"] = "mse",
-        sdl_beta: float = 1.0,
-        optimizer: Literal["adam", "adamw"] = "adam",
-        lr: float = 1e-3,
-        weight_decay: float = 0.0,
-        scheduler: Literal["cosine", "plateau", "none"] = "cosine",
-        sim_variant: Literal["cosine", "hist"] = "cosine",
-        metric_reduction: Literal["per_sample", "official_batchwise"] = "per_sample",
+        train: FloAffTrainConfig = FloAffTrainConfig(),  # noqa: B008 - frozen
         weights: str | None = None,
     ) -> None:
-        super().__init__(
-            feat_channels=feat_channels, robot_dim=robot_dim, loss=loss, sdl_beta=sdl_beta, optimizer=optimizer,
-            lr=lr, weight_decay=weight_decay, scheduler=scheduler, sim_variant=sim_variant,
-            metric_reduction=metric_reduction, weights=weights,
-        )
+        super().__init__(feat_channels=feat_channels, robot_dim=robot_dim, train=train, weights=weights)
 
     def configure_models(self) -> None:
         h = self.hparams
@@ -146,9 +148,4 @@ class PointNet2Module(FloAffModule):
         maybe_compile(self.net, h["compile"])
 
     def forward(self, batch: Batch) -> Tensor:
-        xyz, feat, mask = scene_inputs(batch, self.hparams["feat_channels"])
-        fxyz, fmask = floor_inputs(batch)
-        fps = self.net.sample(xyz, mask)
-        with maybe_bf16(self.hparams["bf16"], xyz.device):
-            out = self.net(xyz, feat, mask, fxyz, fmask, batch["robot"].float(), batch["target_xyz"].float(), fps=fps)
-        return out.float()
+        return run_scene_floor_net(self.net, batch, self.hparams["feat_channels"], self.hparams["bf16"]).float()

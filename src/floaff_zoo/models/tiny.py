@@ -2,13 +2,11 @@
 
 from __future__ import annotations
 
-from typing import Literal
-
 import torch
 from torch import Tensor, nn
 
 from floaff_zoo.contract import Batch
-from floaff_zoo.models.base import FloAffModule
+from floaff_zoo.models.base import FloAffModule, FloAffTrainConfig
 
 
 class TinyPointNet(nn.Module):
@@ -57,20 +55,10 @@ class TinyPointNetModule(FloAffModule):
         width: int = 32,
         feat_channels: int = 1,
         robot_dim: int = 2,
-        loss: Literal["mse", "aff", "navaff"] = "mse",
-        sdl_beta: float = 1.0,
-        lr: float = 1e-3,
-        weight_decay: float = 0.0,
-        scheduler: Literal["cosine", "plateau", "none"] = "cosine",
-        sim_variant: Literal["cosine", "hist"] = "cosine",
-        metric_reduction: Literal["per_sample", "official_batchwise"] = "per_sample",
+        train: FloAffTrainConfig = FloAffTrainConfig(),  # noqa: B008 - frozen
         weights: str | None = None,
     ) -> None:
-        super().__init__(
-            feat_channels=feat_channels, robot_dim=robot_dim, loss=loss, sdl_beta=sdl_beta, lr=lr,
-            weight_decay=weight_decay, scheduler=scheduler, sim_variant=sim_variant,
-            metric_reduction=metric_reduction, weights=weights,
-        )
+        super().__init__(feat_channels=feat_channels, robot_dim=robot_dim, train=train, weights=weights)
 
     def configure_models(self) -> None:
         h = self.hparams

@@ -2,14 +2,12 @@
 
 from __future__ import annotations
 
-from typing import Literal
-
 import torch
 from torch import Tensor
 
 from floaff_zoo.contract import Batch
-from floaff_zoo.models.base import FloAffModule
-from floaff_zoo.models.pointnet2 import floor_inputs, maybe_bf16, maybe_compile, scene_inputs
+from floaff_zoo.models.base import FloAffModule, FloAffTrainConfig
+from floaff_zoo.models.pointnet2 import maybe_compile, run_scene_floor_net
 from floaff_zoo.nn.nets import VoteNetNet
 
 
@@ -39,7 +37,30 @@ def vote_loss(votes: Tensor, gt_xyz: Tensor, gt_sel: Tensor) -> Tensor:
     return d.amin(dim=-1).mean()
 
 
-class VoteNetModule(FloAffModule):
+class SeedVotingModule(FloAffModule):
+    """What the VoteNet- and H3DNet-style modules share: the net gives scores and vote geometry; the
+    loss is the affordance loss + ``vote_weight`` x :meth:`vote_loss`. Subclasses build the net."""
+
+    def forward_with_aux(self, batch: Batch) -> tuple[Tensor, dict[str, Tensor]]:
+        """Scores [B, M] and the vote geometry (``seed_xyz`` [B,S,3] + the net's own, see its ``decode``)."""
+        scores, aux = run_scene_floor_net(self.net, batch, self.hparams["feat_channels"], self.hparams["bf16"])
+        return scores.float(), aux
+
+    def forward(self, batch: Batch) -> Tensor:
+        return self.forward_with_aux(batch)[0]
+
+    def vote_loss(self, batch: Batch, aux: dict[str, Tensor]) -> Tensor:
+        """Scalar vote loss from the vote geometry. Subclasses implement."""
+        raise NotImplementedError(f"{type(self).__name__} must implement vote_loss()")
+
+    def model_step(self, batch: Batch) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
+        scores, aux = self.forward_with_aux(batch)
+        vl = self.vote_loss(batch, aux)
+        aff = self.affordance_loss(scores, batch)
+        return aff + self.hparams["vote_weight"] * vl, scores, {"vote_loss": vl.detach(), "aff_loss": aff.detach()}
+
+
+class VoteNetModule(SeedVotingModule):
     """VoteNet-style floor affordance.
 
     How VoteNet maps onto this task: VoteNet's seeds (PointNet++ backbone points) vote for object
@@ -83,21 +104,10 @@ class VoteNetModule(FloAffModule):
         bf16: bool = False,
         feat_channels: int = 1,
         robot_dim: int = 2,
-        loss: Literal["mse", "aff", "navaff"] = "mse",
-        sdl_beta: float = 1.0,
-        optimizer: Literal["adam", "adamw"] = "adam",
-        lr: float = 1e-3,
-        weight_decay: float = 0.0,
-        scheduler: Literal["cosine", "plateau", "none"] = "cosine",
-        sim_variant: Literal["cosine", "hist"] = "cosine",
-        metric_reduction: Literal["per_sample", "official_batchwise"] = "per_sample",
+        train: FloAffTrainConfig = FloAffTrainConfig(),  # noqa: B008 - frozen
         weights: str | None = None,
     ) -> None:
-        super().__init__(
-            feat_channels=feat_channels, robot_dim=robot_dim, loss=loss, sdl_beta=sdl_beta, optimizer=optimizer,
-            lr=lr, weight_decay=weight_decay, scheduler=scheduler, sim_variant=sim_variant,
-            metric_reduction=metric_reduction, weights=weights,
-        )
+        super().__init__(feat_channels=feat_channels, robot_dim=robot_dim, train=train, weights=weights)
 
     def configure_models(self) -> None:
         h = self.hparams
@@ -109,21 +119,7 @@ class VoteNetModule(FloAffModule):
         )
         maybe_compile(self.net, h["compile"])
 
-    def forward_with_aux(self, batch: Batch) -> tuple[Tensor, dict[str, Tensor]]:
-        """Scores [B, M] and the vote geometry (seed/vote/proposal xyz)."""
-        xyz, feat, mask = scene_inputs(batch, self.hparams["feat_channels"])
-        fxyz, fmask = floor_inputs(batch)
-        fps = self.net.sample(xyz, mask)
-        with maybe_bf16(self.hparams["bf16"], xyz.device):
-            scores, aux = self.net(xyz, feat, mask, fxyz, fmask, batch["robot"].float(), batch["target_xyz"].float(), fps=fps)
-        return scores.float(), aux
-
-    def forward(self, batch: Batch) -> Tensor:
-        return self.forward_with_aux(batch)[0]
-
-    def model_step(self, batch: Batch) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
-        scores, aux = self.forward_with_aux(batch)
+    def vote_loss(self, batch: Batch, aux: dict[str, Tensor]) -> Tensor:
+        """Min-over-GT L1 distance of the votes to the good floor points."""
         gt_xyz, gt_sel = good_floor_points(batch, self.hparams["vote_label_threshold"])
-        vl = vote_loss(aux["vote_xyz"].float(), gt_xyz, gt_sel)
-        aff = self.affordance_loss(scores, batch)
-        return aff + self.hparams["vote_weight"] * vl, scores, {"vote_loss": vl.detach(), "aff_loss": aff.detach()}
+        return vote_loss(aux["vote_xyz"].float(), gt_xyz, gt_sel)

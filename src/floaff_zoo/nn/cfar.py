@@ -306,6 +306,10 @@ class CFARNet(nn.Module):
         floor_npoints / floor_radii / floor_nsamples / floor_mlps: floor encoder levels;
         floor_fp_mlps: FP widths, deepest first (one per floor level);
         robot_mlp: robot MLP widths; head: decoder hidden widths.
+        floor_encoder: ``set`` (paper: PointNet++ over the floor points, so a point's feature depends on
+            the other points asked) or ``pointwise`` (each floor point encoded alone from Fourier features
+            of its canonical xy: scores do not depend on which other queries are asked; a departure).
+        floor_point_mlp / fourier_freqs: widths and number of octaves of the pointwise floor encoder.
     """
 
     def __init__(
@@ -324,10 +328,17 @@ class CFARNet(nn.Module):
         floor_fp_mlps: Sequence[Sequence[int]] = ((128, 128), (128, 64)),
         robot_mlp: Sequence[int] = (32, 64),
         head: Sequence[int] = (256, 128),
+        floor_encoder: str = "set",
+        floor_point_mlp: Sequence[int] = (64, 64),
+        fourier_freqs: int = 4,
     ) -> None:
         super().__init__()
         if not local_npoints or not floor_npoints:
             raise ValueError("CFARNet needs at least one local and one floor set-abstraction level")
+        if floor_encoder not in ("set", "pointwise"):
+            raise ValueError(f"CFARNet: floor_encoder must be 'set' or 'pointwise', got {floor_encoder!r}")
+        self.floor_mode = floor_encoder
+        self.fourier_freqs = int(fourier_freqs)
         self.feat_channels = feat_channels
         self.local_encoder = PointNet2Encoder(
             feat_channels, list(local_npoints), [[r * BALL_MARGIN] for r in local_radii], [[k] for k in local_nsamples],
@@ -346,6 +357,11 @@ class CFARNet(nn.Module):
             fp = FeaturePropagation(ch[lvl] + cur, list(widths))
             self.floor_fp.append(fp)
             cur = fp.out_channels
+        if floor_encoder == "pointwise":
+            # the set encoder is not used: drop it so its weights neither train nor load
+            self.floor_encoder, self.floor_fp = None, None
+            self.floor_point = plain_mlp(2 + 4 * self.fourier_freqs, list(floor_point_mlp))
+            cur = floor_point_mlp[-1] if floor_point_mlp else 2 + 4 * self.fourier_freqs
         # plain Linear+ReLU (no BatchNorm): one vector per sample, a batch of 1 must still train
         self.robot_mlp = plain_mlp(robot_dim, list(robot_mlp))
         self.global_channels = self.local_encoder.out_channels
@@ -360,15 +376,18 @@ class CFARNet(nn.Module):
         levels = self.local_encoder(xyz, feat[..., : self.feat_channels], mask, fps)
         return levels[-1][1][:, 0], levels
 
-    def forward(
-        self, xyz: Tensor, feat: Tensor, mask: Tensor, floor_xyz: Tensor, floor_mask: Tensor, robot: Tensor
-    ) -> tuple[Tensor, Tensor]:
-        """Canonical inputs -> (scores [B, M] in [0, 1], g [B, C_g]).
+    def fourier(self, xy: Tensor) -> Tensor:
+        """Canonical floor xy [B, M, 2] -> [B, M, 2 + 4F]: xy and sin/cos at F octaves (wavelengths 2 m, 1 m, ...)."""
+        if self.fourier_freqs <= 0:
+            return xy
+        f = (2.0 ** torch.arange(self.fourier_freqs, device=xy.device, dtype=xy.dtype)) * (2 * math.pi / 2.0)
+        ang = xy[..., None] * f  # [B, M, 2, F]
+        return torch.cat([xy, torch.sin(ang).flatten(-2), torch.cos(ang).flatten(-2)], dim=-1)
 
-        xyz [B,N,3], feat [B,N,C], mask [B,N] (canonical local cloud), floor_xyz [B,M,3] (canonical),
-        floor_mask [B,M], robot [B,R].
-        """
-        g, levels = self.encode_local(xyz, feat, mask)
+    def encode_floor(self, floor_xyz: Tensor, floor_mask: Tensor) -> Tensor:
+        """Per-floor-point features [B, M, C] from canonical floor points [B, M, 3] (mask [B, M])."""
+        if self.floor_mode == "pointwise":
+            return self.floor_point(self.fourier(floor_xyz[..., :2]))
         flv = self.floor_encoder(floor_xyz, None, floor_mask, sample_levels(self.floor_encoder, floor_xyz, floor_mask))
         skips: list[Tensor | None] = [floor_xyz] + [f for _, f in flv[1:]]
         cur = flv[-1][1]
@@ -378,6 +397,25 @@ class CFARNet(nn.Module):
             interp = stable_three_interpolate(flv[lvl][0], flv[lvl + 1][0], cur)
             skip = skips[lvl]
             cur = fp.mlp(interp if skip is None else torch.cat([skip, interp], dim=-1))
+        return cur
+
+    def forward(
+        self, xyz: Tensor, feat: Tensor, mask: Tensor, floor_xyz: Tensor, floor_mask: Tensor, robot: Tensor
+    ) -> tuple[Tensor, Tensor]:
+        """Canonical inputs -> (scores [B, M] in [0, 1], g [B, C_g]).
+
+        xyz [B,N,3], feat [B,N,C], mask [B,N] (canonical local cloud), floor_xyz [B,M,3] (canonical),
+        floor_mask [B,M], robot [B,R].
+        """
+        logits, g = self.logits(xyz, feat, mask, floor_xyz, floor_mask, robot)
+        return torch.sigmoid(logits), g
+
+    def logits(
+        self, xyz: Tensor, feat: Tensor, mask: Tensor, floor_xyz: Tensor, floor_mask: Tensor, robot: Tensor
+    ) -> tuple[Tensor, Tensor]:
+        """As :meth:`forward`, before the sigmoid: (logits [B, M], g [B, C_g])."""
+        g, levels = self.encode_local(xyz, feat, mask)
+        cur = self.encode_floor(floor_xyz, floor_mask)
         # local context: last SA level (before group-all), interpolated in the horizontal plane
         cxyz, cfeat = levels[-2]
         flat = torch.tensor([1.0, 1.0, 0.0], device=floor_xyz.device, dtype=floor_xyz.dtype)
@@ -387,4 +425,4 @@ class CFARNet(nn.Module):
         z = torch.cat(
             [cur, g[:, None].expand(-1, m, -1), rob[:, None].expand(-1, m, -1), ctx, floor_xyz], dim=-1
         )
-        return torch.sigmoid(self.out(self.head(z)).squeeze(-1)), g
+        return self.out(self.head(z)).squeeze(-1), g

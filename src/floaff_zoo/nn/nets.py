@@ -28,6 +28,7 @@ __all__ = [
     "N2MNet",
     "NavAffNet",
     "PointNet2Net",
+    "SeedVotingNet",
     "VoteNetNet",
     "floor_local_features",
     "require_valid",
@@ -370,12 +371,71 @@ def _proposal_distance(floor_xyz: Tensor, prop_xyz: Tensor) -> Tensor:
     return d[..., :1].clamp_min(0).sqrt()
 
 
-class VoteNetNet(nn.Module):
+class SeedVotingNet(nn.Module):
+    """The trunk the VoteNet- and H3DNet-style nets share: seeds that vote, decoded to floor scores.
+
+    PointNet++ SSG over the observation + robot MLP, FP back to the seed level (``backbone``); a
+    subclass builds its vote heads on ``seed_channels`` and implements :meth:`decode`.
+
+    Args:
+        feat_channels, robot_dim, robot_width: scene features and robot MLP;
+        npoints, radii, nsamples, mlps: SSG levels; seed_fp: FP widths from the deepest level to the
+        seed level (one entry per FP).
+    """
+
+    def __init__(
+        self,
+        feat_channels: int,
+        robot_dim: int,
+        npoints: Sequence[int],
+        radii: Sequence[Sequence[float]],
+        nsamples: Sequence[Sequence[int]],
+        mlps: Sequence[Sequence[Sequence[int]]],
+        seed_fp: Sequence[Sequence[int]],
+        robot_width: int = 64,
+    ) -> None:
+        super().__init__()
+        self.backbone = SceneEncoderDecoder(
+            feat_channels, robot_dim, robot_width, npoints, radii, nsamples, mlps, seed_fp, True
+        )
+
+    @property
+    def seed_channels(self) -> int:
+        return self.backbone.out_channels
+
+    def sample(self, scene_xyz: Tensor, scene_mask: Tensor) -> list[Tensor | None]:
+        return self.backbone.sample(scene_xyz, scene_mask)
+
+    def decode(
+        self, seed_xyz: Tensor, seed_feat: Tensor, floor_xyz: Tensor, target_xyz: Tensor
+    ) -> tuple[Tensor, dict[str, Tensor]]:
+        """Seeds [B,S,3]/[B,S,C], floor [B,M,3], target [B,3] -> (floor logits [B,M], vote geometry)."""
+        raise NotImplementedError(f"{type(self).__name__} must implement decode()")
+
+    def forward(
+        self,
+        scene_xyz: Tensor,
+        scene_feat: Tensor,
+        scene_mask: Tensor,
+        floor_xyz: Tensor,
+        floor_mask: Tensor,
+        robot: Tensor,
+        target_xyz: Tensor,
+        fps: list[Tensor | None] | None = None,
+    ) -> tuple[Tensor, dict[str, Tensor]]:
+        """Scene [B,N,3]/[B,N,C]/[B,N], floor [B,M,3]/[B,M], robot [B,R], target [B,3] ->
+        (scores [B,M] in [0,1], aux {seed_xyz [B,S,3], + the subclass's vote geometry})."""
+        seed_xyz, seed_feat, _ = self.backbone(scene_xyz, scene_feat, scene_mask, robot, fps)
+        logits, aux = self.decode(seed_xyz, seed_feat, floor_xyz, target_xyz)
+        return torch.sigmoid(logits.float()), {"seed_xyz": seed_xyz, **aux}
+
+
+class VoteNetNet(SeedVotingNet):
     """VoteNet-style floor affordance (see ``floaff_zoo.models.votenet`` for the mapping).
 
-    Backbone: PointNet++ SSG + robot MLP, FP to the seed level; vote module on the seeds; vote
-    aggregation (FPS over votes + grouping + PointNet) into proposals; floor scores from the
-    proposals by 3-NN feature propagation plus the distance to the nearest proposal.
+    One vote per seed; vote aggregation (FPS over votes + grouping + PointNet) into proposals; floor
+    scores from the proposals by 3-NN feature propagation plus the distance to the nearest proposal.
+    (Trunk arguments: see :class:`SeedVotingNet`.)
     """
 
     def __init__(
@@ -396,38 +456,22 @@ class VoteNetNet(nn.Module):
         head_width: int = 64,
         dropout: float = 0.1,
     ) -> None:
-        super().__init__()
-        self.backbone = SceneEncoderDecoder(
-            feat_channels, robot_dim, robot_width, npoints, radii, nsamples, mlps, seed_fp, True
-        )
-        c = self.backbone.out_channels
+        super().__init__(feat_channels, robot_dim, npoints, radii, nsamples, mlps, seed_fp, robot_width)
+        c = self.seed_channels
         self.vote = VoteModule(c)
         self.aggregate = VoteAggregation(c, num_proposals, proposal_radius, proposal_nsample, proposal_width)
         self.floor_fp = FeaturePropagation(7 + self.aggregate.out_channels, floor_fp)
         self.head = PerPointHead(self.floor_fp.out_channels, head_width, dropout)
 
-    def sample(self, scene_xyz: Tensor, scene_mask: Tensor) -> list[Tensor | None]:
-        return self.backbone.sample(scene_xyz, scene_mask)
-
-    def forward(
-        self,
-        scene_xyz: Tensor,
-        scene_feat: Tensor,
-        scene_mask: Tensor,
-        floor_xyz: Tensor,
-        floor_mask: Tensor,
-        robot: Tensor,
-        target_xyz: Tensor,
-        fps: list[Tensor | None] | None = None,
+    def decode(
+        self, seed_xyz: Tensor, seed_feat: Tensor, floor_xyz: Tensor, target_xyz: Tensor
     ) -> tuple[Tensor, dict[str, Tensor]]:
-        """-> (scores [B,M] in [0,1], aux {seed_xyz, vote_xyz [B,S,3], proposal_xyz [B,P,3]})."""
-        seed_xyz, seed_feat, _ = self.backbone(scene_xyz, scene_feat, scene_mask, robot, fps)
+        """-> (floor logits [B,M], {vote_xyz [B,S,3], proposal_xyz [B,P,3]})."""
         vote_xyz, vote_feat = self.vote(seed_xyz, seed_feat)
         pxyz, pfeat = self.aggregate(vote_xyz, vote_feat)
         skip = torch.cat([floor_local_features(floor_xyz, target_xyz), _proposal_distance(floor_xyz, pxyz)], dim=-1)
         h = self.floor_fp(floor_xyz, pxyz, skip, pfeat)
-        scores = torch.sigmoid(self.head(h).float())
-        return scores, {"seed_xyz": seed_xyz, "vote_xyz": vote_xyz, "proposal_xyz": pxyz}
+        return self.head(h), {"vote_xyz": vote_xyz, "proposal_xyz": pxyz}
 
 
 # ============================================================================ H3DNet-style
@@ -451,15 +495,15 @@ def target_primitives(target_xyz: Tensor, target_yaw: Tensor, face_offset: float
     return torch.stack([target_xyz, face, face + edge_half_width * perp, face - edge_half_width * perp], dim=1)
 
 
-class H3DNetNet(nn.Module):
+class H3DNetNet(SeedVotingNet):
     """H3DNet-style hybrid-primitive floor affordance (see ``floaff_zoo.models.h3dnet``).
 
-    Seeds (PointNet++ SSG + robot, FP to the seed level) vote for four primitives of the target:
-    its centre, its front-face centre and its two front edges. Per primitive type the votes are
-    (a) aggregated into proposals (FPS over votes + grouping + PointNet) and (b) pooled into one
-    predicted primitive location (softmax-weighted mean of votes). Floor points get, per type, the
-    FP-interpolated proposal features and their geometry relative to the predicted primitive
-    (offset and distance); the fused vector goes through a per-point head.
+    The seeds vote for four primitives of the target: its centre, its front-face centre and its two
+    front edges. Per primitive type the votes are (a) aggregated into proposals (FPS over votes +
+    grouping + PointNet) and (b) pooled into one predicted primitive location (softmax-weighted mean
+    of votes). Floor points get, per type, the FP-interpolated proposal features and their geometry
+    relative to the predicted primitive (offset and distance); the fused vector goes through a
+    per-point head. (Trunk arguments: see :class:`SeedVotingNet`.)
     """
 
     def __init__(
@@ -480,11 +524,8 @@ class H3DNetNet(nn.Module):
         head_width: int = 64,
         dropout: float = 0.1,
     ) -> None:
-        super().__init__()
-        self.backbone = SceneEncoderDecoder(
-            feat_channels, robot_dim, robot_width, npoints, radii, nsamples, mlps, seed_fp, True
-        )
-        c = self.backbone.out_channels
+        super().__init__(feat_channels, robot_dim, npoints, radii, nsamples, mlps, seed_fp, robot_width)
+        c = self.seed_channels
         self.votes = nn.ModuleList(VoteModule(c) for _ in PRIMITIVES)
         self.seed_logit = nn.ModuleList(nn.Linear(c, 1) for _ in PRIMITIVES)
         self.aggregate = nn.ModuleList(
@@ -494,22 +535,10 @@ class H3DNetNet(nn.Module):
         self.fuse = SharedMLP(6 + len(PRIMITIVES) * per_type, [fuse_width, fuse_width])
         self.head = PerPointHead(fuse_width, head_width, dropout)
 
-    def sample(self, scene_xyz: Tensor, scene_mask: Tensor) -> list[Tensor | None]:
-        return self.backbone.sample(scene_xyz, scene_mask)
-
-    def forward(
-        self,
-        scene_xyz: Tensor,
-        scene_feat: Tensor,
-        scene_mask: Tensor,
-        floor_xyz: Tensor,
-        floor_mask: Tensor,
-        robot: Tensor,
-        target_xyz: Tensor,
-        fps: list[Tensor | None] | None = None,
+    def decode(
+        self, seed_xyz: Tensor, seed_feat: Tensor, floor_xyz: Tensor, target_xyz: Tensor
     ) -> tuple[Tensor, dict[str, Tensor]]:
-        """-> (scores [B,M], aux {seed_xyz [B,S,3], vote_xyz [B,4,S,3], primitive_xyz [B,4,3]})."""
-        seed_xyz, seed_feat, _ = self.backbone(scene_xyz, scene_feat, scene_mask, robot, fps)
+        """-> (floor logits [B,M], {vote_xyz [B,4,S,3], primitive_xyz [B,4,3]})."""
         parts = [floor_local_features(floor_xyz, target_xyz)]
         votes, prims = [], []
         for vote, logit, agg in zip(self.votes, self.seed_logit, self.aggregate):
@@ -523,8 +552,7 @@ class H3DNetNet(nn.Module):
             votes.append(vxyz)
             prims.append(prim)
         h = self.fuse(torch.cat(parts, dim=-1))
-        scores = torch.sigmoid(self.head(h).float())
-        return scores, {"seed_xyz": seed_xyz, "vote_xyz": torch.stack(votes, 1), "primitive_xyz": torch.stack(prims, 1)}
+        return self.head(h), {"vote_xyz": torch.stack(votes, 1), "primitive_xyz": torch.stack(prims, 1)}
 
 
 # ============================================================================ N2M-style

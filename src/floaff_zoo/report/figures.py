@@ -16,8 +16,8 @@ from typing import Any
 
 import numpy as np
 
-from floaff_zoo.callbacks.rollout import base_to_world, pose_to_world
 from floaff_zoo.contract import best_pose
+from floaff_zoo.frames import base_to_world, pose_to_world
 
 
 @dataclass

@@ -8,9 +8,9 @@ from __future__ import annotations
 import importlib
 
 _LAZY = {
-    "SceneSpec": "kitchen", "SimScene": "kitchen", "TargetInfo": "kitchen", "build_scene": "kitchen",
+    "SceneSpec": "kitchen", "SimScene": "kitchen", "build_scene": "kitchen",
     "TASKS": "kitchen", "LAYOUTS": "kitchen", "STYLES": "kitchen",
-    "TASK_REGISTRY": "tasks", "candidate_region": "tasks",
+    "TargetInfo": "tasks", "TASK_REGISTRY": "tasks", "candidate_region": "tasks",
     "RolloutResult": "rollout", "rollout": "rollout", "RolloutService": "rollout", "heading_to_target": "rollout",
     "Annotation": "annotate", "annotate_scene": "annotate",
 }

@@ -15,6 +15,10 @@ Pipeline per scene:
 5. one rollout per remaining candidate -> binary label;
 6. Gaussian smoothing of the binary grid (``scipy.ndimage.gaussian_filter``, sigma = ``sigma_cells``
    cells, mode "constant"), then max-normalised to 1 when any candidate succeeded.
+
+Every cell ends with a ``status``: ``FILTERED`` (steps 2-4: infeasible, never rolled out), ``ROLLED_OUT``
+(step 5) or ``SKIPPED`` (feasible but over the ``max_candidates`` budget: never considered).
+:func:`cell_labels` turns (label, status) into the per-cell labels of format v2 view files.
 """
 from __future__ import annotations
 
@@ -28,6 +32,25 @@ from floaff_zoo.sim.controllers import default_policy
 from floaff_zoo.sim.kitchen import SimScene
 from floaff_zoo.sim.rollout import RolloutService, heading_to_target, rollout, start_rollout
 from floaff_zoo.sim.tasks import target_frame_to_world
+
+#: Annotation.status codes: filtered as infeasible (collision / wall / reach / IK), rolled out, skipped (budget)
+FILTERED, ROLLED_OUT, SKIPPED = 0, 1, 2
+
+
+def cell_labels(label: np.ndarray, status: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-cell labels of format v2 (docs/data_format.md): label [M], status [M] -> (label [M] f32, known [M] bool).
+
+    ROLLED_OUT: the smoothed rollout label; FILTERED: 0 (the robot cannot stand or act there), known;
+    SKIPPED (never rolled out): the smoothed label of the neighbouring rollouts, NOT known.
+    """
+    lab = np.asarray(label, dtype=np.float32).reshape(-1)
+    st = np.asarray(status).reshape(-1)
+    if st.shape != lab.shape:
+        raise ValueError(f"cell_labels: status has {st.size} cells, label has {lab.size}")
+    bad = ~np.isin(st, (FILTERED, ROLLED_OUT, SKIPPED))
+    if bad.any():
+        raise ValueError(f"cell_labels: unknown status code(s) {sorted(set(st[bad].tolist()))}")
+    return np.where(st == FILTERED, np.float32(0.0), lab).astype(np.float32), st != SKIPPED
 
 
 @dataclass
@@ -46,6 +69,7 @@ class Annotation:
     sigma_cells: float = 1.0
     wall_seconds: float = 0.0
     extra: dict = field(default_factory=dict)
+    status: np.ndarray | None = None  # [M] int8 FILTERED / ROLLED_OUT / SKIPPED (module doc)
 
 
 def candidate_grid(scene: SimScene, cell: float, r_x: float, r_y: float) -> tuple[np.ndarray, tuple[int, int], np.ndarray]:
@@ -138,6 +162,9 @@ def annotate_scene(scene: SimScene, cell: float = 0.05, r_arm: float | None = No
             svc.close()
     else:
         res = [rollout(scene, (float(xy[i, 0]), float(xy[i, 1]), float(yaws[i])), None, seed) for i in todo]
+    status = np.full(M, FILTERED, dtype=np.int8)
+    status[[i for i, r in enumerate(reasons) if r == "skipped_budget"]] = SKIPPED
+    status[todo] = ROLLED_OUT
     for i, r in zip(todo, res):
         success[i] = r.success
         reasons[i] = r.reason
@@ -146,4 +173,5 @@ def annotate_scene(scene: SimScene, cell: float = 0.05, r_arm: float | None = No
     scene.reset_task(np.random.default_rng(seed))
     return Annotation(grid_xy=xy.astype(np.float64), yaw=yaws, valid=valid, success=success,
                       label=_smooth(success, shape, sigma_cells), reasons=reasons, counts=counts, grid_shape=shape,
-                      cell=float(cell), sigma_cells=float(sigma_cells), wall_seconds=time.perf_counter() - t0)
+                      cell=float(cell), sigma_cells=float(sigma_cells), wall_seconds=time.perf_counter() - t0,
+                      status=status)

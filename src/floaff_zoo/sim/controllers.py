@@ -2,7 +2,7 @@
 
 Each task policy plans Cartesian key points from the target fixture's geometry, checks them with
 IK before moving (early exit ``ik_unreachable``: the pose is labelled a failure without simulating,
-SIMULATOR.md §5) and then executes segments at a 20 Hz control rate:
+docs/background.md §5) and then executes segments at a 20 Hz control rate:
 
 * ``_Joint``: smoothstep interpolation in joint space (approach from the tuck pose);
 * ``_Cart``: a Cartesian path p(s), s in [0,1], IK re-solved every control tick warm-started;
@@ -23,7 +23,7 @@ collisions and approach direction still decide the label.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Callable, Protocol, runtime_checkable
 
 import mujoco
@@ -152,7 +152,7 @@ class ScriptedPolicy:
         kps = self.keypoints(scene)
         sols = []
         q_prev = None
-        for i, (p, a) in enumerate(kps):
+        for p, a in kps:
             seeds = ([q_prev] if q_prev is not None else []) + self._seeds(scene, p)
             best = (None, 1e9)
             for sd in seeds:
@@ -456,7 +456,8 @@ class OpenSingleDoorPolicy(ScriptedPolicy):
 
 
 class PnPCounterToCabPolicy(ScriptedPolicy):
-    """Top-down grasp (weld assist), lift out in front of the counter, insert into the open wall cabinet, release, retreat."""
+    """Top-down grasp (weld assist), lift out in front of the counter, insert into the open wall cabinet, release,
+    retreat."""
 
     task = "PnPCounterToCab"
 

@@ -9,6 +9,14 @@ Layout::
 
 A scene is built in ``<root>/<benchmark>/.staging/<scene_id>/`` (scene.json written last there) and moved into place
 with one ``os.replace`` of the directory, so a killed run never leaves a half-written scene directory behind.
+
+Versions (``format_version`` in scene.json and manifest.json; the readers here take both):
+
+* 1 (generator 1.x): every view stores the scene's candidate cells on free floor (``candidates.on_floor``) with the
+  smoothed label: the same set in every view, shaped by the annotation filters.
+* 2 (generator 2.x): every view stores the label-grid cells its own cloud observes as ground
+  (``floaff_zoo.floor.observed_cells``) with the per-cell labels of ``annotate.cell_labels``, plus ``floor_known``
+  and ``floor_index``. A v1 view reads with ``floor_known`` all true.
 """
 
 from __future__ import annotations
@@ -28,11 +36,14 @@ __all__ = [
     "MANIFEST",
     "SCENE_JSON",
     "STAGING",
+    "SUPPORTED_FORMAT_VERSIONS",
+    "V2_VIEW_FIELDS",
     "VIEW_FIELDS",
     "FormatError",
     "atomic_save_npz",
     "atomic_write_bytes",
     "atomic_write_json",
+    "check_format_version",
     "commit_scene_dir",
     "iter_scenes",
     "read_json",
@@ -46,7 +57,8 @@ __all__ = [
     "validate_view",
 ]
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+SUPPORTED_FORMAT_VERSIONS = (1, 2)
 MANIFEST = "manifest.json"
 SCENE_JSON = "scene.json"
 STAGING = ".staging"
@@ -62,6 +74,11 @@ VIEW_FIELDS: dict[str, tuple[str, tuple[Any, ...]]] = {
     "target_xyz": ("float32", (3,)),
     "target_yaw": ("float32", ()),
     "base_pose_world": ("float32", (3,)),
+}
+#: required from format 2 on (optional, and absent, in format 1 files)
+V2_VIEW_FIELDS: dict[str, tuple[str, tuple[Any, ...]]] = {
+    "floor_known": ("bool", ("M",)),
+    "floor_index": ("int32", ("M",)),
 }
 OPTIONAL_VIEW_FIELDS: dict[str, tuple[str, tuple[Any, ...]]] = {
     "rgb": ("uint8", ("H", "W", 3)),
@@ -190,17 +207,32 @@ def _check_shape(path: Path, name: str, arr: np.ndarray, dtype: str, pattern: tu
         raise FormatError(f"{path}: field {name!r} contains NaN or inf")
 
 
-def validate_view(arrays: dict[str, np.ndarray], path: str | Path = "<view>") -> None:
-    """Check one view's arrays against VIEW_FIELDS (dtypes, shapes, shared N/M, finite, labels in [0,1])."""
+def check_format_version(version: Any, path: str | Path) -> int:
+    """The format version as an int; FormatError naming the file when this reader does not know it."""
+    if version not in SUPPORTED_FORMAT_VERSIONS:
+        raise FormatError(f"{path}: format_version {version!r} is not supported by this reader "
+                          f"(supported: {list(SUPPORTED_FORMAT_VERSIONS)}); update floaff-zoo")
+    return int(version)
+
+
+def validate_view(arrays: dict[str, np.ndarray], path: str | Path = "<view>", format_version: int | None = None) -> None:
+    """Check one view's arrays against VIEW_FIELDS (dtypes, shapes, shared N/M, finite, labels in [0,1]).
+
+    format_version >= 2 also requires V2_VIEW_FIELDS; None checks them only when present.
+    """
     path = Path(path)
     sizes: dict[str, int] = {}
-    for name, (dtype, pattern) in VIEW_FIELDS.items():
+    required = dict(VIEW_FIELDS, **(V2_VIEW_FIELDS if (format_version or 1) >= 2 else {}))
+    for name, (dtype, pattern) in required.items():
         if name not in arrays:
             raise FormatError(f"{path}: missing field {name!r}")
         _check_shape(path, name, np.asarray(arrays[name]), dtype, pattern, sizes)
-    for name, (dtype, pattern) in OPTIONAL_VIEW_FIELDS.items():
-        if name in arrays:
+    for name, (dtype, pattern) in {**V2_VIEW_FIELDS, **OPTIONAL_VIEW_FIELDS}.items():
+        if name in arrays and name not in required:
             _check_shape(path, name, np.asarray(arrays[name]), dtype, pattern, sizes)
+    idx = np.asarray(arrays.get("floor_index", np.zeros(0, np.int32)))
+    if idx.size and idx.min() < 0:
+        raise FormatError(f"{path}: field 'floor_index' has negative entries")
     lab = np.asarray(arrays["floor_label"])
     if lab.size and (lab.min() < 0.0 or lab.max() > 1.0):
         raise FormatError(f"{path}: field 'floor_label' outside [0, 1] (min {lab.min()}, max {lab.max()})")
@@ -209,8 +241,8 @@ def validate_view(arrays: dict[str, np.ndarray], path: str | Path = "<view>") ->
         raise FormatError(f"{path}: field 'scene_feat' channel 0 (target flag) must be -1, 0 or +1")
 
 
-def read_view(path: str | Path) -> dict[str, np.ndarray]:
-    """Load and validate one ``views/<view_id>.npz``; FormatError naming the file/field on any problem."""
+def read_view(path: str | Path, format_version: int | None = None) -> dict[str, np.ndarray]:
+    """Load and validate one ``views/<view_id>.npz`` (see validate_view); FormatError naming the file/field."""
     path = Path(path)
     try:
         with np.load(path, allow_pickle=False) as z:
@@ -219,7 +251,7 @@ def read_view(path: str | Path) -> dict[str, np.ndarray]:
         raise FormatError(f"{path}: file not found") from exc
     except Exception as exc:  # noqa: BLE001 - zipfile.BadZipFile, EOFError, ValueError (pickled data), ...
         raise FormatError(f"{path}: corrupt npz ({type(exc).__name__}: {exc})") from exc
-    validate_view(arrays, path)
+    validate_view(arrays, path, format_version)
     return arrays
 
 
@@ -227,7 +259,10 @@ _SCENE_KEYS = ("benchmark", "split", "spec", "task", "target", "candidates", "la
 
 
 def read_scene(scene_path: str | Path) -> dict[str, Any]:
-    """Load and check a scene.json (path to the file or its directory); adds key "dir" (the scene directory)."""
+    """Load and check a scene.json (path to the file or its directory); adds key "dir" (the scene directory).
+
+    A file without ``format_version`` is read as version 1 (and gets the key); an unknown version is a FormatError.
+    """
     p = Path(scene_path)
     if p.is_dir():
         p = p / SCENE_JSON
@@ -237,6 +272,7 @@ def read_scene(scene_path: str | Path) -> dict[str, Any]:
     for k in _SCENE_KEYS:
         if k not in rec:
             raise FormatError(f"{p}: missing key {k!r}")
+    rec["format_version"] = check_format_version(rec.get("format_version", 1), p)
     m = len(rec["candidates"]["xy"])
     for k in ("success", "label"):
         if len(rec["labels"][k]) != m:
@@ -276,9 +312,12 @@ def iter_scenes(
 def read_sample(scene: dict[str, Any], view: dict[str, Any], root: str | Path | None = None) -> dict[str, Any]:
     """Build one sample-contract dict (COMMON.md) from a scene record (read_scene) and one of its view entries.
 
-    Masks are all True (no padding); meta carries dataset/task/view/scene ids and a 'sim' dict to rebuild the scene.
+    Masks are all True (no padding); meta carries dataset/task/view/scene ids, the file's format_version and a 'sim'
+    dict to rebuild the scene. Extra key ``floor_known`` [M] bool: the label comes from a rollout or a filter (format
+    2); all true for format 1 files (their smoothed labels are taken as given).
     """
-    arr = read_view(Path(scene["dir"]) / view["file"])
+    version = check_format_version(scene.get("format_version", 1), Path(scene["dir"]) / SCENE_JSON)
+    arr = read_view(Path(scene["dir"]) / view["file"], version)
     spec = scene["spec"]
     sim = {
         "layout_id": spec.get("layout_id"),
@@ -297,6 +336,7 @@ def read_sample(scene: dict[str, Any], view: dict[str, Any], root: str | Path | 
         "style_id": spec.get("style_id"),
         "sample_id": f"{scene['benchmark']}/{scene['scene_id']}/{view['view_id']}",
         "split": scene["split"],
+        "format_version": version,
         "sim": sim,
     }
     return {
@@ -306,6 +346,7 @@ def read_sample(scene: dict[str, Any], view: dict[str, Any], root: str | Path | 
         "floor_xyz": arr["floor_xyz"],
         "floor_label": arr["floor_label"],
         "floor_mask": np.ones(len(arr["floor_xyz"]), dtype=bool),
+        "floor_known": np.asarray(arr.get("floor_known", np.ones(len(arr["floor_xyz"]), dtype=bool)), dtype=bool),
         "robot": arr["robot"],
         "target_xyz": arr["target_xyz"],
         "target_yaw": arr["target_yaw"],

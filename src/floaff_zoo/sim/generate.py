@@ -8,6 +8,13 @@ single-threaded annotation, so the output does not depend on the worker count or
 positive candidate is dropped and retried with the next attempt's seed (up to ``max_seed_attempts``), as the paper
 drops scenes without positives. Wall times live only in manifest.json.
 
+Floor points (format 2, GENERATOR_VERSION 2.x): each view stores the cells of the scene's label grid (the annotation's
+target-centred window and cell) that hold at least one ground point of THAT view's cloud (``floaff_zoo.floor``:
+z < FLOOR_Z_MAX), labelled by ``annotate.cell_labels``: what the robot could know from its view, not the filtered
+candidate set. A view whose observed floor holds no cell at all, no cell with a successful rollout, or whose
+best-labelled observed cell failed (``view_rejection``) is rejected and resampled like a view that misses the target;
+rejections are counted in scene.json and the manifest.
+
 Robustness: a scene is written into ``<benchmark>/.staging/<scene_id>`` and moved into place with one rename after its
 scene.json is written; resume skips scenes whose scene.json says status "ok". A job that raises or whose worker process
 dies is retried once, then reported "failed" in the manifest.
@@ -37,7 +44,7 @@ from floaff_zoo.sim.presets import ALL_BENCHMARKS, ALL_TASKS, PRESETS, GenPreset
 
 __all__ = ["GENERATOR_VERSION", "SceneJob", "derive_seed", "generate", "main", "plan_jobs", "run_job"]
 
-GENERATOR_VERSION = "1.0.0"
+GENERATOR_VERSION = "2.0.0"
 #: task reset seed of the rollouts (annotate_scene) and of the rendered views, so both see the same fixture state
 ANNOTATE_SEED = 0
 
@@ -123,12 +130,16 @@ def _scene_id(spec: Any) -> str:
 
 
 def find_done(out: Path, job: SceneJob) -> str | None:
-    """scene_id of an already committed scene of this slot (any attempt), else None."""
+    """scene_id of an already committed scene of this slot (any attempt) in this format version, else None.
+
+    A scene of another format version (an older generator) is not resumed: it is regenerated, so one dataset never
+    mixes floor rules.
+    """
     for s in job.seeds:
         sid = _scene_id(_spec(job, s))
         if ff.scene_is_done(out, job.benchmark, sid):
             rec = ff.read_json(ff.scene_dir(out, job.benchmark, sid) / ff.SCENE_JSON)
-            if rec.get("slot") == job.key:
+            if rec.get("slot") == job.key and rec.get("format_version", 1) == ff.FORMAT_VERSION:
                 return sid
     return None
 
@@ -204,6 +215,46 @@ def _arr(x: Any, dtype: Any = np.float64) -> np.ndarray:
     return np.asarray(x, dtype=dtype)
 
 
+def grid_lattice(grid_xy: np.ndarray, grid_shape: tuple[int, int], cell: float, target_xy: np.ndarray,
+                 target_yaw: float) -> Any:
+    """The ``floaff_zoo.floor.FloorLattice`` of an annotation grid (world frame); checks it reproduces grid_xy [M,2]."""
+    from floaff_zoo.floor import FloorLattice
+
+    h, w = (int(v) for v in grid_shape)
+    if h % 2 == 0 or w % 2 == 0:
+        raise ValueError(f"annotation grid shape {grid_shape} is not target-centred (odd sizes expected)")
+    lat = FloorLattice((float(target_xy[0]), float(target_xy[1])), float(target_yaw) + np.pi / 2, float(cell),
+                       ((h - 1) // 2, (w - 1) // 2))
+    err = float(np.abs(lat.centers() - np.asarray(grid_xy, dtype=np.float64).reshape(-1, 2)).max(initial=0.0))
+    if err > 1e-4:
+        raise ValueError(f"the floor lattice does not reproduce the annotation grid (max error {err:.3g} m)")
+    return lat
+
+
+def view_rejection(seen: np.ndarray, cell_label: np.ndarray, success: np.ndarray) -> str | None:
+    """Why a view with observed cells seen [M] bool is not kept (None: keep), given the v2 labels [M] and rollout
+    success [M] bool: it sees no grid cell ("no_floor_cell"), no cell whose rollout succeeded ("no_positive_cell"),
+    or its best-labelled cells include a failed one ("best_cell_fails": the smoothed map of successes it does not
+    see outranks the ones it sees, so the label's own argmax would fail)."""
+    if not seen.any():
+        return "no_floor_cell"
+    if not (seen & success).any():
+        return "no_positive_cell"
+    lab = np.where(seen, cell_label, -np.inf)
+    if not success[lab >= lab.max() - 1e-6].all():
+        return "best_cell_fails"
+    return None
+
+
+def view_floor_cells(scene_xyz: np.ndarray, base_pose: np.ndarray, lattice: Any) -> np.ndarray:
+    """Grid cells [M] bool holding a ground point of one view's base-frame cloud scene_xyz [N,3] (pose [3] world)."""
+    from floaff_zoo.floor import FLOOR_Z_MAX, observed_cells
+    from floaff_zoo.sim.views import base_to_world
+
+    world = base_to_world(np.asarray(scene_xyz, dtype=np.float64), np.asarray(base_pose, dtype=np.float64))
+    return observed_cells(world, lattice, FLOOR_Z_MAX)
+
+
 def _write_scene(
     out: Path,
     job: SceneJob,
@@ -215,6 +266,8 @@ def _write_scene(
     rng_views: np.random.Generator,
 ) -> dict[str, Any]:
     """Render views, write everything into the staging dir, write scene.json last and commit. Returns view counts."""
+    from floaff_zoo.floor import FLOOR_Z_MAX
+    from floaff_zoo.sim.annotate import cell_labels
     from floaff_zoo.sim.pictures import render_topdown_png, rgb_png
     from floaff_zoo.sim.render import Renderer
     from floaff_zoo.sim.views import ROBOT_DESCRIPTOR, ViewConfig, make_view_sample, sample_view_poses
@@ -249,20 +302,38 @@ def _write_scene(
         if preset.floor_only
         else np.ones(len(grid_xy), dtype=bool)
     )
+    if getattr(ann, "status", None) is None:
+        raise ValueError("the annotation has no per-cell status (FILTERED / ROLLED_OUT / SKIPPED): use annotate_scene")
+    status = _arr(ann.status, np.int8).reshape(-1)
+    success = _arr(ann.success, bool).reshape(-1)
+    cell_label, known = cell_labels(label, status)
+    lattice = grid_lattice(grid_xy, tuple(ann.grid_shape), float(ann.cell), tpos[:2], tyaw)
+    rejected = {"no_floor_cell": 0, "no_positive_cell": 0, "best_cell_fails": 0}
+
+    def keep_view(pose: np.ndarray, obs: Any) -> bool:
+        why = view_rejection(view_floor_cells(obs.scene_xyz, pose, lattice), cell_label, success)
+        if why:
+            rejected[why] += 1
+        return not why
+
     views: list[dict[str, Any]] = []
     first_rgb: dict[str, np.ndarray] = {}
     renderer = Renderer(scene.model, preset.image_size, preset.image_size)
     try:
         for kind, n in (("front", job.n_front), ("side", job.n_side)):
-            for pose, obs in sample_view_poses(scene, renderer, kind, n, vcfg, rng_views):
+            for pose, obs in sample_view_poses(scene, renderer, kind, n, vcfg, rng_views, accept=keep_view):
                 vid = f"{kind}_{sum(v['view'] == kind for v in views):04d}"
-                arrays = make_view_sample(obs, pose, tpos, tyaw, grid_xy[on_floor], label[on_floor],
-                                          save_images=save_images)
-                ff.validate_view(arrays, stage / "views" / f"{vid}.npz")
+                seen = view_floor_cells(obs.scene_xyz, pose, lattice)
+                arrays = make_view_sample(obs, pose, tpos, tyaw, grid_xy[seen], cell_label[seen],
+                                          save_images=save_images, floor_known=known[seen],
+                                          floor_index=np.flatnonzero(seen))
+                ff.validate_view(arrays, stage / "views" / f"{vid}.npz", ff.FORMAT_VERSION)
                 ff.atomic_save_npz(stage / "views" / f"{vid}.npz", arrays)
                 views.append(
                     {"view_id": vid, "view": kind, "file": f"views/{vid}.npz", "base_pose_world": pose.tolist(),
-                     "n_points": int(len(obs.scene_xyz)), "n_target_points": int(obs.n_target)}
+                     "n_points": int(len(obs.scene_xyz)), "n_target_points": int(obs.n_target),
+                     "n_floor_cells": int(seen.sum()), "n_positive_cells": int((seen & success).sum()),
+                     "n_unknown_cells": int((seen & ~known).sum())}
                 )
                 first_rgb.setdefault(kind, obs.rgb)
     finally:
@@ -272,8 +343,8 @@ def _write_scene(
     poses = np.array([v["base_pose_world"] + [v["view"] == "side"] for v in views], dtype=np.float64).reshape(-1, 4)
     ff.atomic_write_bytes(
         stage / "topdown.png",
-        render_topdown_png(outline, grid_xy[on_floor], label[on_floor], float(ann.cell), tpos[:2], tyaw, title, poses,
-                           preset.picture_size),
+        render_topdown_png(outline, grid_xy[on_floor], cell_label[on_floor], float(ann.cell), tpos[:2], tyaw, title,
+                           poses, preset.picture_size),
     )
     for kind in ("front", "side"):
         if kind in first_rgb:
@@ -294,7 +365,8 @@ def _write_scene(
             "yaw": _arr(ann.yaw).reshape(-1).tolist(),
             "valid": valid.astype(int).tolist(),
             "on_floor": on_floor.astype(int).tolist(),
-            "view_cells": "on_floor" if preset.floor_only else "all",
+            "status": status.astype(int).tolist(),
+            "view_cells": "observed",
             "grid_shape": [int(v) for v in ann.grid_shape],
             "cell": float(ann.cell),
         },
@@ -302,12 +374,16 @@ def _write_scene(
             "success": _arr(ann.success).reshape(-1).astype(int).tolist(),
             "label": label.astype(float).tolist(),
             "reasons": [str(r) for r in getattr(ann, "reasons", [])],
+            "cell_label": cell_label.astype(float).tolist(),
+            "known": known.astype(int).tolist(),
         },
+        "floor_rule": {"ground_z_max": FLOOR_Z_MAX, "min_points": 1},
         "annotation_counts": counts,
         "sigma": float(preset.sigma_cells),
         "robot": [round(float(v), 6) for v in ROBOT_DESCRIPTOR],
         "views": views,
         "n_views": {"front": sum(v["view"] == "front" for v in views), "side": sum(v["view"] == "side" for v in views)},
+        "views_rejected": rejected,
         "pictures": ["topdown.png"] + [f"{k}.png" for k in ("front", "side") if k in first_rgb],
         "status": "ok",
     }
@@ -506,7 +582,8 @@ def _package_versions() -> dict[str, str | None]:
 def _summarise(manifest: dict[str, Any]) -> None:
     """Fill manifest['counts'] and manifest['drops'] from manifest['scenes'] (in place)."""
     counts: dict[str, Any] = {"scenes_ok": 0, "scenes_dropped": 0, "scenes_failed": 0, "scenes_pending": 0,
-                              "views_front": 0, "views_side": 0, "per": {}}
+                              "views_front": 0, "views_side": 0, "views_rejected_no_positive_cell": 0,
+                              "views_rejected_no_floor_cell": 0, "views_rejected_best_cell_fails": 0, "per": {}}
     drops = []
     for key, s in sorted(manifest["scenes"].items()):
         st = s["status"]
@@ -520,6 +597,8 @@ def _summarise(manifest: dict[str, Any]) -> None:
             per["views_side"] += int(nv.get("side", 0))
             counts["views_front"] += int(nv.get("front", 0))
             counts["views_side"] += int(nv.get("side", 0))
+            for why, k in (s.get("views_rejected") or {}).items():
+                counts[f"views_rejected_{why}"] = counts.get(f"views_rejected_{why}", 0) + int(k)
         for a in s.get("attempts", []):
             if a.get("outcome") == "dropped_no_positive":
                 drops.append({"slot": key, "scene_id": a["scene_id"], "seed": a["seed"], "reason": "no positive candidate"})
@@ -589,6 +668,7 @@ def generate(
             rec = ff.read_scene(ff.scene_dir(outp, job.benchmark, sid))
             manifest["scenes"][job.key] = {**base, "status": "ok", "scene_id": sid, "resumed": True,
                                            "n_views": rec.get("n_views", {}), "attempts": prev.get("attempts", []),
+                                           "views_rejected": rec.get("views_rejected", {}),
                                            "wall_s": prev.get("wall_s")}
         else:
             manifest["scenes"][job.key] = {**base, "status": "pending"}
@@ -602,7 +682,9 @@ def generate(
         entry = {**manifest["scenes"][job.key], "status": st, "scene_id": res.get("scene_id"), "tries": n_tries,
                  "attempts": res.get("attempts", []), "wall_s": res.get("wall_s"), "resumed": False}
         if st == "ok":
-            entry["n_views"] = ff.read_scene(ff.scene_dir(outp, job.benchmark, res["scene_id"]))["n_views"]
+            rec = ff.read_scene(ff.scene_dir(outp, job.benchmark, res["scene_id"]))
+            entry["n_views"] = rec["n_views"]
+            entry["views_rejected"] = rec.get("views_rejected", {})
         else:
             entry["reason"] = res.get("reason")
             if "traceback" in res:

@@ -13,18 +13,20 @@ Frames. Every fixture has a local frame whose +x is the front's outward normal (
 "target frame" of the paper's candidate region uses the same yaw (see ``tasks.target_frame``).
 
 Geom groups: scene geoms group 2 (collide with the robot), robot visuals group 1, robot collision
-meshes group 0 (hide them when rendering, SIMULATOR.md §7 #8). Lights cast no shadows.
+meshes group 0 (hide them when rendering, docs/background.md §5). Lights cast no shadows.
 """
 from __future__ import annotations
 
 import math
 import threading
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import mujoco
 import numpy as np
 
 from floaff_zoo.sim import robot as _robot
+from floaff_zoo.sim.tasks import TASK_REGISTRY
+from floaff_zoo.sim.tasks import TargetInfo as TargetInfo  # defined with the tasks; re-exported here
 
 TASKS: tuple[str, ...] = ("PnPCounterToCab", "OpenSingleDoor", "CloseDrawer", "CloseDoubleDoor")
 LAYOUTS: dict[int, str] = {
@@ -89,46 +91,6 @@ class SceneSpec:
         if missing:
             raise ValueError(f"SceneSpec.from_dict: missing field(s) {missing} in {d!r}")
         return cls(int(d["layout_id"]), int(d["style_id"]), int(d["seed"]), str(d["task"]))
-
-
-@dataclass
-class TargetInfo:
-    """The task's target fixture.
-
-    pos [3] world: centre of the target's front (drawer front / door plane / cabinet opening) in
-    its reset-independent closed geometry; yaw: world yaw of the front's outward normal.
-    ``extra`` holds the fixture geometry the tasks/controllers need (all world frame unless noted).
-    """
-
-    pos: np.ndarray
-    yaw: float
-    kind: str
-    body_names: list[str]
-    geom_ids: np.ndarray
-    joint_names: list[str]
-    extra: dict = field(default_factory=dict)
-
-    def to_local(self, p: np.ndarray) -> np.ndarray:
-        """World points [..., 2 or 3] -> fixture frame (x = outward normal, y lateral)."""
-        p = np.asarray(p, dtype=np.float64)
-        c, s = math.cos(self.yaw), math.sin(self.yaw)
-        dx = p[..., 0] - self.pos[0]
-        dy = p[..., 1] - self.pos[1]
-        out = np.stack([c * dx + s * dy, -s * dx + c * dy], axis=-1)
-        if p.shape[-1] == 3:
-            out = np.concatenate([out, (p[..., 2] - self.pos[2])[..., None]], axis=-1)
-        return out
-
-    def to_world(self, q: np.ndarray) -> np.ndarray:
-        """Fixture-frame points [..., 2 or 3] -> world."""
-        q = np.asarray(q, dtype=np.float64)
-        c, s = math.cos(self.yaw), math.sin(self.yaw)
-        x = self.pos[0] + c * q[..., 0] - s * q[..., 1]
-        y = self.pos[1] + s * q[..., 0] + c * q[..., 1]
-        out = np.stack([x, y], axis=-1)
-        if q.shape[-1] == 3:
-            out = np.concatenate([out, (self.pos[2] + q[..., 2])[..., None]], axis=-1)
-        return out
 
 
 # ----------------------------------------------------------------------------------------------
@@ -648,8 +610,6 @@ class SimScene:
     """
 
     def __init__(self, spec: SceneSpec, model: mujoco.MjModel, fixtures: dict, rects: list[_Rect], meta: dict) -> None:
-        from floaff_zoo.sim.tasks import TASK_REGISTRY  # late: tasks imports this module
-
         self.spec = spec
         self.model = model
         self.data = mujoco.MjData(model)
@@ -728,7 +688,8 @@ class SimScene:
         return True
 
     def wall_between(self, x: float, y: float, point_xy) -> bool:
-        """True if the floor segment from (x, y) to point_xy [2] crosses a wall footprint (the pose is outside the room)."""
+        """True if the floor segment from (x, y) to point_xy [2] crosses a wall footprint (the pose is outside the
+        room)."""
         a = np.array([float(x), float(y)])
         b = np.asarray(point_xy, dtype=np.float64)[:2]
         seg = np.stack([a, b, b, a])  # degenerate quad: the SAT test works on the segment

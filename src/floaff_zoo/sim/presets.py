@@ -38,7 +38,9 @@ class GenPreset:
     views_per_scene: (front, side) views per scene, used when use_paper_view_counts is False.
     max_candidates: cap on the rollouts per scene passed to annotate_scene (None = every filtered candidate; the
         cells over the cap are labelled failures "skipped_budget": for tests/CI only).
-    floor_only: views store only candidate cells on free floor (centre outside every furniture/wall footprint).
+    floor_only: mark the grid cells on free floor (centre outside every furniture/wall footprint) in
+        ``candidates.on_floor`` and draw only those in topdown.png (format 1 views stored exactly these cells; format 2
+        views store the cells their own cloud observes as ground, see docs/data_format.md).
     max_seed_attempts: a slot whose scene has no positive candidate is retried with the next derived seed.
     View geometry (front_rx ... max_dist) and rendering (image_size, depth_max, max_points) mirror ViewConfig.
     """

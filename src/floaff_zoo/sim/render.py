@@ -2,11 +2,11 @@
 
 The OpenGL back end is chosen once per process: ``MUJOCO_GL`` if set (``egl`` or ``osmesa``), else EGL with an OSMesa
 fallback. ``MUJOCO_GL=egl`` is exported before mujoco is imported (when unset) because mujoco and robosuite read it
-at import time (SIMULATOR.md §3). The GL context is created here directly (not via ``mujoco.Renderer``), so rendering
-works even when mujoco was imported earlier with an unusable default (glfw) back end.
+at import time (docs/background.md §5). The GL context is created here directly (not via ``mujoco.Renderer``), so
+rendering works even when mujoco was imported earlier with an unusable default (glfw) back end.
 
-Back-projection follows SIMULATOR.md §3.3: the camera looks along its -z with x right, y up; depth is metric along the
-viewing axis; background pixels return the far plane and are masked with ``depth_max``.
+Back-projection follows docs/background.md §5 (depth to points): the camera looks along its -z with x right, y up;
+depth is metric along the viewing axis; background pixels return the far plane and are masked with ``depth_max``.
 """
 
 from __future__ import annotations
@@ -167,8 +167,8 @@ def backproject(
 class Renderer:
     """Offscreen renderer for one model: RGB + metric depth + geom segmentation from a named or indexed camera.
 
-    ``hide_groups`` geom groups are not drawn (default: group 0 = robosuite's robot collision meshes, SIMULATOR.md §7
-    pitfall 8). Shadows and reflections are off (llvmpipe RGB is ~30x slower with shadows, §3.1).
+    ``hide_groups`` geom groups are not drawn (default: group 0 = robosuite's robot collision meshes,
+    docs/background.md §5). Shadows and reflections are off (llvmpipe RGB is ~30x slower with shadows).
     """
 
     def __init__(

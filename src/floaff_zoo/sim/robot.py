@@ -1,12 +1,12 @@
 """PandaOmron robot model, joint bookkeeping, base teleport and a small DLS IK.
 
 The robot MJCF comes from robosuite's model API (``create_robot("PandaOmron")`` ->
-``add_base(OmronMobileBase)`` -> ``add_gripper(PandaGripper)``; SIMULATOR.md §2.1). We only use
+``add_base(OmronMobileBase)`` -> ``add_gripper(PandaGripper)``; docs/background.md §5). We only use
 robosuite for the model; control is our own:
 
 * the 7 arm torque motors are turned into MuJoCo position actuators (joint impedance with
   implicit damping) and the arm bodies get gravity compensation, so no per-substep Python loop
-  is needed (SIMULATOR.md §5.1 recommendation);
+  is needed (docs/background.md §5);
 * the torso motor becomes a stiff position actuator;
 * the base keeps robosuite's velocity actuators, held at 0 (its joints also carry frictionloss 250).
 
@@ -23,6 +23,8 @@ from dataclasses import dataclass
 
 import mujoco
 import numpy as np
+
+from floaff_zoo.quiet import quiet_robosuite
 
 ARM_JOINTS: tuple[str, ...] = tuple(f"robot0_joint{i}" for i in range(1, 8))
 TORSO_JOINT = "mobilebase0_joint_torso_height"
@@ -45,7 +47,7 @@ TUCK_TORSO = 0.10
 ARM_KP = np.array([900.0, 900.0, 700.0, 700.0, 300.0, 200.0, 80.0])
 ARM_KV = np.array([90.0, 90.0, 70.0, 70.0, 25.0, 16.0, 6.0])
 ARM_FORCE = np.array([87.0, 87.0, 87.0, 87.0, 12.0, 12.0, 12.0])
-#: N2M footprint (REFERENCE.md §4): 0.63 m long, 0.5 m wide, 0.83 L behind / 0.17 L in front
+#: N2M footprint (docs/background.md §3): 0.63 m long, 0.5 m wide, 0.83 L behind / 0.17 L in front
 FOOTPRINT_LENGTH = 0.63
 FOOTPRINT_WIDTH = 0.50
 FOOTPRINT_FRONT = 0.17 * FOOTPRINT_LENGTH
@@ -59,6 +61,7 @@ BASE_HEIGHT = 0.70
 def robot_xml() -> str:
     """PandaOmron MJCF string from robosuite's model API (cached per process, ~0.6-1.5 s once)."""
     os.environ.setdefault("MUJOCO_GL", "egl")  # robosuite forces egl at import unless set
+    quiet_robosuite()  # its import-time macro notices, once per (worker) process, unless --verbose
     from robosuite.models.bases import robot_base_factory
     from robosuite.models.grippers import gripper_factory
     from robosuite.models.robots import create_robot
@@ -80,7 +83,7 @@ def robot_spec() -> mujoco.MjSpec:
     """MjSpec of the robot with position-controlled arm/torso, gravity compensation and the ego camera."""
     spec = mujoco.MjSpec.from_string(robot_xml())
     spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
-    for i, name in enumerate(ARM_JOINTS):
+    for i in range(len(ARM_JOINTS)):
         act = spec.actuator(f"robot0_torq_j{i + 1}")
         act.set_to_position(kp=float(ARM_KP[i]), kv=float(ARM_KV[i]))
         act.ctrllimited = mujoco.mjtLimited.mjLIMITED_FALSE

@@ -7,9 +7,11 @@ Results are deterministic: the same (scene spec, pose, seed) gives the same resu
 """
 from __future__ import annotations
 
+import concurrent.futures as cf
 import math
 import os
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import mujoco
@@ -99,14 +101,20 @@ def _settled(scene: SimScene) -> bool:
 # service
 # ----------------------------------------------------------------------------------------------
 _WORKER_SCENES: dict[SceneSpec, SimScene] = {}
+THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+Job = tuple[dict, tuple[float, float, float], int]  # (spec dict, rounded pose, seed): what a worker receives
+
+
+class RolloutPoolError(RuntimeError):
+    """A rollout could not be run by the worker pool: its worker kept dying, or no rollout finished in time."""
 
 
 def _worker_init() -> None:
-    for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    for k in THREAD_ENV:
         os.environ[k] = "1"
 
 
-def _run_job(job: tuple[dict, tuple[float, float, float], int]) -> RolloutResult:
+def _run_job(job: Job) -> RolloutResult:
     spec = SceneSpec.from_dict(job[0])
     scene = _WORKER_SCENES.get(spec)
     if scene is None:
@@ -115,15 +123,34 @@ def _run_job(job: tuple[dict, tuple[float, float, float], int]) -> RolloutResult
     return rollout(scene, job[1], None, job[2])
 
 
+def _run_chunk(job_fn: Callable[[Job], RolloutResult], jobs: list[Job]) -> list[RolloutResult]:
+    return [job_fn(j) for j in jobs]
+
+
+def _describe(job: Job) -> str:
+    """``L0_S1_s2_CloseDrawer at (x, y, yaw)``: how errors name an episode."""
+    d = job[0]
+    return f"L{d['layout_id']}_S{d['style_id']}_s{d['seed']}_{d['task']} at ({job[1][0]}, {job[1][1]}, {job[1][2]})"
+
+
 class RolloutService:
     """Evaluate many (spec, pose) jobs: per-process scene cache, result cache, optional workers.
 
     Results are cached by (spec, pose rounded to ``cache_decimals``); the pose actually simulated
     is the rounded one, so results do not depend on the worker count or on job order.
     backend: "local" (multiprocessing, spawn, OMP_NUM_THREADS=1 in workers) or "ray" (needs ray).
+
+    The local pool survives its workers: when a worker process dies (killed, out of memory, a crash in
+    MuJoCo) the unfinished jobs are run again on a fresh pool, ``max_retries`` times, then once more each
+    alone; a job whose worker still dies, or a pool in which no job (chunk) finishes for ``timeout_s``
+    seconds, raises :class:`RolloutPoolError` naming the episode. It never waits forever.
+    job_fn: the function a worker runs per job (module level, importable by spawned workers; tests use a
+    fake one).
     """
 
-    def __init__(self, workers: int = 1, backend: str = "local", cache_decimals: int = 2, seed: int = 0) -> None:
+    def __init__(self, workers: int = 1, backend: str = "local", cache_decimals: int = 2, seed: int = 0,
+                 max_retries: int = 2, timeout_s: float = 900.0,
+                 job_fn: Callable[[Job], RolloutResult] = _run_job) -> None:
         if backend not in ("local", "ray"):
             raise ValueError(f"backend must be 'local' or 'ray', got {backend!r}")
         if backend == "ray":
@@ -134,12 +161,17 @@ class RolloutService:
                                   "use backend='local'") from e
         if workers < 1:
             raise ValueError(f"workers must be >= 1, got {workers}")
+        if max_retries < 0 or not timeout_s > 0:
+            raise ValueError(f"max_retries must be >= 0 and timeout_s > 0, got {max_retries}, {timeout_s}")
         self.workers = int(workers)
         self.backend = backend
         self.cache_decimals = int(cache_decimals)
         self.seed = int(seed)
+        self.max_retries = int(max_retries)
+        self.timeout_s = float(timeout_s)
+        self.job_fn = job_fn
         self.cache: dict[tuple, RolloutResult] = {}
-        self._pool = None
+        self._pool: cf.ProcessPoolExecutor | None = None
         self._ray_started = False  # this service called ray.init, so close() shuts it down
 
     def _key(self, spec: SceneSpec, pose) -> tuple:
@@ -155,7 +187,7 @@ class RolloutService:
         if self.workers == 1 or len(payload) <= 1:
             results = []
             for i, p in enumerate(payload):
-                results.append(_run_job(p))
+                results.append(self.job_fn(p))
                 if progress and (i + 1) % 10 == 0:
                     print(f"[RolloutService] {i + 1}/{len(payload)} rollouts, {time.perf_counter() - t0:.1f}s", flush=True)
         elif self.backend == "ray":
@@ -168,23 +200,86 @@ class RolloutService:
             print(f"[RolloutService] {len(payload)} new rollouts in {time.perf_counter() - t0:.1f}s", flush=True)
         return [self.cache[k] for k in keys]
 
-    def _run_pool(self, payload):
+    def _new_pool(self) -> cf.ProcessPoolExecutor:
         import multiprocessing as mp
 
+        saved = {k: os.environ.get(k) for k in THREAD_ENV}
+        for k in saved:
+            os.environ[k] = "1"  # inherited by spawned workers before numpy loads
+        try:
+            return cf.ProcessPoolExecutor(self.workers, mp_context=mp.get_context("spawn"), initializer=_worker_init)
+        finally:
+            for k, v in saved.items():
+                if v is None:
+                    os.environ.pop(k, None)
+                else:
+                    os.environ[k] = v
+
+    def _run_pool(self, payload: list[Job]) -> list[RolloutResult]:
+        """All jobs on the process pool, in order; see the class doc for dead workers and the timeout.
+
+        Jobs go out in chunks of consecutive jobs (sorted by scene, so each worker builds few scenes). A dead
+        worker breaks the whole pool, so every unfinished job is lost with it, guilty or not: lost jobs go
+        round again one per task on a fresh pool, and a job lost more than ``max_retries`` times finally runs
+        alone, where a dead worker can only be its own doing.
+        """
+        results: list[RolloutResult | None] = [None] * len(payload)
+        lost = [0] * len(payload)
+        size = max(1, len(payload) // (4 * self.workers))
+        queue = [list(range(i, min(i + size, len(payload)))) for i in range(0, len(payload), size)]
+        alone: list[int] = []
+        while queue:
+            again = self._run_round(payload, queue, results)
+            queue = []
+            for i in again:
+                lost[i] += 1
+                (alone.append(i) if lost[i] > self.max_retries else queue.append([i]))
+        for i in alone:
+            if self._run_round(payload, [[i]], results):
+                raise RolloutPoolError(
+                    f"rollout {_describe(payload[i])} killed its worker process {lost[i] + 1} times, the last time "
+                    "running alone (killed from outside, out of memory, or a crash in MuJoCo)")
+        return results  # type: ignore[return-value]
+
+    def _run_round(self, payload: list[Job], chunks: list[list[int]], results: list) -> list[int]:
+        """Run ``chunks`` (lists of job indices) on the pool, filling ``results``; returns the indices lost
+        with a dead worker (the broken pool is then shut down). Raises RolloutPoolError after ``timeout_s``
+        without progress."""
         if self._pool is None:
-            saved = {k: os.environ.get(k) for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
-            for k in saved:
-                os.environ[k] = "1"  # inherited by spawned workers before numpy loads
-            try:
-                self._pool = mp.get_context("spawn").Pool(self.workers, initializer=_worker_init)
-            finally:
-                for k, v in saved.items():
-                    if v is None:
-                        os.environ.pop(k, None)
-                    else:
-                        os.environ[k] = v
-        # group by scene so each worker builds few scenes
-        return self._pool.map(_run_job, payload, chunksize=max(1, len(payload) // (4 * self.workers)))
+            self._pool = self._new_pool()
+        running = {self._pool.submit(_run_chunk, self.job_fn, [payload[i] for i in idx]): idx for idx in chunks}
+        lost: list[int] = []
+        while running:
+            done, _ = cf.wait(running, timeout=self.timeout_s, return_when=cf.FIRST_COMPLETED)
+            if not done:
+                stuck = [_describe(payload[i]) for idx in running.values() for i in idx][:5]
+                self._kill_pool()
+                raise RolloutPoolError(
+                    f"the rollout pool made no progress for {self.timeout_s:.0f} s (timeout_s): a worker hangs; "
+                    f"still running: {stuck}")
+            for fut in done:
+                idx = running.pop(fut)
+                try:
+                    for i, r in zip(idx, fut.result()):
+                        results[i] = r
+                except cf.process.BrokenProcessPool:  # a worker died: the pool takes no more work
+                    lost += idx
+        if lost:
+            self._kill_pool()
+        return sorted(lost)
+
+    def _kill_pool(self) -> None:
+        """Stop the pool now, workers included (a hung worker would keep a normal shutdown waiting)."""
+        pool, self._pool = self._pool, None
+        if pool is None:
+            return
+        procs = list((getattr(pool, "_processes", None) or {}).values())  # no public API for this in 3.11
+        pool.shutdown(wait=False, cancel_futures=True)
+        for proc in procs:
+            if proc.is_alive():
+                proc.kill()
+        for proc in procs:
+            proc.join(timeout=5)
 
     def _run_ray(self, payload):
         """Ray tasks (1 CPU each) on the connected cluster; without one, start a local ``workers``-CPU cluster
@@ -196,13 +291,12 @@ class RolloutService:
             self._ray_started = True
         # one BLAS/OpenMP thread per worker, as in _worker_init (set before the worker process imports numpy)
         env = {"env_vars": {k: "1" for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}}
-        remote = ray.remote(num_cpus=1, runtime_env=env)(_run_job)
+        remote = ray.remote(num_cpus=1, runtime_env=env)(self.job_fn)
         return ray.get([remote.remote(p) for p in payload])
 
     def close(self) -> None:
         if self._pool is not None:
-            self._pool.close()
-            self._pool.join()
+            self._pool.shutdown(wait=True)
             self._pool = None
         if self._ray_started:
             import ray

@@ -1,11 +1,13 @@
-"""The four RoboCasa-v0.2-style tasks: target, reset, success check (REFERENCE.md §6).
+"""The four RoboCasa-v0.2-style tasks: target, reset, success check (docs/background.md §4).
 
-| task | target fixture | reset | success |
-|---|---|---|---|
-| PnPCounterToCab | wall cabinet (door opened 90-100 %) + object on the counter | object on counter | all 8 object-box corners inside the cabinet interior box (tol 0.05 m) and grip site > 0.25 m from the object |
-| OpenSingleDoor | microwave door | closed | door q / (pi/2) >= 0.90 |
-| CloseDrawer | top drawer of a drawer module | 90-100 % open | q / (0.55 * drawer depth) <= 0.05 |
-| CloseDoubleDoor | double-door base cabinet | both 90-100 % open | both q / (pi/2) <= 0.05 |
+* PnPCounterToCab: target = a wall cabinet (door opened 90-100 %) and an object on the counter below;
+  reset: object on the counter; success: all 8 object-box corners inside the cabinet interior box
+  (tol 0.05 m) and the grip site > 0.25 m from the object.
+* OpenSingleDoor: target = the microwave door; reset: closed; success: door q / (pi/2) >= 0.90.
+* CloseDrawer: target = the top drawer of a drawer module; reset: 90-100 % open; success:
+  q / (0.55 * drawer depth) <= 0.05.
+* CloseDoubleDoor: target = a double-door base cabinet; reset: both doors 90-100 % open; success: both
+  q / (pi/2) <= 0.05.
 
 Candidate region (paper eq. "supp_candidate"), in the TARGET frame: origin at ``TargetInfo.pos``
 projected on the floor, ``x°`` along the front (lateral, = fixture-local +y), ``y°`` = minus the
@@ -17,26 +19,76 @@ from __future__ import annotations
 
 import abc
 import math
-from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from dataclasses import dataclass, field
+from typing import Any, Protocol
 
 import mujoco
 import numpy as np
 
-if TYPE_CHECKING:
-    from floaff_zoo.sim.kitchen import SimScene, TargetInfo
-
 HALF_PI = math.pi / 2
 
 
-def _jq(scene: "SimScene", joint: str) -> int:
+class TaskScene(Protocol):
+    """What a task reads and writes of a compiled scene (``floaff_zoo.sim.kitchen.SimScene`` provides it).
+
+    Typed structurally so this module does not import the kitchen builder, which imports the tasks.
+    """
+
+    spec: Any
+    model: mujoco.MjModel
+    data: mujoco.MjData
+    fixtures: dict
+    robot: Any
+
+
+@dataclass
+class TargetInfo:
+    """The task's target fixture.
+
+    pos [3] world: centre of the target's front (drawer front / door plane / cabinet opening) in
+    its reset-independent closed geometry; yaw: world yaw of the front's outward normal.
+    ``extra`` holds the fixture geometry the tasks/controllers need (all world frame unless noted).
+    """
+
+    pos: np.ndarray
+    yaw: float
+    kind: str
+    body_names: list[str]
+    geom_ids: np.ndarray
+    joint_names: list[str]
+    extra: dict = field(default_factory=dict)
+
+    def to_local(self, p: np.ndarray) -> np.ndarray:
+        """World points [..., 2 or 3] -> fixture frame (x = outward normal, y lateral)."""
+        p = np.asarray(p, dtype=np.float64)
+        c, s = math.cos(self.yaw), math.sin(self.yaw)
+        dx = p[..., 0] - self.pos[0]
+        dy = p[..., 1] - self.pos[1]
+        out = np.stack([c * dx + s * dy, -s * dx + c * dy], axis=-1)
+        if p.shape[-1] == 3:
+            out = np.concatenate([out, (p[..., 2] - self.pos[2])[..., None]], axis=-1)
+        return out
+
+    def to_world(self, q: np.ndarray) -> np.ndarray:
+        """Fixture-frame points [..., 2 or 3] -> world."""
+        q = np.asarray(q, dtype=np.float64)
+        c, s = math.cos(self.yaw), math.sin(self.yaw)
+        x = self.pos[0] + c * q[..., 0] - s * q[..., 1]
+        y = self.pos[1] + s * q[..., 0] + c * q[..., 1]
+        out = np.stack([x, y], axis=-1)
+        if q.shape[-1] == 3:
+            out = np.concatenate([out, (self.pos[2] + q[..., 2])[..., None]], axis=-1)
+        return out
+
+
+def _jq(scene: "TaskScene", joint: str) -> int:
     j = mujoco.mj_name2id(scene.model, mujoco.mjtObj.mjOBJ_JOINT, joint)
     if j < 0:
         raise KeyError(f"joint {joint!r} not in scene {scene.spec.scene_id}")
     return int(scene.model.jnt_qposadr[j])
 
 
-def _body_geoms(scene: "SimScene", bodies: list[str]) -> np.ndarray:
+def _body_geoms(scene: "TaskScene", bodies: list[str]) -> np.ndarray:
     m = scene.model
     ids = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, b) for b in bodies]
     return np.array([g for g in range(m.ngeom) if m.geom_bodyid[g] in ids], dtype=np.int64)
@@ -69,10 +121,8 @@ class Task(abc.ABC):
     def candidate_region(self) -> tuple[float, float]:
         return (self.r_x, self.r_y)
 
-    def target_info(self, scene: "SimScene") -> "TargetInfo":
+    def target_info(self, scene: "TaskScene") -> "TargetInfo":
         """The target of this task: its fixture's front centre, outward yaw, bodies and joints."""
-        from floaff_zoo.sim.kitchen import TargetInfo
-
         f = scene.fixtures[self.fixture]
         return TargetInfo(pos=f["front"].copy(), yaw=float(f["yaw"]), kind=self.fixture, body_names=list(f["bodies"]),
                           geom_ids=_body_geoms(scene, f["bodies"]), joint_names=self.joint_names(f),
@@ -82,24 +132,24 @@ class Task(abc.ABC):
         """The fixture joints this task moves."""
         return [fixture["joint"]]
 
-    def target_extra(self, scene: "SimScene", fixture: dict) -> dict:
+    def target_extra(self, scene: "TaskScene", fixture: dict) -> dict:
         """Fixture facts the controller needs, carried in ``TargetInfo.extra``."""
         return dict(fixture)
 
     @abc.abstractmethod
-    def reset(self, scene: "SimScene", rng: np.random.Generator | None) -> None:
+    def reset(self, scene: "TaskScene", rng: np.random.Generator | None) -> None:
         """Task-specific; see the module table."""
 
     @abc.abstractmethod
-    def state(self, scene: "SimScene") -> dict:
+    def state(self, scene: "TaskScene") -> dict:
         """Task-specific; see the module table."""
 
     @abc.abstractmethod
-    def success(self, scene: "SimScene") -> bool:
+    def success(self, scene: "TaskScene") -> bool:
         """Task-specific; see the module table."""
 
     @abc.abstractmethod
-    def set_success_state(self, scene: "SimScene") -> None:
+    def set_success_state(self, scene: "TaskScene") -> None:
         """Task-specific; see the module table."""
 
 
@@ -228,7 +278,8 @@ class PnPCounterToCab(Task):
         scene.data.qpos[_jq(scene, f["door"]["joint"])] = _open_fraction(rng) * HALF_PI
 
     def _corners_local(self, scene) -> np.ndarray:
-        """Object-box corners [8,3] in the cabinet frame (x outward, y lateral, z up), relative to the interior centre."""
+        """Object-box corners [8,3] in the cabinet frame (x outward, y lateral, z up), relative to the interior
+        centre."""
         f = scene.fixtures["wall_cab"]
         b, qa = self._obj(scene)
         pos = scene.data.qpos[qa:qa + 3]

@@ -9,12 +9,14 @@ both capped at ``max_dist`` from c. A view pose is collision-free (``scene.footp
 heads toward the target, and must see at least ``min_target_pixels`` target pixels.
 
 Robot base frame: origin at the base pose (x, y) on the floor, x forward (yaw), y left, z up, floor at z = 0.
-Every view of a scene shares the scene's floor labels; only their coordinates change with the view.
+Every view of a scene shares the scene's per-cell floor labels; since format v2 each view stores the label-grid cells
+its own cloud observes as ground (``floaff_zoo.floor.observed_cells``), so views differ in which cells they hold.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from typing import Any, Literal
 
@@ -209,9 +211,12 @@ def sample_view_poses(
     n: int,
     cfg: ViewConfig,
     rng: np.random.Generator,
+    accept: Callable[[np.ndarray, ViewObservation], bool] | None = None,
 ) -> list[tuple[np.ndarray, ViewObservation]]:
     """Sample up to n collision-free view poses of one kind, each with its rendered observation.
 
+    accept(pose, obs): an extra test of a rendered view (e.g. "sees a floor cell with a positive label"); a rejected
+    view costs one proposal, like one that sees too little of the target.
     Returns a list of (base_pose_world [3] float64, ViewObservation); fewer than n when the region has too little free
     floor (n * cfg.max_tries_per_view proposals in total). Deterministic for a given rng state and scene.
     """
@@ -238,6 +243,8 @@ def sample_view_poses(
         obs = render_view(scene, renderer, pose, cfg, rng)
         if obs.n_target < cfg.min_target_pixels:
             continue
+        if accept is not None and not accept(pose, obs):
+            continue
         out.append((pose, obs))
     return out
 
@@ -250,11 +257,15 @@ def make_view_sample(
     grid_xy: np.ndarray,
     label: np.ndarray,
     save_images: bool = False,
+    floor_known: np.ndarray | None = None,
+    floor_index: np.ndarray | None = None,
 ) -> dict[str, np.ndarray]:
     """The per-view arrays stored in ``views/<view_id>.npz`` (sample-contract fields, robot base frame).
 
     grid_xy [M,2] world candidate cells, label [M] -> floor_xyz [M,3] (z = 0), floor_label [M];
     target_pos [3] world -> target_xyz [3]; target_yaw world -> base-frame yaw in [-pi, pi).
+    Format v2 fields, stored when given: floor_known [M] bool (label from a rollout or a filter, not interpolated),
+    floor_index [M] int (flat index of each cell in the scene's candidate grid).
     """
     grid_xy = np.asarray(grid_xy, dtype=np.float64).reshape(-1, 2)
     floor = np.concatenate([grid_xy, np.zeros((len(grid_xy), 1))], axis=1)
@@ -272,6 +283,12 @@ def make_view_sample(
     }
     if out["floor_label"].shape[0] != out["floor_xyz"].shape[0]:
         raise ValueError(f"label has {out['floor_label'].shape[0]} entries but the grid has {len(grid_xy)} cells")
+    for name, arr, dtype in (("floor_known", floor_known, np.bool_), ("floor_index", floor_index, np.int32)):
+        if arr is None:
+            continue
+        out[name] = np.asarray(arr).reshape(-1).astype(dtype)
+        if out[name].shape[0] != len(grid_xy):
+            raise ValueError(f"{name} has {out[name].shape[0]} entries but the grid has {len(grid_xy)} cells")
     if save_images:
         out["rgb"] = np.asarray(obs.rgb, dtype=np.uint8)
         out["depth"] = np.asarray(obs.depth, dtype=np.float32)

@@ -36,7 +36,8 @@ def _write_ply(path: Path, xyz: np.ndarray) -> None:
 
 def _write_ascii_ply(path: Path, xyz: np.ndarray) -> None:
     """Plain ASCII PLY (used for the NaN case, which binary writers may sanitise)."""
-    head = f"ply\nformat ascii 1.0\nelement vertex {len(xyz)}\nproperty double x\nproperty double y\nproperty double z\nend_header\n"
+    head = (f"ply\nformat ascii 1.0\nelement vertex {len(xyz)}\n"
+            "property double x\nproperty double y\nproperty double z\nend_header\n")
     body = "\n".join(" ".join(repr(float(v)) for v in p) for p in xyz)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(head + body + "\n")

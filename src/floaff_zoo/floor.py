@@ -1,0 +1,128 @@
+"""Observed floor cells: the floor queries a robot can ask from its own view (numpy only, no torch).
+
+One home for the rule shared by the benchmark generator (``floaff_zoo.sim``, format v2 view floor points) and by the
+predict API's default floor queries (``floaff_zoo.predict``), so that a model is asked the same kind of cells at
+deployment as in its data:
+
+* a **ground point** is an observed point with z < :data:`FLOOR_Z_MAX` (robot base frame or world, floor at z = 0):
+  MoMa-Kitchen's floor points are the points below 2 cm;
+* a :class:`FloorLattice` is a square raster of ``cell`` m cells, centred on a point (the target's floor projection)
+  and turned by ``angle``; the generator's lattice is exactly the annotation grid (``annotate.candidate_grid``);
+* a cell is **observed** when at least ``min_points`` ground points fall into its square.
+
+Nothing here needs privileged (simulator) information: the point cloud, a centre and an orientation are enough.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["CANDIDATE_WINDOW", "FLOOR_Z_MAX", "FloorLattice", "ground_mask", "observed_cells"]
+
+#: metres: points below this height are ground points (MoMa-Kitchen: "points below 2 cm")
+FLOOR_Z_MAX = 0.02
+#: (r_x, r_y) m: the generated benchmark's label window around the target, |x°| <= r_x along the front and
+#: |y°| <= r_y along its normal (every task's ``floaff_zoo.sim.tasks.Task.r_x / r_y``; a test keeps them equal)
+CANDIDATE_WINDOW = (1.0, 1.2)
+
+
+@dataclass(frozen=True)
+class FloorLattice:
+    """A square floor raster. Cell (i, j), i in [-ny, ny], j in [-nx, nx], has its centre at
+    ``centre + j * cell * u + i * cell * v`` with ``u = (cos angle, sin angle)`` and ``v`` = u turned by +90 deg.
+
+    Flat cell index = ``(i + ny) * (2 nx + 1) + (j + nx)`` (row-major (i, j)): the order of the annotation grid, whose
+    lattice is :meth:`target_window` (x° along u, y° along v).
+    """
+
+    centre: tuple[float, float]
+    angle: float
+    cell: float
+    half: tuple[int, int]  # (ny, nx)
+
+    def __post_init__(self) -> None:
+        if not (self.cell > 0 and math.isfinite(self.cell)):
+            raise ValueError(f"FloorLattice: cell must be a finite value > 0, got {self.cell}")
+        if min(self.half) < 0:
+            raise ValueError(f"FloorLattice: half sizes (ny, nx) must be >= 0, got {self.half}")
+        if not (np.isfinite(self.centre).all() and math.isfinite(self.angle)):
+            raise ValueError(f"FloorLattice: centre {self.centre} and angle {self.angle} must be finite")
+
+    @classmethod
+    def target_window(
+        cls, target_xy: np.ndarray, target_yaw: float, cell: float, r_x: float, r_y: float
+    ) -> FloorLattice:
+        """The annotation grid: target-centred, |x°| <= r_x, |y°| <= r_y, front (outward normal ``target_yaw``)
+        along -y° (``floaff_zoo.sim.views`` target frame), so u = normal turned by +90 deg and v = -normal."""
+        ny, nx = math.floor(r_y / cell + 1e-9), math.floor(r_x / cell + 1e-9)
+        t = np.asarray(target_xy, dtype=np.float64).reshape(-1)[:2]
+        return cls((float(t[0]), float(t[1])), float(target_yaw) + math.pi / 2, float(cell), (ny, nx))
+
+    @classmethod
+    def around(cls, centre_xy: np.ndarray, angle: float, cell: float, radius: float) -> FloorLattice:
+        """The smallest lattice covering the disc of ``radius`` around ``centre_xy`` (use :meth:`within` to cut it)."""
+        n = math.floor(radius / cell + 1e-9)
+        c = np.asarray(centre_xy, dtype=np.float64).reshape(-1)[:2]
+        return cls((float(c[0]), float(c[1])), float(angle), float(cell), (n, n))
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(rows H, columns W)."""
+        return 2 * self.half[0] + 1, 2 * self.half[1] + 1
+
+    def _axes(self) -> tuple[np.ndarray, np.ndarray]:
+        u = np.array([math.cos(self.angle), math.sin(self.angle)])
+        return u, np.array([-u[1], u[0]])
+
+    def centers(self) -> np.ndarray:
+        """Cell centres [H*W, 2] in flat index order."""
+        ny, nx = self.half
+        ii, jj = np.meshgrid(np.arange(-ny, ny + 1), np.arange(-nx, nx + 1), indexing="ij")
+        u, v = self._axes()
+        loc = np.stack([jj.ravel(), ii.ravel()], axis=1) * self.cell  # [M, 2] (along u, along v)
+        return np.asarray(self.centre) + loc[:, :1] * u + loc[:, 1:] * v
+
+    def index_of(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Points [K, 2+] -> (flat cell index [K] int64, inside [K] bool); the index is -1 outside the lattice."""
+        p = np.asarray(xy, dtype=np.float64)
+        p = p.reshape(-1, p.shape[-1])[:, :2] - np.asarray(self.centre)
+        u, v = self._axes()
+        j = np.floor(p @ u / self.cell + 0.5).astype(np.int64)
+        i = np.floor(p @ v / self.cell + 0.5).astype(np.int64)
+        ny, nx = self.half
+        inside = (np.abs(i) <= ny) & (np.abs(j) <= nx)
+        flat = np.where(inside, (i + ny) * (2 * nx + 1) + (j + nx), -1)
+        return flat, inside
+
+    def within(self, radius: float) -> np.ndarray:
+        """bool [H*W]: cell centres within ``radius`` of the lattice centre."""
+        d = self.centers() - np.asarray(self.centre)
+        return np.hypot(d[:, 0], d[:, 1]) <= radius + 1e-9
+
+
+def ground_mask(xyz: np.ndarray, z_max: float = FLOOR_Z_MAX) -> np.ndarray:
+    """Points [N, 3] (floor at z = 0) -> bool [N]: ground points (z < z_max, finite)."""
+    p = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+    return np.isfinite(p).all(axis=1) & (p[:, 2] < z_max)
+
+
+def observed_cells(
+    xyz: np.ndarray, lattice: FloorLattice, z_max: float = FLOOR_Z_MAX, min_points: int = 1
+) -> np.ndarray:
+    """Cells of ``lattice`` that hold at least ``min_points`` ground points of the cloud.
+
+    Args:
+        xyz: [N, 3] observed points in the lattice's frame (z up, floor at z = 0).
+        lattice: the raster; z_max: ground height threshold (m); min_points: >= 1.
+    Returns:
+        bool [H*W] in the lattice's flat index order.
+    """
+    if min_points < 1:
+        raise ValueError(f"observed_cells: min_points must be >= 1, got {min_points}")
+    p = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+    flat, inside = lattice.index_of(p[ground_mask(p, z_max)])
+    h, w = lattice.shape
+    return np.bincount(flat[inside], minlength=h * w) >= min_points

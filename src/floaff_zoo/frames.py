@@ -1,0 +1,34 @@
+"""Robot-base frame <-> world frame in the plane (numpy only).
+
+A generated view stores its robot's base pose in the world as ``(x, y, yaw)``
+(``meta['sim']['base_pose_world']``); points and poses of the sample contract are in that base
+frame. The rollout callback (to run the task) and the report figures (to draw over the kitchen) both
+need the world pose, so the conversion lives here, below both of them.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+Pose = tuple[float, float, float]
+
+
+def base_to_world(xyz: np.ndarray, base_pose_world: Sequence[float]) -> np.ndarray:
+    """Points in the view's robot base frame -> world. xyz [K, 2+] -> same shape (z untouched)."""
+    p = np.array(xyz, dtype=np.float64, copy=True)
+    x0, y0, yaw = (float(v) for v in base_pose_world)
+    c, s = math.cos(yaw), math.sin(yaw)
+    px, py = p[..., 0].copy(), p[..., 1].copy()
+    p[..., 0] = c * px - s * py + x0
+    p[..., 1] = s * px + c * py + y0
+    return p
+
+
+def pose_to_world(pose: Pose, base_pose_world: Sequence[float]) -> Pose:
+    """An SE(2) pose (x, y, yaw) in the base frame -> world (yaw wrapped to (-pi, pi])."""
+    xy = base_to_world(np.array([[pose[0], pose[1]]]), base_pose_world)[0]
+    yaw = math.atan2(math.sin(pose[2] + float(base_pose_world[2])), math.cos(pose[2] + float(base_pose_world[2])))
+    return float(xy[0]), float(xy[1]), float(yaw)

@@ -1,0 +1,97 @@
+"""A per-task average of floor labels on a grid in the canonical frame (the no-network prior).
+
+The canonical frame is CFAR's (target at the origin, its front normal along -y, ``floaff_zoo.nn.cfar``).
+:class:`CanonicalLabelGrid` keeps, for every task, the sum and the count of the training labels that fell
+into each cell of a square grid centred on the target; the prior at a point is the (optionally Gaussian
+smoothed) mean of its cell. Cells that no training label reached read as ``fill``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+__all__ = ["CanonicalLabelGrid"]
+
+
+class CanonicalLabelGrid(nn.Module):
+    """Sums and counts of labels per task on a ``size x size`` grid of ``cell`` metres (buffers, saved).
+
+    Args:
+        tasks: task names, one grid each; cell: cell size (m); extent: half-width of the grid (m);
+        smooth_sigma_cells: std of the Gaussian applied to sums and counts before the division (0 = none);
+        fill: value read in cells that no label reached.
+    """
+
+    def __init__(
+        self, tasks: Sequence[str], cell: float = 0.05, extent: float = 3.0, smooth_sigma_cells: float = 1.0,
+        fill: float = 0.0,
+    ) -> None:
+        super().__init__()
+        if cell <= 0 or extent <= cell:
+            raise ValueError(f"CanonicalLabelGrid: need 0 < cell < extent, got cell={cell}, extent={extent}")
+        if not tasks:
+            raise ValueError("CanonicalLabelGrid: at least one task")
+        self.tasks = list(tasks)
+        self.cell, self.extent = float(cell), float(extent)
+        self.size = int(math.ceil(2 * extent / cell))
+        self.smooth_sigma_cells, self.fill = float(smooth_sigma_cells), float(fill)
+        self.register_buffer("sums", torch.zeros(len(self.tasks), self.size, self.size, dtype=torch.float64))
+        self.register_buffer("counts", torch.zeros(len(self.tasks), self.size, self.size, dtype=torch.float64))
+
+    def task_index(self, names: Sequence[str]) -> Tensor:
+        """Task names [B] -> grid indices [B] (long). Raises ValueError naming an unknown task."""
+        out = []
+        for name in names:
+            if name not in self.tasks:
+                raise ValueError(f"CanonicalLabelGrid: task {name!r} has no grid; known tasks: {self.tasks}")
+            out.append(self.tasks.index(name))
+        return torch.as_tensor(out, dtype=torch.long, device=self.sums.device)
+
+    def cells(self, xy: Tensor) -> tuple[Tensor, Tensor]:
+        """Canonical xy [..., 2] -> (flat cell index [...] long, inside-grid flag [...] bool)."""
+        ij = torch.floor((xy + self.extent) / self.cell).long()
+        inside = ((ij >= 0) & (ij < self.size)).all(-1)
+        ij = ij.clamp(0, self.size - 1)
+        return ij[..., 1] * self.size + ij[..., 0], inside
+
+    @torch.no_grad()
+    def add(self, task: Tensor, xy: Tensor, label: Tensor, mask: Tensor) -> None:
+        """Accumulate labels. task [B] long, xy [B, M, 2] canonical, label [B, M], mask [B, M] bool."""
+        flat, inside = self.cells(xy)
+        keep = mask & inside
+        index = (task[:, None] * self.size * self.size + flat)[keep]
+        self.sums.view(-1).index_add_(0, index, label[keep].to(self.sums.dtype))
+        self.counts.view(-1).index_add_(0, index, torch.ones_like(index, dtype=self.counts.dtype))
+
+    def mean_maps(self) -> Tensor:
+        """[T, size, size] float32: smoothed mean label per cell, ``fill`` where nothing was seen."""
+        s, c = self.sums[:, None].float(), self.counts[:, None].float()
+        if self.smooth_sigma_cells > 0:
+            k = self._kernel().to(s)
+            pad = k.shape[-1] // 2
+            s = F.conv2d(F.conv2d(s, k[None, None, :, None], padding=(pad, 0)), k[None, None, None, :], padding=(0, pad))
+            c = F.conv2d(F.conv2d(c, k[None, None, :, None], padding=(pad, 0)), k[None, None, None, :], padding=(0, pad))
+        seen = c > 1e-6
+        return torch.where(seen, s / c.clamp_min(1e-6), torch.full_like(s, self.fill))[:, 0]
+
+    def _kernel(self) -> Tensor:
+        r = max(1, int(math.ceil(3 * self.smooth_sigma_cells)))
+        x = torch.arange(-r, r + 1, dtype=torch.float32)
+        k = torch.exp(-0.5 * (x / self.smooth_sigma_cells) ** 2)
+        return k / k.sum()
+
+    def read(self, task: Tensor, xy: Tensor) -> Tensor:
+        """Prior [B, M] at canonical xy [B, M, 2] for tasks [B] (``fill`` outside the grid)."""
+        maps = self.mean_maps().flatten(1)  # [T, S*S]
+        flat, inside = self.cells(xy)
+        vals = maps[task[:, None].expand_as(flat), flat]
+        return torch.where(inside, vals, torch.full_like(vals, self.fill))
+
+    def seen_tasks(self) -> list[str]:
+        """Tasks that received at least one label."""
+        return [t for t, c in zip(self.tasks, self.counts.sum((1, 2)).tolist()) if c > 0]

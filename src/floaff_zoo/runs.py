@@ -1,0 +1,88 @@
+"""Run directories written by ``floaff-zoo fit``: which checkpoint to use, and whether the fit finished.
+
+A run directory is ``<default_root_dir>/<model>/version_<n>/`` with ``config.yaml`` and
+``checkpoints/`` (``last.ckpt`` and the best by the model's monitor). A ``last.ckpt`` alone does not
+say that the fit ended: Lightning writes it every epoch, so a killed fit leaves one too. Whoever
+needs a finished run (the demo) writes ``finished.json`` after ``fit`` returns and checks it later.
+
+This module reads files only (torch for ``weights_only`` checkpoint loading): the CLI and the hub's
+``push`` both use it, and it imports neither.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+FINISHED_FILE = "finished.json"
+
+
+class RunError(RuntimeError):
+    """A run directory lacks what a command needs (user-facing: the CLI prints it without a traceback)."""
+
+
+def resolve_ckpt_alias(alias: str, root: str | Path) -> str:
+    """Turn ``best``/``last`` into a checkpoint file found under a run directory.
+
+    ``last`` is the newest ``last.ckpt``; ``best`` is the ``best_model_path`` its ModelCheckpoint
+    state recorded (falling back to ``last`` when none was monitored).
+    """
+    import torch
+
+    lasts = sorted(Path(root).rglob("last*.ckpt"), key=lambda p: p.stat().st_mtime)
+    if not lasts:
+        raise RunError(f"--ckpt_path {alias}: no last.ckpt under {root}; pass a checkpoint file instead")
+    last = lasts[-1]
+    if alias == "last":
+        return str(last)
+    state = torch.load(last, map_location="cpu", weights_only=True)
+    for key, cb in (state.get("callbacks") or {}).items():
+        if key.startswith("ModelCheckpoint") and cb.get("best_model_path"):
+            best = Path(cb["best_model_path"])
+            if not best.is_file():  # run dir moved: look next to last.ckpt
+                best = last.parent / best.name
+            if best.is_file():
+                return str(best)
+    return str(last)
+
+
+def mark_finished(run_dir: str | Path, checkpoint: str | Path, extra: dict[str, Any] | None = None) -> Path:
+    """Write ``<run_dir>/finished.json`` = {finished (UTC ISO time), checkpoint, *extra}, atomically."""
+    path = Path(run_dir) / FINISHED_FILE
+    record = {"finished": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+              "checkpoint": str(checkpoint), **(extra or {})}
+    tmp = path.with_name(f".{FINISHED_FILE}.{os.getpid()}.tmp")
+    tmp.write_text(json.dumps(record, indent=2) + "\n", encoding="utf-8")
+    tmp.replace(path)  # a kill never leaves half a marker
+    return path
+
+
+def read_finished(run_dir: str | Path) -> dict[str, Any] | None:
+    """The ``finished.json`` record of a run, or None when the run never finished.
+
+    Raises:
+        RunError: the marker exists but is not a JSON object with a ``checkpoint`` (names the file).
+    """
+    path = Path(run_dir) / FINISHED_FILE
+    if not path.is_file():
+        return None
+    try:
+        record = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, json.JSONDecodeError) as exc:
+        raise RunError(f"{path}: unreadable finished-run marker ({exc}); delete it to fit the run again") from exc
+    if not isinstance(record, dict) or not isinstance(record.get("checkpoint"), str):
+        raise RunError(f"{path}: expected an object with a 'checkpoint' path; delete it to fit the run again")
+    return record
+
+
+def finished_runs(root: str | Path) -> list[tuple[Path, dict[str, Any]]]:
+    """(run dir, record) of every finished run under ``root`` whose checkpoint still exists, oldest first."""
+    out = []
+    for marker in Path(root).rglob(FINISHED_FILE):
+        record = read_finished(marker.parent)
+        if record is not None and Path(record["checkpoint"]).is_file():
+            out.append((marker.parent, record))
+    return sorted(out, key=lambda item: item[0].joinpath(FINISHED_FILE).stat().st_mtime)

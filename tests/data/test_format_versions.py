@@ -1,0 +1,72 @@
+"""The generated-data readers take format 1 (generator 1.x) and format 2 (observed floor cells) files."""
+
+import json
+
+import numpy as np
+import pytest
+
+from floaff_zoo.data.floaff_kitchen import FloAffKitchenDataModule
+from floaff_zoo.data.readers import DataError, GeneratedReader, SkipLog
+from floaff_zoo.sim import fileformat as ff
+from tests.data.floaff_fixture import make_floaff_dataset
+
+
+@pytest.fixture(scope="module", params=[1, 2])
+def versioned_root(request, tmp_path_factory):
+    root = tmp_path_factory.mktemp(f"floaff_v{request.param}")
+    make_floaff_dataset(root, problems=False, version=request.param)
+    return root, request.param
+
+
+def test_reader_reads_both_versions(versioned_root):
+    root, version = versioned_root
+    reader = GeneratedReader(root, SkipLog("test", strict=True))
+    scenes = reader.scenes("styles")
+    assert scenes and {s.format_version for s in scenes} == {version}
+    s = reader.load_view(scenes[0], scenes[0].views[0])
+    m = len(s["floor_xyz"])
+    assert s["floor_known"].dtype == bool and s["floor_known"].shape == (m,)
+    if version == 1:
+        assert s["floor_known"].all()  # v1 labels are taken as given
+    else:
+        assert s["floor_known"][:-1].all() and not s["floor_known"][-1]
+    rec = next(ff.iter_scenes(root, benchmark="styles"))
+    sample = ff.read_sample(rec, rec["views"][0])
+    assert sample["meta"]["format_version"] == version and rec["format_version"] == version
+    dm = FloAffKitchenDataModule(root=str(root), tasks=["CloseDrawer"], cache=False, strict=True)
+    dm.setup("fit")
+    assert len(dm.datasets["train"]) and dm.skips.total == 0
+
+
+def test_version_2_view_without_its_fields_is_named(tmp_path):
+    make_floaff_dataset(tmp_path, problems=False, version=2)
+    rec = next(ff.iter_scenes(tmp_path, benchmark="styles"))
+    path = tmp_path / "styles" / rec["scene_id"] / rec["views"][0]["file"]
+    arr = dict(np.load(path))
+    del arr["floor_known"]
+    ff.atomic_save_npz(path, arr)
+    with pytest.raises(ff.FormatError, match=r"front_0000.npz: missing field 'floor_known'"):
+        ff.read_sample(rec, rec["views"][0])
+    reader = GeneratedReader(tmp_path, SkipLog("test"))
+    scene = next(s for s in reader.scenes("styles") if s.scene_id == rec["scene_id"])
+    with pytest.raises(DataError, match="floor_known") as err:
+        reader.load_view(scene, scene.views[0])
+    assert err.value.kind == "bad_view"
+    ff.validate_view(arr, path, format_version=1)  # the same arrays are a valid format-1 view
+    with pytest.raises(ff.FormatError, match="floor_known.*M="):
+        ff.validate_view(dict(arr, floor_known=np.ones(2, bool)), path)  # given, it must match the floor size
+
+
+def test_unknown_format_version_is_skipped_and_named(tmp_path):
+    make_floaff_dataset(tmp_path, problems=False, version=2)
+    rec = next(ff.iter_scenes(tmp_path, benchmark="styles"))
+    sj = tmp_path / "styles" / rec["scene_id"] / ff.SCENE_JSON
+    data = json.loads(sj.read_text())
+    data["format_version"] = 99
+    sj.write_text(json.dumps(data))
+    with pytest.raises(ff.FormatError, match=r"scene.json: format_version 99 is not supported"):
+        ff.read_scene(sj)
+    skips = SkipLog("test")
+    scenes = GeneratedReader(tmp_path, skips).scenes("styles")
+    assert rec["scene_id"] not in {s.scene_id for s in scenes}
+    assert skips.counts["corrupt_scene_json"] == 1 and "format_version 99" in skips.summary()

@@ -1,0 +1,102 @@
+"""The canonical prior (grid op and module through the CLI) and the training-free yaw estimates."""
+
+import math
+
+import pytest
+import torch
+
+from floaff_zoo.cli import run_lightning
+from floaff_zoo.models.prior import CanonicalPriorModule
+from floaff_zoo.nn.prior import CanonicalLabelGrid
+from floaff_zoo.nn.yaw import heading_yaw, manhattan_yaw
+from tests.conftest import quiet_trainer_args
+
+DATA = "configs/data/synthetic_tiny.yaml"
+PRIOR = "configs/models/canonical_prior.yaml"
+
+
+def test_grid_mean_per_task_and_cell():
+    grid = CanonicalLabelGrid(["A", "B"], cell=0.1, extent=1.0, smooth_sigma_cells=0.0)
+    xy = torch.tensor([[[0.05, 0.05], [0.05, 0.06], [0.55, -0.45]]])
+    grid.add(torch.tensor([0]), xy, torch.tensor([[1.0, 0.0, 0.5]]), torch.tensor([[True, True, True]]))
+    grid.add(torch.tensor([1]), xy, torch.tensor([[0.2, 0.2, 0.2]]), torch.tensor([[True, False, True]]))
+    got = grid.read(torch.tensor([0, 1]), torch.tensor([[[0.01, 0.09], [0.52, -0.41]], [[0.01, 0.09], [5.0, 5.0]]]))
+    # task A: the two labels of the first cell average to 0.5; task B: outside the grid -> fill (0)
+    assert torch.allclose(got, torch.tensor([[0.5, 0.5], [0.2, 0.0]]))
+    assert grid.seen_tasks() == ["A", "B"]
+    with pytest.raises(ValueError, match="'C' has no grid"):
+        grid.task_index(["A", "C"])
+
+
+def test_grid_smoothing_keeps_a_constant_map_constant():
+    grid = CanonicalLabelGrid(["A"], cell=0.1, extent=1.0, smooth_sigma_cells=1.5)
+    g = torch.stack(torch.meshgrid(torch.linspace(-0.95, 0.95, 20), torch.linspace(-0.95, 0.95, 20), indexing="ij"), -1)
+    xy = g.reshape(1, -1, 2)
+    grid.add(torch.tensor([0]), xy, torch.full((1, xy.shape[1]), 0.3), torch.ones(1, xy.shape[1], dtype=torch.bool))
+    assert torch.allclose(grid.read(torch.tensor([0]), xy), torch.full((1, xy.shape[1]), 0.3), atol=1e-5)
+
+
+def _box_scene(yaw: float, n: int = 1500, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
+    """Points on the vertical faces and top of a 2 x 0.6 m counter whose front normal has ``yaw``; target in front."""
+    g = torch.Generator().manual_seed(seed)
+    u, h = torch.rand(n, generator=g) * 2 - 1, torch.rand(n, generator=g) * 0.9
+    face = torch.randint(0, 3, (n,), generator=g)
+    # counter frame: front face at y = -0.3 (normal -y), back wall at y = +0.3, top at z = 0.9
+    x = torch.where(face == 2, u, u)
+    y = torch.where(face == 0, torch.full_like(u, -0.3), torch.where(face == 1, torch.full_like(u, 0.3),
+                                                                      torch.rand(n, generator=g) * 0.6 - 0.3))
+    z = torch.where(face == 2, torch.full_like(u, 0.9), h)
+    local = torch.stack([x, y, z], -1)
+    phi = yaw + math.pi / 2  # rotate the counter's -y normal onto `yaw`
+    c, s = math.cos(phi), math.sin(phi)
+    world = torch.stack([c * local[:, 0] - s * local[:, 1], s * local[:, 0] + c * local[:, 1], local[:, 2]], -1)
+    target = torch.tensor([1.5, 0.3, 0.5])
+    return (world + target)[None], target[None]
+
+
+@pytest.mark.parametrize("yaw_deg", [180.0, 160.0, -150.0, 135.0 + 30.0])
+def test_manhattan_yaw_snaps_a_rough_reference_onto_the_faces(yaw_deg):
+    xyz, target = _box_scene(math.radians(yaw_deg))
+    mask = torch.ones(xyz.shape[:2], dtype=torch.bool)
+    rough = torch.tensor([math.radians(yaw_deg + 35.0)])  # a reference 35 deg off still picks the right face
+    est = manhattan_yaw(xyz, mask, target, radius=2.0, reference=rough)
+    err = abs((math.degrees(float(est[0])) - yaw_deg + 180.0) % 360.0 - 180.0)
+    assert err < 2.0
+
+
+def test_manhattan_yaw_without_reference_uses_the_heading_and_falls_back():
+    xyz, target = _box_scene(math.radians(170.0))
+    mask = torch.ones(xyz.shape[:2], dtype=torch.bool)
+    est = manhattan_yaw(xyz, mask, target, radius=2.0)
+    assert abs(math.degrees(float(est[0])) - 170.0) < 2.0  # heading ~190 deg is within 45 deg of the front
+    # no point near the target: the heading itself
+    far = manhattan_yaw(xyz + 50.0, mask, target, radius=2.0)
+    assert torch.allclose(far, heading_yaw(target))
+
+
+def test_prior_fits_and_tests_through_the_cli(tmp_path, root, monkeypatch):
+    monkeypatch.chdir(root)
+    base = ["--config", DATA, "--config", PRIOR, *quiet_trainer_args(tmp_path),
+            "--data.init_args.tasks", "[CloseDrawer, PnPCounterToCab]"]
+    cli = run_lightning(["fit", *base, "--trainer.max_epochs", "1"])
+    model = cli.model
+    assert sorted(model.net.seen_tasks()) == ["CloseDrawer", "PnPCounterToCab"]
+    assert not any(p.requires_grad for p in model.parameters())
+    ckpt = cli.trainer.checkpoint_callback.best_model_path
+    pcc = {}
+    for src in ("gt", "none"):
+        t = run_lightning(["test", *base, "--ckpt_path", ckpt, "--model.init_args.eval_yaw_source", src])
+        pcc[src] = float(t.trainer.callback_metrics["test_pcc"])
+    # the synthetic labels are a function of the canonical position (and the robot): aligned is far better
+    assert pcc["gt"] > 0.6 and pcc["gt"] > pcc["none"] + 0.1, pcc
+    re = CanonicalPriorModule.load_from_checkpoint(ckpt, weights_only=True)
+    assert torch.equal(re.net.sums, model.net.sums.cpu())
+
+
+def test_prior_rejects_unknown_tasks_and_missing_axisnet():
+    from lightning.pytorch.utilities.exceptions import MisconfigurationException
+
+    with pytest.raises(MisconfigurationException, match="unknown task"):
+        CanonicalPriorModule(tasks=["CloseDrawr"])
+    with pytest.raises(MisconfigurationException, match="no AxisNet"):
+        CanonicalPriorModule(eval_yaw_source="axisnet")

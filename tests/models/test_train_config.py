@@ -1,0 +1,172 @@
+"""The shared model machinery: the ``train`` group, checkpoints with the old flat training arguments,
+``save_pretrained``/``from_pretrained`` for every model, and the step outputs callbacks read."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import lightning
+import pytest
+import torch
+import yaml
+
+from floaff_zoo.contract import collate_samples
+from floaff_zoo.data.synthetic import make_synthetic_sample
+from floaff_zoo.hub.io import import_model_class
+from floaff_zoo.models.axisnet import AxisNetModule
+from floaff_zoo.models.base import FloAffTrainConfig, TrainConfig, ZooModule
+from floaff_zoo.models.navaff import NavAffModule
+from floaff_zoo.models.tiny import TinyPointNetModule
+from tests.conftest import quiet_trainer_args
+
+ROOT = Path(__file__).resolve().parents[2]
+#: one small config per model class
+TINY_CONFIGS = sorted(
+    [*ROOT.glob("tests/configs/models/*.yaml"), ROOT / "tests/configs/axisnet_tiny.yaml",
+     ROOT / "tests/configs/cfar_tiny.yaml", ROOT / "configs/models/tiny_pointnet.yaml"]
+)
+TINY = "floaff_zoo.models.tiny.TinyPointNetModule"
+INSTANTIATOR = "lightning.pytorch.cli.instantiate_module"
+
+
+def build(cfg_path: Path) -> ZooModule:
+    cfg = yaml.safe_load(cfg_path.read_text())["model"]
+    cls = import_model_class(cfg["class_path"], str(cfg_path))
+    return cls(**cfg.get("init_args", {}))
+
+
+@pytest.fixture(scope="module")
+def batch():
+    return collate_samples([make_synthetic_sample(i, num_points=256, floor_cells=8) for i in range(2)])
+
+
+def old_style_ckpt(model: ZooModule, path: Path, flat: dict, cli: bool = True) -> Path:
+    """A checkpoint as the code before the ``train`` group wrote it: training args flat in the hparams."""
+    hp = {**flat, **({"_class_path": f"{type(model).__module__}.{type(model).__name__}",
+                      "_instantiator": INSTANTIATOR} if cli else {})}
+    torch.save({"state_dict": model.state_dict(), "hyper_parameters": hp, "hparams_name": "kwargs",
+                "pytorch-lightning_version": lightning.__version__, "epoch": 0, "global_step": 0}, path)
+    return path
+
+
+#: what the old FloAffModule recorded for every model (flat)
+OLD_SHARED = {"feat_channels": 1, "robot_dim": 2, "loss": "mse", "sdl_beta": 1.0, "optimizer": "adam",
+              "weight_decay": 0.0, "metric_reduction": "per_sample", "weights": None}
+
+
+# --------------------------------------------------------------------------- the train group
+def test_train_defaults_are_per_model_and_partial_dicts_keep_them():
+    nav = NavAffModule(npoints=[32, 16, 8], nsamples=[[4, 8, 8], [4, 8], [4, 8]], train={"lr": 1e-3})
+    assert nav.train_cfg == FloAffTrainConfig(loss="navaff", lr=1e-3, weight_decay=1e-3)  # loss, wd: NavAff's
+    assert isinstance(nav.hparams["train"], dict)  # stored as a dict: checkpoints stay weights_only
+    axis = AxisNetModule(widths=[8], head=[8])
+    assert axis.train_cfg == TrainConfig(lr=1e-4, scheduler="none") and type(axis.train_cfg) is TrainConfig
+    tiny = TinyPointNetModule(train=FloAffTrainConfig(optimizer="adamw", lr=0.01, weight_decay=0.1))
+    opt = tiny.configure_optimizers()["optimizer"]
+    assert isinstance(opt, torch.optim.AdamW) and opt.defaults["lr"] == 0.01 and opt.defaults["weight_decay"] == 0.1
+
+
+@pytest.mark.parametrize(("train", "match"), [
+    ({"lrr": 0.1}, r"TinyPointNetModule: train has no field\(s\) \['lrr'\]"),
+    ({"lr": 0.0}, "train.lr must be > 0"),
+    ({"optimizer": "sgd"}, "train.optimizer: 'sgd' is not one of"),
+    ({"loss": "bce"}, "train.loss: 'bce' is not one of"),
+])
+def test_bad_train_values_name_the_field(train, match):
+    with pytest.raises(ValueError, match=match):
+        TinyPointNetModule(train=train)
+
+
+def test_axisnet_train_has_no_floor_map_fields():
+    with pytest.raises(ValueError, match=r"AxisNetModule: train has no field\(s\) \['loss'"):
+        AxisNetModule(train={"loss": "mse"})
+
+
+def test_cli_train_group_partial_override(tmp_path, root, monkeypatch):
+    from floaff_zoo.cli import run_lightning
+
+    monkeypatch.chdir(root)
+    cli = run_lightning([
+        "fit", "--config", "configs/data/synthetic_tiny.yaml", "--config", "tests/configs/models/navaff_tiny.yaml",
+        "--model.init_args.train.lr", "0.0001", "--trainer.fast_dev_run", "1", *quiet_trainer_args(tmp_path),
+    ])
+    assert cli.model.train_cfg == FloAffTrainConfig(loss="navaff", lr=1e-4, weight_decay=1e-3)
+
+
+# --------------------------------------------------------------------------- old checkpoints
+@pytest.mark.parametrize("cli", [True, False])
+def test_old_flat_checkpoint_loads(tmp_path, batch, cli):
+    torch.manual_seed(0)
+    ref = TinyPointNetModule(width=8).eval()
+    flat = {"width": 8, **OLD_SHARED, "lr": 0.005, "scheduler": "none", "sim_variant": "hist"}
+    ckpt = old_style_ckpt(ref, tmp_path / "old.ckpt", flat, cli=cli)
+    m = TinyPointNetModule.load_from_checkpoint(ckpt, weights_only=True).eval()
+    assert m.train_cfg == FloAffTrainConfig(lr=0.005, scheduler="none", sim_variant="hist")
+    assert "lr" not in m.hparams and m.hparams["width"] == 8
+    with torch.no_grad():
+        assert torch.equal(m(batch), ref(batch))
+    # old-style keyword overrides still work too
+    assert TinyPointNetModule.load_from_checkpoint(ckpt, weights_only=True, lr=0.02).train_cfg.lr == 0.02
+
+
+def test_old_axisnet_checkpoint_drops_unused_shared_args(tmp_path, batch):
+    torch.manual_seed(0)
+    ref = AxisNetModule(widths=[8], head=[8]).eval()
+    flat = {"crop_radius": 1.3, "widths": [8], "head": [8], "rot_aug_deg": 90.0, "jitter_sigma": 0.005,
+            **OLD_SHARED, "lr": 3e-3, "scheduler": "none", "sim_variant": "cosine"}
+    m = AxisNetModule.load_from_checkpoint(old_style_ckpt(ref, tmp_path / "axis.ckpt", flat), weights_only=True).eval()
+    assert m.train_cfg == TrainConfig(lr=3e-3, scheduler="none") and "loss" not in m.hparams
+    with torch.no_grad():
+        assert torch.equal(m(batch), ref(batch))
+
+
+def test_old_flat_checkpoint_through_cli_and_hub(tmp_path, root, monkeypatch):
+    from floaff_zoo.cli import run_lightning
+    from floaff_zoo.hub.export import export_checkpoint
+
+    monkeypatch.chdir(root)
+    torch.manual_seed(0)
+    flat = {"width": 8, **OLD_SHARED, "lr": 0.005, "scheduler": "none", "sim_variant": "hist"}
+    ckpt = old_style_ckpt(TinyPointNetModule(width=8), tmp_path / "old.ckpt", flat)
+    cli = run_lightning(["test", "--config", "configs/data/synthetic_tiny.yaml", "--model", "TinyPointNetModule",
+                         "--ckpt_path", str(ckpt), *quiet_trainer_args(tmp_path)])
+    assert cli.model.hparams["width"] == 8 and cli.model.train_cfg.sim_variant == "hist" and cli.model.train_cfg.lr == 0.005
+    _, out = export_checkpoint(ckpt, "tiny.old-flat.v1", directory=tmp_path / "hub")
+    init_args = json.loads((out / "config.json").read_text())["init_args"]
+    assert init_args["train"]["lr"] == 0.005 and "lr" not in init_args  # exports are written in today's form
+
+
+# --------------------------------------------------------------------------- save_pretrained / from_pretrained
+@pytest.mark.parametrize("cfg", TINY_CONFIGS, ids=lambda p: p.stem)
+def test_save_pretrained_from_pretrained_round_trip(cfg, tmp_path, batch):
+    torch.manual_seed(0)
+    model = build(cfg).eval()
+    out = model.save_pretrained(tmp_path / "export")
+    config = json.loads((out / "config.json").read_text())
+    assert (out / config["weights"]).is_file() and "weights" not in config["init_args"]
+    assert config["init_args"]["train"] == model.hparams["train"]
+    loaded = type(model).from_pretrained(out)
+    assert type(loaded) is type(model) and not loaded.training
+    with torch.no_grad():
+        assert torch.equal(loaded(batch), model(batch))
+    assert ZooModule.from_pretrained(str(out)).hparams == loaded.hparams
+
+
+def test_exported_directory_as_weights(tmp_path, batch):
+    torch.manual_seed(0)
+    model = TinyPointNetModule(width=8).eval()
+    out = model.save_pretrained(tmp_path / "tiny")
+    with torch.no_grad():
+        assert torch.equal(TinyPointNetModule(width=8, weights=str(out)).eval()(batch), model(batch))
+
+
+# --------------------------------------------------------------------------- step outputs for callbacks
+def test_test_step_returns_the_prediction(batch):
+    floor = TinyPointNetModule(width=8).eval()
+    out = floor.test_step(batch, 0)
+    assert set(out) == {"loss", "scores"} and out["scores"].shape == batch["floor_mask"].shape
+    axis = AxisNetModule(widths=[8], head=[8]).eval()
+    out = axis.test_step(batch, 0)
+    assert set(out) == {"loss", "yaw"} and out["yaw"].shape == (2,)
+    assert not hasattr(floor, "last_test_scores")

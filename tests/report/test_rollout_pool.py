@@ -1,0 +1,94 @@
+"""The rollout worker pool survives a dead worker (the lost episodes are retried on a fresh pool) and never hangs:
+a job that keeps killing its worker, or a worker that hangs, ends the evaluation with an error naming the episode.
+
+The jobs are fake 50 ms rollouts (tests/report/_fake_jobs.py), so these tests measure the pool, not MuJoCo."""
+
+from __future__ import annotations
+
+import os
+import signal
+import threading
+import time
+
+import lightning as L
+import pytest
+
+from floaff_zoo.callbacks.rollout import RolloutSuccessRate
+from floaff_zoo.sim.kitchen import SceneSpec
+from floaff_zoo.sim.rollout import RolloutPoolError, RolloutService
+from tests.report import _fake_jobs
+from tests.report._fake_world import ConstantModule, LabelModule, loader, make_samples
+
+
+def _kill_a_worker_once_busy(pid_dir, after_s: float = 0.3) -> threading.Thread:
+    """Background thread: once a worker has started a job, SIGKILL it (mid-evaluation)."""
+
+    def kill():
+        t_end = time.monotonic() + 60
+        while time.monotonic() < t_end and not os.listdir(pid_dir):
+            time.sleep(0.02)
+        time.sleep(after_s)
+        os.kill(int(sorted(os.listdir(pid_dir))[0]), signal.SIGKILL)
+
+    thread = threading.Thread(target=kill, daemon=True)
+    thread.start()
+    return thread
+
+
+def _sr(module, samples, workers: int, job_fn=_fake_jobs.fake_job) -> tuple[dict, RolloutSuccessRate]:
+    cb = RolloutSuccessRate(service=lambda w, b, c: RolloutService(w, b, c, job_fn=job_fn), workers=workers,
+                            progress=False)
+    trainer = L.Trainer(accelerator="cpu", logger=False, enable_progress_bar=False, enable_model_summary=False,
+                        enable_checkpointing=False, callbacks=[cb])
+    return trainer.test(module, dataloaders=loader(samples), verbose=False)[0], cb
+
+
+def test_killed_worker_episodes_are_retried_and_the_sr_is_unchanged(tmp_path, monkeypatch):
+    samples = make_samples(40)
+    reference, _ = _sr(ConstantModule(), samples, workers=1)  # in-process: no pool involved
+    monkeypatch.setenv(_fake_jobs.PID_DIR_ENV, str(tmp_path))
+    killer = _kill_a_worker_once_busy(tmp_path)
+    t0 = time.monotonic()
+    res, cb = _sr(ConstantModule(), samples, workers=2)
+    elapsed = time.monotonic() - t0
+    killer.join(timeout=1)
+    assert not killer.is_alive()
+    assert len(os.listdir(tmp_path)) >= 3  # the two first workers and at least one fresh one after the kill
+    assert res["test_sr_all"] == reference["test_sr_all"] and res["test_oracle_sr_all"] == 1.0
+    assert cb.summaries["test"]["n_evaluated"] == 40
+    assert elapsed < 90, f"evaluation took {elapsed:.0f} s after a worker was killed"
+
+    (tmp_path / "again").mkdir()
+    monkeypatch.setenv(_fake_jobs.PID_DIR_ENV, str(tmp_path / "again"))
+    killer = _kill_a_worker_once_busy(tmp_path / "again", after_s=0.1)
+    res, _ = _sr(LabelModule(), samples, workers=2)
+    killer.join(timeout=1)
+    assert res["test_sr_all"] == 1.0 and res["test_oracle_sr_all"] == 1.0
+
+
+def _jobs(n: int):
+    return [(SceneSpec(0, 0, seed, "CloseDrawer"), (0.1 * seed, 0.5, 0.0)) for seed in range(n)]
+
+
+def test_a_job_that_always_kills_its_worker_is_named():
+    svc = RolloutService(workers=2, max_retries=1, job_fn=_fake_jobs.crashing_job)
+    t0 = time.monotonic()
+    try:
+        with pytest.raises(RolloutPoolError,
+                           match=r"L0_S0_s3_CloseDrawer at \(0\.3, 0\.5, 0\.0\) killed its worker process 3 times"):
+            svc.run(_jobs(8))
+    finally:
+        svc.close()
+    assert time.monotonic() - t0 < 90
+
+
+def test_a_hanging_worker_times_out_naming_the_episode():
+    svc = RolloutService(workers=2, timeout_s=4.0, job_fn=_fake_jobs.hanging_job)
+    t0 = time.monotonic()
+    try:
+        with pytest.raises(RolloutPoolError, match=r"no progress for 4 s.*L0_S0_s3_CloseDrawer"):
+            svc.run(_jobs(8))
+    finally:
+        svc.close()
+    assert time.monotonic() - t0 < 60
+    assert svc._pool is None  # the stuck workers were killed, not left behind

@@ -1,0 +1,63 @@
+"""floaff_zoo.floor: the observed-floor-cell rule shared by the generator (format v2) and predict's defaults."""
+
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from floaff_zoo.floor import CANDIDATE_WINDOW, FLOOR_Z_MAX, FloorLattice, ground_mask, observed_cells
+
+
+def test_target_window_is_the_annotation_grid():
+    # annotate.candidate_grid: x° = j * cell (|x°| <= r_x), y° = i * cell (|y°| <= r_y), row-major (y°, x°);
+    # world = target + x° * lateral - y° * normal, lateral = normal turned by +90 deg (sim.views target frame)
+    t, yaw, cell = np.array([1.3, -0.4]), 0.7, 0.2
+    lat = FloorLattice.target_window(t, yaw, cell, 1.0, 1.2)
+    assert lat.shape == (13, 11)
+    n = np.array([math.cos(yaw), math.sin(yaw)])
+    side = np.array([-n[1], n[0]])
+    ys, xs = np.arange(-6, 7) * cell, np.arange(-5, 6) * cell
+    yy, xx = np.meshgrid(ys, xs, indexing="ij")
+    grid = t + xx.reshape(-1, 1) * side - yy.reshape(-1, 1) * n
+    assert np.allclose(lat.centers(), grid, atol=1e-12)
+    idx, inside = lat.index_of(grid + 0.09 * np.array([0.6, -0.8]))  # any point of a cell maps to it
+    assert inside.all() and np.array_equal(idx, np.arange(len(grid)))
+
+
+def test_observed_cells_count_ground_points_only():
+    lat = FloorLattice((0.0, 0.0), math.radians(37.0), 0.1, (3, 4))
+    centres = lat.centers()
+    rng = np.random.default_rng(0)
+    jitter = lambda k: rng.uniform(-0.045, 0.045, (k, 2)) @ np.array(  # inside the rotated square
+        [[math.cos(lat.angle), math.sin(lat.angle)], [-math.sin(lat.angle), math.cos(lat.angle)]])
+    floor_cells, obstacle_cells, high_floor = [0, 5, 17, 40, 62], [1, 6, 30], [2]
+    pts = [np.c_[centres[floor_cells] + jitter(5), rng.uniform(-0.01, 0.019, 5)]]
+    pts.append(np.c_[centres[obstacle_cells] + jitter(3), np.full(3, 0.4)])  # furniture: not ground
+    pts.append(np.c_[centres[high_floor] + jitter(1), [FLOOR_Z_MAX + 1e-3]])  # 2.1 cm: not ground
+    pts.append(np.array([[5.0, 5.0, 0.0], [np.nan, 0.0, 0.0]]))  # outside the lattice; not finite
+    pts.append(np.c_[centres[[17]] + jitter(1), [0.0]])  # a second point in cell 17
+    xyz = np.concatenate(pts)
+    seen = observed_cells(xyz, lat)
+    assert seen.shape == (lat.shape[0] * lat.shape[1],) and seen.dtype == bool
+    assert np.flatnonzero(seen).tolist() == floor_cells
+    assert np.flatnonzero(observed_cells(xyz, lat, min_points=2)).tolist() == [17]
+    assert ground_mask(xyz).sum() == 5 + 1 + 1  # the point outside the lattice is ground too
+    assert observed_cells(xyz, lat, z_max=0.5)[obstacle_cells].all()
+    assert not observed_cells(np.zeros((0, 3)), lat).any()
+    with pytest.raises(ValueError, match="min_points"):
+        observed_cells(xyz, lat, min_points=0)
+    with pytest.raises(ValueError, match="cell"):
+        FloorLattice((0.0, 0.0), 0.0, 0.0, (1, 1))
+
+
+def test_disc_cut_and_default_window():
+    lat = FloorLattice.around(np.zeros(2), 0.3, 0.2, 0.5)
+    assert lat.shape == (5, 5) and lat.within(0.5).sum() == 21
+    assert CANDIDATE_WINDOW == (1.0, 1.2)
+
+
+def test_floor_module_is_numpy_only():
+    code = "import sys, floaff_zoo.floor; assert 'torch' not in sys.modules, 'floaff_zoo.floor imported torch'"
+    subprocess.run([sys.executable, "-c", code], check=True)

@@ -1,0 +1,84 @@
+"""The checkpoints shipped in the package: each loads offline from the packaged files and predicts, and no shipped
+or pushed entry records a path of the machine that exported it."""
+
+from __future__ import annotations
+
+import json
+import re
+
+import pytest
+import torch
+import yaml
+
+from floaff_zoo.contract import collate_samples
+from floaff_zoo.data.synthetic import make_synthetic_sample
+from floaff_zoo.hub import hub_dir, load_model, load_registry
+from floaff_zoo.hub.export import export_checkpoint
+from floaff_zoo.hub.registry import SHIPPED_INDEX, read_index
+from floaff_zoo.models.cfar import CFARModule
+
+SHIPPED = sorted(e.name for e in read_index(SHIPPED_INDEX))
+HUB_FILES = sorted(p for p in SHIPPED_INDEX.parent.rglob("*") if p.suffix in (".json", ".md"))
+#: "runs/...", "data/...", "/abs/...", "~/..." or a Windows drive inside a JSON string / Markdown code span
+LOCAL_PATH = re.compile(r"""["'`](?:runs/|data/|/|~/|[A-Za-z]:\\)[^"'`]*["'`]""")
+
+
+@pytest.fixture(scope="module")
+def batch():
+    return collate_samples([make_synthetic_sample(i, num_points=512, floor_cells=8) for i in range(2)])
+
+
+def test_the_package_ships_checkpoints():
+    assert len(SHIPPED) >= 4 and "cfar-pfal.floaff-small-layouts.v1" in SHIPPED
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_shipped_entry_loads_offline_and_predicts(name, batch, monkeypatch):
+    monkeypatch.setenv("FLOAFF_ZOO_OFFLINE", "1")
+    assert not any(hub_dir().rglob("*.safetensors"))  # nothing cached: the packaged file is what loads
+    model = load_model(name, allow_download=False)
+    assert type(model).__name__ in load_registry()[name].class_path and not model.training
+    with torch.no_grad():
+        scores = model(batch)
+    assert scores.shape == batch["floor_mask"].shape
+    valid = scores[batch["floor_mask"]]
+    assert torch.isfinite(valid).all() and (valid >= 0).all() and (valid <= 1).all()
+
+
+@pytest.mark.parametrize("path", HUB_FILES, ids=lambda p: str(p.relative_to(SHIPPED_INDEX.parent)))
+def test_shipped_files_hold_no_local_paths(path):
+    hits = LOCAL_PATH.findall(path.read_text(encoding="utf-8"))
+    assert not hits, f"{path}: local paths of the exporting machine: {hits[:5]}"
+
+
+def test_push_records_no_local_paths(tmp_path, root):
+    """A CFAR trained with an AxisNet file: the export keeps the AxisNet (architecture, weights, sha256), not
+    where the file was."""
+    args = yaml.safe_load((root / "tests/configs/cfar_tiny.yaml").read_text())["model"]["init_args"]
+    axis_file = str(tmp_path / "runs/axisnet/version_0/checkpoints/epoch001.ckpt")
+    arch = {"crop_radius": 1.3, "widths": [8, 16], "head": [8], "source": axis_file, "sha256": "0" * 64}
+    model = CFARModule(**args, axisnet_arch=arch)
+    hp = {**dict(model.hparams), "axisnet": axis_file, "_class_path": "floaff_zoo.models.cfar.CFARModule"}
+    ckpt = tmp_path / "runs/cfar/version_0/checkpoints/epoch003.ckpt"
+    ckpt.parent.mkdir(parents=True)
+    torch.save({"state_dict": model.state_dict(), "hyper_parameters": hp}, ckpt)
+
+    entry, out = export_checkpoint(ckpt, "cfar.tiny-paths.v1")
+    texts = {p.name: p.read_text() for p in (out / "config.json", out / "README.md", hub_dir() / "index.json")}
+    for name, text in texts.items():
+        assert str(tmp_path) not in text and "runs/" not in text, name
+    assert entry.init_args["axisnet"] is None and entry.init_args["axisnet_arch"]["source"] is None
+    assert entry.init_args["axisnet_arch"]["sha256"] == "0" * 64  # the lineage stays
+    assert json.loads(texts["config.json"])["init_args"]["axisnet_arch"]["widths"] == [8, 16]
+    back = CFARModule.from_pretrained(entry.name)
+    own = {k: v for k, v in model.state_dict().items() if k.startswith("axisnet.")}
+    got = {k: v for k, v in back.state_dict().items() if k.startswith("axisnet.")}
+    assert own and own.keys() == got.keys() and all(torch.equal(own[k], got[k]) for k in own)
+
+
+def test_every_entry_is_listed_by_the_cli(capsys):
+    from floaff_zoo.cli import main
+
+    assert main(["hub", "list"]) == 0
+    out = capsys.readouterr().out
+    assert all(name in out for name in SHIPPED)

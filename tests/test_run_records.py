@@ -1,0 +1,106 @@
+"""Run records: the demo refits a baseline fit that was killed (finished.json), and damaged curriculum records
+are errors that name the file instead of silently starting over."""
+
+from __future__ import annotations
+
+import json
+import types
+from pathlib import Path
+
+import pytest
+
+from floaff_zoo import curriculum, demo
+from floaff_zoo.curriculum import CurriculumError, read_lineage, run_curriculum
+from floaff_zoo.runs import FINISHED_FILE, RunError, finished_runs, mark_finished, read_finished
+
+EXP = "tests/configs/pfal_tiny.yaml"
+
+
+class FakeFit:
+    """Stands in for ``floaff_zoo.cli.run_lightning``: writes a run dir like a fit does, optionally 'killed'."""
+
+    def __init__(self, root: Path) -> None:
+        self.root = root
+        self.calls: list[list[str]] = []
+        self.kill = False
+
+    def __call__(self, args: list[str]):
+        self.calls.append(args)
+        run = self.root / "pointnet2module" / f"version_{len(self.calls) - 1}"
+        (run / "checkpoints").mkdir(parents=True)
+        (run / "config.yaml").write_text("model: {}\n")
+        last = run / "checkpoints" / "last.ckpt"
+        last.write_bytes(b"weights")
+        if self.kill:  # killed after the first epoch's checkpoint: last.ckpt exists, fit never returned
+            raise KeyboardInterrupt
+        cb = types.SimpleNamespace(best_model_path=str(last), last_model_path=str(last))
+        return types.SimpleNamespace(trainer=types.SimpleNamespace(checkpoint_callback=cb, log_dir=str(run),
+                                                                   current_epoch=2))
+
+
+def test_finished_marker_round_trip_and_corrupt_marker_is_named(tmp_path):
+    run = tmp_path / "version_0"
+    run.mkdir()
+    assert read_finished(run) is None
+    ckpt = run / "last.ckpt"
+    ckpt.write_bytes(b"x")
+    mark_finished(run, ckpt, {"epochs": 3})
+    rec = read_finished(run)
+    assert rec["checkpoint"] == str(ckpt) and rec["epochs"] == 3 and "T" in rec["finished"]
+    assert [r for r, _ in finished_runs(tmp_path)] == [run]
+    ckpt.unlink()  # a marker whose checkpoint is gone does not count
+    assert finished_runs(tmp_path) == []
+    (run / FINISHED_FILE).write_text("{not json")
+    with pytest.raises(RunError, match=str(run / FINISHED_FILE)):
+        read_finished(run)
+
+
+def test_demo_refits_a_killed_baseline_and_reuses_a_finished_one(tmp_path, monkeypatch, capsys):
+    import floaff_zoo.cli
+
+    fake = FakeFit(tmp_path / "runs")
+    monkeypatch.setattr(floaff_zoo.cli, "run_lightning", fake)
+    fake.kill = True
+    with pytest.raises(KeyboardInterrupt):
+        demo._fit_baseline("data/x", fake.root, epochs=2)
+    assert list(fake.root.rglob("last.ckpt")) and not list(fake.root.rglob(FINISHED_FILE))
+
+    fake.kill = False
+    run = demo._fit_baseline("data/x", fake.root, epochs=2)  # the killed run is not reused
+    assert len(fake.calls) == 2 and run.name == "version_1"
+    assert "did not finish" in capsys.readouterr().out
+    rec = read_finished(run)
+    assert Path(rec["checkpoint"]) == run / "checkpoints" / "last.ckpt"
+
+    assert demo._fit_baseline("data/x", fake.root, epochs=2) == run  # finished: reused, no third fit
+    assert len(fake.calls) == 2 and "reusing" in capsys.readouterr().out
+
+
+def _never(args):
+    raise AssertionError(f"no stage should run: {args}")
+
+
+def test_corrupt_stage_record_is_an_error_naming_it(tmp_path, root, monkeypatch):
+    monkeypatch.chdir(root)
+    cfg = curriculum.load_experiment(EXP)
+    stage_file = curriculum.stage_dir(cfg, cfg["stages"][0], tmp_path) / curriculum.STAGE_FILE
+    stage_file.parent.mkdir(parents=True)
+    stage_file.write_text('{"stage": "stage1_pnp", "status": "do')  # truncated by a full disk, say
+    with pytest.raises(CurriculumError, match=str(stage_file)):
+        run_curriculum(EXP, root=tmp_path, runner=_never)
+
+
+def test_corrupt_lineage_is_an_error_naming_it(tmp_path, root, monkeypatch):
+    monkeypatch.chdir(root)
+    lineage = tmp_path / curriculum.LINEAGE_FILE
+    lineage.write_text("[1, 2")
+    with pytest.raises(CurriculumError, match=str(lineage)):
+        read_lineage(tmp_path)
+    with pytest.raises(CurriculumError, match=str(lineage)):
+        run_curriculum(EXP, root=tmp_path, runner=_never)
+    lineage.write_text(json.dumps({"stages": []}))
+    with pytest.raises(CurriculumError, match="stages"):
+        read_lineage(tmp_path)
+    lineage.unlink()
+    with pytest.raises(CurriculumError, match="run the curriculum first"):
+        read_lineage(tmp_path)
