@@ -85,16 +85,22 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--views", type=int, default=8, help="views per kind for the render benchmark")
     ap.add_argument("--image-size", type=int, default=128)
     ap.add_argument("--out", default=None, help="keep generated data here")
-    ap.add_argument("--data", default="data", help="also report the wall time recorded in the manifest of every "
-                    "benchmark generated under this folder (by `floaff-zoo generate`)")
+    ap.add_argument(
+        "--data",
+        default="data",
+        help="also report the wall time recorded in the manifest of every "
+        "benchmark generated under this folder (by `floaff-zoo generate`)",
+    )
     args = ap.parse_args(argv)
     out = Path(args.out) if args.out else None
 
     r = bench_render(args.views, args.image_size)
     print(f"[render] scene build {r['build_s']:.2f} s; image {args.image_size}^2")
     for kind in ("front", "side"):
-        print(f"[render] {kind}: {r[f'{kind}_views']} views, render+backproject {r[f'{kind}_render_ms_per_view']:.1f} "
-              f"ms/view, sampling incl. rejected poses {r[f'{kind}_sample_ms_per_view']:.1f} ms/view")
+        print(
+            f"[render] {kind}: {r[f'{kind}_views']} views, render+backproject {r[f'{kind}_render_ms_per_view']:.1f} "
+            f"ms/view, sampling incl. rejected poses {r[f'{kind}_sample_ms_per_view']:.1f} ms/view"
+        )
 
     # growth with the number of scenes: tiny preset with 1, 2 and 4 scenes (1 or 2 tasks, train+test)
     rows = []
@@ -102,8 +108,10 @@ def main(argv: list[str] | None = None) -> int:
         wall, man = bench_preset("tiny", args.workers, None, tasks=tasks, n_test=n_test)
         n = len(man["scenes"])
         rows.append((n, wall, man))
-        print(f"[scaling] tiny, {n} scene(s), workers={args.workers}: {wall:.1f} s ({wall / n:.1f} s/scene); "
-              + _phase_means(man))
+        print(
+            f"[scaling] tiny, {n} scene(s), workers={args.workers}: {wall:.1f} s ({wall / n:.1f} s/scene); "
+            + _phase_means(man)
+        )
     if len(rows) >= 2:
         (n0, w0, _), (n1, w1, _) = rows[0], rows[-1]
         print(f"[scaling] marginal cost {(w1 - w0) / max(1, n1 - n0):.1f} s per extra scene")
@@ -113,8 +121,10 @@ def main(argv: list[str] | None = None) -> int:
     if args.small:
         wall, man = bench_preset("small", args.workers, out)
         c = man["counts"]
-        print(f"[small] {c['scenes_ok']} scenes ok, {c['scenes_dropped']} dropped, {c['views_total']} views: "
-              f"{wall / 60:.1f} min wall (workers={args.workers}); " + _phase_means(man))
+        print(
+            f"[small] {c['scenes_ok']} scenes ok, {c['scenes_dropped']} dropped, {c['views_total']} views: "
+            f"{wall / 60:.1f} min wall (workers={args.workers}); " + _phase_means(man)
+        )
     for line in manifest_walls(Path(args.data)):
         print(line)
     return 0
@@ -142,7 +152,8 @@ def manifest_walls(root: Path) -> list[str]:
             f"{c['scenes_dropped']} dropped, {c['views_total']} views, max {cfg['max_candidates']} rollouts/scene: "
             f"{man['wall_s']:.0f} s wall with {man['workers']} worker(s) for the {made} scene slot(s) this run filled "
             f"({man['wall_s'] / max(1, made):.1f} s/slot)"
-            + (f"; {resumed} scene(s) came from an earlier run" if resumed else ""))
+            + (f"; {resumed} scene(s) came from an earlier run" if resumed else "")
+        )
     return lines
 
 

@@ -56,8 +56,9 @@ def write_moma_like(root: Path, n: int, seed: int = 0) -> None:
         ply(d / mk.FLOOR_PLY, floor)
         ply(d / mk.TARGET_PLY, target)
         ply(d / mk.BARRIER_PLY[0], barrier)
-        np.savetxt(root / "rgbd" / rel / mk.LABEL_TXT, np.c_[floor, rng.uniform(0, 1, mk.FLOOR_MAX)], delimiter=",",
-                   fmt="%.6f")
+        np.savetxt(
+            root / "rgbd" / rel / mk.LABEL_TXT, np.c_[floor, rng.uniform(0, 1, mk.FLOOR_MAX)], delimiter=",", fmt="%.6f"
+        )
         info = root / "info" / cfg[5:] / mk.INFO_JSON
         info.parent.mkdir(parents=True, exist_ok=True)
         info.write_text(json.dumps({"robot_name": "panda"}))
@@ -70,9 +71,15 @@ def write_moma_like(root: Path, n: int, seed: int = 0) -> None:
 def make_dm(args: argparse.Namespace, root: Path):
     from floaff_zoo.data.transforms import Jitter, YawPerturb
 
-    common = dict(batch_size=args.batch_size, num_workers=args.workers, num_points=args.num_points,
-                  collate_mode="resample", train_transforms=[YawPerturb(5.0), Jitter(0.005)], cache=True,
-                  cache_dir=str(root / ".cache_bench"))
+    common = dict(
+        batch_size=args.batch_size,
+        num_workers=args.workers,
+        num_points=args.num_points,
+        collate_mode="resample",
+        train_transforms=[YawPerturb(5.0), Jitter(0.005)],
+        cache=True,
+        cache_dir=str(root / ".cache_bench"),
+    )
     if args.dataset == "moma":
         from floaff_zoo.data.moma_kitchen import MoMaKitchenDataModule
 
@@ -108,16 +115,20 @@ def train_step_rate(batches: list, steps: int) -> tuple[float, str]:
         from floaff_zoo.nn.pointnet2 import PointNet2Seg
 
         model = PointNet2Seg(
-            in_channels=1, npoints=[1024, 256, 64, 16], radii=[[0.1], [0.2], [0.4], [0.8]],
+            in_channels=1,
+            npoints=[1024, 256, 64, 16],
+            radii=[[0.1], [0.2], [0.4], [0.8]],
             nsamples=[[32], [32], [32], [32]],
             mlps=[[[32, 32, 64]], [[64, 64, 128]], [[128, 128, 256]], [[256, 256, 512]]],
-            fp_mlps=[[256, 256], [256, 256], [256, 128], [128, 128, 128]], head=[128],
+            fp_mlps=[[256, 256], [256, 256], [256, 128], [128, 128, 128]],
+            head=[128],
         )
         what = "floaff_zoo.nn.pointnet2.PointNet2Seg (SSG, 4 levels 1024/256/64/16, per-point MSE on scene points)"
 
         def step(b):
             out = torch.sigmoid(model(b["scene_xyz"], b["scene_feat"][..., :1], b["scene_mask"]))
             return ((out - (b["scene_feat"][..., 0] > 0).float()) ** 2).mean()
+
     opt = torch.optim.Adam(model.parameters(), 1e-3)
     model.train()
     step(batches[0]).backward()  # warm-up
@@ -165,8 +176,10 @@ def main() -> None:
         warm_setup = time.perf_counter() - t
         rate, batches = loader_rate(dm2, args.epochs)
         step_rate, what = train_step_rate(batches, args.steps)
-        print(f"\ntorch threads {torch.get_num_threads()}, loader workers {args.workers}, batch {args.batch_size}, "
-              f"num_points {args.num_points}, {n} train samples")
+        print(
+            f"\ntorch threads {torch.get_num_threads()}, loader workers {args.workers}, batch {args.batch_size}, "
+            f"num_points {args.num_points}, {n} train samples"
+        )
         print(f"cold setup (parse + build cache): {cold:8.1f} samples/s")
         print(f"warm setup (cache hits):          {warm_setup:8.2f} s")
         print(f"loader (cached, transforms, collate): {rate:8.1f} samples/s")

@@ -129,8 +129,10 @@ def bench_reference(n: int, b: int, iters: int, warmup: int, modes: list[str]) -
     ours.eval()
     with torch.no_grad():
         diff = (ref(xyz, feat, fps) - ours(xyz, feat, None, fps)).abs().max().item()
-    print(f"\n== PointNet++ SSG ({sum(p.numel() for p in ours.parameters()) / 1e6:.3f} M params), B={b} x {n} points, "
-          f"FPS backend {fps_backend()}")
+    print(
+        f"\n== PointNet++ SSG ({sum(p.numel() for p in ours.parameters()) / 1e6:.3f} M params), B={b} x {n} points, "
+        f"FPS backend {fps_backend()}"
+    )
     print(f"parity (same weights + FPS indices, eval, fp32): max |ref - ours| = {diff:.2e}")
 
     def train_step(model, opt, fwd):
@@ -149,8 +151,10 @@ def bench_reference(n: int, b: int, iters: int, warmup: int, modes: list[str]) -
     with torch.inference_mode():
         lat_ref = timed(lambda: ref(xyz[:1], feat[:1]), max(iters, 3), warmup)
     sps_ref = b / statistics.median(ts_ref)
-    print(f"reference (Conv2d, sort, naive FPS)  train {sps_ref:6.2f} samples/s ({fmt(ts_ref)}); "
-          f"predict B=1 {1e3 * statistics.median(lat_ref):7.1f} ms")
+    print(
+        f"reference (Conv2d, sort, naive FPS)  train {sps_ref:6.2f} samples/s ({fmt(ts_ref)}); "
+        f"predict B=1 {1e3 * statistics.median(lat_ref):7.1f} ms"
+    )
     for mode in modes:
         torch.manual_seed(0)
         net = PointNet2Seg(**SEG)
@@ -173,9 +177,11 @@ def bench_reference(n: int, b: int, iters: int, warmup: int, modes: list[str]) -
         with torch.inference_mode():
             lat = timed(lambda: fwd(xyz[:1], feat[:1]), max(iters, 3), warmup + (1 if "compile" in mode else 0))
         sps = b / statistics.median(ts)
-        print(f"ours {mode:<13} first step {first:5.1f} s  train {sps:6.2f} samples/s ({fmt(ts)}) "
-              f"x{sps / sps_ref:4.2f} vs reference; predict B=1 {1e3 * statistics.median(lat):7.1f} ms "
-              f"(x{statistics.median(lat_ref) / statistics.median(lat):4.2f})")
+        print(
+            f"ours {mode:<13} first step {first:5.1f} s  train {sps:6.2f} samples/s ({fmt(ts)}) "
+            f"x{sps / sps_ref:4.2f} vs reference; predict B=1 {1e3 * statistics.median(lat):7.1f} ms "
+            f"(x{statistics.median(lat_ref) / statistics.median(lat):4.2f})"
+        )
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -192,8 +198,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--iters", type=int, default=None)
     p.add_argument("--threads", type=int, default=None)
     p.add_argument("--warmup", type=int, default=1, help="untimed calls before timing (compile modes add one)")
-    p.add_argument("--points-sweep", type=int, nargs="*", default=[],
-                   help="also time --sweep-models at these cloud sizes (how time grows with points)")
+    p.add_argument(
+        "--points-sweep",
+        type=int,
+        nargs="*",
+        default=[],
+        help="also time --sweep-models at these cloud sizes (how time grows with points)",
+    )
     p.add_argument("--sweep-models", nargs="*", default=["pointnet2_ssg", "cfar"], choices=MODELS)
     a = p.parse_args(argv)
     if a.threads:
@@ -201,24 +212,40 @@ def main(argv: list[str] | None = None) -> int:
     iters = a.iters or (2 if a.quick else 5)
     warmup = a.warmup
     modes = a.modes or (["eager", "bf16"] if a.quick else ["eager", "bf16", "compile", "compile_bf16"])
-    print(f"torch {torch.__version__}, threads {torch.get_num_threads()}, cpu {torch.backends.cpu.get_cpu_capability()}")
+    print(
+        f"torch {torch.__version__}, threads {torch.get_num_threads()}, cpu {torch.backends.cpu.get_cpu_capability()}"
+    )
     if not a.skip_models:
         batch = make_batch(a.batch, a.points, a.floor_cells)
         single = make_batch(1, a.points, a.floor_cells)
-        print(f"\n== models, mode {a.model_mode}: train B={a.batch} x {a.points} points "
-              f"({a.floor_cells ** 2} floor points), predict B=1")
+        print(
+            f"\n== models, mode {a.model_mode}: train B={a.batch} x {a.points} points "
+            f"({a.floor_cells**2} floor points), predict B=1"
+        )
         for name in a.models:
             r = bench_model(name, batch, single, iters, warmup, a.model_mode)
-            train = f"train {r['train_sps']:6.2f} samples/s ({fmt(r['train'])})" if "train_sps" in r else "training-free"
-            print(f"{name:<14} {r['params'] / 1e6:7.3f} M params  {train}; predict {r['predict_ms']:7.1f} ms", flush=True)
+            train = (
+                f"train {r['train_sps']:6.2f} samples/s ({fmt(r['train'])})" if "train_sps" in r else "training-free"
+            )
+            print(
+                f"{name:<14} {r['params'] / 1e6:7.3f} M params  {train}; predict {r['predict_ms']:7.1f} ms", flush=True
+            )
     if a.points_sweep:
-        print(f"\n== growth with points, mode {a.model_mode}: train B={a.batch}, predict B=1, "
-              f"{a.floor_cells ** 2} floor points")
+        print(
+            f"\n== growth with points, mode {a.model_mode}: train B={a.batch}, predict B=1, "
+            f"{a.floor_cells**2} floor points"
+        )
         for name in a.sweep_models:
             base = None
             for n in a.points_sweep:
-                r = bench_model(name, make_batch(a.batch, n, a.floor_cells), make_batch(1, n, a.floor_cells), iters,
-                                warmup, a.model_mode)
+                r = bench_model(
+                    name,
+                    make_batch(a.batch, n, a.floor_cells),
+                    make_batch(1, n, a.floor_cells),
+                    iters,
+                    warmup,
+                    a.model_mode,
+                )
                 base = base or (n, r.get("train_sps"), r["predict_ms"])
                 rel = f" (x{base[1] / r['train_sps']:.2f} step time vs {base[0]} points)" if r.get("train_sps") else ""
                 train = f"train {r['train_sps']:6.2f} samples/s{rel}" if "train_sps" in r else "training-free"

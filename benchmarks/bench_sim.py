@@ -7,6 +7,7 @@ candidates labelled per second including filtering (target >= 10/s/core), the ra
 robosuite env stack (0.8 s per 4 s rollout, docs/background.md §5), and the agreement of the IK
 pre-filter with full rollouts run without the pre-check on up to --agree pre-filtered candidates.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -30,8 +31,13 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--agree", type=int, default=20)
     ap.add_argument("--quick", action="store_true", help="coarse grid (cell 0.2) and 5 agreement checks")
-    ap.add_argument("--growth-cells", type=float, nargs="*", default=[0.3, 0.2, 0.14, 0.1],
-                    help="grid cells (m) of the growth-with-candidates measurement on CloseDrawer (none: skip)")
+    ap.add_argument(
+        "--growth-cells",
+        type=float,
+        nargs="*",
+        default=[0.3, 0.2, 0.14, 0.1],
+        help="grid cells (m) of the growth-with-candidates measurement on CloseDrawer (none: skip)",
+    )
     args = ap.parse_args()
     if args.quick:
         args.cell, args.agree = 0.2, 5
@@ -51,9 +57,11 @@ def main() -> None:
         rates.append(rate)
         mean_full = float(np.mean(full)) if full else float("nan")
         print(f"{task:16s} grid {a.grid_shape} {a.counts}")
-        print(f"{'':16s} annotate {a.wall_seconds:.1f}s -> {rate:.1f} candidates/s; full rollout mean {mean_full:.3f}s "
-              f"(n={len(full)}), ratio vs robosuite 0.8s: "
-              f"{ROBOSUITE_ROLLOUT_S / mean_full if full else float('nan'):.1f}x")
+        print(
+            f"{'':16s} annotate {a.wall_seconds:.1f}s -> {rate:.1f} candidates/s; full rollout mean {mean_full:.3f}s "
+            f"(n={len(full)}), ratio vs robosuite 0.8s: "
+            f"{ROBOSUITE_ROLLOUT_S / mean_full if full else float('nan'):.1f}x"
+        )
         pre = [i for i, r in enumerate(a.reasons) if r == "ik_unreachable"][: args.agree]
         agree = 0
         for i in pre:
@@ -75,9 +83,11 @@ def growth(args: argparse.Namespace, cells: list[float]) -> None:
         a = annotate_scene(sc, cell=cell)
         c = a.counts
         rows.append((c["candidates"], a.wall_seconds))
-        print(f"[growth] CloseDrawer cell {cell:.2f} m: {c['candidates']:5d} candidates, "
-              f"{c['rolled_out']:4d} rolled out, "
-              f"annotate {a.wall_seconds:6.2f} s ({1e3 * a.wall_seconds / c['candidates']:.1f} ms/candidate)")
+        print(
+            f"[growth] CloseDrawer cell {cell:.2f} m: {c['candidates']:5d} candidates, "
+            f"{c['rolled_out']:4d} rolled out, "
+            f"annotate {a.wall_seconds:6.2f} s ({1e3 * a.wall_seconds / c['candidates']:.1f} ms/candidate)"
+        )
     if len(rows) >= 2:
         (n0, w0), (n1, w1) = rows[0], rows[-1]
         print(f"[growth] {n1 / max(1, n0):.1f}x the candidates -> {w1 / max(1e-9, w0):.1f}x the time")

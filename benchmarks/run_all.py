@@ -23,13 +23,20 @@ ROOT = HERE.parent
 
 #: (title, script, quick args, full args)
 SUITE: list[tuple[str, str, list[str], list[str]]] = [
-    ("Simulator: rollouts, candidates labelled per second, IK pre-filter agreement, growth with candidates",
-     "bench_sim.py", ["--quick"], []),
+    (
+        "Simulator: rollouts, candidates labelled per second, IK pre-filter agreement, growth with candidates",
+        "bench_sim.py",
+        ["--quick"],
+        [],
+    ),
     ("Generator: render ms per view, wall time per preset, growth with scenes", "bench_generate.py", [], ["--small"]),
     ("Loader: samples/s vs a PointNet++ training step", "bench_loader.py", ["--samples", "16"], []),
-    ("Models: train samples/s, predict latency, growth with points, PointNet++ vs the reference-style port",
-     "bench_models.py", ["--quick", "--points-sweep", "1024", "2048", "4096", "8192"],
-     ["--points-sweep", "1024", "2048", "4096", "8192"]),
+    (
+        "Models: train samples/s, predict latency, growth with points, PointNet++ vs the reference-style port",
+        "bench_models.py",
+        ["--quick", "--points-sweep", "1024", "2048", "4096", "8192"],
+        ["--points-sweep", "1024", "2048", "4096", "8192"],
+    ),
 ]
 
 
@@ -48,6 +55,7 @@ def _machine() -> str:
 
 def _merge_sections(old: str, new: list[str]) -> list[str]:
     """The old report with its ``## `` sections replaced by the new ones of the same title (header: new)."""
+
     def split(text: str) -> list[str]:
         parts = text.split("\n## ")
         return [parts[0]] + ["## " + p for p in parts[1:]]
@@ -62,8 +70,12 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--full", action="store_true", help="the scripts' default (longer) settings")
     ap.add_argument("--out", default=str(ROOT / "docs" / "performance.md"))
-    ap.add_argument("--only", nargs="*", default=None,
-                    help="script names to run (default: all); their sections replace those of an existing --out")
+    ap.add_argument(
+        "--only",
+        nargs="*",
+        default=None,
+        help="script names to run (default: all); their sections replace those of an existing --out",
+    )
     args = ap.parse_args(argv)
     env = dict(os.environ, MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"))
     sections = [

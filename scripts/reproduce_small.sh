@@ -29,7 +29,8 @@ TASKS='["PnPCounterToCab","OpenSingleDoor","CloseDrawer","CloseDoubleDoor"]'
 EVAL=configs/trainer/eval_sr.yaml
 
 JOBS=(
-  cfar_pfal_s0 pointnet2_s0 c2f_exp
+  recipe_s0 prior prior_gtyaw cfar_pfal_s0 pointnet2_s0 c2f_exp c2f_exp_gtyaw
+  recipe_s1 recipe_s2
   cfar_pfal_s1 pointnet2_s1 cfar_pfal_s2 pointnet2_s2
   navaff votenet h3dnet n2m
   no_crop no_align no_sdl no_fd
@@ -37,7 +38,10 @@ JOBS=(
   axisnet_longer gtyaw_s0 gtyaw_s1 gtyaw_s2 stage1_s0 stage1_s1 stage1_s2
   r1.10 r1.30 r1.40 r1.15 r1.25 r1.35
   axis100_s0 axis100_s1 axis100_s2
+  recipe_no_prior recipe_no_snap recipe_pointwise
+  styles_recipe styles_prior
 )
+RECIPE=configs/experiments/recipe/cfar_recipe.yaml
 
 # test_run RUN_DIR LABEL BENCH JOB [CKPT [TEST ARGS...]]: test a fit run on all tasks, copy its report
 test_run() {
@@ -102,14 +106,28 @@ baseline() {
   test_run "$(latest_run "$root")" "$label" "$bench" "$job"
 }
 
-# training-free C2F-Exp-style: test only
+# training-free C2F-Exp-style: test only (TRAINING_FREE LABEL [TEST ARGS...] after JOB BENCH)
 training_free() {
-  local job=$1 bench=$2 root=$RUNS/$2/$1
+  local job=$1 bench=$2 label=${3:-C2F-Exp} root=$RUNS/$2/$1; shift 3 || shift $#
   local before=$RUNS/.tested_${bench}_$job
   mkdir -p "$RUNS"; touch "$before"
   "$FZ" test --config "configs/data/floaff_small_$bench.yaml" --config configs/models/c2f_exp.yaml \
-    --config "$EVAL" --trainer.default_root_dir "$root" --trainer.callbacks.init_args.label C2F-Exp
+    --config "$EVAL" --trainer.default_root_dir "$root" --trainer.callbacks.init_args.label "$label" "$@"
   copy_report "$(find "$root" -name report.json -newer "$before" | head -n 1)" "$bench" "$job"
+}
+
+# prior JOB BENCH LABEL [TEST ARGS...]: the canonical prior (one pass over the training labels), tested with the
+# AxisNet of the recipe's seed-0 curriculum (job recipe_s0 first)
+prior() {
+  local job=$1 bench=$2 label=$3 root=$RUNS/$2/prior; shift 3
+  if [ "$RETEST" = 0 ] && [ -z "$(find "$root" -name last.ckpt 2>/dev/null)" ]; then
+    "$FZ" fit --config "configs/data/floaff_small_$bench.yaml" --config configs/models/canonical_prior.yaml \
+      --data.init_args.train_transforms '[]' --trainer.max_epochs 1 --trainer.default_root_dir "$root"
+  fi
+  local axis
+  axis=$(python3 -c "import json,sys; print(json.load(open(sys.argv[1]))['stages'][0]['checkpoint'])" \
+    "$RUNS/$bench/recipe_s0/lineage.json")
+  test_run "$(latest_run "$root")" "$label" "$bench" "$job" last --model.init_args.axisnet "$axis" "$@"
 }
 
 # axisnet_longer: AxisNet trained 100 epochs with a cosine schedule (the PFAL recipe trains 30), and the test
@@ -152,7 +170,18 @@ run_job() {
     votenet) baseline votenet layouts 0 configs/demo/votenet_demo.yaml VoteNet ;;
     h3dnet)  baseline h3dnet layouts 0 configs/demo/h3dnet_demo.yaml H3DNet ;;
     n2m)     baseline n2m layouts 0 configs/demo/n2m_demo.yaml N2M ;;
-    c2f_exp) training_free c2f_exp layouts ;;
+    c2f_exp) training_free c2f_exp layouts C2F-Exp ;;
+    c2f_exp_gtyaw) training_free c2f_exp_gtyaw layouts "C2F-Exp, simulator yaw" --model.init_args.yaw_source gt ;;
+    recipe_s[0-9]) curriculum "$job" layouts "${job#recipe_s}" "CFAR+PFAL, zoo recipe" --extra-config "$RECIPE" ;;
+    recipe_no_prior|recipe_no_snap|recipe_pointwise)
+      local abl=${job#recipe_} label="recipe w/o ${job#recipe_no_}"
+      [ "$abl" = pointwise ] && abl=pointwise_floor label="recipe, pointwise floor"
+      curriculum "$job" layouts 0 "$label" --extra-config "$RECIPE" \
+        --extra-config "configs/experiments/recipe/$abl.yaml" ;;
+    prior) prior prior layouts "Canonical prior (no network)" ;;
+    prior_gtyaw) prior prior_gtyaw layouts "Canonical prior, simulator yaw" --model.init_args.eval_yaw_source gt ;;
+    styles_recipe) curriculum recipe_s0 styles 0 "CFAR+PFAL, zoo recipe" --extra-config "$RECIPE" ;;
+    styles_prior) prior prior styles "Canonical prior (no network)" ;;
     no_crop|no_align|no_sdl|no_fd)
       curriculum "$job" layouts 0 "w/o ${job#no_}" --extra-config "configs/experiments/ablations/$job.yaml" ;;
     r1.[0-9]*)
@@ -170,7 +199,7 @@ run_job() {
       stage_test "$job" "cfar_pfal_s${job#stage1_s}" 1 "CFAR, stage 1 only" ;;
     styles_cfar_pfal) curriculum cfar_pfal_s0 styles 0 "CFAR+PFAL" ;;
     styles_pointnet2) baseline pointnet2_s0 styles 0 configs/demo/pointnet2_demo.yaml "PointNet++" ;;
-    styles_c2f_exp) training_free c2f_exp styles ;;
+    styles_c2f_exp) training_free c2f_exp styles C2F-Exp ;;
     *) echo "unknown job '$job'; jobs: ${JOBS[*]}" >&2; return 2 ;;
   esac
 }
@@ -179,6 +208,7 @@ job_out() {  # the file a finished job has written, under $OUT
   case $1 in
     axisnet_longer) echo layouts/axisnet_yaw_error.md ;;
     styles_c2f_exp) echo styles/c2f_exp/report.json ;;
+    styles_prior) echo styles/prior/report.json ;;
     styles_*) echo "styles/${1#styles_}_s0/report.json" ;;
     r1.*) echo "layouts/sweep_$1/report.json" ;;
     *) echo "layouts/$1/report.json" ;;

@@ -41,8 +41,10 @@ def table(errors: dict) -> str:
     sources = list(errors)
     keys = sorted({k for d in errors.values() for k in d})
     tasks = sorted({t for t, _ in keys})
-    lines = ["| task | " + " | ".join(f"{s} median / mean (deg)" for s in sources) + " |",
-             "|---|" + "---:|" * len(sources)]
+    lines = [
+        "| task | " + " | ".join(f"{s} median / mean (deg)" for s in sources) + " |",
+        "|---|" + "---:|" * len(sources),
+    ]
     for task in [*tasks, "all"]:
         cells = []
         for s in sources:
@@ -62,8 +64,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--json", default=None, help="also write the raw errors here")
     a = p.parse_args(argv)
     torch.manual_seed(0)
-    dm = FloAffKitchenDataModule(root=a.root, benchmark=a.benchmark, batch_size=8, num_points=a.points,
-                                 collate_mode="resample", validate=False)
+    dm = FloAffKitchenDataModule(
+        root=a.root, benchmark=a.benchmark, batch_size=8, num_points=a.points, collate_mode="resample", validate=False
+    )
     dm.setup("fit" if a.split in ("train", "val") else "test")
     sources = ["manhattan", "heading"]
     axisnet, radius = None, 0.0
@@ -74,8 +77,9 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{a.benchmark} {a.split}: {sum(len(v) for v in errors[sources[0]].values())} views")
     print(table(errors))
     if a.json:
-        Path(a.json).write_text(json.dumps({s: {f"{t}/{v}": e for (t, v), e in d.items()} for s, d in errors.items()},
-                                           indent=1))
+        Path(a.json).write_text(
+            json.dumps({s: {f"{t}/{v}": e for (t, v), e in d.items()} for s, d in errors.items()}, indent=1)
+        )
     return 0
 
 

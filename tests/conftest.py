@@ -34,8 +34,12 @@ def root() -> Path:
 def quiet_trainer_args(tmp_path) -> list[str]:
     """Trainer flags for fast, quiet CLI runs under tmp_path."""
     return [
-        "--trainer.accelerator", "cpu",
-        "--trainer.default_root_dir", str(tmp_path),
-        "--trainer.enable_progress_bar", "false",
-        "--trainer.enable_model_summary", "false",
+        "--trainer.accelerator",
+        "cpu",
+        "--trainer.default_root_dir",
+        str(tmp_path),
+        "--trainer.enable_progress_bar",
+        "false",
+        "--trainer.enable_model_summary",
+        "false",
     ]

@@ -61,11 +61,23 @@ def test_command_line_model_args_beat_checkpoint_hparams(tmp_path, root, monkeyp
     base = ["--config", DATA, "--config", MODEL, *quiet_trainer_args(tmp_path)]
     cli = run_lightning(["fit", *base, "--trainer.max_epochs", "1", "--model.init_args.width", "16"])
     ckpt = cli.trainer.checkpoint_callback.best_model_path
-    plain = run_lightning(["test", "--config", DATA, *quiet_trainer_args(tmp_path), "--model", "TinyPointNetModule",
-                           "--ckpt_path", ckpt])
+    plain = run_lightning(
+        ["test", "--config", DATA, *quiet_trainer_args(tmp_path), "--model", "TinyPointNetModule", "--ckpt_path", ckpt]
+    )
     assert plain.model.hparams.width == 16 and plain.model.train_cfg.sim_variant == "cosine"  # from the checkpoint
-    over = run_lightning(["test", "--config", DATA, *quiet_trainer_args(tmp_path), "--model", "TinyPointNetModule",
-                          "--ckpt_path", ckpt, "--model.init_args.train.sim_variant=hist"])
+    over = run_lightning(
+        [
+            "test",
+            "--config",
+            DATA,
+            *quiet_trainer_args(tmp_path),
+            "--model",
+            "TinyPointNetModule",
+            "--ckpt_path",
+            ckpt,
+            "--model.init_args.train.sim_variant=hist",
+        ]
+    )
     assert over.model.hparams.width == 16 and over.model.train_cfg.sim_variant == "hist"
     assert over.model.train_cfg.lr == 0.003  # the rest of the train group still comes from the checkpoint
 
@@ -79,7 +91,9 @@ def test_test_without_checkpoint_refuses(tmp_path, root, monkeypatch):
 def test_config_typo_names_the_field(tmp_path, root, monkeypatch, capsys):
     monkeypatch.chdir(root)
     with pytest.raises(SystemExit):
-        main(["fit", "--config", DATA, "--config", MODEL, "--model.init_args.widht", "8", *quiet_trainer_args(tmp_path)])
+        main(
+            ["fit", "--config", DATA, "--config", MODEL, "--model.init_args.widht", "8", *quiet_trainer_args(tmp_path)]
+        )
     assert "widht" in capsys.readouterr().err
 
 
@@ -100,6 +114,17 @@ def test_robot_dim_mismatch_is_clear(tmp_path, root, monkeypatch):
     from floaff_zoo.contract import SampleError
 
     with pytest.raises(SampleError, match="robot_dim"):
-        main(["fit", "--config", DATA, "--config", MODEL, "--model.init_args.robot_dim", "3",
-              "--trainer.fast_dev_run", "1", *quiet_trainer_args(tmp_path)])
-
+        main(
+            [
+                "fit",
+                "--config",
+                DATA,
+                "--config",
+                MODEL,
+                "--model.init_args.robot_dim",
+                "3",
+                "--trainer.fast_dev_run",
+                "1",
+                *quiet_trainer_args(tmp_path),
+            ]
+        )

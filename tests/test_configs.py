@@ -44,7 +44,8 @@ def plan(cfg: str) -> tuple[str, list[list[str]]]:
         command = "test" if "callbacks" in (raw["trainer"] or {}) else "fit"
         return "trainer", [[command, "--config", TINY_DATA, "--config", TINY_MODEL, "--config", cfg]]
     raise AssertionError(
-        f"{cfg}: not a data, model, override, trainer or experiment config; teach tests/test_configs.py")
+        f"{cfg}: not a data, model, override, trainer or experiment config; teach tests/test_configs.py"
+    )
 
 
 @pytest.mark.parametrize("cfg", CONFIGS)

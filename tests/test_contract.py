@@ -83,11 +83,11 @@ def test_best_pose_tie_break_and_heading():
     floor = torch.tensor([[1.0, 0, 0], [2.0, 0, 0], [0.5, 0.5, 0]])
     target = torch.tensor([3.0, 0, 0.9])
     # "nearest": a constant map picks the point closest to the target
-    (x, y, yaw), = best_pose(floor, torch.zeros(3), None, target, tie_break="nearest")
+    ((x, y, yaw),) = best_pose(floor, torch.zeros(3), None, target, tie_break="nearest")
     assert (x, y) == (2.0, 0.0) and abs(yaw) < 1e-9
     poses = best_pose(floor, torch.tensor([0.1, 0.2, 0.9]), torch.tensor([True, True, False]), target, k=2)
     assert poses[0][:2] == (2.0, 0.0) and poses[1][:2] == (1.0, 0.0)
-    (x, y, yaw), = best_pose(floor, torch.tensor([0.0, 0.0, 1.0]), None, target)
+    ((x, y, yaw),) = best_pose(floor, torch.tensor([0.0, 0.0, 1.0]), None, target)
     assert math.isclose(yaw, math.atan2(-0.5, 2.5))
 
 

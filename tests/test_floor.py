@@ -30,8 +30,12 @@ def test_observed_cells_count_ground_points_only():
     lat = FloorLattice((0.0, 0.0), math.radians(37.0), 0.1, (3, 4))
     centres = lat.centers()
     rng = np.random.default_rng(0)
-    jitter = lambda k: rng.uniform(-0.045, 0.045, (k, 2)) @ np.array(  # inside the rotated square
-        [[math.cos(lat.angle), math.sin(lat.angle)], [-math.sin(lat.angle), math.cos(lat.angle)]])
+
+    def jitter(k):
+        return rng.uniform(-0.045, 0.045, (k, 2)) @ np.array(  # inside the rotated square
+            [[math.cos(lat.angle), math.sin(lat.angle)], [-math.sin(lat.angle), math.cos(lat.angle)]]
+        )
+
     floor_cells, obstacle_cells, high_floor = [0, 5, 17, 40, 62], [1, 6, 30], [2]
     pts = [np.c_[centres[floor_cells] + jitter(5), rng.uniform(-0.01, 0.019, 5)]]
     pts.append(np.c_[centres[obstacle_cells] + jitter(3), np.full(3, 0.4)])  # furniture: not ground

@@ -70,8 +70,13 @@ def run_dir(tmp_path):
     best_model, last_model = _model(1), _model(2)
     teacher = {"teacher.net.head.0.weight": torch.ones(3, 3)}
     best = _lightning_ckpt(best_model, ckdir / "epoch001-val_rmse0.1200.ckpt", extra_state=teacher)
-    cb = {"ModelCheckpoint{'monitor': 'val_rmse', 'mode': 'min'}": {
-        "monitor": "val_rmse", "best_model_score": torch.tensor(0.12), "best_model_path": str(best)}}
+    cb = {
+        "ModelCheckpoint{'monitor': 'val_rmse', 'mode': 'min'}": {
+            "monitor": "val_rmse",
+            "best_model_score": torch.tensor(0.12),
+            "best_model_path": str(best),
+        }
+    }
     _lightning_ckpt(last_model, ckdir / "last.ckpt", callbacks=cb)
     return tmp_path / "run", best_model, last_model
 
@@ -164,8 +169,15 @@ def _safetensors(model: FloAffModule, path: Path) -> Path:
 
 def _url_entry(name: str, file: Path, url: str, width: int = 8) -> HubEntry:
     sha = sha256_file(file)
-    return HubEntry(name=name, class_path=TINY, filename=unique_filename(name, sha, file.suffix), sha256=sha,
-                    init_args={"width": width}, source={"kind": "url", "url": url}, meta={})
+    return HubEntry(
+        name=name,
+        class_path=TINY,
+        filename=unique_filename(name, sha, file.suffix),
+        sha256=sha,
+        init_args={"width": width},
+        source={"kind": "url", "url": url},
+        meta={},
+    )
 
 
 @pytest.fixture
@@ -250,9 +262,14 @@ def test_hf_download_pinned_revision(tmp_path, monkeypatch, batch):
     f = _safetensors(model, tmp_path / "model.safetensors")
     sha = sha256_file(f)
     rev = "a" * 40
-    e = HubEntry(name="tiny.hf.v1", class_path=TINY, filename=unique_filename("tiny.hf.v1", sha, ".safetensors"),
-                 sha256=sha, init_args={"width": 8},
-                 source={"kind": "hf", "repo": "org/tiny", "revision": rev, "path_in_repo": "model.safetensors"})
+    e = HubEntry(
+        name="tiny.hf.v1",
+        class_path=TINY,
+        filename=unique_filename("tiny.hf.v1", sha, ".safetensors"),
+        sha256=sha,
+        init_args={"width": 8},
+        source={"kind": "hf", "repo": "org/tiny", "revision": rev, "path_in_repo": "model.safetensors"},
+    )
     register(e)
     seen = []
 
@@ -308,8 +325,14 @@ def test_code_in_pickle_is_refused(tmp_path):
 
 
 def test_unknown_name_and_missing_path():
-    register(HubEntry(name="cfar-pfal.floaff-sim-layouts.v1", class_path=TINY, sha256="0" * 64,
-                      filename="cfar-pfal.floaff-sim-layouts.v1-00000000.safetensors"))
+    register(
+        HubEntry(
+            name="cfar-pfal.floaff-sim-layouts.v1",
+            class_path=TINY,
+            sha256="0" * 64,
+            filename="cfar-pfal.floaff-sim-layouts.v1-00000000.safetensors",
+        )
+    )
     with pytest.raises(UnknownWeightsError, match="cfar-pfal.floaff-sim-layouts.v1"):
         resolve_state_dict("cfar-pfal.floaff-sim-layout.v1")
     with pytest.raises(FileNotFoundError, match="nowhere/model.ckpt"):
@@ -318,10 +341,13 @@ def test_unknown_name_and_missing_path():
 
 @pytest.mark.parametrize(
     "patch, field",
-    [({"filename": "x.safetensors"}, "hash prefix"), ({"sha256": "abc"}, "64-hex"),
-     ({"source": {"kind": "hf", "repo": "org/x", "revision": "main"}}, "pinned 40-hex"),
-     ({"source": {"kind": "url", "url": "https://huggingface.co/o/r/resolve/main/x.safetensors"}}, "pin"),
-     ({"init_args": {"weights": "other.v1"}}, "weights")],
+    [
+        ({"filename": "x.safetensors"}, "hash prefix"),
+        ({"sha256": "abc"}, "64-hex"),
+        ({"source": {"kind": "hf", "repo": "org/x", "revision": "main"}}, "pinned 40-hex"),
+        ({"source": {"kind": "url", "url": "https://huggingface.co/o/r/resolve/main/x.safetensors"}}, "pin"),
+        ({"init_args": {"weights": "other.v1"}}, "weights"),
+    ],
 )
 def test_malformed_user_index_names_file_and_field(patch, field):
     sha = "1" * 64

@@ -70,9 +70,14 @@ def _imported_names(module: str, tree: ast.AST) -> set[str]:
             for alias in node.names:  # `from pkg import submodule` imports the submodule
                 sub = f"{target}.{alias.name}"
                 names.add(sub if sub in MODULES else target)
-        elif (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute)
-              and node.func.attr == "import_module" and node.args
-              and isinstance(node.args[0], ast.Constant) and isinstance(node.args[0].value, str)):
+        elif (
+            isinstance(node, ast.Call)
+            and isinstance(node.func, ast.Attribute)
+            and node.func.attr == "import_module"
+            and node.args
+            and isinstance(node.args[0], ast.Constant)
+            and isinstance(node.args[0].value, str)
+        ):
             names.add(node.args[0].value)
     return {n for n in names if n == PACKAGE or n.startswith(PACKAGE + ".")}
 
@@ -109,7 +114,7 @@ def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
                 state[path.pop()] = 2
                 stack.pop()
             elif state.get(nxt) == 1:
-                return path[path.index(nxt):] + [nxt]
+                return path[path.index(nxt) :] + [nxt]
             elif not state.get(nxt):
                 state[nxt] = 1
                 path.append(nxt)
@@ -140,7 +145,8 @@ def test_subpackages_depend_one_way():
     for module, edges in import_graph().items():
         src = ".".join(module.split(".")[:2])
         parts.setdefault(src, set()).update(
-            dst for dst in (".".join(e.split(".")[:2]) for e in edges) if dst not in (src, PACKAGE))
+            dst for dst in (".".join(e.split(".")[:2]) for e in edges) if dst not in (src, PACKAGE)
+        )
     cycle = find_cycle(parts)
     assert cycle is None, "subpackage circle: " + " -> ".join(cycle)
 
@@ -153,15 +159,30 @@ def test_sim_imports_neither_torch_nor_lightning():
         "    importlib.import_module(m)\n"
         "print(sorted(k for k in ('torch', 'lightning', 'pytorch_lightning', 'torchmetrics') if k in sys.modules))\n"
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
-                         env={**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")})
+    out = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env={**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")},
+    )
     assert out.returncode == 0, out.stderr[-3000:]
     assert out.stdout.strip().splitlines()[-1] == "[]", "floaff_zoo.sim imported " + out.stdout
 
 
 #: imported once by the helper before it forks (no floaff_zoo module among them)
-_PRELOAD = ("numpy", "scipy", "torch", "lightning", "torchmetrics", "jsonargparse", "yaml", "mujoco", "matplotlib",
-            "safetensors")
+_PRELOAD = (
+    "numpy",
+    "scipy",
+    "torch",
+    "lightning",
+    "torchmetrics",
+    "jsonargparse",
+    "yaml",
+    "mujoco",
+    "matplotlib",
+    "safetensors",
+)
 
 _FORK_EACH = r"""
 import importlib, json, os, sys, traceback
@@ -203,5 +224,5 @@ def test_every_module_imports_alone():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600, env=env)
     lines = [ln for ln in out.stdout.splitlines() if ln.startswith("RESULT ")]
     assert out.returncode == 0 and lines, out.stderr[-3000:]
-    failed = json.loads(lines[-1][len("RESULT "):])
+    failed = json.loads(lines[-1][len("RESULT ") :])
     assert not failed, "modules that fail to import alone:\n" + "\n".join(f"== {k}\n{v}" for k, v in failed.items())

@@ -10,8 +10,14 @@ import sys
 from floaff_zoo import quiet
 
 #: lines Lightning prints around every fit; none of them may reach the user by default
-LIGHTNING_NOISE = ("GPU available:", "TPU available:", "Tip: For seamless", "Seed set to",
-                   "Total estimated model params size", "is smaller than the logging interval")
+LIGHTNING_NOISE = (
+    "GPU available:",
+    "TPU available:",
+    "Tip: For seamless",
+    "Seed set to",
+    "Total estimated model params size",
+    "is smaller than the logging interval",
+)
 
 
 def _run(args: list[str], cwd, verbose_env: bool = False) -> str:
@@ -25,9 +31,19 @@ def _run(args: list[str], cwd, verbose_env: bool = False) -> str:
 
 
 def test_fit_is_quiet_by_default_and_verbose_shows_everything(tmp_path, root):
-    fit = ["-m", "floaff_zoo", "fit", "--config", "configs/data/synthetic_tiny.yaml",
-           "--config", "configs/models/tiny_pointnet.yaml", "--trainer.max_epochs", "1",
-           "--trainer.default_root_dir", str(tmp_path)]
+    fit = [
+        "-m",
+        "floaff_zoo",
+        "fit",
+        "--config",
+        "configs/data/synthetic_tiny.yaml",
+        "--config",
+        "configs/models/tiny_pointnet.yaml",
+        "--trainer.max_epochs",
+        "1",
+        "--trainer.default_root_dir",
+        str(tmp_path),
+    ]
     out = _run(fit, root)
     assert not [n for n in LIGHTNING_NOISE if n in out], out[-3000:]
     assert "floaff-zoo fit: TinyPointNetModule" in out and "floaff-zoo fit: done after 1 epoch(s)" in out

@@ -34,8 +34,9 @@ class FakeFit:
         if self.kill:  # killed after the first epoch's checkpoint: last.ckpt exists, fit never returned
             raise KeyboardInterrupt
         cb = types.SimpleNamespace(best_model_path=str(last), last_model_path=str(last))
-        return types.SimpleNamespace(trainer=types.SimpleNamespace(checkpoint_callback=cb, log_dir=str(run),
-                                                                   current_epoch=2))
+        return types.SimpleNamespace(
+            trainer=types.SimpleNamespace(checkpoint_callback=cb, log_dir=str(run), current_epoch=2)
+        )
 
 
 def test_finished_marker_round_trip_and_corrupt_marker_is_named(tmp_path):

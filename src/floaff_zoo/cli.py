@@ -54,7 +54,7 @@ def explicit_model_args(args: list[str]) -> list[str]:
     for tok in args:
         if not tok.startswith("--model."):
             continue
-        key = tok[len("--model."):].split("=", 1)[0]
+        key = tok[len("--model.") :].split("=", 1)[0]
         key = key.removeprefix("init_args.")
         if key and key not in ("class_path", "init_args", "dict_kwargs", "help"):
             keys.append(key)
@@ -117,8 +117,11 @@ class FloAffCLI(LightningCLI):
                 after[full] = before[full]
                 kept.append(key)
         if kept and self.config[sub].get("ckpt_path") and Path(str(self.config[sub].ckpt_path)).is_file():
-            print(f"floaff-zoo: model hyper-parameters from {self.config[sub].ckpt_path}, except "
-                  f"{', '.join(kept)} (given on the command line)", file=sys.stderr)
+            print(
+                f"floaff-zoo: model hyper-parameters from {self.config[sub].ckpt_path}, except "
+                f"{', '.join(kept)} (given on the command line)",
+                file=sys.stderr,
+            )
 
     def before_instantiate_classes(self) -> None:
         cfg = self.config[self.subcommand]
@@ -135,9 +138,7 @@ class FloAffCLI(LightningCLI):
         cfg = self.config_init[self.subcommand]["trainer"]
         extra = list(kwargs.pop("callbacks", None) or [])
         user = list(cfg.get("callbacks") or [])
-        if cfg.get("enable_progress_bar", True) is not False and not any(
-            isinstance(c, TQDMProgressBar) for c in user
-        ):
+        if cfg.get("enable_progress_bar", True) is not False and not any(isinstance(c, TQDMProgressBar) for c in user):
             # Rich breaks non-TTY logs; TQDM with a slow refresh keeps CI logs short.
             extra.append(TQDMProgressBar(refresh_rate=1 if sys.stdout.isatty() else 20, leave=True))
         model = self.model
@@ -207,16 +208,21 @@ class FloAffCLI(LightningCLI):
         """One line per stage (Lightning's own banners and model summary are off unless --verbose)."""
         n = sum(p.numel() for p in self.model.parameters())
         weights = f" with weights {ckpt}" if ckpt else ""
-        print(f"floaff-zoo {self.subcommand}: {type(self.model).__name__} ({n / 1e6:.3f} M params){weights} on "
-              f"{type(self.datamodule).__name__} -> {self.trainer.log_dir}", flush=True)
+        print(
+            f"floaff-zoo {self.subcommand}: {type(self.model).__name__} ({n / 1e6:.3f} M params){weights} on "
+            f"{type(self.datamodule).__name__} -> {self.trainer.log_dir}",
+            flush=True,
+        )
 
     def after_fit(self) -> None:
         cb = self.trainer.checkpoint_callback
         best = getattr(cb, "best_model_path", "") or getattr(cb, "last_model_path", "")
         score = getattr(cb, "best_model_score", None)
         metric = f" ({cb.monitor} {float(score):.4f})" if score is not None and getattr(cb, "monitor", None) else ""
-        print(f"floaff-zoo fit: done after {self.trainer.current_epoch} epoch(s); checkpoint {best or 'none'}{metric}",
-              flush=True)
+        print(
+            f"floaff-zoo fit: done after {self.trainer.current_epoch} epoch(s); checkpoint {best or 'none'}{metric}",
+            flush=True,
+        )
 
 
 def _print_overview() -> None:
@@ -227,8 +233,10 @@ def _print_overview() -> None:
     print("\nother commands (`floaff-zoo <command> --help`):")
     for c, (_, text) in OTHER_COMMANDS.items():
         print(f"  {c:<11} {text}")
-    print("\noptions:\n  -h, --help  show this overview\n  --version   print the version\n"
-          "  --verbose   (anywhere) show all third-party output: warnings, Lightning banners, robosuite notices")
+    print(
+        "\noptions:\n  -h, --help  show this overview\n  --version   print the version\n"
+        "  --verbose   (anywhere) show all third-party output: warnings, Lightning banners, robosuite notices"
+    )
 
 
 def _dispatch(command: str, argv: list[str]) -> int:
@@ -280,9 +288,7 @@ def main(args: list[str] | None = None) -> int:
         if argv[0] in OTHER_COMMANDS:
             return _dispatch(argv[0], argv[1:])
         if argv[0] not in TRAINER_COMMANDS:
-            raise CLIError(
-                f"unknown command {argv[0]!r}; choose from {list(TRAINER_COMMANDS) + list(OTHER_COMMANDS)}"
-            )
+            raise CLIError(f"unknown command {argv[0]!r}; choose from {list(TRAINER_COMMANDS) + list(OTHER_COMMANDS)}")
         run_lightning(argv)
         return 0
     except (CLIError, RunError, SampleError, MisconfigurationException) as exc:

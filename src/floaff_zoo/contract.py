@@ -121,9 +121,7 @@ def validate_sample(sample: Sample) -> Sample:
         floor = out["floor_xyz"] = torch.cat([floor, floor.new_zeros(floor.shape[0], 1)], dim=1)
     label = out["floor_label"] = label.reshape(-1)
     if label.shape[0] != floor.shape[0]:
-        raise SampleError(
-            f"{where}: floor_label has {label.shape[0]} values but floor_xyz has {floor.shape[0]} points"
-        )
+        raise SampleError(f"{where}: floor_label has {label.shape[0]} values but floor_xyz has {floor.shape[0]} points")
     if out["robot"].ndim != 1:
         out["robot"] = out["robot"].reshape(-1)
     if out["target_xyz"].numel() != 3:
@@ -157,9 +155,7 @@ def _mask(mask: Any, n: int, where: str, name: str) -> Tensor:
     return m
 
 
-def resample_indices(
-    n_valid: int, size: int, generator: torch.Generator | None = None
-) -> Tensor:
+def resample_indices(n_valid: int, size: int, generator: torch.Generator | None = None) -> Tensor:
     """Indices that resample ``n_valid`` items to exactly ``size`` (random subset, or all + repeats).
 
     Returns:

@@ -90,7 +90,9 @@ def load_experiment(path: str | Path, _seen: tuple[Path, ...] = ()) -> dict[str,
         raise CurriculumError(f"experiment config {path}: expected a mapping at the top level")
     unknown = set(cfg) - _TOP_KEYS
     if unknown:
-        raise CurriculumError(f"experiment config {path}: unknown key(s) {sorted(unknown)}; allowed {sorted(_TOP_KEYS)}")
+        raise CurriculumError(
+            f"experiment config {path}: unknown key(s) {sorted(unknown)}; allowed {sorted(_TOP_KEYS)}"
+        )
     if cfg.get("extends"):
         parent = load_experiment(path.parent / cfg["extends"], _seen + (path.resolve(),))
         cfg = _merge(parent, {k: v for k, v in cfg.items() if k != "extends"})
@@ -120,7 +122,9 @@ def _check(cfg: dict[str, Any], path: Path) -> None:
             raise CurriculumError(f"{where}: every stage needs a 'name'")
         unknown = set(st) - _STAGE_KEYS
         if unknown:
-            raise CurriculumError(f"{where} ({st['name']}): unknown key(s) {sorted(unknown)}; allowed {sorted(_STAGE_KEYS)}")
+            raise CurriculumError(
+                f"{where} ({st['name']}): unknown key(s) {sorted(unknown)}; allowed {sorted(_STAGE_KEYS)}"
+            )
         if st["name"] in names:
             raise CurriculumError(f"{where}: duplicate stage name {st['name']!r}")
         for key, ref in (st.get("from_stages") or {}).items():
@@ -181,8 +185,10 @@ def build_stage_args(
     """The ``fit`` argument list of one stage (without ``--ckpt_path``)."""
     shared = stage.get("shared", True)
     files = _as_list(cfg.get("data"), "data")
-    files += _as_list(stage.get("model"), f"stage {stage['name']}: model") if stage.get("model") else (
-        _as_list(cfg.get("model"), "model") if shared else []
+    files += (
+        _as_list(stage.get("model"), f"stage {stage['name']}: model")
+        if stage.get("model")
+        else (_as_list(cfg.get("model"), "model") if shared else [])
     )
     files += _as_list(cfg.get("trainer"), "trainer") + _as_list(stage.get("configs"), f"stage {stage['name']}: configs")
     args = ["fit"]
@@ -219,7 +225,8 @@ def _read_json(path: Path) -> dict[str, Any] | None:
         record = json.loads(path.read_text())
     except (OSError, json.JSONDecodeError) as exc:
         raise CurriculumError(
-            f"{path}: corrupt curriculum record ({exc}); fix or delete it to rerun the stage") from exc
+            f"{path}: corrupt curriculum record ({exc}); fix or delete it to rerun the stage"
+        ) from exc
     if not isinstance(record, dict):
         raise CurriculumError(f"{path}: expected a JSON object, got {type(record).__name__}; fix or delete it")
     return record
@@ -305,7 +312,13 @@ def run_curriculum(
         runner = run_lightning
     lineage_path = root / LINEAGE_FILE
     _read_json(lineage_path)  # a damaged lineage of an earlier run is reported, not silently replaced
-    lineage = {"experiment": str(config), "root": str(root), "extra_configs": extra, "sets": list(sets or []), "stages": []}
+    lineage = {
+        "experiment": str(config),
+        "root": str(root),
+        "extra_configs": extra,
+        "sets": list(sets or []),
+        "stages": [],
+    }
     best: dict[str, str] = {}
     for stage in cfg["stages"]:
         name = stage["name"]
@@ -370,10 +383,22 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--config", required=True, help="experiment YAML (e.g. configs/experiments/pfal_layouts.yaml)")
     parser.add_argument("--root", default=None, help="run directory (default: the experiment's 'root')")
-    parser.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
-                        help="override for every stage, e.g. trainer.max_epochs=1 (repeatable)")
-    parser.add_argument("--extra-config", dest="extra", action="append", default=[], metavar="FILE",
-                        help="extra --config file for every shared stage, e.g. an ablation or sweep file (repeatable)")
+    parser.add_argument(
+        "--set",
+        dest="sets",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override for every stage, e.g. trainer.max_epochs=1 (repeatable)",
+    )
+    parser.add_argument(
+        "--extra-config",
+        dest="extra",
+        action="append",
+        default=[],
+        metavar="FILE",
+        help="extra --config file for every shared stage, e.g. an ablation or sweep file (repeatable)",
+    )
     parser.add_argument("--dry-run", action="store_true", help="print the fit commands and exit")
     ns = parser.parse_args(argv)
     try:

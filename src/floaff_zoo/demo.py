@@ -55,11 +55,21 @@ def _fit_baseline(data: str, root: Path, epochs: int) -> Path:
     unfinished = sorted({p.parents[1] for p in root.rglob("last*.ckpt")})
     if unfinished:
         print(f"  {', '.join(map(str, unfinished))}: fit did not finish (no finished.json); fitting again")
-    cli = run_lightning([
-        "fit", "--config", DATA_CONFIG, "--config", BASELINE_CONFIG,
-        "--data.init_args.root", data,
-        "--trainer.default_root_dir", str(root), "--trainer.max_epochs", str(epochs),
-    ])
+    cli = run_lightning(
+        [
+            "fit",
+            "--config",
+            DATA_CONFIG,
+            "--config",
+            BASELINE_CONFIG,
+            "--data.init_args.root",
+            data,
+            "--trainer.default_root_dir",
+            str(root),
+            "--trainer.max_epochs",
+            str(epochs),
+        ]
+    )
     cb = cli.trainer.checkpoint_callback
     ckpt = (cb.best_model_path or cb.last_model_path) if cb is not None else ""
     run = Path(cli.trainer.log_dir or "")
@@ -77,11 +87,21 @@ def _test(run_dir: Path, data: str, ckpt: str | None = None) -> Path:
     """
     from floaff_zoo.cli import run_lightning
 
-    cli = run_lightning([
-        "test", "--config", str(run_dir / "config.yaml"), "--config", EVAL_CONFIG,
-        "--data.init_args.root", data, "--data.init_args.tasks", json.dumps(list(ALL_TASKS)),
-        "--ckpt_path", ckpt or "best",
-    ])
+    cli = run_lightning(
+        [
+            "test",
+            "--config",
+            str(run_dir / "config.yaml"),
+            "--config",
+            EVAL_CONFIG,
+            "--data.init_args.root",
+            data,
+            "--data.init_args.tasks",
+            json.dumps(list(ALL_TASKS)),
+            "--ckpt_path",
+            ckpt or "best",
+        ]
+    )
     report = Path(cli.trainer.log_dir) / "report.json"
     if not report.is_file():
         raise RuntimeError(f"test of {run_dir} wrote no report.json")
@@ -103,12 +123,18 @@ def main(argv: list[str] | None = None) -> int:
 
 def _run(argv: list[str] | None) -> int:
     p = argparse.ArgumentParser(prog="floaff-zoo demo", description=__doc__.split("\n\n")[0])
-    p.add_argument("--preset", default="demo", help="generation preset (default: demo; see `floaff-zoo generate --help`)")
+    p.add_argument(
+        "--preset", default="demo", help="generation preset (default: demo; see `floaff-zoo generate --help`)"
+    )
     p.add_argument("--data", default="data/floaff_demo", help="where the benchmark is generated / reused")
     p.add_argument("--runs", default="runs/demo", help="where the runs, reports and pictures go")
-    p.add_argument("--epochs", type=int, default=None,
-                   help="epochs of every stage and of the baseline (default: the demo experiment's, 20 per CFAR "
-                        "stage, 30 for the small AxisNet, 20 for the baseline; paper: 30)")
+    p.add_argument(
+        "--epochs",
+        type=int,
+        default=None,
+        help="epochs of every stage and of the baseline (default: the demo experiment's, 20 per CFAR "
+        "stage, 30 for the small AxisNet, 20 for the baseline; paper: 30)",
+    )
     p.add_argument("--workers", type=int, default=2, help="generation worker processes")
     args = p.parse_args(argv)
     _check_configs()

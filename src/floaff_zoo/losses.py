@@ -31,7 +31,9 @@ LossFn = Callable[[Tensor, Tensor, Tensor], Tensor]
 def _prepare(name: str, pred: Tensor, target: Tensor, mask: Tensor | None) -> tuple[Tensor, Tensor, Tensor]:
     """Check shapes; return (pred, target) with padded entries zeroed and the bool mask, all [B, M]."""
     if pred.ndim != 2 or pred.shape != target.shape:
-        raise ValueError(f"{name}: pred and target must both be [B, M]; got {tuple(pred.shape)} and {tuple(target.shape)}")
+        raise ValueError(
+            f"{name}: pred and target must both be [B, M]; got {tuple(pred.shape)} and {tuple(target.shape)}"
+        )
     if mask is None:
         mask = torch.ones_like(pred, dtype=torch.bool)
     if mask.dtype != torch.bool or mask.shape != pred.shape:

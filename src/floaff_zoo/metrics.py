@@ -90,14 +90,18 @@ def _check_inputs(
 ) -> tuple[Tensor, Tensor, Tensor]:
     """Validate shapes/dtypes; return (p, g) float64 [B, M] and mask bool [B, M]."""
     if preds.ndim != 2 or preds.shape != target.shape:
-        raise ValueError(f"{name}: preds and target must both be [B, M]; got {tuple(preds.shape)} and {tuple(target.shape)}")
+        raise ValueError(
+            f"{name}: preds and target must both be [B, M]; got {tuple(preds.shape)} and {tuple(target.shape)}"
+        )
     if mask is None:
         mask = torch.ones_like(preds, dtype=torch.bool)
     if mask.dtype != torch.bool or mask.shape != preds.shape:
         raise ValueError(f"{name}: mask must be bool {tuple(preds.shape)}; got {mask.dtype} {tuple(mask.shape)}")
     if index is not None:
         if index.shape != preds.shape[:1] or index.is_floating_point() or index.dtype == torch.bool:
-            raise ValueError(f"{name}: index must be an integer tensor [B={preds.shape[0]}]; got {index.dtype} {tuple(index.shape)}")
+            raise ValueError(
+                f"{name}: index must be an integer tensor [B={preds.shape[0]}]; got {index.dtype} {tuple(index.shape)}"
+            )
         if (index < 0).any():
             raise ValueError(f"{name}: index must be >= 0 (position of the sample in its split)")
     p, g = preds.detach().double(), target.detach().double()
@@ -169,7 +173,10 @@ def _element_table(rows: Tensor, chunk_size: int) -> dict[str, Tensor]:
     cid = torch.div(rows[:, _C["index"]], chunk_size, rounding_mode="floor")
     ids, inv = torch.unique(cid, return_inverse=True)
     e = ids.numel()
-    s = {k: _group_sum(rows[:, _C[k]], inv, e) for k in ("n", "sp", "sg", "spp", "sgg", "spg", "sse", "sae", "sle", "smin", "smax", "simh")}
+    s = {
+        k: _group_sum(rows[:, _C[k]], inv, e)
+        for k in ("n", "sp", "sg", "spp", "sgg", "spg", "sse", "sae", "sle", "smin", "smax", "simh")
+    }
     n_i = rows[:, _C["n"]]
     mp_i, mg_i = rows[:, _C["sp"]] / n_i.clamp_min(1), rows[:, _C["sg"]] / n_i.clamp_min(1)
     n = s["n"]
@@ -227,7 +234,9 @@ class _FloorMetric(Metric):
     def __init__(self, reduction: Reduction = "per_sample", chunk_size: int = 64, keep_points: bool = False) -> None:
         super().__init__()
         if reduction not in ("per_sample", "official_batchwise"):
-            raise ValueError(f"{type(self).__name__}: reduction must be 'per_sample' or 'official_batchwise', got {reduction!r}")
+            raise ValueError(
+                f"{type(self).__name__}: reduction must be 'per_sample' or 'official_batchwise', got {reduction!r}"
+            )
         if int(chunk_size) < 1:
             raise ValueError(f"{type(self).__name__}: chunk_size must be >= 1, got {chunk_size}")
         self.reduction = reduction
@@ -382,7 +391,9 @@ class FloorSIM(_FloorMetric):
 
     higher_is_better = True
 
-    def __init__(self, sim_variant: SimVariant = "cosine", reduction: Reduction = "per_sample", chunk_size: int = 64) -> None:
+    def __init__(
+        self, sim_variant: SimVariant = "cosine", reduction: Reduction = "per_sample", chunk_size: int = 64
+    ) -> None:
         if sim_variant not in ("hist", "cosine"):
             raise ValueError(f"FloorSIM: sim_variant must be 'hist' or 'cosine', got {sim_variant!r}")
         super().__init__(reduction=reduction, chunk_size=chunk_size, keep_points=sim_variant == "hist")

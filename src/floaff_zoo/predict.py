@@ -76,9 +76,13 @@ def resolve_model(model: Any, model_class: type | str | None = None, device: str
         try:
             model = load_model(str(model), map_location=device)
         except FileNotFoundError as exc:
-            raise FileNotFoundError(f"predict: model {str(model)!r} is neither a checkpoint file nor a known hub name ({exc})") from exc
+            raise FileNotFoundError(
+                f"predict: model {str(model)!r} is neither a checkpoint file nor a known hub name ({exc})"
+            ) from exc
     if not isinstance(model, torch.nn.Module):
-        raise TypeError(f"predict: model must be a FloAffModule, a checkpoint path or a hub name, got {type(model).__name__}")
+        raise TypeError(
+            f"predict: model must be a FloAffModule, a checkpoint path or a hub name, got {type(model).__name__}"
+        )
     if model_class is not None:
         name = model_class if isinstance(model_class, str) else model_class.__name__
         ok = type(model).__name__ == name if isinstance(model_class, str) else isinstance(model, model_class)
@@ -226,16 +230,18 @@ def predict_from_points(
     floor = np.asarray(floor_xyz, dtype=np.float32)
     if floor.ndim == 2 and floor.shape[1] == 2:
         floor = np.c_[floor, np.zeros(len(floor), np.float32)]
-    sample = validate_sample({
-        "scene_xyz": xyz,
-        "scene_feat": np.asarray(scene_feat, dtype=np.float32),
-        "floor_xyz": floor,
-        "floor_label": np.zeros(len(floor), np.float32),  # unknown at inference; never read
-        "robot": np.asarray(robot, dtype=np.float32),
-        "target_xyz": t,
-        "target_yaw": np.float32(target_yaw),
-        "meta": {"dataset": "predict", "task": task, "view": "", "sample_id": "predict"},
-    })
+    sample = validate_sample(
+        {
+            "scene_xyz": xyz,
+            "scene_feat": np.asarray(scene_feat, dtype=np.float32),
+            "floor_xyz": floor,
+            "floor_label": np.zeros(len(floor), np.float32),  # unknown at inference; never read
+            "robot": np.asarray(robot, dtype=np.float32),
+            "target_xyz": t,
+            "target_yaw": np.float32(target_yaw),
+            "meta": {"dataset": "predict", "task": task, "view": "", "sample_id": "predict"},
+        }
+    )
     gen = torch.Generator().manual_seed(seed)
     batch = collate_samples([sample], num_points=num_points, mode="resample" if num_points else "pad", generator=gen)
     dev = next(net.parameters(), torch.empty(0)).device
@@ -246,11 +252,21 @@ def predict_from_points(
     with torch.no_grad():
         scores = net(batch)[0].float().cpu().numpy()
     if not np.isfinite(scores).all():
-        raise FloatingPointError(f"predict: {type(net).__name__} returned {int((~np.isfinite(scores)).sum())} NaN/Inf score(s)")
+        raise FloatingPointError(
+            f"predict: {type(net).__name__} returned {int((~np.isfinite(scores)).sum())} NaN/Inf score(s)"
+        )
     poses = best_pose(floor, scores, None, t, k=max(1, k))
     grid = FloorGrid.from_points(floor, cell=cell or candidate_spacing(floor))
-    return Prediction(floor_xyz=floor, scores=scores, grid=grid, raster=grid.rasterize(floor, scores),
-                      best_pose=poses[0], top_poses=poses, target_xyz=t, target_yaw=float(target_yaw))
+    return Prediction(
+        floor_xyz=floor,
+        scores=scores,
+        grid=grid,
+        raster=grid.rasterize(floor, scores),
+        best_pose=poses[0],
+        top_poses=poses,
+        target_xyz=t,
+        target_yaw=float(target_yaw),
+    )
 
 
 def predict(
@@ -301,9 +317,22 @@ def predict(
         raise SampleError("predict: target_mask marks no pixel with valid depth; cannot locate the target")
     target_xyz = xyz[tgt].mean(axis=0)
     return predict_from_points(
-        model, xyz[valid], feat[valid], floor_xyz, robot, target_xyz, target_yaw=target_yaw, k=k,
-        num_points=num_points, cell=cell, grid_radius=grid_radius, model_class=model_class, device=device, seed=seed,
-        window=window, task=task,
+        model,
+        xyz[valid],
+        feat[valid],
+        floor_xyz,
+        robot,
+        target_xyz,
+        target_yaw=target_yaw,
+        k=k,
+        num_points=num_points,
+        cell=cell,
+        grid_radius=grid_radius,
+        model_class=model_class,
+        device=device,
+        seed=seed,
+        window=window,
+        task=task,
     )
 
 

@@ -52,8 +52,11 @@ def resolve_ckpt_alias(alias: str, root: str | Path) -> str:
 def mark_finished(run_dir: str | Path, checkpoint: str | Path, extra: dict[str, Any] | None = None) -> Path:
     """Write ``<run_dir>/finished.json`` = {finished (UTC ISO time), checkpoint, *extra}, atomically."""
     path = Path(run_dir) / FINISHED_FILE
-    record = {"finished": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
-              "checkpoint": str(checkpoint), **(extra or {})}
+    record = {
+        "finished": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "checkpoint": str(checkpoint),
+        **(extra or {}),
+    }
     tmp = path.with_name(f".{FINISHED_FILE}.{os.getpid()}.tmp")
     tmp.write_text(json.dumps(record, indent=2) + "\n", encoding="utf-8")
     tmp.replace(path)  # a kill never leaves half a marker

@@ -20,8 +20,12 @@ from floaff_zoo.data.synthetic import make_synthetic_sample
 from floaff_zoo.sim import fileformat as ff
 
 PLAN = {
-    "styles": [("CloseDrawer", "train", 3), ("CloseDrawer", "test", 1), ("PnPCounterToCab", "train", 1),
-               ("PnPCounterToCab", "test", 1)],
+    "styles": [
+        ("CloseDrawer", "train", 3),
+        ("CloseDrawer", "test", 1),
+        ("PnPCounterToCab", "train", 1),
+        ("PnPCounterToCab", "test", 1),
+    ],
     "layouts": [("OpenSingleDoor", "train", 2), ("OpenSingleDoor", "test", 1)],
 }
 VIEWS = [("front_0000", "front"), ("front_0001", "front"), ("side_0000", "side"), ("side_0001", "side")]
@@ -32,8 +36,12 @@ def _view_arrays(seed: int, task: str, rng: np.random.Generator, version: int = 
     n = s["scene_xyz"].shape[0]
     feat = np.c_[s["scene_feat"].numpy(), rng.uniform(0, 1, (n, 3))].astype(np.float32)
     out = {
-        "scene_xyz": s["scene_xyz"].numpy(), "scene_feat": feat, "floor_xyz": s["floor_xyz"].numpy(),
-        "floor_label": s["floor_label"].numpy(), "robot": s["robot"].numpy(), "target_xyz": s["target_xyz"].numpy(),
+        "scene_xyz": s["scene_xyz"].numpy(),
+        "scene_feat": feat,
+        "floor_xyz": s["floor_xyz"].numpy(),
+        "floor_label": s["floor_label"].numpy(),
+        "robot": s["robot"].numpy(),
+        "target_xyz": s["target_xyz"].numpy(),
         "target_yaw": np.float32(s["target_yaw"]),
         "base_pose_world": rng.uniform(-1, 1, 3).astype(np.float32),
     }
@@ -44,7 +52,9 @@ def _view_arrays(seed: int, task: str, rng: np.random.Generator, version: int = 
     return out
 
 
-def make_floaff_dataset(root: str | Path, seed: int = 0, problems: bool = True, version: int = ff.FORMAT_VERSION) -> dict:
+def make_floaff_dataset(
+    root: str | Path, seed: int = 0, problems: bool = True, version: int = ff.FORMAT_VERSION
+) -> dict:
     """Write the dataset in format ``version``; return {benchmark: {split: [scene_id]}} and the expected skip kinds."""
     root = Path(root)
     rng = np.random.default_rng(seed)
@@ -60,19 +70,38 @@ def make_floaff_dataset(root: str | Path, seed: int = 0, problems: bool = True, 
                 for vid, kind in VIEWS:
                     arr = _view_arrays(seed * 1000 + k * 10 + len(views), task, rng, version)
                     ff.atomic_save_npz(d / "views" / f"{vid}.npz", arr)
-                    views.append({"view_id": vid, "view": kind, "file": f"views/{vid}.npz",
-                                  "base_pose_world": arr["base_pose_world"].tolist(),
-                                  "n_points": int(arr["scene_xyz"].shape[0]), "n_target_points": 1})
+                    views.append(
+                        {
+                            "view_id": vid,
+                            "view": kind,
+                            "file": f"views/{vid}.npz",
+                            "base_pose_world": arr["base_pose_world"].tolist(),
+                            "n_points": int(arr["scene_xyz"].shape[0]),
+                            "n_target_points": 1,
+                        }
+                    )
                 m = 36
                 rec = {
-                    "format_version": version, "benchmark": bench, "split": split, "scene_id": sid,
+                    "format_version": version,
+                    "benchmark": bench,
+                    "split": split,
+                    "scene_id": sid,
                     "slot": f"{bench}/{task}/{split}{i}",
                     "spec": {"layout_id": k % 3, "style_id": k % 5, "seed": 1000 + k, "task": task},
-                    "task": task, "target": {"pos": [1.0, 2.0, 0.9], "yaw": 0.5},
-                    "candidates": {"xy": np.zeros((m, 2)).tolist(), "yaw": [0.0] * m, "valid": [1] * m,
-                                   "grid_shape": [6, 6], "cell": 0.05},
+                    "task": task,
+                    "target": {"pos": [1.0, 2.0, 0.9], "yaw": 0.5},
+                    "candidates": {
+                        "xy": np.zeros((m, 2)).tolist(),
+                        "yaw": [0.0] * m,
+                        "valid": [1] * m,
+                        "grid_shape": [6, 6],
+                        "cell": 0.05,
+                    },
                     "labels": {"success": [0] * m, "label": [0.0] * m, "reasons": [""] * m},
-                    "robot": [0.85, 1.03], "views": views, "n_views": {"front": 2, "side": 2}, "status": "ok",
+                    "robot": [0.85, 1.03],
+                    "views": views,
+                    "n_views": {"front": 2, "side": 2},
+                    "status": "ok",
                 }
                 ff.atomic_write_json(d / ff.SCENE_JSON, rec)
                 scenes.setdefault(bench, {}).setdefault(split, []).append(sid)

@@ -9,14 +9,29 @@ from floaff_zoo.cli import main, run_lightning
 from tests.conftest import quiet_trainer_args
 
 MODEL = "configs/models/tiny_pointnet.yaml"
-DATA_CONFIGS = sorted(str(p.relative_to(Path(__file__).resolve().parents[2]))
-                      for p in (Path(__file__).resolve().parents[2] / "configs" / "data").glob("*.yaml"))
+DATA_CONFIGS = sorted(
+    str(p.relative_to(Path(__file__).resolve().parents[2]))
+    for p in (Path(__file__).resolve().parents[2] / "configs" / "data").glob("*.yaml")
+)
 
 
 def _round_trip(tmp_path, data_cfg, root, extra):
-    base = ["--config", data_cfg, "--config", MODEL, "--data.init_args.root", str(root),
-            "--data.init_args.num_workers", "0", "--data.init_args.num_points", "256",
-            "--data.init_args.batch_size", "2", *extra, *quiet_trainer_args(tmp_path / "runs")]
+    base = [
+        "--config",
+        data_cfg,
+        "--config",
+        MODEL,
+        "--data.init_args.root",
+        str(root),
+        "--data.init_args.num_workers",
+        "0",
+        "--data.init_args.num_points",
+        "256",
+        "--data.init_args.batch_size",
+        "2",
+        *extra,
+        *quiet_trainer_args(tmp_path / "runs"),
+    ]
     cli = run_lightning(["fit", *base, "--trainer.max_epochs", "1"])
     ckpt = cli.trainer.checkpoint_callback.best_model_path
     assert Path(ckpt).is_file() and "val_rmse" in cli.trainer.callback_metrics
@@ -36,8 +51,12 @@ def test_moma_kitchen_cli(tmp_path, root, monkeypatch, moma_root):
 
 def test_floaff_styles_cli(tmp_path, root, monkeypatch, floaff_root):
     monkeypatch.chdir(root)
-    cli = _round_trip(tmp_path, "configs/data/floaff_styles.yaml", floaff_root[0],
-                      ["--data.init_args.tasks", "[CloseDrawer, PnPCounterToCab]"])
+    cli = _round_trip(
+        tmp_path,
+        "configs/data/floaff_styles.yaml",
+        floaff_root[0],
+        ["--data.init_args.tasks", "[CloseDrawer, PnPCounterToCab]"],
+    )
     assert {m for m in cli.datamodule.tasks} == {"CloseDrawer", "PnPCounterToCab"}
 
 

@@ -28,8 +28,15 @@ def test_generated_tiny_reads_and_round_trips(tiny_root, tmp_path, root, monkeyp
     assert s["scene_feat"].shape[1] == 4 and s["meta"]["sim"]["scene_dir"].startswith(str(tiny_root))
     assert {r.meta["view"] for r in dm.datasets["test"].records} == {"front", "side"}
     monkeypatch.chdir(root)
-    base = ["--config", "configs/data/floaff_tiny.yaml", "--config", "configs/models/tiny_pointnet.yaml",
-            "--data.init_args.root", str(tiny_root), *quiet_trainer_args(tmp_path)]
+    base = [
+        "--config",
+        "configs/data/floaff_tiny.yaml",
+        "--config",
+        "configs/models/tiny_pointnet.yaml",
+        "--data.init_args.root",
+        str(tiny_root),
+        *quiet_trainer_args(tmp_path),
+    ]
     cli = run_lightning(["fit", *base, "--trainer.max_epochs", "1"])
     ckpt = cli.trainer.checkpoint_callback.best_model_path
     res = run_lightning(["test", *base, "--ckpt_path", ckpt]).trainer.callback_metrics

@@ -99,7 +99,8 @@ def test_yaw_estimators():
     assert abs(estimate_target_yaw("toward_origin", tc, floor, np.ones(3), None)) == pytest.approx(math.pi)
     assert estimate_target_yaw("toward_view", tc, floor, np.ones(3), (2.0, 5.0)) == pytest.approx(math.pi / 2)
     assert estimate_target_yaw("label_centroid", tc, floor, np.array([1.0, 0, 0]), None) == pytest.approx(
-        math.atan2(1, -1))
+        math.atan2(1, -1)
+    )
     with pytest.raises(ValueError, match="toward_origin"):
         estimate_target_yaw("nope", tc, floor, np.ones(3), None)
 
@@ -121,8 +122,9 @@ def test_extra_robot_keeps_sample(moma_root):
 
 def test_faithful_pad_mode_and_official_normalize(moma_root):
     root, _ = moma_root
-    dm = _dm(root, collate_mode="pad", num_points=300, num_floor=200, val_fraction=0.0,
-             pre_transforms=[OfficialNormalize()])
+    dm = _dm(
+        root, collate_mode="pad", num_points=300, num_floor=200, val_fraction=0.0, pre_transforms=[OfficialNormalize()]
+    )
     dm.setup("fit")
     assert dm.datasets["val"] is dm.datasets["test"]  # official: evaluate test every epoch
     b = next(iter(dm.val_dataloader()))

@@ -54,7 +54,8 @@ def test_yaw_perturb_is_consistent():
     s = _sample()
     out = YawPerturb(5.0)(s, np.random.default_rng(4))
     ang = math.atan2(float(out["target_xyz"][1]), float(out["target_xyz"][0])) - math.atan2(
-        float(s["target_xyz"][1]), float(s["target_xyz"][0]))
+        float(s["target_xyz"][1]), float(s["target_xyz"][0])
+    )
     assert abs(ang) <= math.radians(5) + 1e-6 and abs(ang) > 0
     # rigid rotation about the robot origin: distances to the target, radii and z are preserved
     for key in ("scene_xyz", "floor_xyz"):
@@ -83,8 +84,7 @@ def test_jitter_and_official_normalize():
 
 
 def test_transforms_config_and_datamodule_application():
-    assert transforms_config([YawPerturb(3.0)])[0] == {"class": "floaff_zoo.data.transforms.YawPerturb",
-                                                        "max_deg": 3.0}
+    assert transforms_config([YawPerturb(3.0)])[0] == {"class": "floaff_zoo.data.transforms.YawPerturb", "max_deg": 3.0}
 
     class Flip(SampleTransform):
         def __call__(self, sample, rng):
@@ -92,8 +92,16 @@ def test_transforms_config_and_datamodule_application():
             out["scene_xyz"] = -sample["scene_xyz"]
             return out
 
-    dm = SyntheticDataModule(num_train=4, num_val=4, num_test=4, batch_size=4, num_points=None, collate_mode="pad",
-                             train_transforms=[YawPerturb(5.0)], eval_transforms=[Flip()])
+    dm = SyntheticDataModule(
+        num_train=4,
+        num_val=4,
+        num_test=4,
+        batch_size=4,
+        num_points=None,
+        collate_mode="pad",
+        train_transforms=[YawPerturb(5.0)],
+        eval_transforms=[Flip()],
+    )
     dm.setup("fit")
     raw = dm.datasets["val"][0]["scene_xyz"]
     v1 = next(iter(dm.val_dataloader()))["scene_xyz"][0]

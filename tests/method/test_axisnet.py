@@ -75,12 +75,30 @@ def test_axisnet_empty_crop_names_the_sample():
 def test_axisnet_learns_yaw_in_a_short_fit(tmp_path, root, monkeypatch):
     """A real (short) fit through the CLI: mean validation error < 10 deg on unseen synthetic scenes."""
     monkeypatch.chdir(root)
-    cli = run_lightning([
-        "fit", "--config", DATA, "--config", AXIS, *quiet_trainer_args(tmp_path),
-        "--data.init_args.num_train", "256", "--data.init_args.num_val", "64", "--data.init_args.batch_size", "32",
-        "--model.init_args.widths", "[32, 64, 64]", "--model.init_args.head", "[32]", "--model.init_args.train.lr", "0.005",
-        "--trainer.max_epochs", "10",
-    ])
+    cli = run_lightning(
+        [
+            "fit",
+            "--config",
+            DATA,
+            "--config",
+            AXIS,
+            *quiet_trainer_args(tmp_path),
+            "--data.init_args.num_train",
+            "256",
+            "--data.init_args.num_val",
+            "64",
+            "--data.init_args.batch_size",
+            "32",
+            "--model.init_args.widths",
+            "[32, 64, 64]",
+            "--model.init_args.head",
+            "[32]",
+            "--model.init_args.train.lr",
+            "0.005",
+            "--trainer.max_epochs",
+            "10",
+        ]
+    )
     ckpt_cb = cli.trainer.checkpoint_callback
     assert ckpt_cb.monitor == "val_angle_error_deg" and ckpt_cb.mode == "min"
     assert float(ckpt_cb.best_model_score) < 10.0

@@ -150,12 +150,25 @@ def test_fit_test_predict_and_reload_outside_cli(tmp_path, root, monkeypatch):
 
 def test_axisnet_is_frozen_embedded_and_used_at_eval(tmp_path, root, monkeypatch):
     monkeypatch.chdir(root)
-    axis = run_lightning(["fit", "--config", DATA, "--config", AXIS, *quiet_trainer_args(tmp_path / "axis"),
-                          "--trainer.max_epochs", "1"])
+    axis = run_lightning(
+        ["fit", "--config", DATA, "--config", AXIS, *quiet_trainer_args(tmp_path / "axis"), "--trainer.max_epochs", "1"]
+    )
     axis_ckpt = tmp_path / "axis.ckpt"
     Path(axis.trainer.checkpoint_callback.best_model_path).rename(axis_ckpt)
-    cli = run_lightning(["fit", "--config", DATA, "--config", CFAR, *quiet_trainer_args(tmp_path / "cfar"),
-                         "--model.init_args.axisnet", str(axis_ckpt), "--trainer.max_epochs", "1"])
+    cli = run_lightning(
+        [
+            "fit",
+            "--config",
+            DATA,
+            "--config",
+            CFAR,
+            *quiet_trainer_args(tmp_path / "cfar"),
+            "--model.init_args.axisnet",
+            str(axis_ckpt),
+            "--trainer.max_epochs",
+            "1",
+        ]
+    )
     model = cli.model
     assert model.eval_yaw_source == "axisnet" and model.train_yaw_source == "gt"
     assert not any(p.requires_grad for p in model.axisnet.parameters())
@@ -174,11 +187,35 @@ def test_axisnet_is_frozen_embedded_and_used_at_eval(tmp_path, root, monkeypatch
     out = re.predict_step(b, 0)
     assert torch.allclose(out["yaw"], yaw)
     # swapping the orientation estimator of the trained model at test time: the named AxisNet is used
-    axis2 = run_lightning(["fit", "--config", DATA, "--config", AXIS, *quiet_trainer_args(tmp_path / "axis2"),
-                           "--trainer.max_epochs", "1", "--seed_everything", "7"])
+    axis2 = run_lightning(
+        [
+            "fit",
+            "--config",
+            DATA,
+            "--config",
+            AXIS,
+            *quiet_trainer_args(tmp_path / "axis2"),
+            "--trainer.max_epochs",
+            "1",
+            "--seed_everything",
+            "7",
+        ]
+    )
     axis2_ckpt = axis2.trainer.checkpoint_callback.best_model_path
-    swapped = run_lightning(["test", "--config", DATA, "--config", CFAR, *quiet_trainer_args(tmp_path / "cfar"),
-                             "--ckpt_path", student, "--model.init_args.axisnet", axis2_ckpt])
+    swapped = run_lightning(
+        [
+            "test",
+            "--config",
+            DATA,
+            "--config",
+            CFAR,
+            *quiet_trainer_args(tmp_path / "cfar"),
+            "--ckpt_path",
+            student,
+            "--model.init_args.axisnet",
+            axis2_ckpt,
+        ]
+    )
     axis2_state = torch.load(axis2_ckpt, weights_only=True)["state_dict"]
     for k, v in swapped.model.axisnet.state_dict().items():
         assert torch.equal(v, axis2_state["net." + k]), k

@@ -22,8 +22,20 @@ EPOCHS = "5"
 
 def held_out_pcc(tmp_path, *extra: str) -> float:
     """Fit the tiny CFAR on the probe, then test the last checkpoint on held-out samples: test PCC."""
-    base = ["--config", PROBE, "--config", CFAR, *quiet_trainer_args(tmp_path), "--seed_everything", "0",
-            "--model.init_args.yaw_jitter_deg", "0", "--model.init_args.eval_yaw_source", "gt", *extra]
+    base = [
+        "--config",
+        PROBE,
+        "--config",
+        CFAR,
+        *quiet_trainer_args(tmp_path),
+        "--seed_everything",
+        "0",
+        "--model.init_args.yaw_jitter_deg",
+        "0",
+        "--model.init_args.eval_yaw_source",
+        "gt",
+        *extra,
+    ]
     fit = run_lightning(["fit", *base, "--trainer.max_epochs", EPOCHS])
     last = fit.trainer.checkpoint_callback.last_model_path or fit.trainer.checkpoint_callback.best_model_path
     test = run_lightning(["test", *base, "--ckpt_path", last])

@@ -43,8 +43,11 @@ def _box_scene(yaw: float, n: int = 1500, seed: int = 0) -> tuple[torch.Tensor, 
     face = torch.randint(0, 3, (n,), generator=g)
     # counter frame: front face at y = -0.3 (normal -y), back wall at y = +0.3, top at z = 0.9
     x = torch.where(face == 2, u, u)
-    y = torch.where(face == 0, torch.full_like(u, -0.3), torch.where(face == 1, torch.full_like(u, 0.3),
-                                                                      torch.rand(n, generator=g) * 0.6 - 0.3))
+    y = torch.where(
+        face == 0,
+        torch.full_like(u, -0.3),
+        torch.where(face == 1, torch.full_like(u, 0.3), torch.rand(n, generator=g) * 0.6 - 0.3),
+    )
     z = torch.where(face == 2, torch.full_like(u, 0.9), h)
     local = torch.stack([x, y, z], -1)
     phi = yaw + math.pi / 2  # rotate the counter's -y normal onto `yaw`
@@ -76,8 +79,15 @@ def test_manhattan_yaw_without_reference_uses_the_heading_and_falls_back():
 
 def test_prior_fits_and_tests_through_the_cli(tmp_path, root, monkeypatch):
     monkeypatch.chdir(root)
-    base = ["--config", DATA, "--config", PRIOR, *quiet_trainer_args(tmp_path),
-            "--data.init_args.tasks", "[CloseDrawer, PnPCounterToCab]"]
+    base = [
+        "--config",
+        DATA,
+        "--config",
+        PRIOR,
+        *quiet_trainer_args(tmp_path),
+        "--data.init_args.tasks",
+        "[CloseDrawer, PnPCounterToCab]",
+    ]
     cli = run_lightning(["fit", *base, "--trainer.max_epochs", "1"])
     model = cli.model
     assert sorted(model.net.seen_tasks()) == ["CloseDrawer", "PnPCounterToCab"]

@@ -101,10 +101,17 @@ def test_navaff_parameter_count_matches_architecture():
     expected = (
         encoder(4 + 3)  # global: xyz + flag
         + encoder(3 + 3)  # floor: xyz
-        + _lin(2, 256) + _lin(256, 512)  # robot token
-        + 512 * 512 + 512 * 1024 + _lin(512, 512)  # q, kv (no bias), proj
-        + _chain(1024, [768, 512]) + _chain(832, [768, 512]) + _chain(518, [512, 512])
-        + _lin(512, 64) + 2 * 64 + _lin(64, 1)  # head
+        + _lin(2, 256)
+        + _lin(256, 512)  # robot token
+        + 512 * 512
+        + 512 * 1024
+        + _lin(512, 512)  # q, kv (no bias), proj
+        + _chain(1024, [768, 512])
+        + _chain(832, [768, 512])
+        + _chain(518, [512, 512])
+        + _lin(512, 64)
+        + 2 * 64
+        + _lin(64, 1)  # head
     )
     model = NavAffModule()
     assert sum(p.numel() for p in model.parameters()) == expected == 4_977_937
@@ -234,8 +241,12 @@ def test_bf16_flag_runs(batch):
 # --------------------------------------------------------------------------- CLI round trips
 def _cli_common(tmp_path: Path) -> list[str]:
     return [
-        "--trainer.default_root_dir", str(tmp_path), "--trainer.accelerator", "cpu",
-        "--trainer.enable_progress_bar", "false",
+        "--trainer.default_root_dir",
+        str(tmp_path),
+        "--trainer.accelerator",
+        "cpu",
+        "--trainer.enable_progress_bar",
+        "false",
     ]
 
 

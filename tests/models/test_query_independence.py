@@ -64,8 +64,14 @@ CONFIGS = {
     "CFARModule": "tests/configs/cfar_tiny.yaml",
     "CanonicalPriorModule": "configs/models/canonical_prior.yaml",
 }
-INDEPENDENT = ["TinyPointNetModule", "PointNet2Module", "PointNet2Module:msg", "VoteNetModule", "H3DNetModule",
-               "CanonicalPriorModule"]
+INDEPENDENT = [
+    "TinyPointNetModule",
+    "PointNet2Module",
+    "PointNet2Module:msg",
+    "VoteNetModule",
+    "H3DNetModule",
+    "CanonicalPriorModule",
+]
 SET_ENCODERS = ["NavAffModule", "CFARModule"]
 NORMALISED = ["N2MModule", "C2FExpModule"]
 #: CFAR's query-independent mode: the constructor argument and its value (being added to CFARModule)
@@ -73,8 +79,11 @@ CFAR_POINTWISE = ("floor_encoder", "pointwise")
 
 
 def _floor_models() -> list[str]:
-    return sorted(n for n in zoo.__all__ if n != "FloAffModule" and isinstance(getattr(zoo, n), type)
-                  and issubclass(getattr(zoo, n), zoo.FloAffModule))
+    return sorted(
+        n
+        for n in zoo.__all__
+        if n != "FloAffModule" and isinstance(getattr(zoo, n), type) and issubclass(getattr(zoo, n), zoo.FloAffModule)
+    )
 
 
 def build(name: str, **overrides) -> torch.nn.Module:
@@ -99,8 +108,13 @@ def _sample(extra: np.ndarray | None = None, keep: np.ndarray | None = None) -> 
         floor = floor[keep]
     if extra is not None:
         floor = np.concatenate([floor, extra.astype(np.float32)])
-    return validate_sample({**{k: v for k, v in s.items() if k not in ("floor_xyz", "floor_label", "floor_mask")},
-                            "floor_xyz": floor, "floor_label": np.zeros(len(floor), np.float32)})
+    return validate_sample(
+        {
+            **{k: v for k, v in s.items() if k not in ("floor_xyz", "floor_label", "floor_mask")},
+            "floor_xyz": floor,
+            "floor_label": np.zeros(len(floor), np.float32),
+        }
+    )
 
 
 def query_sets() -> tuple[dict[str, dict], np.ndarray]:
@@ -182,16 +196,22 @@ def _has_arg(cls_name: str, arg: str) -> bool:
     return arg in inspect.signature(getattr(zoo, cls_name).__init__).parameters
 
 
-@pytest.mark.xfail(not _has_arg("CFARModule", CFAR_POINTWISE[0]), strict=True,
-                   reason=f"CFARModule has no query-independent mode yet ({CFAR_POINTWISE[0]}={CFAR_POINTWISE[1]!r})")
+@pytest.mark.xfail(
+    not _has_arg("CFARModule", CFAR_POINTWISE[0]),
+    strict=True,
+    reason=f"CFARModule has no query-independent mode yet ({CFAR_POINTWISE[0]}={CFAR_POINTWISE[1]!r})",
+)
 def test_cfar_pointwise_mode_is_query_independent(record_property):
     model = build("CFARModule", **{CFAR_POINTWISE[0]: CFAR_POINTWISE[1]})
     scores = near_scores(model)
     assert _record(record_property, "CFARModule pointwise", scores) <= TOL and relative(scores) <= REL_TOL
 
 
-@pytest.mark.xfail(strict=True, reason="NavAff has no query-independent mode: its floor branch (PointNet++ MSG over "
-                   "the queries + cross-attention + FP back onto them) is the paper's set encoder")
+@pytest.mark.xfail(
+    strict=True,
+    reason="NavAff has no query-independent mode: its floor branch (PointNet++ MSG over "
+    "the queries + cross-attention + FP back onto them) is the paper's set encoder",
+)
 def test_navaff_query_independent_mode():
     assert _has_arg("NavAffModule", "floor_encoder")
 

@@ -23,8 +23,12 @@ from tests.conftest import quiet_trainer_args
 ROOT = Path(__file__).resolve().parents[2]
 #: one small config per model class
 TINY_CONFIGS = sorted(
-    [*ROOT.glob("tests/configs/models/*.yaml"), ROOT / "tests/configs/axisnet_tiny.yaml",
-     ROOT / "tests/configs/cfar_tiny.yaml", ROOT / "configs/models/tiny_pointnet.yaml"]
+    [
+        *ROOT.glob("tests/configs/models/*.yaml"),
+        ROOT / "tests/configs/axisnet_tiny.yaml",
+        ROOT / "tests/configs/cfar_tiny.yaml",
+        ROOT / "configs/models/tiny_pointnet.yaml",
+    ]
 )
 TINY = "floaff_zoo.models.tiny.TinyPointNetModule"
 INSTANTIATOR = "lightning.pytorch.cli.instantiate_module"
@@ -43,16 +47,39 @@ def batch():
 
 def old_style_ckpt(model: ZooModule, path: Path, flat: dict, cli: bool = True) -> Path:
     """A checkpoint as the code before the ``train`` group wrote it: training args flat in the hparams."""
-    hp = {**flat, **({"_class_path": f"{type(model).__module__}.{type(model).__name__}",
-                      "_instantiator": INSTANTIATOR} if cli else {})}
-    torch.save({"state_dict": model.state_dict(), "hyper_parameters": hp, "hparams_name": "kwargs",
-                "pytorch-lightning_version": lightning.__version__, "epoch": 0, "global_step": 0}, path)
+    hp = {
+        **flat,
+        **(
+            {"_class_path": f"{type(model).__module__}.{type(model).__name__}", "_instantiator": INSTANTIATOR}
+            if cli
+            else {}
+        ),
+    }
+    torch.save(
+        {
+            "state_dict": model.state_dict(),
+            "hyper_parameters": hp,
+            "hparams_name": "kwargs",
+            "pytorch-lightning_version": lightning.__version__,
+            "epoch": 0,
+            "global_step": 0,
+        },
+        path,
+    )
     return path
 
 
 #: what the old FloAffModule recorded for every model (flat)
-OLD_SHARED = {"feat_channels": 1, "robot_dim": 2, "loss": "mse", "sdl_beta": 1.0, "optimizer": "adam",
-              "weight_decay": 0.0, "metric_reduction": "per_sample", "weights": None}
+OLD_SHARED = {
+    "feat_channels": 1,
+    "robot_dim": 2,
+    "loss": "mse",
+    "sdl_beta": 1.0,
+    "optimizer": "adam",
+    "weight_decay": 0.0,
+    "metric_reduction": "per_sample",
+    "weights": None,
+}
 
 
 # --------------------------------------------------------------------------- the train group
@@ -67,12 +94,15 @@ def test_train_defaults_are_per_model_and_partial_dicts_keep_them():
     assert isinstance(opt, torch.optim.AdamW) and opt.defaults["lr"] == 0.01 and opt.defaults["weight_decay"] == 0.1
 
 
-@pytest.mark.parametrize(("train", "match"), [
-    ({"lrr": 0.1}, r"TinyPointNetModule: train has no field\(s\) \['lrr'\]"),
-    ({"lr": 0.0}, "train.lr must be > 0"),
-    ({"optimizer": "sgd"}, "train.optimizer: 'sgd' is not one of"),
-    ({"loss": "bce"}, "train.loss: 'bce' is not one of"),
-])
+@pytest.mark.parametrize(
+    ("train", "match"),
+    [
+        ({"lrr": 0.1}, r"TinyPointNetModule: train has no field\(s\) \['lrr'\]"),
+        ({"lr": 0.0}, "train.lr must be > 0"),
+        ({"optimizer": "sgd"}, "train.optimizer: 'sgd' is not one of"),
+        ({"loss": "bce"}, "train.loss: 'bce' is not one of"),
+    ],
+)
 def test_bad_train_values_name_the_field(train, match):
     with pytest.raises(ValueError, match=match):
         TinyPointNetModule(train=train)
@@ -87,10 +117,20 @@ def test_cli_train_group_partial_override(tmp_path, root, monkeypatch):
     from floaff_zoo.cli import run_lightning
 
     monkeypatch.chdir(root)
-    cli = run_lightning([
-        "fit", "--config", "configs/data/synthetic_tiny.yaml", "--config", "tests/configs/models/navaff_tiny.yaml",
-        "--model.init_args.train.lr", "0.0001", "--trainer.fast_dev_run", "1", *quiet_trainer_args(tmp_path),
-    ])
+    cli = run_lightning(
+        [
+            "fit",
+            "--config",
+            "configs/data/synthetic_tiny.yaml",
+            "--config",
+            "tests/configs/models/navaff_tiny.yaml",
+            "--model.init_args.train.lr",
+            "0.0001",
+            "--trainer.fast_dev_run",
+            "1",
+            *quiet_trainer_args(tmp_path),
+        ]
+    )
     assert cli.model.train_cfg == FloAffTrainConfig(loss="navaff", lr=1e-4, weight_decay=1e-3)
 
 
@@ -113,8 +153,17 @@ def test_old_flat_checkpoint_loads(tmp_path, batch, cli):
 def test_old_axisnet_checkpoint_drops_unused_shared_args(tmp_path, batch):
     torch.manual_seed(0)
     ref = AxisNetModule(widths=[8], head=[8]).eval()
-    flat = {"crop_radius": 1.3, "widths": [8], "head": [8], "rot_aug_deg": 90.0, "jitter_sigma": 0.005,
-            **OLD_SHARED, "lr": 3e-3, "scheduler": "none", "sim_variant": "cosine"}
+    flat = {
+        "crop_radius": 1.3,
+        "widths": [8],
+        "head": [8],
+        "rot_aug_deg": 90.0,
+        "jitter_sigma": 0.005,
+        **OLD_SHARED,
+        "lr": 3e-3,
+        "scheduler": "none",
+        "sim_variant": "cosine",
+    }
     m = AxisNetModule.load_from_checkpoint(old_style_ckpt(ref, tmp_path / "axis.ckpt", flat), weights_only=True).eval()
     assert m.train_cfg == TrainConfig(lr=3e-3, scheduler="none") and "loss" not in m.hparams
     with torch.no_grad():
@@ -129,9 +178,23 @@ def test_old_flat_checkpoint_through_cli_and_hub(tmp_path, root, monkeypatch):
     torch.manual_seed(0)
     flat = {"width": 8, **OLD_SHARED, "lr": 0.005, "scheduler": "none", "sim_variant": "hist"}
     ckpt = old_style_ckpt(TinyPointNetModule(width=8), tmp_path / "old.ckpt", flat)
-    cli = run_lightning(["test", "--config", "configs/data/synthetic_tiny.yaml", "--model", "TinyPointNetModule",
-                         "--ckpt_path", str(ckpt), *quiet_trainer_args(tmp_path)])
-    assert cli.model.hparams["width"] == 8 and cli.model.train_cfg.sim_variant == "hist" and cli.model.train_cfg.lr == 0.005
+    cli = run_lightning(
+        [
+            "test",
+            "--config",
+            "configs/data/synthetic_tiny.yaml",
+            "--model",
+            "TinyPointNetModule",
+            "--ckpt_path",
+            str(ckpt),
+            *quiet_trainer_args(tmp_path),
+        ]
+    )
+    assert (
+        cli.model.hparams["width"] == 8
+        and cli.model.train_cfg.sim_variant == "hist"
+        and cli.model.train_cfg.lr == 0.005
+    )
     _, out = export_checkpoint(ckpt, "tiny.old-flat.v1", directory=tmp_path / "hub")
     init_args = json.loads((out / "config.json").read_text())["init_args"]
     assert init_args["train"]["lr"] == 0.005 and "lr" not in init_args  # exports are written in today's form

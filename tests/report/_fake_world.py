@@ -57,7 +57,11 @@ def make_samples(n: int, seed: int = 0, cell: float = 0.05, half: int = 6) -> li
         cand = np.stack([gx.ravel(), gy.ravel()], 1) + t_world + np.array([0.0, 0.6])
         cand = cand.round(2)
         labels = np.array([fake_success(x, y) for x, y in cand], dtype=np.float32)
-        base = (float(t_world[0] + rng.uniform(-2, 2)), float(t_world[1] + rng.uniform(1.5, 2.5)), float(rng.uniform(-math.pi, math.pi)))
+        base = (
+            float(t_world[0] + rng.uniform(-2, 2)),
+            float(t_world[1] + rng.uniform(1.5, 2.5)),
+            float(rng.uniform(-math.pi, math.pi)),
+        )
         floor_b = world_to_base(cand, base)
         t_b = world_to_base(t_world[None], base)[0]
         scene = np.c_[t_b + rng.normal(scale=0.05, size=(32, 2)), rng.uniform(0.8, 1.0, size=32)]
@@ -70,10 +74,15 @@ def make_samples(n: int, seed: int = 0, cell: float = 0.05, half: int = 6) -> li
             "robot": np.array([0.85, 1.03], np.float32),
             "target_xyz": np.array([t_b[0], t_b[1], 0.9], np.float32),
             "target_yaw": np.float32(0.0),
-            "meta": {"dataset": "fake_sim", "task": task, "view": ("front", "side")[(i // 2) % 2],
-                     "scene_id": f"fake{i}", "sample_id": f"fake{i}", "index": i,
-                     "sim": {"layout_id": i % 6, "style_id": i % 8, "seed": i, "task": task,
-                             "base_pose_world": list(base)}},
+            "meta": {
+                "dataset": "fake_sim",
+                "task": task,
+                "view": ("front", "side")[(i // 2) % 2],
+                "scene_id": f"fake{i}",
+                "sample_id": f"fake{i}",
+                "index": i,
+                "sim": {"layout_id": i % 6, "style_id": i % 8, "seed": i, "task": task, "base_pose_world": list(base)},
+            },
         }
         out.append(validate_sample(sample))
     return out

@@ -29,8 +29,22 @@ def test_montage_puts_runs_in_columns_and_cases_in_rows(tmp_path, capsys):
 
     a, b = _run(tmp_path, "CFAR+PFAL", 0.1), _run(tmp_path, "PointNet++", 0.9)
     out = tmp_path / "fig4.png"
-    assert zoo_main(["montage", "--runs", str(a), str(b / "report.json"),
-                     "--cases", "CloseDrawer_front_0", "OpenSingleDoor_side_0", "--out", str(out)]) == 0
+    assert (
+        zoo_main(
+            [
+                "montage",
+                "--runs",
+                str(a),
+                str(b / "report.json"),
+                "--cases",
+                "CloseDrawer_front_0",
+                "OpenSingleDoor_side_0",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     assert str(out) in capsys.readouterr().out
     img = plt.imread(out)[..., :3]
     h, w = img.shape[:2]

@@ -147,8 +147,9 @@ def test_checkpoint_of_another_model_class_is_a_clear_error(tmp_path):
     hp = dict(m.hparams, _class_path="floaff_zoo.models.tiny.TinyPointNetModule")
     torch.save({"state_dict": m.state_dict(), "hyper_parameters": hp}, ckpt)
     xyz, feat, t = _scene()
-    out = predict_from_points(str(ckpt), xyz, feat, None, [0.85, 1.03], t, num_points=128,
-                              model_class="TinyPointNetModule")
+    out = predict_from_points(
+        str(ckpt), xyz, feat, None, [0.85, 1.03], t, num_points=128, model_class="TinyPointNetModule"
+    )
     assert np.isfinite(out.scores).all()
     with pytest.raises(TypeError, match="expected a PointNet2Module .* TinyPointNetModule"):
         predict_from_points(str(ckpt), xyz, feat, None, [0.85, 1.03], t, model_class="PointNet2Module")

@@ -31,8 +31,18 @@ def fitted(tmp_path_factory):
 def test_test_writes_report_with_every_metric(fitted, monkeypatch):
     base, ckpt, root = fitted
     monkeypatch.chdir(root)
-    cli = run_lightning(["test", *base, "--config", "configs/trainer/eval_sr.yaml", "--ckpt_path", ckpt,
-                         "--trainer.callbacks.figures_per_group", "1"])
+    cli = run_lightning(
+        [
+            "test",
+            *base,
+            "--config",
+            "configs/trainer/eval_sr.yaml",
+            "--ckpt_path",
+            ckpt,
+            "--trainer.callbacks.figures_per_group",
+            "1",
+        ]
+    )
     run_dir = Path(cli.trainer.log_dir)
     rep = json.loads((run_dir / "report.json").read_text())
     configured = [f"test_{k}" for k in cli.model.test_metrics.keys(keep_base=True)]
@@ -59,8 +69,19 @@ def test_report_without_callbacks_in_config_is_opt_in(fitted, monkeypatch, tmp_p
     base, ckpt, root = fitted
     monkeypatch.chdir(root)
     args = [a if a != str(Path(base[base.index("--trainer.default_root_dir") + 1])) else str(tmp_path) for a in base]
-    cli = run_lightning(["test", *args, "--ckpt_path", ckpt, "--trainer.callbacks+=floaff_zoo.callbacks.TestReport",
-                         "--trainer.callbacks.figures", "false", "--trainer.callbacks.label", "w/o SDL"])
+    cli = run_lightning(
+        [
+            "test",
+            *args,
+            "--ckpt_path",
+            ckpt,
+            "--trainer.callbacks+=floaff_zoo.callbacks.TestReport",
+            "--trainer.callbacks.figures",
+            "false",
+            "--trainer.callbacks.label",
+            "w/o SDL",
+        ]
+    )
     rep = json.loads((Path(cli.trainer.log_dir) / "report.json").read_text())
     assert rep["label"] == "w/o SDL" and rep["figures"] == []
     assert "no RolloutSuccessRate" in rep["sr"]["reason"]

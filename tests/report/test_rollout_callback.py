@@ -20,8 +20,14 @@ from tests.report._fake_world import ConstantModule, FakeService, LabelModule, l
 
 
 def _trainer(cb):
-    return L.Trainer(accelerator="cpu", logger=False, enable_progress_bar=False, enable_model_summary=False,
-                     enable_checkpointing=False, callbacks=[cb])
+    return L.Trainer(
+        accelerator="cpu",
+        logger=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        enable_checkpointing=False,
+        callbacks=[cb],
+    )
 
 
 def test_base_to_world_round_trip():
@@ -49,15 +55,18 @@ def test_constant_map_uses_documented_tie_break():
     floor = np.array([[3.0, 0, 0], [1.0, 0, 0], [2.0, 0, 0]])
     picks = {choose_pose(floor, np.zeros(3), None, np.zeros(3), (0.0, 0.0, 0.0), seed=s)[0][:2] for s in range(30)}
     assert picks == {(3.0, 0.0), (1.0, 0.0), (2.0, 0.0)}  # seeded random tie-break covers every candidate
-    assert choose_pose(floor, np.zeros(3), None, np.zeros(3), (0.0, 0.0, 0.0), seed=7) == \
-        choose_pose(floor, np.zeros(3), None, np.zeros(3), (0.0, 0.0, 0.0), seed=7)
+    assert choose_pose(floor, np.zeros(3), None, np.zeros(3), (0.0, 0.0, 0.0), seed=7) == choose_pose(
+        floor, np.zeros(3), None, np.zeros(3), (0.0, 0.0, 0.0), seed=7
+    )
 
 
 def test_summary_and_bootstrap():
-    eps = [{"task": "A", "view": "front", "success": True, "oracle_success": True},
-           {"task": "A", "view": "side", "success": False, "oracle_success": True},
-           {"task": "B", "view": "side", "success": False, "oracle_success": True},
-           {"task": "B", "view": "front", "success": True, "oracle_success": False}]
+    eps = [
+        {"task": "A", "view": "front", "success": True, "oracle_success": True},
+        {"task": "A", "view": "side", "success": False, "oracle_success": True},
+        {"task": "B", "view": "side", "success": False, "oracle_success": True},
+        {"task": "B", "view": "front", "success": True, "oracle_success": False},
+    ]
     s = summarize_episodes(eps, n_bootstrap=500)
     assert s["model"]["front"]["mean"] == 1.0 and s["model"]["side"]["mean"] == 0.0
     assert s["model"]["all"] == {"mean": 0.5, "std": pytest.approx(0.25, abs=0.05), "n": 4}
@@ -72,8 +81,16 @@ def test_oracle_and_perfect_model_succeed_constant_map_scores_base_rate():
     cb = RolloutSuccessRate(service=FakeService, progress=False)
     res = _trainer(cb).test(LabelModule(), dataloaders=loader(samples), verbose=False)[0]
     assert res["test_sr_all"] == 1.0 and res["test_oracle_sr_all"] == 1.0
-    for key in ("test_sr_front", "test_sr_side", "test_sr_CloseDrawer", "test_sr_OpenSingleDoor", "test_sr_all_std",
-                "test_oracle_sr_front", "test_oracle_sr_CloseDrawer", "test_rollout_seconds"):
+    for key in (
+        "test_sr_front",
+        "test_sr_side",
+        "test_sr_CloseDrawer",
+        "test_sr_OpenSingleDoor",
+        "test_sr_all_std",
+        "test_oracle_sr_front",
+        "test_oracle_sr_CloseDrawer",
+        "test_rollout_seconds",
+    ):
         assert key in res, key
     assert cb.summaries["test"]["n_evaluated"] == 160 and cb.summaries["test"]["model"]["front"]["n"] == 80
 
@@ -91,9 +108,17 @@ def test_oracle_and_perfect_model_succeed_constant_map_scores_base_rate():
 def test_validation_every_n_epochs_logs_val_rollout_success():
     samples = make_samples(8)
     cb = RolloutSuccessRate(service=FakeService, progress=False, every_n_val_epochs=2, max_val_samples=4, on_test=False)
-    trainer = L.Trainer(accelerator="cpu", logger=False, enable_progress_bar=False, enable_model_summary=False,
-                        enable_checkpointing=False, callbacks=[cb], max_epochs=2, num_sanity_val_steps=1,
-                        limit_train_batches=1)
+    trainer = L.Trainer(
+        accelerator="cpu",
+        logger=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        enable_checkpointing=False,
+        callbacks=[cb],
+        max_epochs=2,
+        num_sanity_val_steps=1,
+        limit_train_batches=1,
+    )
     n0 = len(FakeService.instances)
     trainer.fit(LabelModule(), train_dataloaders=loader(samples), val_dataloaders=loader(samples, 2))
     assert trainer.callback_metrics["val_rollout_success"] == 1.0

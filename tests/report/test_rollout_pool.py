@@ -36,10 +36,17 @@ def _kill_a_worker_once_busy(pid_dir, after_s: float = 0.3) -> threading.Thread:
 
 
 def _sr(module, samples, workers: int, job_fn=_fake_jobs.fake_job) -> tuple[dict, RolloutSuccessRate]:
-    cb = RolloutSuccessRate(service=lambda w, b, c: RolloutService(w, b, c, job_fn=job_fn), workers=workers,
-                            progress=False)
-    trainer = L.Trainer(accelerator="cpu", logger=False, enable_progress_bar=False, enable_model_summary=False,
-                        enable_checkpointing=False, callbacks=[cb])
+    cb = RolloutSuccessRate(
+        service=lambda w, b, c: RolloutService(w, b, c, job_fn=job_fn), workers=workers, progress=False
+    )
+    trainer = L.Trainer(
+        accelerator="cpu",
+        logger=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        enable_checkpointing=False,
+        callbacks=[cb],
+    )
     return trainer.test(module, dataloaders=loader(samples), verbose=False)[0], cb
 
 
@@ -74,8 +81,9 @@ def test_a_job_that_always_kills_its_worker_is_named():
     svc = RolloutService(workers=2, max_retries=1, job_fn=_fake_jobs.crashing_job)
     t0 = time.monotonic()
     try:
-        with pytest.raises(RolloutPoolError,
-                           match=r"L0_S0_s3_CloseDrawer at \(0\.3, 0\.5, 0\.0\) killed its worker process 3 times"):
+        with pytest.raises(
+            RolloutPoolError, match=r"L0_S0_s3_CloseDrawer at \(0\.3, 0\.5, 0\.0\) killed its worker process 3 times"
+        ):
             svc.run(_jobs(8))
     finally:
         svc.close()

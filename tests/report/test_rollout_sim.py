@@ -16,8 +16,24 @@ from tests.report._fake_world import ConstantModule, LabelModule, loader
 @pytest.fixture(scope="module")
 def sim_samples(tmp_path_factory):
     out = tmp_path_factory.mktemp("gen")
-    rc = gen.main(["--preset", "tiny", "--out", str(out), "--tasks", "CloseDrawer", "OpenSingleDoor",
-                   "--n-train", "0", "--n-test", "1", "--workers", "0", "--quiet"])
+    rc = gen.main(
+        [
+            "--preset",
+            "tiny",
+            "--out",
+            str(out),
+            "--tasks",
+            "CloseDrawer",
+            "OpenSingleDoor",
+            "--n-train",
+            "0",
+            "--n-test",
+            "1",
+            "--workers",
+            "0",
+            "--quiet",
+        ]
+    )
     assert rc == 0
     samples = [validate_sample(ff.read_sample(sc, v, out)) for sc in ff.iter_scenes(out) for v in sc["views"]]
     assert samples and all("sim" in s["meta"] for s in samples)
@@ -25,8 +41,14 @@ def sim_samples(tmp_path_factory):
 
 
 def _test(module, samples, callbacks):
-    trainer = L.Trainer(accelerator="cpu", logger=False, enable_progress_bar=False, enable_model_summary=False,
-                        enable_checkpointing=False, callbacks=callbacks)
+    trainer = L.Trainer(
+        accelerator="cpu",
+        logger=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        enable_checkpointing=False,
+        callbacks=callbacks,
+    )
     return trainer.test(module, dataloaders=loader(samples, 4), verbose=False)[0]
 
 

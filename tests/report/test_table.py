@@ -29,7 +29,10 @@ def test_golden_values_by_hand():
     assert "| NavAffModule | 0.065 ± 0.001 | 0.0026 ± 0.0001 | 0.395 ± 0.007 | 0.335 ± 0.007 |" in text
     sr = (FIX / "golden_sr_views.md").read_text()
     # Layouts has one CFAR run: its bootstrap std is shown; NavAff has no Layouts run
-    assert "| CFARModule | **0.85 ± 0.01** | **0.85 ± 0.02** | **0.85 ± 0.01** | 0.81 ± 0.02 | 0.77 ± 0.02 | 0.79 ± 0.01 |" in sr
+    assert (
+        "| CFARModule | **0.85 ± 0.01** | **0.85 ± 0.02** | **0.85 ± 0.01** | 0.81 ± 0.02 | 0.77 ± 0.02 | 0.79 ± 0.01 |"
+        in sr
+    )
     assert "| NavAffModule | 0.29 ± 0.01 | 0.45 ± 0.01 | 0.37 ± 0.00 | n/a | n/a | n/a |" in sr
     assert sr.index("| Oracle |") > sr.index("| NavAffModule |")
     # the Oracle is the same for every run of a test split: its bootstrap std, not a std over runs (0.00)
@@ -37,8 +40,19 @@ def test_golden_values_by_hand():
 
 
 def test_globs_dedupe_and_cli_dispatch(tmp_path, capsys):
-    assert cli_main(["table", "--runs", str(RUNS / "cfar_*"), str(RUNS / "cfar_styles_s0" / "report.json"),
-                     "--preset", "sr_tasks"]) == 0
+    assert (
+        cli_main(
+            [
+                "table",
+                "--runs",
+                str(RUNS / "cfar_*"),
+                str(RUNS / "cfar_styles_s0" / "report.json"),
+                "--preset",
+                "sr_tasks",
+            ]
+        )
+        == 0
+    )
     out = capsys.readouterr().out
     assert out.splitlines()[0] == "| Method | PnPC2C | OpenSD |"
     assert out.count("| CFARModule |") == 2  # one row per benchmark section, 3 Styles runs merged

@@ -20,7 +20,20 @@ def error_then_drop(job, out, preset_dict, save_images):
     marker = Path(out, f"seen_{job.key.replace('/', '_')}")
     if not marker.exists():
         marker.touch()
-        return {"key": job.key, "status": "error", "scene_id": None, "attempts": [], "reason": "RuntimeError: x",
-                "traceback": "tb", "wall_s": 0.0}
-    return {"key": job.key, "status": "dropped", "scene_id": None, "attempts": [], "reason": "no positive",
-            "wall_s": 0.0}
+        return {
+            "key": job.key,
+            "status": "error",
+            "scene_id": None,
+            "attempts": [],
+            "reason": "RuntimeError: x",
+            "traceback": "tb",
+            "wall_s": 0.0,
+        }
+    return {
+        "key": job.key,
+        "status": "dropped",
+        "scene_id": None,
+        "attempts": [],
+        "reason": "no positive",
+        "wall_s": 0.0,
+    }

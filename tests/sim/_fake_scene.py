@@ -33,22 +33,57 @@ class FakeScene:
         s.visual.global_.offheight = 128
         w = s.worldbody
         w.add_light(pos=[0, 0, 3], dir=[0, 0, -1])
-        w.add_geom(name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[ROOM, ROOM, 0.1], rgba=[0.6, 0.6, 0.6, 1],
-                   group=1)
-        w.add_geom(name="counter", type=mujoco.mjtGeom.mjGEOM_BOX, pos=[COUNTER_X + 0.3, 0, 0.45],
-                   size=[0.3, 1.5, 0.45], rgba=[0.8, 0.8, 0.7, 1], group=1)
-        w.add_geom(name="handle", type=mujoco.mjtGeom.mjGEOM_BOX, pos=[COUNTER_X - 0.03, 0, 0.6],
-                   size=[0.03, 0.15, 0.08], rgba=[1, 0, 0, 1], group=1, contype=0, conaffinity=0)
-        w.add_geom(name="wall", type=mujoco.mjtGeom.mjGEOM_BOX, pos=[ROOM, 0, 1.0], size=[0.05, ROOM, 1.0],
-                   rgba=[0.9, 0.9, 0.9, 1], group=1)
+        w.add_geom(
+            name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[ROOM, ROOM, 0.1], rgba=[0.6, 0.6, 0.6, 1], group=1
+        )
+        w.add_geom(
+            name="counter",
+            type=mujoco.mjtGeom.mjGEOM_BOX,
+            pos=[COUNTER_X + 0.3, 0, 0.45],
+            size=[0.3, 1.5, 0.45],
+            rgba=[0.8, 0.8, 0.7, 1],
+            group=1,
+        )
+        w.add_geom(
+            name="handle",
+            type=mujoco.mjtGeom.mjGEOM_BOX,
+            pos=[COUNTER_X - 0.03, 0, 0.6],
+            size=[0.03, 0.15, 0.08],
+            rgba=[1, 0, 0, 1],
+            group=1,
+            contype=0,
+            conaffinity=0,
+        )
+        w.add_geom(
+            name="wall",
+            type=mujoco.mjtGeom.mjGEOM_BOX,
+            pos=[ROOM, 0, 1.0],
+            size=[0.05, ROOM, 1.0],
+            rgba=[0.9, 0.9, 0.9, 1],
+            group=1,
+        )
         b = w.add_body(name="robot_base")
         b.add_joint(name="bx", type=mujoco.mjtJoint.mjJNT_SLIDE, axis=[1, 0, 0])
         b.add_joint(name="by", type=mujoco.mjtJoint.mjJNT_SLIDE, axis=[0, 1, 0])
         b.add_joint(name="byaw", type=mujoco.mjtJoint.mjJNT_HINGE, axis=[0, 0, 1])
-        b.add_geom(name="robot_col", type=mujoco.mjtGeom.mjGEOM_BOX, pos=[0, 0, 0.3],
-                   size=[FOOT_HALF[0], FOOT_HALF[1], 0.28], rgba=[0, 1, 0, 1], group=0)
-        b.add_geom(name="robot_vis", type=mujoco.mjtGeom.mjGEOM_BOX, pos=[0.35, 0, 0.9], size=[0.08, 0.08, 0.08],
-                   rgba=[0.2, 0.2, 0.2, 1], group=1, contype=0, conaffinity=0)
+        b.add_geom(
+            name="robot_col",
+            type=mujoco.mjtGeom.mjGEOM_BOX,
+            pos=[0, 0, 0.3],
+            size=[FOOT_HALF[0], FOOT_HALF[1], 0.28],
+            rgba=[0, 1, 0, 1],
+            group=0,
+        )
+        b.add_geom(
+            name="robot_vis",
+            type=mujoco.mjtGeom.mjGEOM_BOX,
+            pos=[0.35, 0, 0.9],
+            size=[0.08, 0.08, 0.08],
+            rgba=[0.2, 0.2, 0.2, 1],
+            group=1,
+            contype=0,
+            conaffinity=0,
+        )
         pitch = math.radians(35.0)
         xaxis = np.array([0.0, -1.0, 0.0])
         yaxis = np.array([math.sin(pitch), 0.0, math.cos(pitch)])

@@ -26,7 +26,10 @@ def test_determinism_and_filtering(scene_factory):
     assert all(a.reasons[i] in ("filtered_collision", "filtered_reach") for i in np.flatnonzero(behind))
     c = a.counts
     assert c["candidates"] == H * W
-    assert c["filtered_collision"] + c["filtered_reach"] + c["prefiltered_ik"] + c["rolled_out"] + c["skipped_budget"] == H * W
+    assert (
+        c["filtered_collision"] + c["filtered_reach"] + c["prefiltered_ik"] + c["rolled_out"] + c["skipped_budget"]
+        == H * W
+    )
     assert c["filtered_collision"] > 0
     assert a.label.max() == pytest.approx(1.0) if a.success.any() else a.label.max() == 0.0
     _check_status(a)
@@ -41,11 +44,14 @@ def _check_status(a) -> None:
     assert all(r == "skipped_budget" for r in np.asarray(a.reasons)[a.status == SKIPPED])
 
 
-@pytest.mark.parametrize("task,cell,budget", [
-    ("CloseDrawer", 0.15, None),
-    ("OpenSingleDoor", 0.15, 16),
-    ("PnPCounterToCab", 0.2, 10),
-])
+@pytest.mark.parametrize(
+    "task,cell,budget",
+    [
+        ("CloseDrawer", 0.15, None),
+        ("OpenSingleDoor", 0.15, 16),
+        ("PnPCounterToCab", 0.2, 10),
+    ],
+)
 def test_positive_and_negative(scene_factory, task, cell, budget):
     sc = scene_factory(task)
     a = annotate_scene(sc, cell=cell, max_candidates=budget)
@@ -58,7 +64,9 @@ def test_positive_and_negative(scene_factory, task, cell, budget):
 def _dd_map(sc):
     a = annotate_scene(sc, cell=0.1)
     assert a.counts["positives"] >= 1, a.counts
-    failed_rollouts = [r for r in a.reasons if r not in ("success", "filtered_collision", "filtered_reach", "ik_unreachable")]
+    failed_rollouts = [
+        r for r in a.reasons if r not in ("success", "filtered_collision", "filtered_reach", "ik_unreachable")
+    ]
     assert len(failed_rollouts) >= 1, a.counts
     assert a.label.max() == pytest.approx(1.0)
 

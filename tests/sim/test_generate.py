@@ -111,10 +111,14 @@ def test_grid_lattice_checks_the_grid():
 
 def _view(n=5, m=4):
     return {
-        "scene_xyz": np.zeros((n, 3), np.float32), "scene_feat": np.zeros((n, 4), np.float32),
-        "floor_xyz": np.zeros((m, 3), np.float32), "floor_label": np.full(m, 0.5, np.float32),
-        "robot": np.array([0.85, 1.03], np.float32), "target_xyz": np.zeros(3, np.float32),
-        "target_yaw": np.float32(0.1), "base_pose_world": np.zeros(3, np.float32),
+        "scene_xyz": np.zeros((n, 3), np.float32),
+        "scene_feat": np.zeros((n, 4), np.float32),
+        "floor_xyz": np.zeros((m, 3), np.float32),
+        "floor_label": np.full(m, 0.5, np.float32),
+        "robot": np.array([0.85, 1.03], np.float32),
+        "target_xyz": np.zeros(3, np.float32),
+        "target_yaw": np.float32(0.1),
+        "base_pose_world": np.zeros(3, np.float32),
     }
 
 
@@ -151,8 +155,15 @@ def test_failing_job_is_retried_once_then_reported(tmp_path, monkeypatch):
         calls.append(job.key)
         # a half-written staging dir must not survive
         ff.staging_dir(out, job.benchmark, "half").mkdir(parents=True, exist_ok=True)
-        return {"key": job.key, "status": "error", "scene_id": None, "attempts": [], "reason": "RuntimeError: boom",
-                "traceback": "tb", "wall_s": 0.0}
+        return {
+            "key": job.key,
+            "status": "error",
+            "scene_id": None,
+            "attempts": [],
+            "reason": "RuntimeError: boom",
+            "traceback": "tb",
+            "wall_s": 0.0,
+        }
 
     p = get_preset("tiny", tasks=("CloseDrawer",), n_test=0)
     man = gen.generate(tmp_path, p, seed=0, workers=0, quiet=True, job_fn=boom)
@@ -162,8 +173,24 @@ def test_failing_job_is_retried_once_then_reported(tmp_path, monkeypatch):
     assert man["counts"]["scenes_failed"] == 1 and man["counts"]["scenes_ok"] == 0
     assert not (tmp_path / "styles" / ff.STAGING).exists()
     monkeypatch.setattr(gen, "run_job", boom)
-    assert gen.main(["--preset", "tiny", "--tasks", "CloseDrawer", "--n-test", "0", "--out", str(tmp_path),
-                     "--workers", "0", "--quiet"]) == 1
+    assert (
+        gen.main(
+            [
+                "--preset",
+                "tiny",
+                "--tasks",
+                "CloseDrawer",
+                "--n-test",
+                "0",
+                "--out",
+                str(tmp_path),
+                "--workers",
+                "0",
+                "--quiet",
+            ]
+        )
+        == 1
+    )
 
 
 def test_dead_worker_process_is_retried_once_then_failed(tmp_path):
@@ -280,8 +307,13 @@ def _check_v2_view(s: dict, v: dict, sample: dict) -> bytes:
     arr = ff.read_view(Path(s["dir"]) / v["file"])
     idx, pose = arr["floor_index"], arr["base_pose_world"].astype(np.float64)
     grid = np.asarray(s["candidates"]["xy"])
-    lat = gen.grid_lattice(grid, tuple(s["candidates"]["grid_shape"]), s["candidates"]["cell"],
-                           np.asarray(s["target"]["pos"])[:2], s["target"]["yaw"])
+    lat = gen.grid_lattice(
+        grid,
+        tuple(s["candidates"]["grid_shape"]),
+        s["candidates"]["cell"],
+        np.asarray(s["target"]["pos"])[:2],
+        s["target"]["yaw"],
+    )
     seen = gen.view_floor_cells(sample["scene_xyz"], pose, lat)
     assert np.array_equal(idx, np.flatnonzero(seen)) and len(idx) == v["n_floor_cells"] > 0
     world = base_to_world(sample["floor_xyz"].astype(np.float64), pose)
@@ -312,8 +344,9 @@ def test_predict_default_floor_reproduces_the_views_floor(mini_run):
     for s in ff.iter_scenes(out):
         for v in s["views"]:
             sample = ff.read_sample(s, v)
-            ours = default_floor_grid(sample["target_xyz"], sample["scene_xyz"], float(sample["target_yaw"]),
-                                      cell=s["candidates"]["cell"])
+            ours = default_floor_grid(
+                sample["target_xyz"], sample["scene_xyz"], float(sample["target_yaw"]), cell=s["candidates"]["cell"]
+            )
             theirs = sample["floor_xyz"]
             unmatched = (cKDTree(theirs[:, :2]).query(ours[:, :2])[0] > 1e-3).sum()
             unmatched += (cKDTree(ours[:, :2]).query(theirs[:, :2])[0] > 1e-3).sum()
@@ -327,8 +360,11 @@ def test_resume_regenerates_only_the_deleted_scene_identically_with_one_worker(m
     before = _labels(out)
     victim = sorted(before)[0]
     (ff.scene_dir(out, "styles", before[victim][0]) / ff.SCENE_JSON).unlink()
-    keep = {k: (ff.scene_dir(out, "styles", v[0]) / ff.SCENE_JSON).stat().st_mtime_ns for k, v in before.items()
-            if k != victim}
+    keep = {
+        k: (ff.scene_dir(out, "styles", v[0]) / ff.SCENE_JSON).stat().st_mtime_ns
+        for k, v in before.items()
+        if k != victim
+    }
     # workers=1 now vs workers=2 for the original: the regenerated arrays must be byte-identical
     man = gen.generate(out, get_preset("tiny", **MINI), seed=0, workers=1, quiet=True)
     assert [k for k, s in man["scenes"].items() if not s.get("resumed")] == [victim]
@@ -357,5 +393,3 @@ def test_tiny_same_seed_same_arrays_for_one_or_two_workers(tiny_run, tmp_path):
     src, _ = tiny_run
     gen.generate(tmp_path, get_preset("tiny"), seed=0, workers=1, quiet=True)
     assert _labels(tmp_path) == _labels(src)
-
-

@@ -40,8 +40,14 @@ def _fit_prior(samples: list[dict], cell: float):
     on the views in one pass; its grid puts the dataset's cell centres mid-cell (no float flips at borders)."""
     from floaff_zoo.models.prior import CanonicalPriorModule
 
-    model = CanonicalPriorModule(tasks=["CloseDrawer"], cell=cell / 2, extent=3.0 + cell / 4, smooth_sigma_cells=0.0,
-                                 yaw_source="gt", eval_yaw_source="gt")
+    model = CanonicalPriorModule(
+        tasks=["CloseDrawer"],
+        cell=cell / 2,
+        extent=3.0 + cell / 4,
+        smooth_sigma_cells=0.0,
+        yaw_source="gt",
+        eval_yaw_source="gt",
+    )
     model.train()
     model.training_step(collate_samples([_contract(s) for s in samples]), 0)
     return model.eval()
@@ -60,8 +66,17 @@ def test_default_grid_best_pose_is_the_dataset_argmax(drawer_views):
         assert np.allclose(on_data, label, atol=1e-6) and int(on_data.argmax()) in _argmax_set(label), v["view_id"]
         # what a robot does: predict with the default floor queries (the cloud's observed floor cells), given the
         # target pose and the cell of the training data, no simulator field
-        pred = predict_from_points(model, s["scene_xyz"], s["scene_feat"], None, s["robot"], s["target_xyz"],
-                                   float(s["target_yaw"]), cell=cell, task="CloseDrawer")
+        pred = predict_from_points(
+            model,
+            s["scene_xyz"],
+            s["scene_feat"],
+            None,
+            s["robot"],
+            s["target_xyz"],
+            float(s["target_yaw"]),
+            cell=cell,
+            task="CloseDrawer",
+        )
         assert abs(len(pred.floor_xyz) - len(label)) <= max(1, len(label) // 50)
         best = np.asarray(s["floor_xyz"])[_argmax_set(label), :2]
         d = float(np.hypot(*(best - np.asarray(pred.best_pose[:2])).T).min())

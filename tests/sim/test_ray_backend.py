@@ -85,8 +85,12 @@ def test_generate_ray_matches_local_byte_for_byte(tmp_path, ray_cleanup):
 def test_rollout_service_ray_matches_local(scene_factory, ray_cleanup):
     sc = scene_factory("CloseDrawer")
     spec = SceneSpec(0, 0, 0, "CloseDrawer")
-    poses = [_front_pose(sc, 0.65, 0.3), _front_pose(sc, 3.0, 0.0), _front_pose(sc, 0.8, -0.3),
-             _front_pose(sc, 0.55, 0.15)]
+    poses = [
+        _front_pose(sc, 0.65, 0.3),
+        _front_pose(sc, 3.0, 0.0),
+        _front_pose(sc, 0.8, -0.3),
+        _front_pose(sc, 0.55, 0.15),
+    ]
     jobs = [(spec, pose) for pose in poses]
     loc = RolloutService(workers=1, backend="local").run(jobs)
     svc = RolloutService(workers=2, backend="ray")

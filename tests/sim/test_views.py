@@ -64,7 +64,7 @@ def test_view_poses_in_region_and_collision_free(fake, kind):
 
 def test_flag_marks_target_points_and_floor_at_zero(fake):
     scene, r = fake
-    (pose, obs), = views.sample_view_poses(scene, r, "front", 1, CFG, np.random.default_rng(5))
+    ((pose, obs),) = views.sample_view_poses(scene, r, "front", 1, CFG, np.random.default_rng(5))
     world = views.base_to_world(obs.scene_xyz.astype(np.float64), pose)
     flag = obs.scene_feat[:, 0]
     assert set(np.unique(flag)) <= {0.0, 1.0} and flag.sum() > 0
@@ -90,7 +90,7 @@ def test_front_and_side_share_labels_in_world_frame(fake):
     label = rng.uniform(size=len(grid)).astype(np.float32)
     samples = []
     for kind in ("front", "side"):
-        (pose, obs), = views.sample_view_poses(scene, r, kind, 1, CFG, np.random.default_rng(11))
+        ((pose, obs),) = views.sample_view_poses(scene, r, kind, 1, CFG, np.random.default_rng(11))
         samples.append(views.make_view_sample(obs, pose, scene.target.pos, scene.target.yaw, grid, label))
     fr, sd = samples
     assert not np.allclose(fr["floor_xyz"], sd["floor_xyz"], atol=1e-2)  # different frames ...
@@ -107,7 +107,6 @@ def test_front_and_side_share_labels_in_world_frame(fake):
         views.make_view_sample(obs, pose, scene.target.pos, scene.target.yaw, grid, label[:-1])
 
 
-
 def test_robot_geoms_never_enter_the_cloud(fake):
     scene, r = fake
     pose = np.array([-0.5, 0.0, 0.0])
@@ -116,7 +115,9 @@ def test_robot_geoms_never_enter_the_cloud(fake):
         cfg = views.ViewConfig(image_size=64, max_points=100000, hide_robot=hide)
         obs = views.render_view(scene, r, pose, cfg, np.random.default_rng(0))
         assert not np.any((obs.scene_xyz[:, 0] < 0.5) & (obs.scene_xyz[:, 2] > 0.75))  # no 'arm' box points
-        near[hide] = int(((obs.scene_xyz[:, 0] < 1.5) & (np.abs(obs.scene_xyz[:, 1]) < 0.2) & (obs.scene_xyz[:, 2] < 0.01)).sum())
+        near[hide] = int(
+            ((obs.scene_xyz[:, 0] < 1.5) & (np.abs(obs.scene_xyz[:, 1]) < 0.2) & (obs.scene_xyz[:, 2] < 0.01)).sum()
+        )
     res = r.render(scene.data, views.EGO_CAMERA)
     assert np.any(res.geom_id == scene.robot_geom_ids[1])  # the 'arm' box is in the camera's view
     assert near[True] > near[False]  # hiding the robot reveals the floor it occludes

@@ -33,8 +33,14 @@ SCHEMA = "floaff-zoo/report"
 SCHEMA_VERSION = 1
 PACKAGES = ("floaff-zoo", "torch", "lightning", "torchmetrics", "numpy", "scipy", "mujoco", "robosuite", "jsonargparse")
 #: metric display names and decimals (paper: RMSE/PCC/SIM 3, logMSE 4, SR 2)
-MAP_METRICS = (("rmse", "RMSE", 3), ("logmse", "logMSE", 4), ("pcc", "PCC", 3), ("sim", "SIM", 3),
-               ("mae", "MAE", 3), ("ciou", "cIoU", 3))
+MAP_METRICS = (
+    ("rmse", "RMSE", 3),
+    ("logmse", "logMSE", 4),
+    ("pcc", "PCC", 3),
+    ("sim", "SIM", 3),
+    ("mae", "MAE", 3),
+    ("ciou", "cIoU", 3),
+)
 
 
 def sha256_file(path: str | Path, chunk: int = 1 << 20) -> str:
@@ -188,8 +194,12 @@ class TestReport(L.Callback):
         report = _jsonable(report)
         (run_dir / "report.json").write_text(json.dumps(report, indent=2, sort_keys=False))
         (run_dir / "report.md").write_text(render_markdown(report))
-        self.written = {"run_dir": str(run_dir), "report_json": str(run_dir / "report.json"),
-                        "report_md": str(run_dir / "report.md"), "figures": report.get("figures", [])}
+        self.written = {
+            "run_dir": str(run_dir),
+            "report_json": str(run_dir / "report.json"),
+            "report_md": str(run_dir / "report.md"),
+            "figures": report.get("figures", []),
+        }
 
     def build_report(
         self, trainer: L.Trainer, pl_module: L.LightningModule, run_dir: Path, rollout: Any | None
@@ -220,7 +230,9 @@ class TestReport(L.Callback):
         logger_name = getattr(trainer.logger, "name", None) if trainer.logger is not None else None
         sr = (rollout.summaries.get("test") if rollout is not None else None) or {
             "available": False,
-            "reason": "no RolloutSuccessRate callback in this run" if rollout is None else "RolloutSuccessRate did not run on test",
+            "reason": "no RolloutSuccessRate callback in this run"
+            if rollout is None
+            else "RolloutSuccessRate did not run on test",
         }
         return {
             "schema": SCHEMA,
@@ -297,15 +309,20 @@ def render_markdown(report: dict[str, Any]) -> str:
         lines += ["| | SR_front | SR_side | SR_all |", "|---|---|---|---|"]
         for name, t in (("model", model), ("Oracle", oracle)):
             if t:
-                lines.append(f"| {name} | {_sr_cell(t.get('front'))} | {_sr_cell(t.get('side'))} | {_sr_cell(t.get('all'))} |")
+                lines.append(
+                    f"| {name} | {_sr_cell(t.get('front'))} | {_sr_cell(t.get('side'))} | {_sr_cell(t.get('all'))} |"
+                )
         tasks = sorted(set(model.get("tasks", {})) | set(oracle.get("tasks", {})))
         if tasks:
             lines += ["", "| | " + " | ".join(tasks) + " |", "|---|" + "---|" * len(tasks)]
             for name, t in (("model", model), ("Oracle", oracle)):
                 if t:
                     lines.append(f"| {name} | " + " | ".join(_sr_cell(t.get("tasks", {}).get(x)) for x in tasks) + " |")
-        lines += ["", f"± = {sr.get('std_method')}; {sr.get('n_evaluated')} evaluated, {sr.get('n_skipped')} skipped"
-                  f" (no sim metadata); top_k = {sr.get('top_k')}; rollouts took {sr.get('seconds', 0):.1f} s."]
+        lines += [
+            "",
+            f"± = {sr.get('std_method')}; {sr.get('n_evaluated')} evaluated, {sr.get('n_skipped')} skipped"
+            f" (no sim metadata); top_k = {sr.get('top_k')}; rollouts took {sr.get('seconds', 0):.1f} s.",
+        ]
     if report.get("figures"):
         lines += ["", "## Figures (ground truth | prediction; x = chosen base pose)", ""]
         lines += [f"![{Path(f).stem}]({f})" for f in report["figures"]]

@@ -44,7 +44,12 @@ from floaff_zoo.contract import best_pose
 from floaff_zoo.frames import Pose, base_to_world, pose_to_world
 
 __all__ = [
-    "RolloutSuccessRate", "base_to_world", "bootstrap_std", "choose_pose", "pose_to_world", "summarize_episodes",
+    "RolloutSuccessRate",
+    "base_to_world",
+    "bootstrap_std",
+    "choose_pose",
+    "pose_to_world",
+    "summarize_episodes",
     "summary_to_logs",
 ]
 
@@ -288,7 +293,9 @@ class RolloutSuccessRate(L.Callback):
                 "_spec": spec,
             }
             if self.oracle:
-                ep["oracle_pose"] = list(choose_pose(floor[i], label[i], mask[i], target[i], base, self.top_k, free, tie_seed)[0])
+                ep["oracle_pose"] = list(
+                    choose_pose(floor[i], label[i], mask[i], target[i], base, self.top_k, free, tie_seed)[0]
+                )
             pending.append(ep)
 
     def _run(self, episodes: list[dict[str, Any]]) -> float:
@@ -306,7 +313,12 @@ class RolloutSuccessRate(L.Callback):
 
         refs = []
         for ep in episodes:
-            refs.append((job_index(ep["_spec"], ep["pose"]), job_index(ep["_spec"], ep["oracle_pose"]) if "oracle_pose" in ep else None))
+            refs.append(
+                (
+                    job_index(ep["_spec"], ep["pose"]),
+                    job_index(ep["_spec"], ep["oracle_pose"]) if "oracle_pose" in ep else None,
+                )
+            )
         results = self.service.run(jobs, progress=self.progress) if jobs else []
         if len(results) != len(jobs):
             raise RuntimeError(f"rollout service returned {len(results)} results for {len(jobs)} jobs")
@@ -332,8 +344,14 @@ class RolloutSuccessRate(L.Callback):
         skipped = sum(self._gather(trainer, [self._skipped.get(stage, 0)]))
         summary: dict[str, Any] | None = None
         if trainer.is_global_zero:
-            summary = {"available": bool(episodes), "n_evaluated": len(episodes), "n_skipped": skipped,
-                       "std_method": STD_METHOD, "n_bootstrap": self.n_bootstrap, "top_k": self.top_k}
+            summary = {
+                "available": bool(episodes),
+                "n_evaluated": len(episodes),
+                "n_skipped": skipped,
+                "std_method": STD_METHOD,
+                "n_bootstrap": self.n_bootstrap,
+                "top_k": self.top_k,
+            }
             if skipped and stage not in self._warned:
                 self._warned.add(stage)
                 rank_zero_warn(

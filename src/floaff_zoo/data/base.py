@@ -7,8 +7,8 @@ from functools import partial
 from typing import Any, Literal
 
 import lightning as L
-import torch
 import numpy as np
+import torch
 from lightning.pytorch.utilities.exceptions import MisconfigurationException
 from torch.utils.data import DataLoader, Dataset
 
@@ -103,7 +103,10 @@ class FloAffDataModule(L.LightningDataModule):
         offsets = {"val": 1, "test": 2, "predict": 3}
         gen = torch.Generator().manual_seed(self.seed * 10 + offsets[split]) if split in offsets else None
         return partial(
-            collate_samples, num_points=self.num_points, num_floor=self.num_floor, mode=self.collate_mode,
+            collate_samples,
+            num_points=self.num_points,
+            num_floor=self.num_floor,
+            mode=self.collate_mode,
             generator=gen,
         )
 
@@ -128,8 +131,9 @@ class FloAffDataModule(L.LightningDataModule):
             raise MisconfigurationException(f"{type(self).__name__}: the '{split}' split is empty")
         transforms = self.transforms_for(split)
         if transforms or self._has_hook():
-            ds = TransformedDataset(ds, transforms, self.sample_transform if self._has_hook() else None, split,
-                                    self.seed)
+            ds = TransformedDataset(
+                ds, transforms, self.sample_transform if self._has_hook() else None, split, self.seed
+            )
         return DataLoader(
             ds,
             batch_size=self.batch_size if split == "train" else self.eval_batch_size,

@@ -88,7 +88,9 @@ class SampleCache:
             return None
 
     def mark_skipped(self, path: Path, kind: str, problem: str) -> None:
-        self._atomic(path.with_suffix(".skip"), lambda f: f.write(json.dumps({"kind": kind, "problem": problem}).encode()))
+        self._atomic(
+            path.with_suffix(".skip"), lambda f: f.write(json.dumps({"kind": kind, "problem": problem}).encode())
+        )
 
     def _atomic(self, path: Path, write: Callable[[Any], None]) -> None:
         path.parent.mkdir(parents=True, exist_ok=True)

@@ -100,15 +100,25 @@ class FloAffKitchenDataModule(FloAffDataModule):
         train_transforms: list[SampleTransform] | None = None,
         eval_transforms: list[SampleTransform] | None = None,
     ) -> None:
-        super().__init__(batch_size, eval_batch_size, num_workers, num_points, num_floor, collate_mode, seed,
-                         train_transforms, eval_transforms)
+        super().__init__(
+            batch_size,
+            eval_batch_size,
+            num_workers,
+            num_points,
+            num_floor,
+            collate_mode,
+            seed,
+            train_transforms,
+            eval_transforms,
+        )
         self.benchmark = check_names("benchmark", [benchmark], BENCHMARKS)[0]
         self.tasks = check_names("tasks", list(TASKS) if tasks is None else list(tasks), TASKS)
         self.views = check_names("views", list(VIEWS) if views is None else list(views), VIEWS)
         self.reader_cls = get_reader(reader)
         if val_scenes < 0 or not 0.0 <= val_view_fraction < 1.0:
-            raise ValueError(f"val_scenes must be >= 0 and val_view_fraction in [0, 1); got {val_scenes}, "
-                             f"{val_view_fraction}")
+            raise ValueError(
+                f"val_scenes must be >= 0 and val_view_fraction in [0, 1); got {val_scenes}, {val_view_fraction}"
+            )
         self.root = Path(root)
         self.val_scenes = val_scenes
         self.val_view_fraction = val_view_fraction
@@ -126,13 +136,27 @@ class FloAffKitchenDataModule(FloAffDataModule):
     def _records(self, scene: SceneEntry, views: list[ViewEntry]) -> list[SampleRecord]:
         out = []
         for v in views:
-            sim = {"layout_id": scene.layout_id, "style_id": scene.style_id, "seed": scene.seed, "task": scene.task,
-                   "base_pose_world": list(v.base_pose_world), "scene_dir": scene.dir, "root": str(self.root),
-                   "benchmark": scene.benchmark}
+            sim = {
+                "layout_id": scene.layout_id,
+                "style_id": scene.style_id,
+                "seed": scene.seed,
+                "task": scene.task,
+                "base_pose_world": list(v.base_pose_world),
+                "scene_dir": scene.dir,
+                "root": str(self.root),
+                "benchmark": scene.benchmark,
+            }
             sample_id = f"{scene.benchmark}/{scene.scene_id}/{v.view_id}"
-            meta = {"dataset": f"floaff_kitchen_{scene.benchmark}", "task": scene.task, "view": v.view,
-                    "scene_id": scene.scene_id, "layout_id": scene.layout_id, "style_id": scene.style_id,
-                    "sample_id": sample_id, "sim": sim}
+            meta = {
+                "dataset": f"floaff_kitchen_{scene.benchmark}",
+                "task": scene.task,
+                "view": v.view,
+                "scene_id": scene.scene_id,
+                "layout_id": scene.layout_id,
+                "style_id": scene.style_id,
+                "sample_id": sample_id,
+                "sim": sim,
+            }
             payload = {"scene": {k: val for k, val in asdict(scene).items() if k != "views"}, "view": asdict(v)}
             out.append(SampleRecord(sample_id, [v.file, *scene.sources], meta, payload))
         return out
@@ -219,14 +243,19 @@ class FloAffKitchenDataModule(FloAffDataModule):
             print(f"FloAffKitchenDataModule: no '{self.benchmark}' scene for task(s) {empty} under {self.root}")
         old = sum(s.format_version == 1 for s in scenes)
         if old:  # docs/data_format.md "Versions"
-            print(f"FloAffKitchenDataModule: {old} of {len(scenes)} scene(s) under {self.root} are format 1: their floor "
-                  "points are the filtered candidate set, not the observed floor predict() asks about; regenerate "
-                  "with `floaff-zoo generate` (format 2) to train models for deployment")
+            print(
+                f"FloAffKitchenDataModule: {old} of {len(scenes)} scene(s) under {self.root} are format 1: their floor "
+                "points are the filtered candidate set, not the observed floor predict() asks about; regenerate "
+                "with `floaff-zoo generate` (format 2) to train models for deployment"
+            )
         sizes = ", ".join(f"{s} {len(self.datasets[s])}" for s in ("train", "val", "test"))
-        print(f"FloAffKitchenDataModule[{self.benchmark}, tasks={self.tasks}, views={self.views}]: {sizes} samples. "
-              f"{skips.summary()}")
+        print(
+            f"FloAffKitchenDataModule[{self.benchmark}, tasks={self.tasks}, views={self.views}]: {sizes} samples. "
+            f"{skips.summary()}"
+        )
         need = {"fit": ["train", "val"], "validate": ["val"], "test": ["test"], "predict": ["test"]}.get(
-            stage or "", [])
+            stage or "", []
+        )
         for split in need:
             if len(self.datasets[split]) == 0:
                 raise MisconfigurationException(

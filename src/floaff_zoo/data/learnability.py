@@ -46,8 +46,9 @@ def _box_points(rng: np.random.Generator, centre: np.ndarray, size: np.ndarray, 
     return np.c_[c * p[:, 0] - s * p[:, 1], s * p[:, 0] + c * p[:, 1], p[:, 2]] + centre
 
 
-def make_probe_sample(seed: int, num_points: int = 512, num_floor: int = 96, max_yaw_deg: float = 60.0,
-                      task: str = "CloseDrawer") -> Sample:
+def make_probe_sample(
+    seed: int, num_points: int = 512, num_floor: int = 96, max_yaw_deg: float = 60.0, task: str = "CloseDrawer"
+) -> Sample:
     """One probe sample in the robot base frame (see module docstring)."""
     rng = np.random.default_rng(seed)
     dist, bearing = rng.uniform(1.3, 2.0), rng.uniform(-0.5, 0.5)
@@ -76,17 +77,26 @@ def make_probe_sample(seed: int, num_points: int = 512, num_floor: int = 96, max
     cells = cells[rng.permutation(len(cells))[: min(num_floor, len(cells))]]
     label = canonical_label(cells)
     floor_xy = t[:2] + cells[:, :1] * tang - cells[:, 1:] * n  # canonical (x, y) -> robot frame
-    return validate_sample({
-        "scene_xyz": xyz,
-        "scene_feat": flag,
-        "floor_xyz": np.c_[floor_xy, np.zeros(len(floor_xy))].astype(np.float32),
-        "floor_label": label,
-        "robot": np.array([0.85, 1.03], dtype=np.float32),
-        "target_xyz": t.astype(np.float32),
-        "target_yaw": np.float32(math.atan2(n[1], n[0])),
-        "meta": {"dataset": "probe", "task": task, "view": "front", "scene_id": f"probe{seed}",
-                 "layout_id": -1, "style_id": -1, "sample_id": f"probe{seed}"},
-    })
+    return validate_sample(
+        {
+            "scene_xyz": xyz,
+            "scene_feat": flag,
+            "floor_xyz": np.c_[floor_xy, np.zeros(len(floor_xy))].astype(np.float32),
+            "floor_label": label,
+            "robot": np.array([0.85, 1.03], dtype=np.float32),
+            "target_xyz": t.astype(np.float32),
+            "target_yaw": np.float32(math.atan2(n[1], n[0])),
+            "meta": {
+                "dataset": "probe",
+                "task": task,
+                "view": "front",
+                "scene_id": f"probe{seed}",
+                "layout_id": -1,
+                "style_id": -1,
+                "sample_id": f"probe{seed}",
+            },
+        }
+    )
 
 
 class ProbeDataset(Dataset):
@@ -135,14 +145,28 @@ class CanonicalProbeDataModule(FloAffDataModule):
         train_transforms: list[SampleTransform] | None = None,
         eval_transforms: list[SampleTransform] | None = None,
     ) -> None:
-        super().__init__(batch_size, eval_batch_size, num_workers, num_points, num_floor, collate_mode, seed,
-                         train_transforms, eval_transforms)
+        super().__init__(
+            batch_size,
+            eval_batch_size,
+            num_workers,
+            num_points,
+            num_floor,
+            collate_mode,
+            seed,
+            train_transforms,
+            eval_transforms,
+        )
         self.sizes = {"train": num_train, "val": num_val, "test": num_test}
-        self.points_per_sample, self.floor_per_sample, self.max_yaw_deg = points_per_sample, floor_per_sample, max_yaw_deg
+        self.points_per_sample, self.floor_per_sample, self.max_yaw_deg = (
+            points_per_sample,
+            floor_per_sample,
+            max_yaw_deg,
+        )
 
     def setup(self, stage: str | None = None) -> None:
         offsets = {"train": 0, "val": 100_000, "test": 200_000}
         for split, n in self.sizes.items():
-            self.datasets[split] = ProbeDataset(n, self.seed + offsets[split], self.points_per_sample,
-                                                self.floor_per_sample, self.max_yaw_deg)
+            self.datasets[split] = ProbeDataset(
+                n, self.seed + offsets[split], self.points_per_sample, self.floor_per_sample, self.max_yaw_deg
+            )
         self.datasets["predict"] = self.datasets["test"]

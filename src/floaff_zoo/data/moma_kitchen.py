@@ -1,6 +1,6 @@
 """MoMa-Kitchen (ICCV 2025) in the official on-disk layout.
 
-Layout (official ``dataset.py``; see docs REFERENCE §1.2)::
+Layout (official ``dataset.py``; see docs/background.md §1.1)::
 
     <rgbd_root>/RGBD-<scene6>-target_<k>_<obj>_barrier_<NN>/position_<x>_<y>_0_orientation_<q>/
         point_cloud_transformed/world_pcd_transformed.ply          global cloud
@@ -152,7 +152,11 @@ class MoMaKitchenReader:
     """
 
     def __init__(
-        self, rgbd_root: Path, info_root: Path, robots: dict[str, list[float]], flag_radius: float,
+        self,
+        rgbd_root: Path,
+        info_root: Path,
+        robots: dict[str, list[float]],
+        flag_radius: float,
         yaw_estimator: str,
     ) -> None:
         self.rgbd_root, self.info_root = Path(rgbd_root), Path(info_root)
@@ -162,8 +166,12 @@ class MoMaKitchenReader:
         self._robot_of: dict[str, tuple[str, Any]] = {}
 
     def config(self) -> dict[str, Any]:
-        return {"reader": "moma_kitchen", "robots": self.robots, "flag_radius": self.flag_radius,
-                "yaw_estimator": self.yaw_estimator}
+        return {
+            "reader": "moma_kitchen",
+            "robots": self.robots,
+            "flag_radius": self.flag_radius,
+            "yaw_estimator": self.yaw_estimator,
+        }
 
     def _robot(self, info: Path) -> tuple[str, Any]:
         """(robot_name, descriptor | problem str) of one trial_info.json, memoised per configuration."""
@@ -173,8 +181,9 @@ class MoMaKitchenReader:
                 name = json.loads(info.read_text())["robot_name"]
                 desc: Any = self.robots.get(str(name).lower())
                 if desc is None:
-                    desc = (f"unknown robot_name {name!r} (known: {sorted(self.robots)}; add it with "
-                            "robots/extra_robots)")
+                    desc = (
+                        f"unknown robot_name {name!r} (known: {sorted(self.robots)}; add it with robots/extra_robots)"
+                    )
                 self._robot_of[key] = (str(name), desc)
             except (OSError, ValueError, KeyError, TypeError) as exc:
                 self._robot_of[key] = ("", f"unreadable trial_info.json ({type(exc).__name__}: {exc})")
@@ -189,8 +198,12 @@ class MoMaKitchenReader:
                 continue
             d = self.rgbd_root / rel
             pcd = d / PCD_DIR
-            need = [("missing_global", pcd / GLOBAL_PLY), ("missing_floor", pcd / FLOOR_PLY),
-                    ("missing_target", pcd / TARGET_PLY), ("missing_labels", d / LABEL_TXT)]
+            need = [
+                ("missing_global", pcd / GLOBAL_PLY),
+                ("missing_floor", pcd / FLOOR_PLY),
+                ("missing_target", pcd / TARGET_PLY),
+                ("missing_labels", d / LABEL_TXT),
+            ]
             if not d.is_dir():
                 skips.add("missing_dir", d, "sample directory listed in the split file does not exist")
                 continue
@@ -217,13 +230,23 @@ class MoMaKitchenReader:
             view_xy = [float(v["x"]), float(v["y"])] if v else None
             sources = [str(p) for _, p in need] + barriers + [str(info)]
             meta = {
-                "dataset": dataset, "task": "", "view": "", "scene_id": m["scene"] if m else config_dir,
-                "layout_id": m["scene"] if m else config_dir, "style_id": -1, "sample_id": rel,
-                "config_id": config_dir, "target": m["obj"] if m else "", "robot_name": robot_name,
+                "dataset": dataset,
+                "task": "",
+                "view": "",
+                "scene_id": m["scene"] if m else config_dir,
+                "layout_id": m["scene"] if m else config_dir,
+                "style_id": -1,
+                "sample_id": rel,
+                "config_id": config_dir,
+                "target": m["obj"] if m else "",
+                "robot_name": robot_name,
                 "split_line": line_no,
             }
-            records.append(SampleRecord(rel, sources, meta, {"dir": str(d), "barriers": barriers, "robot": desc,
-                                                             "view_xy": view_xy}))
+            records.append(
+                SampleRecord(
+                    rel, sources, meta, {"dir": str(d), "barriers": barriers, "robot": desc, "view_xy": view_xy}
+                )
+            )
         return records
 
     def load(self, rec: SampleRecord) -> Sample:
@@ -236,8 +259,11 @@ class MoMaKitchenReader:
         barriers = [read_ply(p) for p in rec.payload["barriers"]]
         label = read_labels(d / LABEL_TXT)
         if label.shape[0] != floor.shape[0]:
-            raise LoadError("label_count", f"{d / LABEL_TXT}: {label.shape[0]} label rows but the floor cloud "
-                            f"{FLOOR_PLY} has {floor.shape[0]} points")
+            raise LoadError(
+                "label_count",
+                f"{d / LABEL_TXT}: {label.shape[0]} label rows but the floor cloud "
+                f"{FLOOR_PLY} has {floor.shape[0]} points",
+            )
         if label.min() < 0 or label.max() > 1:
             raise LoadError("label_range", f"{d / LABEL_TXT}: labels outside [0, 1] ({label.min()}, {label.max()})")
         flag = target_flags(scene, target, barriers, self.flag_radius)
@@ -245,9 +271,14 @@ class MoMaKitchenReader:
         view_xy = tuple(rec.payload["view_xy"]) if rec.payload.get("view_xy") else None
         yaw = estimate_target_yaw(self.yaw_estimator, tc, floor, label, view_xy)
         sample = {
-            "scene_xyz": scene.astype(np.float32), "scene_feat": flag[:, None], "floor_xyz": floor.astype(np.float32),
-            "floor_label": label, "robot": np.asarray(rec.payload["robot"], dtype=np.float32),
-            "target_xyz": tc.astype(np.float32), "target_yaw": np.float32(yaw), "meta": {},
+            "scene_xyz": scene.astype(np.float32),
+            "scene_feat": flag[:, None],
+            "floor_xyz": floor.astype(np.float32),
+            "floor_label": label,
+            "robot": np.asarray(rec.payload["robot"], dtype=np.float32),
+            "target_xyz": tc.astype(np.float32),
+            "target_yaw": np.float32(yaw),
+            "meta": {},
         }
         check_finite_arrays(sample, str(d))
         return sample
@@ -310,13 +341,23 @@ class MoMaKitchenDataModule(FloAffDataModule):
         train_transforms: list[SampleTransform] | None = None,
         eval_transforms: list[SampleTransform] | None = None,
     ) -> None:
-        super().__init__(batch_size, eval_batch_size, num_workers, num_points, num_floor, collate_mode, seed,
-                         train_transforms, eval_transforms)
+        super().__init__(
+            batch_size,
+            eval_batch_size,
+            num_workers,
+            num_points,
+            num_floor,
+            collate_mode,
+            seed,
+            train_transforms,
+            eval_transforms,
+        )
         if not 0.0 <= val_fraction < 1.0:
             raise ValueError(f"val_fraction must be in [0, 1), got {val_fraction}")
         if yaw_estimator not in ("toward_origin", "toward_view", "label_centroid"):
-            raise ValueError(f"unknown yaw_estimator {yaw_estimator!r}; valid: toward_origin, toward_view, "
-                             "label_centroid")
+            raise ValueError(
+                f"unknown yaw_estimator {yaw_estimator!r}; valid: toward_origin, toward_view, label_centroid"
+            )
         self.root = Path(root)
         self.rgbd_root = Path(rgbd_root) if rgbd_root else self.root / "rgbd"
         self.info_root = Path(info_root) if info_root else self.root / "info"
@@ -355,14 +396,15 @@ class MoMaKitchenDataModule(FloAffDataModule):
             n_val = min(max(1, n_val), len(scenes) - 1)
         rng = np.random.default_rng(self.seed)
         val_scenes = set(rng.permutation(scenes)[:n_val].tolist()) if n_val else set()
-        return ([r for r in train if r.meta["scene_id"] not in val_scenes],
-                [r for r in train if r.meta["scene_id"] in val_scenes])
+        return (
+            [r for r in train if r.meta["scene_id"] not in val_scenes],
+            [r for r in train if r.meta["scene_id"] in val_scenes],
+        )
 
     def _dataset(self, name: str, records: list[SampleRecord], skips: SkipLog) -> RecordDataset:
         cache = None
         if self.use_cache:
-            cfg = {**self.reader.config(), "pre_transforms": transforms_config(self.pre_transforms),
-                   "seed": self.seed}
+            cfg = {**self.reader.config(), "pre_transforms": transforms_config(self.pre_transforms), "seed": self.seed}
             cache = SampleCache(self.cache_dir, "moma_kitchen", cfg, self.cache_hash)
         ds = RecordDataset(records, self.reader.load, cache, self.pre_transforms, self.seed, f"moma_kitchen/{name}")
         if self.validate:
@@ -370,12 +412,17 @@ class MoMaKitchenDataModule(FloAffDataModule):
         return ds
 
     def setup(self, stage: str | None = None) -> None:
-        for p, what in ((self.root, "root"), (self.rgbd_root, "rgbd_root"), (self.info_root, "info_root"),
-                        (self.split_dir, "split_dir")):
+        for p, what in (
+            (self.root, "root"),
+            (self.rgbd_root, "rgbd_root"),
+            (self.info_root, "info_root"),
+            (self.split_dir, "split_dir"),
+        ):
             if not p.is_dir():
                 raise MisconfigurationException(f"MoMaKitchenDataModule: {what} {p} does not exist")
         want = {"fit": ["train", "val"], "validate": ["val"], "test": ["test"], "predict": ["test"]}.get(
-            stage or "", ["train", "val", "test"])
+            stage or "", ["train", "val", "test"]
+        )
         if "val" in want and self.val_fraction == 0:
             want = [w for w in want if w != "val"] + ["test"]
         todo = [s for s in want if s not in self.datasets]
@@ -416,6 +463,15 @@ class MoMaKitchenDataModule(FloAffDataModule):
 
 
 __all__ = [
-    "FLAG_RADIUS", "FLOOR_MAX", "GLOBAL_MAX", "OFFICIAL_ROBOTS", "LoadError", "MoMaKitchenDataModule",
-    "MoMaKitchenReader", "estimate_target_yaw", "read_labels", "read_ply", "target_flags",
+    "FLAG_RADIUS",
+    "FLOOR_MAX",
+    "GLOBAL_MAX",
+    "OFFICIAL_ROBOTS",
+    "LoadError",
+    "MoMaKitchenDataModule",
+    "MoMaKitchenReader",
+    "estimate_target_yaw",
+    "read_labels",
+    "read_ply",
+    "target_flags",
 ]

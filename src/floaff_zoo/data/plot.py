@@ -55,8 +55,10 @@ def plot(sample: Sample, path: str | Path | None = None, scores: Any = None) -> 
     ax.legend(loc="best", fontsize=7)
     fig.colorbar(sc, ax=ax, label="floor label")
     meta = sample.get("meta") or {}
-    ax.set_title(f"{meta.get('dataset', '')} {meta.get('task', '')} {meta.get('view', '')}\n{meta.get('sample_id', '')}",
-                 fontsize=8)
+    ax.set_title(
+        f"{meta.get('dataset', '')} {meta.get('task', '')} {meta.get('view', '')}\n{meta.get('sample_id', '')}",
+        fontsize=8,
+    )
     ax = axes[1]
     ax.scatter(xyz[:, 0], xyz[:, 2], s=1, c=colours, alpha=0.5)
     ax.set_xlabel("x forward (m)")
@@ -64,8 +66,7 @@ def plot(sample: Sample, path: str | Path | None = None, scores: Any = None) -> 
     ax.set_title("side view (red target, blue obstacle)", fontsize=8)
     if scores is not None:
         ax = axes[2]
-        sc = ax.scatter(floor[:, 0], floor[:, 1], s=8, c=_np(scores).reshape(-1)[fmask], cmap="viridis", vmin=0,
-                        vmax=1)
+        sc = ax.scatter(floor[:, 0], floor[:, 1], s=8, c=_np(scores).reshape(-1)[fmask], cmap="viridis", vmin=0, vmax=1)
         ax.set_aspect("equal")
         ax.set_title("prediction", fontsize=8)
         fig.colorbar(sc, ax=ax)

@@ -257,23 +257,41 @@ class GeneratedReader(FloAffReader):
                     continue
                 views.append(ViewEntry(v["view_id"], v["view"], str(vf), [float(x) for x in v["base_pose_world"]]))
             spec = rec["spec"]
-            out.append(SceneEntry(
-                scene_id=str(rec.get("scene_id", d.name)), benchmark=benchmark, split=rec["split"], task=rec["task"],
-                layout_id=spec.get("layout_id"), style_id=spec.get("style_id"), seed=spec.get("seed"), dir=str(d),
-                views=views, sources=[str(sj)], format_version=int(rec["format_version"]),
-            ))
+            out.append(
+                SceneEntry(
+                    scene_id=str(rec.get("scene_id", d.name)),
+                    benchmark=benchmark,
+                    split=rec["split"],
+                    task=rec["task"],
+                    layout_id=spec.get("layout_id"),
+                    style_id=spec.get("style_id"),
+                    seed=spec.get("seed"),
+                    dir=str(d),
+                    views=views,
+                    sources=[str(sj)],
+                    format_version=int(rec["format_version"]),
+                )
+            )
         return out
 
     def load_view(self, scene: SceneEntry, view: ViewEntry) -> Sample:
         from floaff_zoo.sim import fileformat as ff
 
-        rec = {"dir": scene.dir, "spec": {"layout_id": scene.layout_id, "style_id": scene.style_id,
-                                          "seed": scene.seed},
-               "task": scene.task, "benchmark": scene.benchmark, "scene_id": scene.scene_id, "split": scene.split,
-               "format_version": scene.format_version or 1}
+        rec = {
+            "dir": scene.dir,
+            "spec": {"layout_id": scene.layout_id, "style_id": scene.style_id, "seed": scene.seed},
+            "task": scene.task,
+            "benchmark": scene.benchmark,
+            "scene_id": scene.scene_id,
+            "split": scene.split,
+            "format_version": scene.format_version or 1,
+        }
         try:
-            s = ff.read_sample(rec, {"file": os.path.relpath(view.file, scene.dir), "view": view.view,
-                                     "view_id": view.view_id}, root=self.root)
+            s = ff.read_sample(
+                rec,
+                {"file": os.path.relpath(view.file, scene.dir), "view": view.view, "view_id": view.view_id},
+                root=self.root,
+            )
         except ff.FormatError as exc:
             msg = str(exc)
             kind = "corrupt_view" if "corrupt" in msg else "nan_values" if "NaN" in msg else "bad_view"
@@ -292,7 +310,19 @@ def check_names(kind: str, given: list[str], valid: tuple[str, ...] | list[str])
 
 
 __all__ = [
-    "READERS", "TASKS", "VIEWS", "DataError", "FloAffReader", "GeneratedReader", "SampleRecord", "SceneEntry",
-    "SkipLog", "ViewEntry", "check_finite_arrays", "check_names", "get_reader", "register_reader",
+    "READERS",
+    "TASKS",
+    "VIEWS",
+    "DataError",
+    "FloAffReader",
+    "GeneratedReader",
+    "SampleRecord",
+    "SceneEntry",
+    "SkipLog",
+    "ViewEntry",
+    "check_finite_arrays",
+    "check_names",
+    "get_reader",
+    "register_reader",
     "source_signature",
 ]

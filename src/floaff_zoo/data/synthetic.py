@@ -12,7 +12,6 @@ import math
 from typing import Literal
 
 import numpy as np
-import torch
 from torch.utils.data import Dataset
 
 from floaff_zoo.contract import Sample, validate_sample
@@ -68,8 +67,15 @@ def make_synthetic_sample(seed: int, num_points: int = 512, floor_cells: int = 1
         "robot": robot,
         "target_xyz": t.astype(np.float32),
         "target_yaw": np.float32(math.atan2(n[1], n[0])),
-        "meta": {"dataset": "synthetic", "task": task, "view": "front", "scene_id": f"syn{seed}",
-                 "layout_id": -1, "style_id": -1, "sample_id": f"syn{seed}"},
+        "meta": {
+            "dataset": "synthetic",
+            "task": task,
+            "view": "front",
+            "scene_id": f"syn{seed}",
+            "layout_id": -1,
+            "style_id": -1,
+            "sample_id": f"syn{seed}",
+        },
     }
     return validate_sample(sample)
 
@@ -78,7 +84,13 @@ class SyntheticDataset(Dataset):
     """``length`` analytic samples, seeded by ``seed + index``."""
 
     def __init__(self, length: int, seed: int, num_points: int, floor_cells: int, tasks: list[str]) -> None:
-        self.length, self.seed, self.num_points, self.floor_cells, self.tasks = length, seed, num_points, floor_cells, tasks
+        self.length, self.seed, self.num_points, self.floor_cells, self.tasks = (
+            length,
+            seed,
+            num_points,
+            floor_cells,
+            tasks,
+        )
 
     def __len__(self) -> int:
         return self.length
@@ -120,8 +132,17 @@ class SyntheticDataModule(FloAffDataModule):
         train_transforms: list[SampleTransform] | None = None,
         eval_transforms: list[SampleTransform] | None = None,
     ) -> None:
-        super().__init__(batch_size, eval_batch_size, num_workers, num_points, num_floor, collate_mode, seed,
-                         train_transforms, eval_transforms)
+        super().__init__(
+            batch_size,
+            eval_batch_size,
+            num_workers,
+            num_points,
+            num_floor,
+            collate_mode,
+            seed,
+            train_transforms,
+            eval_transforms,
+        )
         self.sizes = {"train": num_train, "val": num_val, "test": num_test}
         self.points_per_sample = points_per_sample
         self.floor_cells = floor_cells

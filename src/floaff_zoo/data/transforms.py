@@ -189,6 +189,13 @@ def transforms_config(transforms: Sequence[SampleTransform] | None) -> list[dict
 
 
 __all__ = [
-    "Jitter", "OfficialNormalize", "ResamplePoints", "SampleTransform", "YawPerturb", "apply_transforms",
-    "fps_indices", "rotate_sample", "transforms_config",
+    "Jitter",
+    "OfficialNormalize",
+    "ResamplePoints",
+    "SampleTransform",
+    "YawPerturb",
+    "apply_transforms",
+    "fps_indices",
+    "rotate_sample",
+    "transforms_config",
 ]

@@ -43,9 +43,12 @@ def _parser() -> argparse.ArgumentParser:
     push.add_argument("--benchmark", default=None)
     push.add_argument("--license", default=None)
     push.add_argument("--description", default=None)
-    push.add_argument("--report", default=None,
-                      help="report.json of `floaff-zoo test` on this checkpoint: its metrics go into the index "
-                           "(default: a report.json in the run directory, else the best validation score)")
+    push.add_argument(
+        "--report",
+        default=None,
+        help="report.json of `floaff-zoo test` on this checkpoint: its metrics go into the index "
+        "(default: a report.json in the run directory, else the best validation score)",
+    )
     push.add_argument("--upload", action="store_true", help="also upload to Hugging Face (needs network)")
     push.add_argument("--repo", default=None, help="Hugging Face repo org/name for --upload")
     push.add_argument("--private", action="store_true", help="create the Hugging Face repo as private")
@@ -78,8 +81,16 @@ def cmd_list(args: argparse.Namespace) -> int:
     if not reg:
         print(f"no checkpoints registered (shipped index empty; user index {user_index_path(args.hub_dir)})")
         return 0
-    rows = [(e.name, e.class_path.rsplit(".", 1)[-1], e.filename, _source_text(e),
-             "yes" if _where(e, args.hub_dir) != "-" else "no") for e in sorted(reg.values(), key=lambda e: e.name)]
+    rows = [
+        (
+            e.name,
+            e.class_path.rsplit(".", 1)[-1],
+            e.filename,
+            _source_text(e),
+            "yes" if _where(e, args.hub_dir) != "-" else "no",
+        )
+        for e in sorted(reg.values(), key=lambda e: e.name)
+    ]
     head = ("name", "class", "file", "source", "local")
     widths = [max(len(r[i]) for r in [head, *rows]) for i in range(len(head))]
     for r in [head, *rows]:
@@ -112,8 +123,9 @@ def cmd_push(args: argparse.Namespace) -> int:
     from floaff_zoo._version import __version__
 
     meta["zoo_version"] = __version__
-    entry, out = export_checkpoint(args.run, args.name, args.hub_dir, class_path=args.class_path, meta=meta,
-                                   report=args.report)
+    entry, out = export_checkpoint(
+        args.run, args.name, args.hub_dir, class_path=args.class_path, meta=meta, report=args.report
+    )
     print(f"exported {entry.name} -> {out / entry.filename} (sha256 {entry.sha256})")
     print(f"registered in {user_index_path(args.hub_dir)}")
     if args.upload:

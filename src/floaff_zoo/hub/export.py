@@ -83,7 +83,8 @@ def _report_metrics(ckpt_path: Path, run: Path | None, report: Path | None = Non
             if not isinstance(src, dict):
                 src = {}
             return {
-                k: float(v) for k, v in src.items()
+                k: float(v)
+                for k, v in src.items()
                 if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(float(v))
             }
     return {}
@@ -157,8 +158,9 @@ def _without_local_paths(value: Any) -> Any:
     return value
 
 
-def _write_weights(out: Path, state: dict[str, torch.Tensor], header: dict[str, Any],
-                   filename: str | Callable[[str], str]) -> tuple[str, str]:
+def _write_weights(
+    out: Path, state: dict[str, torch.Tensor], header: dict[str, Any], filename: str | Callable[[str], str]
+) -> tuple[str, str]:
     """Write ``state`` as safetensors into ``out`` atomically, ``header`` (JSON) in its metadata.
 
     Args:
@@ -200,24 +202,55 @@ def save_model_dir(model: torch.nn.Module, directory: str | os.PathLike[str]) ->
 
 def _model_card(entry: HubEntry, metrics: dict[str, float], source_ckpt: str) -> str:
     meta = entry.meta
-    lines = ["---", f"license: {str(meta.get('license', 'other')).lower()}", "library_name: floaff-zoo",
-             "tags:", "- floor-affordance", "- point-cloud", "- mobile-manipulation", "---", "",
-             f"# {entry.name}", "", f"`{entry.class_path}` weights for floor-affordance prediction "
-             "(where a mobile manipulator should stand to do a task).", ""]
+    lines = [
+        "---",
+        f"license: {str(meta.get('license', 'other')).lower()}",
+        "library_name: floaff-zoo",
+        "tags:",
+        "- floor-affordance",
+        "- point-cloud",
+        "- mobile-manipulation",
+        "---",
+        "",
+        f"# {entry.name}",
+        "",
+        f"`{entry.class_path}` weights for floor-affordance prediction "
+        "(where a mobile manipulator should stand to do a task).",
+        "",
+    ]
     for key in ("dataset", "benchmark", "description"):
         if meta.get(key):
             lines.append(f"- **{key}**: {meta[key]}")
-    lines += [f"- **weights**: `{entry.filename}` (sha256 `{entry.sha256}`)",
-              f"- **exported from**: `{source_ckpt}`", "", "## Metrics", ""]
+    lines += [
+        f"- **weights**: `{entry.filename}` (sha256 `{entry.sha256}`)",
+        f"- **exported from**: `{source_ckpt}`",
+        "",
+        "## Metrics",
+        "",
+    ]
     if metrics:
         lines += ["| metric | value |", "|---|---|"] + [f"| {k} | {v:.4g} |" for k, v in sorted(metrics.items())]
     else:
         lines.append("No metrics were recorded for this checkpoint.")
-    lines += ["", "## Usage", "", "```python", f"from {entry.class_path.rsplit('.', 1)[0]} import "
-              f"{entry.class_path.rsplit('.', 1)[1]}", "",
-              f"model = {entry.class_path.rsplit('.', 1)[1]}.from_pretrained(\"{entry.name}\")", "```", "",
-              "or in a config: `model.init_args.weights: " + entry.name + "`.", "", "## Config", "", "```json",
-              json.dumps({"class_path": entry.class_path, "init_args": entry.init_args}, indent=2), "```", ""]
+    lines += [
+        "",
+        "## Usage",
+        "",
+        "```python",
+        f"from {entry.class_path.rsplit('.', 1)[0]} import {entry.class_path.rsplit('.', 1)[1]}",
+        "",
+        f'model = {entry.class_path.rsplit(".", 1)[1]}.from_pretrained("{entry.name}")',
+        "```",
+        "",
+        "or in a config: `model.init_args.weights: " + entry.name + "`.",
+        "",
+        "## Config",
+        "",
+        "```json",
+        json.dumps({"class_path": entry.class_path, "init_args": entry.init_args}, indent=2),
+        "```",
+        "",
+    ]
     return "\n".join(lines)
 
 
@@ -270,15 +303,27 @@ def export_checkpoint(
             old.unlink()
     try:
         entry = HubEntry(
-            name=name, class_path=cls_path, filename=filename, sha256=sha, init_args=init_args,
-            source={"kind": "local", "path": f"{name}/{filename}"}, meta=meta,
+            name=name,
+            class_path=cls_path,
+            filename=filename,
+            sha256=sha,
+            init_args=init_args,
+            source={"kind": "local", "path": f"{name}/{filename}"},
+            meta=meta,
         )
         HubEntry.from_json(entry.to_json(), "push")  # validate the name etc. before writing anything else
     except RegistryFormatError as exc:
         (out / filename).unlink(missing_ok=True)
         raise HubError(str(exc)) from exc
-    config = {"name": name, "class_path": cls_path, "init_args": init_args, "weights": filename, "sha256": sha,
-              "metrics": metrics, "meta": meta}
+    config = {
+        "name": name,
+        "class_path": cls_path,
+        "init_args": init_args,
+        "weights": filename,
+        "sha256": sha,
+        "metrics": metrics,
+        "meta": meta,
+    }
     (out / CONFIG_NAME).write_text(json.dumps(config, indent=2) + "\n", encoding="utf-8")
     (out / "README.md").write_text(_model_card(entry, metrics, ckpt_path.name), encoding="utf-8")
     load_model(out)  # refuse to register an export that does not rebuild and load strictly
@@ -286,8 +331,9 @@ def export_checkpoint(
     return entry, out
 
 
-def upload_export(entry: HubEntry, export_dir: Path, repo: str, directory: str | os.PathLike[str] | None = None,
-                  private: bool = False) -> HubEntry:
+def upload_export(
+    entry: HubEntry, export_dir: Path, repo: str, directory: str | os.PathLike[str] | None = None, private: bool = False
+) -> HubEntry:
     """Upload an export folder to the Hugging Face repo ``repo`` and re-register it pinned to the new commit."""
     if is_offline():
         raise HubError("refusing to upload: FLOAFF_ZOO_OFFLINE is set")

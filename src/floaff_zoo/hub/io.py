@@ -321,8 +321,13 @@ def resolve_state_dict(
         name, sha, meta = entry.name, entry.sha256, dict(entry.meta)
     init_args = {k: v for k, v in info["init_args"].items() if k not in NON_PORTABLE_ARGS}
     return state, {
-        "class_path": info["class_path"], "init_args": init_args, "source": str(weights_path), "kind": kind,
-        "name": name, "sha256": sha, "meta": meta,
+        "class_path": info["class_path"],
+        "init_args": init_args,
+        "source": str(weights_path),
+        "kind": kind,
+        "name": name,
+        "sha256": sha,
+        "meta": meta,
     }
 
 

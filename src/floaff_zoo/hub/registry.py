@@ -158,8 +158,13 @@ class HubEntry:
         source = raw.get("source", {"kind": "local"})
         _check_source(source, at)
         return cls(
-            name=name, class_path=raw["class_path"], filename=filename, sha256=sha,
-            init_args=dict(raw.get("init_args", {})), source=dict(source), meta=dict(raw.get("meta", {})),
+            name=name,
+            class_path=raw["class_path"],
+            filename=filename,
+            sha256=sha,
+            init_args=dict(raw.get("init_args", {})),
+            source=dict(source),
+            meta=dict(raw.get("meta", {})),
         )
 
 

@@ -23,7 +23,14 @@ from torchmetrics import Metric, MetricCollection
 
 from floaff_zoo.contract import Batch
 from floaff_zoo.models.base import TrainConfig, ZooModule, sample_names
-from floaff_zoo.nn.axisnet import AxisNet, angle_error_deg, axis_inputs, rotate_about_target, yaw_from_vector, yaw_to_vector
+from floaff_zoo.nn.axisnet import (
+    AxisNet,
+    angle_error_deg,
+    axis_inputs,
+    rotate_about_target,
+    yaw_from_vector,
+    yaw_to_vector,
+)
 
 
 class AngleErrorDeg(Metric):
@@ -96,19 +103,28 @@ class AxisNetModule(ZooModule):
 
     def configure_metrics(self) -> None:
         for stage in ("train", "val", "test"):
-            setattr(self, f"{stage}_metrics", MetricCollection({"angle_error_deg": AngleErrorDeg()}, prefix=f"{stage}_"))
+            setattr(
+                self, f"{stage}_metrics", MetricCollection({"angle_error_deg": AngleErrorDeg()}, prefix=f"{stage}_")
+            )
 
     # ----------------------------------------------------------------- inference API
-    def estimate_yaw(self, scene_xyz: Tensor, scene_feat: Tensor, scene_mask: Tensor, target_xyz: Tensor,
-                     names: list[str] | None = None) -> Tensor:
+    def estimate_yaw(
+        self,
+        scene_xyz: Tensor,
+        scene_feat: Tensor,
+        scene_mask: Tensor,
+        target_xyz: Tensor,
+        names: list[str] | None = None,
+    ) -> Tensor:
         """Front yaw [B] (rad, robot frame) from a scene [B,N,3], features [B,N,C], mask [B,N], target [B,3]."""
         x, mask = axis_inputs(scene_xyz, scene_feat, scene_mask, target_xyz, self.hparams["crop_radius"], names)
         return yaw_from_vector(self.net(x, mask))
 
     def forward(self, batch: Batch) -> Tensor:
         """Yaw estimate [B] (not floor scores: AxisNet has no floor output)."""
-        return self.estimate_yaw(batch["scene_xyz"], batch["scene_feat"], batch["scene_mask"], batch["target_xyz"],
-                                 sample_names(batch))
+        return self.estimate_yaw(
+            batch["scene_xyz"], batch["scene_feat"], batch["scene_mask"], batch["target_xyz"], sample_names(batch)
+        )
 
     # ----------------------------------------------------------------- steps
     def augment(self, batch: Batch) -> Batch:
@@ -125,8 +141,14 @@ class AxisNetModule(ZooModule):
 
     def model_step(self, batch: Batch) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
         """(loss, predicted yaw [B], {}): MSE between the predicted and the true (sin, cos)."""
-        x, mask = axis_inputs(batch["scene_xyz"], batch["scene_feat"], batch["scene_mask"], batch["target_xyz"],
-                              self.hparams["crop_radius"], sample_names(batch))
+        x, mask = axis_inputs(
+            batch["scene_xyz"],
+            batch["scene_feat"],
+            batch["scene_mask"],
+            batch["target_xyz"],
+            self.hparams["crop_radius"],
+            sample_names(batch),
+        )
         q = self.net(x, mask)
         loss = self.criterion(q, yaw_to_vector(batch["target_yaw"].reshape(-1)).to(q.dtype))
         return loss, yaw_from_vector(q), {}

@@ -97,8 +97,17 @@ class FloAffTrainConfig(TrainConfig):
 
 #: the arguments every model took flat before the ``train`` group (older checkpoints and hub configs)
 LEGACY_FLAT_ARGS = (
-    "feat_channels", "robot_dim", "loss", "sdl_beta", "optimizer", "lr", "weight_decay", "scheduler",
-    "sim_variant", "metric_reduction", "weights",
+    "feat_channels",
+    "robot_dim",
+    "loss",
+    "sdl_beta",
+    "optimizer",
+    "lr",
+    "weight_decay",
+    "scheduler",
+    "sim_variant",
+    "metric_reduction",
+    "weights",
 )
 
 
@@ -243,13 +252,20 @@ class ZooModule(L.LightningModule):
         if not torch.isfinite(loss):
             raise FloatingPointError(f"{stage} loss is {loss.item()} on samples {sample_names(batch)[:4]}")
         bsz = batch["scene_xyz"].shape[0]
-        self.log(f"{stage}_loss", loss, batch_size=bsz, prog_bar=stage != "test", on_epoch=True, on_step=stage == "train")
+        self.log(
+            f"{stage}_loss", loss, batch_size=bsz, prog_bar=stage != "test", on_epoch=True, on_step=stage == "train"
+        )
         for name, value in extra.items():
             self.log(f"{stage}_{name}", value, batch_size=bsz, on_epoch=True, on_step=False)
         metrics = getattr(self, f"{stage}_metrics")
         self.update_metrics(metrics, pred.detach(), batch)
-        self.log_dict(metrics, batch_size=bsz, on_epoch=True, on_step=False,
-                      prog_bar=self.metrics_in_progress_bar and stage == "val")
+        self.log_dict(
+            metrics,
+            batch_size=bsz,
+            on_epoch=True,
+            on_step=False,
+            prog_bar=self.metrics_in_progress_bar and stage == "val",
+        )
         return {"loss": loss, self.output_key: pred.detach()}
 
     def training_step(self, batch: Batch, batch_idx: int) -> Tensor:
@@ -367,8 +383,12 @@ class ZooModule(L.LightningModule):
         if "train" in upgraded and upgraded["train"] != given.get("train"):
             kwargs["train"] = upgraded["train"]
         return super().load_from_checkpoint(
-            checkpoint_path, map_location=map_location, hparams_file=hparams_file, strict=strict,
-            weights_only=weights_only, **kwargs,
+            checkpoint_path,
+            map_location=map_location,
+            hparams_file=hparams_file,
+            strict=strict,
+            weights_only=weights_only,
+            **kwargs,
         )
 
 
@@ -435,9 +455,7 @@ class FloAffModule(ZooModule):
 
     def update_metrics(self, metrics: MetricCollection, pred: Tensor, batch: Batch) -> None:
         """Map metrics of scores [B, M] (per-sample ``index`` from the metadata when every sample has one)."""
-        index = torch.as_tensor(
-            [int(m.get("index", -1)) for m in batch["meta"]], device=pred.device, dtype=torch.long
-        )
+        index = torch.as_tensor([int(m.get("index", -1)) for m in batch["meta"]], device=pred.device, dtype=torch.long)
         metrics.update(pred.float(), batch["floor_label"], batch["floor_mask"], index if (index >= 0).all() else None)
 
     def predict_step(self, batch: Batch, batch_idx: int, dataloader_idx: int = 0) -> dict[str, Any]:

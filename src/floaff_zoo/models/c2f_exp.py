@@ -1,4 +1,4 @@
-"""C2FExpModule: C2F-Exp-style training-free coarse-to-fine base placement (REFERENCE.md §5)."""
+"""C2FExpModule: C2F-Exp-style training-free coarse-to-fine base placement (docs/background.md §3)."""
 
 from __future__ import annotations
 
@@ -72,7 +72,10 @@ class C2FExpModule(FloAffModule):
     def configure_models(self) -> None:
         h = self.hparams
         if h["rounds"] < 1 or h["candidates"] < 1 or h["top_k"] < 1:
-            raise ValueError(f"C2FExpModule: rounds, candidates, top_k must be >= 1 (got {h['rounds']}, {h['candidates']}, {h['top_k']})")
+            raise ValueError(
+                "C2FExpModule: rounds, candidates, top_k must be >= 1 "
+                f"(got {h['rounds']}, {h['candidates']}, {h['top_k']})"
+            )
         if not 0 <= h["r_min"] < h["r_max"]:
             raise ValueError(f"C2FExpModule: need 0 <= r_min < r_max, got {h['r_min']}, {h['r_max']}")
         fields = C2FConfig.__dataclass_fields__
@@ -81,8 +84,9 @@ class C2FExpModule(FloAffModule):
 
     def _searches(self, batch: Batch) -> list[dict[str, Any]]:
         xyz, _, mask = scene_inputs(batch, 1)
-        yaw = estimate_yaw(batch, self.hparams["yaw_source"], None, 0.0, self.hparams["manhattan_radius"],
-                           type(self).__name__).float()
+        yaw = estimate_yaw(
+            batch, self.hparams["yaw_source"], None, 0.0, self.hparams["manhattan_radius"], type(self).__name__
+        ).float()
         return [
             self.net.search(xyz[i].cpu(), mask[i].cpu(), batch["target_xyz"][i].float().cpu(), yaw[i].cpu())
             for i in range(xyz.shape[0])

@@ -163,11 +163,27 @@ class CFARModule(FloAffModule):
             raise MisconfigurationException(f"CFARModule: crop_radius must be > 0, got {h['crop_radius']}")
         if h["distill_weight"] < 0:
             raise MisconfigurationException(f"CFARModule: distill_weight must be >= 0, got {h['distill_weight']}")
-        arch = {k: h[k] for k in ("local_npoints", "local_radii", "local_nsamples", "local_mlps", "local_global_mlp",
-                                  "floor_npoints", "floor_radii", "floor_nsamples", "floor_mlps", "floor_fp_mlps",
-                                  "robot_mlp", "head") if h[k] is not None}
-        self.net = CFARNet(feat_channels=h["feat_channels"], robot_dim=h["robot_dim"],
-                           floor_encoder=h["floor_encoder"], **arch)
+        arch = {
+            k: h[k]
+            for k in (
+                "local_npoints",
+                "local_radii",
+                "local_nsamples",
+                "local_mlps",
+                "local_global_mlp",
+                "floor_npoints",
+                "floor_radii",
+                "floor_nsamples",
+                "floor_mlps",
+                "floor_fp_mlps",
+                "robot_mlp",
+                "head",
+            )
+            if h[k] is not None
+        }
+        self.net = CFARNet(
+            feat_channels=h["feat_channels"], robot_dim=h["robot_dim"], floor_encoder=h["floor_encoder"], **arch
+        )
         self.prior: CanonicalLabelGrid | None = None
         if h["prior_residual"]:
             self.prior = CanonicalLabelGrid(list(h["prior_tasks"] or TASKS))
@@ -224,8 +240,9 @@ class CFARModule(FloAffModule):
 
     def estimate_yaw(self, batch: Batch, source: str = "axisnet") -> Tensor | None:
         """The target's front yaw [B] (rad, robot frame) from ``source`` (``floaff_zoo.models.yaw``)."""
-        return estimate_yaw(batch, source, self.axisnet, self.axis_radius, self.hparams["manhattan_radius"],
-                            type(self).__name__)
+        return estimate_yaw(
+            batch, source, self.axisnet, self.axis_radius, self.hparams["manhattan_radius"], type(self).__name__
+        )
 
     # ----------------------------------------------------------------- teacher
     def setup(self, stage: str) -> None:
@@ -244,12 +261,15 @@ class CFARModule(FloAffModule):
                 encoder does not match the student's.
         """
         state, info = resolve_state_dict(name)
-        t_state = {k[len(DISTILLED_PREFIX):]: v for k, v in state.items() if k.startswith(DISTILLED_PREFIX)}
+        t_state = {k[len(DISTILLED_PREFIX) :]: v for k, v in state.items() if k.startswith(DISTILLED_PREFIX)}
         own = self.net.local_encoder.state_dict()
         missing = sorted(set(own) - set(t_state))
         unexpected = sorted(set(t_state) - set(own))
-        shapes = [f"{DISTILLED_PREFIX}{k}: teacher {tuple(t_state[k].shape)} vs student {tuple(own[k].shape)}"
-                  for k in own if k in t_state and t_state[k].shape != own[k].shape]
+        shapes = [
+            f"{DISTILLED_PREFIX}{k}: teacher {tuple(t_state[k].shape)} vs student {tuple(own[k].shape)}"
+            for k in own
+            if k in t_state and t_state[k].shape != own[k].shape
+        ]
         if missing or unexpected or shapes:
             raise ValueError(
                 f"teacher {name!r} ({info.get('class_path') or 'unknown class'}) does not match the student's "
@@ -275,13 +295,15 @@ class CFARModule(FloAffModule):
         for k in [k for k in state if k.startswith(TEACHER_PREFIX)]:
             del state[k]
         arch = self.hparams.get("axisnet_arch") or {}
-        checkpoint.setdefault("floaff_lineage", {}).update({
-            "teacher": self.teacher_info["name"] if self.teacher_info else self.hparams["teacher"],
-            "teacher_sha256": self.teacher_info["sha256"] if self.teacher_info else None,
-            "weights": self.hparams["weights"],
-            "axisnet": arch.get("source"),
-            "axisnet_sha256": arch.get("sha256"),
-        })
+        checkpoint.setdefault("floaff_lineage", {}).update(
+            {
+                "teacher": self.teacher_info["name"] if self.teacher_info else self.hparams["teacher"],
+                "teacher_sha256": self.teacher_info["sha256"] if self.teacher_info else None,
+                "weights": self.hparams["weights"],
+                "axisnet": arch.get("source"),
+                "axisnet_sha256": arch.get("sha256"),
+            }
+        )
 
     def on_load_checkpoint(self, checkpoint: dict[str, Any]) -> None:
         # resuming a stage: the checkpoint has no teacher.* keys; keep the teacher loaded from its file
@@ -306,8 +328,14 @@ class CFARModule(FloAffModule):
             b = batch["scene_xyz"].shape[0]
             extra = (torch.rand(b, device=batch["scene_xyz"].device) * 2 - 1) * math.radians(jitter)
         canon = canonical_transform(
-            batch["scene_xyz"], batch["scene_mask"], batch["floor_xyz"], batch["target_xyz"], yaw,
-            self.hparams["crop_radius"] if self.hparams["use_crop"] else None, extra, sample_names(batch),
+            batch["scene_xyz"],
+            batch["scene_mask"],
+            batch["floor_xyz"],
+            batch["target_xyz"],
+            yaw,
+            self.hparams["crop_radius"] if self.hparams["use_crop"] else None,
+            extra,
+            sample_names(batch),
         )
         return canon, yaw
 
@@ -338,14 +366,23 @@ class CFARModule(FloAffModule):
         dm = getattr(self.trainer, "datamodule", None)
         if dm is None:
             raise MisconfigurationException("CFARModule: prior_residual needs a datamodule to average its labels")
-        fresh = CanonicalLabelGrid(self.prior.tasks, self.prior.cell, self.prior.extent,
-                                   self.prior.smooth_sigma_cells, self.prior.fill).to(self.prior.sums.device)
+        fresh = CanonicalLabelGrid(
+            self.prior.tasks, self.prior.cell, self.prior.extent, self.prior.smooth_sigma_cells, self.prior.fill
+        ).to(self.prior.sums.device)
         source = self.train_yaw_source if self.train_yaw_source in ("gt", "none") else "gt"
         for batch in dm.train_dataloader():
             batch = self._on_device(batch)
             yaw = self.estimate_yaw(batch, source)
-            canon = canonical_transform(batch["scene_xyz"], batch["scene_mask"], batch["floor_xyz"],
-                                        batch["target_xyz"], yaw, None, None, sample_names(batch))
+            canon = canonical_transform(
+                batch["scene_xyz"],
+                batch["scene_mask"],
+                batch["floor_xyz"],
+                batch["target_xyz"],
+                yaw,
+                None,
+                None,
+                sample_names(batch),
+            )
             tasks = fresh.task_index([str(m.get("task")) for m in batch["meta"]])
             fresh.add(tasks, canon.floor_xyz[..., :2], batch["floor_label"], batch["floor_mask"])
         new = (self.prior.counts.sum((1, 2)) == 0) & (fresh.counts.sum((1, 2)) > 0)
@@ -379,8 +416,13 @@ class CFARModule(FloAffModule):
             loss = loss + self.hparams["distill_weight"] * shared
             extra["distill"] = shared.detach()
             if self._trainer is not None:
-                self.log("train_distill_step", shared.detach(), on_step=True, on_epoch=False,
-                         batch_size=batch["scene_xyz"].shape[0])
+                self.log(
+                    "train_distill_step",
+                    shared.detach(),
+                    on_step=True,
+                    on_epoch=False,
+                    batch_size=batch["scene_xyz"].shape[0],
+                )
         return loss, scores, extra
 
     def predict_step(self, batch: Batch, batch_idx: int, dataloader_idx: int = 0) -> dict[str, Any]:

@@ -1,4 +1,4 @@
-"""N2MModule: an N2M-style GMM over SE(2) base poses (REFERENCE.md §4)."""
+"""N2MModule: an N2M-style GMM over SE(2) base poses (docs/background.md §3)."""
 
 from __future__ import annotations
 
@@ -106,8 +106,14 @@ class N2MModule(FloAffModule):
     def configure_models(self) -> None:
         h = self.hparams
         self.net = N2MNet(
-            h["feat_channels"], h["npoints"], h["radii"], h["nsamples"], h["mlps"], h["decoder"],
-            h["num_components"], h["dropout"],
+            h["feat_channels"],
+            h["npoints"],
+            h["radii"],
+            h["nsamples"],
+            h["mlps"],
+            h["decoder"],
+            h["num_components"],
+            h["dropout"],
         )
         maybe_compile(self.net, h["compile"])
 
@@ -175,7 +181,10 @@ class N2MModule(FloAffModule):
         cand = torch.cat([means[0, k].cpu()[None], samples[dens.argsort(descending=True)]], dim=0)
         mask = item.get("scene_mask")
         cells = occupied_cells(
-            item["scene_xyz"][0].cpu().float(), None if mask is None else mask[0].cpu(), h["occupancy_cell"], h["occupancy_z"]
+            item["scene_xyz"][0].cpu().float(),
+            None if mask is None else mask[0].cpu(),
+            h["occupancy_cell"],
+            h["occupancy_z"],
         )
         hits = footprint_collides(cells, cand, h["footprint_length"], h["footprint_width"], h["footprint_back"])
         free = torch.nonzero(~hits).flatten()

@@ -1,4 +1,4 @@
-"""NavAffModule: the MoMa-Kitchen NavAff architecture (REFERENCE.md §3), rewritten channels-last."""
+"""NavAffModule: the MoMa-Kitchen NavAff architecture (docs/background.md §3), rewritten channels-last."""
 
 from __future__ import annotations
 
@@ -61,8 +61,13 @@ class NavAffModule(FloAffModule):
     def configure_models(self) -> None:
         h = self.hparams
         self.net = NavAffNet(
-            npoints=h["npoints"], radii=h["radii"], nsamples=h["nsamples"], feat_channels=h["feat_channels"],
-            robot_dim=h["robot_dim"], num_heads=h["num_heads"], dropout=h["dropout"],
+            npoints=h["npoints"],
+            radii=h["radii"],
+            nsamples=h["nsamples"],
+            feat_channels=h["feat_channels"],
+            robot_dim=h["robot_dim"],
+            num_heads=h["num_heads"],
+            dropout=h["dropout"],
             normalize_global=h["normalize_global"],
         )
         maybe_compile(self.net, h["compile"])

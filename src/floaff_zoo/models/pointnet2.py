@@ -138,12 +138,21 @@ class PointNet2Module(FloAffModule):
     def configure_models(self) -> None:
         h = self.hparams
         sizes = resolve_sizes(
-            h["variant"], npoints=h["npoints"], radii=h["radii"], nsamples=h["nsamples"], mlps=h["mlps"],
+            h["variant"],
+            npoints=h["npoints"],
+            radii=h["radii"],
+            nsamples=h["nsamples"],
+            mlps=h["mlps"],
             fp_mlps=h["fp_mlps"],
         )
         self.net = PointNet2Net(
-            h["variant"], h["feat_channels"], h["robot_dim"], robot_width=h["robot_width"],
-            head_width=h["head_width"], dropout=h["dropout"], **sizes,
+            h["variant"],
+            h["feat_channels"],
+            h["robot_dim"],
+            robot_width=h["robot_width"],
+            head_width=h["head_width"],
+            dropout=h["dropout"],
+            **sizes,
         )
         maybe_compile(self.net, h["compile"])
 

@@ -115,8 +115,9 @@ class CanonicalPriorModule(FloAffModule):
 
     def canonical_floor(self, batch: Batch, source: str) -> tuple[Tensor, Tensor | None]:
         """Floor points in the canonical frame [B, M, 2] and the yaw used [B] (None = no rotation)."""
-        yaw = estimate_yaw(batch, source, self.axisnet, self.axis_radius, self.hparams["manhattan_radius"],
-                           type(self).__name__)
+        yaw = estimate_yaw(
+            batch, source, self.axisnet, self.axis_radius, self.hparams["manhattan_radius"], type(self).__name__
+        )
         b = batch["floor_xyz"].shape[0]
         angle = alignment_angle(yaw, b, batch["floor_xyz"].device, batch["floor_xyz"].dtype)
         xyz = rotate_z(batch["floor_xyz"] - batch["target_xyz"][:, None, :], angle)
@@ -143,8 +144,14 @@ class CanonicalPriorModule(FloAffModule):
             progress = self.trainer.fit_loop.epoch_loop.manual_optimization.optim_step_progress
             progress.increment_ready()
             progress.increment_completed()
-        self.log("train_labels", batch["floor_mask"].sum().float(), reduce_fx="sum", on_step=False, on_epoch=True,
-                 batch_size=batch["floor_xyz"].shape[0])
+        self.log(
+            "train_labels",
+            batch["floor_mask"].sum().float(),
+            reduce_fx="sum",
+            on_step=False,
+            on_epoch=True,
+            batch_size=batch["floor_xyz"].shape[0],
+        )
 
     def configure_optimizers(self) -> None:
         return None
@@ -154,8 +161,10 @@ class CanonicalPriorModule(FloAffModule):
         if missing:
             import warnings
 
-            warnings.warn(f"CanonicalPriorModule: no training label for task(s) {missing}; they predict fill={self.net.fill}",
-                          stacklevel=2)
+            warnings.warn(
+                f"CanonicalPriorModule: no training label for task(s) {missing}; they predict fill={self.net.fill}",
+                stacklevel=2,
+            )
 
     def predict_step(self, batch: Batch, batch_idx: int, dataloader_idx: int = 0) -> dict[str, Any]:
         self.check_inputs(batch)

@@ -23,13 +23,14 @@ class TinyPointNet(nn.Module):
         )
         self.robot_mlp = nn.Sequential(nn.Linear(robot_dim, width), nn.ReLU())
         self.head = nn.Sequential(
-            nn.Linear(2 * width + width + 5, 2 * width), nn.ReLU(), nn.Linear(2 * width, width), nn.ReLU(),
+            nn.Linear(2 * width + width + 5, 2 * width),
+            nn.ReLU(),
+            nn.Linear(2 * width, width),
+            nn.ReLU(),
             nn.Linear(width, 1),
         )
 
-    def forward(
-        self, xyz: Tensor, feat: Tensor, mask: Tensor, floor: Tensor, robot: Tensor, target: Tensor
-    ) -> Tensor:
+    def forward(self, xyz: Tensor, feat: Tensor, mask: Tensor, floor: Tensor, robot: Tensor, target: Tensor) -> Tensor:
         """xyz [B,N,3], feat [B,N,C], mask [B,N], floor [B,M,3], robot [B,R], target [B,3] -> [B,M]."""
         h = self.point_mlp(torch.cat([xyz, feat], dim=-1))
         h = h.masked_fill(~mask[..., None], float("-inf")).amax(dim=1)  # [B, 2w]
@@ -67,6 +68,10 @@ class TinyPointNetModule(FloAffModule):
     def forward(self, batch: Batch) -> Tensor:
         c = self.hparams["feat_channels"]
         return self.net(
-            batch["scene_xyz"], batch["scene_feat"][..., :c], batch["scene_mask"], batch["floor_xyz"],
-            batch["robot"], batch["target_xyz"],
+            batch["scene_xyz"],
+            batch["scene_feat"][..., :c],
+            batch["scene_mask"],
+            batch["floor_xyz"],
+            batch["robot"],
+            batch["target_xyz"],
         )

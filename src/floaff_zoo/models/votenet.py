@@ -112,10 +112,21 @@ class VoteNetModule(SeedVotingModule):
     def configure_models(self) -> None:
         h = self.hparams
         self.net = VoteNetNet(
-            h["feat_channels"], h["robot_dim"], h["npoints"], h["radii"], h["nsamples"], h["mlps"], h["seed_fp"],
-            num_proposals=h["num_proposals"], proposal_radius=h["proposal_radius"],
-            proposal_nsample=h["proposal_nsample"], proposal_width=h["proposal_width"], floor_fp=h["floor_fp"],
-            robot_width=h["robot_width"], head_width=h["head_width"], dropout=h["dropout"],
+            h["feat_channels"],
+            h["robot_dim"],
+            h["npoints"],
+            h["radii"],
+            h["nsamples"],
+            h["mlps"],
+            h["seed_fp"],
+            num_proposals=h["num_proposals"],
+            proposal_radius=h["proposal_radius"],
+            proposal_nsample=h["proposal_nsample"],
+            proposal_width=h["proposal_width"],
+            floor_fp=h["floor_fp"],
+            robot_width=h["robot_width"],
+            head_width=h["head_width"],
+            dropout=h["dropout"],
         )
         maybe_compile(self.net, h["compile"])
 

@@ -33,7 +33,12 @@ from floaff_zoo.nn.axisnet import AxisNet, axis_inputs, yaw_from_vector
 from floaff_zoo.nn.yaw import heading_yaw, manhattan_yaw
 
 __all__ = [
-    "PRIVILEGED_YAW", "YawSource", "build_axisnet", "estimate_yaw", "keep_configured_axisnet", "load_axisnet",
+    "PRIVILEGED_YAW",
+    "YawSource",
+    "build_axisnet",
+    "estimate_yaw",
+    "keep_configured_axisnet",
+    "load_axisnet",
     "sample_names",
 ]
 
@@ -76,11 +81,12 @@ def load_axisnet(name: str, owner: str) -> tuple[AxisNet, float, dict[str, Any]]
         "sha256": info.get("sha256") or (sha256_file(source) if source.is_file() else None),
     }
     net, radius = build_axisnet(arch, owner)
-    sub = {k[len("net."):]: v for k, v in state.items() if k.startswith("net.")}
+    sub = {k[len("net.") :]: v for k, v in state.items() if k.startswith("net.")}
     missing, unexpected = net.load_state_dict(sub, strict=False)
     if missing or unexpected:
         raise MisconfigurationException(
-            f"{owner}: axisnet {name!r} does not fit AxisNet{arch['widths']}: missing {missing}, unexpected {unexpected}"
+            f"{owner}: axisnet {name!r} does not fit AxisNet{arch['widths']}: "
+            f"missing {missing}, unexpected {unexpected}"
         )
     return net, radius, arch
 
@@ -113,8 +119,14 @@ def axisnet_yaw(batch: Batch, axisnet: AxisNet, radius: float) -> Tensor:
     import torch
 
     with torch.no_grad():
-        x, mask = axis_inputs(batch["scene_xyz"], batch["scene_feat"], batch["scene_mask"], batch["target_xyz"],
-                              radius, sample_names(batch))
+        x, mask = axis_inputs(
+            batch["scene_xyz"],
+            batch["scene_feat"],
+            batch["scene_mask"],
+            batch["target_xyz"],
+            radius,
+            sample_names(batch),
+        )
         return yaw_from_vector(axisnet(x, mask))
 
 

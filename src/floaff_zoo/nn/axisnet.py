@@ -74,7 +74,9 @@ class AxisNet(nn.Module):
         head: hidden widths of the global head (plain Linear+ReLU, so a batch of one still trains).
     """
 
-    def __init__(self, in_channels: int = 4, widths: Sequence[int] = (64, 128, 256), head: Sequence[int] = (128, 64)) -> None:
+    def __init__(
+        self, in_channels: int = 4, widths: Sequence[int] = (64, 128, 256), head: Sequence[int] = (128, 64)
+    ) -> None:
         super().__init__()
         self.point_mlp = SharedMLP(in_channels, list(widths))
         self.head = plain_mlp(self.point_mlp.out_channels, list(head))

@@ -1,4 +1,4 @@
-"""C2F-Exp-style coarse-to-fine base placement (training-free; REFERENCE.md §5), pure torch.
+"""C2F-Exp-style coarse-to-fine base placement (training-free; docs/background.md §3), pure torch.
 
 Per round t = 0..T-1: alpha_t = max_alpha * sigmoid(k (t - 0.35 T)), k = 12 / T; candidates are
 drawn from the current semantic Gaussian N(mu, sigma^2 I) and kept when they lie ``r_min``-``r_max``

@@ -341,12 +341,21 @@ class CFARNet(nn.Module):
         self.fourier_freqs = int(fourier_freqs)
         self.feat_channels = feat_channels
         self.local_encoder = PointNet2Encoder(
-            feat_channels, list(local_npoints), [[r * BALL_MARGIN] for r in local_radii], [[k] for k in local_nsamples],
-            [[list(m)] for m in local_mlps], xyz_first=True, group_all_mlp=list(local_global_mlp),
+            feat_channels,
+            list(local_npoints),
+            [[r * BALL_MARGIN] for r in local_radii],
+            [[k] for k in local_nsamples],
+            [[list(m)] for m in local_mlps],
+            xyz_first=True,
+            group_all_mlp=list(local_global_mlp),
         )
         self.floor_encoder = PointNet2Encoder(
-            0, list(floor_npoints), [[r * BALL_MARGIN] for r in floor_radii], [[k] for k in floor_nsamples],
-            [[list(m)] for m in floor_mlps], xyz_first=True,
+            0,
+            list(floor_npoints),
+            [[r * BALL_MARGIN] for r in floor_radii],
+            [[k] for k in floor_nsamples],
+            [[list(m)] for m in floor_mlps],
+            xyz_first=True,
         )
         if len(floor_fp_mlps) != len(floor_npoints):
             raise ValueError(f"floor_fp_mlps needs {len(floor_npoints)} entries (one per floor level)")
@@ -370,7 +379,9 @@ class CFARNet(nn.Module):
         self.head = SharedMLP(fused, list(head))
         self.out = nn.Linear(head[-1] if head else fused, 1)
 
-    def encode_local(self, xyz: Tensor, feat: Tensor, mask: Tensor) -> tuple[Tensor, list[tuple[Tensor, Tensor | None]]]:
+    def encode_local(
+        self, xyz: Tensor, feat: Tensor, mask: Tensor
+    ) -> tuple[Tensor, list[tuple[Tensor, Tensor | None]]]:
         """Canonical cloud xyz [B,N,3], feat [B,N,C], mask [B,N] -> (g [B, C_g], all levels)."""
         fps = sample_levels(self.local_encoder, xyz, mask)
         levels = self.local_encoder(xyz, feat[..., : self.feat_channels], mask, fps)
@@ -422,7 +433,5 @@ class CFARNet(nn.Module):
         ctx = stable_three_interpolate(floor_xyz * flat, cxyz * flat, cfeat)
         m = floor_xyz.shape[1]
         rob = self.robot_mlp(robot)
-        z = torch.cat(
-            [cur, g[:, None].expand(-1, m, -1), rob[:, None].expand(-1, m, -1), ctx, floor_xyz], dim=-1
-        )
+        z = torch.cat([cur, g[:, None].expand(-1, m, -1), rob[:, None].expand(-1, m, -1), ctx, floor_xyz], dim=-1)
         return self.out(self.head(z)).squeeze(-1), g

@@ -39,7 +39,9 @@ def require_valid(name: str, mask: Tensor) -> None:
     """Raise ``ValueError`` when a sample of the batch has no True entry in ``mask`` [B, N]."""
     empty = ~mask.any(dim=1)
     if empty.any():
-        raise ValueError(f"{name}: sample(s) {torch.nonzero(empty).flatten().tolist()} of the batch have no valid point")
+        raise ValueError(
+            f"{name}: sample(s) {torch.nonzero(empty).flatten().tolist()} of the batch have no valid point"
+        )
 
 
 def check_inputs(**tensors: Tensor) -> None:
@@ -196,7 +198,7 @@ class CrossAttention(nn.Module):
     """NavAff's fusion attention: q from the floor tokens, k/v from [robot; global] tokens.
 
     No residual and no LayerNorm (the output replaces the floor tokens), q/kv without bias,
-    output projection with bias, dropout on attention weights and output (REFERENCE.md §3).
+    output projection with bias, dropout on attention weights and output (docs/background.md §3).
     """
 
     def __init__(self, dim: int = 512, num_heads: int = 8, dropout: float = 0.1) -> None:
@@ -267,7 +269,9 @@ class NavAffNet(nn.Module):
         self.encoder_global = PointNet2Encoder(
             feat_channels, npoints, radii, nsamples, NAVAFF_MLPS, xyz_first=False, xyz_as_feat=True
         )
-        self.encoder_floor = PointNet2Encoder(0, npoints, radii, nsamples, NAVAFF_MLPS, xyz_first=False, xyz_as_feat=True)
+        self.encoder_floor = PointNet2Encoder(
+            0, npoints, radii, nsamples, NAVAFF_MLPS, xyz_first=False, xyz_as_feat=True
+        )
         self.mlp_robot = nn.Sequential(nn.Linear(robot_dim, 256), nn.ReLU(), nn.Linear(256, 512))
         self.fusion = CrossAttention(512, num_heads, dropout)
         self.fp3 = FeaturePropagation(512 + 512, [768, 512])
@@ -548,7 +552,12 @@ class H3DNetNet(SeedVotingNet):
             pxyz, pfeat = agg(vxyz, vfeat)
             f = three_interpolate(floor_xyz, pxyz, pfeat)
             off = floor_xyz[..., :2] - prim[:, None, :2]
-            parts += [f, off.to(f.dtype), off.norm(dim=-1, keepdim=True).to(f.dtype), _proposal_distance(floor_xyz, pxyz).to(f.dtype)]
+            parts += [
+                f,
+                off.to(f.dtype),
+                off.norm(dim=-1, keepdim=True).to(f.dtype),
+                _proposal_distance(floor_xyz, pxyz).to(f.dtype),
+            ]
             votes.append(vxyz)
             prims.append(prim)
         h = self.fuse(torch.cat(parts, dim=-1))

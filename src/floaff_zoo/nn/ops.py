@@ -5,7 +5,7 @@ bool (True = valid). Invalid (padded) points are never chosen as FPS centres, ba
 neighbours, or interpolation sources: they get ``+inf`` distance.
 
 Neighbour search always runs in float32 with autocast disabled, so bf16 autocast only touches the
-MLPs (PERFORMANCE.md §5).
+MLPs (docs/background.md §6).
 """
 
 from __future__ import annotations
@@ -178,9 +178,7 @@ def farthest_point_sample(xyz: Tensor, mask: Tensor | None, npoint: int) -> Tens
 
 
 # ----------------------------------------------------------------------------- neighbours
-def ball_query(
-    radius: float, nsample: int, xyz: Tensor, new_xyz: Tensor, mask: Tensor | None = None
-) -> Tensor:
+def ball_query(radius: float, nsample: int, xyz: Tensor, new_xyz: Tensor, mask: Tensor | None = None) -> Tensor:
     """First ``nsample`` valid points (in index order) within ``radius`` of each centre.
 
     Same output as the classic sort-based query (``idx[d > r^2] = N; sort; [:K]``; pad with the
@@ -295,7 +293,9 @@ def three_nn(unknown: Tensor, known: Tensor, known_mask: Tensor | None = None) -
         mm, ssq, dsq = _distance_parts(unknown, known)
         if known_mask is None:
             known_mask = torch.ones(known.shape[:2], dtype=torch.bool, device=known.device)
-        dist, idx = kernel.three_nn_select(mm.contiguous(), ssq.contiguous(), dsq.contiguous(), known_mask.bool().contiguous())
+        dist, idx = kernel.three_nn_select(
+            mm.contiguous(), ssq.contiguous(), dsq.contiguous(), known_mask.bool().contiguous()
+        )
         return dist, idx
     sqr = square_distance(unknown, known)
     if known_mask is not None:
@@ -310,9 +310,7 @@ def three_nn(unknown: Tensor, known: Tensor, known_mask: Tensor | None = None) -
     return dist, idx
 
 
-def three_interpolate(
-    unknown: Tensor, known: Tensor, known_feat: Tensor, known_mask: Tensor | None = None
-) -> Tensor:
+def three_interpolate(unknown: Tensor, known: Tensor, known_feat: Tensor, known_mask: Tensor | None = None) -> Tensor:
     """Inverse-squared-distance interpolation from the 3 nearest known points (PointNet++ FP).
 
     Weights are ``1 / (d^2 + 1e-8)`` normalised, ``d^2`` the squared distance (as the classic

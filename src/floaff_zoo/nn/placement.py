@@ -1,6 +1,6 @@
 """Base-placement geometry shared by N2M-style and C2F-Exp-style models (pure torch).
 
-Occupancy follows N2M's collision check (REFERENCE.md §4): points higher than ``z_min`` are
+Occupancy follows N2M's collision check (docs/background.md §3): points higher than ``z_min`` are
 rasterised into ``cell``-sized cells; a base pose collides when an occupied cell centre lies in
 the rotated robot footprint (``length`` x ``width``; ``back_frac`` of the length behind the base
 origin, the rest in front).

@@ -1,4 +1,4 @@
-"""PointNet++ building blocks in channels-last form (Linear + BatchNorm1d, PERFORMANCE.md §5).
+"""PointNet++ building blocks in channels-last form (Linear + BatchNorm1d, docs/background.md §6).
 
 Layer semantics follow the classic PyTorch port (``yanx27/Pointnet_Pointnet2_pytorch``, on which
 the public NavAff code relies): MSG levels group ``[features, xyz - centre]``, SSG levels group
@@ -132,7 +132,10 @@ class SetAbstraction(nn.Module):
     def forward(
         self, xyz: Tensor, feat: Tensor | None, mask: Tensor | None = None, fps_idx: Tensor | None = None
     ) -> tuple[Tensor, Tensor]:
-        """xyz [B,N,3], feat [B,N,D] | None, mask [B,N] | None, fps_idx [B,S] | None -> (new_xyz [B,S,3], new_feat [B,S,C_out])."""
+        """xyz [B,N,3], feat [B,N,D] | None, mask [B,N] | None, fps_idx [B,S] | None.
+
+        Returns (new_xyz [B,S,3], new_feat [B,S,C_out]).
+        """
         if self.group_all:
             grouped = self._cat(xyz, feat)  # classic port: raw xyz, centre at the origin
             out = masked_max(self.mlps[0](grouped), mask, dim=1)[:, None]

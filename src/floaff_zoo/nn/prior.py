@@ -28,7 +28,11 @@ class CanonicalLabelGrid(nn.Module):
     """
 
     def __init__(
-        self, tasks: Sequence[str], cell: float = 0.05, extent: float = 3.0, smooth_sigma_cells: float = 1.0,
+        self,
+        tasks: Sequence[str],
+        cell: float = 0.05,
+        extent: float = 3.0,
+        smooth_sigma_cells: float = 1.0,
         fill: float = 0.0,
     ) -> None:
         super().__init__()
@@ -74,8 +78,12 @@ class CanonicalLabelGrid(nn.Module):
         if self.smooth_sigma_cells > 0:
             k = self._kernel().to(s)
             pad = k.shape[-1] // 2
-            s = F.conv2d(F.conv2d(s, k[None, None, :, None], padding=(pad, 0)), k[None, None, None, :], padding=(0, pad))
-            c = F.conv2d(F.conv2d(c, k[None, None, :, None], padding=(pad, 0)), k[None, None, None, :], padding=(0, pad))
+            s = F.conv2d(
+                F.conv2d(s, k[None, None, :, None], padding=(pad, 0)), k[None, None, None, :], padding=(0, pad)
+            )
+            c = F.conv2d(
+                F.conv2d(c, k[None, None, :, None], padding=(pad, 0)), k[None, None, None, :], padding=(0, pad)
+            )
         seen = c > 1e-6
         return torch.where(seen, s / c.clamp_min(1e-6), torch.full_like(s, self.fill))[:, 0]
 

@@ -107,18 +107,39 @@ def draw_sample(
             tyaw = float(s.target_yaw) + float(base[2])
             cell = grid_spacing(xy)
             for ax, (name, values, pose, ok) in zip(axes, panels):
-                pc = plot_floor_map(ax, list(outline), xy, np.clip(values, 0, 1), cell, t, tyaw,
-                                    chosen_xy=np.array(pose[:2]), title=name + _outcome(ok))
+                pc = plot_floor_map(
+                    ax,
+                    list(outline),
+                    xy,
+                    np.clip(values, 0, 1),
+                    cell,
+                    t,
+                    tyaw,
+                    chosen_xy=np.array(pose[:2]),
+                    title=name + _outcome(ok),
+                )
             fig.colorbar(pc, ax=list(axes), fraction=0.03, pad=0.02)
         else:
             for ax, (name, values, pose, ok) in zip(axes, panels):
-                sc = ax.scatter(s.floor_xyz[:, 0], s.floor_xyz[:, 1], c=np.clip(values, 0, 1), s=14, marker="s",
-                                cmap="viridis", vmin=0.0, vmax=1.0)
+                sc = ax.scatter(
+                    s.floor_xyz[:, 0],
+                    s.floor_xyz[:, 1],
+                    c=np.clip(values, 0, 1),
+                    s=14,
+                    marker="s",
+                    cmap="viridis",
+                    vmin=0.0,
+                    vmax=1.0,
+                )
                 t = np.asarray(s.target_xyz, dtype=np.float64)
                 ax.plot(t[0], t[1], marker="*", color="red", markersize=12)
                 ln = 0.3
-                ax.annotate("", xy=(t[0] + ln * math.cos(s.target_yaw), t[1] + ln * math.sin(s.target_yaw)),
-                            xytext=(t[0], t[1]), arrowprops=dict(arrowstyle="->", color="red", lw=1.5))
+                ax.annotate(
+                    "",
+                    xy=(t[0] + ln * math.cos(s.target_yaw), t[1] + ln * math.sin(s.target_yaw)),
+                    xytext=(t[0], t[1]),
+                    arrowprops=dict(arrowstyle="->", color="red", lw=1.5),
+                )
                 ax.plot(pose[0], pose[1], marker="x", color="black", markersize=10, mew=2.0)
                 ax.plot(0.0, 0.0, marker="^", color="tab:orange", markersize=8)  # the observing robot
                 ax.set_aspect("equal")
@@ -159,7 +180,9 @@ def write_figures(
                 try:
                     outlines[key] = (outline_fn or default_outline)(sim)
                 except Exception as exc:  # drawing must not fail a finished test run
-                    warnings.warn(f"figures: cannot rebuild scene {sim!r} ({exc}); drawing a plain scatter", stacklevel=2)
+                    warnings.warn(
+                        f"figures: cannot rebuild scene {sim!r} ({exc}); drawing a plain scatter", stacklevel=2
+                    )
                     outlines[key] = None
             outline = outlines[key]
         task, view = str(s.meta.get("task", "task")), str(s.meta.get("view", "") or "view")

@@ -56,8 +56,9 @@ def find_figure(report_path: Path, report: dict[str, Any], case: str) -> Path:
     raise MontageError(f"{report_path}: figure {names[0]} not found in {', '.join(str(r) for r in roots)}")
 
 
-def montage(runs: list[str | Path], cases: list[str], out: str | Path, labels: list[str] | None = None,
-            width: float = 3.2) -> Path:
+def montage(
+    runs: list[str | Path], cases: list[str], out: str | Path, labels: list[str] | None = None, width: float = 3.2
+) -> Path:
     """Draw ``len(cases)`` rows x ``len(runs)`` columns of the runs' figures into ``out`` (PNG).
 
     labels: column titles (default each report's ``label``); width: inches per column.
@@ -70,7 +71,9 @@ def montage(runs: list[str | Path], cases: list[str], out: str | Path, labels: l
     reports = [_load_report(r) for r in runs]
     if labels is not None and len(labels) != len(runs):
         raise MontageError(f"--labels: {len(labels)} given for {len(runs)} runs")
-    titles = labels or [str(rep.get("label") or rep.get("model", {}).get("name") or p.parent.name) for p, rep in reports]
+    titles = labels or [
+        str(rep.get("label") or rep.get("model", {}).get("name") or p.parent.name) for p, rep in reports
+    ]
     images = [[plt.imread(find_figure(p, rep, case)) for p, rep in reports] for case in cases]
     h, w = images[0][0].shape[:2]
     size = (width * len(runs), width * h / w * len(cases))  # every panel keeps the figures' aspect ratio

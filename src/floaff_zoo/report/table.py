@@ -40,11 +40,26 @@ from typing import Any
 PRESETS = ("map", "sr_views", "sr_tasks", "ablation", "sweep")
 FORMATS = ("md", "latex", "csv")
 #: (metric key, display name, decimals, lower is better)
-MAP_COLUMNS = (("rmse", "RMSE", 3, True), ("logmse", "logMSE", 4, True), ("pcc", "PCC", 3, False), ("sim", "SIM", 3, False))
-TASK_SHORT = {"PnPCounterToCab": "PnPC2C", "OpenSingleDoor": "OpenSD", "CloseDrawer": "CloseD", "CloseDoubleDoor": "CloseDD"}
+MAP_COLUMNS = (
+    ("rmse", "RMSE", 3, True),
+    ("logmse", "logMSE", 4, True),
+    ("pcc", "PCC", 3, False),
+    ("sim", "SIM", 3, False),
+)
+TASK_SHORT = {
+    "PnPCounterToCab": "PnPC2C",
+    "OpenSingleDoor": "OpenSD",
+    "CloseDrawer": "CloseD",
+    "CloseDoubleDoor": "CloseDD",
+}
 VIEWS = ("front", "side", "all")
-DEFAULT_GROUP = {"map": "model", "sr_views": "model", "sr_tasks": "model", "ablation": "label",
-                 "sweep": "model.hparams.crop_radius"}
+DEFAULT_GROUP = {
+    "map": "model",
+    "sr_views": "model",
+    "sr_tasks": "model",
+    "ablation": "label",
+    "sweep": "model.hparams.crop_radius",
+}
 
 
 #: files that mark a Lightning run directory (used only to name run dirs lacking report.json)
@@ -190,7 +205,9 @@ def _metric(report: dict[str, Any], key: str) -> tuple[float | None, float | Non
     return (float(v) if v is not None else None), None
 
 
-def _sr(report: dict[str, Any], who: str, view: str | None = None, task: str | None = None) -> tuple[float | None, float | None]:
+def _sr(
+    report: dict[str, Any], who: str, view: str | None = None, task: str | None = None
+) -> tuple[float | None, float | None]:
     sr = report.get("sr") or {}
     if not sr.get("available"):
         return None, None
@@ -257,8 +274,9 @@ def _short(bench: str) -> str:
     return bench.split("(", 1)[1].rstrip(")") if bench.startswith("FloAff-Kitchen (") else bench
 
 
-def build_table(reports: list[dict[str, Any]], preset: str = "map", group_by: str | None = None,
-                oracle: bool = True) -> Table:
+def build_table(
+    reports: list[dict[str, Any]], preset: str = "map", group_by: str | None = None, oracle: bool = True
+) -> Table:
     """A Table of one preset from parsed reports (rows = groups; cells = mean ± std over runs)."""
     if preset not in PRESETS:
         raise TableError(f"unknown preset {preset!r}; choose from {list(PRESETS)}")
@@ -266,8 +284,10 @@ def build_table(reports: list[dict[str, Any]], preset: str = "map", group_by: st
         raise TableError("no report.json to tabulate")
     group_by = group_by or DEFAULT_GROUP[preset]
     numeric = preset == "sweep"
-    note = ("mean ± std over the runs of each row (sample std over seeds); a single run shows its SR bootstrap std "
-            "and no ± for map metrics; best mean per column in bold")
+    note = (
+        "mean ± std over the runs of each row (sample std over seeds); a single run shows its SR bootstrap std "
+        "and no ± for map metrics; best mean per column in bold"
+    )
     if preset in ("map", "ablation", "sweep"):
         columns = [Column(n, d, lo, arrow=True) for _, n, d, lo in MAP_COLUMNS]
         sections = []
@@ -301,16 +321,24 @@ def build_table(reports: list[dict[str, Any]], preset: str = "map", group_by: st
                 sec.rows.append(Row("Oracle", cells, len(reports), oracle=True))
         return Table(preset, "Method", columns, [sec], note)
     # sr_tasks
-    tasks = [t for t in TASK_SHORT if any(t in ((r.get("sr") or {}).get("model") or {}).get("tasks", {}) for r in reports)]
-    tasks += sorted({t for r in reports for t in ((r.get("sr") or {}).get("model") or {}).get("tasks", {})} - set(tasks))
+    tasks = [
+        t for t in TASK_SHORT if any(t in ((r.get("sr") or {}).get("model") or {}).get("tasks", {}) for r in reports)
+    ]
+    tasks += sorted(
+        {t for r in reports for t in ((r.get("sr") or {}).get("model") or {}).get("tasks", {})} - set(tasks)
+    )
     if not tasks:
-        raise TableError("preset sr_tasks: no report has per-task SR (was RolloutSuccessRate active on simulated data?)")
+        raise TableError(
+            "preset sr_tasks: no report has per-task SR (was RolloutSuccessRate active on simulated data?)"
+        )
     columns = [Column(TASK_SHORT.get(t, t), 2, False) for t in tasks]
     sections = []
     for title, reps in _sections(reports):
         sec = Section(title)
         for name, group in _group_rows(reps, group_by, False):
-            sec.rows.append(Row(name, [_cell(group, lambda r, t=t: _sr(r, "model", task=t)) for t in tasks], len(group)))
+            sec.rows.append(
+                Row(name, [_cell(group, lambda r, t=t: _sr(r, "model", task=t)) for t in tasks], len(group))
+            )
         if oracle:
             cells = [_oracle_cell(reps, lambda r, t=t: _sr(r, "oracle", task=t)) for t in tasks]
             if any(c is not None for c in cells):
@@ -351,8 +379,10 @@ def _col_title(col: Column, latex: bool = False) -> str:
 
 def render_markdown(table: Table) -> str:
     cols = table.columns
-    lines = ["| " + " | ".join([table.row_header] + [_col_title(c) for c in cols]) + " |",
-             "|" + "---|" + "---:|" * len(cols)]
+    lines = [
+        "| " + " | ".join([table.row_header] + [_col_title(c) for c in cols]) + " |",
+        "|" + "---|" + "---:|" * len(cols),
+    ]
     for sec in table.sections:
         if sec.title:
             lines.append(f"| **{sec.title}** |" + " |" * len(cols))
@@ -363,14 +393,24 @@ def render_markdown(table: Table) -> str:
                 t = _text(row.cells[j], c, " ± ")
                 cells.append(f"**{t}**" if _is_best(row.cells[j], bests[j], c) and not row.oracle else t)
             lines.append("| " + " | ".join([row.name] + cells) + " |")
-    runs = "; ".join(f"{r.name}{f' ({_short(sec.title)})' if sec.title else ''}: {r.runs}"
-                     for sec in table.sections for r in sec.rows if not r.oracle)
+    runs = "; ".join(
+        f"{r.name}{f' ({_short(sec.title)})' if sec.title else ''}: {r.runs}"
+        for sec in table.sections
+        for r in sec.rows
+        if not r.oracle
+    )
     lines += ["", f"_{table.note}. Runs per row: {runs}._"]
     return "\n".join(lines) + "\n"
 
 
 def _tex(s: str) -> str:
-    return s.replace("\\", "\\textbackslash{}").replace("&", "\\&").replace("%", "\\%").replace("_", "\\_").replace("#", "\\#")
+    return (
+        s.replace("\\", "\\textbackslash{}")
+        .replace("&", "\\&")
+        .replace("%", "\\%")
+        .replace("_", "\\_")
+        .replace("#", "\\#")
+    )
 
 
 def render_latex(table: Table) -> str:
@@ -383,9 +423,15 @@ def render_latex(table: Table) -> str:
             if j == len(cols) or groups[j] != groups[start]:
                 spans.append((groups[start], start, j))
                 start = j
-        out.append(" & " + " & ".join(f"\\multicolumn{{{b - a}}}{{c}}{{\\textbf{{\\emph{{{_tex(g)}}}}}}}" for g, a, b in spans) + " \\\\")
+        out.append(
+            " & "
+            + " & ".join(f"\\multicolumn{{{b - a}}}{{c}}{{\\textbf{{\\emph{{{_tex(g)}}}}}}}" for g, a, b in spans)
+            + " \\\\"
+        )
         out.append(" ".join(f"\\cmidrule(lr){{{a + 2}-{b + 1}}}" for _, a, b in spans))
-    out.append(" & ".join([f"\\textbf{{{_tex(table.row_header)}}}"] + [_col_title(c, latex=True) for c in cols]) + " \\\\")
+    out.append(
+        " & ".join([f"\\textbf{{{_tex(table.row_header)}}}"] + [_col_title(c, latex=True) for c in cols]) + " \\\\"
+    )
     out.append("\\midrule")
     for k, sec in enumerate(table.sections):
         if k:
@@ -420,8 +466,11 @@ def render_csv(table: Table) -> str:
         for row in sec.rows:
             line: list[Any] = [sec.title, row.name, row.runs]
             for cell in row.cells:
-                line += ["", "", 0] if cell is None else [
-                    f"{cell.mean:.6g}", "" if cell.std is None else f"{cell.std:.6g}", cell.n]
+                line += (
+                    ["", "", 0]
+                    if cell is None
+                    else [f"{cell.mean:.6g}", "" if cell.std is None else f"{cell.std:.6g}", cell.n]
+                )
             w.writerow(line)
     return buf.getvalue()
 
@@ -440,9 +489,12 @@ def build_parser() -> argparse.ArgumentParser:
         "mean ± std over seeds, best value in bold.",
     )
     p.add_argument("--runs", nargs="+", required=True, help="run directories, globs or report.json files")
-    p.add_argument("--group-by", default=None,
-                   help="row key: model | label | benchmark | a dotted path into report.json "
-                   "(default per preset: model; ablation: label; sweep: model.hparams.crop_radius)")
+    p.add_argument(
+        "--group-by",
+        default=None,
+        help="row key: model | label | benchmark | a dotted path into report.json "
+        "(default per preset: model; ablation: label; sweep: model.hparams.crop_radius)",
+    )
     p.add_argument("--format", choices=FORMATS, default="md")
     p.add_argument("--preset", choices=PRESETS, default="map")
     p.add_argument("--no-oracle", action="store_true", help="leave out the Oracle row of SR presets")

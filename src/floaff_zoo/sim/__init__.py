@@ -3,16 +3,27 @@
 Pure numpy + mujoco (+ robosuite's robot model API); never imports torch or lightning.
 Submodules are imported lazily so ``import floaff_zoo.sim`` stays cheap.
 """
+
 from __future__ import annotations
 
 import importlib
 
 _LAZY = {
-    "SceneSpec": "kitchen", "SimScene": "kitchen", "build_scene": "kitchen",
-    "TASKS": "kitchen", "LAYOUTS": "kitchen", "STYLES": "kitchen",
-    "TargetInfo": "tasks", "TASK_REGISTRY": "tasks", "candidate_region": "tasks",
-    "RolloutResult": "rollout", "rollout": "rollout", "RolloutService": "rollout", "heading_to_target": "rollout",
-    "Annotation": "annotate", "annotate_scene": "annotate",
+    "SceneSpec": "kitchen",
+    "SimScene": "kitchen",
+    "build_scene": "kitchen",
+    "TASKS": "kitchen",
+    "LAYOUTS": "kitchen",
+    "STYLES": "kitchen",
+    "TargetInfo": "tasks",
+    "TASK_REGISTRY": "tasks",
+    "candidate_region": "tasks",
+    "RolloutResult": "rollout",
+    "rollout": "rollout",
+    "RolloutService": "rollout",
+    "heading_to_target": "rollout",
+    "Annotation": "annotate",
+    "annotate_scene": "annotate",
 }
 
 __all__ = sorted(_LAZY)

@@ -20,6 +20,7 @@ Every cell ends with a ``status``: ``FILTERED`` (steps 2-4: infeasible, never ro
 (step 5) or ``SKIPPED`` (feasible but over the ``max_candidates`` budget: never considered).
 :func:`cell_labels` turns (label, status) into the per-cell labels of format v2 view files.
 """
+
 from __future__ import annotations
 
 import math
@@ -72,7 +73,9 @@ class Annotation:
     status: np.ndarray | None = None  # [M] int8 FILTERED / ROLLED_OUT / SKIPPED (module doc)
 
 
-def candidate_grid(scene: SimScene, cell: float, r_x: float, r_y: float) -> tuple[np.ndarray, tuple[int, int], np.ndarray]:
+def candidate_grid(
+    scene: SimScene, cell: float, r_x: float, r_y: float
+) -> tuple[np.ndarray, tuple[int, int], np.ndarray]:
     """Target-frame lattice -> (world xy [M,2], (H, W), target-frame xy [M,2])."""
     if not (cell > 0 and math.isfinite(cell)):
         raise ValueError(f"cell must be > 0, got {cell}")
@@ -97,8 +100,15 @@ def _smooth(binary: np.ndarray, shape: tuple[int, int], sigma: float) -> np.ndar
     return g.ravel().astype(np.float32)
 
 
-def annotate_scene(scene: SimScene, cell: float = 0.05, r_arm: float | None = None, sigma_cells: float = 1.0,
-                   workers: int = 1, max_candidates: int | None = None, seed: int = 0) -> Annotation:
+def annotate_scene(
+    scene: SimScene,
+    cell: float = 0.05,
+    r_arm: float | None = None,
+    sigma_cells: float = 1.0,
+    workers: int = 1,
+    max_candidates: int | None = None,
+    seed: int = 0,
+) -> Annotation:
     """Label one scene's candidate grid with rollouts; see the module doc.
 
     max_candidates: roll out at most this many filtered candidates (evenly spaced subset, the rest
@@ -115,8 +125,15 @@ def annotate_scene(scene: SimScene, cell: float = 0.05, r_arm: float | None = No
     reasons = [""] * M
     valid = np.zeros(M, dtype=bool)
     c = scene.target.pos[:2]
-    counts = dict(candidates=M, filtered_collision=0, filtered_reach=0, prefiltered_ik=0, rolled_out=0, positives=0,
-                  skipped_budget=0)
+    counts = dict(
+        candidates=M,
+        filtered_collision=0,
+        filtered_reach=0,
+        prefiltered_ik=0,
+        rolled_out=0,
+        positives=0,
+        skipped_budget=0,
+    )
     scene.reset_task(np.random.default_rng(seed))
     for i in range(M):
         x, y = xy[i]
@@ -126,7 +143,11 @@ def annotate_scene(scene: SimScene, cell: float = 0.05, r_arm: float | None = No
             continue
         # behind the target's front plane (inside the fixture/counter/wall, y° > 0), outside the room
         # (a wall between the base and the target) or overlapping a furniture footprint
-        if xo[i, 1] > -1e-9 or scene.wall_between(x, y, scene.target.pos[:2]) or not scene.footprint_free(x, y, yaws[i]):
+        if (
+            xo[i, 1] > -1e-9
+            or scene.wall_between(x, y, scene.target.pos[:2])
+            or not scene.footprint_free(x, y, yaws[i])
+        ):
             reasons[i] = "filtered_collision"
             counts["filtered_collision"] += 1
             continue
@@ -171,7 +192,17 @@ def annotate_scene(scene: SimScene, cell: float = 0.05, r_arm: float | None = No
     counts["rolled_out"] = len(todo)
     counts["positives"] = int(success.sum())
     scene.reset_task(np.random.default_rng(seed))
-    return Annotation(grid_xy=xy.astype(np.float64), yaw=yaws, valid=valid, success=success,
-                      label=_smooth(success, shape, sigma_cells), reasons=reasons, counts=counts, grid_shape=shape,
-                      cell=float(cell), sigma_cells=float(sigma_cells), wall_seconds=time.perf_counter() - t0,
-                      status=status)
+    return Annotation(
+        grid_xy=xy.astype(np.float64),
+        yaw=yaws,
+        valid=valid,
+        success=success,
+        label=_smooth(success, shape, sigma_cells),
+        reasons=reasons,
+        counts=counts,
+        grid_shape=shape,
+        cell=float(cell),
+        sigma_cells=float(sigma_cells),
+        wall_seconds=time.perf_counter() - t0,
+        status=status,
+    )

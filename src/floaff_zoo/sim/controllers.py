@@ -20,6 +20,7 @@ when the gripper closes with the grip site within a tolerance of the object cent
 door can rotate about the hand) hand<->door. It is released when the gripper opens. Reach,
 collisions and approach direction still decide the label.
 """
+
 from __future__ import annotations
 
 import math
@@ -98,7 +99,9 @@ def _door_point(hinge: np.ndarray, yaw: float, e: int, q: float, p_local: np.nda
     """Point p_local [3] in a door's frame (x outward when closed) -> world, door at angle q about axis e*z."""
     a = yaw + e * q
     c, s = math.cos(a), math.sin(a)
-    return np.array([hinge[0] + c * p_local[0] - s * p_local[1], hinge[1] + s * p_local[0] + c * p_local[1], hinge[2] + p_local[2]])
+    return np.array(
+        [hinge[0] + c * p_local[0] - s * p_local[1], hinge[1] + s * p_local[0] + c * p_local[1], hinge[2] + p_local[2]]
+    )
 
 
 def _door_normal(yaw: float, e: int, q: float) -> np.ndarray:
@@ -210,7 +213,7 @@ class ScriptedPolicy:
             self._write(scene, q, seg.opened)
             hx, hy, hz = d.site_xpos[scene.robot.grip_site].tolist()
             # the joint impedance lags a moving command by ~0.1 s: compare with the recent commands too
-            self._recent = self._recent[-(BLOCK_LAG - 1):] + [(float(p[0]), float(p[1]), float(p[2]))]
+            self._recent = self._recent[-(BLOCK_LAG - 1) :] + [(float(p[0]), float(p[1]), float(p[2]))]
             if min(math.sqrt((hx - x) ** 2 + (hy - y) ** 2 + (hz - z) ** 2) for x, y, z in self._recent) > BLOCK_DIST:
                 self._blocked += CTRL_DT
                 if self._blocked > BLOCK_TIME:
@@ -333,7 +336,16 @@ class CloseDoubleDoorPolicy(ScriptedPolicy):
             hinge = np.array([f["origin"][0] + c * hl[0] - s * hl[1], f["origin"][1] + s * hl[0] + c * hl[1], 0.0])
             qa = scene.model.jnt_qposadr[mujoco.mj_name2id(scene.model, mujoco.mjtObj.mjOBJ_JOINT, dd["joint"])]
             wd = float(dd["width"])
-            out.append((hinge, int(dd["e"]), float(scene.data.qpos[qa]), self.R_FRAC * wd, float(dd["z1"]) - self.Z_BELOW_TOP, wd))
+            out.append(
+                (
+                    hinge,
+                    int(dd["e"]),
+                    float(scene.data.qpos[qa]),
+                    self.R_FRAC * wd,
+                    float(dd["z1"]) - self.Z_BELOW_TOP,
+                    wd,
+                )
+            )
 
         def dist(d):
             p = self._pt(yaw, d, d[2], 0.0)
@@ -353,9 +365,15 @@ class CloseDoubleDoorPolicy(ScriptedPolicy):
         out = []
         for d in doors:
             q0 = d[2]
-            out.append((self._pt(yaw, d, q0, self.STANDOFF, dz=self.LIFT), self._pt(yaw, d, q0, self.STANDOFF),
-                        self._pt(yaw, d, q0, self.PRESS), self._pt(yaw, d, 0.5 * q0, self.PRESS),
-                        self._pt(yaw, d, 0.0, self.PRESS)))
+            out.append(
+                (
+                    self._pt(yaw, d, q0, self.STANDOFF, dz=self.LIFT),
+                    self._pt(yaw, d, q0, self.STANDOFF),
+                    self._pt(yaw, d, q0, self.PRESS),
+                    self._pt(yaw, d, 0.5 * q0, self.PRESS),
+                    self._pt(yaw, d, 0.0, self.PRESS),
+                )
+            )
         return out
 
     def keypoints(self, scene):
@@ -466,7 +484,7 @@ class PnPCounterToCabPolicy(ScriptedPolicy):
         yaw = f["yaw"]
         n = np.array([math.cos(yaw), math.sin(yaw), 0.0])
         qa = scene.model.jnt_qposadr[mujoco.mj_name2id(scene.model, mujoco.mjtObj.mjOBJ_JOINT, "pnp_object_joint")]
-        obj = scene.data.qpos[qa:qa + 3].copy()
+        obj = scene.data.qpos[qa : qa + 3].copy()
         inside = f["interior_center"].copy()
         inside[2] = f["bottom_z"] + f["object_half"][2] + 0.02
         inside = inside + 0.02 * n
@@ -478,8 +496,13 @@ class PnPCounterToCabPolicy(ScriptedPolicy):
 
     def keypoints(self, scene):
         n, obj, inside, pre_place, out, f = self._geom(scene)
-        return [(obj + np.array([0, 0, 0.10]), DOWN), (obj + np.array([0, 0, 0.005]), DOWN),
-                (pre_place, DOWN), (inside, DOWN), (inside + 0.3 * n, DOWN)]
+        return [
+            (obj + np.array([0, 0, 0.10]), DOWN),
+            (obj + np.array([0, 0, 0.005]), DOWN),
+            (pre_place, DOWN),
+            (inside, DOWN),
+            (inside + 0.3 * n, DOWN),
+        ]
 
     def _grasp_check(self, scene) -> bool:
         n, obj, *_ = self._geom(scene)

@@ -210,12 +210,16 @@ def _check_shape(path: Path, name: str, arr: np.ndarray, dtype: str, pattern: tu
 def check_format_version(version: Any, path: str | Path) -> int:
     """The format version as an int; FormatError naming the file when this reader does not know it."""
     if version not in SUPPORTED_FORMAT_VERSIONS:
-        raise FormatError(f"{path}: format_version {version!r} is not supported by this reader "
-                          f"(supported: {list(SUPPORTED_FORMAT_VERSIONS)}); update floaff-zoo")
+        raise FormatError(
+            f"{path}: format_version {version!r} is not supported by this reader "
+            f"(supported: {list(SUPPORTED_FORMAT_VERSIONS)}); update floaff-zoo"
+        )
     return int(version)
 
 
-def validate_view(arrays: dict[str, np.ndarray], path: str | Path = "<view>", format_version: int | None = None) -> None:
+def validate_view(
+    arrays: dict[str, np.ndarray], path: str | Path = "<view>", format_version: int | None = None
+) -> None:
     """Check one view's arrays against VIEW_FIELDS (dtypes, shapes, shared N/M, finite, labels in [0,1]).
 
     format_version >= 2 also requires V2_VIEW_FIELDS; None checks them only when present.
@@ -360,4 +364,3 @@ def read_manifest(root: str | Path) -> dict[str, Any]:
     if not isinstance(man, dict) or "scenes" not in man:
         raise FormatError(f"{Path(root) / MANIFEST}: not a FloAff manifest (no 'scenes')")
     return man
-

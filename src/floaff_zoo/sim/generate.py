@@ -32,8 +32,8 @@ import shutil
 import sys
 import time
 import traceback
-from dataclasses import dataclass
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -109,9 +109,7 @@ def plan_jobs(
                         lay, sty = seen_l[(i + ti) % len(seen_l)], held_s
                     else:
                         lay, sty = held_l, seen_s[(i + ti) % len(seen_s)]
-                    seeds = tuple(
-                        derive_seed(seed, bench, task, split, i, a) for a in range(preset.max_seed_attempts)
-                    )
+                    seeds = tuple(derive_seed(seed, bench, task, split, i, a) for a in range(preset.max_seed_attempts))
                     nf, ns = view_counts(preset, bench, task, split, i)
                     jobs.append(SceneJob(bench, task, split, i, lay, sty, seeds, nf, ns))
     return jobs
@@ -215,16 +213,21 @@ def _arr(x: Any, dtype: Any = np.float64) -> np.ndarray:
     return np.asarray(x, dtype=dtype)
 
 
-def grid_lattice(grid_xy: np.ndarray, grid_shape: tuple[int, int], cell: float, target_xy: np.ndarray,
-                 target_yaw: float) -> Any:
+def grid_lattice(
+    grid_xy: np.ndarray, grid_shape: tuple[int, int], cell: float, target_xy: np.ndarray, target_yaw: float
+) -> Any:
     """The ``floaff_zoo.floor.FloorLattice`` of an annotation grid (world frame); checks it reproduces grid_xy [M,2]."""
     from floaff_zoo.floor import FloorLattice
 
     h, w = (int(v) for v in grid_shape)
     if h % 2 == 0 or w % 2 == 0:
         raise ValueError(f"annotation grid shape {grid_shape} is not target-centred (odd sizes expected)")
-    lat = FloorLattice((float(target_xy[0]), float(target_xy[1])), float(target_yaw) + np.pi / 2, float(cell),
-                       ((h - 1) // 2, (w - 1) // 2))
+    lat = FloorLattice(
+        (float(target_xy[0]), float(target_xy[1])),
+        float(target_yaw) + np.pi / 2,
+        float(cell),
+        ((h - 1) // 2, (w - 1) // 2),
+    )
     err = float(np.abs(lat.centers() - np.asarray(grid_xy, dtype=np.float64).reshape(-1, 2)).max(initial=0.0))
     if err > 1e-4:
         raise ValueError(f"the floor lattice does not reproduce the annotation grid (max error {err:.3g} m)")
@@ -324,16 +327,31 @@ def _write_scene(
             for pose, obs in sample_view_poses(scene, renderer, kind, n, vcfg, rng_views, accept=keep_view):
                 vid = f"{kind}_{sum(v['view'] == kind for v in views):04d}"
                 seen = view_floor_cells(obs.scene_xyz, pose, lattice)
-                arrays = make_view_sample(obs, pose, tpos, tyaw, grid_xy[seen], cell_label[seen],
-                                          save_images=save_images, floor_known=known[seen],
-                                          floor_index=np.flatnonzero(seen))
+                arrays = make_view_sample(
+                    obs,
+                    pose,
+                    tpos,
+                    tyaw,
+                    grid_xy[seen],
+                    cell_label[seen],
+                    save_images=save_images,
+                    floor_known=known[seen],
+                    floor_index=np.flatnonzero(seen),
+                )
                 ff.validate_view(arrays, stage / "views" / f"{vid}.npz", ff.FORMAT_VERSION)
                 ff.atomic_save_npz(stage / "views" / f"{vid}.npz", arrays)
                 views.append(
-                    {"view_id": vid, "view": kind, "file": f"views/{vid}.npz", "base_pose_world": pose.tolist(),
-                     "n_points": int(len(obs.scene_xyz)), "n_target_points": int(obs.n_target),
-                     "n_floor_cells": int(seen.sum()), "n_positive_cells": int((seen & success).sum()),
-                     "n_unknown_cells": int((seen & ~known).sum())}
+                    {
+                        "view_id": vid,
+                        "view": kind,
+                        "file": f"views/{vid}.npz",
+                        "base_pose_world": pose.tolist(),
+                        "n_points": int(len(obs.scene_xyz)),
+                        "n_target_points": int(obs.n_target),
+                        "n_floor_cells": int(seen.sum()),
+                        "n_positive_cells": int((seen & success).sum()),
+                        "n_unknown_cells": int((seen & ~known).sum()),
+                    }
                 )
                 first_rgb.setdefault(kind, obs.rgb)
     finally:
@@ -343,8 +361,17 @@ def _write_scene(
     poses = np.array([v["base_pose_world"] + [v["view"] == "side"] for v in views], dtype=np.float64).reshape(-1, 4)
     ff.atomic_write_bytes(
         stage / "topdown.png",
-        render_topdown_png(outline, grid_xy[on_floor], cell_label[on_floor], float(ann.cell), tpos[:2], tyaw, title,
-                           poses, preset.picture_size),
+        render_topdown_png(
+            outline,
+            grid_xy[on_floor],
+            cell_label[on_floor],
+            float(ann.cell),
+            tpos[:2],
+            tyaw,
+            title,
+            poses,
+            preset.picture_size,
+        ),
     )
     for kind in ("front", "side"):
         if kind in first_rgb:
@@ -413,35 +440,66 @@ def run_job(job: SceneJob, out: str, preset_dict: dict[str, Any], save_images: b
             scene = build_scene(spec)
             tb = time.perf_counter()
             ann = annotate_scene(
-                scene, cell=preset.cell, r_arm=preset.r_arm, sigma_cells=preset.sigma_cells, workers=1,
-                max_candidates=preset.max_candidates, seed=ANNOTATE_SEED,
+                scene,
+                cell=preset.cell,
+                r_arm=preset.r_arm,
+                sigma_cells=preset.sigma_cells,
+                workers=1,
+                max_candidates=preset.max_candidates,
+                seed=ANNOTATE_SEED,
             )
             tc = time.perf_counter()
             n_pos = int(np.asarray(ann.success).sum())
-            att = {"seed": seed, "scene_id": sid, "n_candidates": int(len(np.asarray(ann.label).reshape(-1))),
-                   "n_positive": n_pos, "build_s": tb - ta, "annotate_s": tc - tb}
+            att = {
+                "seed": seed,
+                "scene_id": sid,
+                "n_candidates": int(len(np.asarray(ann.label).reshape(-1))),
+                "n_positive": n_pos,
+                "build_s": tb - ta,
+                "annotate_s": tc - tb,
+            }
             if n_pos == 0:
                 att["outcome"] = "dropped_no_positive"
                 attempts.append(att)
                 continue
-            nv = _write_scene(outp, job, spec, scene, ann, preset, save_images,
-                              np.random.default_rng(derive_seed(seed, "views")))
+            nv = _write_scene(
+                outp, job, spec, scene, ann, preset, save_images, np.random.default_rng(derive_seed(seed, "views"))
+            )
             att.update(outcome="ok", views_s=time.perf_counter() - tc, n_views=nv)
             attempts.append(att)
-            return {"key": job.key, "status": "ok", "scene_id": sid, "attempts": attempts,
-                    "wall_s": time.perf_counter() - t0, "pid": os.getpid()}
-        return {"key": job.key, "status": "dropped", "scene_id": None, "attempts": attempts,
-                "reason": f"no positive candidate in {len(job.seeds)} seed attempts",
-                "wall_s": time.perf_counter() - t0, "pid": os.getpid()}
+            return {
+                "key": job.key,
+                "status": "ok",
+                "scene_id": sid,
+                "attempts": attempts,
+                "wall_s": time.perf_counter() - t0,
+                "pid": os.getpid(),
+            }
+        return {
+            "key": job.key,
+            "status": "dropped",
+            "scene_id": None,
+            "attempts": attempts,
+            "reason": f"no positive candidate in {len(job.seeds)} seed attempts",
+            "wall_s": time.perf_counter() - t0,
+            "pid": os.getpid(),
+        }
     except Exception as exc:  # noqa: BLE001 - reported to the driver, which retries once
-        return {"key": job.key, "status": "error", "scene_id": None, "attempts": attempts,
-                "reason": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc(),
-                "wall_s": time.perf_counter() - t0, "pid": os.getpid()}
+        return {
+            "key": job.key,
+            "status": "error",
+            "scene_id": None,
+            "attempts": attempts,
+            "reason": f"{type(exc).__name__}: {exc}",
+            "traceback": traceback.format_exc(),
+            "wall_s": time.perf_counter() - t0,
+            "pid": os.getpid(),
+        }
 
 
 # ------------------------------------------------------------------------------------------------ execution
 def _worker_init() -> None:
-    # one BLAS/OpenMP thread per worker: pools oversubscribe otherwise (SIMULATOR.md §7 pitfall 14)
+    # one BLAS/OpenMP thread per worker: pools oversubscribe otherwise (docs/background.md §5)
     for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ[k] = "1"
     os.environ.setdefault("MUJOCO_GL", "egl")
@@ -509,8 +567,14 @@ def _run_local(jobs, out, preset_dict, save_images, workers, on_result, job_fn=N
                     res = fut.result()
                 except Exception as exc:  # noqa: BLE001 - BrokenProcessPool & co: the worker died
                     broken = broken or isinstance(exc, cf.process.BrokenProcessPool)
-                    res = {"key": job.key, "status": "error", "scene_id": None, "attempts": [],
-                           "reason": f"worker died: {type(exc).__name__}: {exc}", "wall_s": None}
+                    res = {
+                        "key": job.key,
+                        "status": "error",
+                        "scene_id": None,
+                        "attempts": [],
+                        "reason": f"worker died: {type(exc).__name__}: {exc}",
+                        "wall_s": None,
+                    }
                 if res["status"] == "error" and tries[job.key] < 2:
                     retry.append(job)
                     continue
@@ -536,8 +600,13 @@ def _run_ray(jobs, out, preset_dict, save_images, workers, address, on_result) -
         else:
             ray.init(num_cpus=max(1, workers), ignore_reinit_error=True, log_to_driver=False, include_dashboard=False)
         started = True
-    env = {"env_vars": {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
-                        "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}}
+    env = {
+        "env_vars": {
+            "OMP_NUM_THREADS": "1",
+            "OPENBLAS_NUM_THREADS": "1",
+            "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl"),
+        }
+    }
     remote = ray.remote(num_cpus=1, max_retries=0, runtime_env=env)(run_job)
     tries = {j.key: 0 for j in jobs}
     try:
@@ -555,8 +624,14 @@ def _run_ray(jobs, out, preset_dict, save_images, workers, address, on_result) -
                 try:
                     res = ray.get(done[0])
                 except Exception as exc:  # noqa: BLE001 - worker crash / ray system error
-                    res = {"key": job.key, "status": "error", "scene_id": None, "attempts": [],
-                           "reason": f"ray task failed: {type(exc).__name__}: {exc}", "wall_s": None}
+                    res = {
+                        "key": job.key,
+                        "status": "error",
+                        "scene_id": None,
+                        "attempts": [],
+                        "reason": f"ray task failed: {type(exc).__name__}: {exc}",
+                        "wall_s": None,
+                    }
                 if res["status"] == "error" and tries[job.key] < 2:
                     retry.append(job)
                     continue
@@ -581,15 +656,27 @@ def _package_versions() -> dict[str, str | None]:
 
 def _summarise(manifest: dict[str, Any]) -> None:
     """Fill manifest['counts'] and manifest['drops'] from manifest['scenes'] (in place)."""
-    counts: dict[str, Any] = {"scenes_ok": 0, "scenes_dropped": 0, "scenes_failed": 0, "scenes_pending": 0,
-                              "views_front": 0, "views_side": 0, "views_rejected_no_positive_cell": 0,
-                              "views_rejected_no_floor_cell": 0, "views_rejected_best_cell_fails": 0, "per": {}}
+    counts: dict[str, Any] = {
+        "scenes_ok": 0,
+        "scenes_dropped": 0,
+        "scenes_failed": 0,
+        "scenes_pending": 0,
+        "views_front": 0,
+        "views_side": 0,
+        "views_rejected_no_positive_cell": 0,
+        "views_rejected_no_floor_cell": 0,
+        "views_rejected_best_cell_fails": 0,
+        "per": {},
+    }
     drops = []
     for key, s in sorted(manifest["scenes"].items()):
         st = s["status"]
-        counts[{"ok": "scenes_ok", "dropped": "scenes_dropped", "failed": "scenes_failed"}.get(st, "scenes_pending")] += 1
-        per = counts["per"].setdefault(f"{s['benchmark']}/{s['task']}/{s['split']}",
-                                       {"scenes": 0, "views_front": 0, "views_side": 0})
+        counts[
+            {"ok": "scenes_ok", "dropped": "scenes_dropped", "failed": "scenes_failed"}.get(st, "scenes_pending")
+        ] += 1
+        per = counts["per"].setdefault(
+            f"{s['benchmark']}/{s['task']}/{s['split']}", {"scenes": 0, "views_front": 0, "views_side": 0}
+        )
         if st == "ok":
             per["scenes"] += 1
             nv = s.get("n_views", {})
@@ -601,7 +688,9 @@ def _summarise(manifest: dict[str, Any]) -> None:
                 counts[f"views_rejected_{why}"] = counts.get(f"views_rejected_{why}", 0) + int(k)
         for a in s.get("attempts", []):
             if a.get("outcome") == "dropped_no_positive":
-                drops.append({"slot": key, "scene_id": a["scene_id"], "seed": a["seed"], "reason": "no positive candidate"})
+                drops.append(
+                    {"slot": key, "scene_id": a["scene_id"], "seed": a["seed"], "reason": "no positive candidate"}
+                )
         if st in ("failed", "dropped"):
             drops.append({"slot": key, "scene_id": None, "reason": f"{st}: {s.get('reason')}"})
     counts["views_total"] = counts["views_front"] + counts["views_side"]
@@ -660,16 +749,28 @@ def generate(
             old = None
     todo: list[SceneJob] = []
     for job in jobs:
-        base = {"benchmark": job.benchmark, "task": job.task, "split": job.split, "slot": job.slot,
-                "layout_id": job.layout_id, "style_id": job.style_id}
+        base = {
+            "benchmark": job.benchmark,
+            "task": job.task,
+            "split": job.split,
+            "slot": job.slot,
+            "layout_id": job.layout_id,
+            "style_id": job.style_id,
+        }
         sid = find_done(outp, job)
         if sid is not None:
             prev = (old or {}).get("scenes", {}).get(job.key, {})
             rec = ff.read_scene(ff.scene_dir(outp, job.benchmark, sid))
-            manifest["scenes"][job.key] = {**base, "status": "ok", "scene_id": sid, "resumed": True,
-                                           "n_views": rec.get("n_views", {}), "attempts": prev.get("attempts", []),
-                                           "views_rejected": rec.get("views_rejected", {}),
-                                           "wall_s": prev.get("wall_s")}
+            manifest["scenes"][job.key] = {
+                **base,
+                "status": "ok",
+                "scene_id": sid,
+                "resumed": True,
+                "n_views": rec.get("n_views", {}),
+                "attempts": prev.get("attempts", []),
+                "views_rejected": rec.get("views_rejected", {}),
+                "wall_s": prev.get("wall_s"),
+            }
         else:
             manifest["scenes"][job.key] = {**base, "status": "pending"}
             todo.append(job)
@@ -679,8 +780,15 @@ def generate(
 
     def on_result(job: SceneJob, res: dict[str, Any], n_tries: int) -> None:
         st = {"ok": "ok", "dropped": "dropped"}.get(res["status"], "failed")
-        entry = {**manifest["scenes"][job.key], "status": st, "scene_id": res.get("scene_id"), "tries": n_tries,
-                 "attempts": res.get("attempts", []), "wall_s": res.get("wall_s"), "resumed": False}
+        entry = {
+            **manifest["scenes"][job.key],
+            "status": st,
+            "scene_id": res.get("scene_id"),
+            "tries": n_tries,
+            "attempts": res.get("attempts", []),
+            "wall_s": res.get("wall_s"),
+            "resumed": False,
+        }
         if st == "ok":
             rec = ff.read_scene(ff.scene_dir(outp, job.benchmark, res["scene_id"]))
             entry["n_views"] = rec["n_views"]
@@ -729,10 +837,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--n-train", type=int, default=None, help="override: training scenes per task")
     p.add_argument("--n-test", type=int, default=None, help="override: test scenes per task")
     p.add_argument("--cell", type=float, default=None, help="override: candidate grid cell (m)")
-    p.add_argument("--max-candidates", type=int, default=None,
-                   help="override: max rollouts per scene (0 = no cap)")
-    p.add_argument("--views", type=int, nargs=2, metavar=("FRONT", "SIDE"), default=None,
-                   help="override: front and side views per scene")
+    p.add_argument("--max-candidates", type=int, default=None, help="override: max rollouts per scene (0 = no cap)")
+    p.add_argument(
+        "--views",
+        type=int,
+        nargs=2,
+        metavar=("FRONT", "SIDE"),
+        default=None,
+        help="override: front and side views per scene",
+    )
     p.add_argument("--image-size", type=int, default=None, help="override: ego image size (pixels)")
     p.add_argument("--quiet", action="store_true", help="no progress output")
     return p
@@ -754,11 +867,20 @@ def main(argv: list[str] | None = None) -> int:
     )
     if args.max_candidates == 0:
         preset = dataclasses.replace(preset, max_candidates=None)
-    man = generate(args.out, preset, seed=args.seed, workers=args.workers, backend=args.backend,
-                   address=args.address, save_images=args.save_images, quiet=args.quiet)
+    man = generate(
+        args.out,
+        preset,
+        seed=args.seed,
+        workers=args.workers,
+        backend=args.backend,
+        address=args.address,
+        save_images=args.save_images,
+        quiet=args.quiet,
+    )
     c = man["counts"]
     print(
-        f"[generate] {args.out}: {c['scenes_ok']} scenes ok, {c['scenes_dropped']} dropped, {c['scenes_failed']} failed; "
+        f"[generate] {args.out}: {c['scenes_ok']} scenes ok, {c['scenes_dropped']} dropped, "
+        f"{c['scenes_failed']} failed; "
         f"{c['views_front']} front + {c['views_side']} side views; {man['wall_s']:.1f} s",
         file=sys.stderr,
     )

@@ -15,6 +15,7 @@ Frames. Every fixture has a local frame whose +x is the front's outward normal (
 Geom groups: scene geoms group 2 (collide with the robot), robot visuals group 1, robot collision
 meshes group 0 (hide them when rendering, docs/background.md §5). Lights cast no shadows.
 """
+
 from __future__ import annotations
 
 import math
@@ -83,7 +84,12 @@ class SceneSpec:
         return f"L{self.layout_id}_S{self.style_id}_s{self.seed}_{self.task}"
 
     def to_dict(self) -> dict:
-        return {"layout_id": int(self.layout_id), "style_id": int(self.style_id), "seed": int(self.seed), "task": self.task}
+        return {
+            "layout_id": int(self.layout_id),
+            "style_id": int(self.style_id),
+            "seed": int(self.seed),
+            "task": self.task,
+        }
 
     @classmethod
     def from_dict(cls, d: dict) -> "SceneSpec":
@@ -97,30 +103,134 @@ class SceneSpec:
 # styles
 # ----------------------------------------------------------------------------------------------
 _STYLE_TABLE: dict[int, dict] = {
-    0: dict(counter_h=0.92, depth=0.62, carcass=(0.35, 0.36, 0.38), door=(0.55, 0.56, 0.58), top=(0.20, 0.20, 0.22),
-            handle="bar", handle_rgb=(0.8, 0.8, 0.82), floor=((0.45, 0.45, 0.45), (0.40, 0.40, 0.41)), wall=(0.75, 0.73, 0.70),
-            drawer_h=0.20, wall_bottom=1.42, width_scale=1.00, handle_z=0.5, door_hinge=1),
-    1: dict(counter_h=0.90, depth=0.60, carcass=(0.92, 0.92, 0.90), door=(0.95, 0.95, 0.93), top=(0.78, 0.66, 0.50),
-            handle="slim", handle_rgb=(0.55, 0.42, 0.30), floor=((0.82, 0.74, 0.62), (0.78, 0.70, 0.58)), wall=(0.96, 0.96, 0.96),
-            drawer_h=0.18, wall_bottom=1.40, width_scale=0.95, handle_z=0.8, door_hinge=-1),
-    2: dict(counter_h=0.91, depth=0.58, carcass=(0.70, 0.80, 0.86), door=(0.60, 0.74, 0.84), top=(0.93, 0.93, 0.90),
-            handle="knob", handle_rgb=(0.85, 0.85, 0.80), floor=((0.85, 0.82, 0.74), (0.70, 0.66, 0.58)), wall=(0.90, 0.94, 0.96),
-            drawer_h=0.19, wall_bottom=1.38, width_scale=1.05, handle_z=0.6, door_hinge=1),
-    3: dict(counter_h=0.93, depth=0.64, carcass=(0.12, 0.12, 0.13), door=(0.18, 0.18, 0.19), top=(0.88, 0.88, 0.88),
-            handle="slim", handle_rgb=(0.15, 0.15, 0.15), floor=((0.60, 0.60, 0.62), (0.55, 0.55, 0.57)), wall=(0.85, 0.85, 0.86),
-            drawer_h=0.22, wall_bottom=1.45, width_scale=1.10, handle_z=0.9, door_hinge=-1),
-    4: dict(counter_h=0.89, depth=0.60, carcass=(0.45, 0.28, 0.16), door=(0.52, 0.33, 0.19), top=(0.30, 0.26, 0.22),
-            handle="knob", handle_rgb=(0.72, 0.60, 0.30), floor=((0.55, 0.38, 0.24), (0.48, 0.32, 0.20)), wall=(0.92, 0.86, 0.74),
-            drawer_h=0.17, wall_bottom=1.40, width_scale=0.92, handle_z=0.5, door_hinge=1),
-    5: dict(counter_h=0.91, depth=0.63, carcass=(0.94, 0.93, 0.88), door=(0.96, 0.95, 0.90), top=(0.45, 0.34, 0.24),
-            handle="bar", handle_rgb=(0.20, 0.20, 0.20), floor=((0.62, 0.48, 0.34), (0.56, 0.42, 0.30)), wall=(0.88, 0.90, 0.84),
-            drawer_h=0.21, wall_bottom=1.44, width_scale=1.00, handle_z=0.7, door_hinge=-1),
-    6: dict(counter_h=0.90, depth=0.61, carcass=(0.40, 0.30, 0.22), door=(0.46, 0.35, 0.25), top=(0.55, 0.54, 0.52),
-            handle="bar", handle_rgb=(0.10, 0.10, 0.10), floor=((0.42, 0.36, 0.30), (0.36, 0.30, 0.26)), wall=(0.80, 0.72, 0.62),
-            drawer_h=0.23, wall_bottom=1.41, width_scale=1.05, handle_z=0.5, door_hinge=1),
-    7: dict(counter_h=0.92, depth=0.59, carcass=(0.30, 0.45, 0.55), door=(0.25, 0.42, 0.55), top=(0.95, 0.92, 0.85),
-            handle="knob", handle_rgb=(0.75, 0.55, 0.25), floor=((0.75, 0.45, 0.30), (0.95, 0.90, 0.80)), wall=(0.98, 0.95, 0.88),
-            drawer_h=0.19, wall_bottom=1.39, width_scale=0.98, handle_z=0.6, door_hinge=-1),
+    0: dict(
+        counter_h=0.92,
+        depth=0.62,
+        carcass=(0.35, 0.36, 0.38),
+        door=(0.55, 0.56, 0.58),
+        top=(0.20, 0.20, 0.22),
+        handle="bar",
+        handle_rgb=(0.8, 0.8, 0.82),
+        floor=((0.45, 0.45, 0.45), (0.40, 0.40, 0.41)),
+        wall=(0.75, 0.73, 0.70),
+        drawer_h=0.20,
+        wall_bottom=1.42,
+        width_scale=1.00,
+        handle_z=0.5,
+        door_hinge=1,
+    ),
+    1: dict(
+        counter_h=0.90,
+        depth=0.60,
+        carcass=(0.92, 0.92, 0.90),
+        door=(0.95, 0.95, 0.93),
+        top=(0.78, 0.66, 0.50),
+        handle="slim",
+        handle_rgb=(0.55, 0.42, 0.30),
+        floor=((0.82, 0.74, 0.62), (0.78, 0.70, 0.58)),
+        wall=(0.96, 0.96, 0.96),
+        drawer_h=0.18,
+        wall_bottom=1.40,
+        width_scale=0.95,
+        handle_z=0.8,
+        door_hinge=-1,
+    ),
+    2: dict(
+        counter_h=0.91,
+        depth=0.58,
+        carcass=(0.70, 0.80, 0.86),
+        door=(0.60, 0.74, 0.84),
+        top=(0.93, 0.93, 0.90),
+        handle="knob",
+        handle_rgb=(0.85, 0.85, 0.80),
+        floor=((0.85, 0.82, 0.74), (0.70, 0.66, 0.58)),
+        wall=(0.90, 0.94, 0.96),
+        drawer_h=0.19,
+        wall_bottom=1.38,
+        width_scale=1.05,
+        handle_z=0.6,
+        door_hinge=1,
+    ),
+    3: dict(
+        counter_h=0.93,
+        depth=0.64,
+        carcass=(0.12, 0.12, 0.13),
+        door=(0.18, 0.18, 0.19),
+        top=(0.88, 0.88, 0.88),
+        handle="slim",
+        handle_rgb=(0.15, 0.15, 0.15),
+        floor=((0.60, 0.60, 0.62), (0.55, 0.55, 0.57)),
+        wall=(0.85, 0.85, 0.86),
+        drawer_h=0.22,
+        wall_bottom=1.45,
+        width_scale=1.10,
+        handle_z=0.9,
+        door_hinge=-1,
+    ),
+    4: dict(
+        counter_h=0.89,
+        depth=0.60,
+        carcass=(0.45, 0.28, 0.16),
+        door=(0.52, 0.33, 0.19),
+        top=(0.30, 0.26, 0.22),
+        handle="knob",
+        handle_rgb=(0.72, 0.60, 0.30),
+        floor=((0.55, 0.38, 0.24), (0.48, 0.32, 0.20)),
+        wall=(0.92, 0.86, 0.74),
+        drawer_h=0.17,
+        wall_bottom=1.40,
+        width_scale=0.92,
+        handle_z=0.5,
+        door_hinge=1,
+    ),
+    5: dict(
+        counter_h=0.91,
+        depth=0.63,
+        carcass=(0.94, 0.93, 0.88),
+        door=(0.96, 0.95, 0.90),
+        top=(0.45, 0.34, 0.24),
+        handle="bar",
+        handle_rgb=(0.20, 0.20, 0.20),
+        floor=((0.62, 0.48, 0.34), (0.56, 0.42, 0.30)),
+        wall=(0.88, 0.90, 0.84),
+        drawer_h=0.21,
+        wall_bottom=1.44,
+        width_scale=1.00,
+        handle_z=0.7,
+        door_hinge=-1,
+    ),
+    6: dict(
+        counter_h=0.90,
+        depth=0.61,
+        carcass=(0.40, 0.30, 0.22),
+        door=(0.46, 0.35, 0.25),
+        top=(0.55, 0.54, 0.52),
+        handle="bar",
+        handle_rgb=(0.10, 0.10, 0.10),
+        floor=((0.42, 0.36, 0.30), (0.36, 0.30, 0.26)),
+        wall=(0.80, 0.72, 0.62),
+        drawer_h=0.23,
+        wall_bottom=1.41,
+        width_scale=1.05,
+        handle_z=0.5,
+        door_hinge=1,
+    ),
+    7: dict(
+        counter_h=0.92,
+        depth=0.59,
+        carcass=(0.30, 0.45, 0.55),
+        door=(0.25, 0.42, 0.55),
+        top=(0.95, 0.92, 0.85),
+        handle="knob",
+        handle_rgb=(0.75, 0.55, 0.25),
+        floor=((0.75, 0.45, 0.30), (0.95, 0.90, 0.80)),
+        wall=(0.98, 0.95, 0.88),
+        drawer_h=0.19,
+        wall_bottom=1.39,
+        width_scale=0.98,
+        handle_z=0.6,
+        door_hinge=-1,
+    ),
 }
 
 
@@ -241,13 +351,29 @@ class _Builder:
         off = 0.035 if kind == "bar" else 0.025
         half = length / 2
         if vertical:
-            self.box(body, [x + off - thick, y - thick, z - half], [x + off + thick, y + thick, z + half], self.m_handle, name)
+            self.box(
+                body,
+                [x + off - thick, y - thick, z - half],
+                [x + off + thick, y + thick, z + half],
+                self.m_handle,
+                name,
+            )
             for sz in (-0.8 * half, 0.8 * half):
-                self.box(body, [x, y - 0.005, z + sz - 0.005], [x + off - thick, y + 0.005, z + sz + 0.005], self.m_handle)
+                self.box(
+                    body, [x, y - 0.005, z + sz - 0.005], [x + off - thick, y + 0.005, z + sz + 0.005], self.m_handle
+                )
         else:
-            self.box(body, [x + off - thick, y - half, z - thick], [x + off + thick, y + half, z + thick], self.m_handle, name)
+            self.box(
+                body,
+                [x + off - thick, y - half, z - thick],
+                [x + off + thick, y + half, z + thick],
+                self.m_handle,
+                name,
+            )
             for sy in (-0.8 * half, 0.8 * half):
-                self.box(body, [x, y + sy - 0.005, z - 0.005], [x + off - thick, y + sy + 0.005, z + 0.005], self.m_handle)
+                self.box(
+                    body, [x, y + sy - 0.005, z - 0.005], [x + off - thick, y + sy + 0.005, z + 0.005], self.m_handle
+                )
         return np.array([x + off, y, z])
 
     def _name(self, base: str) -> str:
@@ -300,24 +426,55 @@ class _Builder:
         return top
 
     # -- jointed fixtures -----------------------------------------------------------------
-    def hinged_door(self, parent, carcass_name: str, name: str, hinge_local, e: int, wd: float,
-                    z0: float, z1: float, thick: float = 0.02, qmax: float = math.pi / 2 + 0.02,
-                    damping: float = 2.0, friction: float = 0.5, vertical_handle: bool = True) -> dict:
+    def hinged_door(
+        self,
+        parent,
+        carcass_name: str,
+        name: str,
+        hinge_local,
+        e: int,
+        wd: float,
+        z0: float,
+        z1: float,
+        thick: float = 0.02,
+        qmax: float = math.pi / 2 + 0.02,
+        damping: float = 2.0,
+        friction: float = 0.5,
+        vertical_handle: bool = True,
+    ) -> dict:
         """Door hinged at its side edge ``hinge_local`` (on the front plane), opening outward for q > 0.
 
         e = +1: hinge on local +y side (door extends toward -y); e = -1 the mirror.
         """
         b = self.body(parent, name, hinge_local)
         jn = f"{name}_hinge"
-        b.add_joint(name=jn, type=mujoco.mjtJoint.mjJNT_HINGE, axis=[0, 0, e], range=[0.0, qmax],
-                    damping=damping, frictionloss=friction, armature=0.02)
+        b.add_joint(
+            name=jn,
+            type=mujoco.mjtJoint.mjJNT_HINGE,
+            axis=[0, 0, e],
+            range=[0.0, qmax],
+            damping=damping,
+            frictionloss=friction,
+            armature=0.02,
+        )
         lo_y, hi_y = sorted([-e * 0.004, -e * wd])
         self.box(b, [-thick, lo_y, z0], [0.0, hi_y, z1], self.m_door, f"{name}_panel", density=600.0)
         hz = z0 + (z1 - z0) * (0.25 + 0.5 * self.st["handle_z"])
         hy = -e * (wd - 0.05)
-        grasp = self.handle(b, 0.0, hy, min(hz, z1 - 0.1), vertical_handle, min(0.16, 0.5 * (z1 - z0)), f"{name}_handle")
+        grasp = self.handle(
+            b, 0.0, hy, min(hz, z1 - 0.1), vertical_handle, min(0.16, 0.5 * (z1 - z0)), f"{name}_handle"
+        )
         self.excludes.append((carcass_name, name))
-        return dict(body=name, joint=jn, e=e, width=wd, z0=z0, z1=z1, grasp_local=grasp, hinge_local=np.asarray(hinge_local, float))
+        return dict(
+            body=name,
+            joint=jn,
+            e=e,
+            width=wd,
+            z0=z0,
+            z1=z1,
+            grasp_local=grasp,
+            hinge_local=np.asarray(hinge_local, float),
+        )
 
     # -- modules --------------------------------------------------------------------------
     def module(self, kind: str, origin, yaw: float, w: float, D: float) -> None:
@@ -334,25 +491,72 @@ class _Builder:
             db = self.body(b, "drawer_target", [0.0, 0.0, 0.0])
             Db = D - 0.06
             travel = 0.55 * Db
-            db.add_joint(name="drawer_target_slide", type=mujoco.mjtJoint.mjJNT_SLIDE, axis=[1, 0, 0],
-                         range=[0.0, travel], damping=40.0, frictionloss=4.0, armature=0.2)
-            self.box(db, [0.0, -w / 2 + 0.003, zdiv + 0.003], [0.02, w / 2 - 0.003, top - 0.003], self.m_door, "drawer_target_front", 600.0)
-            self.box(db, [-Db, -w / 2 + 0.03, zdiv + 0.01], [0.0, w / 2 - 0.03, zdiv + 0.02], self.m_carcass, None, 600.0)
+            db.add_joint(
+                name="drawer_target_slide",
+                type=mujoco.mjtJoint.mjJNT_SLIDE,
+                axis=[1, 0, 0],
+                range=[0.0, travel],
+                damping=40.0,
+                frictionloss=4.0,
+                armature=0.2,
+            )
+            self.box(
+                db,
+                [0.0, -w / 2 + 0.003, zdiv + 0.003],
+                [0.02, w / 2 - 0.003, top - 0.003],
+                self.m_door,
+                "drawer_target_front",
+                600.0,
+            )
+            self.box(
+                db, [-Db, -w / 2 + 0.03, zdiv + 0.01], [0.0, w / 2 - 0.03, zdiv + 0.02], self.m_carcass, None, 600.0
+            )
             for sy in (-1, 1):
-                self.box(db, [-Db, sy * (w / 2 - 0.03) - 0.006, zdiv + 0.01], [0.0, sy * (w / 2 - 0.03) + 0.006, top - 0.04], self.m_carcass, None, 600.0)
-            self.box(db, [-Db, -w / 2 + 0.03, zdiv + 0.01], [-Db + 0.012, w / 2 - 0.03, top - 0.04], self.m_carcass, None, 600.0)
+                self.box(
+                    db,
+                    [-Db, sy * (w / 2 - 0.03) - 0.006, zdiv + 0.01],
+                    [0.0, sy * (w / 2 - 0.03) + 0.006, top - 0.04],
+                    self.m_carcass,
+                    None,
+                    600.0,
+                )
+            self.box(
+                db,
+                [-Db, -w / 2 + 0.03, zdiv + 0.01],
+                [-Db + 0.012, w / 2 - 0.03, top - 0.04],
+                self.m_carcass,
+                None,
+                600.0,
+            )
             grasp = self.handle(db, 0.02, 0.0, (zdiv + top) / 2, False, min(0.3, 0.5 * w), "drawer_target_handle")
             self.excludes.append((name, "drawer_target"))
             # lower single door (real hinge, not a task target)
             dn = self._name("door_low_")
-            self.hinged_door(b, name, dn, [0.02, st["door_hinge"] * (w / 2 - 0.002), 0.0], st["door_hinge"], w - 0.008,
-                             0.103, zdiv - 0.021)
+            self.hinged_door(
+                b,
+                name,
+                dn,
+                [0.02, st["door_hinge"] * (w / 2 - 0.002), 0.0],
+                st["door_hinge"],
+                w - 0.008,
+                0.103,
+                zdiv - 0.021,
+            )
             c, s = math.cos(yaw), math.sin(yaw)
             zc = (zdiv + top) / 2
             self.fixtures["drawer"] = dict(
-                module=name, body="drawer_target", joint="drawer_target_slide", travel=travel, width=w,
-                front=np.array([origin[0] + 0.02 * c, origin[1] + 0.02 * s, zc]), yaw=yaw,
-                z0=zdiv, z1=top, grasp_local=grasp, bodies=["drawer_target"])
+                module=name,
+                body="drawer_target",
+                joint="drawer_target_slide",
+                travel=travel,
+                width=w,
+                front=np.array([origin[0] + 0.02 * c, origin[1] + 0.02 * s, zc]),
+                yaw=yaw,
+                z0=zdiv,
+                z1=top,
+                grasp_local=grasp,
+                bodies=["drawer_target"],
+            )
         elif kind == "double_door":
             top = self.hollow_base(b, w, D)
             wd = w / 2 - 0.006
@@ -360,9 +564,14 @@ class _Builder:
             right = self.hinged_door(b, name, "ddoor_neg", [0.02, -w / 2 + 0.002, 0.0], -1, wd, 0.103, top - 0.003)
             c, s = math.cos(yaw), math.sin(yaw)
             self.fixtures["double_door"] = dict(
-                module=name, doors=[left, right], width=w, yaw=yaw, origin=np.array([origin[0], origin[1]]),
+                module=name,
+                doors=[left, right],
+                width=w,
+                yaw=yaw,
+                origin=np.array([origin[0], origin[1]]),
                 front=np.array([origin[0] + 0.02 * c, origin[1] + 0.02 * s, (0.103 + top) / 2]),
-                bodies=["ddoor_pos", "ddoor_neg"])
+                bodies=["ddoor_pos", "ddoor_neg"],
+            )
         elif kind == "microwave":
             self.solid_base(b, w, D, fronts=2)
             self._microwave(b, origin, yaw, w, D)
@@ -375,7 +584,11 @@ class _Builder:
             self.box(b, [-D + 0.04, -w / 2 + 0.02, H], [-0.02, w / 2 - 0.02, H + 0.012], self.m_dark)
             for bx in (-0.17, -0.42):
                 for by in (-0.17, 0.17):
-                    g = b.add_geom(type=mujoco.mjtGeom.mjGEOM_CYLINDER, size=[0.08, 0.006, 0], pos=[bx * D / 0.6, by * w / 0.76, H + 0.016])
+                    g = b.add_geom(
+                        type=mujoco.mjtGeom.mjGEOM_CYLINDER,
+                        size=[0.08, 0.006, 0],
+                        pos=[bx * D / 0.6, by * w / 0.76, H + 0.016],
+                    )
                     g.material, g.group = self.m_steel, SCENE_GROUP
         elif kind == "sink":
             self.solid_base(b, w, D, fronts=2, drawer_row=False)
@@ -418,8 +631,15 @@ class _Builder:
         self.box(mw, [-0.004, Wm / 2 - panel + 0.01, 0.03], [0.002, Wm / 2 - 0.01, Hm - 0.03], self.m_dark)
         wd = Wm - panel - 0.004
         door = self.body(mw, "microwave_door", [0.0, -Wm / 2, 0.0])
-        door.add_joint(name="microwave_door_hinge", type=mujoco.mjtJoint.mjJNT_HINGE, axis=[0, 0, -1],
-                       range=[0.0, 1.75], damping=0.6, frictionloss=0.25, armature=0.01)
+        door.add_joint(
+            name="microwave_door_hinge",
+            type=mujoco.mjtJoint.mjJNT_HINGE,
+            axis=[0, 0, -1],
+            range=[0.0, 1.75],
+            damping=0.6,
+            frictionloss=0.25,
+            armature=0.01,
+        )
         self.box(door, [0.0, 0.004, 0.004], [0.03, wd, Hm - 0.004], self.m_dark, "microwave_door_panel", 400.0)
         self.box(door, [0.03, 0.05, 0.05], [0.032, wd - 0.08, Hm - 0.05], self.m_glass)
         # vertical bar handle near the free edge (viewer's right)
@@ -430,12 +650,23 @@ class _Builder:
         self.excludes.append(("microwave", "microwave_door"))
         c, s = math.cos(yaw), math.sin(yaw)
         hinge_l = np.array([x_front, lat - Wm / 2])
-        hinge_w = np.array([origin[0] + c * hinge_l[0] - s * hinge_l[1], origin[1] + s * hinge_l[0] + c * hinge_l[1], H])
+        hinge_w = np.array(
+            [origin[0] + c * hinge_l[0] - s * hinge_l[1], origin[1] + s * hinge_l[0] + c * hinge_l[1], H]
+        )
         fl = np.array([x_front + 0.03, lat])
         self.fixtures["microwave"] = dict(
-            body="microwave_door", joint="microwave_door_hinge", yaw=yaw, hinge=hinge_w, e=-1, width=wd,
+            body="microwave_door",
+            joint="microwave_door_hinge",
+            yaw=yaw,
+            hinge=hinge_w,
+            e=-1,
+            width=wd,
             front=np.array([origin[0] + c * fl[0] - s * fl[1], origin[1] + s * fl[0] + c * fl[1], H + Hm / 2]),
-            grasp_local=np.array([0.065, hy, Hm / 2]), height=Hm, base_z=H, bodies=["microwave_door", "microwave"])
+            grasp_local=np.array([0.065, hy, Hm / 2]),
+            height=Hm,
+            base_z=H,
+            bodies=["microwave_door", "microwave"],
+        )
 
     def _wall_cab(self, b, module_name: str, origin, yaw: float, w: float, D: float) -> None:
         st = self.st
@@ -451,7 +682,9 @@ class _Builder:
         self.box(cab, [-Dw, -Wc / 2, 0.0], [0.0, -Wc / 2 + t, Hc], m)
         self.box(cab, [-Dw, Wc / 2 - t, 0.0], [0.0, Wc / 2, Hc], m)
         e = -st["door_hinge"]
-        door = self.hinged_door(cab, "wallcab", "wallcab_door", [0.02, e * (Wc / 2 - 0.002), 0.0], e, Wc - 0.006, 0.003, Hc - 0.003)
+        door = self.hinged_door(
+            cab, "wallcab", "wallcab_door", [0.02, e * (Wc / 2 - 0.002), 0.0], e, Wc - 0.006, 0.003, Hc - 0.003
+        )
         c, s = math.cos(yaw), math.sin(yaw)
         fx = -D + Dw + 0.02
         front = np.array([origin[0] + c * fx, origin[1] + s * fx, zb + Hc / 2])
@@ -462,23 +695,42 @@ class _Builder:
         ox, oy = -0.20 - 0.06 * float(self.rng.random()), float(self.rng.uniform(-0.12, 0.12))
         ow = np.array([origin[0] + c * ox - s * oy, origin[1] + s * ox + c * oy])
         half = np.array([0.024, 0.024, 0.045])
-        ob = self.spec.worldbody.add_body(name="pnp_object", pos=[ow[0], ow[1], H + half[2] + 0.001], quat=_yaw_quat(yaw))
+        ob = self.spec.worldbody.add_body(
+            name="pnp_object", pos=[ow[0], ow[1], H + half[2] + 0.001], quat=_yaw_quat(yaw)
+        )
         ob.add_freejoint(name="pnp_object_joint")
         g = ob.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, size=list(half), name="pnp_object_geom")
         g.material, g.group, g.mass = self.m_object, SCENE_GROUP, 0.15
         g.friction = [1.2, 0.01, 0.001]
         door.update(cabinet="wallcab")
         self.fixtures["wall_cab"] = dict(
-            body="wallcab", door=door, yaw=yaw, front=front, interior_center=interior_c,
-            interior_half=np.array([Dw / 2 - t, Wc / 2 - t, Hc / 2 - t]), bottom_z=zb + t,
-            object="pnp_object", object_half=half, bodies=["wallcab", "wallcab_door"], counter_h=H)
+            body="wallcab",
+            door=door,
+            yaw=yaw,
+            front=front,
+            interior_center=interior_c,
+            interior_half=np.array([Dw / 2 - t, Wc / 2 - t, Hc / 2 - t]),
+            bottom_z=zb + t,
+            object="pnp_object",
+            object_half=half,
+            bodies=["wallcab", "wallcab_door"],
+            counter_h=H,
+        )
 
 
 # ----------------------------------------------------------------------------------------------
 # layouts: runs of modules along walls
 # ----------------------------------------------------------------------------------------------
-_WIDTHS = {"drawer": (0.50, 0.60), "double_door": (0.78, 0.90), "microwave": (0.72, 0.84), "wall_cab": (0.64, 0.72),
-           "plain": (0.45, 0.75), "stove": (0.76, 0.76), "sink": (0.80, 0.90), "fridge": (0.80, 0.86)}
+_WIDTHS = {
+    "drawer": (0.50, 0.60),
+    "double_door": (0.78, 0.90),
+    "microwave": (0.72, 0.84),
+    "wall_cab": (0.64, 0.72),
+    "plain": (0.45, 0.75),
+    "stove": (0.76, 0.76),
+    "sink": (0.80, 0.90),
+    "fridge": (0.80, 0.86),
+}
 
 
 def _widths(kinds: list[str], rng: np.random.Generator, scale: float, D: float) -> list[float]:
@@ -505,23 +757,31 @@ def _plan(layout_id: int, rng: np.random.Generator) -> list[dict]:
         kinds = ["fridge"] + kinds if rng.random() < 0.5 else kinds + ["fridge"]
         return [dict(side="back", kinds=kinds)]
     if L == 1:  # L-shaped: back + left
-        return [dict(side="back", kinds=["corner", fill[0], fixtures[0], fill[1], fixtures[1], "fridge"]),
-                dict(side="left", kinds=[fixtures[2], fill[2], fixtures[3], fill[3]])]
+        return [
+            dict(side="back", kinds=["corner", fill[0], fixtures[0], fill[1], fixtures[1], "fridge"]),
+            dict(side="left", kinds=[fixtures[2], fill[2], fixtures[3], fill[3]]),
+        ]
     if L == 2:  # galley: back + opposite run
-        return [dict(side="back", kinds=[fill[0], fixtures[0], fill[1], fixtures[1], "fridge"]),
-                dict(side="front", kinds=[fixtures[2], fill[2], fixtures[3], fill[3]])]
+        return [
+            dict(side="back", kinds=[fill[0], fixtures[0], fill[1], fixtures[1], "fridge"]),
+            dict(side="front", kinds=[fixtures[2], fill[2], fixtures[3], fill[3]]),
+        ]
     if L == 3:  # U: back + left + right
-        return [dict(side="back", kinds=["corner", fixtures[0], fill[0], fixtures[1], "corner"]),
-                dict(side="left", kinds=[fill[1], fixtures[2]]),
-                dict(side="right", kinds=[fixtures[3], fill[2], "fridge"])]
+        return [
+            dict(side="back", kinds=["corner", fixtures[0], fill[0], fixtures[1], "corner"]),
+            dict(side="left", kinds=[fill[1], fixtures[2]]),
+            dict(side="right", kinds=[fixtures[3], fill[2], "fridge"]),
+        ]
     if L == 4:  # one wall + island
         kinds = [fixtures[0], fill[0], fixtures[1], fill[1], fixtures[2], fixtures[3], "fridge"]
         return [dict(side="back", kinds=kinds), dict(side="island", kinds=["plain", "sink", "plain"])]
     # G-shaped / wraparound: U + peninsula on the right run
-    return [dict(side="back", kinds=["corner", fixtures[0], fill[0], fixtures[1], "corner"]),
-            dict(side="left", kinds=[fill[1], fixtures[2], "fridge"]),
-            dict(side="right", kinds=[fixtures[3], fill[2]]),
-            dict(side="peninsula", kinds=["plain", fill[3]])]
+    return [
+        dict(side="back", kinds=["corner", fixtures[0], fill[0], fixtures[1], "corner"]),
+        dict(side="left", kinds=[fill[1], fixtures[2], "fridge"]),
+        dict(side="right", kinds=[fixtures[3], fill[2]]),
+        dict(side="peninsula", kinds=["plain", fill[3]]),
+    ]
 
 
 def _build_spec(spec_: SceneSpec) -> tuple[mujoco.MjSpec, dict, list[_Rect], dict]:
@@ -583,15 +843,30 @@ def _build_spec(spec_: SceneSpec) -> tuple[mujoco.MjSpec, dict, list[_Rect], dic
         light.diffuse = [0.55, 0.55, 0.55]
         light.specular = [0.1, 0.1, 0.1]
     # grasp assist constraints (inactive until a scripted grasp succeeds, see controllers.py)
-    weld = spec.add_equality(name="assist_object", type=mujoco.mjtEq.mjEQ_WELD, objtype=mujoco.mjtObj.mjOBJ_BODY,
-                             name1=_robot.HAND_BODY, name2="pnp_object")
+    weld = spec.add_equality(
+        name="assist_object",
+        type=mujoco.mjtEq.mjEQ_WELD,
+        objtype=mujoco.mjtObj.mjOBJ_BODY,
+        name1=_robot.HAND_BODY,
+        name2="pnp_object",
+    )
     weld.active = False
-    conn = spec.add_equality(name="assist_door", type=mujoco.mjtEq.mjEQ_CONNECT, objtype=mujoco.mjtObj.mjOBJ_BODY,
-                             name1=_robot.HAND_BODY, name2="microwave_door")
+    conn = spec.add_equality(
+        name="assist_door",
+        type=mujoco.mjtEq.mjEQ_CONNECT,
+        objtype=mujoco.mjtObj.mjOBJ_BODY,
+        name1=_robot.HAND_BODY,
+        name2="microwave_door",
+    )
     conn.active = False
     for door in ("ddoor_pos", "ddoor_neg"):
-        eqd = spec.add_equality(name=f"assist_{door}", type=mujoco.mjtEq.mjEQ_CONNECT, objtype=mujoco.mjtObj.mjOBJ_BODY,
-                                name1=_robot.HAND_BODY, name2=door)
+        eqd = spec.add_equality(
+            name=f"assist_{door}",
+            type=mujoco.mjtEq.mjEQ_CONNECT,
+            objtype=mujoco.mjtObj.mjOBJ_BODY,
+            name1=_robot.HAND_BODY,
+            name2=door,
+        )
         eqd.active = False
     for a, bname in bld.excludes:
         spec.add_exclude(bodyname1=a, bodyname2=bname)
@@ -620,7 +895,9 @@ class SimScene:
         self.robot_geom_ids = self.robot.geom_ids
         robot_bodies = set(self.robot.body_ids.tolist())
         self.floor_geom_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "floor")
-        self.scene_geom_ids = np.array([g for g in range(model.ngeom) if model.geom_bodyid[g] not in robot_bodies], dtype=np.int64)
+        self.scene_geom_ids = np.array(
+            [g for g in range(model.ngeom) if model.geom_bodyid[g] not in robot_bodies], dtype=np.int64
+        )
         self._scene_mask = np.zeros(model.ngeom, dtype=bool)
         self._scene_mask[self.scene_geom_ids] = True
         self._scene_mask[self.floor_geom_id] = False
@@ -673,14 +950,18 @@ class SimScene:
         g1 = d.contact.geom1[:n]
         g2 = d.contact.geom2[:n]
         dist = d.contact.dist[:n]
-        hit = ((self._robot_mask[g1] & self._scene_mask[g2]) | (self._robot_mask[g2] & self._scene_mask[g1])) & (dist < margin)
+        hit = ((self._robot_mask[g1] & self._scene_mask[g2]) | (self._robot_mask[g2] & self._scene_mask[g1])) & (
+            dist < margin
+        )
         return bool(hit.any())
 
     def footprint_free(self, x: float, y: float, yaw: float) -> bool:
         """N2M footprint (0.63 x 0.5 m, 0.83 L behind / 0.17 L in front of the origin) vs furniture/wall footprints."""
         c, s = math.cos(yaw), math.sin(yaw)
         cx = 0.5 * (_robot.FOOTPRINT_FRONT - _robot.FOOTPRINT_BACK)
-        fp = _Rect(np.array([x + c * cx, y + s * cx]), np.array([_robot.FOOTPRINT_LENGTH / 2, _robot.FOOTPRINT_WIDTH / 2]), yaw)
+        fp = _Rect(
+            np.array([x + c * cx, y + s * cx]), np.array([_robot.FOOTPRINT_LENGTH / 2, _robot.FOOTPRINT_WIDTH / 2]), yaw
+        )
         fc = fp.corners()
         for rc in self._rect_corners:
             if _sat_overlap(fc, rc):

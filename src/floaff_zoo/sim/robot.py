@@ -14,6 +14,7 @@ The base yaw joint pivots 0.21 m behind the base-frame origin: :func:`RobotIndex
 compensates so that ``(x, y, yaw)`` is always the pose of the base-frame origin (the point the
 arm is mounted above).
 """
+
 from __future__ import annotations
 
 import functools
@@ -96,9 +97,14 @@ def robot_spec() -> mujoco.MjSpec:
     torso.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
     torso.forcerange = [-1.0e4, 1.0e4]
     for body in spec.bodies:
-        if body.name.startswith("robot0_link") or body.name.startswith("gripper0_") or body.name in (
-            "robot0_right_hand",
-            "manipulator_mount",
+        if (
+            body.name.startswith("robot0_link")
+            or body.name.startswith("gripper0_")
+            or body.name
+            in (
+                "robot0_right_hand",
+                "manipulator_mount",
+            )
         ):
             body.gravcomp = 1.0
     base = spec.body(BASE_BODY)
@@ -155,9 +161,7 @@ class RobotIndex:
         root = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "robot0_base")
         bodies = [b for b in range(m.nbody) if _has_ancestor(m, b, root)]
         geoms = [
-            g
-            for g in range(m.ngeom)
-            if m.geom_bodyid[g] in bodies and (m.geom_contype[g] or m.geom_conaffinity[g])
+            g for g in range(m.ngeom) if m.geom_bodyid[g] in bodies and (m.geom_contype[g] or m.geom_conaffinity[g])
         ]
         return cls(
             base_qadr=m.jnt_qposadr[base_j].copy(),
@@ -173,12 +177,8 @@ class RobotIndex:
             ik_hi=m.jnt_range[ik_j, 1] - 1e-3,
             arm_act=np.array([aid(f"robot0_torq_j{i}") for i in range(1, 8)]),
             torso_act=aid("mobilebase0_actuator_torso_height"),
-            base_act=np.array(
-                [aid(f"mobilebase0_actuator_mobile_{n}") for n in ("forward", "side", "yaw")]
-            ),
-            finger_act=np.array(
-                [aid("gripper0_gripper_finger_joint1"), aid("gripper0_gripper_finger_joint2")]
-            ),
+            base_act=np.array([aid(f"mobilebase0_actuator_mobile_{n}") for n in ("forward", "side", "yaw")]),
+            finger_act=np.array([aid("gripper0_gripper_finger_joint1"), aid("gripper0_gripper_finger_joint2")]),
             grip_site=mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, GRIP_SITE),
             hand_body=mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, HAND_BODY),
             base_body=mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, BASE_BODY),

@@ -5,6 +5,7 @@
 rollout terminates once the task succeeds"), give-up (policy reason) or the task horizon.
 Results are deterministic: the same (scene spec, pose, seed) gives the same result in any process.
 """
+
 from __future__ import annotations
 
 import concurrent.futures as cf
@@ -54,8 +55,9 @@ def start_rollout(scene: SimScene, base_pose, policy: Policy, seed: int = 0) -> 
     policy.reset(scene)
 
 
-def rollout(scene: SimScene | SceneSpec, base_pose: tuple[float, float, float], policy: Policy | None = None,
-            seed: int = 0) -> RolloutResult:
+def rollout(
+    scene: SimScene | SceneSpec, base_pose: tuple[float, float, float], policy: Policy | None = None, seed: int = 0
+) -> RolloutResult:
     """Run one rollout; see the module doc. ``policy`` defaults to the task's scripted policy."""
     t0 = time.perf_counter()
     if isinstance(scene, SceneSpec):
@@ -88,8 +90,13 @@ def rollout(scene: SimScene | SceneSpec, base_pose: tuple[float, float, float], 
                 break
         if not reason:
             reason = task.fail_reason if policy.done else "timeout"
-    return RolloutResult(success=ok, reason=reason, sim_seconds=round(t, 6), wall_seconds=time.perf_counter() - t0,
-                         state=task.state(scene))
+    return RolloutResult(
+        success=ok,
+        reason=reason,
+        sim_seconds=round(t, 6),
+        wall_seconds=time.perf_counter() - t0,
+        state=task.state(scene),
+    )
 
 
 def _settled(scene: SimScene) -> bool:
@@ -148,17 +155,25 @@ class RolloutService:
     fake one).
     """
 
-    def __init__(self, workers: int = 1, backend: str = "local", cache_decimals: int = 2, seed: int = 0,
-                 max_retries: int = 2, timeout_s: float = 900.0,
-                 job_fn: Callable[[Job], RolloutResult] = _run_job) -> None:
+    def __init__(
+        self,
+        workers: int = 1,
+        backend: str = "local",
+        cache_decimals: int = 2,
+        seed: int = 0,
+        max_retries: int = 2,
+        timeout_s: float = 900.0,
+        job_fn: Callable[[Job], RolloutResult] = _run_job,
+    ) -> None:
         if backend not in ("local", "ray"):
             raise ValueError(f"backend must be 'local' or 'ray', got {backend!r}")
         if backend == "ray":
             try:
                 import ray  # noqa: F401
             except ImportError as e:
-                raise ImportError("RolloutService(backend='ray') needs the 'ray' package, which is not installed; "
-                                  "use backend='local'") from e
+                raise ImportError(
+                    "RolloutService(backend='ray') needs the 'ray' package, which is not installed; use backend='local'"
+                ) from e
         if workers < 1:
             raise ValueError(f"workers must be >= 1, got {workers}")
         if max_retries < 0 or not timeout_s > 0:
@@ -179,7 +194,9 @@ class RolloutService:
         r = self.cache_decimals
         return (spec, round(x, r), round(y, r), round(yaw, r))
 
-    def run(self, jobs: list[tuple[SceneSpec, tuple[float, float, float]]], progress: bool = False) -> list[RolloutResult]:
+    def run(
+        self, jobs: list[tuple[SceneSpec, tuple[float, float, float]]], progress: bool = False
+    ) -> list[RolloutResult]:
         keys = [self._key(s, p) for s, p in jobs]
         todo = sorted({k for k in keys if k not in self.cache}, key=lambda k: (k[0].scene_id, k[1:]))
         payload = [(k[0].to_dict(), (k[1], k[2], k[3]), self.seed) for k in todo]
@@ -189,7 +206,9 @@ class RolloutService:
             for i, p in enumerate(payload):
                 results.append(self.job_fn(p))
                 if progress and (i + 1) % 10 == 0:
-                    print(f"[RolloutService] {i + 1}/{len(payload)} rollouts, {time.perf_counter() - t0:.1f}s", flush=True)
+                    print(
+                        f"[RolloutService] {i + 1}/{len(payload)} rollouts, {time.perf_counter() - t0:.1f}s", flush=True
+                    )
         elif self.backend == "ray":
             results = self._run_ray(payload)
         else:
@@ -238,7 +257,8 @@ class RolloutService:
             if self._run_round(payload, [[i]], results):
                 raise RolloutPoolError(
                     f"rollout {_describe(payload[i])} killed its worker process {lost[i] + 1} times, the last time "
-                    "running alone (killed from outside, out of memory, or a crash in MuJoCo)")
+                    "running alone (killed from outside, out of memory, or a crash in MuJoCo)"
+                )
         return results  # type: ignore[return-value]
 
     def _run_round(self, payload: list[Job], chunks: list[list[int]], results: list) -> list[int]:
@@ -256,7 +276,8 @@ class RolloutService:
                 self._kill_pool()
                 raise RolloutPoolError(
                     f"the rollout pool made no progress for {self.timeout_s:.0f} s (timeout_s): a worker hangs; "
-                    f"still running: {stuck}")
+                    f"still running: {stuck}"
+                )
             for fut in done:
                 idx = running.pop(fut)
                 try:

@@ -15,6 +15,7 @@ distance along the outward normal, so the open floor in front of the target has 
 paper's front view is ``y° < -r_f^y``). Cells with ``|x°| <= r_x`` and ``|y°| <= r_y`` are candidates;
 the half behind the front is inside furniture and is removed by collision filtering.
 """
+
 from __future__ import annotations
 
 import abc
@@ -124,9 +125,15 @@ class Task(abc.ABC):
     def target_info(self, scene: "TaskScene") -> "TargetInfo":
         """The target of this task: its fixture's front centre, outward yaw, bodies and joints."""
         f = scene.fixtures[self.fixture]
-        return TargetInfo(pos=f["front"].copy(), yaw=float(f["yaw"]), kind=self.fixture, body_names=list(f["bodies"]),
-                          geom_ids=_body_geoms(scene, f["bodies"]), joint_names=self.joint_names(f),
-                          extra=self.target_extra(scene, f))
+        return TargetInfo(
+            pos=f["front"].copy(),
+            yaw=float(f["yaw"]),
+            kind=self.fixture,
+            body_names=list(f["bodies"]),
+            geom_ids=_body_geoms(scene, f["bodies"]),
+            joint_names=self.joint_names(f),
+            extra=self.target_extra(scene, f),
+        )
 
     def joint_names(self, fixture: dict) -> list[str]:
         """The fixture joints this task moves."""
@@ -203,7 +210,9 @@ class CloseDoubleDoor(Task):
         return [d["joint"] for d in fixture["doors"]]
 
     def openings(self, scene) -> list[float]:
-        return [float(scene.data.qpos[_jq(scene, d["joint"])]) / HALF_PI for d in scene.fixtures["double_door"]["doors"]]
+        return [
+            float(scene.data.qpos[_jq(scene, d["joint"])]) / HALF_PI for d in scene.fixtures["double_door"]["doors"]
+        ]
 
     def reset(self, scene, rng):
         for d in scene.fixtures["double_door"]["doors"]:
@@ -282,9 +291,9 @@ class PnPCounterToCab(Task):
         centre."""
         f = scene.fixtures["wall_cab"]
         b, qa = self._obj(scene)
-        pos = scene.data.qpos[qa:qa + 3]
+        pos = scene.data.qpos[qa : qa + 3]
         R = np.zeros(9)
-        mujoco.mju_quat2Mat(R, scene.data.qpos[qa + 3:qa + 7])
+        mujoco.mju_quat2Mat(R, scene.data.qpos[qa + 3 : qa + 7])
         R = R.reshape(3, 3)
         h = f["object_half"]
         signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], dtype=np.float64)
@@ -297,7 +306,7 @@ class PnPCounterToCab(Task):
         b, qa = self._obj(scene)
         site = scene.robot.grip_site
         mujoco.mj_kinematics(scene.model, scene.data)
-        return float(np.linalg.norm(scene.data.site_xpos[site] - scene.data.qpos[qa:qa + 3]))
+        return float(np.linalg.norm(scene.data.site_xpos[site] - scene.data.qpos[qa : qa + 3]))
 
     def object_inside(self, scene) -> bool:
         half = scene.fixtures["wall_cab"]["interior_half"]
@@ -305,8 +314,11 @@ class PnPCounterToCab(Task):
 
     def state(self, scene):
         f = scene.fixtures["wall_cab"]
-        return {"object_inside": self.object_inside(scene), "gripper_dist": self.gripper_distance(scene),
-                "cab_door_open": float(scene.data.qpos[_jq(scene, f["door"]["joint"])]) / HALF_PI}
+        return {
+            "object_inside": self.object_inside(scene),
+            "gripper_dist": self.gripper_distance(scene),
+            "cab_door_open": float(scene.data.qpos[_jq(scene, f["door"]["joint"])]) / HALF_PI,
+        }
 
     def success(self, scene):
         return self.object_inside(scene) and self.gripper_distance(scene) > self.min_gripper_dist
@@ -316,8 +328,8 @@ class PnPCounterToCab(Task):
         _, qa = self._obj(scene)
         p = f["interior_center"].copy()
         p[2] = f["bottom_z"] + f["object_half"][2] + 0.001
-        scene.data.qpos[qa:qa + 3] = p
-        scene.data.qpos[qa + 3:qa + 7] = (math.cos(f["yaw"] / 2), 0.0, 0.0, math.sin(f["yaw"] / 2))
+        scene.data.qpos[qa : qa + 3] = p
+        scene.data.qpos[qa + 3 : qa + 7] = (math.cos(f["yaw"] / 2), 0.0, 0.0, math.sin(f["yaw"] / 2))
         mujoco.mj_forward(scene.model, scene.data)
 
 

@@ -36,8 +36,10 @@ def _write_ply(path: Path, xyz: np.ndarray) -> None:
 
 def _write_ascii_ply(path: Path, xyz: np.ndarray) -> None:
     """Plain ASCII PLY (used for the NaN case, which binary writers may sanitise)."""
-    head = (f"ply\nformat ascii 1.0\nelement vertex {len(xyz)}\n"
-            "property double x\nproperty double y\nproperty double z\nend_header\n")
+    head = (
+        f"ply\nformat ascii 1.0\nelement vertex {len(xyz)}\n"
+        "property double x\nproperty double y\nproperty double z\nend_header\n"
+    )
     body = "\n".join(" ".join(repr(float(v)) for v in p) for p in xyz)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(head + body + "\n")
@@ -64,11 +66,23 @@ def make_dataset(root: str | Path, seed: int = 0) -> dict:
     # (split, scene, obj, barrier count, robot, [(x, y, problem)])
     configs = [
         ("train", "100001", "bottle#1", 0, "panda", [(3.1, 5.7, None), (3.2, 5.6, "missing_global"), (3.3, 5.5, None)]),
-        ("train", "100002", "veggieartichoke", 2, "xarm", [(2.5, 1.0, None), (2.6, 1.1, "label_count"),
-                                                           (2.7, 1.2, None)]),
+        (
+            "train",
+            "100002",
+            "veggieartichoke",
+            2,
+            "xarm",
+            [(2.5, 1.0, None), (2.6, 1.1, "label_count"), (2.7, 1.2, None)],
+        ),
         ("train", "100003", "medicine#2", 0, "elephant", [(4.0, 2.0, None)]),  # unknown robot
-        ("train", "100003", "veggietomato#1", 1, "ur5e", [(4.1, 2.1, None), (4.2, 2.2, "corrupt_ply"),
-                                                          (4.3, 2.3, "nan_coordinates"), (4.4, 2.4, "missing_floor")]),
+        (
+            "train",
+            "100003",
+            "veggietomato#1",
+            1,
+            "ur5e",
+            [(4.1, 2.1, None), (4.2, 2.2, "corrupt_ply"), (4.3, 2.3, "nan_coordinates"), (4.4, 2.4, "missing_floor")],
+        ),
         ("test", "200001", "minifridge_handle0", 0, "flexiv", [(3.0, 3.0, None), (2.9, 3.1, None), (2.8, 3.2, None)]),
     ]
     lines: dict[str, list[str]] = {"train": [], "test": []}
@@ -112,8 +126,13 @@ def make_dataset(root: str | Path, seed: int = 0) -> dict:
     (root / "data_split").mkdir(parents=True, exist_ok=True)
     for split in ("train", "test"):
         (root / "data_split" / f"kitchen_{split}.txt").write_text("\n".join(lines[split]) + "\n")
-    return {"kept": kept, "skips": skips, "floor_points": 144, "target": TARGET.tolist(),
-            "barrier_sample": f"RGBD-100002-target_1_veggieartichoke_barrier_02/position_2.5_1.0_0_{ORIENT}"}
+    return {
+        "kept": kept,
+        "skips": skips,
+        "floor_points": 144,
+        "target": TARGET.tolist(),
+        "barrier_sample": f"RGBD-100002-target_1_veggieartichoke_barrier_02/position_2.5_1.0_0_{ORIENT}",
+    }
 
 
 if __name__ == "__main__":
