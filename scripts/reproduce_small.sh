@@ -38,7 +38,7 @@ JOBS=(
   axisnet_longer gtyaw_s0 gtyaw_s1 gtyaw_s2 stage1_s0 stage1_s1 stage1_s2
   r1.10 r1.30 r1.40 r1.15 r1.25 r1.35
   axis100_s0 axis100_s1 axis100_s2
-  recipe_no_prior recipe_no_snap recipe_pointwise
+  recipe_no_prior recipe_no_snap recipe_pointwise recipe_no_fd
   styles_recipe styles_prior
 )
 RECIPE=configs/experiments/recipe/cfar_recipe.yaml
@@ -116,18 +116,22 @@ training_free() {
   copy_report "$(find "$root" -name report.json -newer "$before" | head -n 1)" "$bench" "$job"
 }
 
-# prior JOB BENCH LABEL [TEST ARGS...]: the canonical prior (one pass over the training labels), tested with the
-# AxisNet of the recipe's seed-0 curriculum (job recipe_s0 first)
+# prior JOB BENCH LABEL [TEST ARGS...]: the canonical prior (one pass over the training labels) with the AxisNet of
+# the recipe's seed-0 curriculum inside its checkpoint (job recipe_s0 first; waited for when it runs in parallel)
 prior() {
   local job=$1 bench=$2 label=$3 root=$RUNS/$2/prior; shift 3
+  local axis="" lineage=$RUNS/$bench/recipe_s0/lineage.json tries=0
+  until axis=$(python3 -c "import json,sys; print(json.load(open(sys.argv[1]))['stages'][0]['checkpoint'])" \
+    "$lineage" 2>/dev/null) && [ -f "$axis" ]; do
+    tries=$((tries + 1)); [ $tries -le 180 ] || { echo "$job: no AxisNet in $lineage (run recipe_s0)" >&2; return 1; }
+    sleep 10
+  done
   if [ "$RETEST" = 0 ] && [ -z "$(find "$root" -name last.ckpt 2>/dev/null)" ]; then
     "$FZ" fit --config "configs/data/floaff_small_$bench.yaml" --config configs/models/canonical_prior.yaml \
-      --data.init_args.train_transforms '[]' --trainer.max_epochs 1 --trainer.default_root_dir "$root"
+      --model.init_args.axisnet "$axis" --data.init_args.train_transforms '[]' --trainer.max_epochs 1 \
+      --trainer.default_root_dir "$root"
   fi
-  local axis
-  axis=$(python3 -c "import json,sys; print(json.load(open(sys.argv[1]))['stages'][0]['checkpoint'])" \
-    "$RUNS/$bench/recipe_s0/lineage.json")
-  test_run "$(latest_run "$root")" "$label" "$bench" "$job" last --model.init_args.axisnet "$axis" "$@"
+  test_run "$(latest_run "$root")" "$label" "$bench" "$job" last "$@"
 }
 
 # axisnet_longer: AxisNet trained 100 epochs with a cosine schedule (the PFAL recipe trains 30), and the test
@@ -178,6 +182,8 @@ run_job() {
       [ "$abl" = pointwise ] && abl=pointwise_floor label="recipe, pointwise floor"
       curriculum "$job" layouts 0 "$label" --extra-config "$RECIPE" \
         --extra-config "configs/experiments/recipe/$abl.yaml" ;;
+    recipe_no_fd) curriculum "$job" layouts 0 "recipe w/o fd" --extra-config "$RECIPE" \
+      --extra-config configs/experiments/ablations/no_fd.yaml ;;
     prior) prior prior layouts "Canonical prior (no network)" ;;
     prior_gtyaw) prior prior_gtyaw layouts "Canonical prior, simulator yaw" --model.init_args.eval_yaw_source gt ;;
     styles_recipe) curriculum recipe_s0 styles 0 "CFAR+PFAL, zoo recipe" --extra-config "$RECIPE" ;;

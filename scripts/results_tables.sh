@@ -5,11 +5,11 @@ set -euo pipefail
 SELF=$(realpath "$0")
 cd "$(dirname "$SELF")/.."
 if ! command -v floaff-zoo > /dev/null && [ -x .venv/bin/floaff-zoo ]; then PATH=$PWD/.venv/bin:$PATH; fi
-R=${OUT:-docs/results/small}
+R=${OUT:-docs/results/small_v2}
 
 MAIN=()   # the method and every baseline, both benchmarks (rows: the report's label, seeds pooled)
-for d in "$R"/layouts/{cfar_pfal_s?,pointnet2_s?,navaff,votenet,h3dnet,n2m,c2f_exp} \
-         "$R"/styles/{cfar_pfal_s?,pointnet2_s?,c2f_exp}; do
+for d in "$R"/layouts/{recipe_s?,cfar_pfal_s?,prior,prior_gtyaw,pointnet2_s?,navaff,votenet,h3dnet,n2m,c2f_exp,c2f_exp_gtyaw} \
+         "$R"/styles/{recipe_s?,cfar_pfal_s?,prior,pointnet2_s?,c2f_exp}; do
   [ -f "$d/report.json" ] && MAIN+=("$d")
 done
 table() { floaff-zoo table --format md --group-by label "$@"; echo; }
@@ -29,6 +29,12 @@ table --runs "${ABL[@]}" --preset sr_views --no-oracle
 
 SWEEP=("$R"/layouts/cfar_pfal_s0)
 for d in "$R"/layouts/sweep_r*; do [ -f "$d/report.json" ] && SWEEP+=("$d"); done
+REC=("$R"/layouts/recipe_s0)
+for d in "$R"/layouts/recipe_{no_prior,no_snap,pointwise,no_fd} "$R"/layouts/cfar_pfal_s0; do [ -f "$d/report.json" ] && REC+=("$d"); done
+echo "### The zoo recipe's switches on Layouts (seed 0 each)"; echo
+table --runs "${REC[@]}" --preset ablation
+table --runs "${REC[@]}" --preset sr_views --no-oracle
+
 echo "### Crop-radius sweep on Layouts (seed 0 each)"; echo
 floaff-zoo table --format md --runs "${SWEEP[@]}" --preset sweep; echo
 
@@ -40,10 +46,10 @@ table --runs "${DIAG[@]}" --preset map
 table --runs "${DIAG[@]}" --preset sr_views --no-oracle
 table --runs "${DIAG[@]}" --preset sr_tasks --no-oracle
 
-if [ -d runs/small ]; then  # pictures like the paper's Figures 4 and 6 (need the runs' figures on disk)
+if [ -d "${RUNS:-runs/small_v2}" ]; then  # pictures like the paper's Figures 4 and 6 (need the runs' figures on disk)
   for bench in layouts styles; do
-    cols=("$R/$bench/cfar_pfal_s0" "$R/$bench/pointnet2_s0" "$R/$bench/c2f_exp")
-    [ "$bench" = layouts ] && cols+=("$R/layouts/navaff" "$R/layouts/n2m")
+    cols=()
+    for d in "$R/$bench"/{recipe_s0,cfar_pfal_s0,prior,pointnet2_s0,c2f_exp}; do [ -f "$d/report.json" ] && cols+=("$d"); done
     floaff-zoo montage --runs "${cols[@]}" --cases CloseDrawer_front_0 CloseDrawer_side_0 OpenSingleDoor_front_0 \
       OpenSingleDoor_side_0 --out "$R/fig4_$bench.png" >&2 || echo "fig4_$bench not drawn" >&2
     floaff-zoo montage --runs "${cols[@]}" --cases PnPCounterToCab_front_0 PnPCounterToCab_side_0 \

@@ -13,11 +13,10 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 #: names of the notes the project was started from, which do not ship with it, and paths outside the repository
 OUTSIDE = re.compile(
-    r"\b(?:REFERENCE|SIMULATOR|PERFORMANCE|CONVENTIONS)(?:\.md|\s+§)|\.\./shared\b|shared/(?:docs|paper)/"
+    r"\b(?:REFERENCE|SIMULATOR|PERFORMANCE|CONVENTIONS|COMMON)(?:\.md|\s+§)|\.\./shared\b|shared/(?:docs|paper)/"
 )
-#: files still being rewritten elsewhere when this test was written; each must still hold a stale pointer (the
-#: test says so once it is fixed, so the entry can go) - point them at docs/background.md
-PENDING: set[str] = set()  # files allowed to keep a stale pointer while being fixed
+#: files allowed to keep a stale pointer while being fixed (the test says so once one is fixed)
+PENDING: set[str] = set()
 TEXT_SUFFIXES = {".py", ".md", ".yaml", ".yml", ".toml", ".json", ".sh", ".txt", ".cfg", ".ini", ""}
 
 

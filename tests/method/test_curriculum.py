@@ -191,3 +191,41 @@ def test_ablation_and_sweep_files_override_cfar(override, root, monkeypatch, cap
 def test_sweep_covers_the_paper_radii(root):
     radii = sorted(float(p.stem[1:]) for p in (root / "configs/experiments/sweep_crop").glob("r*.yaml"))
     assert radii == pytest.approx([1.10, 1.15, 1.20, 1.25, 1.30, 1.35, 1.40])
+
+
+def test_prior_residual_through_pfal_keeps_stage1_prior(tmp_path, root, monkeypatch):
+    """The recipe's prior residual: stage 1 fills its task's grid, stage 2 adds its own and keeps stage 1's."""
+    monkeypatch.chdir(root)
+    extra = tmp_path / "residual.yaml"
+    extra.write_text("model:\n  init_args:\n    prior_residual: true\n")
+    old = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        s1, s2 = run_curriculum(EXP, root=tmp_path / "run", sets=SETS, extra_configs=[str(extra)])
+    finally:
+        torch.set_num_threads(old)
+    m1 = CFARModule.load_from_checkpoint(s1["checkpoint"], weights_only=True)
+    m2 = CFARModule.load_from_checkpoint(s2["checkpoint"], weights_only=True)
+    assert m1.prior.seen_tasks() == ["PnPCounterToCab"]
+    assert sorted(m2.prior.seen_tasks()) == ["CloseDrawer", "PnPCounterToCab"]
+    pnp = m1.prior.tasks.index("PnPCounterToCab")
+    assert torch.equal(m1.prior.sums[pnp], m2.prior.sums[pnp])  # stage 2 did not refill stage 1's task
+    # an untrained residual predicts the prior itself
+    fresh = CFARModule(
+        **yaml.safe_load((root / "tests/configs/cfar_tiny.yaml").read_text())["model"]["init_args"],
+        prior_residual=True,
+        eval_yaw_source="gt",
+    ).eval()
+    fresh.prior.load_state_dict(m2.prior.state_dict())
+    from floaff_zoo.contract import collate_samples
+    from floaff_zoo.data.synthetic import make_synthetic_sample
+    from floaff_zoo.nn.cfar import canonical_transform
+
+    b = collate_samples([make_synthetic_sample(i, 256, 8, "CloseDrawer") for i in range(2)])
+    with torch.no_grad():
+        scores = fresh(b)
+        canon = canonical_transform(
+            b["scene_xyz"], b["scene_mask"], b["floor_xyz"], b["target_xyz"], b["target_yaw"], None
+        )
+        prior = fresh.prior.read(fresh.prior.task_index(["CloseDrawer"] * 2), canon.floor_xyz[..., :2])
+    assert torch.allclose(scores, prior.clamp(1e-3, 1 - 1e-3), atol=1e-5)

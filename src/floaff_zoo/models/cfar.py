@@ -55,14 +55,13 @@ from floaff_zoo.contract import TASKS, Batch
 from floaff_zoo.hub.io import resolve_state_dict
 from floaff_zoo.hub.registry import sha256_file
 from floaff_zoo.losses import build_loss
-from floaff_zoo.models.base import FloAffModule, FloAffTrainConfig
+from floaff_zoo.models.base import FloAffModule, FloAffTrainConfig, sample_names
 from floaff_zoo.models.yaw import (
     YawSource,
     build_axisnet,
     estimate_yaw,
     keep_configured_axisnet,
     load_axisnet,
-    sample_names,
 )
 from floaff_zoo.nn.axisnet import AxisNet
 from floaff_zoo.nn.cfar import CanonicalCloud, CFARNet, canonical_transform, robot_from_canonical, sample_levels

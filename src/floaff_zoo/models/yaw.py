@@ -29,6 +29,7 @@ from torch import Tensor
 from floaff_zoo.contract import Batch
 from floaff_zoo.hub.io import resolve_state_dict
 from floaff_zoo.hub.registry import sha256_file
+from floaff_zoo.models.base import sample_names
 from floaff_zoo.nn.axisnet import AxisNet, axis_inputs, yaw_from_vector
 from floaff_zoo.nn.yaw import heading_yaw, manhattan_yaw
 
@@ -39,7 +40,6 @@ __all__ = [
     "estimate_yaw",
     "keep_configured_axisnet",
     "load_axisnet",
-    "sample_names",
 ]
 
 YawSource = Literal["gt", "axisnet", "axisnet_manhattan", "manhattan", "heading", "none"]
@@ -47,11 +47,6 @@ YawSource = Literal["gt", "axisnet", "axisnet_manhattan", "manhattan", "heading"
 PRIVILEGED_YAW = frozenset({"gt"})
 #: sources that need an AxisNet
 AXISNET_YAW = frozenset({"axisnet", "axisnet_manhattan"})
-
-
-def sample_names(batch: Batch) -> list[str]:
-    """Sample ids of a batch, for error messages."""
-    return [str(m.get("sample_id", i)) for i, m in enumerate(batch.get("meta") or [])]
 
 
 def build_axisnet(arch: dict[str, Any], owner: str) -> tuple[AxisNet, float]:

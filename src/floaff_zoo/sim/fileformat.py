@@ -314,7 +314,7 @@ def iter_scenes(
 
 
 def read_sample(scene: dict[str, Any], view: dict[str, Any], root: str | Path | None = None) -> dict[str, Any]:
-    """Build one sample-contract dict (COMMON.md) from a scene record (read_scene) and one of its view entries.
+    """Build one sample-contract dict (README, "The sample contract") from a scene record and one of its views.
 
     Masks are all True (no padding); meta carries dataset/task/view/scene ids, the file's format_version and a 'sim'
     dict to rebuild the scene. Extra key ``floor_known`` [M] bool: the label comes from a rollout or a filter (format

@@ -43,7 +43,7 @@ __all__ = [
 ]
 
 EGO_CAMERA = "floaff_ego"
-# [arm reach m, base height m] of the PandaOmron-like robot, the MoMa-Kitchen style robot descriptor (COMMON.md)
+# [arm reach m, base height m] of the PandaOmron-like robot: MoMa-Kitchen's robot descriptor (docs/background.md §1.1)
 ROBOT_DESCRIPTOR = np.array([0.85, 1.03], dtype=np.float32)
 
 ViewKind = Literal["front", "side"]
