@@ -460,14 +460,21 @@ class FloAffModule(ZooModule):
 
     def predict_step(self, batch: Batch, batch_idx: int, dataloader_idx: int = 0) -> dict[str, Any]:
         self.check_inputs(batch)
-        scores = self(batch)
-        return {
+        return self.prediction(batch, self(batch))
+
+    @staticmethod
+    def prediction(batch: Batch, scores: Tensor, **extra: Tensor) -> dict[str, Any]:
+        """A ``predict_step`` record (CPU): scores [B, M], the floor points and target they belong to, meta, and
+        any ``extra`` tensors (e.g. the yaw used)."""
+        out = {
             "scores": scores.detach().cpu(),
             "floor_xyz": batch["floor_xyz"].cpu(),
             "floor_mask": batch["floor_mask"].cpu(),
             "target_xyz": batch["target_xyz"].cpu(),
             "meta": batch["meta"],
         }
+        out.update({k: v.detach().cpu() for k, v in extra.items()})
+        return out
 
 
 def load_matching_state(module: torch.nn.Module, state: dict[str, Tensor], source: str) -> list[str]:

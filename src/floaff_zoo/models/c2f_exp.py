@@ -110,11 +110,4 @@ class C2FExpModule(FloAffModule):
         fxyz, fmask = floor_inputs(batch)
         states = self._searches(batch)
         scores = torch.stack([self.net.score_floor(s, fxyz[i].cpu(), fmask[i].cpu()) for i, s in enumerate(states)])
-        return {
-            "scores": scores,
-            "floor_xyz": batch["floor_xyz"].cpu(),
-            "floor_mask": batch["floor_mask"].cpu(),
-            "target_xyz": batch["target_xyz"].cpu(),
-            "meta": batch["meta"],
-            "poses": [self.net.final_pose(s) for s in states],
-        }
+        return {**self.prediction(batch, scores), "poses": [self.net.final_pose(s) for s in states]}

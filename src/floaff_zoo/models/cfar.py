@@ -62,6 +62,7 @@ from floaff_zoo.models.yaw import (
     estimate_yaw,
     keep_configured_axisnet,
     load_axisnet,
+    yaw_or_nan,
 )
 from floaff_zoo.nn.axisnet import AxisNet
 from floaff_zoo.nn.cfar import CanonicalCloud, CFARNet, canonical_transform, robot_from_canonical, sample_levels
@@ -428,14 +429,10 @@ class CFARModule(FloAffModule):
         """Scores plus the canonical -> robot transform [B, 4, 4], the yaw used [B] and the crop radius used [B]."""
         self.check_inputs(batch)
         scores, _, canon, yaw = self._run(batch)
-        b = scores.shape[0]
-        return {
-            "scores": scores.detach().cpu(),
-            "floor_xyz": batch["floor_xyz"].cpu(),
-            "floor_mask": batch["floor_mask"].cpu(),
-            "target_xyz": batch["target_xyz"].cpu(),
-            "yaw": (yaw.detach() if yaw is not None else torch.full((b,), float("nan"))).cpu(),
-            "robot_from_canonical": robot_from_canonical(canon.centre, canon.angle).detach().cpu(),
-            "crop_radius": canon.radius.detach().cpu(),
-            "meta": batch["meta"],
-        }
+        return self.prediction(
+            batch,
+            scores,
+            yaw=yaw_or_nan(yaw, scores),
+            robot_from_canonical=robot_from_canonical(canon.centre, canon.angle),
+            crop_radius=canon.radius,
+        )

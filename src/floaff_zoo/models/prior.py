@@ -17,7 +17,6 @@ from __future__ import annotations
 
 from typing import Any
 
-import torch
 from lightning.pytorch.utilities.exceptions import MisconfigurationException
 from torch import Tensor
 
@@ -30,6 +29,7 @@ from floaff_zoo.models.yaw import (
     estimate_yaw,
     keep_configured_axisnet,
     load_axisnet,
+    yaw_or_nan,
 )
 from floaff_zoo.nn.cfar import alignment_angle, rotate_z
 from floaff_zoo.nn.prior import CanonicalLabelGrid
@@ -169,12 +169,4 @@ class CanonicalPriorModule(FloAffModule):
     def predict_step(self, batch: Batch, batch_idx: int, dataloader_idx: int = 0) -> dict[str, Any]:
         self.check_inputs(batch)
         scores, yaw = self.scores_and_yaw(batch)
-        b = scores.shape[0]
-        return {
-            "scores": scores.detach().cpu(),
-            "floor_xyz": batch["floor_xyz"].cpu(),
-            "floor_mask": batch["floor_mask"].cpu(),
-            "target_xyz": batch["target_xyz"].cpu(),
-            "yaw": (yaw.detach() if yaw is not None else torch.full((b,), float("nan"))).cpu(),
-            "meta": batch["meta"],
-        }
+        return self.prediction(batch, scores, yaw=yaw_or_nan(yaw, scores))

@@ -23,6 +23,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Literal
 
+import torch
 from lightning.pytorch.utilities.exceptions import MisconfigurationException
 from torch import Tensor
 
@@ -38,6 +39,7 @@ __all__ = [
     "YawSource",
     "build_axisnet",
     "estimate_yaw",
+    "yaw_or_nan",
     "keep_configured_axisnet",
     "load_axisnet",
 ]
@@ -86,6 +88,13 @@ def load_axisnet(name: str, owner: str) -> tuple[AxisNet, float, dict[str, Any]]
     return net, radius, arch
 
 
+def yaw_or_nan(yaw: Tensor | None, scores: Tensor) -> Tensor:
+    """The yaw used [B] for a predict record; NaN for every sample when there was no rotation (source ``none``)."""
+    if yaw is None:
+        return torch.full((scores.shape[0],), float("nan"), device=scores.device)
+    return yaw
+
+
 def keep_configured_axisnet(
     checkpoint: dict[str, Any], axisnet: AxisNet | None, arch: dict[str, Any] | None, prefix: str = "axisnet."
 ) -> None:
@@ -111,8 +120,6 @@ def keep_configured_axisnet(
 
 def axisnet_yaw(batch: Batch, axisnet: AxisNet, radius: float) -> Tensor:
     """AxisNet's front-yaw estimate [B] (rad, robot frame), no grad."""
-    import torch
-
     with torch.no_grad():
         x, mask = axis_inputs(
             batch["scene_xyz"],
