@@ -207,13 +207,10 @@ def test_cfar_pointwise_mode_is_query_independent(record_property):
     assert _record(record_property, "CFARModule pointwise", scores) <= TOL and relative(scores) <= REL_TOL
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="NavAff has no query-independent mode: its floor branch (PointNet++ MSG over "
-    "the queries + cross-attention + FP back onto them) is the paper's set encoder",
-)
-def test_navaff_query_independent_mode():
-    assert _has_arg("NavAffModule", "floor_encoder")
+def test_navaff_pointwise_mode_is_query_independent(record_property):
+    model = build("NavAffModule", floor_encoder="pointwise")
+    scores = near_scores(model)
+    assert _record(record_property, "NavAffModule pointwise", scores) <= TOL and relative(scores) <= REL_TOL
 
 
 @pytest.mark.parametrize("name", NORMALISED)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Literal
+
 from torch import Tensor
 
 from floaff_zoo.contract import Batch
@@ -37,6 +39,8 @@ class NavAffModule(FloAffModule):
         radii, nsamples: per level and scale (official by default).
         num_heads, dropout: fusion attention (official 8, 0.1).
         normalize_global: centre and scale the scene cloud like the official loader.
+        floor_encoder: ``set`` (official) or ``pointwise`` (query-independent: the floor encoder runs over the
+            cloud's observed ground points, each query interpolates from them; a departure, docs/method.md).
         compile, bf16: opt-in speed modes (see :class:`~floaff_zoo.models.pointnet2.PointNet2Module`).
         (the rest: see :class:`FloAffModule`; defaults follow the official recipe)
     """
@@ -49,6 +53,7 @@ class NavAffModule(FloAffModule):
         num_heads: int = 8,
         dropout: float = 0.1,
         normalize_global: bool = True,
+        floor_encoder: Literal["set", "pointwise"] = "set",
         compile: bool = False,
         bf16: bool = False,
         feat_channels: int = 1,
@@ -69,6 +74,7 @@ class NavAffModule(FloAffModule):
             num_heads=h["num_heads"],
             dropout=h["dropout"],
             normalize_global=h["normalize_global"],
+            floor_encoder=h["floor_encoder"],
         )
         maybe_compile(self.net, h["compile"])
 

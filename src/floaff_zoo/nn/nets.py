@@ -236,6 +236,10 @@ NAVAFF_MLPS = [
 ]
 
 
+#: m: NavAff's pointwise floor encoder runs over the cloud's points below this height (MoMa-Kitchen's floor points)
+GROUND_Z = 0.02
+
+
 class NavAffNet(nn.Module):
     """NavAff (MoMa-Kitchen): two PointNet++ MSG encoders, robot token, cross-attention, FP decoder.
 
@@ -249,6 +253,10 @@ class NavAffNet(nn.Module):
         npoints: centres of sa1/sa2/sa3 (official 512, 128, 64 = N_p); radii/nsamples: per level
         (official values by default); feat_channels: scene features used (1 = flag);
         robot_dim: robot descriptor size (official 2); num_heads: 8; dropout: 0.1.
+        floor_encoder: ``set`` (official: the floor encoder runs over the queried floor points, so a
+            point's score depends on the other points asked) or ``pointwise`` (it runs over the observed
+            ground points of the scene cloud, z < ``GROUND_Z``, and the last FP interpolates from them to
+            each query with the query's own xyz as skip: scores do not depend on the other queries).
     """
 
     def __init__(
@@ -261,10 +269,14 @@ class NavAffNet(nn.Module):
         num_heads: int = 8,
         dropout: float = 0.1,
         normalize_global: bool = True,
+        floor_encoder: str = "set",
     ) -> None:
         super().__init__()
         if len(npoints) != 3:
             raise ValueError(f"NavAff has 3 SA levels; npoints={list(npoints)}")
+        if floor_encoder not in ("set", "pointwise"):
+            raise ValueError(f"NavAff: floor_encoder must be 'set' or 'pointwise', got {floor_encoder!r}")
+        self.floor_mode = floor_encoder
         self.normalize_global = normalize_global
         self.encoder_global = PointNet2Encoder(
             feat_channels, npoints, radii, nsamples, NAVAFF_MLPS, xyz_first=False, xyz_as_feat=True
@@ -290,10 +302,22 @@ class NavAffNet(nn.Module):
         m = c.norm(dim=-1).amax(dim=1).clamp_min(1e-6)
         return c / m[:, None, None]
 
+    def floor_anchors(
+        self, scene_xyz: Tensor, scene_mask: Tensor, floor_xyz: Tensor, floor_mask: Tensor
+    ) -> tuple[Tensor, Tensor]:
+        """The points the floor encoder runs over: the queries (``set``) or, ``pointwise``, the cloud's ground
+        points flattened onto z = 0 (all its points when a cloud sees no ground). -> (xyz [B, K, 3], mask [B, K])."""
+        if self.floor_mode == "set":
+            return floor_xyz, floor_mask
+        ground = scene_mask & (scene_xyz[..., 2] < GROUND_Z)
+        ground = torch.where(ground.any(dim=1, keepdim=True), ground, scene_mask)
+        return scene_xyz * torch.tensor([1.0, 1.0, 0.0], device=scene_xyz.device, dtype=scene_xyz.dtype), ground
+
     def sample(self, scene_xyz: Tensor, scene_mask: Tensor, floor_xyz: Tensor, floor_mask: Tensor) -> tuple[list, list]:
+        axyz, amask = self.floor_anchors(scene_xyz, scene_mask, floor_xyz, floor_mask)
         return (
             self.encoder_global.sample(self._normalize(scene_xyz, scene_mask), scene_mask),
-            self.encoder_floor.sample(floor_xyz, floor_mask),
+            self.encoder_floor.sample(axyz, amask),
         )
 
     def forward(
@@ -310,13 +334,14 @@ class NavAffNet(nn.Module):
         gxyz = self._normalize(scene_xyz, scene_mask)
         fps_g, fps_f = fps if fps is not None else (None, None)
         g = self.encoder_global(gxyz, scene_feat, scene_mask, fps_g)
-        f = self.encoder_floor(floor_xyz, None, floor_mask, fps_f)
+        axyz, amask = self.floor_anchors(scene_xyz, scene_mask, floor_xyz, floor_mask)
+        f = self.encoder_floor(axyz, None, amask, fps_f)
         token = self.mlp_robot(robot)[:, None, :]
         kv = torch.cat([token.to(g[3][1].dtype), g[3][1]], dim=1)  # [B, 1 + N_p, 512]
         fused = self.fusion(f[3][1], kv)  # replaces the floor sa3 features (no residual)
         up = self.fp3(f[2][0], f[3][0], f[2][1], fused)
         up = self.fp2(f[1][0], f[2][0], f[1][1], up)
-        up = self.fp1(f[0][0], f[1][0], torch.cat([floor_xyz, floor_xyz], dim=-1), up)
+        up = self.fp1(floor_xyz, f[1][0], torch.cat([floor_xyz, floor_xyz], dim=-1), up)  # f[0][0] = anchors
         h = self.head_fc1(up)
         h = F.relu(self.head_bn(h.reshape(-1, 64)).reshape(h.shape))
         return torch.sigmoid(self.head_fc2(h).squeeze(-1).float())
