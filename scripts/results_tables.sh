@@ -23,9 +23,11 @@ table --runs "${MAIN[@]}" --preset sr_tasks
 
 ABL=("$R"/layouts/cfar_pfal_s0)
 for d in "$R"/layouts/no_{crop,align,sdl,fd}; do [ -f "$d/report.json" ] && ABL+=("$d"); done
-echo "### Ablations on Layouts (analogue of Tables 4-5; seed 0 each)"; echo
-table --runs "${ABL[@]}" --preset ablation
-table --runs "${ABL[@]}" --preset sr_views --no-oracle
+if [ ${#ABL[@]} -gt 1 ]; then
+  echo "### Ablations on Layouts (analogue of Tables 4-5; seed 0 each)"; echo
+  table --runs "${ABL[@]}" --preset ablation
+  table --runs "${ABL[@]}" --preset sr_views --no-oracle
+fi
 
 SWEEP=("$R"/layouts/cfar_pfal_s0)
 for d in "$R"/layouts/sweep_r*; do [ -f "$d/report.json" ] && SWEEP+=("$d"); done
@@ -35,16 +37,21 @@ echo "### The zoo recipe's switches on Layouts (seed 0 each)"; echo
 table --runs "${REC[@]}" --preset ablation
 table --runs "${REC[@]}" --preset sr_views --no-oracle
 
-echo "### Crop-radius sweep on Layouts (seed 0 each)"; echo
-floaff-zoo table --format md --runs "${SWEEP[@]}" --preset sweep; echo
+if [ ${#SWEEP[@]} -gt 1 ]; then
+  echo "### Crop-radius sweep on Layouts (seed 0 each)"; echo
+  floaff-zoo table --format md --runs "${SWEEP[@]}" --preset sweep; echo
+fi
 
 DIAG=()
-for d in "$R"/layouts/{cfar_pfal_s?,gtyaw_s?,axis100_s?,stage1_s?}; do [ -f "$d/report.json" ] && DIAG+=("$d"); done
-echo "### Diagnostics: where the target yaw comes from, and PFAL stage 1 alone (Layouts, 3 seeds)"; echo
-[ -f "$R/layouts/axisnet_yaw_error.md" ] && { echo "AxisNet test angle error per task:"; echo; cat "$R/layouts/axisnet_yaw_error.md"; echo; }
-table --runs "${DIAG[@]}" --preset map
-table --runs "${DIAG[@]}" --preset sr_views --no-oracle
-table --runs "${DIAG[@]}" --preset sr_tasks --no-oracle
+for d in "$R"/layouts/{gtyaw_s?,axis100_s?,stage1_s?}; do [ -f "$d/report.json" ] && DIAG+=("$d"); done
+if [ ${#DIAG[@]} -gt 0 ]; then
+  for d in "$R"/layouts/cfar_pfal_s?; do [ -f "$d/report.json" ] && DIAG+=("$d"); done
+  echo "### Diagnostics: where the target yaw comes from, and PFAL stage 1 alone (Layouts, 3 seeds)"; echo
+  [ -f "$R/layouts/axisnet_yaw_error.md" ] && { echo "AxisNet test angle error per task:"; echo; cat "$R/layouts/axisnet_yaw_error.md"; echo; }
+  table --runs "${DIAG[@]}" --preset map
+  table --runs "${DIAG[@]}" --preset sr_views --no-oracle
+  table --runs "${DIAG[@]}" --preset sr_tasks --no-oracle
+fi
 
 if [ -d "${RUNS:-runs/small_v2}" ]; then  # pictures like the paper's Figures 4 and 6 (need the runs' figures on disk)
   for bench in layouts styles; do
