@@ -58,10 +58,10 @@ from floaff_zoo.losses import build_loss
 from floaff_zoo.models.base import FloAffModule, FloAffTrainConfig, sample_names
 from floaff_zoo.models.yaw import (
     YawSource,
-    build_axisnet,
+    check_yaw_sources,
+    configured_axisnet,
     estimate_yaw,
     keep_configured_axisnet,
-    load_axisnet,
     yaw_or_nan,
 )
 from floaff_zoo.nn.axisnet import AxisNet
@@ -190,21 +190,11 @@ class CFARModule(FloAffModule):
             # the residual starts at zero: an untrained model predicts the prior
             nn.init.zeros_(self.net.out.weight)
             nn.init.zeros_(self.net.out.bias)
-        self.axisnet: AxisNet | None = None
-        self.axis_radius = 0.0
-        arch = h["axisnet_arch"]
-        if arch and (not h["axisnet"] or str(arch.get("source")) == str(h["axisnet"])):
-            self._build_axisnet(arch)  # weights come with the checkpoint; the file is not needed
-        elif h["axisnet"]:
-            # no record yet, or `axisnet` now names another AxisNet than the recorded one (swapping the
-            # orientation estimator of a trained model): load it; on_load_checkpoint keeps its weights
-            self._load_axisnet(h["axisnet"])
-        for name, src in (("yaw_source", self.train_yaw_source), ("eval_yaw_source", self.eval_yaw_source)):
-            if src == "axisnet" and self.axisnet is None:
-                raise MisconfigurationException(
-                    f"CFARModule: {name} resolves to 'axisnet' but no AxisNet is given; set model.init_args.axisnet "
-                    "to an AxisNetModule checkpoint or hub name"
-                )
+        self.axisnet: AxisNet | None
+        self.axisnet, self.axis_radius, arch = configured_axisnet(h["axisnet"], h["axisnet_arch"], type(self).__name__)
+        self.hparams["axisnet_arch"] = arch  # saved with the checkpoint: rebuilds without the file
+        sources = {"yaw_source": self.train_yaw_source, "eval_yaw_source": self.eval_yaw_source}
+        check_yaw_sources(sources, self.axisnet, type(self).__name__)
         self.teacher: nn.Module | None = None
         self.teacher_info: dict[str, Any] | None = None
 
@@ -231,13 +221,6 @@ class CFARModule(FloAffModule):
         return "none" if h["yaw_source"] == "none" else "manhattan"
 
     # ----------------------------------------------------------------- AxisNet
-    def _build_axisnet(self, arch: dict[str, Any]) -> None:
-        self.axisnet, self.axis_radius = build_axisnet(arch, type(self).__name__)
-
-    def _load_axisnet(self, name: str) -> None:
-        self.axisnet, self.axis_radius, arch = load_axisnet(name, type(self).__name__)
-        self.hparams["axisnet_arch"] = arch  # saved with the checkpoint: rebuilds without the file
-
     def estimate_yaw(self, batch: Batch, source: str = "axisnet") -> Tensor | None:
         """The target's front yaw [B] (rad, robot frame) from ``source`` (``floaff_zoo.models.yaw``)."""
         return estimate_yaw(

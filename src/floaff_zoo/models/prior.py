@@ -23,12 +23,11 @@ from torch import Tensor
 from floaff_zoo.contract import TASKS, Batch
 from floaff_zoo.models.base import FloAffModule, FloAffTrainConfig
 from floaff_zoo.models.yaw import (
-    AXISNET_YAW,
     YawSource,
-    build_axisnet,
+    check_yaw_sources,
+    configured_axisnet,
     estimate_yaw,
     keep_configured_axisnet,
-    load_axisnet,
     yaw_or_nan,
 )
 from floaff_zoo.nn.cfar import alignment_angle, rotate_z
@@ -78,19 +77,10 @@ class CanonicalPriorModule(FloAffModule):
         if unknown:
             raise MisconfigurationException(f"CanonicalPriorModule: unknown task(s) {unknown}; known: {list(TASKS)}")
         self.net = CanonicalLabelGrid(tasks, h["cell"], h["extent"], h["smooth_sigma_cells"], h["fill"])
-        self.axisnet = None
-        self.axis_radius = 0.0
-        if h["axisnet_arch"] and (not h["axisnet"] or str(h["axisnet_arch"].get("source")) == str(h["axisnet"])):
-            self.axisnet, self.axis_radius = build_axisnet(h["axisnet_arch"], type(self).__name__)
-        elif h["axisnet"]:
-            self.axisnet, self.axis_radius, arch = load_axisnet(h["axisnet"], type(self).__name__)
-            self.hparams["axisnet_arch"] = arch
-        for name in ("yaw_source", "eval_yaw_source"):
-            if getattr(self, name) in AXISNET_YAW and self.axisnet is None:
-                raise MisconfigurationException(
-                    f"CanonicalPriorModule: {name} resolves to {getattr(self, name)!r} but no AxisNet is given; "
-                    "set model.init_args.axisnet to an AxisNetModule checkpoint or hub name"
-                )
+        self.axisnet, self.axis_radius, arch = configured_axisnet(h["axisnet"], h["axisnet_arch"], type(self).__name__)
+        self.hparams["axisnet_arch"] = arch  # saved with the checkpoint: rebuilds without the file
+        sources = {"yaw_source": self.yaw_source, "eval_yaw_source": self.eval_yaw_source}
+        check_yaw_sources(sources, self.axisnet, type(self).__name__)
 
     @property
     def yaw_source(self) -> str:

@@ -38,6 +38,8 @@ __all__ = [
     "PRIVILEGED_YAW",
     "YawSource",
     "build_axisnet",
+    "check_yaw_sources",
+    "configured_axisnet",
     "estimate_yaw",
     "yaw_or_nan",
     "keep_configured_axisnet",
@@ -93,6 +95,33 @@ def yaw_or_nan(yaw: Tensor | None, scores: Tensor) -> Tensor:
     if yaw is None:
         return torch.full((scores.shape[0],), float("nan"), device=scores.device)
     return yaw
+
+
+def configured_axisnet(
+    axisnet: str | None, recorded: dict[str, Any] | None, owner: str
+) -> tuple[AxisNet | None, float, dict[str, Any] | None]:
+    """The frozen AxisNet a model is configured with. Returns (net or None, crop radius, arch record).
+
+    A recorded ``axisnet_arch`` rebuilds the net (its weights come with the model's checkpoint, the file is not
+    needed) unless ``axisnet`` names another AxisNet than the recorded one: that one is loaded (swapping the
+    orientation estimator of a trained model; :func:`keep_configured_axisnet` then keeps its weights).
+    """
+    if recorded and (not axisnet or str(recorded.get("source")) == str(axisnet)):
+        net, radius = build_axisnet(recorded, owner)
+        return net, radius, recorded
+    if axisnet:
+        return load_axisnet(axisnet, owner)
+    return None, 0.0, None
+
+
+def check_yaw_sources(sources: dict[str, str], axisnet: AxisNet | None, owner: str) -> None:
+    """Fail at construction when a configured yaw source ({argument name: source}) needs a missing AxisNet."""
+    for name, src in sources.items():
+        if src in AXISNET_YAW and axisnet is None:
+            raise MisconfigurationException(
+                f"{owner}: {name} resolves to {src!r} but no AxisNet is given; set model.init_args.axisnet to an "
+                "AxisNetModule checkpoint or hub name"
+            )
 
 
 def keep_configured_axisnet(
