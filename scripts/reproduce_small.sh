@@ -5,6 +5,7 @@
 #   scripts/reproduce_small.sh cfar_pfal_s0 pointnet2_s0   # only these
 #   PAR=1 scripts/reproduce_small.sh ...       # one at a time (each job then may use both cores)
 #   RETEST=1 scripts/reproduce_small.sh ...    # only test the finished runs again (e.g. after adding test scenes)
+#   EPOCHS=6 scripts/reproduce_small.sh navaff # baselines for another number of epochs (default 20)
 #
 # Needs the data:
 #   floaff-zoo generate --preset small --benchmarks layouts styles --out data/floaff_small --workers 2 --n-test 4
@@ -22,8 +23,8 @@ cd "$(dirname "$SELF")/.."
 if ! command -v floaff-zoo > /dev/null && [ -x .venv/bin/floaff-zoo ]; then PATH=$PWD/.venv/bin:$PATH; fi
 
 FZ=${FZ:-floaff-zoo}
-RUNS=${RUNS:-runs/small}
-OUT=${OUT:-docs/results/small}
+RUNS=${RUNS:-runs/small_v2}
+OUT=${OUT:-docs/results/small_v2}
 PAR=${PAR:-2}
 TASKS='["PnPCounterToCab","OpenSingleDoor","CloseDrawer","CloseDoubleDoor"]'
 EVAL=configs/trainer/eval_sr.yaml
@@ -101,7 +102,7 @@ baseline() {
   fi
   if [ "$RETEST" = 0 ]; then
     "$FZ" fit --config "configs/data/floaff_small_$bench.yaml" --config "$model" \
-      --seed_everything "$seed" --trainer.default_root_dir "$root" --trainer.max_epochs 20 "${last[@]}"
+      --seed_everything "$seed" --trainer.default_root_dir "$root" --trainer.max_epochs "${EPOCHS:-20}" "${last[@]}"
   fi
   test_run "$(latest_run "$root")" "$label" "$bench" "$job"
 }
