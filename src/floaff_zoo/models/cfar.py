@@ -7,10 +7,12 @@ input floor order (so scores need no mapping back to the robot frame; ``predict`
 
 Yaw of the target (theta_o):
 
-* ``yaw_source`` (training): ``gt`` = ``batch["target_yaw"]`` (simulator / annotation), ``axisnet`` =
-  the frozen AxisNet, ``none`` = no rotation (the w/o-Align ablation, same as ``use_align: false``).
-* ``eval_yaw_source`` (validation, test, predict): default ``axisnet`` when an AxisNet is configured,
-  otherwise the training source (``gt``, or ``none`` without alignment). The paper trains with simulator
+* ``yaw_source`` (training) and ``eval_yaw_source`` (validation, test, predict) take any source of
+  ``floaff_zoo.models.yaw``: ``gt`` = ``batch["target_yaw"]`` (simulator / annotation; privileged at test
+  time), ``axisnet``, ``axisnet_manhattan`` (AxisNet snapped onto the kitchen's axes), ``manhattan``,
+  ``heading``, ``none`` = no rotation (the w/o-Align ablation, same as ``use_align: false``).
+* ``eval_yaw_source`` defaults to ``axisnet`` when an AxisNet is configured, otherwise ``manhattan``
+  (``none`` without alignment): never the simulator's yaw unless asked for. The paper trains with simulator
   yaw and estimates it with AxisNet at inference; validation then scores the deployed pipeline, so the
   best checkpoint is chosen with AxisNet in the loop.
 * ``yaw_jitter_deg`` (training only): the paper's "random yaw perturbations within +-5 deg". A rotation
@@ -25,6 +27,11 @@ sha256 are recorded in the ``axisnet_arch`` hparam, which is filled automaticall
 checkpoint rebuilds the AxisNet without the original file. Training uses the simulator's yaw, so the
 AxisNet of a trained model can be swapped: when ``axisnet`` names another AxisNet than the recorded
 ``axisnet_arch['source']``, that one is loaded and its weights replace the checkpoint's ``axisnet.*``.
+
+Departures from the paper (switches, off by default; docs/method.md): ``prior_residual`` predicts a residual
+logit over the canonical prior (a per-task label average on a canonical grid, filled from the training data at
+the start of ``fit`` for tasks it has not seen, kept in the checkpoint); ``floor_encoder: pointwise`` encodes
+each floor point alone, so scores do not depend on the other queries.
 
 PFAL teacher (``teacher``: checkpoint path or hub name of the previous stage's best): loaded lazily in
 ``setup("fit")`` (so test/predict/``load_from_checkpoint`` never need the file), frozen, in eval mode,
