@@ -40,7 +40,7 @@ JOBS=(
   r1.10 r1.30 r1.40 r1.15 r1.25 r1.35
   axis100_s0 axis100_s1 axis100_s2
   recipe_no_prior recipe_no_snap recipe_pointwise recipe_no_fd
-  styles_recipe styles_prior
+  styles_recipe styles_prior styles_recipe_s1 styles_recipe_s2
 )
 RECIPE=configs/experiments/recipe/cfar_recipe.yaml
 
@@ -188,6 +188,8 @@ run_job() {
     prior) prior prior layouts "Canonical prior (no network)" ;;
     prior_gtyaw) prior prior_gtyaw layouts "Canonical prior, simulator yaw" --model.init_args.eval_yaw_source gt ;;
     styles_recipe) curriculum recipe_s0 styles 0 "CFAR+PFAL, zoo recipe" --extra-config "$RECIPE" ;;
+    styles_recipe_s[0-9]) curriculum "recipe_s${job#styles_recipe_s}" styles "${job#styles_recipe_s}" "CFAR+PFAL, zoo recipe" \
+      --extra-config "$RECIPE" ;;
     styles_prior) prior prior styles "Canonical prior (no network)" ;;
     no_crop|no_align|no_sdl|no_fd)
       curriculum "$job" layouts 0 "w/o ${job#no_}" --extra-config "configs/experiments/ablations/$job.yaml" ;;
@@ -216,6 +218,7 @@ job_out() {  # the file a finished job has written, under $OUT
     axisnet_longer) echo layouts/axisnet_yaw_error.md ;;
     styles_c2f_exp) echo styles/c2f_exp/report.json ;;
     styles_prior) echo styles/prior/report.json ;;
+    styles_recipe_s*) echo "styles/recipe_s${1#styles_recipe_s}/report.json" ;;
     styles_*) echo "styles/${1#styles_}_s0/report.json" ;;
     r1.*) echo "layouts/sweep_$1/report.json" ;;
     *) echo "layouts/$1/report.json" ;;
