@@ -110,3 +110,13 @@ def test_prior_rejects_unknown_tasks_and_missing_axisnet():
         CanonicalPriorModule(tasks=["CloseDrawr"])
     with pytest.raises(MisconfigurationException, match="no AxisNet"):
         CanonicalPriorModule(eval_yaw_source="axisnet")
+
+
+def test_shipped_prior_rebuilds_its_axisnet_and_weights_alone_warns():
+    name = "canonical-prior.floaff-small-layouts.v1"
+    full = CanonicalPriorModule.from_pretrained(name)
+    assert full.axisnet is not None and full.eval_yaw_source == "axisnet_manhattan"
+    with pytest.warns(UserWarning, match=r"\['axisnet'\] are not used"):
+        bare = CanonicalPriorModule(weights=name)  # initialisation only: no AxisNet configured
+    assert bare.axisnet is None and bare.eval_yaw_source == "manhattan"
+    assert torch.equal(bare.net.sums, full.net.sums)

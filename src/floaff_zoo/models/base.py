@@ -498,5 +498,14 @@ def load_matching_state(module: torch.nn.Module, state: dict[str, Tensor], sourc
         raise ValueError(f"no parameter of {source} matches {type(module).__name__}; wrong checkpoint?")
     if skipped:
         warnings.warn(f"{source}: skipped {len(skipped)} layer(s) with other shapes: {skipped[:5]}", stacklevel=2)
+    unused = sorted({k.split(".")[0] for k in state if k not in own})
+    if unused:
+        # e.g. a CFAR/prior entry's ``axisnet.*`` when this model was built without an AxisNet: its yaw then
+        # comes from another source; from_pretrained rebuilds the whole model instead
+        warnings.warn(
+            f"{source}: weights of {unused} are not used (this {type(module).__name__} has no such part); "
+            "use from_pretrained, or configure the part, to load them",
+            stacklevel=2,
+        )
     module.load_state_dict(keep, strict=False)
     return skipped
