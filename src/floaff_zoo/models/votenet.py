@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import abc
+
 import torch
 from torch import Tensor
 
@@ -37,7 +39,7 @@ def vote_loss(votes: Tensor, gt_xyz: Tensor, gt_sel: Tensor) -> Tensor:
     return d.amin(dim=-1).mean()
 
 
-class SeedVotingModule(FloAffModule):
+class SeedVotingModule(FloAffModule, abc.ABC):
     """What the VoteNet- and H3DNet-style modules share: the net gives scores and vote geometry; the
     loss is the affordance loss + ``vote_weight`` x :meth:`vote_loss`. Subclasses build the net."""
 
@@ -49,9 +51,9 @@ class SeedVotingModule(FloAffModule):
     def forward(self, batch: Batch) -> Tensor:
         return self.forward_with_aux(batch)[0]
 
+    @abc.abstractmethod
     def vote_loss(self, batch: Batch, aux: dict[str, Tensor]) -> Tensor:
-        """Scalar vote loss from the vote geometry. Subclasses implement."""
-        raise NotImplementedError(f"{type(self).__name__} must implement vote_loss()")
+        """Scalar vote loss from the vote geometry (each subclass supervises its own votes)."""
 
     def model_step(self, batch: Batch) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
         scores, aux = self.forward_with_aux(batch)

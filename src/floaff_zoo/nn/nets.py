@@ -7,6 +7,7 @@ consumes them.
 
 from __future__ import annotations
 
+import abc
 import math
 from collections.abc import Sequence
 
@@ -400,7 +401,7 @@ def _proposal_distance(floor_xyz: Tensor, prop_xyz: Tensor) -> Tensor:
     return d[..., :1].clamp_min(0).sqrt()
 
 
-class SeedVotingNet(nn.Module):
+class SeedVotingNet(nn.Module, abc.ABC):
     """The trunk the VoteNet- and H3DNet-style nets share: seeds that vote, decoded to floor scores.
 
     PointNet++ SSG over the observation + robot MLP, FP back to the seed level (``backbone``); a
@@ -435,11 +436,11 @@ class SeedVotingNet(nn.Module):
     def sample(self, scene_xyz: Tensor, scene_mask: Tensor) -> list[Tensor | None]:
         return self.backbone.sample(scene_xyz, scene_mask)
 
+    @abc.abstractmethod
     def decode(
         self, seed_xyz: Tensor, seed_feat: Tensor, floor_xyz: Tensor, target_xyz: Tensor
     ) -> tuple[Tensor, dict[str, Tensor]]:
         """Seeds [B,S,3]/[B,S,C], floor [B,M,3], target [B,3] -> (floor logits [B,M], vote geometry)."""
-        raise NotImplementedError(f"{type(self).__name__} must implement decode()")
 
     def forward(
         self,
