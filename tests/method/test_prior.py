@@ -28,6 +28,18 @@ def test_grid_mean_per_task_and_cell():
         grid.task_index(["A", "C"])
 
 
+def test_grid_read_follows_new_labels_and_loaded_state():
+    grid = CanonicalLabelGrid(["A"], cell=0.1, extent=1.0, smooth_sigma_cells=1.0)
+    xy, task, mask = torch.zeros(1, 3, 2), torch.tensor([0]), torch.ones(1, 3, dtype=torch.bool)
+    assert torch.equal(grid.read(task, xy), torch.zeros(1, 3))  # empty: fill
+    grid.add(task, xy, torch.ones(1, 3), mask)
+    assert torch.allclose(grid.read(task, xy), torch.ones(1, 3))  # the cached map was refreshed
+    other = CanonicalLabelGrid(["A"], cell=0.1, extent=1.0, smooth_sigma_cells=1.0)
+    other.read(task, xy)
+    other.load_state_dict(grid.state_dict())
+    assert torch.allclose(other.read(task, xy), torch.ones(1, 3))
+
+
 def test_grid_smoothing_keeps_a_constant_map_constant():
     grid = CanonicalLabelGrid(["A"], cell=0.1, extent=1.0, smooth_sigma_cells=1.5)
     g = torch.stack(torch.meshgrid(torch.linspace(-0.95, 0.95, 20), torch.linspace(-0.95, 0.95, 20), indexing="ij"), -1)

@@ -361,7 +361,7 @@ class CFARModule(FloAffModule):
         ).to(self.prior.sums.device)
         source = self.train_yaw_source if self.train_yaw_source in ("gt", "none") else "gt"
         for batch in dm.train_dataloader():
-            batch = self._on_device(batch)
+            batch = self.transfer_batch_to_device(batch, self.device, 0)
             yaw = self.estimate_yaw(batch, source)
             canon = canonical_transform(
                 batch["scene_xyz"],
@@ -378,10 +378,6 @@ class CFARModule(FloAffModule):
         new = (self.prior.counts.sum((1, 2)) == 0) & (fresh.counts.sum((1, 2)) > 0)
         self.prior.sums[new] = fresh.sums[new]
         self.prior.counts[new] = fresh.counts[new]
-
-    def _on_device(self, batch: Batch) -> Batch:
-        dev = self.device
-        return {k: (v.to(dev) if isinstance(v, Tensor) else v) for k, v in batch.items()}
 
     def forward(self, batch: Batch) -> Tensor:
         """Scores [B, M] in [0, 1], one per floor point in the input order."""

@@ -46,6 +46,7 @@ class CanonicalLabelGrid(nn.Module):
         self.smooth_sigma_cells, self.fill = float(smooth_sigma_cells), float(fill)
         self.register_buffer("sums", torch.zeros(len(self.tasks), self.size, self.size, dtype=torch.float64))
         self.register_buffer("counts", torch.zeros(len(self.tasks), self.size, self.size, dtype=torch.float64))
+        self._maps: tuple[tuple, Tensor] | None = None  # (buffer versions, mean maps): read() runs every batch
 
     def task_index(self, names: Sequence[str]) -> Tensor:
         """Task names [B] -> grid indices [B] (long). Raises ValueError naming an unknown task."""
@@ -93,9 +94,16 @@ class CanonicalLabelGrid(nn.Module):
         k = torch.exp(-0.5 * (x / self.smooth_sigma_cells) ** 2)
         return k / k.sum()
 
+    def cached_mean_maps(self) -> Tensor:
+        """:meth:`mean_maps`, recomputed only when the sums or counts changed (add, load_state_dict, .to)."""
+        key = (self.sums._version, self.counts._version, self.sums.data_ptr(), self.sums.device)
+        if self._maps is None or self._maps[0] != key:
+            self._maps = (key, self.mean_maps())
+        return self._maps[1]
+
     def read(self, task: Tensor, xy: Tensor) -> Tensor:
         """Prior [B, M] at canonical xy [B, M, 2] for tasks [B] (``fill`` outside the grid)."""
-        maps = self.mean_maps().flatten(1)  # [T, S*S]
+        maps = self.cached_mean_maps().flatten(1)  # [T, S*S]
         flat, inside = self.cells(xy)
         vals = maps[task[:, None].expand_as(flat), flat]
         return torch.where(inside, vals, torch.full_like(vals, self.fill))
