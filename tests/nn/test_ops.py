@@ -199,7 +199,7 @@ def test_bad_shapes_and_nan():
 
 def test_ball_query_and_three_nn_kernels_match_the_torch_path(cloud, monkeypatch):
     """The C++ selection kernels (when built) give the torch path's neighbours, in any chunking."""
-    if ops._select_kernel(torch.device("cpu")) is None:
+    if ops.point_kernel(torch.device("cpu")) is None:
         pytest.skip("C++ point-op kernels unavailable (no compiler): only the torch path exists")
     xyz, mask = cloud
     centres = xyz[:, :30]
@@ -207,7 +207,29 @@ def test_ball_query_and_three_nn_kernels_match_the_torch_path(cloud, monkeypatch
     monkeypatch.setattr(ops, "_KERNEL_CHUNK_ELEMS", 7)  # many tiny chunks
     assert torch.equal(ops.ball_query(0.25, 6, xyz, centres, mask), fast)
     d_fast, i_fast = ops.three_nn(centres, xyz, mask)
-    monkeypatch.setattr(ops, "_select_kernel", lambda device: None)  # force the torch path
+    monkeypatch.setattr(ops, "point_kernel", lambda device: None)  # force the torch path
     assert torch.equal(ops.ball_query(0.25, 6, xyz, centres, mask), fast)
     d_ref, i_ref = ops.three_nn(centres, xyz, mask)
     assert torch.allclose(d_fast, d_ref)  # indices may swap only at exactly tied distances
+
+
+def test_cfar_tolerant_selections_kernel_matches_torch(monkeypatch):
+    """CFAR's tie-tolerant FPS and 3-NN picks are the same from the C++ kernel and the torch loop."""
+    from floaff_zoo.nn import cfar
+
+    if ops.point_kernel(torch.device("cpu")) is None:
+        pytest.skip("C++ point-op kernels unavailable (no compiler): only the torch path exists")
+    g = torch.Generator().manual_seed(1)
+    grid = torch.stack(torch.meshgrid(torch.arange(12.0), torch.arange(10.0), indexing="ij"), -1).reshape(-1, 2) * 0.05
+    xyz = torch.cat([grid, torch.zeros(len(grid), 1)], -1)[None].repeat(2, 1, 1)  # ties everywhere
+    xyz[1] += torch.rand(xyz.shape[1:], generator=g) * 1e-3
+    mask = torch.ones(2, xyz.shape[1], dtype=torch.bool)
+    mask[1, :7] = False
+    known = xyz[:, ::5].contiguous()
+    feat = torch.randn(2, known.shape[1], 4, generator=g)
+    fast = cfar.tolerant_fps(xyz, mask, 40)
+    fast_i = cfar.stable_three_interpolate(xyz, known, feat)
+    monkeypatch.setattr(cfar, "point_kernel", lambda device: None)
+    assert torch.equal(cfar.tolerant_fps(xyz, mask, 40), fast)
+    assert (fast[1] >= 7).all()
+    assert torch.allclose(cfar.stable_three_interpolate(xyz, known, feat), fast_i, atol=1e-6)

@@ -112,3 +112,61 @@ def test_group_all_respects_mask_and_grads_finite():
     levels[-1][1].sum().backward()
     assert torch.isfinite(feat.grad).all()
     assert (feat.grad[1, 10:] == 0).all()  # padding has no influence
+
+
+def _conv_grads(ref) -> list[torch.Tensor]:
+    """Reference-port SA weight gradients in our Linear layout, in our parameter order."""
+    out = []
+    for rsa in ref.sa:
+        for convs in rsa.conv_blocks:
+            out += [conv.weight.grad[:, :, 0, 0] for conv in convs]
+    return out
+
+
+@pytest.mark.parametrize("cfg", [SSG, MSG], ids=["ssg", "msg"])
+def test_training_gradients_match_reference_port(cfg):
+    """Pooling before the last ReLU and the first Linear before grouping give the port's gradients."""
+    ref_mod = _load_ref()
+    torch.manual_seed(0)
+    ref = ref_mod.RefPointNet2Seg(**cfg)
+    ours = PointNet2Seg(**cfg)
+    ref_mod.convert_to_channels_last(ref, ours)
+    g = torch.Generator().manual_seed(5)
+    xyz = torch.rand(2, 256, 3, generator=g)
+    feat = torch.randn(2, 256, 1, generator=g)
+    target = torch.rand(2, 256, generator=g)
+    fps = ours.encoder.sample(xyz, None)
+    for net, fwd in ((ref, lambda: ref(xyz, feat, fps)), (ours, lambda: ours(xyz, feat, None, fps))):
+        net.train()
+        torch.nn.functional.binary_cross_entropy_with_logits(fwd(), target).backward()
+    ours_grads = [lin.weight.grad for sa in ours.encoder.levels for mlp in sa.mlps for lin in mlp.linears]
+    for a, b in zip(_conv_grads(ref), ours_grads, strict=True):
+        assert torch.allclose(a, b, atol=1e-5, rtol=1e-4), (a - b).abs().max()
+    # running statistics follow the same batches (the first Linear's bias included)
+    for rsa, osa in zip(ref.sa, ours.encoder.levels):
+        for bns, mlp in zip(rsa.bn_blocks, osa.mlps):
+            for bn, norm in zip(bns, mlp.norms):
+                assert torch.allclose(bn.running_mean, norm.running_mean, atol=1e-5)
+
+
+def test_first_layer_before_grouping_matches_grouping_first(monkeypatch):
+    """Both SA paths give the same outputs and input gradients, in train and eval mode."""
+    import floaff_zoo.nn.pointnet2 as pn2
+
+    torch.manual_seed(0)
+    sa = SetAbstraction(16, [0.3, 0.5], [8, 12], 20, [[16, 24], [8, 8]], xyz_first=False)
+    xyz = torch.rand(2, 96, 3)
+    feat0 = torch.randn(2, 96, 20)
+    idx = sa.sample(xyz, None)
+    for train in (True, False):
+        sa.train(train)
+        results = []
+        for threshold in (1, 10**6):  # per point first / grouped first
+            monkeypatch.setattr(pn2, "GATHER_AFTER_FIRST_LAYER", threshold)
+            feat = feat0.clone().requires_grad_()
+            out = sa(xyz, feat, None, idx)[1]
+            out.square().sum().backward()
+            results.append((out.detach(), feat.grad))
+        (a, ga), (b, gb) = results
+        assert torch.allclose(a, b, atol=1e-5), (a - b).abs().max()
+        assert torch.allclose(ga, gb, atol=1e-4), (ga - gb).abs().max()

@@ -1,4 +1,4 @@
-"""Optional C++ point kernels (FPS, ball-query and 3-NN selection), compiled on first use with ``load_inline``.
+"""Optional C++ point kernels (FPS, ball-query and 3-NN selection, CFAR's tie-tolerant FPS and 3-NN), compiled on first use with ``load_inline``.
 
 The build is cached in ``TORCH_EXTENSIONS_DIR`` (torch's default: ``~/.cache/torch_extensions``),
 so only the first process on a machine pays the one-off g++ compile (~25-40 s). Any failure (no
@@ -154,12 +154,99 @@ std::vector<torch::Tensor> three_nn_select(torch::Tensor mm, torch::Tensor ssq, 
   });
   return {dist, idx};
 }
+
+// Tie-tolerant FPS (nn/cfar.py tolerant_fps): candidates within tol of the farthest distance are tied and
+// the lowest index wins. d = ((dx*dx + dy*dy) + dz*dz) in float32; invalid points keep -1.
+torch::Tensor tolerant_fps_forward(torch::Tensor xyz, torch::Tensor mask, int64_t npoint, double tol) {
+  TORCH_CHECK(xyz.dim() == 3 && xyz.size(2) == 3, "xyz must be [B, N, 3]");
+  TORCH_CHECK(mask.dim() == 2 && mask.size(0) == xyz.size(0) && mask.size(1) == xyz.size(1), "mask must be [B, N]");
+  xyz = xyz.to(torch::kFloat).contiguous();
+  mask = mask.to(torch::kBool).contiguous();
+  const int64_t B = xyz.size(0), N = xyz.size(1);
+  auto out = torch::zeros({B, npoint}, torch::kLong);
+  const float* P = xyz.data_ptr<float>();
+  const bool* M = mask.data_ptr<bool>();
+  int64_t* O = out.data_ptr<int64_t>();
+  const float inf = std::numeric_limits<float>::infinity();
+  const float ftol = static_cast<float>(tol);
+  at::parallel_for(0, B, 1, [&](int64_t b0, int64_t b1) {
+    std::vector<float> dist(N);
+    for (int64_t b = b0; b < b1; ++b) {
+      const float* p = P + b * N * 3;
+      const bool* m = M + b * N;
+      int64_t cur = -1;
+      for (int64_t i = 0; i < N; ++i) {
+        dist[i] = m[i] ? inf : -1.0f;
+        if (cur < 0 && m[i]) cur = i;
+      }
+      if (cur < 0) continue;  // no valid point: caller validates before calling
+      for (int64_t j = 0; j < npoint; ++j) {
+        O[b * npoint + j] = cur;
+        const float cx = p[3 * cur], cy = p[3 * cur + 1], cz = p[3 * cur + 2];
+        float best = -2.0f;
+        for (int64_t i = 0; i < N; ++i) {
+          if (!m[i]) continue;
+          const float dx = p[3 * i] - cx, dy = p[3 * i + 1] - cy, dz = p[3 * i + 2] - cz;
+          const float d = (dx * dx + dy * dy) + dz * dz;
+          if (d < dist[i]) dist[i] = d;
+          if (dist[i] > best) best = dist[i];
+        }
+        const float bar = best - ftol;
+        for (int64_t i = 0; i < N; ++i) {
+          if (dist[i] >= bar) { cur = i; break; }
+        }
+      }
+    }
+  });
+  return out;
+}
+
+// Three neighbours chosen without float-noise flips (nn/cfar.py stable_three_interpolate): in float64,
+// each pick is the lowest index within tol of the nearest remaining distance. Fewer than 3 points:
+// missing slots +inf / index 0. Returns (sq_dist [B, n, k] float64, idx [B, n, k]), k = min(3, m).
+std::vector<torch::Tensor> stable_three_nn(torch::Tensor unknown, torch::Tensor known, double tol) {
+  TORCH_CHECK(unknown.dim() == 3 && unknown.size(2) == 3 && known.dim() == 3 && known.size(2) == 3, "points must be [B, N, 3]");
+  unknown = unknown.to(torch::kDouble).contiguous();
+  known = known.to(torch::kDouble).contiguous();
+  const int64_t B = unknown.size(0), n = unknown.size(1), m = known.size(1);
+  const int64_t k = m < 3 ? m : 3;
+  auto dist = torch::empty({B, n, k}, torch::kDouble);
+  auto idx = torch::empty({B, n, k}, torch::kLong);
+  const double* U = unknown.data_ptr<double>();
+  const double* Kp = known.data_ptr<double>();
+  double* OD = dist.data_ptr<double>();
+  int64_t* OI = idx.data_ptr<int64_t>();
+  const double inf = std::numeric_limits<double>::infinity();
+  at::parallel_for(0, B * n, 16, [&](int64_t r0, int64_t r1) {
+    std::vector<double> d(m);
+    for (int64_t r = r0; r < r1; ++r) {
+      const double* u = U + r * 3;
+      const double* kp = Kp + (r / n) * m * 3;
+      for (int64_t i = 0; i < m; ++i) {
+        const double dx = u[0] - kp[3 * i], dy = u[1] - kp[3 * i + 1], dz = u[2] - kp[3 * i + 2];
+        d[i] = (dx * dx + dy * dy) + dz * dz;
+      }
+      for (int64_t s = 0; s < k; ++s) {
+        double best = inf;
+        for (int64_t i = 0; i < m; ++i) if (d[i] < best) best = d[i];
+        int64_t pick = 0;
+        for (int64_t i = 0; i < m; ++i) if (d[i] <= best + tol) { pick = i; break; }
+        OD[r * k + s] = d[pick];
+        OI[r * k + s] = pick;
+        d[pick] = inf;
+      }
+    }
+  });
+  return {dist, idx};
+}
 """
 
 _CPP_DECL = """
 torch::Tensor fps_forward(torch::Tensor xyz, torch::Tensor mask, int64_t npoint);
 torch::Tensor ball_select(torch::Tensor mm, torch::Tensor ssq, torch::Tensor dsq, torch::Tensor mask, double r2, int64_t K);
 std::vector<torch::Tensor> three_nn_select(torch::Tensor mm, torch::Tensor ssq, torch::Tensor dsq, torch::Tensor mask);
+torch::Tensor tolerant_fps_forward(torch::Tensor xyz, torch::Tensor mask, int64_t npoint, double tol);
+std::vector<torch::Tensor> stable_three_nn(torch::Tensor unknown, torch::Tensor known, double tol);
 """
 
 _lock = threading.Lock()
@@ -189,9 +276,15 @@ def load_kernel() -> Any | None:
                 from torch.utils.cpp_extension import load_inline
 
                 _state["module"] = load_inline(
-                    name="floaff_zoo_point_ops_v3",
+                    name="floaff_zoo_point_ops_v4",
                     cpp_sources=[_CPP_DECL, _CPP_SOURCE],
-                    functions=["fps_forward", "ball_select", "three_nn_select"],
+                    functions=[
+                        "fps_forward",
+                        "ball_select",
+                        "three_nn_select",
+                        "tolerant_fps_forward",
+                        "stable_three_nn",
+                    ],
                     extra_cflags=["-O3", "-ffp-contract=off"],
                     verbose=False,
                 )

@@ -31,6 +31,7 @@ import torch
 from torch import Tensor, nn
 
 from floaff_zoo.contract import SampleError
+from floaff_zoo.nn.ops import point_kernel
 from floaff_zoo.nn.pointnet2 import FeaturePropagation, PointNet2Encoder, SharedMLP
 
 __all__ = [
@@ -209,6 +210,9 @@ def tolerant_fps(xyz: Tensor, mask: Tensor | None, npoint: int, tol: float = FPS
     mask = torch.ones(b, n, dtype=torch.bool, device=xyz.device) if mask is None else mask
     if not mask.any(dim=1).all():
         raise ValueError("tolerant_fps: a cloud of the batch has no valid point")
+    kernel = point_kernel(xyz.device)
+    if kernel is not None:  # the same loop in C++ (one Python call instead of ~6 ops per centre)
+        return kernel.tolerant_fps_forward(xyz.detach().float().contiguous(), mask.contiguous(), int(npoint), tol)
     pts = xyz.detach().float()  # float32 noise (~1e-6 m^2) is far below tol
     dist = torch.where(mask, torch.full((b, n), float("inf"), dtype=pts.dtype, device=xyz.device), -1.0)
     cur = mask.long().argmax(dim=1)
@@ -240,7 +244,22 @@ def stable_three_interpolate(unknown: Tensor, known: Tensor, known_feat: Tensor,
     m = known.shape[1]
     if m == 1:
         return known_feat.expand(b, n, known_feat.shape[-1])
+    dist_t, idx_t = _stable_three_nn(unknown.detach(), known.detach(), tol)
+    recip = 1.0 / (dist_t.to(known_feat.dtype) + 1e-8)
+    weight = recip / recip.sum(-1, keepdim=True)
+    flat = idx_t.reshape(b, -1)
+    grouped = torch.gather(known_feat, 1, flat[..., None].expand(-1, -1, known_feat.shape[-1]))
+    return (grouped.reshape(b, n, -1, known_feat.shape[-1]) * weight[..., None]).sum(2)
+
+
+def _stable_three_nn(unknown: Tensor, known: Tensor, tol: float) -> tuple[Tensor, Tensor]:
+    """(sq_dist [B, n, k] float64, idx [B, n, k]), k = min(3, m): the picks of ``stable_three_interpolate``."""
+    kernel = point_kernel(unknown.device)
+    if kernel is not None:
+        dist, idx = kernel.stable_three_nn(unknown, known, tol)
+        return dist, idx
     d = ((unknown.double()[:, :, None] - known.double()[:, None]) ** 2).sum(-1)  # [B, n, m]
+    m = known.shape[1]
     ar = torch.arange(m, device=unknown.device)
     idx, dist = [], []
     for _ in range(min(3, m)):
@@ -249,12 +268,7 @@ def stable_three_interpolate(unknown: Tensor, known: Tensor, known_feat: Tensor,
         idx.append(pick)
         dist.append(d.gather(-1, pick))
         d = d.scatter(-1, pick, float("inf"))
-    idx_t = torch.cat(idx, -1)
-    recip = 1.0 / (torch.cat(dist, -1).to(known_feat.dtype) + 1e-8)
-    weight = recip / recip.sum(-1, keepdim=True)
-    flat = idx_t.reshape(b, -1)
-    grouped = torch.gather(known_feat, 1, flat[..., None].expand(-1, -1, known_feat.shape[-1]))
-    return (grouped.reshape(b, n, -1, known_feat.shape[-1]) * weight[..., None]).sum(2)
+    return torch.cat(dist, -1), torch.cat(idx, -1)
 
 
 def sample_levels(encoder: PointNet2Encoder, xyz: Tensor, mask: Tensor | None) -> list[Tensor | None]:

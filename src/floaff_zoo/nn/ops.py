@@ -24,6 +24,7 @@ __all__ = [
     "fps_backend",
     "index_points",
     "knn",
+    "point_kernel",
     "square_distance",
     "three_interpolate",
     "three_nn",
@@ -80,8 +81,8 @@ def square_distance(src: Tensor, dst: Tensor) -> Tensor:
     return mm.add_(ssq[:, :, None]).add_(dsq[:, None, :])
 
 
-def _select_kernel(device: torch.device):
-    """The C++ selection kernels for CPU tensors in eager mode, else None (torch path).
+def point_kernel(device: torch.device):
+    """The C++ point kernels (``nn/_fps_ext.py``) for CPU tensors in eager mode, else None (torch path).
 
     Under ``torch.compile`` the torch path is traced instead (a pybind call would break the graph).
     """
@@ -215,7 +216,7 @@ def ball_query_multi(
         raise ValueError("ball_query: a cloud of the batch has no valid point")
     b, n, _ = xyz.shape
     s = new_xyz.shape[1]
-    kernel = _select_kernel(xyz.device)
+    kernel = point_kernel(xyz.device)
     if kernel is not None:
         # one scan per row of the (L2-sized) matmul chunk, stopping at K hits
         chunk = max(1, _KERNEL_CHUNK_ELEMS // max(1, b * n))
@@ -288,7 +289,7 @@ def three_nn(unknown: Tensor, known: Tensor, known_mask: Tensor | None = None) -
         (sq_dist [B, n, 3], idx [B, n, 3]); with fewer than 3 valid known points the missing
         slots get distance ``inf`` (zero interpolation weight) and index 0.
     """
-    kernel = _select_kernel(unknown.device)
+    kernel = point_kernel(unknown.device)
     if kernel is not None:
         mm, ssq, dsq = _distance_parts(unknown, known)
         if known_mask is None:

@@ -21,7 +21,19 @@ from torch import Tensor, nn
 
 from floaff_zoo.nn.ops import ball_query_multi, farthest_point_sample, index_points, three_interpolate
 
-__all__ = ["FeaturePropagation", "PointNet2Encoder", "PointNet2Seg", "SetAbstraction", "SharedMLP", "masked_max"]
+#: feature channels from which a set-abstraction level runs its first Linear before grouping
+#: (cheaper once the input is wider than a few channels; level 1 with 1-4 channels groups first)
+GATHER_AFTER_FIRST_LAYER = 16
+
+__all__ = [
+    "GATHER_AFTER_FIRST_LAYER",
+    "FeaturePropagation",
+    "PointNet2Encoder",
+    "PointNet2Seg",
+    "SetAbstraction",
+    "SharedMLP",
+    "masked_max",
+]
 
 
 class SharedMLP(nn.Module):
@@ -46,20 +58,54 @@ class SharedMLP(nn.Module):
 
     def forward(self, x: Tensor) -> Tensor:
         """x [..., C_in] -> [..., C_out]."""
-        shape = x.shape[:-1]
-        h = x.reshape(-1, x.shape[-1])
+        return self._run(x, pre=False)
+
+    def pooled(self, x: Tensor, dim: int, mask: Tensor | None = None, first: Tensor | None = None) -> Tensor:
+        """``masked_max(self(x), mask, dim)`` with the last ReLU after the max (exact: ReLU is monotonic).
+
+        Pooling before the last activation skips a ReLU and its backward over the largest tensor,
+        and ``max`` (one winner) backpropagates with a scatter where ``amax`` needs a tie count.
+        ``first`` (optional) is the first layer's pre-activation, already computed (see
+        ``SetAbstraction``); ``x`` is then ignored.
+
+        Args:
+            x: [..., C_in]; dim: the pooled dim of the output; mask: broadcast over the last dim
+                (False = ignored), shaped like the output without its last dim.
+        Returns:
+            the output with ``dim`` removed.
+        """
+        h = self._run(x if first is None else first, pre=first is not None, last_relu=False)
+        if mask is not None:
+            h = h.masked_fill(~mask[..., None], torch.finfo(h.dtype).min)
+        h = h.max(dim=dim).values
+        return F.relu(h) if self._last_act() else h
+
+    def first_linear(self) -> tuple[Tensor, Tensor]:
+        """(weight [O, I], bias [O]) of the first layer, BN folded in eval mode (as ``forward`` uses)."""
+        lin, norm = self.linears[0], self.norms[0]
+        if isinstance(norm, nn.BatchNorm1d) and not norm.training and norm.running_mean is not None:
+            return _fold_bn(lin, norm)
+        return lin.weight, lin.bias
+
+    def _last_act(self) -> bool:
+        return not isinstance(self.norms[-1], nn.Identity)
+
+    def _run(self, h: Tensor, pre: bool, last_relu: bool = True) -> Tensor:
+        """h [..., C_in] -> [..., C_out]; with ``pre``, h is already the first Linear's output."""
+        shape = h.shape[:-1]
+        h = h.reshape(-1, h.shape[-1])
         last = len(self.linears) - 1
-        # no grad: ReLU in place on the fresh (non-view) GEMM output saves a big allocation
-        relu = torch.relu_ if not torch.is_grad_enabled() else F.relu
+        # no grad: ReLU in place on a fresh GEMM/BN output saves a big allocation
+        inplace = not torch.is_grad_enabled()
         for i, (lin, norm) in enumerate(zip(self.linears, self.norms)):
+            skip = pre and i == 0
             if isinstance(norm, nn.BatchNorm1d) and not norm.training and norm.running_mean is not None:
-                h = relu(F.linear(h, *_fold_bn(lin, norm)))  # eval: BN folded into the Linear
-            elif not isinstance(norm, nn.Identity):
-                h = F.relu(norm(lin(h)))
+                h = h if skip else F.linear(h, *_fold_bn(lin, norm))  # eval: BN folded into the Linear
             else:
-                h = lin(h)
-                if i < last:
-                    h = relu(h)
+                h = h if skip else lin(h)
+                h = norm(h) if isinstance(norm, nn.BatchNorm1d) else h
+            if i < last or (last_relu and self._last_act()):
+                h = torch.relu_(h) if inplace and not skip else F.relu(h)
         return h.reshape(*shape, h.shape[-1])
 
 
@@ -138,7 +184,7 @@ class SetAbstraction(nn.Module):
         """
         if self.group_all:
             grouped = self._cat(xyz, feat)  # classic port: raw xyz, centre at the origin
-            out = masked_max(self.mlps[0](grouped), mask, dim=1)[:, None]
+            out = self.mlps[0].pooled(grouped, dim=1, mask=mask)[:, None]
             return xyz.new_zeros(xyz.shape[0], 1, 3), out
         if fps_idx is None:
             fps_idx = farthest_point_sample(xyz, mask, self.npoint)
@@ -146,10 +192,29 @@ class SetAbstraction(nn.Module):
         groups = ball_query_multi(self.radii, self.nsamples, xyz, new_xyz, mask)
         outs = []
         for idx, mlp in zip(groups, self.mlps):
+            if feat is not None and self.in_channels >= GATHER_AFTER_FIRST_LAYER:
+                outs.append(mlp.pooled(None, dim=2, first=self._first_layer(mlp, xyz, feat, new_xyz, idx)))
+                continue
             rel = index_points(xyz, idx) - new_xyz[:, :, None]  # [B, S, K, 3]
             gfeat = index_points(feat, idx) if feat is not None else None
-            outs.append(mlp(self._cat(rel, gfeat)).amax(dim=2))
+            outs.append(mlp.pooled(self._cat(rel, gfeat), dim=2))
         return new_xyz, outs[0] if len(outs) == 1 else torch.cat(outs, dim=-1)
+
+    def _first_layer(self, mlp: SharedMLP, xyz: Tensor, feat: Tensor, new_xyz: Tensor, idx: Tensor) -> Tensor:
+        """The first Linear of the grouped input, computed per point and then gathered.
+
+        ``W [p - c, f] + b = (W [p, f] + b)[idx] - W_xyz c``: the GEMM runs on the N input points
+        instead of the S x K grouped rows (equal up to float rounding).
+
+        Args:
+            xyz [B,N,3], feat [B,N,D], new_xyz [B,S,3], idx [B,S,K].
+        Returns:
+            [B, S, K, C1].
+        """
+        w, b = mlp.first_linear()
+        w_xyz = w[:, :3] if self.xyz_first else w[:, -3:]
+        per_point = F.linear(self._cat(xyz, feat.to(xyz.dtype)), w, b)  # [B, N, C1]
+        return index_points(per_point, idx) - F.linear(new_xyz, w_xyz)[:, :, None]
 
 
 class FeaturePropagation(nn.Module):
