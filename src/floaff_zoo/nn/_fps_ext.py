@@ -23,8 +23,12 @@ from typing import Any
 _CPP_SOURCE = r"""
 #include <torch/extension.h>
 #include <ATen/Parallel.h>
+#include <cstring>
 #include <limits>
 #include <vector>
+
+// 4 floats: GCC/Clang vector extension, one SSE2/NEON register (the baseline of x86-64 and arm64)
+typedef float v4sf __attribute__((vector_size(16)));
 
 torch::Tensor fps_forward(torch::Tensor xyz, torch::Tensor mask, int64_t npoint) {
   TORCH_CHECK(xyz.dim() == 3 && xyz.size(2) == 3, "xyz must be [B, N, 3]");
@@ -51,15 +55,35 @@ torch::Tensor fps_forward(torch::Tensor xyz, torch::Tensor mask, int64_t npoint)
       for (int64_t j = 0; j < npoint; ++j) {
         O[b * npoint + j] = far;
         const float cx = x[far], cy = y[far], cz = z[far];
+        // pass 1, 4 points per step (GCC/Clang vector extension): new distances and their maximum;
+        // invalid points hold -1 and min(-1, d) keeps them there (d >= 0).
+        // pass 2: the first index holding the maximum (ties to the lowest index).
+        v4sf vbest = {-2.0f, -2.0f, -2.0f, -2.0f};
+        int64_t i0 = 0;
+        for (; i0 + 4 <= N; i0 += 4) {
+          v4sf vx, vy, vz, vd;
+          std::memcpy(&vx, &x[i0], sizeof(v4sf));
+          std::memcpy(&vy, &y[i0], sizeof(v4sf));
+          std::memcpy(&vz, &z[i0], sizeof(v4sf));
+          std::memcpy(&vd, &dist[i0], sizeof(v4sf));
+          const v4sf dx = vx - cx, dy = vy - cy, dz = vz - cz;
+          const v4sf d = (dx * dx + dy * dy) + dz * dz;
+          const v4sf nd = d < vd ? d : vd;
+          std::memcpy(&dist[i0], &nd, sizeof(v4sf));
+          vbest = nd > vbest ? nd : vbest;
+        }
         float best = -2.0f;
-        int64_t besti = 0;
-        for (int64_t i = 0; i < N; ++i) {
+        for (int l = 0; l < 4; ++l) best = vbest[l] > best ? vbest[l] : best;
+        for (int64_t i = i0; i < N; ++i) {
           const float dx = x[i] - cx, dy = y[i] - cy, dz = z[i] - cz;
           const float d = (dx * dx + dy * dy) + dz * dz;
-          const float cur = dist[i];
-          const float nd = cur < 0.0f ? cur : (d < cur ? d : cur);
+          const float nd = d < dist[i] ? d : dist[i];
           dist[i] = nd;
-          if (nd > best) { best = nd; besti = i; }
+          best = nd > best ? nd : best;
+        }
+        int64_t besti = 0;
+        for (int64_t i = 0; i < N; ++i) {
+          if (dist[i] == best) { besti = i; break; }
         }
         far = besti;
       }
@@ -276,7 +300,7 @@ def load_kernel() -> Any | None:
                 from torch.utils.cpp_extension import load_inline
 
                 _state["module"] = load_inline(
-                    name="floaff_zoo_point_ops_v4",
+                    name="floaff_zoo_point_ops_v10",
                     cpp_sources=[_CPP_DECL, _CPP_SOURCE],
                     functions=[
                         "fps_forward",

@@ -77,7 +77,8 @@ class SharedMLP(nn.Module):
         h = self._run(x if first is None else first, pre=first is not None, last_relu=False)
         if mask is not None:
             h = h.masked_fill(~mask[..., None], torch.finfo(h.dtype).min)
-        h = h.max(dim=dim).values
+        # max (one winner) backpropagates with a scatter; amax is the faster forward-only reduction
+        h = h.max(dim=dim).values if torch.is_grad_enabled() and h.requires_grad else h.amax(dim=dim)
         return F.relu(h) if self._last_act() else h
 
     def first_linear(self) -> tuple[Tensor, Tensor]:
