@@ -10,11 +10,13 @@ compile, compile + bf16). Absolute numbers move with machine load; the ratios ca
     python benchmarks/bench_models.py --quick            # few iterations, no compile modes
     python benchmarks/bench_models.py --models navaff n2m --iters 5
     python benchmarks/bench_models.py --modes eager bf16 compile compile_bf16 --skip-models
+    python benchmarks/bench_models.py --skip-models --skip-reference --vs-reference pointnet2_ssg cfar
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import importlib.util
 import statistics
@@ -107,6 +109,43 @@ def bench_model(name: str, batch, single, iters: int, warmup: int, mode: str) ->
     ts = timed(pred, max(iters, 3), warmup)
     res["predict"] = ts
     res["predict_ms"] = 1e3 * statistics.median(ts)
+    return res
+
+
+def bench_model_vs_reference(name: str, batch, single, iters: int, warmup: int) -> dict:
+    """One model on the zoo's ops and on the port's ops (``reference_ops``), same weights and inputs.
+
+    Returns the max |difference| of the eval outputs (B=1 and the batch) and both train throughputs.
+    """
+    import copy
+
+    ref_mod = load_reference()
+    torch.manual_seed(0)
+    ours = build(name)
+    ref = copy.deepcopy(ours)
+    res = {"name": name}
+    for m in (ours, ref):
+        m.eval()
+    with torch.inference_mode():
+        a1, a8 = ours(single), ours(batch)
+        with ref_mod.reference_ops():
+            b1, b8 = ref(single), ref(batch)
+    res["diff"] = max((a1 - b1).abs().max().item(), (a8 - b8).abs().max().item())
+    if not ours.trainable:
+        return res
+    for key, model, ctx in (("ours", ours, contextlib.nullcontext), ("ref", ref, ref_mod.reference_ops)):
+        model.train()
+        opt = torch.optim.Adam(model.parameters(), lr=1e-4)
+
+        def step(model=model, opt=opt):
+            opt.zero_grad(set_to_none=True)
+            loss, _, _ = model.model_step(batch)
+            loss.backward()
+            opt.step()
+
+        with ctx():
+            ts = timed(step, iters, warmup)
+        res[f"{key}_sps"] = batch["scene_xyz"].shape[0] / statistics.median(ts)
     return res
 
 
@@ -205,6 +244,13 @@ def main(argv: list[str] | None = None) -> int:
         default=[],
         help="also time --sweep-models at these cloud sizes (how time grows with points)",
     )
+    p.add_argument(
+        "--vs-reference",
+        nargs="*",
+        default=[],
+        choices=MODELS,
+        help="also time these models against themselves on the reference port's ops (slow: the port is)",
+    )
     p.add_argument("--sweep-models", nargs="*", default=["pointnet2_ssg", "cfar"], choices=MODELS)
     a = p.parse_args(argv)
     if a.threads:
@@ -230,6 +276,24 @@ def main(argv: list[str] | None = None) -> int:
             print(
                 f"{name:<14} {r['params'] / 1e6:7.3f} M params  {train}; predict {r['predict_ms']:7.1f} ms", flush=True
             )
+    if a.vs_reference:
+        batch = make_batch(a.batch, a.points, a.floor_cells)
+        single = make_batch(1, a.points, a.floor_cells)
+        ref_iters = a.iters or 2
+        print(
+            f"\n== every model vs itself on the reference port's ops (benchmarks/reference_pointnet2.py "
+            f"reference_ops: naive FPS, sort ball query and 3-NN, Conv + BN layout), same weights; "
+            f"train B={a.batch} x {a.points} points, eval outputs compared at B=1 and B={a.batch}"
+        )
+        for name in a.vs_reference:
+            r = bench_model_vs_reference(name, batch, single, ref_iters, warmup)
+            line = f"{name:<14} outputs max |ours - ref| = {r['diff']:.1e}"
+            if "ours_sps" in r:
+                line += (
+                    f"; train ours {r['ours_sps']:6.2f} samples/s, reference-style {r['ref_sps']:6.2f} samples/s: "
+                    f"x{r['ours_sps'] / r['ref_sps']:.2f}"
+                )
+            print(line, flush=True)
     if a.points_sweep:
         print(
             f"\n== growth with points, mode {a.model_mode}: train B={a.batch}, predict B=1, "

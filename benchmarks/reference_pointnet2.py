@@ -7,12 +7,15 @@ FPS loop**, a **sort-based ball query**, and 3-NN interpolation by sorting the f
 matrix. FPS starts at index 0 (the port draws a random start) and, like the port, ignores masks.
 
 ``convert_to_channels_last(ref, ours)`` copies its weights into ``floaff_zoo.nn.pointnet2``
-modules, so both can be compared on identical inputs and FPS indices.
+modules, so both can be compared on identical inputs and FPS indices. ``reference_ops()`` runs any
+zoo model on these operations instead of the zoo's (same parameters), so every model has a
+reference-style counterpart to be timed and compared against.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import contextlib
+from collections.abc import Iterator, Sequence
 
 import torch
 import torch.nn.functional as F
@@ -244,3 +247,120 @@ def convert_to_channels_last(ref: RefPointNet2Seg, ours: nn.Module) -> None:
             _copy_bn(norm, bn)
     ours.out.weight.copy_(ref.out.weight[:, :, 0])
     ours.out.bias.copy_(ref.out.bias)
+
+
+# ----------------------------------------------------------------------------- any zoo model on the port's ops
+def _ref_fps(xyz: Tensor, mask: Tensor | None, npoint: int) -> Tensor:
+    """The naive loop when every point is valid (the port has no masks), else the zoo's masked FPS."""
+    from floaff_zoo.nn import ops
+
+    if mask is None or bool(mask.all()):
+        return farthest_point_sample(xyz.detach().float(), npoint)
+    return ops.farthest_point_sample_torch(xyz, mask, npoint)
+
+
+def _ref_ball_query_multi(
+    radii: list[float], nsamples: list[int], xyz: Tensor, new_xyz: Tensor, mask: Tensor | None = None
+) -> list[Tensor]:
+    """One sort-based query per scale (the port recomputes distances per scale)."""
+    if mask is not None and not bool(mask.all()):
+        xyz = torch.where(mask[..., None], xyz, torch.full_like(xyz, 1e6))  # padding out of every ball
+    return [query_ball_point(r, k, xyz.float(), new_xyz.float()) for r, k in zip(radii, nsamples)]
+
+
+def _ref_three_interpolate(
+    unknown: Tensor, known: Tensor, known_feat: Tensor, known_mask: Tensor | None = None
+) -> Tensor:
+    """3-NN by sorting the full distance matrix, as the port's FP."""
+    b, n, _ = unknown.shape
+    if known.shape[1] == 1:
+        return known_feat.expand(b, n, known_feat.shape[-1])
+    d = square_distance(unknown.float(), known.float())
+    if known_mask is not None:
+        d = d.masked_fill(~known_mask[:, None, :].bool(), float("inf"))
+    dists, idx = d.sort(dim=-1)
+    dists, idx = dists[:, :, :3], idx[:, :, :3]
+    recip = 1.0 / (dists + 1e-8)
+    weight = recip / torch.sum(recip, dim=2, keepdim=True)
+    return torch.sum(index_points(known_feat, idx) * weight.view(b, n, 3, 1).to(known_feat.dtype), dim=2)
+
+
+def _ref_layers(mlp, h: Tensor, last_relu: bool) -> Tensor:
+    """Channels-first ``conv 1x1 -> BN -> ReLU`` with the SharedMLP's own parameters and buffers.
+
+    h: [B, C, *spatial] (1 or 2 spatial dims, like the port's Conv1d / Conv2d layouts).
+    """
+    conv = F.conv2d if h.ndim == 4 else F.conv1d
+    last = len(mlp.linears) - 1
+    for i, (lin, norm) in enumerate(zip(mlp.linears, mlp.norms)):
+        w = lin.weight.view(*lin.weight.shape, *([1] * (h.ndim - 2)))
+        h = conv(h, w, lin.bias)
+        if isinstance(norm, nn.BatchNorm1d):
+            h = F.batch_norm(
+                h,
+                norm.running_mean,
+                norm.running_var,
+                norm.weight,
+                norm.bias,
+                norm.training or norm.running_mean is None,
+                norm.momentum if norm.momentum is not None else 0.0,
+                norm.eps,
+            )
+        if i < last or (last_relu and not isinstance(norm, nn.Identity)):
+            h = F.relu(h, inplace=True)
+    return h
+
+
+def _ref_mlp_forward(self, x: Tensor) -> Tensor:
+    """x [..., C_in] -> [..., C_out] through the channels-first port layout."""
+    shape = x.shape[:-1]
+    h = x.reshape(1, -1, x.shape[-1]).transpose(1, 2)  # [1, C, R]
+    h = _ref_layers(self, h, last_relu=True)
+    return h.transpose(1, 2).reshape(*shape, h.shape[1])
+
+
+def _ref_mlp_pooled(self, x: Tensor, dim: int, mask: Tensor | None = None, first: Tensor | None = None) -> Tensor:
+    """The port's ``max(relu(bn(conv(...))))`` over grouped [B, S, K, C] (dim 2) or whole clouds [B, N, C]."""
+    if x.ndim == 4 and dim == 2 and mask is None:
+        h = _ref_layers(self, x.permute(0, 3, 2, 1), last_relu=True)  # [B, C, K, S]
+        return torch.max(h, 2)[0].transpose(1, 2)
+    out = _ref_mlp_forward(self, x)
+    if mask is not None:
+        out = out.masked_fill(~mask[..., None], torch.finfo(out.dtype).min)
+    return out.amax(dim=dim)
+
+
+@contextlib.contextmanager
+def reference_ops() -> Iterator[None]:
+    """Run any floaff_zoo point model on the port's operations: same parameters, same maths.
+
+    Inside the block the zoo's PointNet++ pieces use the port's choices: the naive FPS loop, a
+    sort-based ball query per scale, sort-based 3-NN, channels-first Conv + BN + ReLU MLPs that group
+    before the first layer and apply the last ReLU before the max, no C++ kernels (CFAR's tie-tolerant
+    FPS/3-NN run their torch loops). Everything else of a model (attention, heads, losses) is its own.
+    """
+    import floaff_zoo.nn.cfar as zoo_cfar
+    import floaff_zoo.nn.nets as zoo_nets
+    import floaff_zoo.nn.ops as zoo_ops
+    import floaff_zoo.nn.pointnet2 as zoo_pn2
+
+    patches = [
+        (zoo_pn2, "farthest_point_sample", _ref_fps),
+        (zoo_pn2, "ball_query_multi", _ref_ball_query_multi),
+        (zoo_pn2, "three_interpolate", _ref_three_interpolate),
+        (zoo_pn2, "GATHER_AFTER_FIRST_LAYER", 1 << 30),
+        (zoo_pn2.SharedMLP, "forward", _ref_mlp_forward),
+        (zoo_pn2.SharedMLP, "pooled", _ref_mlp_pooled),
+        (zoo_nets, "farthest_point_sample", _ref_fps),
+        (zoo_nets, "three_interpolate", _ref_three_interpolate),
+        (zoo_ops, "point_kernel", lambda device: None),
+        (zoo_cfar, "point_kernel", lambda device: None),
+    ]
+    saved = [(obj, name, getattr(obj, name)) for obj, name, _ in patches]
+    try:
+        for obj, name, value in patches:
+            setattr(obj, name, value)
+        yield
+    finally:
+        for obj, name, value in saved:
+            setattr(obj, name, value)

@@ -125,28 +125,37 @@ def _conv_grads(ref) -> list[torch.Tensor]:
 
 @pytest.mark.parametrize("cfg", [SSG, MSG], ids=["ssg", "msg"])
 def test_training_gradients_match_reference_port(cfg):
-    """Pooling before the last ReLU and the first Linear before grouping give the port's gradients."""
+    """Pooling before the last ReLU, the fused BN + max and the first Linear before grouping give the port's
+    gradients and running statistics.
+
+    In float64: max pooling routes each gradient to one winner, so float32 rounding (which differs
+    between any two implementations) can flip a near-tie and move a weight gradient by a percent.
+    """
     ref_mod = _load_ref()
     torch.manual_seed(0)
     ref = ref_mod.RefPointNet2Seg(**cfg)
     ours = PointNet2Seg(**cfg)
     ref_mod.convert_to_channels_last(ref, ours)
+    ref, ours = ref.double(), ours.double()
     g = torch.Generator().manual_seed(5)
-    xyz = torch.rand(2, 256, 3, generator=g)
-    feat = torch.randn(2, 256, 1, generator=g)
-    target = torch.rand(2, 256, generator=g)
+    xyz = torch.rand(2, 256, 3, generator=g, dtype=torch.float64)
+    feat = torch.randn(2, 256, 1, generator=g, dtype=torch.float64)
+    target = torch.rand(2, 256, generator=g, dtype=torch.float64)
     fps = ours.encoder.sample(xyz, None)
     for net, fwd in ((ref, lambda: ref(xyz, feat, fps)), (ours, lambda: ours(xyz, feat, None, fps))):
         net.train()
         torch.nn.functional.binary_cross_entropy_with_logits(fwd(), target).backward()
     ours_grads = [lin.weight.grad for sa in ours.encoder.levels for mlp in sa.mlps for lin in mlp.linears]
     for a, b in zip(_conv_grads(ref), ours_grads, strict=True):
-        assert torch.allclose(a, b, atol=1e-5, rtol=1e-4), (a - b).abs().max()
+        # 1e-5: our neighbour search and interpolation weights are float32 even for float64 features
+        assert torch.allclose(a, b, atol=1e-6, rtol=1e-5), (a - b).abs().max()
     # running statistics follow the same batches (the first Linear's bias included)
     for rsa, osa in zip(ref.sa, ours.encoder.levels):
         for bns, mlp in zip(rsa.bn_blocks, osa.mlps):
             for bn, norm in zip(bns, mlp.norms):
-                assert torch.allclose(bn.running_mean, norm.running_mean, atol=1e-5)
+                assert torch.allclose(bn.running_mean, norm.running_mean, atol=1e-7)
+                assert torch.allclose(bn.running_var, norm.running_var, atol=1e-7)
+                assert int(bn.num_batches_tracked) == int(norm.num_batches_tracked) == 1
 
 
 def test_first_layer_before_grouping_matches_grouping_first(monkeypatch):
