@@ -28,7 +28,10 @@ import torch
 import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
-MODELS = ["pointnet2_ssg", "pointnet2_msg", "votenet", "h3dnet", "navaff", "n2m", "c2f_exp", "cfar"]
+MODELS = ["pointnet2_ssg", "pointnet2_msg", "votenet", "h3dnet", "navaff", "n2m", "c2f_exp", "cfar", "cfar_axisnet"]
+#: pseudo-model: the shipped CFAR config as deployed, its yaw from a (shipped-size) AxisNet snapped to the
+#: kitchen's axes (``eval_yaw_source: axisnet_manhattan``), so predict latency includes AxisNet
+WITH_AXISNET = {"cfar_axisnet": "cfar"}
 #: PointNet++ SSG of the layout study in docs/background.md §6 (1 M parameters class)
 SEG = dict(
     in_channels=1,
@@ -60,11 +63,25 @@ def build(name: str, **overrides):
     """The shipped config's model; overrides the class does not take (e.g. ``bf16`` for CFAR) are dropped."""
     import inspect
 
+    if name in WITH_AXISNET:
+        return build_with_axisnet(WITH_AXISNET[name], **overrides)
     cfg = yaml.safe_load((ROOT / "configs" / "models" / f"{name}.yaml").read_text())["model"]
     mod_name, cls_name = cfg["class_path"].rsplit(".", 1)
     cls = getattr(importlib.import_module(mod_name), cls_name)
     accepted = inspect.signature(cls.__init__).parameters
     return cls(**{**(cfg.get("init_args") or {}), **{k: v for k, v in overrides.items() if k in accepted}})
+
+
+def build_with_axisnet(name: str, **overrides):
+    """``name``'s shipped config with an untrained shipped-size AxisNet (exported to a temp dir) for its yaw."""
+    import tempfile
+
+    torch.manual_seed(1)
+    axis = build("axisnet")
+    with tempfile.TemporaryDirectory() as tmp:
+        axis.save_pretrained(tmp)
+        torch.manual_seed(0)
+        return build(name, axisnet=tmp, eval_yaw_source="axisnet_manhattan", **overrides)
 
 
 def timed(fn, iters: int, warmup: int) -> list[float]:

@@ -179,3 +179,59 @@ def test_first_layer_before_grouping_matches_grouping_first(monkeypatch):
         (a, ga), (b, gb) = results
         assert torch.allclose(a, b, atol=1e-5), (a - b).abs().max()
         assert torch.allclose(ga, gb, atol=1e-4), (ga - gb).abs().max()
+
+
+def test_reference_ops_run_a_zoo_model_with_the_same_outputs_and_restore():
+    """The benchmark's reference counterpart of a model (port ops, same weights) predicts the same."""
+    import floaff_zoo.nn.pointnet2 as pn2
+    from floaff_zoo.contract import collate_samples
+    from floaff_zoo.data.synthetic import make_synthetic_sample
+    from floaff_zoo.models.pointnet2 import PointNet2Module
+
+    ref_mod = _load_ref()
+    torch.manual_seed(0)
+    model = PointNet2Module(
+        npoints=[64, 16], radii=[[0.4], [0.8]], nsamples=[[8], [8]], mlps=[[[8, 16]], [[16, 32]]], fp_mlps=[[32], [16]]
+    ).eval()
+    batch = collate_samples([make_synthetic_sample(i, num_points=256, floor_cells=8) for i in range(2)])
+    before = (pn2.SharedMLP.forward, pn2.ball_query_multi, ops.point_kernel)
+    with torch.no_grad():
+        ours = model(batch)
+        with ref_mod.reference_ops():
+            assert pn2.ball_query_multi is not before[1]
+            ref = model(batch)
+    assert (pn2.SharedMLP.forward, pn2.ball_query_multi, ops.point_kernel) == before
+    assert torch.allclose(ours, ref, atol=1e-5), (ours - ref).abs().max()
+
+
+def test_fused_batchnorm_max_equals_batchnorm_then_max():
+    """Values, gradients (z, BN affine, Linear bias = 0) and running stats, with negative BN weights and ties."""
+    from floaff_zoo.nn.pointnet2 import _BatchNormMax
+
+    g = torch.Generator().manual_seed(0)
+    z0 = torch.randn(2, 6, 5, 4, generator=g, dtype=torch.float64) * 0.3 + 2.0
+    z0[:, :, 3:] = z0[:, :, :1]  # padded groups: duplicate rows
+    bias0 = torch.randn(4, generator=g, dtype=torch.float64)
+    lin = torch.nn.Linear(3, 4).double()
+    bn = torch.nn.BatchNorm1d(4).double()
+    with torch.no_grad():
+        lin.bias.copy_(bias0)
+        bn.weight.copy_(torch.tensor([1.5, -0.7, 0.2, -2.0]))
+        bn.bias.copy_(torch.randn(4, generator=g))
+    gout = torch.randn(2, 6, 4, generator=g, dtype=torch.float64)
+
+    z = z0.clone().requires_grad_()
+    ref = bn((z + lin.bias).reshape(-1, 4)).view(z.shape).max(dim=2).values
+    ref_grads = torch.autograd.grad(ref, (z, lin.bias, bn.weight, bn.bias), gout)
+
+    bn2 = torch.nn.BatchNorm1d(4).double()
+    bn2.load_state_dict({**bn.state_dict(), "running_mean": torch.zeros(4), "running_var": torch.ones(4)})
+    z2 = z0.clone().requires_grad_()
+    bias = bias0.clone().requires_grad_()
+    out = _BatchNormMax.apply(z2, bias, bn2.weight, bn2.bias, bn2.running_mean, bn2.running_var, 0.1, bn2.eps, 2)
+    grads = torch.autograd.grad(out, (z2, bias, bn2.weight, bn2.bias), gout)
+    assert torch.allclose(out, ref, atol=1e-12)
+    for a, b in zip(grads, ref_grads, strict=True):
+        assert torch.allclose(a, b, atol=1e-10), (a - b).abs().max()
+    assert torch.allclose(bn2.running_mean, bn.running_mean, atol=1e-12)
+    assert torch.allclose(bn2.running_var, bn.running_var, atol=1e-12)

@@ -174,9 +174,9 @@ class _BatchNormMax(torch.autograd.Function):
     Same values, gradients and running statistics as ``norm(lin(x)).max(dim)``, with less memory
     traffic: the Linear's bias is not added to the big tensor (train-mode BN subtracts it again; it
     only enters the running mean, and its gradient is exactly zero), the normalised tensor is not
-    kept, and the backward writes the input gradient in two passes (the BN gradient of rows that
-    lost the max is affine in z) plus a scatter for the winners, instead of a zero-filled
-    output gradient followed by the two passes of the BN backward.
+    written (the max of an affine map is read off z), and the backward writes the input gradient
+    in one pass (the BN gradient of rows that lost the max is affine in z) plus a scatter for the
+    winners, instead of a zero-filled output gradient followed by the two passes of the BN backward.
     """
 
     @staticmethod
@@ -196,11 +196,18 @@ class _BatchNormMax(torch.autograd.Function):
         c = z.shape[-1]
         flat = z.reshape(-1, c)
         n = flat.shape[0]
-        y, mean, invstd = torch.native_batch_norm(flat, weight, beta, None, None, True, 0.0, eps)
+        var, mean = torch.var_mean(flat, dim=0, correction=0)
+        invstd = torch.rsqrt(var + eps)
         running_mean.mul_(1 - momentum).add_((mean + bias) * momentum)
-        var = (invstd.pow(-2) - eps) * (n / max(n - 1, 1))  # unbiased, as BatchNorm's running_var
-        running_var.mul_(1 - momentum).add_(var * momentum)
-        vals, idx = y.view(z.shape).max(dim=dim)
+        running_var.mul_(1 - momentum).add_(var * (n / max(n - 1, 1)) * momentum)  # unbiased, as BatchNorm
+        # BN is a per-channel affine map a z + b: its max over `dim` is at z's max where a >= 0, else at
+        # z's min, so the normalised tensor is never written
+        scale = weight * invstd
+        vals, idx = z.max(dim=dim)
+        if not bool((scale >= 0).all()):
+            low, low_idx = z.min(dim=dim)
+            vals, idx = torch.where(scale >= 0, vals, low), torch.where(scale >= 0, idx, low_idx)
+        vals = torch.addcmul(beta - mean * scale, vals, scale)
         ctx.save_for_backward(z, weight, mean, invstd, idx)
         ctx.dim, ctx.n = dim, n
         return vals
@@ -215,11 +222,10 @@ class _BatchNormMax(torch.autograd.Function):
         sum_dy = grad.reshape(-1, c).sum(0)
         sum_dy_xhat = (grad * xhat_win).reshape(-1, c).sum(0)
         k = weight * invstd
-        # dz = k (dy - sum_dy / n - xhat sum_dy_xhat / n): affine in (z - mean) where dy = 0, plus k dy at
-        # the winners. Centring first matters: alpha z and alpha mean cancel badly in float32.
+        # dz = k (dy - sum_dy / n - xhat sum_dy_xhat / n): affine in z where dy = 0 (one pass), plus k dy
+        # at the winners (relative rounding ~ eps |mean| / std, as in any BN backward)
         alpha = -k * invstd * sum_dy_xhat / n
-        dz = z - mean
-        torch.addcmul(-k * sum_dy / n, dz, alpha, out=dz)
+        dz = torch.addcmul(-k * sum_dy / n - alpha * mean, z, alpha)
         dz.scatter_add_(dim, at, (k * grad).unsqueeze(dim))
         return dz, torch.zeros_like(weight), sum_dy_xhat, sum_dy, None, None, None, None, None
 

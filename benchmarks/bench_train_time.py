@@ -1,0 +1,157 @@
+"""Time to train each model of the reproduction recipe, through the real CLI, to plan a run.
+
+Every job is a real ``floaff-zoo fit`` (LightningCLI, DataModule, loader, optimizer, callbacks) on the
+analytic synthetic DataModule at the input sizes of the recipe it stands for: the ``small`` preset
+recipe (``scripts/reproduce_small.sh``: demo-size models, 1,024 points, batch 4) and the paper-size
+configs (``configs/models``: 4,096 points, batch 8). Each job runs twice, for ``--steps`` and for
+``2 x --steps`` optimizer steps, without validation or checkpoints; the difference of the two wall
+times divided by the extra samples is the training cost per sample with process start-up, imports and
+the first (warm-up) steps cancelled out. Validation, testing and the rollout callback are not timed.
+
+    python benchmarks/bench_train_time.py                # every job (about 15 minutes on 2 cores)
+    python benchmarks/bench_train_time.py --jobs cfar_pfal_stage2 pointnet2 --steps 6
+
+The table's last columns extrapolate to the recipe's sample counts: ``--recipe-samples`` (default:
+20 epochs x 173 training views, the Layouts split of the small preset) and 10,000 samples.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+SMALL = {"points": 1024, "batch": 4, "floor_cells": 24}
+PAPER = {"points": 4096, "batch": 8, "floor_cells": 32}
+#: job -> (model configs, input sizes, what it stands for)
+JOBS: dict[str, tuple[list[str], dict[str, int], str]] = {
+    "pointnet2": (["configs/demo/pointnet2_demo.yaml"], SMALL, "small recipe: PointNet++"),
+    "votenet": (["configs/demo/votenet_demo.yaml"], SMALL, "small recipe: VoteNet-style"),
+    "h3dnet": (["configs/demo/h3dnet_demo.yaml"], SMALL, "small recipe: H3DNet-style"),
+    "navaff": (["configs/demo/navaff_demo.yaml"], SMALL, "small recipe: NavAff"),
+    "n2m": (["configs/demo/n2m_demo.yaml"], SMALL, "small recipe: N2M-style"),
+    "axisnet": (["configs/models/axisnet.yaml"], {**SMALL, "batch": 8}, "small recipe: AxisNet stage"),
+    "cfar_pfal_stage1": (
+        ["configs/demo/cfar_demo.yaml", "configs/experiments/recipe/cfar_recipe.yaml"],
+        SMALL,
+        "small recipe: CFAR stage 1 (no teacher)",
+    ),
+    "cfar_pfal_stage2": (
+        ["configs/demo/cfar_demo.yaml", "configs/experiments/recipe/cfar_recipe.yaml"],
+        SMALL,
+        "small recipe: CFAR stage 2 (+ frozen teacher, FD)",
+    ),
+    "paper_pointnet2_ssg": (["configs/models/pointnet2_ssg.yaml"], PAPER, "paper size: PointNet++ SSG"),
+    "paper_navaff": (["configs/models/navaff.yaml"], PAPER, "paper size: NavAff (official sizes)"),
+    "paper_cfar": (["configs/models/cfar.yaml"], PAPER, "paper size: CFAR"),
+}
+
+
+def fit_args(configs: list[str], sizes: dict[str, int], steps: int, root: Path) -> list[str]:
+    """The ``floaff-zoo fit`` command line of one timed run."""
+    n_train = sizes["batch"] * steps
+    args = [sys.executable, "-m", "floaff_zoo.cli", "fit", "--config", "configs/data/synthetic_tiny.yaml"]
+    for c in configs:
+        args += ["--config", c]
+    args += [
+        "--data.init_args.num_train",
+        str(n_train),
+        "--data.init_args.points_per_sample",
+        str(sizes["points"]),
+        "--data.init_args.num_points",
+        str(sizes["points"]),
+        "--data.init_args.floor_cells",
+        str(sizes["floor_cells"]),
+        "--data.init_args.batch_size",
+        str(sizes["batch"]),
+        "--trainer.max_epochs",
+        "1",
+        "--trainer.limit_val_batches",
+        "0",
+        "--trainer.num_sanity_val_steps",
+        "0",
+        "--trainer.enable_checkpointing",
+        "false",
+        "--trainer.logger",
+        "false",
+        "--trainer.enable_progress_bar",
+        "false",
+        "--trainer.enable_model_summary",
+        "false",
+        "--trainer.accelerator",
+        "cpu",
+        "--trainer.default_root_dir",
+        str(root),
+    ]
+    return args
+
+
+def run(args: list[str], env: dict[str, str]) -> float:
+    """Wall seconds of one CLI run; raises with its output when it fails."""
+    t = time.perf_counter()
+    proc = subprocess.run(args, cwd=ROOT, env=env, capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise RuntimeError(f"{' '.join(args)} failed:\n{proc.stdout[-2000:]}\n{proc.stderr[-4000:]}")
+    return time.perf_counter() - t
+
+
+def teacher_checkpoint(
+    configs: list[str], sizes: dict[str, int], root: Path, env: dict[str, str], extra: list[str]
+) -> Path:
+    """A stage-1 CFAR checkpoint (one step) to serve as the frozen PFAL teacher of stage 2."""
+    args = fit_args(configs, sizes, 1, root) + extra
+    args[args.index("--trainer.enable_checkpointing") + 1] = "true"
+    run(args, env)
+    ckpts = sorted(root.rglob("*.ckpt"))
+    if not ckpts:
+        raise RuntimeError(f"no teacher checkpoint written under {root}")
+    return ckpts[-1]
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--jobs", nargs="*", default=list(JOBS), choices=list(JOBS))
+    p.add_argument("--steps", type=int, default=4, help="timed optimizer steps (the difference of two runs)")
+    p.add_argument("--recipe-samples", type=int, default=20 * 173, help="samples of one recipe job")
+    p.add_argument("--threads", type=int, default=2)
+    a = p.parse_args(argv)
+    env = {**os.environ, "OMP_NUM_THREADS": str(a.threads), "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
+    env["PYTHONPATH"] = os.pathsep.join([str(ROOT / "src"), env.get("PYTHONPATH", "")])
+    print(
+        f"real `floaff-zoo fit` on synthetic data, {a.threads} threads; per-sample cost = "
+        f"(T[{2 * a.steps} steps] - T[{a.steps} steps]) / ({a.steps} x batch); recipe job = {a.recipe_samples} samples"
+    )
+    print(
+        f"{'job':<22} {'points':>6} {'batch':>5} {'samples/s':>9} {'s/1k samples':>12} "
+        f"{'recipe job':>10} {'10k samples':>11}"
+    )
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in a.jobs:
+            configs, sizes, what = JOBS[name]
+            root = Path(tmp) / name
+            extra: list[str] = []
+            if name.startswith("cfar_pfal"):
+                # training uses the simulator's yaw (the recipe); AxisNet only serves evaluation, not timed
+                extra += ["--model.init_args.eval_yaw_source", "manhattan"]
+            if name.endswith("stage2"):
+                teacher = teacher_checkpoint(configs, sizes, root / "teacher", env, extra)
+                extra += ["--model.init_args.teacher", str(teacher)]
+            t1 = run(fit_args(configs, sizes, a.steps, root / "a") + extra, env)
+            t2 = run(fit_args(configs, sizes, 2 * a.steps, root / "b") + extra, env)
+            per_sample = max(t2 - t1, 1e-6) / (a.steps * sizes["batch"])
+            recipe_min = per_sample * a.recipe_samples / 60
+            print(
+                f"{name:<22} {sizes['points']:>6} {sizes['batch']:>5} {1 / per_sample:>9.2f} "
+                f"{1000 * per_sample:>12.0f} {recipe_min:>8.1f} m {per_sample * 10_000 / 3600:>9.2f} h   ({what})",
+                flush=True,
+            )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
