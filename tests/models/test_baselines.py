@@ -236,6 +236,12 @@ def test_bf16_flag_runs(batch):
     with torch.no_grad():
         a, b = m32(batch), m16(batch)
     assert b.dtype == torch.float32 and (a - b).abs().max() < 0.05
+    # a bf16 training step: the fp32-only fast paths (narrow Linear, fused BN + max) step aside
+    m16.train()
+    loss, _, _ = m16.model_step(batch)
+    loss.backward()
+    grads = [p.grad for p in m16.parameters() if p.requires_grad]
+    assert torch.isfinite(loss) and all(g is not None and torch.isfinite(g).all() for g in grads)
 
 
 # --------------------------------------------------------------------------- CLI round trips

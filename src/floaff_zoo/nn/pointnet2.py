@@ -144,7 +144,12 @@ NARROW_IN_FEATURES = 8
 
 def _linear(h: Tensor, lin: nn.Linear) -> Tensor:
     """``lin(h)`` for h [R, C_in]; narrow inputs (xyz + a flag) train through ``_NarrowLinear``."""
-    if lin.in_features <= NARROW_IN_FEATURES and lin.bias is not None and torch.is_grad_enabled():
+    if (
+        lin.in_features <= NARROW_IN_FEATURES
+        and lin.bias is not None
+        and torch.is_grad_enabled()
+        and not torch.is_autocast_enabled(h.device.type)  # autocast casts inside forward only
+    ):
         return _NarrowLinear.apply(h, lin.weight, lin.bias)
     return lin(h)
 
