@@ -3,13 +3,14 @@
 Every job is a real ``floaff-zoo fit`` (LightningCLI, DataModule, loader, optimizer, callbacks) on the
 analytic synthetic DataModule at the input sizes of the recipe it stands for: the ``small`` preset
 recipe (``scripts/reproduce_small.sh``: demo-size models, 1,024 points, batch 4) and the paper-size
-configs (``configs/models``: 4,096 points, batch 8). Each job runs twice, for ``--steps`` and for
-``2 x --steps`` optimizer steps, without validation or checkpoints; the difference of the two wall
-times divided by the extra samples is the training cost per sample with process start-up, imports and
-the first (warm-up) steps cancelled out. Validation, testing and the rollout callback are not timed.
+configs (``configs/models``: 4,096 points, batch 8). Each job runs ``--warmup`` + ``--steps``
+optimizer steps without validation or checkpoints; a callback (``StepTimer``) takes the wall time
+from the end of the last warm-up step to the end of the last step, loading of the next batch
+included, so process start-up, imports and the first steps are left out. Validation, testing and
+the rollout callback are not timed.
 
     python benchmarks/bench_train_time.py                # every job (about 15 minutes on 2 cores)
-    python benchmarks/bench_train_time.py --jobs cfar_pfal_stage2 pointnet2 --steps 6
+    python benchmarks/bench_train_time.py --jobs cfar_pfal_stage2 pointnet2 --steps 20
 
 The table's last columns extrapolate to the recipe's sample counts: ``--recipe-samples`` (default:
 20 epochs x 173 training views, the Layouts split of the small preset) and 10,000 samples.
@@ -18,12 +19,15 @@ The table's last columns extrapolate to the recipe's sample counts: ``--recipe-s
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
+
+from lightning.pytorch.callbacks import Callback
 
 ROOT = Path(__file__).resolve().parents[1]
 SMALL = {"points": 1024, "batch": 4, "floor_cells": 24}
@@ -52,8 +56,22 @@ JOBS: dict[str, tuple[list[str], dict[str, int], str]] = {
 }
 
 
+class StepTimer(Callback):
+    """Writes ``{"seconds", "steps"}`` of the training steps after ``warmup`` to ``out`` (JSON) when fit ends."""
+
+    def __init__(self, out: str, warmup: int = 2) -> None:
+        self.out, self.warmup, self.ends = out, warmup, []
+
+    def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx) -> None:
+        self.ends.append(time.perf_counter())
+
+    def on_train_end(self, trainer, pl_module) -> None:
+        timed = self.ends[self.warmup - 1 :] if self.warmup > 0 else self.ends
+        Path(self.out).write_text(json.dumps({"seconds": timed[-1] - timed[0], "steps": len(timed) - 1}))
+
+
 def fit_args(configs: list[str], sizes: dict[str, int], steps: int, root: Path) -> list[str]:
-    """The ``floaff-zoo fit`` command line of one timed run."""
+    """The ``floaff-zoo fit`` command line of one run of ``steps`` optimizer steps."""
     n_train = sizes["batch"] * steps
     args = [sys.executable, "-m", "floaff_zoo.cli", "fit", "--config", "configs/data/synthetic_tiny.yaml"]
     for c in configs:
@@ -116,15 +134,16 @@ def teacher_checkpoint(
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--jobs", nargs="*", default=list(JOBS), choices=list(JOBS))
-    p.add_argument("--steps", type=int, default=4, help="timed optimizer steps (the difference of two runs)")
+    p.add_argument("--steps", type=int, default=12, help="timed optimizer steps")
+    p.add_argument("--warmup", type=int, default=3, help="untimed first steps")
     p.add_argument("--recipe-samples", type=int, default=20 * 173, help="samples of one recipe job")
     p.add_argument("--threads", type=int, default=2)
     a = p.parse_args(argv)
     env = {**os.environ, "OMP_NUM_THREADS": str(a.threads), "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
-    env["PYTHONPATH"] = os.pathsep.join([str(ROOT / "src"), env.get("PYTHONPATH", "")])
+    env["PYTHONPATH"] = os.pathsep.join([str(ROOT / "src"), str(ROOT / "benchmarks"), env.get("PYTHONPATH", "")])
     print(
-        f"real `floaff-zoo fit` on synthetic data, {a.threads} threads; per-sample cost = "
-        f"(T[{2 * a.steps} steps] - T[{a.steps} steps]) / ({a.steps} x batch); recipe job = {a.recipe_samples} samples"
+        f"real `floaff-zoo fit` on synthetic data, {a.threads} threads; per-sample cost = wall time of {a.steps} "
+        f"steps after {a.warmup} warm-up steps / ({a.steps} x batch); recipe job = {a.recipe_samples} samples"
     )
     print(
         f"{'job':<22} {'points':>6} {'batch':>5} {'samples/s':>9} {'s/1k samples':>12} "
@@ -141,9 +160,12 @@ def main(argv: list[str] | None = None) -> int:
             if name.endswith("stage2"):
                 teacher = teacher_checkpoint(configs, sizes, root / "teacher", env, extra)
                 extra += ["--model.init_args.teacher", str(teacher)]
-            t1 = run(fit_args(configs, sizes, a.steps, root / "a") + extra, env)
-            t2 = run(fit_args(configs, sizes, 2 * a.steps, root / "b") + extra, env)
-            per_sample = max(t2 - t1, 1e-6) / (a.steps * sizes["batch"])
+            timing = root / "timing.json"
+            timer = ["--trainer.callbacks+=bench_train_time.StepTimer", f"--trainer.callbacks.out={timing}",
+                     f"--trainer.callbacks.warmup={a.warmup}"]  # fmt: skip
+            run(fit_args(configs, sizes, a.warmup + a.steps, root / "run") + extra + timer, env)
+            t = json.loads(timing.read_text())
+            per_sample = t["seconds"] / (t["steps"] * sizes["batch"])
             recipe_min = per_sample * a.recipe_samples / 60
             print(
                 f"{name:<22} {sizes['points']:>6} {sizes['batch']:>5} {1 / per_sample:>9.2f} "
