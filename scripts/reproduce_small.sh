@@ -6,6 +6,8 @@
 #   PAR=1 scripts/reproduce_small.sh ...       # one at a time (each job then may use both cores)
 #   RETEST=1 scripts/reproduce_small.sh ...    # only test the finished runs again (e.g. after adding test scenes)
 #   EPOCHS=6 scripts/reproduce_small.sh navaff # baselines for another number of epochs (default 20)
+#   PRESET=dense scripts/reproduce_small.sh recipe_s0 prior pointnet2_s0   # the dense preset's equal-budget
+#                                              # protocol (4,000 samples per learned model; docs/results.md)
 #
 # Needs the data:
 #   floaff-zoo generate --preset small --benchmarks layouts styles --out data/floaff_small --workers 2 --n-test 4
@@ -23,8 +25,12 @@ cd "$(dirname "$SELF")/.."
 if ! command -v floaff-zoo > /dev/null && [ -x .venv/bin/floaff-zoo ]; then PATH=$PWD/.venv/bin:$PATH; fi
 
 FZ=${FZ:-floaff-zoo}
-RUNS=${RUNS:-runs/small_v2}
-OUT=${OUT:-docs/results/small_v2}
+PRESET=${PRESET:-small}
+if [ "$PRESET" = small ]; then RUNS=${RUNS:-runs/small_v2} OUT=${OUT:-docs/results/small_v2}
+else RUNS=${RUNS:-runs/$PRESET} OUT=${OUT:-docs/results/$PRESET}; fi
+# one-stage models: epochs on the small preset, the equal sample budget on the dense one
+if [ "$PRESET" = dense ]; then BUDGET=(--config configs/experiments/dense/equal_budget.yaml)
+else BUDGET=(--trainer.max_epochs "${EPOCHS:-20}"); fi
 PAR=${PAR:-2}
 TASKS='["PnPCounterToCab","OpenSingleDoor","CloseDrawer","CloseDoubleDoor"]'
 EVAL=configs/trainer/eval_sr.yaml
@@ -73,7 +79,7 @@ RETEST=${RETEST:-0}
 curriculum() {
   local job=$1 bench=$2 seed=$3 label=$4; shift 4
   if [ "$RETEST" = 0 ]; then
-    "$FZ" curriculum --config "configs/experiments/pfal_small_$bench.yaml" --root "$RUNS/$bench/$job" \
+    "$FZ" curriculum --config "configs/experiments/pfal_${PRESET}_$bench.yaml" --root "$RUNS/$bench/$job" \
       --set "seed_everything=$seed" "$@"
   fi
   local ckpt stage
@@ -101,8 +107,8 @@ baseline() {
     if [ -n "$prev" ]; then last=(--ckpt_path "$prev"); fi
   fi
   if [ "$RETEST" = 0 ]; then
-    "$FZ" fit --config "configs/data/floaff_small_$bench.yaml" --config "$model" \
-      --seed_everything "$seed" --trainer.default_root_dir "$root" --trainer.max_epochs "${EPOCHS:-20}" "${last[@]}"
+    "$FZ" fit --config "configs/data/floaff_${PRESET}_$bench.yaml" --config "$model" \
+      --seed_everything "$seed" --trainer.default_root_dir "$root" "${BUDGET[@]}" "${last[@]}"
   fi
   test_run "$(latest_run "$root")" "$label" "$bench" "$job"
 }
@@ -112,7 +118,7 @@ training_free() {
   local job=$1 bench=$2 label=${3:-C2F-Exp} root=$RUNS/$2/$1; shift 3 || shift $#
   local before=$RUNS/.tested_${bench}_$job
   mkdir -p "$RUNS"; touch "$before"
-  "$FZ" test --config "configs/data/floaff_small_$bench.yaml" --config configs/models/c2f_exp.yaml \
+  "$FZ" test --config "configs/data/floaff_${PRESET}_$bench.yaml" --config configs/models/c2f_exp.yaml \
     --config "$EVAL" --trainer.default_root_dir "$root" --trainer.callbacks.init_args.label "$label" "$@"
   copy_report "$(find "$root" -name report.json -newer "$before" | head -n 1)" "$bench" "$job"
 }
@@ -128,7 +134,7 @@ prior() {
     sleep 10
   done
   if [ "$RETEST" = 0 ] && [ -z "$(find "$root" -name last.ckpt 2>/dev/null)" ]; then
-    "$FZ" fit --config "configs/data/floaff_small_$bench.yaml" --config configs/models/canonical_prior.yaml \
+    "$FZ" fit --config "configs/data/floaff_${PRESET}_$bench.yaml" --config configs/models/canonical_prior.yaml \
       --model.init_args.axisnet "$axis" --data.init_args.train_transforms '[]' --trainer.max_epochs 1 \
       --trainer.default_root_dir "$root"
   fi

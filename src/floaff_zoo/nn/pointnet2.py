@@ -9,6 +9,11 @@ weights convert one to one (``Conv2d.weight[:, :, 0, 0]`` = ``Linear.weight``).
 
 FPS indices can be computed up front (``PointNet2Encoder.sample``), outside any compiled
 region or autocast, and passed to ``forward``.
+
+Speed (docs/performance.md), all exact up to float rounding: a set-abstraction MLP pools before its
+last ReLU, and in training fuses its last BatchNorm with the max (``_BatchNormMax``); levels with
+``GATHER_AFTER_FIRST_LAYER`` or more input channels run their first Linear per point before
+grouping; Linear layers with few inputs take a faster weight-gradient GEMM (``_NarrowLinear``).
 """
 
 from __future__ import annotations
