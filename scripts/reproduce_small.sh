@@ -172,6 +172,11 @@ axisnet_longer() {
   mv "$out.tmp" "$out"
 }
 
+label_of() {  # table label of a baseline model name
+  case $1 in pointnet2) echo "PointNet++" ;; navaff) echo NavAff ;; votenet) echo VoteNet ;; h3dnet) echo H3DNet ;;
+    n2m) echo N2M ;; *) echo "$1" ;; esac
+}
+
 run_job() {
   local job=$1
   case $job in
@@ -181,6 +186,12 @@ run_job() {
     votenet) baseline votenet layouts 0 configs/demo/votenet_demo.yaml VoteNet ;;
     h3dnet)  baseline h3dnet layouts 0 configs/demo/h3dnet_demo.yaml H3DNet ;;
     n2m)     baseline n2m layouts 0 configs/demo/n2m_demo.yaml N2M ;;
+    navaff_s[0-9]|votenet_s[0-9]|h3dnet_s[0-9]|n2m_s[0-9])  # any seed of a baseline (<model>_s<seed>)
+      baseline "$job" layouts "${job##*_s}" "configs/demo/${job%_s*}_demo.yaml" "$(label_of "${job%_s*}")" ;;
+    styles_pointnet2_s[0-9]|styles_navaff_s[0-9]|styles_votenet_s[0-9]|styles_h3dnet_s[0-9]|styles_n2m_s[0-9])
+      local m=${job#styles_}; m=${m%_s*}
+      baseline "${job#styles_}" styles "${job##*_s}" "configs/demo/${m}_demo.yaml" "$(label_of "$m")" ;;
+    styles_cfar_pfal_s[0-9]) curriculum "cfar_pfal_s${job##*_s}" styles "${job##*_s}" "CFAR+PFAL" ;;
     c2f_exp) training_free c2f_exp layouts C2F-Exp ;;
     c2f_exp_gtyaw) training_free c2f_exp_gtyaw layouts "C2F-Exp, simulator yaw" --model.init_args.yaw_source gt ;;
     recipe_s[0-9]) curriculum "$job" layouts "${job#recipe_s}" "CFAR+PFAL, zoo recipe" --extra-config "$RECIPE" ;;
@@ -225,6 +236,7 @@ job_out() {  # the file a finished job has written, under $OUT
     styles_c2f_exp) echo styles/c2f_exp/report.json ;;
     styles_prior) echo styles/prior/report.json ;;
     styles_recipe_s*) echo "styles/recipe_s${1#styles_recipe_s}/report.json" ;;
+    styles_*_s[0-9]) echo "styles/${1#styles_}/report.json" ;;
     styles_*) echo "styles/${1#styles_}_s0/report.json" ;;
     r1.*) echo "layouts/sweep_$1/report.json" ;;
     *) echo "layouts/$1/report.json" ;;
