@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
-# The tables and pictures of docs/results.md ("small preset") from the committed report.json files:
+# The tables and pictures of docs/results.md from the committed report.json files:
 #   scripts/results_tables.sh > /tmp/tables.md      (pictures need the runs/ of scripts/reproduce_small.sh)
+#   OUT=docs/results/dense RUNS=runs/dense scripts/results_tables.sh   # the dense preset's protocol
 set -euo pipefail
 SELF=$(realpath "$0")
 cd "$(dirname "$SELF")/.."
@@ -8,8 +9,9 @@ if ! command -v floaff-zoo > /dev/null && [ -x .venv/bin/floaff-zoo ]; then PATH
 R=${OUT:-docs/results/small_v2}
 
 MAIN=()   # the method and every baseline, both benchmarks (rows: the report's label, seeds pooled)
-for d in "$R"/layouts/{recipe_s?,cfar_pfal_s?,prior,prior_gtyaw,pointnet2_s?,navaff,votenet,h3dnet,n2m,c2f_exp,c2f_exp_gtyaw} \
-         "$R"/styles/{recipe_s?,cfar_pfal_s?,prior,pointnet2_s?,c2f_exp}; do
+for d in "$R"/layouts/{recipe_s?,cfar_pfal_s?,prior,prior_gtyaw,pointnet2_s?,navaff,votenet,h3dnet,n2m} \
+         "$R"/layouts/{navaff_s?,votenet_s?,h3dnet_s?,n2m_s?,c2f_exp,c2f_exp_gtyaw} \
+         "$R"/styles/{recipe_s?,cfar_pfal_s?,prior,pointnet2_s?,navaff_s?,votenet_s?,h3dnet_s?,n2m_s?,c2f_exp}; do
   [ -f "$d/report.json" ] && MAIN+=("$d")
 done
 table() { floaff-zoo table --format md --group-by label "$@"; echo; }
