@@ -29,7 +29,7 @@ PRESET=${PRESET:-small}
 if [ "$PRESET" = small ]; then RUNS=${RUNS:-runs/small_v2} OUT=${OUT:-docs/results/small_v2}
 else RUNS=${RUNS:-runs/$PRESET} OUT=${OUT:-docs/results/$PRESET}; fi
 # one-stage models: epochs on the small preset, the equal sample budget on the dense one
-if [ "$PRESET" = dense ]; then BUDGET=(--config configs/experiments/dense/equal_budget.yaml)
+if [ "$PRESET" = dense ]; then BUDGET=(--config configs/trainer/dense_budget.yaml)
 else BUDGET=(--trainer.max_epochs "${EPOCHS:-20}"); fi
 PAR=${PAR:-2}
 TASKS='["PnPCounterToCab","OpenSingleDoor","CloseDrawer","CloseDoubleDoor"]'

@@ -82,10 +82,13 @@ class SharedMLP(nn.Module):
         if mask is None and self._fusable(first):
             h = self._run(x if first is None else first, pre=first is not None, stop=len(self.linears) - 1)
             lin, norm = self.linears[-1], self.norms[-1]
-            norm.num_batches_tracked.add_(1)
+            track = norm.track_running_stats  # False: batch statistics only (e.g. PFAL's frozen teacher)
+            if track:
+                norm.num_batches_tracked.add_(1)
+            stats = (norm.running_mean, norm.running_var) if track else (None, None)
             z = F.linear(h, lin.weight)
             pooled = _BatchNormMax.apply(
-                z, lin.bias, norm.weight, norm.bias, norm.running_mean, norm.running_var, norm.momentum, norm.eps, dim
+                z, lin.bias, norm.weight, norm.bias, *stats, norm.momentum or 0.0, norm.eps, dim
             )
             return F.relu(pooled)
         h = self._run(x if first is None else first, pre=first is not None, last_relu=False)
@@ -103,16 +106,17 @@ class SharedMLP(nn.Module):
         return lin.weight, lin.bias
 
     def _fusable(self, first: Tensor | None) -> bool:
-        """Whether ``pooled`` may fuse the last BatchNorm with the max (train mode, fp32/64, momentum BN)."""
+        """Whether ``pooled`` may fuse the last BatchNorm with the max (train-mode BN, fp32/64, no autocast).
+
+        Also without gradients (a teacher on batch statistics), so that it computes what the student does.
+        """
         norm, lin = self.norms[-1], self.linears[-1]
         return (
             isinstance(norm, nn.BatchNorm1d)
             and norm.training
-            and norm.track_running_stats
-            and norm.momentum is not None
+            and (norm.momentum is not None or not norm.track_running_stats)
             and norm.affine
             and lin.bias is not None
-            and torch.is_grad_enabled()
             and not torch.is_autocast_enabled(lin.weight.device.type)
             and lin.weight.dtype in (torch.float32, torch.float64)
             and (first is None or len(self.linears) > 1)
@@ -196,8 +200,8 @@ class _BatchNormMax(torch.autograd.Function):
         bias: Tensor,
         weight: Tensor,
         beta: Tensor,
-        running_mean: Tensor,
-        running_var: Tensor,
+        running_mean: Tensor | None,
+        running_var: Tensor | None,
         momentum: float,
         eps: float,
         dim: int,
@@ -208,8 +212,9 @@ class _BatchNormMax(torch.autograd.Function):
         n = flat.shape[0]
         var, mean = torch.var_mean(flat, dim=0, correction=0)
         invstd = torch.rsqrt(var + eps)
-        running_mean.mul_(1 - momentum).add_((mean + bias) * momentum)
-        running_var.mul_(1 - momentum).add_(var * (n / max(n - 1, 1)) * momentum)  # unbiased, as BatchNorm
+        if running_mean is not None and running_var is not None:
+            running_mean.mul_(1 - momentum).add_((mean + bias) * momentum)
+            running_var.mul_(1 - momentum).add_(var * (n / max(n - 1, 1)) * momentum)  # unbiased, as BatchNorm
         # BN is a per-channel affine map a z + b: its max over `dim` is at z's max where a >= 0, else at
         # z's min, so the normalised tensor is never written
         scale = weight * invstd
