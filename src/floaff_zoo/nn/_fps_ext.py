@@ -30,16 +30,28 @@ _CPP_SOURCE = r"""
 // 4 floats: GCC/Clang vector extension, one SSE2/NEON register (the baseline of x86-64 and arm64)
 typedef float v4sf __attribute__((vector_size(16)));
 
+// The checked inputs and the output of both FPS kernels: xyz [B, N, 3] float, mask [B, N] bool -> out [B, npoint].
+struct FpsIO {
+  torch::Tensor xyz, mask, out;
+  int64_t B, N;
+  const float* P; const bool* M; int64_t* O;
+  FpsIO(torch::Tensor xyz_, torch::Tensor mask_, int64_t npoint) {
+    TORCH_CHECK(xyz_.dim() == 3 && xyz_.size(2) == 3, "xyz must be [B, N, 3]");
+    TORCH_CHECK(mask_.dim() == 2 && mask_.size(0) == xyz_.size(0) && mask_.size(1) == xyz_.size(1), "mask must be [B, N]");
+    xyz = xyz_.to(torch::kFloat).contiguous();
+    mask = mask_.to(torch::kBool).contiguous();
+    B = xyz.size(0); N = xyz.size(1);
+    out = torch::zeros({B, npoint}, torch::kLong);
+    P = xyz.data_ptr<float>(); M = mask.data_ptr<bool>(); O = out.data_ptr<int64_t>();
+  }
+};
+
 torch::Tensor fps_forward(torch::Tensor xyz, torch::Tensor mask, int64_t npoint) {
-  TORCH_CHECK(xyz.dim() == 3 && xyz.size(2) == 3, "xyz must be [B, N, 3]");
-  TORCH_CHECK(mask.dim() == 2 && mask.size(0) == xyz.size(0) && mask.size(1) == xyz.size(1), "mask must be [B, N]");
-  xyz = xyz.to(torch::kFloat).contiguous();
-  mask = mask.to(torch::kBool).contiguous();
-  const int64_t B = xyz.size(0), N = xyz.size(1);
-  auto out = torch::zeros({B, npoint}, torch::kLong);
-  const float* P = xyz.data_ptr<float>();
-  const bool* M = mask.data_ptr<bool>();
-  int64_t* O = out.data_ptr<int64_t>();
+  const FpsIO io(xyz, mask, npoint);
+  const int64_t B = io.B, N = io.N;
+  const float* P = io.P;
+  const bool* M = io.M;
+  int64_t* O = io.O;
   at::parallel_for(0, B, 1, [&](int64_t b0, int64_t b1) {
     std::vector<float> x(N), y(N), z(N), dist(N);
     for (int64_t b = b0; b < b1; ++b) {
@@ -89,7 +101,7 @@ torch::Tensor fps_forward(torch::Tensor xyz, torch::Tensor mask, int64_t npoint)
       }
     }
   });
-  return out;
+  return io.out;
 }
 
 // The inputs of the selection kernels: mm [B, S, N] (torch matmul of -2*src and dst^T), ssq [B, S] and
@@ -182,15 +194,11 @@ std::vector<torch::Tensor> three_nn_select(torch::Tensor mm, torch::Tensor ssq, 
 // Tie-tolerant FPS (nn/cfar.py tolerant_fps): candidates within tol of the farthest distance are tied and
 // the lowest index wins. d = ((dx*dx + dy*dy) + dz*dz) in float32; invalid points keep -1.
 torch::Tensor tolerant_fps_forward(torch::Tensor xyz, torch::Tensor mask, int64_t npoint, double tol) {
-  TORCH_CHECK(xyz.dim() == 3 && xyz.size(2) == 3, "xyz must be [B, N, 3]");
-  TORCH_CHECK(mask.dim() == 2 && mask.size(0) == xyz.size(0) && mask.size(1) == xyz.size(1), "mask must be [B, N]");
-  xyz = xyz.to(torch::kFloat).contiguous();
-  mask = mask.to(torch::kBool).contiguous();
-  const int64_t B = xyz.size(0), N = xyz.size(1);
-  auto out = torch::zeros({B, npoint}, torch::kLong);
-  const float* P = xyz.data_ptr<float>();
-  const bool* M = mask.data_ptr<bool>();
-  int64_t* O = out.data_ptr<int64_t>();
+  const FpsIO io(xyz, mask, npoint);
+  const int64_t B = io.B, N = io.N;
+  const float* P = io.P;
+  const bool* M = io.M;
+  int64_t* O = io.O;
   const float inf = std::numeric_limits<float>::infinity();
   const float ftol = static_cast<float>(tol);
   at::parallel_for(0, B, 1, [&](int64_t b0, int64_t b1) {
@@ -222,7 +230,7 @@ torch::Tensor tolerant_fps_forward(torch::Tensor xyz, torch::Tensor mask, int64_
       }
     }
   });
-  return out;
+  return io.out;
 }
 
 // Three neighbours chosen without float-noise flips (nn/cfar.py stable_three_interpolate): in float64,
@@ -300,7 +308,7 @@ def load_kernel() -> Any | None:
                 from torch.utils.cpp_extension import load_inline
 
                 _state["module"] = load_inline(
-                    name="floaff_zoo_point_ops_v10",
+                    name="floaff_zoo_point_ops_v11",
                     cpp_sources=[_CPP_DECL, _CPP_SOURCE],
                     functions=[
                         "fps_forward",
