@@ -8,6 +8,9 @@
 #   EPOCHS=6 scripts/reproduce_small.sh navaff # baselines for another number of epochs (default 20)
 #   PRESET=dense scripts/reproduce_small.sh recipe_s0 prior pointnet2_s0   # the dense preset's equal-budget
 #                                              # protocol (4,000 samples per learned model; docs/results.md)
+#   PRESET=dense scripts/reproduce_small.sh recipe_no_crop styles_recipe_r1.30   # ablations / crop sweep on
+#                                              # top of the zoo recipe (recipe_no_{crop,align,sdl,fd}, recipe_r1.xx,
+#                                              # each also as styles_<job>)
 #
 # Needs the data:
 #   floaff-zoo generate --preset small --benchmarks layouts styles --out data/floaff_small --workers 2 --n-test 4
@@ -200,8 +203,15 @@ run_job() {
       [ "$abl" = pointwise ] && abl=pointwise_floor label="recipe, pointwise floor"
       curriculum "$job" layouts 0 "$label" --extra-config "$RECIPE" \
         --extra-config "configs/experiments/recipe/$abl.yaml" ;;
-    recipe_no_fd) curriculum "$job" layouts 0 "recipe w/o fd" --extra-config "$RECIPE" \
-      --extra-config configs/experiments/ablations/no_fd.yaml ;;
+    recipe_no_crop|recipe_no_align|recipe_no_sdl|recipe_no_fd|styles_recipe_no_crop|styles_recipe_no_align|\
+    styles_recipe_no_sdl|styles_recipe_no_fd)  # the ablations of Tables 4-5 on top of the zoo recipe
+      local b=layouts j=$job; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
+      curriculum "$j" "$b" 0 "recipe w/o ${j#recipe_no_}" --extra-config "$RECIPE" \
+        --extra-config "configs/experiments/ablations/${j#recipe_}.yaml" ;;
+    recipe_r1.[0-9]*|styles_recipe_r1.[0-9]*)  # the crop sweep on top of the zoo recipe (CFAR's radius only)
+      local b=layouts r=${job#recipe_}; [ "${job#styles_}" != "$job" ] && b=styles r=${job#styles_recipe_}
+      curriculum "recipe_sweep_$r" "$b" 0 "recipe, r=${r#r}" --extra-config "$RECIPE" \
+        --extra-config "configs/experiments/sweep_crop/$r.yaml" ;;
     prior) prior prior layouts "Canonical prior (no network)" ;;
     prior_gtyaw) prior prior_gtyaw layouts "Canonical prior, simulator yaw" --model.init_args.eval_yaw_source gt ;;
     styles_recipe) curriculum recipe_s0 styles 0 "CFAR+PFAL, zoo recipe" --extra-config "$RECIPE" ;;
@@ -236,6 +246,9 @@ job_out() {  # the file a finished job has written, under $OUT
     styles_c2f_exp) echo styles/c2f_exp/report.json ;;
     styles_prior) echo styles/prior/report.json ;;
     styles_recipe_s*) echo "styles/recipe_s${1#styles_recipe_s}/report.json" ;;
+    styles_recipe_no_*) echo "styles/${1#styles_}/report.json" ;;
+    styles_recipe_r1.*) echo "styles/recipe_sweep_${1#styles_recipe_}/report.json" ;;
+    recipe_r1.*) echo "layouts/recipe_sweep_${1#recipe_}/report.json" ;;
     styles_*_s[0-9]) echo "styles/${1#styles_}/report.json" ;;
     styles_*) echo "styles/${1#styles_}_s0/report.json" ;;
     r1.*) echo "layouts/sweep_$1/report.json" ;;

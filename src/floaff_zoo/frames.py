@@ -15,6 +15,11 @@ import numpy as np
 
 Pose = tuple[float, float, float]
 
+#: decimals (m, rad) to which a base pose is rounded before it is rolled out (and its rollout cached): the
+#: annotation's and the evaluation's. Coarser rounding changes outcomes: some CloseDoubleDoor rollouts flip
+#: when the pose moves by 3e-5 m / 4e-6 rad (docs/background.md §5, "How exact a pose must be").
+ROLLOUT_POSE_DECIMALS = 6
+
 
 def base_to_world(xyz: np.ndarray, base_pose_world: Sequence[float]) -> np.ndarray:
     """Points in the view's robot base frame -> world. xyz [K, 2+] -> same shape (z untouched)."""

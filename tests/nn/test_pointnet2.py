@@ -235,3 +235,17 @@ def test_fused_batchnorm_max_equals_batchnorm_then_max():
         assert torch.allclose(a, b, atol=1e-10), (a - b).abs().max()
     assert torch.allclose(bn2.running_mean, bn.running_mean, atol=1e-12)
     assert torch.allclose(bn2.running_var, bn.running_var, atol=1e-12)
+
+
+def test_batch_mean_var_equals_var_mean_over_several_chunks():
+    """Chunked two-pass statistics (rows not a multiple of the chunk) vs float64 var_mean, with a large offset."""
+    from floaff_zoo.nn.pointnet2 import STATS_CHUNK_ROWS, batch_mean_var
+
+    g = torch.Generator().manual_seed(0)
+    flat = torch.randn(2 * STATS_CHUNK_ROWS + 37, 5, generator=g) * torch.tensor([0.1, 1.0, 3.0, 0.5, 2.0]) + 30.0
+    var, mean = batch_mean_var(flat)
+    ref_var, ref_mean = torch.var_mean(flat.double(), dim=0, correction=0)
+    assert torch.allclose(mean.double(), ref_mean, rtol=0, atol=1e-5)
+    assert torch.allclose(var.double(), ref_var, rtol=1e-5, atol=0), (var.double() / ref_var - 1).abs().max()
+    var64, mean64 = batch_mean_var(flat.double())
+    assert torch.allclose(var64, ref_var, rtol=1e-12) and torch.allclose(mean64, ref_mean, rtol=1e-12)

@@ -26,7 +26,7 @@ class FakeService:
 
     instances: list["FakeService"] = []
 
-    def __init__(self, workers: int = 1, backend: str = "local", cache_decimals: int = 2) -> None:
+    def __init__(self, workers: int = 1, backend: str = "local", cache_decimals: int = 6) -> None:
         self.jobs: list = []
         self.closed = False
         FakeService.instances.append(self)

@@ -100,3 +100,24 @@ def test_a_hanging_worker_times_out_naming_the_episode():
         svc.close()
     assert time.monotonic() - t0 < 60
     assert svc._pool is None  # the stuck workers were killed, not left behind
+
+
+_SIMULATED: list[tuple[float, float, float]] = []
+
+
+def _recording_job(job):
+    _SIMULATED.append(tuple(job[1]))
+    return _fake_jobs.fake_job(job)
+
+
+def test_the_evaluation_rolls_out_the_chosen_pose_as_the_annotation_does():
+    """Default rounding = the annotation's (6 decimals): the simulated pose is the chosen one, not a 2-decimal
+    neighbour (which flips knife-edge rollouts: docs/background.md §5)."""
+    from floaff_zoo.frames import ROLLOUT_POSE_DECIMALS
+
+    _SIMULATED.clear()
+    _, cb = _sr(LabelModule(), make_samples(12), workers=1, job_fn=_recording_job)
+    assert ROLLOUT_POSE_DECIMALS == 6 and cb.cache_decimals == ROLLOUT_POSE_DECIMALS
+    chosen = {tuple(round(v, 6) for v in ep["pose"]) for ep in cb.episodes["test"]}
+    assert chosen <= set(_SIMULATED)
+    assert any(abs(v - round(v, 2)) > 1e-4 for p in chosen for v in p)  # finer than 2 decimals reached the sim

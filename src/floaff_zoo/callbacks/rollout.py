@@ -41,7 +41,7 @@ import torch
 from lightning.pytorch.utilities import rank_zero_warn
 
 from floaff_zoo.contract import best_pose
-from floaff_zoo.frames import Pose, base_to_world, pose_to_world
+from floaff_zoo.frames import ROLLOUT_POSE_DECIMALS, Pose, base_to_world, pose_to_world
 
 __all__ = [
     "RolloutSuccessRate",
@@ -156,7 +156,7 @@ def summary_to_logs(stage: str, summary: dict[str, Any]) -> dict[str, float]:
 
 
 # ----------------------------------------------------------------------------------------------- callback
-def default_service(workers: int = 1, backend: str = "local", cache_decimals: int = 2) -> Any:
+def default_service(workers: int = 1, backend: str = "local", cache_decimals: int = ROLLOUT_POSE_DECIMALS) -> Any:
     """The simulator's rollout service (imported lazily: the callback module never needs mujoco)."""
     from floaff_zoo.sim.rollout import RolloutService
 
@@ -182,7 +182,9 @@ class RolloutSuccessRate(L.Callback):
         oracle: also evaluate the ground-truth labels (the paper's Oracle).
         workers: rollout worker processes.
         backend: ``local`` (process pool) or ``ray``.
-        cache_decimals: poses are rounded to this many decimals (m, rad) for the rollout cache.
+        cache_decimals: poses are rounded to this many decimals (m, rad) before they are rolled out and
+            cached; keep the annotation's (``frames.ROLLOUT_POSE_DECIMALS``): coarser rounding moves the
+            pose off the labelled one and flips sensitive rollouts.
         n_bootstrap: bootstrap resamples for the ± std (0/1 = no std).
         progress: show a progress bar while rolling out.
         service: factory ``(workers, backend, cache_decimals) -> service`` with
@@ -201,7 +203,7 @@ class RolloutSuccessRate(L.Callback):
         oracle: bool = True,
         workers: int = 1,
         backend: Literal["local", "ray"] = "local",
-        cache_decimals: int = 2,
+        cache_decimals: int = ROLLOUT_POSE_DECIMALS,
         n_bootstrap: int = 1000,
         progress: bool = True,
         service: Callable[..., Any] | None = None,

@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from floaff_zoo.frames import ROLLOUT_POSE_DECIMALS
 from floaff_zoo.sim.controllers import default_policy
 from floaff_zoo.sim.kitchen import SimScene
 from floaff_zoo.sim.rollout import RolloutService, heading_to_target, rollout, start_rollout
@@ -176,7 +177,7 @@ def annotate_scene(
         todo = [i for k, i in enumerate(todo) if k in keep]
     success = np.zeros(M, dtype=bool)
     if workers > 1 and todo:
-        svc = RolloutService(workers=workers, cache_decimals=6, seed=seed)
+        svc = RolloutService(workers=workers, cache_decimals=ROLLOUT_POSE_DECIMALS, seed=seed)
         try:
             res = svc.run([(scene.spec, (float(xy[i, 0]), float(xy[i, 1]), float(yaws[i]))) for i in todo])
         finally:

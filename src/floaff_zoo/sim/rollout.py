@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 import mujoco
 import numpy as np
 
+from floaff_zoo.frames import ROLLOUT_POSE_DECIMALS
 from floaff_zoo.sim.controllers import CTRL_DT, Policy, default_policy
 from floaff_zoo.sim.kitchen import SceneSpec, SimScene, TargetInfo, build_scene
 
@@ -159,7 +160,7 @@ class RolloutService:
         self,
         workers: int = 1,
         backend: str = "local",
-        cache_decimals: int = 2,
+        cache_decimals: int = ROLLOUT_POSE_DECIMALS,
         seed: int = 0,
         max_retries: int = 2,
         timeout_s: float = 900.0,
