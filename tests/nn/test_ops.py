@@ -233,3 +233,26 @@ def test_cfar_tolerant_selections_kernel_matches_torch(monkeypatch):
     assert torch.equal(cfar.tolerant_fps(xyz, mask, 40), fast)
     assert (fast[1] >= 7).all()
     assert torch.allclose(cfar.stable_three_interpolate(xyz, known, feat), fast_i, atol=1e-6)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_extreme_over_dim_kernel_matches_torch_max_and_min(monkeypatch, dtype):
+    """Max (min on flagged channels) with the first index among ties and NaN winning, as torch.max/min."""
+    if ops.point_kernel(torch.device("cpu")) is None:
+        pytest.skip("C++ point-op kernels unavailable (no compiler): only the torch path exists")
+    g = torch.Generator().manual_seed(0)
+    z = torch.randn(3, 5, 7, 6, generator=g, dtype=dtype)
+    z[:, :, 4:] = z[:, :, :1]  # padded groups: exact ties with the first row
+    z[1, 2, 3, 0] = float("nan")
+    z[2, 0, 1:3, 4] = float("nan")  # two NaNs: the first one's index
+    take_min = torch.tensor([False, True, False, True, False, False])
+    got = ops.extreme_over_dim(z, 2, take_min)
+    monkeypatch.setattr(ops, "point_kernel", lambda device: None)  # force the torch path
+    ref = ops.extreme_over_dim(z, 2, take_min)
+    assert torch.equal(got[1], ref[1])
+    assert torch.allclose(got[0], ref[0], equal_nan=True)
+    assert torch.equal(ref[1][..., 0], z.max(dim=2).indices[..., 0])
+    assert torch.equal(ref[1][..., 1], z.min(dim=2).indices[..., 1])
+    assert ref[1][2, 0, 4] == 1 and ref[1][1, 2, 0] == 3  # the first NaN
+    with pytest.raises(ValueError, match="channel"):
+        ops.extreme_over_dim(z, -1, take_min)

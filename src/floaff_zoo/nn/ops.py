@@ -10,6 +10,8 @@ MLPs (docs/background.md §6).
 
 from __future__ import annotations
 
+import math
+
 import torch
 from torch import Tensor
 
@@ -19,6 +21,7 @@ __all__ = [
     "ball_query",
     "ball_query_multi",
     "check_finite",
+    "extreme_over_dim",
     "farthest_point_sample",
     "farthest_point_sample_torch",
     "fps_backend",
@@ -89,6 +92,32 @@ def point_kernel(device: torch.device):
     if device.type != "cpu" or torch.compiler.is_compiling():
         return None
     return _fps_ext.load_kernel()
+
+
+def extreme_over_dim(z: Tensor, dim: int, take_min: Tensor) -> tuple[Tensor, Tensor]:
+    """Per channel the max over ``dim`` (the min where ``take_min``) and the index of its first occurrence.
+
+    Args:
+        z: [..., K, ..., C] with ``dim`` the K axis (not the last); take_min: [C] bool.
+    Returns:
+        (values, indices) shaped like z without ``dim``, as ``torch.max``/``torch.min`` give them
+        (first extreme among ties, NaN wins). The C++ kernel reads z once; the torch path takes a
+        max and, only when some channel wants it, a min.
+    """
+    dim = dim % z.ndim
+    if dim == z.ndim - 1:
+        raise ValueError("extreme_over_dim: dim must not be the channel (last) dim")
+    kernel = point_kernel(z.device)
+    differentiable = torch.is_grad_enabled() and z.requires_grad  # the kernel has no backward
+    if kernel is not None and not differentiable and z.dtype in (torch.float32, torch.float64):
+        vals, idx = kernel.extreme_over_dim(z.reshape(math.prod(z.shape[:dim]), z.shape[dim], -1), take_min)
+        out_shape = z.shape[:dim] + z.shape[dim + 1 :]
+        return vals.view(out_shape), idx.view(out_shape)
+    vals, idx = z.max(dim=dim)
+    if bool(take_min.any()):
+        low, low_idx = z.min(dim=dim)
+        vals, idx = torch.where(take_min, low, vals), torch.where(take_min, low_idx, idx)
+    return vals, idx
 
 
 def index_points(points: Tensor, idx: Tensor) -> Tensor:

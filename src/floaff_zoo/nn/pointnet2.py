@@ -24,7 +24,13 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from floaff_zoo.nn.ops import ball_query_multi, farthest_point_sample, index_points, three_interpolate
+from floaff_zoo.nn.ops import (
+    ball_query_multi,
+    extreme_over_dim,
+    farthest_point_sample,
+    index_points,
+    three_interpolate,
+)
 
 #: feature channels from which a set-abstraction level runs its first Linear before grouping
 #: (cheaper once the input is wider than a few channels; level 1 with 1-4 channels groups first)
@@ -218,10 +224,7 @@ class _BatchNormMax(torch.autograd.Function):
         # BN is a per-channel affine map a z + b: its max over `dim` is at z's max where a >= 0, else at
         # z's min, so the normalised tensor is never written
         scale = weight * invstd
-        vals, idx = z.max(dim=dim)
-        if not bool((scale >= 0).all()):
-            low, low_idx = z.min(dim=dim)
-            vals, idx = torch.where(scale >= 0, vals, low), torch.where(scale >= 0, idx, low_idx)
+        vals, idx = extreme_over_dim(z, dim, scale < 0)
         vals = torch.addcmul(beta - mean * scale, vals, scale)
         ctx.save_for_backward(z, weight, mean, invstd, idx)
         ctx.dim, ctx.n = dim, n
