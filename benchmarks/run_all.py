@@ -42,6 +42,12 @@ SUITE: list[tuple[str, str, list[str], list[str]]] = [
         ["--quick", "--points-sweep", "1024", "2048", "4096", "8192", "--vs-reference", *_LEARNED],
         ["--points-sweep", "1024", "2048", "4096", "8192", "--vs-reference", *_LEARNED],
     ),
+    (
+        "As shipped: every learned model with the zoo's allocator setting vs the port, four processes each",
+        "bench_vs_port.py",
+        ["--rounds", "1", "--iters", "2"],
+        [],
+    ),
     ("Time to train: a real `fit` per model of the reproduction recipe", "bench_train_time.py", [], ["--steps", "8"]),
 ]
 

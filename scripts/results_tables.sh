@@ -31,10 +31,29 @@ if [ ${#ABL[@]} -gt 1 ]; then
   table --runs "${ABL[@]}" --preset sr_views --no-oracle
 fi
 
+for bench in layouts styles; do  # the ablations and the crop sweep on top of the zoo recipe (dense protocol)
+  name=Layouts; [ $bench = styles ] && name=Styles
+  ABLR=("$R/$bench/recipe_s0")
+  for d in "$R/$bench"/recipe_no_{crop,align,sdl,fd}; do [ -f "$d/report.json" ] && ABLR+=("$d"); done
+  if [ ${#ABLR[@]} -gt 1 ] && [ -f "$R/$bench/recipe_no_crop/report.json" ]; then
+    echo "### Ablations of the zoo recipe on $name (analogue of Tables 4-5; seed 0 each)"; echo
+    table --runs "${ABLR[@]}" --preset ablation
+    table --runs "${ABLR[@]}" --preset sr_views --no-oracle
+    table --runs "${ABLR[@]}" --preset sr_tasks --no-oracle
+  fi
+  SWR=("$R/$bench/recipe_s0")
+  for d in "$R/$bench"/recipe_sweep_r*; do [ -f "$d/report.json" ] && SWR+=("$d"); done
+  if [ ${#SWR[@]} -gt 1 ]; then
+    echo "### Crop-radius sweep of the zoo recipe on $name (seed 0 each)"; echo
+    floaff-zoo table --format md --runs "${SWR[@]}" --preset sweep; echo
+  fi
+done
+
 SWEEP=("$R"/layouts/cfar_pfal_s0)
 for d in "$R"/layouts/sweep_r*; do [ -f "$d/report.json" ] && SWEEP+=("$d"); done
 REC=("$R"/layouts/recipe_s0)
-for d in "$R"/layouts/recipe_{no_prior,no_snap,pointwise,no_fd} "$R"/layouts/cfar_pfal_s0; do [ -f "$d/report.json" ] && REC+=("$d"); done
+NO_FD=no_fd; [ -f "$R/layouts/recipe_no_crop/report.json" ] && NO_FD=""  # then in the recipe's ablation table
+for d in "$R"/layouts/recipe_{no_prior,no_snap,pointwise,$NO_FD} "$R"/layouts/cfar_pfal_s0; do [ -f "$d/report.json" ] && REC+=("$d"); done
 echo "### The zoo recipe's switches on Layouts (seed 0 each)"; echo
 table --runs "${REC[@]}" --preset ablation
 table --runs "${REC[@]}" --preset sr_views --no-oracle

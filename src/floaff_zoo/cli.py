@@ -18,7 +18,7 @@ from lightning.pytorch.callbacks import ModelCheckpoint, TQDMProgressBar
 from lightning.pytorch.cli import LightningCLI
 from lightning.pytorch.utilities.exceptions import MisconfigurationException
 
-from floaff_zoo import quiet
+from floaff_zoo import quiet, runtime
 from floaff_zoo._version import __version__
 from floaff_zoo.contract import SampleError
 from floaff_zoo.data.base import FloAffDataModule
@@ -278,6 +278,11 @@ def main(args: list[str] | None = None) -> int:
         argv = [a for a in argv if a != "--verbose"]
         quiet.set_verbose(True)
     quiet.install()
+    try:
+        runtime.keep_freed_memory()  # large activations reuse freed memory instead of fresh pages (runtime.py)
+    except ValueError as exc:
+        print(f"floaff-zoo: error: {exc}", file=sys.stderr)
+        return 2
     if not argv or argv[0] in ("-h", "--help"):
         _print_overview()
         return 0
