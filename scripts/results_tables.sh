@@ -46,6 +46,7 @@ for bench in layouts styles; do  # the ablations and the crop sweep on top of th
   if [ ${#SWR[@]} -gt 1 ]; then
     echo "### Crop-radius sweep of the zoo recipe on $name (seed 0 each)"; echo
     floaff-zoo table --format md --runs "${SWR[@]}" --preset sweep; echo
+    table --runs "${SWR[@]}" --preset sr_views --no-oracle
   fi
 done
 
