@@ -74,7 +74,13 @@ def _merge_sections(old: str, new: list[str]) -> list[str]:
 
     fresh = {s.split("\n", 1)[0]: s for s in new if s.startswith("## ")}
     head = [s for s in new if not s.startswith("## ")]
-    body = [fresh.get(s.split("\n", 1)[0], s) for s in split(old)[1:]]
+    old_body = split(old)[1:]
+    body = [fresh.get(s.split("\n", 1)[0], s) for s in old_body]
+    # a section the old report lacks goes before the hand-written ones (it would be lost otherwise)
+    titles = {s.split("\n", 1)[0] for s in old_body}
+    added = [s for t, s in fresh.items() if t not in titles]
+    at = next((i for i, s in enumerate(body) if s.startswith(_KEPT)), len(body))
+    body = body[:at] + added + body[at:]
     return head + [s.rstrip("\n") + "\n" for s in body]
 
 
