@@ -15,7 +15,6 @@ resident memory (freed memory stays with the process instead of going back to th
 from __future__ import annotations
 
 import ctypes
-import ctypes.util
 import os
 
 MALLOC_ENV = "FLOAFF_ZOO_MALLOC"
@@ -46,7 +45,7 @@ def keep_freed_memory() -> bool:
         return _state["applied"]
     ok = False
     try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        libc = ctypes.CDLL(None)  # the symbols already loaded into this process (no library search at start-up)
         mallopt = getattr(libc, "mallopt", None)
         gnu = getattr(libc, "gnu_get_libc_version", None)
         if mallopt is not None and gnu is not None:
