@@ -237,10 +237,16 @@ def test_fused_batchnorm_max_equals_batchnorm_then_max():
     assert torch.allclose(bn2.running_var, bn.running_var, atol=1e-12)
 
 
-def test_batch_mean_var_equals_var_mean_over_several_chunks():
-    """Chunked two-pass statistics (rows not a multiple of the chunk) vs float64 var_mean, with a large offset."""
+@pytest.mark.parametrize("path", ["kernel", "torch"])
+def test_batch_mean_var_equals_var_mean_over_several_chunks(path, monkeypatch):
+    """Two-pass statistics (rows not a multiple of the chunk or block) vs float64 var_mean, large offset."""
+    import floaff_zoo.nn.pointnet2 as pn2
     from floaff_zoo.nn.pointnet2 import STATS_CHUNK_ROWS, batch_mean_var
 
+    if path == "torch":
+        monkeypatch.setattr(pn2, "point_kernel", lambda device: None)
+    elif ops.point_kernel(torch.device("cpu")) is None:
+        pytest.skip("the C++ kernels are unavailable here (no compiler)")
     g = torch.Generator().manual_seed(0)
     flat = torch.randn(2 * STATS_CHUNK_ROWS + 37, 5, generator=g) * torch.tensor([0.1, 1.0, 3.0, 0.5, 2.0]) + 30.0
     var, mean = batch_mean_var(flat)
@@ -249,3 +255,114 @@ def test_batch_mean_var_equals_var_mean_over_several_chunks():
     assert torch.allclose(var.double(), ref_var, rtol=1e-5, atol=0), (var.double() / ref_var - 1).abs().max()
     var64, mean64 = batch_mean_var(flat.double())
     assert torch.allclose(var64, ref_var, rtol=1e-12) and torch.allclose(mean64, ref_mean, rtol=1e-12)
+
+
+def _bn_relu_case(dtype):
+    g = torch.Generator().manual_seed(3)
+    z0 = torch.randn(300, 5, generator=g, dtype=dtype) * torch.tensor([0.2, 1.0, 3.0, 0.5, 2.0], dtype=dtype) + 4.0
+    bias0 = torch.randn(5, generator=g, dtype=dtype)
+    bn = torch.nn.BatchNorm1d(5).to(dtype)
+    with torch.no_grad():
+        bn.weight.copy_(torch.tensor([1.5, -0.7, 0.2, -2.0, 1.0]))
+        bn.bias.copy_(torch.randn(5, generator=g))
+    gout = torch.randn(300, 5, generator=g, dtype=dtype)
+    return z0, bias0, bn, gout
+
+
+@pytest.mark.parametrize("reuse", [False, True], ids=["fresh", "reuse_z"])
+def test_fused_batchnorm_relu_equals_batchnorm_then_relu(reuse):
+    """Values, gradients (z, Linear bias = 0, BN affine) and running stats of the C++ BN+ReLU, float64."""
+    from floaff_zoo.nn.pointnet2 import _BatchNormReLU
+
+    if ops.point_kernel(torch.device("cpu")) is None:
+        pytest.skip("the C++ kernels are unavailable here (no compiler)")
+    z0, bias0, bn, gout = _bn_relu_case(torch.float64)
+    z = z0.clone().requires_grad_()
+    bias = bias0.clone().requires_grad_()
+    ref = torch.relu(bn(z + bias))
+    ref_grads = torch.autograd.grad(ref, (z, bias, bn.weight, bn.bias), gout)
+
+    bn2 = torch.nn.BatchNorm1d(5).double()
+    bn2.load_state_dict({**bn.state_dict(), "running_mean": torch.zeros(5), "running_var": torch.ones(5)})
+    z2 = z0.clone().requires_grad_()
+    lin_out = z2 * 1.0  # a non-leaf, as the Linear's output is
+    bias2 = bias0.clone().requires_grad_()
+    stats = (bn2.running_mean, bn2.running_var)
+    out = _BatchNormReLU.apply(lin_out, bias2, bn2.weight, bn2.bias, *stats, 0.1, 1e-5, reuse)
+    grads = torch.autograd.grad(out, (z2, bias2, bn2.weight, bn2.bias), gout, retain_graph=True)
+    assert torch.allclose(out, ref, atol=1e-12)
+    for a, b in zip(grads, ref_grads, strict=True):
+        assert torch.allclose(a, b, atol=1e-10), (a - b).abs().max()
+    assert torch.allclose(bn2.running_mean, bn.running_mean, atol=1e-12)
+    assert torch.allclose(bn2.running_var, bn.running_var, atol=1e-12)
+    if reuse:
+        # the first backward wrote its gradient over z: a second one must fail, not read a stale z
+        with pytest.raises(RuntimeError, match="modified by an inplace operation"):
+            torch.autograd.grad(out, (z2,), gout)
+    else:
+        again = torch.autograd.grad(out, (z2,), gout)[0]
+        assert torch.equal(again, grads[0])
+
+
+def test_fused_batchnorm_max_reusing_z_gives_the_same_gradient_once():
+    """``reuse_z`` writes the gradient over z: same result, and a second backward fails loudly."""
+    from floaff_zoo.nn.pointnet2 import _BatchNormMax
+
+    g = torch.Generator().manual_seed(1)
+    z0 = torch.randn(2, 6, 5, 4, generator=g, dtype=torch.float64)
+    gout = torch.randn(2, 6, 4, generator=g, dtype=torch.float64)
+    results = []
+    for reuse in (False, True):
+        z = z0.clone().requires_grad_()
+        bn = torch.nn.BatchNorm1d(4).double()
+        out = _BatchNormMax.apply(
+            z * 1.0, torch.zeros(4, dtype=torch.float64), bn.weight, bn.bias, None, None, 0.1, 1e-5, 2, reuse
+        )
+        results.append(torch.autograd.grad(out, (z,), gout, retain_graph=True)[0])
+        if reuse:
+            with pytest.raises(RuntimeError, match="modified by an inplace operation"):
+                torch.autograd.grad(out, (z,), gout)
+    assert torch.equal(results[0], results[1])
+
+
+def test_shared_mlp_kernel_path_equals_torch_path(monkeypatch):
+    """A train-mode pooled MLP on the C++ BN+ReLU and statistics kernels vs the torch ops, float32:
+    outputs, input and weight gradients, running statistics."""
+    import floaff_zoo.nn.pointnet2 as pn2
+    from floaff_zoo.nn.pointnet2 import SharedMLP
+
+    if ops.point_kernel(torch.device("cpu")) is None:
+        pytest.skip("the C++ kernels are unavailable here (no compiler)")
+    torch.manual_seed(0)
+    ref_mlp = SharedMLP(4, [16, 24, 32]).train()
+    x0 = torch.randn(3, 40, 8, 4)
+    runs = []
+    for use_kernel in (True, False):
+        if not use_kernel:
+            monkeypatch.setattr(pn2, "point_kernel", lambda device: None)
+        mlp = SharedMLP(4, [16, 24, 32]).train()
+        mlp.load_state_dict(ref_mlp.state_dict())
+        x = x0.clone().requires_grad_()
+        out = mlp.pooled(x, dim=2)
+        out.square().sum().backward()
+        stats = [torch.cat([n.running_mean, n.running_var]) for n in mlp.norms]
+        runs.append((out.detach(), x.grad, [lin.weight.grad for lin in mlp.linears], stats))
+    (a, ga, wa, sa), (b, gb, wb, sb) = runs
+    assert torch.allclose(a, b, atol=1e-5), (a - b).abs().max()
+    assert torch.allclose(ga, gb, atol=1e-4), (ga - gb).abs().max()
+    for u, v in zip(wa + sa, wb + sb, strict=True):
+        # sums over 960 rows in another order: float32 rounding, relative to the tensor's scale
+        assert (u - v).abs().max() <= 1e-5 * u.abs().max(), (u - v).abs().max() / u.abs().max()
+
+
+def test_bn_relu_kernels_reject_mismatched_inputs():
+    kernel = ops.point_kernel(torch.device("cpu"))
+    if kernel is None:
+        pytest.skip("the C++ kernels are unavailable here (no compiler)")
+    z = torch.randn(10, 4)
+    with pytest.raises(RuntimeError, match="a must be"):
+        kernel.affine_relu(z, torch.ones(3), torch.zeros(4))
+    with pytest.raises(RuntimeError, match="dy must be"):
+        kernel.relu_grad_sums(torch.randn(10, 5), z, z, torch.zeros(4))
+    with pytest.raises(RuntimeError, match="z must be"):
+        kernel.column_var_mean(z.t())

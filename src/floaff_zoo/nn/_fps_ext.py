@@ -1,5 +1,6 @@
 """Optional C++ point kernels (FPS, ball-query and 3-NN selection, CFAR's tie-tolerant FPS and 3-NN, the
-max-with-index of the fused BatchNorm+max), compiled on first use with ``load_inline``.
+max-with-index of the fused BatchNorm+max, the passes of the fused train-mode BatchNorm+ReLU), compiled on
+first use with ``load_inline``.
 
 The build is cached in ``TORCH_EXTENSIONS_DIR`` (torch's default: ``~/.cache/torch_extensions``),
 so only the first process on a machine pays the one-off g++ compile (~25-40 s). Any failure (no
@@ -24,6 +25,7 @@ from typing import Any
 _CPP_SOURCE = r"""
 #include <torch/extension.h>
 #include <ATen/Parallel.h>
+#include <algorithm>
 #include <cstring>
 #include <limits>
 #include <vector>
@@ -323,6 +325,163 @@ std::vector<torch::Tensor> extreme_over_dim(torch::Tensor z, torch::Tensor take_
   });
   return {vals, idx};
 }
+
+// Train-mode BatchNorm + ReLU of z [R, C] (rows = samples) with the batch statistics given: the forward
+// writes y = max(a z + c, 0) in one pass; the backward reads dy, y and z twice (the two per-channel sums,
+// then the gradient) and writes the gradient over z, where torch's ReLU and BN backward passes allocate
+// and write two tensors of z's size. Helpers with restrict pointers so the row loops vectorise.
+template <typename scalar_t>
+__attribute__((noinline)) void affine_relu_row(const scalar_t* __restrict__ z, const scalar_t* __restrict__ a,
+                                               const scalar_t* __restrict__ c, scalar_t* __restrict__ y, int64_t C) {
+  for (int64_t i = 0; i < C; ++i) {
+    const scalar_t v = a[i] * z[i] + c[i];
+    y[i] = v > scalar_t(0) ? v : scalar_t(0);
+  }
+}
+
+template <typename scalar_t>
+__attribute__((noinline)) void relu_grad_sums_row(const scalar_t* __restrict__ dy, const scalar_t* __restrict__ y,
+                                                  const scalar_t* __restrict__ z, const scalar_t* __restrict__ mean,
+                                                  scalar_t* __restrict__ sg, scalar_t* __restrict__ sgx, int64_t C) {
+  for (int64_t i = 0; i < C; ++i) {
+    const scalar_t d = dy[i];  // loaded unconditionally: a conditional load blocks vectorisation
+    const scalar_t g = y[i] > scalar_t(0) ? d : scalar_t(0);
+    sg[i] += g;
+    sgx[i] += g * (z[i] - mean[i]);
+  }
+}
+
+template <typename scalar_t>
+__attribute__((noinline)) void bn_relu_grad_row(const scalar_t* __restrict__ dy, const scalar_t* __restrict__ y,
+                                                scalar_t* __restrict__ zio, const scalar_t* __restrict__ k,
+                                                const scalar_t* __restrict__ A, const scalar_t* __restrict__ B,
+                                                int64_t C) {
+  for (int64_t i = 0; i < C; ++i) {
+    const scalar_t kd = k[i] * dy[i], r = A[i] * zio[i] + B[i];
+    zio[i] = y[i] > scalar_t(0) ? r + kd : r;
+  }
+}
+
+static void check_rows(const torch::Tensor& t, const torch::Tensor& like, const char* name) {
+  TORCH_CHECK(t.dim() == 2 && t.sizes() == like.sizes() && t.is_contiguous() && t.scalar_type() == like.scalar_type(),
+              name, " must be a contiguous [R, C] tensor like z");
+}
+
+static void check_channels(const torch::Tensor& t, const torch::Tensor& z, const char* name) {
+  TORCH_CHECK(t.dim() == 1 && t.size(0) == z.size(1) && t.is_contiguous() && t.scalar_type() == z.scalar_type(),
+              name, " must be a contiguous [C] tensor of z's dtype");
+}
+
+template <typename scalar_t>
+__attribute__((noinline)) void add_row(const scalar_t* __restrict__ z, scalar_t* __restrict__ s, int64_t C) {
+  for (int64_t i = 0; i < C; ++i) s[i] += z[i];
+}
+
+template <typename scalar_t>
+__attribute__((noinline)) void add_centred_square_row(const scalar_t* __restrict__ z, const scalar_t* __restrict__ mu,
+                                                      scalar_t* __restrict__ s, int64_t C) {
+  for (int64_t i = 0; i < C; ++i) {
+    const scalar_t d = z[i] - mu[i];
+    s[i] += d * d;
+  }
+}
+
+// Per-channel sums over the rows of z [R, C], in fixed blocks of 1024 rows (block sums in scalar_t, added in
+// block order in double: the result does not depend on the thread count). With mean given, the sums of
+// (z - mean)^2.
+static torch::Tensor block_column_sums(const torch::Tensor& z, const torch::Tensor* mean) {
+  const int64_t R = z.size(0), C = z.size(1), BLOCK = 1024, NB = (R + BLOCK - 1) / BLOCK;
+  auto part = torch::zeros({NB, C}, z.options());
+  AT_DISPATCH_FLOATING_TYPES(z.scalar_type(), "block_column_sums", [&] {
+    const scalar_t* Z = z.data_ptr<scalar_t>();
+    const scalar_t* MU = mean ? mean->data_ptr<scalar_t>() : nullptr;
+    scalar_t* P = part.data_ptr<scalar_t>();
+    at::parallel_for(0, NB, 1, [&](int64_t b0, int64_t b1) {
+      for (int64_t b = b0; b < b1; ++b) {
+        const int64_t e = std::min(R, (b + 1) * BLOCK);
+        for (int64_t r = b * BLOCK; r < e; ++r) {
+          if (MU) add_centred_square_row(Z + r * C, MU, P + b * C, C);
+          else add_row(Z + r * C, P + b * C, C);
+        }
+      }
+    });
+  });
+  return part.to(torch::kDouble).sum(0);
+}
+
+// (biased variance [C], mean [C]) over the rows of z [R, C]: a centred two-pass computation
+std::vector<torch::Tensor> column_var_mean(torch::Tensor z) {
+  TORCH_CHECK(z.dim() == 2 && z.is_contiguous() && z.size(0) > 0, "z must be a contiguous [R, C] tensor, R > 0");
+  const double R = double(z.size(0));
+  auto mean = (block_column_sums(z, nullptr) / R).to(z.scalar_type());
+  auto var = (block_column_sums(z, &mean) / R).to(z.scalar_type());
+  return {var, mean};
+}
+
+// y [R, C] = max(a z + c, 0), a and c [C]
+torch::Tensor affine_relu(torch::Tensor z, torch::Tensor a, torch::Tensor c) {
+  TORCH_CHECK(z.dim() == 2 && z.is_contiguous(), "z must be a contiguous [R, C] tensor");
+  check_channels(a, z, "a");
+  check_channels(c, z, "c");
+  auto y = torch::empty_like(z);
+  const int64_t R = z.size(0), C = z.size(1);
+  AT_DISPATCH_FLOATING_TYPES(z.scalar_type(), "affine_relu", [&] {
+    const scalar_t *Z = z.data_ptr<scalar_t>(), *Ap = a.data_ptr<scalar_t>(), *Cp = c.data_ptr<scalar_t>();
+    scalar_t* Y = y.data_ptr<scalar_t>();
+    at::parallel_for(0, R, 256, [&](int64_t r0, int64_t r1) {
+      for (int64_t r = r0; r < r1; ++r) affine_relu_row(Z + r * C, Ap, Cp, Y + r * C, C);
+    });
+  });
+  return y;
+}
+
+// Per channel sum_g and sum_g (z - mean), g = dy where y > 0 else 0. Rows are summed in fixed blocks of
+// 1024 (block sums in scalar_t, then added in block order in double), so the result does not depend on
+// the thread count.
+std::vector<torch::Tensor> relu_grad_sums(torch::Tensor dy, torch::Tensor y, torch::Tensor z, torch::Tensor mean) {
+  TORCH_CHECK(z.dim() == 2 && z.is_contiguous(), "z must be a contiguous [R, C] tensor");
+  check_rows(dy, z, "dy");
+  check_rows(y, z, "y");
+  check_channels(mean, z, "mean");
+  const int64_t R = z.size(0), C = z.size(1), BLOCK = 1024, NB = (R + BLOCK - 1) / BLOCK;
+  auto part = torch::zeros({NB, 2, C}, z.options());
+  AT_DISPATCH_FLOATING_TYPES(z.scalar_type(), "relu_grad_sums", [&] {
+    const scalar_t *DY = dy.data_ptr<scalar_t>(), *Y = y.data_ptr<scalar_t>(), *Z = z.data_ptr<scalar_t>();
+    const scalar_t* MU = mean.data_ptr<scalar_t>();
+    scalar_t* P = part.data_ptr<scalar_t>();
+    at::parallel_for(0, NB, 1, [&](int64_t b0, int64_t b1) {
+      for (int64_t b = b0; b < b1; ++b) {
+        scalar_t *sg = P + b * 2 * C, *sgx = sg + C;
+        const int64_t e = std::min(R, (b + 1) * BLOCK);
+        for (int64_t r = b * BLOCK; r < e; ++r) relu_grad_sums_row(DY + r * C, Y + r * C, Z + r * C, MU, sg, sgx, C);
+      }
+    });
+  });
+  auto sums = part.to(torch::kDouble).sum(0);
+  return {sums[0].to(z.scalar_type()), sums[1].to(z.scalar_type())};
+}
+
+// In place: z [R, C] <- A z + B + (y > 0 ? k dy : 0), the BatchNorm + ReLU input gradient
+void bn_relu_grad_(torch::Tensor z, torch::Tensor dy, torch::Tensor y, torch::Tensor k, torch::Tensor A,
+                   torch::Tensor B) {
+  TORCH_CHECK(z.dim() == 2 && z.is_contiguous(), "z must be a contiguous [R, C] tensor");
+  check_rows(dy, z, "dy");
+  check_rows(y, z, "y");
+  check_channels(k, z, "k");
+  check_channels(A, z, "A");
+  check_channels(B, z, "B");
+  const int64_t R = z.size(0), C = z.size(1);
+  AT_DISPATCH_FLOATING_TYPES(z.scalar_type(), "bn_relu_grad_", [&] {
+    const scalar_t *DY = dy.data_ptr<scalar_t>(), *Y = y.data_ptr<scalar_t>();
+    const scalar_t *K = k.data_ptr<scalar_t>(), *Ap = A.data_ptr<scalar_t>(), *Bp = B.data_ptr<scalar_t>();
+    scalar_t* Z = z.data_ptr<scalar_t>();
+    at::parallel_for(0, R, 256, [&](int64_t r0, int64_t r1) {
+      for (int64_t r = r0; r < r1; ++r) bn_relu_grad_row(DY + r * C, Y + r * C, Z + r * C, K, Ap, Bp, C);
+    });
+  });
+  // an in-place write: autograd's version check then catches a later use of z's old values
+  z.unsafeGetTensorImpl()->bump_version();
+}
 """
 
 _CPP_DECL = """
@@ -332,6 +491,10 @@ std::vector<torch::Tensor> three_nn_select(torch::Tensor mm, torch::Tensor ssq, 
 torch::Tensor tolerant_fps_forward(torch::Tensor xyz, torch::Tensor mask, int64_t npoint, double tol);
 std::vector<torch::Tensor> stable_three_nn(torch::Tensor unknown, torch::Tensor known, double tol);
 std::vector<torch::Tensor> extreme_over_dim(torch::Tensor z, torch::Tensor take_min);
+torch::Tensor affine_relu(torch::Tensor z, torch::Tensor a, torch::Tensor c);
+std::vector<torch::Tensor> relu_grad_sums(torch::Tensor dy, torch::Tensor y, torch::Tensor z, torch::Tensor mean);
+void bn_relu_grad_(torch::Tensor z, torch::Tensor dy, torch::Tensor y, torch::Tensor k, torch::Tensor A, torch::Tensor B);
+std::vector<torch::Tensor> column_var_mean(torch::Tensor z);
 """
 
 _lock = threading.Lock()
@@ -361,7 +524,7 @@ def load_kernel() -> Any | None:
                 from torch.utils.cpp_extension import load_inline
 
                 _state["module"] = load_inline(
-                    name="floaff_zoo_point_ops_v12",
+                    name="floaff_zoo_point_ops_v17",
                     cpp_sources=[_CPP_DECL, _CPP_SOURCE],
                     functions=[
                         "fps_forward",
@@ -370,8 +533,16 @@ def load_kernel() -> Any | None:
                         "tolerant_fps_forward",
                         "stable_three_nn",
                         "extreme_over_dim",
+                        "affine_relu",
+                        "relu_grad_sums",
+                        "bn_relu_grad_",
+                        "column_var_mean",
                     ],
-                    extra_cflags=["-O3", "-ffp-contract=off"],
+                    # -fopenmp: at::parallel_for is OpenMP in these headers, serial without it; the
+                    # runtime is the libgomp torch has already loaded (same soname), so one thread pool.
+                    # -fno-trapping-math lets selects vectorise (no reassociation, no FMA: same results)
+                    extra_cflags=["-O3", "-ffp-contract=off", "-fno-trapping-math", "-fopenmp"],
+                    extra_ldflags=["-fopenmp"],
                     verbose=False,
                 )
             except Exception as exc:  # noqa: BLE001 - any build failure means "use the fallback"

@@ -29,6 +29,7 @@ from floaff_zoo.nn.ops import (
     extreme_over_dim,
     farthest_point_sample,
     index_points,
+    point_kernel,
     three_interpolate,
 )
 
@@ -93,16 +94,31 @@ class SharedMLP(nn.Module):
                 norm.num_batches_tracked.add_(1)
             stats = (norm.running_mean, norm.running_var) if track else (None, None)
             z = F.linear(h, lin.weight)
+            # z is private to this call, so the backward may write its gradient over it
+            reuse = not torch.compiler.is_compiling()
             pooled = _BatchNormMax.apply(
-                z, lin.bias, norm.weight, norm.bias, *stats, norm.momentum or 0.0, norm.eps, dim
+                z, lin.bias, norm.weight, norm.bias, *stats, norm.momentum or 0.0, norm.eps, dim, reuse
             )
             return F.relu(pooled)
-        h = self._run(x if first is None else first, pre=first is not None, last_relu=False)
-        if mask is not None:
-            h = h.masked_fill(~mask[..., None], torch.finfo(h.dtype).min)
-        # max (one winner) backpropagates with a scatter; amax is the faster forward-only reduction
-        h = h.max(dim=dim).values if torch.is_grad_enabled() and h.requires_grad else h.amax(dim=dim)
+        last = self._last_affine()
+        if last is not None and (first is None or len(self.linears) > 1):
+            # eval-mode BN (folded) or none: max(z + b) = max(z) + b, so the bias is added after the pool
+            h = self._run(x if first is None else first, pre=first is not None, stop=len(self.linears) - 1)
+            weight, bias = last
+            h = _pool(F.linear(h, weight), mask, dim)
+            h = h + bias.to(h.dtype)
+        else:
+            h = _pool(self._run(x if first is None else first, pre=first is not None, last_relu=False), mask, dim)
         return F.relu(h) if self._last_act() else h
+
+    def _last_affine(self) -> tuple[Tensor, Tensor] | None:
+        """(weight [O, I], bias [O]) of the last layer when it is affine (BN in eval mode, folded, or no BN)."""
+        lin, norm = self.linears[-1], self.norms[-1]
+        if lin.bias is None:
+            return None
+        if isinstance(norm, nn.BatchNorm1d) and not norm.training and norm.running_mean is not None:
+            return _fold_bn(lin, norm)
+        return (lin.weight, lin.bias) if isinstance(norm, nn.Identity) else None
 
     def first_linear(self) -> tuple[Tensor, Tensor]:
         """(weight [O, I], bias [O]) of the first layer, BN folded in eval mode (as ``forward`` uses)."""
@@ -143,12 +159,19 @@ class SharedMLP(nn.Module):
         inplace = not torch.is_grad_enabled()
         for i, (lin, norm) in enumerate(zip(self.linears[:stop], self.norms[:stop])):
             skip = pre and i == 0
+            act = i < last or (last_relu and self._last_act()) or stop is not None
             if isinstance(norm, nn.BatchNorm1d) and not norm.training and norm.running_mean is not None:
                 h = h if skip else F.linear(h, *_fold_bn(lin, norm))  # eval: BN folded into the Linear
+            elif not skip and _absorbs_bias(norm, lin):
+                z = _linear(h, lin, with_bias=False)
+                if act and _fused_bn_relu_ok(z):
+                    h = _batch_norm_relu(z, lin.bias, norm)
+                    continue
+                h = _batch_norm_absorbing_bias(z, lin.bias, norm)
             else:
                 h = h if skip else _linear(h, lin)
                 h = norm(h) if isinstance(norm, nn.BatchNorm1d) else h
-            if i < last or (last_relu and self._last_act()) or stop is not None:
+            if act:
                 h = torch.relu_(h) if inplace and not skip else F.relu(h)
         return h.reshape(*shape, h.shape[-1])
 
@@ -157,16 +180,130 @@ class SharedMLP(nn.Module):
 NARROW_IN_FEATURES = 8
 
 
-def _linear(h: Tensor, lin: nn.Linear) -> Tensor:
-    """``lin(h)`` for h [R, C_in]; narrow inputs (xyz + a flag) train through ``_NarrowLinear``."""
+def _linear(h: Tensor, lin: nn.Linear, with_bias: bool = True) -> Tensor:
+    """``lin(h)`` (without its bias unless ``with_bias``) for h [R, C_in]; narrow inputs (xyz + a flag)
+    train through ``_NarrowLinear``."""
+    bias = lin.bias if with_bias else None
     if (
         lin.in_features <= NARROW_IN_FEATURES
-        and lin.bias is not None
         and torch.is_grad_enabled()
         and not torch.is_autocast_enabled(h.device.type)  # autocast casts inside forward only
     ):
-        return _NarrowLinear.apply(h, lin.weight, lin.bias)
-    return lin(h)
+        return _NarrowLinear.apply(h, lin.weight, bias)
+    return F.linear(h, lin.weight, bias)
+
+
+def _absorbs_bias(norm: nn.Module, lin: nn.Linear) -> bool:
+    """Whether ``norm`` is a train-mode BatchNorm that makes ``lin``'s bias irrelevant to its output."""
+    return (
+        isinstance(norm, nn.BatchNorm1d)
+        and norm.training
+        and norm.affine
+        and norm.momentum is not None
+        and norm.momentum < 1.0
+        and lin.bias is not None
+    )
+
+
+def _fused_bn_relu_ok(z: Tensor) -> bool:
+    """Whether ``_BatchNormReLU`` serves z [R, C]: the C++ kernels (CPU, eager), fp32/64, no autocast."""
+    return (
+        z.dtype in (torch.float32, torch.float64)
+        and not torch.is_autocast_enabled(z.device.type)
+        and point_kernel(z.device) is not None
+    )
+
+
+def _update_running_stats(
+    norm_stats: tuple[Tensor | None, Tensor | None], mean: Tensor, var: Tensor, bias: Tensor, n: int, momentum: float
+) -> None:
+    """BatchNorm's running-statistics update from the batch (mean [C], biased var [C]) of z = x W^T, whose
+    Linear bias [C] was left out (it shifts the mean only); the variance is stored unbiased, as BatchNorm does."""
+    running_mean, running_var = norm_stats
+    if running_mean is not None and running_var is not None:
+        running_mean.mul_(1 - momentum).add_((mean + bias) * momentum)
+        running_var.mul_(1 - momentum).add_(var * (n / max(n - 1, 1)) * momentum)
+
+
+def _batch_norm_relu(z: Tensor, bias: Tensor, norm: nn.BatchNorm1d) -> Tensor:
+    """``relu(norm(z + bias))`` in train mode for z [R, C] private to the caller (its memory is reused)."""
+    track = norm.track_running_stats
+    if track:
+        norm.num_batches_tracked.add_(1)
+    stats = (norm.running_mean, norm.running_var) if track else (None, None)
+    reuse = not torch.compiler.is_compiling()
+    return _BatchNormReLU.apply(z, bias, norm.weight, norm.bias, *stats, norm.momentum, norm.eps, reuse)
+
+
+class _BatchNormReLU(torch.autograd.Function):
+    """``relu(BatchNorm(z + bias))`` in train mode, for a hidden layer of a shared MLP, on the C++ kernels.
+
+    Same values, gradients and running statistics as ``F.relu(norm(lin(x)))``: the Linear's bias is not
+    added (train-mode BN removes it; it enters the running mean only and its gradient is zero), the output
+    is written in one pass, and the backward (ReLU and BN together) reads dy, y and z twice and writes the
+    input gradient over z when ``reuse_z`` (z is referenced nowhere else), instead of allocating two
+    tensors of z's size.
+    """
+
+    @staticmethod
+    def forward(
+        ctx,
+        z: Tensor,
+        bias: Tensor,
+        weight: Tensor,
+        beta: Tensor,
+        running_mean: Tensor | None,
+        running_var: Tensor | None,
+        momentum: float,
+        eps: float,
+        reuse_z: bool = False,
+    ) -> Tensor:
+        """z [R, C] = x @ W^T (no bias), bias [C] of that Linear, BN weight/beta/stats [C] -> y [R, C] >= 0."""
+        kernel = point_kernel(z.device)
+        z = z.contiguous()
+        n = z.shape[0]
+        var, mean = batch_mean_var(z)
+        invstd = torch.rsqrt(var + eps)
+        _update_running_stats((running_mean, running_var), mean, var, bias, n, momentum)
+        scale = weight * invstd
+        y = kernel.affine_relu(z, scale.contiguous(), (beta - mean * scale).contiguous())
+        ctx.save_for_backward(z, y, weight, mean, invstd)
+        ctx.n, ctx.reuse_z = n, reuse_z
+        return y
+
+    @staticmethod
+    def backward(ctx, grad: Tensor):
+        z, y, weight, mean, invstd = ctx.saved_tensors
+        kernel, n = point_kernel(z.device), ctx.n
+        grad = grad.contiguous()
+        sum_g, sum_gx = kernel.relu_grad_sums(grad, y, z, mean.contiguous())  # sum_gx: sum of g (z - mean)
+        k = weight * invstd
+        # dz = k (g - sum_g / n - xhat sum(g xhat) / n) = A z + B + k g, with sum(g xhat) = invstd sum_gx
+        a = -k * invstd * invstd * sum_gx / n
+        b = -k * sum_g / n - a * mean
+        dz = z if ctx.reuse_z else z.clone()
+        kernel.bn_relu_grad_(dz, grad, y, k.contiguous(), a.contiguous(), b.contiguous())
+        return dz, torch.zeros_like(weight), invstd * sum_gx, sum_g, None, None, None, None, None
+
+
+def _batch_norm_absorbing_bias(z: Tensor, bias: Tensor, norm: nn.BatchNorm1d) -> Tensor:
+    """``norm(z + bias)`` in train mode for z [R, C], without writing ``z + bias``.
+
+    Train-mode BN subtracts the batch mean, so the bias cancels in the output (its gradient is exactly
+    zero, kept in the graph so every parameter still receives one, as DDP expects); it only enters the
+    running mean, which is corrected here. Saves a pass over the layer's output and the bias-gradient
+    reduction, per hidden layer.
+    """
+    track = norm.track_running_stats
+    m = norm.momentum
+    if track:
+        norm.num_batches_tracked.add_(1)
+        # BN then sets (1 - m) r + m mean(z); adding m b / (1 - m) first makes it (1 - m) r + m mean(z + b).
+        # Before the call: BN saves the running stats for its backward, so a later write would fail there.
+        with torch.no_grad():
+            norm.running_mean.add_(bias.to(norm.running_mean.dtype), alpha=m / (1.0 - m))
+    stats = (norm.running_mean, norm.running_var) if track else (None, None)
+    return F.batch_norm(z, *stats, norm.weight, norm.bias + 0.0 * bias, True, m, norm.eps)
 
 
 class _NarrowLinear(torch.autograd.Function):
@@ -174,8 +311,8 @@ class _NarrowLinear(torch.autograd.Function):
     several times faster in that order than autograd's ``dy^T x`` (measured ~7x at R = 262 K on CPU)."""
 
     @staticmethod
-    def forward(ctx, x: Tensor, weight: Tensor, bias: Tensor) -> Tensor:
-        """x [R, I], weight [O, I], bias [O] -> [R, O]."""
+    def forward(ctx, x: Tensor, weight: Tensor, bias: Tensor | None) -> Tensor:
+        """x [R, I], weight [O, I], bias [O] or None -> [R, O]."""
         ctx.save_for_backward(x, weight)
         return F.linear(x, weight, bias)
 
@@ -184,7 +321,7 @@ class _NarrowLinear(torch.autograd.Function):
         x, weight = ctx.saved_tensors
         gx = grad @ weight if ctx.needs_input_grad[0] else None
         gw = (x.t() @ grad).t() if ctx.needs_input_grad[1] else None
-        gb = grad.sum(0) if ctx.needs_input_grad[2] else None
+        gb = grad.sum(0) if len(ctx.needs_input_grad) > 2 and ctx.needs_input_grad[2] else None
         return gx, gw, gb
 
 
@@ -211,23 +348,27 @@ class _BatchNormMax(torch.autograd.Function):
         momentum: float,
         eps: float,
         dim: int,
+        reuse_z: bool = False,
     ) -> Tensor:
-        """z [..., C] = x @ W^T (no bias), bias [C] of that Linear, BN weight/beta/stats [C] -> [...] w/o ``dim``."""
+        """z [..., C] = x @ W^T (no bias), bias [C] of that Linear, BN weight/beta/stats [C] -> [...] w/o ``dim``.
+
+        ``reuse_z``: z is referenced nowhere else, so the backward writes the gradient into z's memory
+        (saves allocating and page-faulting the largest tensor of the step; a second backward through the
+        same graph then fails on autograd's version check instead of reading a stale z).
+        """
         c = z.shape[-1]
         flat = z.reshape(-1, c)
         n = flat.shape[0]
         var, mean = batch_mean_var(flat)
         invstd = torch.rsqrt(var + eps)
-        if running_mean is not None and running_var is not None:
-            running_mean.mul_(1 - momentum).add_((mean + bias) * momentum)
-            running_var.mul_(1 - momentum).add_(var * (n / max(n - 1, 1)) * momentum)  # unbiased, as BatchNorm
+        _update_running_stats((running_mean, running_var), mean, var, bias, n, momentum)
         # BN is a per-channel affine map a z + b: its max over `dim` is at z's max where a >= 0, else at
         # z's min, so the normalised tensor is never written
         scale = weight * invstd
         vals, idx = extreme_over_dim(z, dim, scale < 0)
         vals = torch.addcmul(beta - mean * scale, vals, scale)
         ctx.save_for_backward(z, weight, mean, invstd, idx)
-        ctx.dim, ctx.n = dim, n
+        ctx.dim, ctx.n, ctx.reuse_z = dim, n, reuse_z
         return vals
 
     @staticmethod
@@ -243,9 +384,9 @@ class _BatchNormMax(torch.autograd.Function):
         # dz = k (dy - sum_dy / n - xhat sum_dy_xhat / n): affine in z where dy = 0 (one pass), plus k dy
         # at the winners (relative rounding ~ eps |mean| / std, as in any BN backward)
         alpha = -k * invstd * sum_dy_xhat / n
-        dz = torch.addcmul(-k * sum_dy / n - alpha * mean, z, alpha)
+        dz = torch.addcmul(-k * sum_dy / n - alpha * mean, z, alpha, out=z if ctx.reuse_z else None)
         dz.scatter_add_(dim, at, (k * grad).unsqueeze(dim))
-        return dz, torch.zeros_like(weight), sum_dy_xhat, sum_dy, None, None, None, None, None
+        return dz, torch.zeros_like(weight), sum_dy_xhat, sum_dy, None, None, None, None, None, None
 
 
 #: rows per chunk of ``batch_mean_var``'s second pass (a chunk of 128 channels stays in a 1 MB cache)
@@ -255,16 +396,22 @@ STATS_CHUNK_ROWS = 2048
 def batch_mean_var(flat: Tensor) -> tuple[Tensor, Tensor]:
     """Per-channel (biased variance, mean) of flat [R, C], reduced over the rows.
 
-    Two passes, the second (centred squares) chunked so its temporary stays in cache: about 10x faster
-    on CPU than ``torch.var_mean(flat, 0)``, whose reduction over the outer dim is not vectorised, and
-    as accurate as a centred two-pass sum (relative error ~1e-7 in fp32; BatchNorm's own ~1e-5).
-    On other devices and under ``torch.compile`` it is ``torch.var_mean`` (fast there; the chunk loop
-    would only add kernel launches or unroll into the graph).
+    Two passes (a sum, then centred squares): on CPU one C++ kernel (``column_var_mean``, fixed row
+    blocks summed in double, so independent of the thread count), else chunked torch ops whose temporary
+    stays in cache. Both are about 10x faster than ``torch.var_mean(flat, 0)``, whose reduction over the
+    outer dim is not vectorised on CPU, and as accurate as a centred two-pass sum (relative error ~1e-7
+    in fp32; BatchNorm's own ~1e-5). On other devices and under ``torch.compile`` it is
+    ``torch.var_mean`` (fast there; the chunk loop would only add kernel launches or unroll into the graph).
+    Not differentiable on the kernel path (callers are autograd Functions' forwards).
     Returns:
         (var [C], mean [C]), the order of ``torch.var_mean``.
     """
     if flat.device.type != "cpu" or torch.compiler.is_compiling():
         return torch.var_mean(flat, dim=0, correction=0)
+    kernel = point_kernel(flat.device)
+    if kernel is not None and flat.dtype in (torch.float32, torch.float64) and flat.shape[0] > 0:
+        var, mean = kernel.column_var_mean(flat.contiguous())
+        return var, mean
     n = flat.shape[0]
     mean = flat.sum(0) / n
     acc = torch.zeros_like(mean)
@@ -288,6 +435,14 @@ def _fold_bn(lin: nn.Linear, norm: nn.BatchNorm1d) -> tuple[Tensor, Tensor]:
     if norm.bias is not None:
         bias = bias + norm.bias
     return lin.weight * scale[:, None], bias
+
+
+def _pool(h: Tensor, mask: Tensor | None, dim: int) -> Tensor:
+    """Max of h over ``dim``, masked entries (False) ignored; ``max`` (one winner, backward is a scatter)
+    when a gradient is needed, ``amax`` (the faster forward-only reduction) otherwise."""
+    if mask is not None:
+        h = h.masked_fill(~mask[..., None], torch.finfo(h.dtype).min)
+    return h.max(dim=dim).values if torch.is_grad_enabled() and h.requires_grad else h.amax(dim=dim)
 
 
 def masked_max(x: Tensor, mask: Tensor | None, dim: int) -> Tensor:
