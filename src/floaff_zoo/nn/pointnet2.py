@@ -78,7 +78,8 @@ class SharedMLP(nn.Module):
         Pooling before the last activation skips a ReLU and its backward over the largest tensor,
         and ``max`` (one winner) backpropagates with a scatter where ``amax`` needs a tie count.
         ``first`` (optional) is the first layer's pre-activation, already computed (see
-        ``SetAbstraction``); ``x`` is then ignored.
+        ``SetAbstraction``); ``x`` is then ignored. In training ``first`` is consumed: the backward may
+        write its gradient into ``first``'s memory, so pass a tensor nothing else reads.
 
         Args:
             x: [..., C_in]; dim: the pooled dim of the output; mask: broadcast over the last dim
@@ -162,12 +163,15 @@ class SharedMLP(nn.Module):
             act = i < last or (last_relu and self._last_act()) or stop is not None
             if isinstance(norm, nn.BatchNorm1d) and not norm.training and norm.running_mean is not None:
                 h = h if skip else F.linear(h, *_fold_bn(lin, norm))  # eval: BN folded into the Linear
-            elif not skip and _absorbs_bias(norm, lin):
-                z = _linear(h, lin, with_bias=False)
+            elif _train_batch_norm(norm):
+                # the Linear's bias is left out (train-mode BN cancels it; it enters the running mean only);
+                # with ``pre`` the first layer's output, bias included, is given
+                z = h if skip else _linear(h, lin, with_bias=False)
+                bias = lin.bias if not skip and lin.bias is not None else z.new_zeros(z.shape[-1])
                 if act and _fused_bn_relu_ok(z):
-                    h = _batch_norm_relu(z, lin.bias, norm)
+                    h = _batch_norm_relu(z, bias, norm)
                     continue
-                h = _batch_norm_absorbing_bias(z, lin.bias, norm)
+                h = _batch_norm_absorbing_bias(z, bias, norm)
             else:
                 h = h if skip else _linear(h, lin)
                 h = norm(h) if isinstance(norm, nn.BatchNorm1d) else h
@@ -193,15 +197,15 @@ def _linear(h: Tensor, lin: nn.Linear, with_bias: bool = True) -> Tensor:
     return F.linear(h, lin.weight, bias)
 
 
-def _absorbs_bias(norm: nn.Module, lin: nn.Linear) -> bool:
-    """Whether ``norm`` is a train-mode BatchNorm that makes ``lin``'s bias irrelevant to its output."""
+def _train_batch_norm(norm: nn.Module) -> bool:
+    """Whether ``norm`` is a train-mode BatchNorm (affine, exponential running average): its output does not
+    depend on a bias added before it."""
     return (
         isinstance(norm, nn.BatchNorm1d)
         and norm.training
         and norm.affine
         and norm.momentum is not None
         and norm.momentum < 1.0
-        and lin.bias is not None
     )
 
 
