@@ -366,3 +366,49 @@ def test_bn_relu_kernels_reject_mismatched_inputs():
         kernel.relu_grad_sums(torch.randn(10, 5), z, z, torch.zeros(4))
     with pytest.raises(RuntimeError, match="z must be"):
         kernel.column_var_mean(z.t())
+
+
+def test_inference_linear_equals_linear_and_relu(monkeypatch):
+    """oneDNN's fused inference Linear(+ReLU) = F.linear (+ReLU) up to rounding; with gradients,
+    bf16 or below the row threshold it is the plain op; an eval model predicts the same either way."""
+    import torch.nn.functional as F
+
+    import floaff_zoo.nn.pointnet2 as pn2
+    from floaff_zoo.contract import collate_samples
+    from floaff_zoo.data.synthetic import make_synthetic_sample
+    from floaff_zoo.models.pointnet2 import PointNet2Module
+
+    torch.manual_seed(0)
+    x = torch.randn(2, pn2.ONEDNN_MIN_ROWS, 24)
+    w, b = torch.randn(40, 24), torch.randn(40)
+    with torch.no_grad():
+        for relu in (False, True):
+            want = F.linear(x, w, b)
+            want = want.relu() if relu else want
+            got = pn2.inference_linear(x, w, b, relu=relu)
+            assert got.shape == (2, pn2.ONEDNN_MIN_ROWS, 40)
+            assert torch.allclose(got, want, atol=1e-5), (got - want).abs().max()
+        assert torch.allclose(pn2.inference_linear(x, w), F.linear(x, w), atol=1e-5)
+        small = x[:, :3]
+        assert torch.equal(pn2.inference_linear(small, w, b, relu=True), F.linear(small, w, b).relu())
+        bf = pn2.inference_linear(x.bfloat16(), w.bfloat16(), b.bfloat16())
+        assert bf.dtype == torch.bfloat16 and torch.equal(bf, F.linear(x.bfloat16(), w.bfloat16(), b.bfloat16()))
+    wg = w.clone().requires_grad_()
+    out = pn2.inference_linear(x, wg, b, relu=True)
+    out.sum().backward()  # the plain ops carry the gradient
+    assert torch.equal(out.detach(), F.linear(x, w, b).relu()) and wg.grad is not None
+
+    model = PointNet2Module(
+        npoints=[256, 64],
+        radii=[[0.4], [0.8]],
+        nsamples=[[16], [16]],
+        mlps=[[[32, 32]], [[32, 64]]],
+        fp_mlps=[[32], [32]],
+    ).eval()
+    batch = collate_samples([make_synthetic_sample(i, num_points=512, floor_cells=8) for i in range(2)])
+    outs = []
+    for enabled in (True, False):
+        monkeypatch.setattr(pn2, "_ONEDNN_LINEAR", enabled and pn2._ONEDNN_LINEAR)
+        with torch.inference_mode():
+            outs.append(model(batch))
+    assert torch.allclose(outs[0], outs[1], atol=1e-5), (outs[0] - outs[1]).abs().max()
