@@ -35,8 +35,10 @@ __all__ = [
 
 #: elements of a [B, S, N] distance/key matrix above which ball query chunks over centres
 _CHUNK_ELEMS = 1 << 24
-#: the same for the C++ selection path: small enough that the matmul chunk stays in cache
-_KERNEL_CHUNK_ELEMS = 1 << 18
+#: the same for the C++ selection path (8 MB of float32). Smaller chunks were slower on the 2-core
+#: benchmark machine, not faster: the skinny [s, 3] x [3, N] matmul has a high per-call cost, and at
+#: 1 << 18 a B=8 x 4096-point level ran 128 chunks (ball query 75 ms vs 53 ms here; B=1: 6.4 vs 4.4 ms)
+_KERNEL_CHUNK_ELEMS = 1 << 21
 
 
 def check_finite(name: str, x: Tensor) -> None:
@@ -231,7 +233,7 @@ def ball_query_multi(
     """``ball_query`` for several (radius, K) pairs sharing one distance matrix (MSG levels).
 
     Chunks over centres so the [B, S, N] matrices stay below ~16 M elements (torch path) or
-    ~256 K elements, i.e. in cache, on the C++ path.
+    ~2 M elements on the C++ path.
 
     Returns:
         one [B, S, K_i] int64 tensor per scale.
