@@ -1,6 +1,7 @@
 """Success rate of the predict API with its defaults vs with the dataset's floor points, on generated test views.
 
-    python scripts/predict_sr.py --root data/floaff_small --benchmark layouts --model <ckpt or hub name> [--json out.json]
+    python scripts/predict_sr.py --root data/floaff_small --benchmark layouts \
+        --model <ckpt or hub name> [--json out.json]
 
 For every test view: ``predict_from_points`` once with ``floor_xyz=None`` and ``target_yaw=None`` (the
 API's defaults: the observed floor cells of the cloud, nothing from the simulator) and once with the view's
