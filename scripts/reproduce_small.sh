@@ -10,7 +10,7 @@
 #                                              # protocol (4,000 samples per learned model; docs/results.md)
 #   PRESET=dense scripts/reproduce_small.sh recipe_no_crop styles_recipe_r1.30   # ablations / crop sweep on
 #                                              # top of the zoo recipe (recipe_no_{crop,align,sdl,fd}, recipe_r1.xx,
-#                                              # each also as styles_<job>)
+#                                              # each also as styles_<job>; ablation seeds: recipe_no_crop_s1, ...)
 #
 # Needs the data:
 #   floaff-zoo generate --preset small --benchmarks layouts styles --out data/floaff_small --workers 2 --n-test 4
@@ -204,10 +204,14 @@ run_job() {
       curriculum "$job" layouts 0 "$label" --extra-config "$RECIPE" \
         --extra-config "configs/experiments/recipe/$abl.yaml" ;;
     recipe_no_crop|recipe_no_align|recipe_no_sdl|recipe_no_fd|styles_recipe_no_crop|styles_recipe_no_align|\
-    styles_recipe_no_sdl|styles_recipe_no_fd)  # the ablations of Tables 4-5 on top of the zoo recipe
-      local b=layouts j=$job; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
-      curriculum "$j" "$b" 0 "recipe w/o ${j#recipe_no_}" --extra-config "$RECIPE" \
-        --extra-config "configs/experiments/ablations/${j#recipe_}.yaml" ;;
+    styles_recipe_no_sdl|styles_recipe_no_fd|recipe_no_*_s[0-9]|styles_recipe_no_*_s[0-9])
+      # the ablations of Tables 4-5 on top of the zoo recipe; seed 0 without suffix, other seeds as _s<seed>
+      local b=layouts j=$job seed=0 abl; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
+      abl=${j#recipe_}
+      case $abl in *_s[0-9]) seed=${abl##*_s} abl=${abl%_s*} ;; esac
+      case $abl in no_crop|no_align|no_sdl|no_fd) ;; *) echo "unknown ablation '$abl'" >&2; return 2 ;; esac
+      curriculum "$j" "$b" "$seed" "recipe w/o ${abl#no_}" --extra-config "$RECIPE" \
+        --extra-config "configs/experiments/ablations/$abl.yaml" ;;
     recipe_r1.[0-9]*|styles_recipe_r1.[0-9]*)  # the crop sweep on top of the zoo recipe (CFAR's radius only)
       local b=layouts r=${job#recipe_}; [ "${job#styles_}" != "$job" ] && b=styles r=${job#styles_recipe_}
       curriculum "recipe_sweep_$r" "$b" 0 "recipe, r=${r#r}" --extra-config "$RECIPE" \

@@ -34,9 +34,11 @@ fi
 for bench in layouts styles; do  # the ablations and the crop sweep on top of the zoo recipe (dense protocol)
   name=Layouts; [ $bench = styles ] && name=Styles
   ABLR=("$R/$bench/recipe_s0")
-  for d in "$R/$bench"/recipe_no_{crop,align,sdl,fd}; do [ -f "$d/report.json" ] && ABLR+=("$d"); done
+  for d in "$R/$bench"/recipe_s? "$R/$bench"/recipe_no_{crop,align,sdl,fd}{,_s?}; do
+    [ -f "$d/report.json" ] && [ "$d" != "$R/$bench/recipe_s0" ] && ABLR+=("$d")
+  done
   if [ ${#ABLR[@]} -gt 1 ] && [ -f "$R/$bench/recipe_no_crop/report.json" ]; then
-    echo "### Ablations of the zoo recipe on $name (analogue of Tables 4-5; seed 0 each)"; echo
+    echo "### Ablations of the zoo recipe on $name (analogue of Tables 4-5; seeds pooled per row)"; echo
     table --runs "${ABLR[@]}" --preset ablation
     table --runs "${ABLR[@]}" --preset sr_views --no-oracle
     table --runs "${ABLR[@]}" --preset sr_tasks --no-oracle
