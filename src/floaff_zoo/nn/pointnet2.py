@@ -202,7 +202,7 @@ def _linear(h: Tensor, lin: nn.Linear, with_bias: bool = True) -> Tensor:
 
 
 #: oneDNN's fused Linear(+ReLU) for CPU inference (the GEMM kernel Inductor uses): on the 2-core
-#: benchmark machine 1.2-1.8x faster than the default fp32 GEMM at PointNet++'s narrow widths, and it
+#: benchmark machine 1.1-1.8x faster than the default fp32 GEMM at PointNet++'s narrow widths, and it
 #: writes bias and ReLU in the same pass (no bias copy before the GEMM, no ReLU pass after)
 _ONEDNN_LINEAR = torch.backends.mkldnn.is_available() and hasattr(torch.ops.mkldnn, "_linear_pointwise")
 #: rows below which the default GEMM is kept (oneDNN's per-call overhead outweighs the gain)
