@@ -204,13 +204,16 @@ def test_ball_query_and_three_nn_kernels_match_the_torch_path(cloud, monkeypatch
     xyz, mask = cloud
     centres = xyz[:, :30]
     fast = ops.ball_query(0.25, 6, xyz, centres, mask)
+    d_one, i_one = ops.three_nn(centres, xyz, mask)  # one chunk
     monkeypatch.setattr(ops, "_KERNEL_CHUNK_ELEMS", 7)  # many tiny chunks
     assert torch.equal(ops.ball_query(0.25, 6, xyz, centres, mask), fast)
     d_fast, i_fast = ops.three_nn(centres, xyz, mask)
+    # the GEMM library may round a chunk's distances differently (~1 ulp): same neighbours here
+    assert torch.allclose(d_fast, d_one, atol=1e-6) and torch.equal(i_fast, i_one)
     monkeypatch.setattr(ops, "point_kernel", lambda device: None)  # force the torch path
     assert torch.equal(ops.ball_query(0.25, 6, xyz, centres, mask), fast)
     d_ref, i_ref = ops.three_nn(centres, xyz, mask)
-    assert torch.allclose(d_fast, d_ref)  # indices may swap only at exactly tied distances
+    assert torch.allclose(d_fast, d_ref, atol=1e-6)  # indices may swap only at (nearly) tied distances
 
 
 def test_cfar_tolerant_selections_kernel_matches_torch(monkeypatch):

