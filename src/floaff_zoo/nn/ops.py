@@ -329,7 +329,7 @@ def three_nn(unknown: Tensor, known: Tensor, known_mask: Tensor | None = None) -
         b, n, _ = unknown.shape
         chunk = max(1, _KERNEL_CHUNK_ELEMS // max(1, b * known.shape[1]))
         dists, idxs, dsq = [], [], None
-        for start in range(0, n, chunk):
+        for start in range(0, max(n, 1), chunk):  # no unknown point: one empty chunk, empty outputs
             mm, ssq, dsq_c = _distance_parts(unknown[:, start : start + chunk], known)
             dsq = dsq_c.contiguous() if dsq is None else dsq
             dist, idx = kernel.three_nn_select(mm.contiguous(), ssq.contiguous(), dsq, mask_c)
