@@ -33,11 +33,11 @@ fi
 
 for bench in layouts styles; do  # the ablations and the crop sweep on top of the zoo recipe (dense protocol)
   name=Layouts; [ $bench = styles ] && name=Styles
-  ABLR=("$R/$bench/recipe_s0")
+  ABLR=()  # the recipe's seeds and every seed of each ablation (rows pool the runs of one label)
   for d in "$R/$bench"/recipe_s? "$R/$bench"/recipe_no_{crop,align,sdl,fd}{,_s?}; do
-    [ -f "$d/report.json" ] && [ "$d" != "$R/$bench/recipe_s0" ] && ABLR+=("$d")
+    [ -f "$d/report.json" ] && ABLR+=("$d")
   done
-  if [ ${#ABLR[@]} -gt 1 ] && [ -f "$R/$bench/recipe_no_crop/report.json" ]; then
+  if [ -f "$R/$bench/recipe_no_crop/report.json" ]; then
     echo "### Ablations of the zoo recipe on $name (analogue of Tables 4-5; seeds pooled per row)"; echo
     table --runs "${ABLR[@]}" --preset ablation
     table --runs "${ABLR[@]}" --preset sr_views --no-oracle

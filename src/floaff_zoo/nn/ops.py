@@ -11,6 +11,7 @@ MLPs (docs/background.md §6).
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 
 import torch
 from torch import Tensor
@@ -35,9 +36,7 @@ __all__ = [
 
 #: elements of a [B, S, N] distance/key matrix above which ball query chunks over centres
 _CHUNK_ELEMS = 1 << 24
-#: the same for the C++ selection path (8 MB of float32). Smaller chunks were slower on the 2-core
-#: benchmark machine, not faster: the skinny [s, 3] x [3, N] matmul has a high per-call cost, and at
-#: 1 << 18 a B=8 x 4096-point level ran 128 chunks (ball query 75 ms vs 53 ms here; B=1: 6.4 vs 4.4 ms)
+#: the same for the C++ selection kernels (8 MB of float32; see ``_kernel_chunks``)
 _KERNEL_CHUNK_ELEMS = 1 << 21
 
 
@@ -72,6 +71,25 @@ def _distance_parts(src: Tensor, dst: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         dst = dst.float()
         mm = torch.matmul(src * -2.0, dst.transpose(1, 2))
         return mm, torch.sum(src**2, -1), torch.sum(dst**2, -1)
+
+
+def _kernel_chunks(src: Tensor, dst: Tensor) -> Iterator[tuple[Tensor, Tensor, Tensor]]:
+    """``_distance_parts`` of ``src`` in row chunks of about ``_KERNEL_CHUNK_ELEMS`` elements, contiguous,
+    for the C++ selection kernels: (mm [B, s, M], ssq [B, s], dsq [B, M]) per chunk, dsq the same tensor
+    each time. An empty ``src`` gives one empty chunk (empty kernel outputs).
+
+    Chunks of 2 M elements, not cache-sized ones: the skinny [s, 3] x [3, M] matmul has a high cost
+    per call (2-core benchmark machine, B=8 x 4,096 points: ball query 75 -> 53 ms, 3-NN 70 -> 39 ms).
+    The GEMM may round a chunk's distances differently by an ulp, so a neighbour can only change where
+    its distance ties another's or the radius within float rounding.
+    """
+    b, n, _ = src.shape
+    chunk = max(1, _KERNEL_CHUNK_ELEMS // max(1, b * dst.shape[1]))
+    dsq = None
+    for start in range(0, max(n, 1), chunk):
+        mm, ssq, dsq_c = _distance_parts(src[:, start : start + chunk], dst)
+        dsq = dsq_c.contiguous() if dsq is None else dsq
+        yield mm.contiguous(), ssq.contiguous(), dsq
 
 
 def square_distance(src: Tensor, dst: Tensor) -> Tensor:
@@ -249,15 +267,10 @@ def ball_query_multi(
     s = new_xyz.shape[1]
     kernel = point_kernel(xyz.device)
     if kernel is not None:
-        # one scan per row of the (L2-sized) matmul chunk, stopping at K hits
-        chunk = max(1, _KERNEL_CHUNK_ELEMS // max(1, b * n))
+        # one scan per row of the matmul chunk, stopping at K hits
         mask_c = mask.contiguous()
         kparts: list[list[Tensor]] = [[] for _ in radii]
-        dsq = None
-        for start in range(0, s, chunk):
-            mm, ssq, dsq_c = _distance_parts(new_xyz[:, start : start + chunk], xyz)
-            dsq = dsq_c.contiguous() if dsq is None else dsq
-            mm, ssq = mm.contiguous(), ssq.contiguous()
+        for mm, ssq, dsq in _kernel_chunks(new_xyz, xyz):
             for i, (radius, nsample) in enumerate(zip(radii, nsamples)):
                 kparts[i].append(kernel.ball_select(mm, ssq, dsq, mask_c, float(radius) ** 2, int(nsample)))
         return [p[0] if len(p) == 1 else torch.cat(p, dim=1) for p in kparts]
@@ -325,19 +338,10 @@ def three_nn(unknown: Tensor, known: Tensor, known_mask: Tensor | None = None) -
         if known_mask is None:
             known_mask = torch.ones(known.shape[:2], dtype=torch.bool, device=known.device)
         mask_c = known_mask.bool().contiguous()
-        # chunks over the unknown points as ball query does (B=8, 4,096 <- 1,024 points: 70 -> 39 ms)
-        b, n, _ = unknown.shape
-        chunk = max(1, _KERNEL_CHUNK_ELEMS // max(1, b * known.shape[1]))
-        dists, idxs, dsq = [], [], None
-        for start in range(0, max(n, 1), chunk):  # no unknown point: one empty chunk, empty outputs
-            mm, ssq, dsq_c = _distance_parts(unknown[:, start : start + chunk], known)
-            dsq = dsq_c.contiguous() if dsq is None else dsq
-            dist, idx = kernel.three_nn_select(mm.contiguous(), ssq.contiguous(), dsq, mask_c)
-            dists.append(dist)
-            idxs.append(idx)
-        if len(dists) == 1:
-            return dists[0], idxs[0]
-        return torch.cat(dists, dim=1), torch.cat(idxs, dim=1)
+        parts = [kernel.three_nn_select(mm, ssq, dsq, mask_c) for mm, ssq, dsq in _kernel_chunks(unknown, known)]
+        if len(parts) == 1:
+            return parts[0][0], parts[0][1]
+        return torch.cat([p[0] for p in parts], dim=1), torch.cat([p[1] for p in parts], dim=1)
     sqr = square_distance(unknown, known)
     if known_mask is not None:
         sqr = sqr.masked_fill(~known_mask[:, None, :].bool(), float("inf"))
