@@ -2,8 +2,8 @@
 
 A data config goes with a model config and vice versa (the demo's files with each other, the others with the tiny
 synthetic data / tiny PointNet), a model-override file (ablation, sweep point) with the CFAR config it modifies,
-a trainer preset with the tiny pair, and a curriculum experiment stage by stage. A file that fits none of these
-kinds fails the test, so a new config cannot go untested.
+a data-override file (transforms) and a trainer preset with the tiny pair, and a curriculum experiment stage by
+stage. A file that fits none of these kinds fails the test, so a new config cannot go untested.
 """
 
 from __future__ import annotations
@@ -26,6 +26,15 @@ def _class_path(section: object) -> str | None:
     return section.get("class_path") if isinstance(section, dict) else None
 
 
+def _contains(printed: object, given: object) -> bool:
+    """The printed config holds every value the file gives (the printed one adds defaults)."""
+    if isinstance(given, dict):
+        return isinstance(printed, dict) and all(k in printed and _contains(printed[k], v) for k, v in given.items())
+    if isinstance(given, list):
+        return isinstance(printed, list) and len(printed) == len(given) and all(map(_contains, printed, given))
+    return printed == pytest.approx(given) if isinstance(given, float) else printed == given
+
+
 def plan(cfg: str) -> tuple[str, list[list[str]]]:
     """(kind, CLI argument lists to check) for one config file."""
     raw = yaml.safe_load((ROOT / cfg).read_text()) or {}
@@ -40,6 +49,8 @@ def plan(cfg: str) -> tuple[str, list[list[str]]]:
         return "model", [["fit", "--config", DEMO_DATA if demo else TINY_DATA, "--config", cfg]]
     if isinstance(raw.get("model"), dict):  # init_args only: an ablation / sweep override of CFAR
         return "override", [["fit", "--config", TINY_DATA, "--config", "configs/models/cfar.yaml", "--config", cfg]]
+    if isinstance(raw.get("data"), dict):  # init_args only: e.g. transforms added to any DataModule
+        return "data_override", [["fit", "--config", TINY_DATA, "--config", TINY_MODEL, "--config", cfg]]
     if set(raw) == {"trainer"}:
         command = "test" if "callbacks" in (raw["trainer"] or {}) else "fit"
         return "trainer", [[command, "--config", TINY_DATA, "--config", TINY_MODEL, "--config", cfg]]
@@ -64,8 +75,10 @@ def test_config_parses(cfg, root, monkeypatch, capsys):
         if kind == "override":
             for key, value in raw["model"]["init_args"].items():
                 assert printed["model"]["init_args"][key] == pytest.approx(value), (cfg, key)
+        if kind == "data_override":
+            assert _contains(printed["data"]["init_args"], raw["data"]["init_args"]), cfg
 
 
 def test_every_config_kind_is_present():
     kinds = {plan(c)[0] for c in CONFIGS}
-    assert kinds == {"experiment", "data", "model", "override", "trainer"}
+    assert kinds == {"experiment", "data", "model", "override", "data_override", "trainer"}

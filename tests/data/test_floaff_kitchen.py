@@ -39,6 +39,22 @@ def test_scene_level_splits_meta_and_skips(floaff_root, capsys):
     assert b["scene_xyz"].shape == (2, 128, 3) and isinstance(b["meta"][0]["sim"], dict)
 
 
+def test_val_scene_ids_pin_the_validation_scenes(floaff_root):
+    root, _ = floaff_root
+    drawn = _dm(root, tasks=["CloseDrawer", "PnPCounterToCab"])
+    drawn.setup("fit")
+    other = sorted(s for s in drawn.split_scenes["train"] if s.startswith("CloseDrawer"))[0]
+    dm = _dm(root, tasks=["CloseDrawer", "PnPCounterToCab"], val_scene_ids=[other])
+    dm.setup("fit")
+    assert dm.split_scenes["val"] == [other]
+    val_scenes = {r.meta["scene_id"] for r in dm.datasets["val"].records}
+    assert val_scenes == {other} and other not in {r.meta["scene_id"] for r in dm.datasets["train"].records}
+    # a task with no listed scene keeps all of its train views in train (no seeded view split)
+    assert not [r for r in dm.datasets["val"].records if r.meta["task"] == "PnPCounterToCab"]
+    with pytest.raises(ValueError, match="val_scene_ids.*nope"):
+        _dm(root, val_scene_ids=["nope"]).setup("fit")
+
+
 def test_single_task_views_filter_and_layouts(floaff_root):
     root, exp = floaff_root
     dm = _dm(root, benchmark="layouts", tasks=["OpenSingleDoor"], views=["front"])

@@ -14,6 +14,7 @@ from floaff_zoo.data.transforms import (
     OfficialNormalize,
     ResamplePoints,
     SampleTransform,
+    TargetCrop,
     YawPerturb,
     fps_indices,
     rotate_sample,
@@ -48,6 +49,29 @@ def test_resample_random_and_fps():
     assert d.min() > d2.min()
     with pytest.raises(ValueError, match="method"):
         ResamplePoints(8, method="grid")
+
+
+def test_target_crop_keeps_the_target_surroundings():
+    s = _sample()
+    s["scene_mask"][150:] = False
+    target = s["target_xyz"]
+    d = (s["scene_xyz"] - target).norm(dim=1)
+    radius = float(d[:150].median())
+    out = TargetCrop(radius, min_points=4)(s, np.random.default_rng(0))
+    validate_sample(out)
+    inside = (d <= radius) & s["scene_mask"]
+    assert out["scene_xyz"].shape[0] == int(inside.sum()) and out["scene_mask"].all()
+    assert torch.equal(out["scene_xyz"], s["scene_xyz"][inside])  # order kept, masked points gone
+    assert torch.equal(out["scene_feat"], s["scene_feat"][inside])
+    assert torch.equal(out["floor_xyz"], s["floor_xyz"]) and torch.equal(out["floor_label"], s["floor_label"])
+    # too few points inside: the nearest valid ones are kept instead
+    few = TargetCrop(1e-6, min_points=10)(s, np.random.default_rng(0))
+    assert few["scene_xyz"].shape[0] == 10
+    assert (few["scene_xyz"] - target).norm(dim=1).max() <= d[:150].sort().values[9] + 1e-6
+    with pytest.raises(ValueError, match="radius"):
+        TargetCrop(0.0)
+    with pytest.raises(ValueError, match="min_points"):
+        TargetCrop(1.0, min_points=0)
 
 
 def test_yaw_perturb_is_consistent():

@@ -66,6 +66,8 @@ class FloAffKitchenDataModule(FloAffDataModule):
         views: any subset of front, side (None = both).
         reader: registered reader name or ``pkg.module:Class``.
         val_scenes: train scenes per task held out as val (seeded; at least one scene stays in train).
+        val_scene_ids: hold out exactly these train scenes as val instead (the seeded draw is skipped;
+            e.g. to keep one validation set while training scenes are added); unknown ids raise.
         val_view_fraction: share of the views of a single-train-scene task that go to val.
         max_views_per_scene: keep the first N views (per kept view kind order) of each scene (smoke runs).
         strict: raise on the first missing/corrupt file instead of skipping and counting.
@@ -82,6 +84,7 @@ class FloAffKitchenDataModule(FloAffDataModule):
         views: list[str] | None = None,
         reader: str = "generated",
         val_scenes: int = 1,
+        val_scene_ids: list[str] | None = None,
         val_view_fraction: float = 0.2,
         max_views_per_scene: int | None = None,
         strict: bool = False,
@@ -121,6 +124,7 @@ class FloAffKitchenDataModule(FloAffDataModule):
             )
         self.root = Path(root)
         self.val_scenes = val_scenes
+        self.val_scene_ids = None if val_scene_ids is None else list(val_scene_ids)
         self.val_view_fraction = val_view_fraction
         self.max_views_per_scene = max_views_per_scene
         self.strict = strict
@@ -178,6 +182,7 @@ class FloAffKitchenDataModule(FloAffDataModule):
         rng = np.random.default_rng(self.seed)
         out: dict[str, list[SampleRecord]] = {"train": [], "val": [], "test": []}
         self.split_scenes = {"train": [], "val": [], "test": []}
+        fixed = self._fixed_val_ids(scenes)
         for task in self.tasks:
             mine = [s for s in scenes if s.task == task]
             train = [s for s in mine if s.split == "train"]
@@ -185,8 +190,11 @@ class FloAffKitchenDataModule(FloAffDataModule):
                 out["test"] += self._records(s, self._views(s))
                 self.split_scenes["test"].append(s.scene_id)
             n_val = min(self.val_scenes, len(train) - 1)
-            if len(train) >= 2 and n_val > 0:
-                val_ids = set(rng.permutation([s.scene_id for s in train])[:n_val].tolist())
+            if fixed is not None or (len(train) >= 2 and n_val > 0):
+                if fixed is not None:
+                    val_ids = fixed
+                else:
+                    val_ids = set(rng.permutation([s.scene_id for s in train])[:n_val].tolist())
                 for s in train:
                     split = "val" if s.scene_id in val_ids else "train"
                     out[split] += self._records(s, self._views(s))
@@ -207,6 +215,19 @@ class FloAffKitchenDataModule(FloAffDataModule):
                     out["train"] += self._records(s, self._views(s))
                     self.split_scenes["train"].append(s.scene_id)
         return out
+
+    def _fixed_val_ids(self, scenes: list[SceneEntry]) -> set[str] | None:
+        """``val_scene_ids`` checked against the benchmark's train scenes, any task (None when not set)."""
+        if self.val_scene_ids is None:
+            return None
+        known = {s.scene_id for s in scenes if s.split == "train"}
+        unknown = sorted(set(self.val_scene_ids) - known)
+        if unknown:
+            raise ValueError(
+                f"FloAffKitchenDataModule: val_scene_ids {unknown} are not train scenes "
+                f"under {self.root}/{self.benchmark} (train scenes: {sorted(known)})"
+            )
+        return set(self.val_scene_ids)
 
     # ------------------------------------------------------------------ setup
     def setup(self, stage: str | None = None) -> None:

@@ -97,6 +97,40 @@ class ResamplePoints(SampleTransform):
         return out
 
 
+class TargetCrop(SampleTransform):
+    """Keep the scene points within ``radius`` of the target centre, before the loader samples ``num_points``.
+
+    The loader draws its fixed number of points from what is left, so the points a target-centred model
+    (CFAR) keeps after its own crop are denser: the same input size, spent on the target's surroundings.
+    Uses only ``target_xyz``, which the robot is given. When fewer than ``min_points`` valid points lie
+    within the radius, the nearest ``min_points`` valid points are kept (all of them if there are fewer).
+
+    Args:
+        radius: sphere radius around the target centre (m); keep it >= the model's own crop radius.
+        min_points: fewest points kept.
+    """
+
+    def __init__(self, radius: float = 1.2, min_points: int = 64) -> None:
+        if not radius > 0:
+            raise ValueError(f"TargetCrop: radius must be > 0, got {radius}")
+        if min_points < 1:
+            raise ValueError(f"TargetCrop: min_points must be >= 1, got {min_points}")
+        self.radius = radius
+        self.min_points = min_points
+
+    def __call__(self, sample: Sample, rng: np.random.Generator) -> Sample:
+        valid = sample["scene_mask"].nonzero().squeeze(1)
+        d2 = ((sample["scene_xyz"][valid] - sample["target_xyz"]) ** 2).sum(-1)  # [n_valid]
+        keep = valid[d2 <= self.radius**2]
+        if keep.numel() < self.min_points:
+            keep = valid[torch.argsort(d2)[: self.min_points]]
+        out = dict(sample)
+        out["scene_xyz"] = sample["scene_xyz"][keep]
+        out["scene_feat"] = sample["scene_feat"][keep]
+        out["scene_mask"] = torch.ones(keep.numel(), dtype=torch.bool)
+        return out
+
+
 def rotate_sample(sample: Sample, angle: float) -> Sample:
     """Rotate scene, floor and target about the robot origin's z axis by ``angle`` (rad).
 
@@ -193,6 +227,7 @@ __all__ = [
     "OfficialNormalize",
     "ResamplePoints",
     "SampleTransform",
+    "TargetCrop",
     "YawPerturb",
     "apply_transforms",
     "fps_indices",

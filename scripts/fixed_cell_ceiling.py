@@ -1,0 +1,142 @@
+"""How far a scene-independent rule can go: the success rate of one fixed cell of the canonical frame per task.
+
+    python scripts/fixed_cell_ceiling.py --root data/floaff_dense --benchmarks layouts styles [--json out.json]
+
+A fixed-cell rule stands at the same target-relative spot (cell of the target-centred, front-aligned label grid)
+in every view of a task; a view whose observed floor lacks that cell counts as a failure. Per task the script
+reports, from the generated labels alone (no model, no rollout):
+
+- how many candidate cells of a scene succeed (the rollout outcome, not the smoothed label);
+- the rule fitted on the training scenes (the cell that succeeds in most training views) and its test SR;
+- the best fixed cell **in hindsight** on the test scenes: an upper bound for any rule that ignores the scene
+  (the canonical prior is one), not a method. Any SR above it needs what the view shows of this scene.
+
+The exact outcome of a cell comes from ``scene.json`` (``labels.success``) and the cells a view observes from its
+``floor_index``; the canonical frame uses the simulator's target pose (analysis of the benchmark, not a model input).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+
+TASKS = ("PnPCounterToCab", "OpenSingleDoor", "CloseDrawer", "CloseDoubleDoor")
+
+# (task, split) -> per view: {canonical cell (i, j): rollout succeeded}
+Views = dict[tuple[str, str], list[dict[tuple[int, int], bool]]]
+
+
+def canonical_cells(scene: dict) -> np.ndarray:
+    """Integer canonical cell [M, 2] of every grid candidate (i along the front normal, j to its left)."""
+    cand = scene["candidates"]
+    xy = np.asarray(cand["xy"], dtype=float) - np.asarray(scene["target"]["pos"][:2], dtype=float)
+    c, s = math.cos(-scene["target"]["yaw"]), math.sin(-scene["target"]["yaw"])
+    can = np.stack([c * xy[:, 0] - s * xy[:, 1], s * xy[:, 0] + c * xy[:, 1]], axis=1)
+    return np.round(can / float(cand["cell"])).astype(int)
+
+
+def read_views(root: Path, benchmark: str) -> tuple[Views, dict[tuple[str, str], list[int]]]:
+    """Per (task, split): the views' observed cells with outcomes, and the success-cell count of each scene."""
+    views: Views = defaultdict(list)
+    counts: dict[tuple[str, str], list[int]] = defaultdict(list)
+    paths = sorted((root / benchmark).glob("*/scene.json"))
+    if not paths:
+        raise SystemExit(f"fixed_cell_ceiling: no scene.json under {root / benchmark}")
+    for path in paths:
+        scene = json.loads(path.read_text())
+        key = (scene["task"], scene["split"])
+        success = np.asarray(scene["labels"]["success"]) > 0
+        cells = [tuple(int(v) for v in c) for c in canonical_cells(scene)]
+        counts[key].append(int(success.sum()))
+        for view in scene["views"]:
+            with np.load(path.parent / view["file"]) as z:
+                idx = z["floor_index"]
+            views[key].append({cells[i]: bool(success[i]) for i in idx})
+    return views, counts
+
+
+def cell_ranking(views: list[dict[tuple[int, int], bool]]) -> list[tuple[int, int]]:
+    """Cells ordered by their success rate over the views that observe them (then by how often they succeed)."""
+    seen: dict[tuple[int, int], list[bool]] = defaultdict(list)
+    for v in views:
+        for c, ok in v.items():
+            seen[c].append(ok)
+    return sorted(seen, key=lambda c: (-np.mean(seen[c]), -sum(seen[c]), c))
+
+
+def rule_sr(ranking: list[tuple[int, int]], views: list[dict[tuple[int, int], bool]]) -> float:
+    """SR of standing on the first cell of ``ranking`` each view observes (none observed = failure)."""
+    order = {c: k for k, c in enumerate(ranking)}
+    ok = []
+    for v in views:
+        ranked = [c for c in v if c in order]
+        ok.append(bool(ranked) and v[min(ranked, key=order.__getitem__)])
+    return float(np.mean(ok))
+
+
+def ceiling(views: Views, counts: dict[tuple[str, str], list[int]]) -> list[dict]:
+    """One row per task plus an ``all`` row (view-weighted)."""
+    rows = []
+    for task in TASKS:
+        train, test = views.get((task, "train"), []), views.get((task, "test"), [])
+        if not train or not test:
+            continue
+        rows.append(
+            {
+                "task": task,
+                "success_cells_train": sorted(counts[(task, "train")]),
+                "success_cells_test": sorted(counts[(task, "test")]),
+                "train_ranking_test_sr": rule_sr(cell_ranking(train), test),
+                "hindsight_test_sr": rule_sr(cell_ranking(test), test),
+                "test_views": len(test),
+            }
+        )
+    n = sum(r["test_views"] for r in rows)
+    if n:
+        rows.append(
+            {
+                "task": "all",
+                "train_ranking_test_sr": sum(r["train_ranking_test_sr"] * r["test_views"] for r in rows) / n,
+                "hindsight_test_sr": sum(r["hindsight_test_sr"] * r["test_views"] for r in rows) / n,
+                "test_views": n,
+            }
+        )
+    return rows
+
+
+def markdown(bench_rows: dict[str, list[dict]]) -> str:
+    lines = [
+        "| Benchmark | Task | success cells per scene (train; test) | ranking fitted on train: test SR "
+        "| ranking by test outcomes (hindsight): test SR | test views |",
+        "|---|---|---|---:|---:|---:|",
+    ]
+    for bench, rows in bench_rows.items():
+        for r in rows:
+            cells = f"{r['success_cells_train']}; {r['success_cells_test']}" if "success_cells_train" in r else ""
+            lines.append(
+                f"| {bench} | {r['task']} | {cells} | {r['train_ranking_test_sr']:.2f} | {r['hindsight_test_sr']:.2f} "
+                f"| {r['test_views']} |"
+            )
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--root", default="data/floaff_dense")
+    p.add_argument("--benchmarks", nargs="+", default=["layouts", "styles"])
+    p.add_argument("--json", default=None, help="also write the rows here")
+    a = p.parse_args(argv)
+    out = {b: ceiling(*read_views(Path(a.root), b)) for b in a.benchmarks}
+    print(markdown(out))
+    if a.json:
+        Path(a.json).write_text(json.dumps(out, indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

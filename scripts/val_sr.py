@@ -1,0 +1,77 @@
+"""Rollout success rate of several models on the validation scenes (the split used to choose, never test).
+
+    python scripts/val_sr.py --root data/floaff_dense --benchmark layouts MODEL [MODEL ...] [--json out.json]
+
+MODEL is a hub name or a checkpoint path. The split is the DataModule's (``val_scenes=1`` per task, seeded, as in
+training), its points are resampled with the evaluation seed, and the pose is chosen as ``RolloutSuccessRate``
+does (argmax of the predicted map, ties broken by the sample index) and rolled out once. ``--crop-first R`` adds
+the ``TargetCrop`` evaluation transform for models trained with it (configs/experiments/recipe/crop_first.yaml).
+Prints SR per task and over all views.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from floaff_zoo.callbacks.rollout import choose_pose, default_service
+from floaff_zoo.data.floaff_kitchen import FloAffKitchenDataModule
+from floaff_zoo.data.transforms import TargetCrop
+from floaff_zoo.predict import resolve_model
+from floaff_zoo.sim.kitchen import SceneSpec
+
+TASKS = ["PnPCounterToCab", "OpenSingleDoor", "CloseDrawer", "CloseDoubleDoor"]
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("models", nargs="+", help="hub names or checkpoint paths")
+    p.add_argument("--root", default="data/floaff_dense")
+    p.add_argument("--benchmark", default="layouts", choices=["layouts", "styles"])
+    p.add_argument("--num-points", type=int, default=1024)
+    p.add_argument("--crop-first", type=float, default=None, metavar="R", help="TargetCrop radius (m)")
+    p.add_argument("--json", default=None)
+    a = p.parse_args(argv)
+    dm = FloAffKitchenDataModule(
+        root=a.root, benchmark=a.benchmark, tasks=TASKS, val_scenes=1, batch_size=8, num_points=a.num_points
+    )
+    if a.crop_first is not None:
+        dm.eval_transforms = [TargetCrop(a.crop_first)]
+    dm.setup("fit")
+    models = {m: resolve_model(m).eval() for m in a.models}
+    jobs: dict[str, list] = {m: [] for m in a.models}
+    tasks: list[str] = []
+    with torch.no_grad():
+        for batch in dm.val_dataloader():
+            floor, mask, target = (batch[k].numpy() for k in ("floor_xyz", "floor_mask", "target_xyz"))
+            scores = {m: net(batch).numpy() for m, net in models.items()}
+            for i, meta in enumerate(batch["meta"]):
+                sim, seed = meta["sim"], int(meta.get("index", i))
+                spec = SceneSpec.from_dict(sim)
+                for m in a.models:
+                    pose, _ = choose_pose(floor[i], scores[m][i], mask[i], target[i], sim["base_pose_world"], seed=seed)
+                    jobs[m].append((spec, pose))
+                tasks.append(meta["task"])
+    service = default_service()
+    out: dict[str, dict[str, float]] = {}
+    for m in a.models:
+        ok = np.array([r.success for r in service.run(jobs[m])], dtype=float)
+        row = {t: float(ok[[x == t for x in tasks]].mean()) for t in TASKS if t in tasks}
+        row["all"] = float(ok.mean())
+        out[m] = row
+    print(f"{a.benchmark} validation scenes {dm.split_scenes['val']}, {len(tasks)} views")
+    print("| model | " + " | ".join(next(iter(out.values()))) + " |")
+    print("|---|" + "---:|" * len(next(iter(out.values()))))
+    for m, row in out.items():
+        print(f"| {m} | " + " | ".join(f"{v:.2f}" for v in row.values()) + " |")
+    if a.json:
+        Path(a.json).write_text(json.dumps({"val_scenes": dm.split_scenes["val"], "sr": out}, indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
