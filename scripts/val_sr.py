@@ -2,10 +2,11 @@
 
     python scripts/val_sr.py --root data/floaff_dense --benchmark layouts MODEL [MODEL ...] [--json out.json]
 
-MODEL is a hub name or a checkpoint path. The split is the DataModule's (``val_scenes=1`` per task, seeded, as in
-training), its points are resampled with the evaluation seed, and the pose is chosen as ``RolloutSuccessRate``
-does (argmax of the predicted map, ties broken by the sample index) and rolled out once. ``--crop-first R`` adds
-the ``TargetCrop`` evaluation transform for models trained with it (configs/experiments/recipe/crop_first.yaml).
+MODEL is a hub name or a checkpoint path. The split is the DataModule's (``val_scenes=1`` per task, seeded, as
+in training; or the scenes of ``--val-scene-ids``), its points are resampled with the evaluation seed, and the pose
+is chosen as ``RolloutSuccessRate`` does (argmax of the predicted map, ties broken by the sample index) and rolled
+out once. ``--crop-first R`` adds the ``TargetCrop`` evaluation transform for models trained with it
+(configs/experiments/recipe/crop_first.yaml).
 Prints SR per task and over all views.
 """
 
@@ -33,11 +34,18 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--root", default="data/floaff_dense")
     p.add_argument("--benchmark", default="layouts", choices=["layouts", "styles"])
     p.add_argument("--num-points", type=int, default=1024)
+    p.add_argument("--val-scene-ids", nargs="+", default=None, help="pinned validation scenes (as in training)")
     p.add_argument("--crop-first", type=float, default=None, metavar="R", help="TargetCrop radius (m)")
     p.add_argument("--json", default=None)
     a = p.parse_args(argv)
     dm = FloAffKitchenDataModule(
-        root=a.root, benchmark=a.benchmark, tasks=TASKS, val_scenes=1, batch_size=8, num_points=a.num_points
+        root=a.root,
+        benchmark=a.benchmark,
+        tasks=TASKS,
+        val_scenes=1,
+        val_scene_ids=a.val_scene_ids,
+        batch_size=8,
+        num_points=a.num_points,
     )
     if a.crop_first is not None:
         dm.eval_transforms = [TargetCrop(a.crop_first)]

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from floaff_zoo.contract import validate_sample
+from floaff_zoo.contract import SampleError, validate_sample
 from floaff_zoo.data.plot import plot
 from floaff_zoo.data.synthetic import SyntheticDataModule, make_synthetic_sample
 from floaff_zoo.data.transforms import (
@@ -68,6 +68,9 @@ def test_target_crop_keeps_the_target_surroundings():
     few = TargetCrop(1e-6, min_points=10)(s, np.random.default_rng(0))
     assert few["scene_xyz"].shape[0] == 10
     assert (few["scene_xyz"] - target).norm(dim=1).max() <= d[:150].sort().values[9] + 1e-6
+    s["scene_mask"][:] = False
+    with pytest.raises(SampleError, match="no valid point"):
+        TargetCrop(1.0)(s, np.random.default_rng(0))
     with pytest.raises(ValueError, match="radius"):
         TargetCrop(0.0)
     with pytest.raises(ValueError, match="min_points"):

@@ -120,6 +120,8 @@ class TargetCrop(SampleTransform):
 
     def __call__(self, sample: Sample, rng: np.random.Generator) -> Sample:
         valid = sample["scene_mask"].nonzero().squeeze(1)
+        if valid.numel() == 0:
+            raise SampleError(f"TargetCrop: sample {sample.get('meta', {}).get('sample_id')} has no valid point")
         d2 = ((sample["scene_xyz"][valid] - sample["target_xyz"]) ** 2).sum(-1)  # [n_valid]
         keep = valid[d2 <= self.radius**2]
         if keep.numel() < self.min_points:
