@@ -152,8 +152,8 @@ def test_dry_run_and_bad_experiment(tmp_path, root, monkeypatch, capsys):
 
 OVERRIDE_FILES = sorted(
     str(p.relative_to(Path(__file__).resolve().parents[2]))
-    for p in (Path(__file__).resolve().parents[2] / "configs" / "experiments").glob("*/*.yaml")
-    if p.parent.name != "recipe"  # the zoo recipe's files set other switches (tests/test_configs.py)
+    for sub in ("ablations", "sweep_crop")  # recipe/ and budget/ hold other kinds (tests/test_configs.py)
+    for p in (Path(__file__).resolve().parents[2] / "configs" / "experiments" / sub).glob("*.yaml")
 )
 
 
