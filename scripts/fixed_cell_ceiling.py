@@ -12,51 +12,53 @@ reports, from the generated labels alone (no model, no rollout):
   (the canonical prior is one), not a method. Any SR above it needs what the view shows of this scene.
 
 The exact outcome of a cell comes from ``scene.json`` (``labels.success``) and the cells a view observes from its
-``floor_index``; the canonical frame uses the simulator's target pose (analysis of the benchmark, not a model input).
+``floor_index``; the canonical frame is the generator's target frame (``sim.views.world_to_target``, from the
+simulator's target pose: analysis of the benchmark, not a model input). Scenes are read with the format's own
+readers, so a missing or corrupt file is an error that names it.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import math
 from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
 
-TASKS = ("PnPCounterToCab", "OpenSingleDoor", "CloseDrawer", "CloseDoubleDoor")
+from floaff_zoo.contract import TASKS
+from floaff_zoo.sim import fileformat as ff
+from floaff_zoo.sim.views import world_to_target
 
 # (task, split) -> per view: {canonical cell (i, j): rollout succeeded}
 Views = dict[tuple[str, str], list[dict[tuple[int, int], bool]]]
 
 
-def canonical_cells(scene: dict) -> np.ndarray:
-    """Integer canonical cell [M, 2] of every grid candidate (i along the front normal, j to its left)."""
-    cand = scene["candidates"]
-    xy = np.asarray(cand["xy"], dtype=float) - np.asarray(scene["target"]["pos"][:2], dtype=float)
-    c, s = math.cos(-scene["target"]["yaw"]), math.sin(-scene["target"]["yaw"])
-    can = np.stack([c * xy[:, 0] - s * xy[:, 1], s * xy[:, 0] + c * xy[:, 1]], axis=1)
-    return np.round(can / float(cand["cell"])).astype(int)
+def canonical_cells(scene: dict) -> list[tuple[int, int]]:
+    """Integer cell of every grid candidate in the target frame, [M] (the grid is target-aligned)."""
+    cand, target = scene["candidates"], scene["target"]
+    can = world_to_target(np.asarray(cand["xy"], dtype=float), np.asarray(target["pos"]), float(target["yaw"]))
+    return [(int(i), int(j)) for i, j in np.round(can / float(cand["cell"])).astype(int)]
 
 
 def read_views(root: Path, benchmark: str) -> tuple[Views, dict[tuple[str, str], list[int]]]:
     """Per (task, split): the views' observed cells with outcomes, and the success-cell count of each scene."""
     views: Views = defaultdict(list)
     counts: dict[tuple[str, str], list[int]] = defaultdict(list)
-    paths = sorted((root / benchmark).glob("*/scene.json"))
-    if not paths:
-        raise SystemExit(f"fixed_cell_ceiling: no scene.json under {root / benchmark}")
-    for path in paths:
-        scene = json.loads(path.read_text())
+    for scene in ff.iter_scenes(root, benchmark=benchmark):
         key = (scene["task"], scene["split"])
         success = np.asarray(scene["labels"]["success"]) > 0
-        cells = [tuple(int(v) for v in c) for c in canonical_cells(scene)]
+        cells = canonical_cells(scene)
         counts[key].append(int(success.sum()))
         for view in scene["views"]:
-            with np.load(path.parent / view["file"]) as z:
-                idx = z["floor_index"]
+            path = Path(scene["dir"]) / view["file"]
+            arrays = ff.read_view(path, scene["format_version"])
+            if "floor_index" not in arrays:  # format 1 stores the same candidate set in every view
+                raise SystemExit(f"fixed_cell_ceiling: {path} has no floor_index (format 2 data needed)")
+            idx = arrays["floor_index"]
             views[key].append({cells[i]: bool(success[i]) for i in idx})
+    if not counts:
+        raise SystemExit(f"fixed_cell_ceiling: no finished scene under {root / benchmark}")
     return views, counts
 
 

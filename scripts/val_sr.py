@@ -20,12 +20,11 @@ import numpy as np
 import torch
 
 from floaff_zoo.callbacks.rollout import choose_pose, default_service
+from floaff_zoo.contract import TASKS
 from floaff_zoo.data.floaff_kitchen import FloAffKitchenDataModule
 from floaff_zoo.data.transforms import TargetCrop
 from floaff_zoo.predict import resolve_model
 from floaff_zoo.sim.kitchen import SceneSpec
-
-TASKS = ["PnPCounterToCab", "OpenSingleDoor", "CloseDrawer", "CloseDoubleDoor"]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -41,7 +40,7 @@ def main(argv: list[str] | None = None) -> int:
     dm = FloAffKitchenDataModule(
         root=a.root,
         benchmark=a.benchmark,
-        tasks=TASKS,
+        tasks=list(TASKS),
         val_scenes=1,
         val_scene_ids=a.val_scene_ids,
         batch_size=8,

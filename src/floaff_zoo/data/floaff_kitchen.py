@@ -190,11 +190,10 @@ class FloAffKitchenDataModule(FloAffDataModule):
                 out["test"] += self._records(s, self._views(s))
                 self.split_scenes["test"].append(s.scene_id)
             n_val = min(self.val_scenes, len(train) - 1)
-            if fixed is not None or (len(train) >= 2 and n_val > 0):
-                if fixed is not None:
-                    val_ids = fixed
-                else:
-                    val_ids = set(rng.permutation([s.scene_id for s in train])[:n_val].tolist())
+            val_ids = fixed
+            if val_ids is None and len(train) >= 2 and n_val > 0:
+                val_ids = set(rng.permutation([s.scene_id for s in train])[:n_val].tolist())
+            if val_ids is not None:
                 for s in train:
                     split = "val" if s.scene_id in val_ids else "train"
                     out[split] += self._records(s, self._views(s))
