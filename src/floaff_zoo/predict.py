@@ -35,6 +35,7 @@ from typing import Any, Literal
 import numpy as np
 import torch
 
+from floaff_zoo import runtime
 from floaff_zoo.contract import FloorGrid, SampleError, best_pose, collate_samples, validate_sample
 from floaff_zoo.floor import CANDIDATE_WINDOW, FLOOR_Z_MAX, FloorLattice, observed_cells
 
@@ -66,10 +67,15 @@ class Prediction:
 def resolve_model(model: Any, model_class: type | str | None = None, device: str = "cpu") -> torch.nn.Module:
     """A ready-to-run module from a module, a checkpoint path or a hub name.
 
+    Also asks glibc to keep freed memory for reuse (``runtime.keep_freed_memory``, as ``floaff-zoo``
+    does at start): repeated predictions then reuse their activations' pages instead of faulting in
+    fresh ones (docs/performance.md, predict latency). ``FLOAFF_ZOO_MALLOC=system`` leaves malloc alone.
+
     Args:
         model_class: when given, the resolved model must be an instance of it (class or class name);
             a checkpoint of another model class raises a TypeError naming both.
     """
+    runtime.keep_freed_memory()
     if isinstance(model, (str, Path)):
         from floaff_zoo.hub import load_model
 

@@ -197,23 +197,55 @@ def test_bad_shapes_and_nan():
         ops.check_finite("scene_xyz", x)
 
 
-def test_ball_query_and_three_nn_kernels_match_the_torch_path(cloud, monkeypatch):
-    """The C++ selection kernels (when built) give the torch path's neighbours, in any chunking."""
+def _neighbour_case(seed: int = 3):
+    """A cloud big enough for several vector blocks and ragged tails: 2 x 1,003 points (some masked), 301 centres."""
+    g = torch.Generator().manual_seed(seed)
+    xyz = torch.rand(2, 1003, 3, generator=g) * torch.tensor([2.0, 1.5, 1.0]) - 0.5
+    mask = torch.rand(2, 1003, generator=g) > 0.1
+    centres = xyz[:, 1:302] + 0.01 * torch.randn(2, 301, 3, generator=g)
+    return xyz, mask, centres
+
+
+def test_ball_query_and_three_nn_kernels_match_the_torch_path(monkeypatch):
+    """The C++ kernels compute each distance row as the torch path's GEMM rounds it: same distances bit for bit,
+    so the same neighbours (several scales at once, masked points, empty balls)."""
     if ops.point_kernel(torch.device("cpu")) is None:
         pytest.skip("C++ point-op kernels unavailable (no compiler): only the torch path exists")
-    xyz, mask = cloud
-    centres = xyz[:, :30]
-    fast = ops.ball_query(0.25, 6, xyz, centres, mask)
-    d_one, i_one = ops.three_nn(centres, xyz, mask)  # one chunk
-    monkeypatch.setattr(ops, "_KERNEL_CHUNK_ELEMS", 7)  # many tiny chunks
-    assert torch.equal(ops.ball_query(0.25, 6, xyz, centres, mask), fast)
+    xyz, mask, centres = _neighbour_case()
+    far = torch.tensor([[[9.0, 9.0, 9.0]]]).expand(2, 1, 3)  # no point within any radius: nearest valid point
+    centres = torch.cat([centres, far], dim=1)
+    radii, ks = [0.05, 0.1, 0.2], [4, 16, 32]
+    fast = ops.ball_query_multi(radii, ks, xyz, centres, mask)
     d_fast, i_fast = ops.three_nn(centres, xyz, mask)
-    # the GEMM library may round a chunk's distances differently (~1 ulp): same neighbours here
-    assert torch.allclose(d_fast, d_one, atol=1e-6) and torch.equal(i_fast, i_one)
     monkeypatch.setattr(ops, "point_kernel", lambda device: None)  # force the torch path
-    assert torch.equal(ops.ball_query(0.25, 6, xyz, centres, mask), fast)
+    ref = ops.ball_query_multi(radii, ks, xyz, centres, mask)
     d_ref, i_ref = ops.three_nn(centres, xyz, mask)
-    assert torch.allclose(d_fast, d_ref, atol=1e-6)  # indices may swap only at (nearly) tied distances
+    for got, want in zip(fast, ref):
+        assert torch.equal(got, want)
+    assert torch.equal(d_fast, d_ref) and torch.equal(i_fast, i_ref)
+    assert mask.gather(1, fast[2].flatten(1)).all()
+
+
+def test_kernels_give_the_same_result_on_every_instruction_set():
+    """The AVX-512, AVX2 and baseline builds of the loops (those the CPU runs) agree bit for bit."""
+    from floaff_zoo.nn import _fps_ext
+
+    kernel = _fps_ext.load_kernel()
+    if kernel is None:
+        pytest.skip("C++ point-op kernels unavailable (no compiler): only the torch path exists")
+    xyz, mask, centres = _neighbour_case(5)
+    best = kernel.kernel_isa(-1)
+    results = []
+    try:
+        for level in range(best + 1):
+            assert kernel.kernel_isa(level) == level
+            fps = ops.farthest_point_sample(xyz, mask, 97)
+            balls = ops.ball_query_multi([0.1, 0.3], [8, 24], xyz, centres, mask)
+            results.append((fps, *balls, *ops.three_nn(centres, xyz, mask)))
+    finally:
+        kernel.kernel_isa(best)
+    for other in results[1:]:
+        assert all(torch.equal(a, b) for a, b in zip(results[0], other))
 
 
 def test_cfar_tolerant_selections_kernel_matches_torch(monkeypatch):

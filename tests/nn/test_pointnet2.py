@@ -181,6 +181,39 @@ def test_first_layer_before_grouping_matches_grouping_first(monkeypatch):
         assert torch.allclose(ga, gb, atol=1e-4), (ga - gb).abs().max()
 
 
+@pytest.mark.parametrize("per_point", [True, False])
+def test_chunked_inference_equals_one_pass(per_point, monkeypatch):
+    """Without gradients a row-wise level runs in chunks of centres with the one-pass outputs; batch
+    statistics (train mode, or a BN without running statistics) are never chunked."""
+    import floaff_zoo.nn.pointnet2 as pn2
+
+    torch.manual_seed(0)
+    sa = SetAbstraction(40, [0.3, 0.5], [8, 12], 20, [[16, 24], [8, 8]], xyz_first=False)
+    for norm in sa.modules():
+        if isinstance(norm, torch.nn.BatchNorm1d):  # non-trivial running statistics to fold
+            norm.running_mean.uniform_(-0.5, 0.5)
+            norm.running_var.uniform_(0.5, 2.0)
+    sa.eval()
+    xyz, feat = torch.rand(2, 96, 3), torch.randn(2, 96, 20)
+    idx = sa.sample(xyz, None)
+    monkeypatch.setattr(pn2, "GATHER_AFTER_FIRST_LAYER", 1 if per_point else 10**6)
+    with torch.no_grad():
+        monkeypatch.setattr(pn2, "CHUNK_ROWS", 10**9)
+        whole = sa(xyz, feat, None, idx)[1]
+        monkeypatch.setattr(pn2, "CHUNK_ROWS", 2 * 2 * 12)  # a few centres per chunk, last chunk ragged
+        assert pn2._centres_per_chunk(sa.mlps[1], torch.zeros(2, 40, 12, dtype=torch.long)) == 2
+        chunked = sa(xyz, feat, None, idx)[1]
+    assert torch.allclose(chunked, whole, atol=1e-6), (chunked - whole).abs().max()
+    groups = torch.zeros(2, 40, 12, dtype=torch.long)
+    with torch.no_grad():
+        sa.mlps[1].norms[0].train()
+        assert pn2._centres_per_chunk(sa.mlps[1], groups) == 40
+        sa.mlps[1].norms[0].eval()
+        sa.mlps[1].norms[0].running_mean = None  # batch statistics in eval mode (PFAL's frozen teacher)
+        assert pn2._centres_per_chunk(sa.mlps[1], groups) == 40
+    assert pn2._centres_per_chunk(sa.mlps[0], groups) == 40  # gradients on: never chunked
+
+
 def test_reference_ops_run_a_zoo_model_with_the_same_outputs_and_restore():
     """The benchmark's reference counterpart of a model (port ops, same weights) predicts the same."""
     import floaff_zoo.nn.pointnet2 as pn2

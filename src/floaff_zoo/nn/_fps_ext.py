@@ -3,16 +3,21 @@ max-with-index of the fused BatchNorm+max, the passes of the fused train-mode Ba
 first use with ``load_inline``.
 
 The build is cached in ``TORCH_EXTENSIONS_DIR`` (torch's default: ``~/.cache/torch_extensions``),
-so only the first process on a machine pays the one-off g++ compile (~25-40 s). Any failure (no
+so only the first process on a machine pays the one-off g++ compile (~40-60 s). Any failure (no
 compiler, no ninja, read-only cache) is remembered and callers fall back to pure torch.
 Set ``FLOAFF_ZOO_FPS_BACKEND=torch`` to skip the kernels altogether.
 
 FPS matches the torch fallback bit for bit: squared distances are ``(dx*dx + dy*dy) + dz*dz`` in
 float32 with FMA contraction disabled, ties go to the lowest index, invalid points carry distance
--1 so they are never selected. The selection kernels take the torch matmul ``-2 src.dst`` and add
-the squared norms in the order of ``ops.square_distance`` (plain float adds, no FMA), so they see
-the same distances as the torch path; they replace the mask/``where``/``topk`` passes over the
-[B, S, N] matrix by one scan that stops once K neighbours are found.
+-1 so they are never selected. The ball-query and 3-NN kernels compute each query's row of squared
+distances as ``ops.square_distance`` rounds it (the K = 3 GEMM of ``-2 src`` and ``dst^T`` is an fma
+chain in MKL and oneDNN, then the squared norms from torch are added), so they select the torch path's
+neighbours without writing the [B, S, N] matrix; ball query scans each row once for every scale and
+stops once each holds K neighbours.
+
+The loops that carry the work (FPS, distance rows, the ball scan) are compiled for AVX-512, AVX2+FMA
+and the baseline on x86-64 with GCC and picked at run time from the CPU (``kernel_isa``); every build
+gives the same results (tested).
 """
 
 from __future__ import annotations
@@ -22,6 +27,170 @@ import threading
 import warnings
 from typing import Any
 
+#: loops compiled once per instruction set (``namespace isa_<name>``, ``vf`` = one vector register of floats
+#: through the GCC/Clang vector extension) and picked at run time by ``ISA_CALL``: on x86-64 with GCC,
+#: AVX-512 and AVX2+FMA builds besides the baseline (SSE2; NEON on arm64). Same results on every one: plain
+#: float ops without contraction (-ffp-contract=off), explicit fma only where the torch path has one.
+_ISA_BODY = r"""
+namespace isa_@NAME@ {
+typedef float vf __attribute__((vector_size(@VBYTES@)));
+constexpr int64_t W = @VBYTES@ / 4;
+
+// FPS of one cloud from its first valid point `far`: x, y, z [N] (SoA), dist [N] (1e10 valid, -1 invalid)
+// -> o [npoint]. d = (dx*dx + dy*dy) + dz*dz in float32 without FMA, as the torch fallback rounds it.
+void fps_cloud(const float* x, const float* y, const float* z, float* dist, int64_t N, int64_t far, int64_t npoint,
+               int64_t* o) {
+  for (int64_t j = 0; j < npoint; ++j) {
+    o[j] = far;
+    const float cx = x[far], cy = y[far], cz = z[far];
+    // pass 1, W points per step: new distances and their maximum (invalid points hold -1 and min(-1, d)
+    // keeps them there, d >= 0); pass 2: the first index holding the maximum (ties to the lowest index)
+    vf vbest = vf{} - 2.0f;
+    int64_t i0 = 0;
+    for (; i0 + W <= N; i0 += W) {
+      vf vx, vy, vz, vd;
+      std::memcpy(&vx, x + i0, sizeof(vf));
+      std::memcpy(&vy, y + i0, sizeof(vf));
+      std::memcpy(&vz, z + i0, sizeof(vf));
+      std::memcpy(&vd, dist + i0, sizeof(vf));
+      const vf dx = vx - cx, dy = vy - cy, dz = vz - cz;
+      const vf d = (dx * dx + dy * dy) + dz * dz;
+      const vf nd = d < vd ? d : vd;
+      std::memcpy(dist + i0, &nd, sizeof(vf));
+      vbest = nd > vbest ? nd : vbest;
+    }
+    float best = -2.0f;
+    for (int64_t l = 0; l < W; ++l) best = vbest[l] > best ? vbest[l] : best;
+    for (int64_t i = i0; i < N; ++i) {
+      const float dx = x[i] - cx, dy = y[i] - cy, dz = z[i] - cz;
+      const float d = (dx * dx + dy * dy) + dz * dz;
+      const float nd = d < dist[i] ? d : dist[i];
+      dist[i] = nd;
+      best = nd > best ? nd : best;
+    }
+    int64_t besti = 0;
+    for (int64_t i = 0; i < N; ++i) {
+      if (dist[i] == best) { besti = i; break; }
+    }
+    far = besti;
+  }
+}
+
+// d [N]: squared distances of one query to a cloud, rounded as ops.square_distance rounds them:
+// (fma(s2, z, fma(s1, y, s0 x)) + ss) + q, with s = -2 * query, ss = |query|^2 and q = |point|^2 (+inf where
+// masked). The fma chain is how MKL's and oneDNN's float GEMM sum a K = 3 product (tested bit for bit).
+void sq_dist_row(const float* __restrict__ x, const float* __restrict__ y, const float* __restrict__ z,
+                 const float* __restrict__ q, float s0, float s1, float s2, float ss, float* __restrict__ d, int64_t N) {
+  for (int64_t i = 0; i < N; ++i) d[i] = (__builtin_fmaf(s2, z[i], __builtin_fmaf(s1, y[i], s0 * x[i])) + ss) + q[i];
+}
+
+// Ball query on one row of distances d [N], several scales (rr[s], K[s]) in one scan that stops once every
+// scale holds K[s] hits: the first K[s] indices with d <= rr[s], ascending. An empty ball takes the nearest
+// point (lowest index on ties; index 0 when every point is masked); slots past the count repeat the first.
+// A block of W points is read element by element only when one of them is inside the widest ball.
+void ball_scan(const float* d, int64_t N, const float* rr, const int64_t* K, int64_t ns, int64_t* const* o) {
+  float rmax = rr[0];
+  for (int64_t s = 1; s < ns; ++s) rmax = rr[s] > rmax ? rr[s] : rmax;
+  int64_t cnt[8] = {0, 0, 0, 0, 0, 0, 0, 0};
+  int64_t open = ns;
+  auto take = [&](int64_t i) {
+    const float v = d[i];
+    if (!(v <= rmax)) return;
+    for (int64_t s = 0; s < ns; ++s) {
+      if (cnt[s] < K[s] && v <= rr[s]) {
+        o[s][cnt[s]++] = i;
+        if (cnt[s] == K[s]) --open;
+      }
+    }
+  };
+  int64_t i0 = 0;
+  for (; i0 + W <= N && open > 0; i0 += W) {
+    vf v;
+    std::memcpy(&v, d + i0, sizeof(vf));
+    const auto hit = v <= rmax;  // -1 in the lanes inside the widest ball
+    uint64_t bits[W / 2];
+    std::memcpy(bits, &hit, sizeof(bits));
+    uint64_t any = 0;
+    for (int64_t l = 0; l < W / 2; ++l) any |= bits[l];
+    if (!any) continue;
+    for (int64_t i = i0; i < i0 + W && open > 0; ++i) take(i);
+  }
+  for (int64_t i = i0; i < N && open > 0; ++i) take(i);
+  for (int64_t s = 0; s < ns; ++s) {
+    if (cnt[s] == 0) {
+      float best = std::numeric_limits<float>::infinity();
+      int64_t besti = 0;
+      for (int64_t i = 0; i < N; ++i) {
+        if (d[i] < best) { best = d[i]; besti = i; }
+      }
+      o[s][0] = besti;
+      cnt[s] = 1;
+    }
+    for (int64_t j = cnt[s]; j < K[s]; ++j) o[s][j] = o[s][0];
+  }
+}
+}  // namespace isa_@NAME@
+"""
+
+_ISA_DISPATCH = r"""
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+#define FLOAFF_MULTI_ISA 1
+#pragma GCC push_options
+#pragma GCC target("avx512f,avx512vl,avx512bw,avx512dq,avx2,fma")
+@AVX512@
+#pragma GCC pop_options
+#pragma GCC push_options
+#pragma GCC target("avx2,fma")
+@AVX2@
+#pragma GCC pop_options
+#endif
+@BASE@
+
+// The instruction set the kernels run: 2 = AVX-512, 1 = AVX2 + FMA, 0 = baseline; the best the CPU has
+// unless set_kernel_isa lowered it (tests compare the builds).
+static int g_isa = -1;
+static int best_isa() {
+#ifdef FLOAFF_MULTI_ISA
+  __builtin_cpu_init();
+  const bool avx2 = __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
+  if (avx2 && __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512vl") &&
+      __builtin_cpu_supports("avx512bw") && __builtin_cpu_supports("avx512dq")) return 2;
+  if (avx2) return 1;
+#endif
+  return 0;
+}
+static int isa_level() {
+  if (g_isa < 0) g_isa = best_isa();
+  return g_isa;
+}
+#ifdef FLOAFF_MULTI_ISA
+#define ISA_CALL(fn, ...) \
+  (isa_level() == 2 ? isa_avx512::fn(__VA_ARGS__) : isa_level() == 1 ? isa_avx2::fn(__VA_ARGS__) : isa_base::fn(__VA_ARGS__))
+#else
+#define ISA_CALL(fn, ...) isa_base::fn(__VA_ARGS__)
+#endif
+
+// level < 0: report; else use min(level, the best the CPU has). Returns the level now in use.
+int64_t kernel_isa(int64_t level) {
+  if (level >= 0) g_isa = std::min<int>(int(level), best_isa());
+  return isa_level();
+}
+"""
+
+
+def _isa_bodies() -> str:
+    """The per-instruction-set loops and their dispatch, for ``_CPP_SOURCE``."""
+
+    def body(name: str, vbytes: int) -> str:
+        return _ISA_BODY.replace("@NAME@", name).replace("@VBYTES@", str(vbytes))
+
+    return (
+        _ISA_DISPATCH.replace("@AVX512@", body("avx512", 64))
+        .replace("@AVX2@", body("avx2", 32))
+        .replace("@BASE@", body("base", 16))
+    )
+
+
 _CPP_SOURCE = r"""
 #include <torch/extension.h>
 #include <ATen/Parallel.h>
@@ -30,8 +199,7 @@ _CPP_SOURCE = r"""
 #include <limits>
 #include <vector>
 
-// 4 floats: GCC/Clang vector extension, one SSE2/NEON register (the baseline of x86-64 and arm64)
-typedef float v4sf __attribute__((vector_size(16)));
+@ISA_BODIES@
 
 // The checked inputs and the output of both FPS kernels: xyz [B, N, 3] float, mask [B, N] bool -> out [B, npoint].
 struct FpsIO {
@@ -67,128 +235,101 @@ torch::Tensor fps_forward(torch::Tensor xyz, torch::Tensor mask, int64_t npoint)
         if (far < 0 && m[i]) far = i;
       }
       if (far < 0) continue;  // no valid point: caller validates before calling
-      for (int64_t j = 0; j < npoint; ++j) {
-        O[b * npoint + j] = far;
-        const float cx = x[far], cy = y[far], cz = z[far];
-        // pass 1, 4 points per step (GCC/Clang vector extension): new distances and their maximum;
-        // invalid points hold -1 and min(-1, d) keeps them there (d >= 0).
-        // pass 2: the first index holding the maximum (ties to the lowest index).
-        v4sf vbest = {-2.0f, -2.0f, -2.0f, -2.0f};
-        int64_t i0 = 0;
-        for (; i0 + 4 <= N; i0 += 4) {
-          v4sf vx, vy, vz, vd;
-          std::memcpy(&vx, &x[i0], sizeof(v4sf));
-          std::memcpy(&vy, &y[i0], sizeof(v4sf));
-          std::memcpy(&vz, &z[i0], sizeof(v4sf));
-          std::memcpy(&vd, &dist[i0], sizeof(v4sf));
-          const v4sf dx = vx - cx, dy = vy - cy, dz = vz - cz;
-          const v4sf d = (dx * dx + dy * dy) + dz * dz;
-          const v4sf nd = d < vd ? d : vd;
-          std::memcpy(&dist[i0], &nd, sizeof(v4sf));
-          vbest = nd > vbest ? nd : vbest;
-        }
-        float best = -2.0f;
-        for (int l = 0; l < 4; ++l) best = vbest[l] > best ? vbest[l] : best;
-        for (int64_t i = i0; i < N; ++i) {
-          const float dx = x[i] - cx, dy = y[i] - cy, dz = z[i] - cz;
-          const float d = (dx * dx + dy * dy) + dz * dz;
-          const float nd = d < dist[i] ? d : dist[i];
-          dist[i] = nd;
-          best = nd > best ? nd : best;
-        }
-        int64_t besti = 0;
-        for (int64_t i = 0; i < N; ++i) {
-          if (dist[i] == best) { besti = i; break; }
-        }
-        far = besti;
-      }
+      ISA_CALL(fps_cloud, x.data(), y.data(), z.data(), dist.data(), N, far, npoint, O + b * npoint);
     }
   });
   return io.out;
 }
 
-// The inputs of the selection kernels: mm [B, S, N] (torch matmul of -2*src and dst^T), ssq [B, S] and
-// dsq [B, N] (squared norms), mask [B, N]; Row r = b * S + j gives the distances of centre j of cloud b.
-struct Selection {
-  int64_t B, S, N;
-  const float* mm; const float* ssq; const float* dsq; const bool* mask;
-  Selection(torch::Tensor& mm_, torch::Tensor& ssq_, torch::Tensor& dsq_, torch::Tensor& mask_) {
-    TORCH_CHECK(mm_.dim() == 3 && mm_.scalar_type() == torch::kFloat && mm_.is_contiguous(), "mm must be contiguous float [B, S, N]");
-    B = mm_.size(0); S = mm_.size(1); N = mm_.size(2);
-    TORCH_CHECK(ssq_.is_contiguous() && ssq_.numel() == B * S && ssq_.scalar_type() == torch::kFloat, "ssq must be float [B, S]");
-    TORCH_CHECK(dsq_.is_contiguous() && dsq_.numel() == B * N && dsq_.scalar_type() == torch::kFloat, "dsq must be float [B, N]");
-    TORCH_CHECK(mask_.is_contiguous() && mask_.numel() == B * N && mask_.scalar_type() == torch::kBool, "mask must be bool [B, N]");
-    mm = mm_.data_ptr<float>(); ssq = ssq_.data_ptr<float>(); dsq = dsq_.data_ptr<float>(); mask = mask_.data_ptr<bool>();
+// The three smallest of d [N] ascending, ties to the lowest index; missing slots (fewer than 3 finite
+// values): distance +inf, index 0.
+static void three_smallest(const float* d, int64_t N, float* od, int64_t* oi) {
+  const float inf = std::numeric_limits<float>::infinity();
+  float d0 = inf, d1 = inf, d2 = inf;
+  int64_t i0 = 0, i1 = 0, i2 = 0;
+  for (int64_t i = 0; i < N; ++i) {
+    const float v = d[i];
+    if (!(v < d2)) continue;
+    if (v < d1) {
+      d2 = d1; i2 = i1;
+      if (v < d0) { d1 = d0; i1 = i0; d0 = v; i0 = i; } else { d1 = v; i1 = i; }
+    } else { d2 = v; i2 = i; }
   }
-};
-
-// First K valid points (index order) with d <= r2, d = (mm + ssq) + dsq summed in this order so it
-// equals ops.square_distance bit for bit (mm = the torch matmul of -2*src and dst^T). Empty ball ->
-// nearest valid point (lowest index on ties); slots past the count repeat the first neighbour.
-torch::Tensor ball_select(torch::Tensor mm, torch::Tensor ssq, torch::Tensor dsq, torch::Tensor mask,
-                          double r2, int64_t K) {
-  const Selection sel(mm, ssq, dsq, mask);
-  const int64_t B = sel.B, S = sel.S, N = sel.N;
-  auto out = torch::empty({B, S, K}, torch::kLong);
-  int64_t* O = out.data_ptr<int64_t>();
-  const float rr = static_cast<float>(r2);
-  at::parallel_for(0, B * S, 16, [&](int64_t r0, int64_t r1) {
-    for (int64_t r = r0; r < r1; ++r) {
-      const float* row = sel.mm + r * N;
-      const float* t = sel.dsq + (r / S) * N;
-      const bool* m = sel.mask + (r / S) * N;
-      const float s = sel.ssq[r];
-      int64_t* o = O + r * K;
-      int64_t cnt = 0;
-      for (int64_t i = 0; i < N && cnt < K; ++i) {
-        const float d = (row[i] + s) + t[i];
-        if (m[i] && d <= rr) o[cnt++] = i;
-      }
-      if (cnt == 0) {  // no valid point in the ball: nearest valid point
-        float best = 0.0f;
-        int64_t besti = -1;
-        for (int64_t i = 0; i < N; ++i) {
-          if (!m[i]) continue;
-          const float d = (row[i] + s) + t[i];
-          if (besti < 0 || d < best) { best = d; besti = i; }
-        }
-        o[0] = besti < 0 ? 0 : besti;
-        cnt = 1;
-      }
-      for (int64_t j = cnt; j < K; ++j) o[j] = o[0];
-    }
-  });
-  return out;
+  od[0] = d0; od[1] = d1; od[2] = d2;
+  oi[0] = d0 == inf ? 0 : i0; oi[1] = d1 == inf ? 0 : i1; oi[2] = d2 == inf ? 0 : i2;
 }
 
-// Three nearest valid points, d = (mm + ssq) + dsq as above, ascending, ties to the lowest index.
-// Missing slots (fewer than 3 valid points): distance +inf, index 0.
-std::vector<torch::Tensor> three_nn_select(torch::Tensor mm, torch::Tensor ssq, torch::Tensor dsq, torch::Tensor mask) {
-  const Selection sel(mm, ssq, dsq, mask);
-  const int64_t B = sel.B, S = sel.S, N = sel.N;
+// The direct neighbour kernels take src2 [B, S, 3] (= -2 * the query points, exact), ssq [B, S] and dsq [B, N]
+// (squared norms, from torch) and dst [B, N, 3] with mask [B, N]. Per cloud the points are laid out as
+// x, y, z and dsq (+inf where masked, so a masked point is never in a ball nor among the nearest).
+struct Direct {
+  int64_t B, S, N;
+  torch::Tensor soa;  // [B, 4, N]
+  const float* src2; const float* ssq; const float* Q;
+  Direct(torch::Tensor& src2_, torch::Tensor& ssq_, torch::Tensor& dst_, torch::Tensor& dsq_, torch::Tensor& mask_) {
+    TORCH_CHECK(src2_.dim() == 3 && src2_.size(2) == 3 && src2_.scalar_type() == torch::kFloat && src2_.is_contiguous(),
+                "src2 must be contiguous float [B, S, 3]");
+    TORCH_CHECK(dst_.dim() == 3 && dst_.size(2) == 3 && dst_.size(0) == src2_.size(0) && dst_.scalar_type() == torch::kFloat,
+                "dst must be float [B, N, 3]");
+    B = src2_.size(0); S = src2_.size(1); N = dst_.size(1);
+    TORCH_CHECK(ssq_.is_contiguous() && ssq_.numel() == B * S && ssq_.scalar_type() == torch::kFloat, "ssq must be float [B, S]");
+    TORCH_CHECK(dsq_.numel() == B * N && dsq_.scalar_type() == torch::kFloat, "dsq must be float [B, N]");
+    TORCH_CHECK(mask_.numel() == B * N && mask_.scalar_type() == torch::kBool, "mask must be bool [B, N]");
+    const auto inf = torch::full({}, std::numeric_limits<float>::infinity(), dsq_.options());
+    auto dq = torch::where(mask_.reshape({B, 1, N}), dsq_.reshape({B, 1, N}), inf);
+    soa = torch::cat({dst_.transpose(1, 2), dq}, 1).contiguous();
+    src2 = src2_.data_ptr<float>(); ssq = ssq_.data_ptr<float>(); Q = soa.data_ptr<float>();
+  }
+  const float* cloud(int64_t r) const { return Q + (r / S) * 4 * N; }
+};
+
+// Ball query (ops.ball_query_multi) for several (r2, K) scales: per centre its distance row, then one scan
+// (isa::ball_scan). Returns one [B, S, K] index tensor per scale.
+std::vector<torch::Tensor> ball_direct(torch::Tensor src2, torch::Tensor ssq, torch::Tensor dst, torch::Tensor dsq,
+                                       torch::Tensor mask, std::vector<double> r2, std::vector<int64_t> K) {
+  const Direct in(src2, ssq, dst, dsq, mask);
+  TORCH_CHECK(r2.size() == K.size() && !r2.empty() && r2.size() <= 8, "one to eight (r2, K) scales");
+  const int64_t B = in.B, S = in.S, N = in.N, ns = int64_t(r2.size());
+  std::vector<torch::Tensor> outs;
+  std::vector<int64_t*> O;
+  std::vector<float> rr;
+  for (int64_t s = 0; s < ns; ++s) {
+    TORCH_CHECK(K[s] >= 1, "K must be >= 1");
+    outs.push_back(torch::empty({B, S, K[s]}, torch::kLong));
+    O.push_back(outs.back().data_ptr<int64_t>());
+    rr.push_back(static_cast<float>(r2[s]));
+  }
+  at::parallel_for(0, B * S, 16, [&](int64_t r0, int64_t r1) {
+    std::vector<float> d(N);
+    int64_t* o[8];
+    for (int64_t r = r0; r < r1; ++r) {
+      const float* q = in.cloud(r);
+      const float* c = in.src2 + 3 * r;
+      ISA_CALL(sq_dist_row, q, q + N, q + 2 * N, q + 3 * N, c[0], c[1], c[2], in.ssq[r], d.data(), N);
+      for (int64_t s = 0; s < ns; ++s) o[s] = O[s] + r * K[s];
+      ISA_CALL(ball_scan, d.data(), N, rr.data(), K.data(), ns, o);
+    }
+  });
+  return outs;
+}
+
+// Three nearest valid points (ops.three_nn) of every query: per query its distance row, then three_smallest.
+// Returns (sq_dist [B, S, 3], idx [B, S, 3]).
+std::vector<torch::Tensor> three_nn_direct(torch::Tensor src2, torch::Tensor ssq, torch::Tensor dst, torch::Tensor dsq,
+                                           torch::Tensor mask) {
+  const Direct in(src2, ssq, dst, dsq, mask);
+  const int64_t B = in.B, S = in.S, N = in.N;
   auto dist = torch::empty({B, S, 3}, torch::kFloat);
   auto idx = torch::empty({B, S, 3}, torch::kLong);
   float* OD = dist.data_ptr<float>();
   int64_t* OI = idx.data_ptr<int64_t>();
-  const float inf = std::numeric_limits<float>::infinity();
   at::parallel_for(0, B * S, 16, [&](int64_t r0, int64_t r1) {
+    std::vector<float> d(N);
     for (int64_t r = r0; r < r1; ++r) {
-      const float* row = sel.mm + r * N;
-      const float* t = sel.dsq + (r / S) * N;
-      const bool* m = sel.mask + (r / S) * N;
-      const float s = sel.ssq[r];
-      float d0 = inf, d1 = inf, d2 = inf;
-      int64_t i0 = 0, i1 = 0, i2 = 0;
-      for (int64_t i = 0; i < N; ++i) {
-        const float d = (row[i] + s) + t[i];
-        if (!m[i] || !(d < d2)) continue;
-        if (d < d1) {
-          d2 = d1; i2 = i1;
-          if (d < d0) { d1 = d0; i1 = i0; d0 = d; i0 = i; } else { d1 = d; i1 = i; }
-        } else { d2 = d; i2 = i; }
-      }
-      OD[3 * r] = d0; OD[3 * r + 1] = d1; OD[3 * r + 2] = d2;
-      OI[3 * r] = d0 == inf ? 0 : i0; OI[3 * r + 1] = d1 == inf ? 0 : i1; OI[3 * r + 2] = d2 == inf ? 0 : i2;
+      const float* q = in.cloud(r);
+      const float* c = in.src2 + 3 * r;
+      ISA_CALL(sq_dist_row, q, q + N, q + 2 * N, q + 3 * N, c[0], c[1], c[2], in.ssq[r], d.data(), N);
+      three_smallest(d.data(), N, OD + 3 * r, OI + 3 * r);
     }
   });
   return {dist, idx};
@@ -484,10 +625,15 @@ void bn_relu_grad_(torch::Tensor z, torch::Tensor dy, torch::Tensor y, torch::Te
 }
 """
 
+_CPP_SOURCE = _CPP_SOURCE.replace("@ISA_BODIES@", _isa_bodies())
+
 _CPP_DECL = """
+int64_t kernel_isa(int64_t level);
 torch::Tensor fps_forward(torch::Tensor xyz, torch::Tensor mask, int64_t npoint);
-torch::Tensor ball_select(torch::Tensor mm, torch::Tensor ssq, torch::Tensor dsq, torch::Tensor mask, double r2, int64_t K);
-std::vector<torch::Tensor> three_nn_select(torch::Tensor mm, torch::Tensor ssq, torch::Tensor dsq, torch::Tensor mask);
+std::vector<torch::Tensor> ball_direct(torch::Tensor src2, torch::Tensor ssq, torch::Tensor dst, torch::Tensor dsq,
+                                       torch::Tensor mask, std::vector<double> r2, std::vector<int64_t> K);
+std::vector<torch::Tensor> three_nn_direct(torch::Tensor src2, torch::Tensor ssq, torch::Tensor dst, torch::Tensor dsq,
+                                           torch::Tensor mask);
 torch::Tensor tolerant_fps_forward(torch::Tensor xyz, torch::Tensor mask, int64_t npoint, double tol);
 std::vector<torch::Tensor> stable_three_nn(torch::Tensor unknown, torch::Tensor known, double tol);
 std::vector<torch::Tensor> extreme_over_dim(torch::Tensor z, torch::Tensor take_min);
@@ -524,12 +670,13 @@ def load_kernel() -> Any | None:
                 from torch.utils.cpp_extension import load_inline
 
                 _state["module"] = load_inline(
-                    name="floaff_zoo_point_ops_v17",
+                    name="floaff_zoo_point_ops_v18",
                     cpp_sources=[_CPP_DECL, _CPP_SOURCE],
                     functions=[
+                        "kernel_isa",
                         "fps_forward",
-                        "ball_select",
-                        "three_nn_select",
+                        "ball_direct",
+                        "three_nn_direct",
                         "tolerant_fps_forward",
                         "stable_three_nn",
                         "extreme_over_dim",

@@ -11,7 +11,6 @@ MLPs (docs/background.md §6).
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
 
 import torch
 from torch import Tensor
@@ -34,10 +33,8 @@ __all__ = [
     "three_nn",
 ]
 
-#: elements of a [B, S, N] distance/key matrix above which ball query chunks over centres
+#: elements of a [B, S, N] distance/key matrix above which the torch ball query chunks over centres
 _CHUNK_ELEMS = 1 << 24
-#: the same for the C++ selection kernels (8 MB of float32; see ``_kernel_chunks``)
-_KERNEL_CHUNK_ELEMS = 1 << 21
 
 
 def check_finite(name: str, x: Tensor) -> None:
@@ -73,23 +70,15 @@ def _distance_parts(src: Tensor, dst: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         return mm, torch.sum(src**2, -1), torch.sum(dst**2, -1)
 
 
-def _kernel_chunks(src: Tensor, dst: Tensor) -> Iterator[tuple[Tensor, Tensor, Tensor]]:
-    """``_distance_parts`` of ``src`` in row chunks of about ``_KERNEL_CHUNK_ELEMS`` elements, contiguous,
-    for the C++ selection kernels: (mm [B, s, M], ssq [B, s], dsq [B, M]) per chunk, dsq the same tensor
-    each time. An empty ``src`` gives one empty chunk (empty kernel outputs).
-
-    Chunks of 2 M elements, not cache-sized ones: the skinny [s, 3] x [3, M] matmul has a high cost
-    per call (2-core benchmark machine, B=8 x 4,096 points: ball query 75 -> 53 ms, 3-NN 70 -> 39 ms).
-    The GEMM may round a chunk's distances differently by an ulp, so a neighbour can only change where
-    its distance ties another's or the radius within float rounding.
+def _direct_parts(src: Tensor, dst: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """Inputs of the C++ neighbour kernels, which compute ``square_distance`` row by row without writing the
+    [B, N, M] matrix: (-2 src [B, N, 3], |src|^2 [B, N], dst [B, M, 3], |dst|^2 [B, M]), fp32, contiguous,
+    the norms summed by torch exactly as ``_distance_parts`` sums them.
     """
-    b, n, _ = src.shape
-    chunk = max(1, _KERNEL_CHUNK_ELEMS // max(1, b * dst.shape[1]))
-    dsq = None
-    for start in range(0, max(n, 1), chunk):
-        mm, ssq, dsq_c = _distance_parts(src[:, start : start + chunk], dst)
-        dsq = dsq_c.contiguous() if dsq is None else dsq
-        yield mm.contiguous(), ssq.contiguous(), dsq
+    with torch.autocast(device_type=src.device.type, enabled=False):
+        src = src.float()
+        dst = dst.float().contiguous()
+        return (src * -2.0).contiguous(), torch.sum(src**2, -1).contiguous(), dst, torch.sum(dst**2, -1).contiguous()
 
 
 def square_distance(src: Tensor, dst: Tensor) -> Tensor:
@@ -250,8 +239,8 @@ def ball_query_multi(
 ) -> list[Tensor]:
     """``ball_query`` for several (radius, K) pairs sharing one distance matrix (MSG levels).
 
-    Chunks over centres so the [B, S, N] matrices stay below ~16 M elements (torch path) or
-    ~2 M elements on the C++ path.
+    The torch path chunks over centres so the [B, S, N] matrices stay below ~16 M elements; the C++ path
+    computes one centre's distance row at a time (same rounding as ``square_distance``).
 
     Returns:
         one [B, S, K_i] int64 tensor per scale.
@@ -266,14 +255,10 @@ def ball_query_multi(
     b, n, _ = xyz.shape
     s = new_xyz.shape[1]
     kernel = point_kernel(xyz.device)
-    if kernel is not None:
-        # one scan per row of the matmul chunk, stopping at K hits
-        mask_c = mask.contiguous()
-        kparts: list[list[Tensor]] = [[] for _ in radii]
-        for mm, ssq, dsq in _kernel_chunks(new_xyz, xyz):
-            for i, (radius, nsample) in enumerate(zip(radii, nsamples)):
-                kparts[i].append(kernel.ball_select(mm, ssq, dsq, mask_c, float(radius) ** 2, int(nsample)))
-        return [p[0] if len(p) == 1 else torch.cat(p, dim=1) for p in kparts]
+    if kernel is not None and len(radii) <= 8:
+        # per centre: its distance row (never the [B, S, N] matrix), one scan for every scale, stopping at K hits
+        r2 = [float(r) ** 2 for r in radii]
+        return list(kernel.ball_direct(*_direct_parts(new_xyz, xyz), mask.contiguous(), r2, [int(k) for k in nsamples]))
     chunk = max(1, _CHUNK_ELEMS // max(1, b * n))
     parts: list[list[Tensor]] = [[] for _ in radii]
     ar = torch.arange(n, device=xyz.device, dtype=torch.long)
@@ -337,11 +322,8 @@ def three_nn(unknown: Tensor, known: Tensor, known_mask: Tensor | None = None) -
     if kernel is not None:
         if known_mask is None:
             known_mask = torch.ones(known.shape[:2], dtype=torch.bool, device=known.device)
-        mask_c = known_mask.bool().contiguous()
-        parts = [kernel.three_nn_select(mm, ssq, dsq, mask_c) for mm, ssq, dsq in _kernel_chunks(unknown, known)]
-        if len(parts) == 1:
-            return parts[0][0], parts[0][1]
-        return torch.cat([p[0] for p in parts], dim=1), torch.cat([p[1] for p in parts], dim=1)
+        dist, idx = kernel.three_nn_direct(*_direct_parts(unknown, known), known_mask.bool().contiguous())
+        return dist, idx
     sqr = square_distance(unknown, known)
     if known_mask is not None:
         sqr = sqr.masked_fill(~known_mask[:, None, :].bool(), float("inf"))

@@ -1,0 +1,124 @@
+"""Single-sample predict latency as shipped, in interleaved rounds with the reference-style port.
+
+Each round calls every model once (B = 1, 4,096 points, 1,024 floor points; the shipped configs' models in
+eval mode under ``inference_mode``, the call ``floaff_zoo.predict`` makes), in an order that rotates from
+round to round. The figure is the median over rounds, with the 10th and 90th percentiles: the shared
+machine moves single calls by up to 2x, and interleaving spreads that over every model alike. The
+reference-style PointNet++ port (``benchmarks/reference_pointnet2.py``, the layer-study SSG of
+``bench_models.py``) is timed in rounds of its own, half before and half after (one of its calls evicts
+the caches and slows the next call of any model by ~10 %). The allocator is set as
+``floaff_zoo.predict.resolve_model`` sets it (``--malloc system`` leaves glibc's default).
+
+    python benchmarks/bench_predict.py                       # 60 rounds, PointNet++ and CFAR
+    python benchmarks/bench_predict.py --rounds 20 --models pointnet2_ssg votenet cfar_axisnet
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import bench_models as bm  # noqa: E402  (this folder's helper: shipped configs, synthetic batches)
+
+from floaff_zoo import runtime  # noqa: E402
+
+DEFAULT_MODELS = ["pointnet2_ssg", "cfar", "cfar_axisnet"]
+REFERENCE = "reference port"
+
+
+def percentile(xs: list[float], q: float) -> float:
+    """The q-quantile of xs (nearest rank)."""
+    s = sorted(xs)
+    return s[min(len(s) - 1, max(0, round(q * (len(s) - 1))))]
+
+
+def callers(names: list[str], points: int, floor_cells: int) -> dict[str, object]:
+    """name -> a zero-argument predict call; the reference port under ``REFERENCE``."""
+    single = bm.make_batch(1, points, floor_cells)
+    calls: dict[str, object] = {}
+    for name in names:
+        torch.manual_seed(0)
+        model = bm.build(name).eval()
+
+        def call(model=model):
+            with torch.inference_mode():
+                model(single)
+
+        calls[name] = call
+    ref_mod = bm.load_reference()
+    torch.manual_seed(0)
+    ref = ref_mod.RefPointNet2Seg(**bm.SEG).eval()
+    g = torch.Generator().manual_seed(0)
+    xyz = torch.rand(1, points, 3, generator=g)
+    xyz[..., 2] *= 0.3
+    feat = torch.randn(1, points, 1, generator=g)
+
+    def ref_call():
+        with torch.inference_mode():
+            ref(xyz, feat)
+
+    calls[REFERENCE] = ref_call
+    return calls
+
+
+def run_rounds(calls: dict[str, object], rounds: int, warmup: int) -> dict[str, list[float]]:
+    """Seconds per call, per name: ``rounds`` rounds, each calling every name once in a rotating order."""
+    names = list(calls)
+    for _ in range(warmup):
+        for name in names:
+            calls[name]()
+    times: dict[str, list[float]] = {n: [] for n in names}
+    for r in range(rounds):
+        for name in names[r % len(names) :] + names[: r % len(names)]:
+            t = time.perf_counter()
+            calls[name]()
+            times[name].append(time.perf_counter() - t)
+    return times
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--models", nargs="*", default=DEFAULT_MODELS, choices=bm.MODELS)
+    p.add_argument("--rounds", type=int, default=60)
+    p.add_argument("--warmup", type=int, default=3)
+    p.add_argument("--points", type=int, default=4096)
+    p.add_argument("--floor-cells", type=int, default=32, help="floor grid side (32 -> 1024 floor points)")
+    p.add_argument("--malloc", default="keep", choices=["keep", "system"], help="keep: as resolve_model sets it")
+    a = p.parse_args(argv)
+    if a.rounds < 1:
+        p.error("--rounds must be >= 1")
+    kept = runtime.keep_freed_memory() if a.malloc == "keep" else False
+    calls = callers(a.models, a.points, a.floor_cells)
+    ref_call = {REFERENCE: calls.pop(REFERENCE)}
+    ref_rounds = max(1, a.rounds // 6)  # the port is ~10x slower: fewer calls give as steady a median
+    before = run_rounds(ref_call, ref_rounds, 1)[REFERENCE]
+    times = run_rounds(calls, a.rounds, a.warmup)
+    times[REFERENCE] = before + run_rounds(ref_call, ref_rounds, 0)[REFERENCE]
+    print(
+        f"== predict B=1 x {a.points} points ({a.floor_cells**2} floor points), {a.rounds} interleaved rounds, "
+        f"malloc {a.malloc} (kept: {kept}), torch {torch.__version__}, threads {torch.get_num_threads()}"
+    )
+    print(f"{'model':<16}{'median':>10}{'p10':>9}{'p90':>9}{'min':>9}   reference median / model median")
+    ref = statistics.median(times[REFERENCE])
+    for name, ts in times.items():
+        ms = [1e3 * t for t in ts]
+        ratio = ref / statistics.median(ts)
+        print(
+            f"{name:<16}{statistics.median(ms):7.1f} ms{percentile(ms, 0.1):6.1f} ms{percentile(ms, 0.9):6.1f} ms"
+            f"{min(ms):6.1f} ms   x{ratio:5.2f}"
+        )
+    pairs = [(x, y) for x in a.models for y in a.models if x != y and x.startswith("cfar") and y == "pointnet2_ssg"]
+    for x, y in pairs:
+        ratio = statistics.median(t / u for t, u in zip(times[x], times[y]))
+        print(f"{x} / {y}: median per-round time ratio {ratio:.2f}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
