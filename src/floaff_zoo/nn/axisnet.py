@@ -84,8 +84,25 @@ class AxisNet(nn.Module):
 
     def forward(self, x: Tensor, mask: Tensor) -> Tensor:
         """x [B, N, in_channels], mask [B, N] -> q [B, 2] unit (sin, cos)."""
-        # only valid points go through the MLP, so padding/cropped points never touch BatchNorm statistics
-        h = x.new_zeros(*x.shape[:2], self.point_mlp.out_channels)
-        h = h.masked_scatter(mask[..., None], self.point_mlp(x[mask]))
-        h = masked_max(h, mask, dim=1)
+        if not torch.is_grad_enabled() and self.point_mlp.rowwise():
+            h = self._pool_rowwise(x, mask)
+        else:
+            # only valid points go through the MLP, so padding/cropped points never touch BatchNorm statistics
+            h = x.new_zeros(*x.shape[:2], self.point_mlp.out_channels)
+            h = h.masked_scatter(mask[..., None], self.point_mlp(x[mask]))
+            h = masked_max(h, mask, dim=1)
         return F.normalize(self.out(self.head(h)), dim=-1, eps=1e-6)
+
+    def _pool_rowwise(self, x: Tensor, mask: Tensor) -> Tensor:
+        """``masked_max(point_mlp(x), mask, 1)`` [B, C] for an MLP without batch statistics: each cloud's valid
+        points are pooled on their own (no [B, N, C] scatter; the last ReLU after the max). A cloud without a
+        valid point gets the dtype's lowest value, as ``masked_max`` gives it."""
+        out = []
+        for b in range(x.shape[0]):
+            rows = x[b][mask[b]]
+            if rows.shape[0] == 0:
+                low = torch.finfo(x.dtype).min
+                out.append(x.new_full((self.point_mlp.out_channels,), low))
+            else:
+                out.append(self.point_mlp.pooled(rows, dim=0))
+        return torch.stack(out)
