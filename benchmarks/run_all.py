@@ -43,6 +43,12 @@ SUITE: list[tuple[str, str, list[str], list[str]]] = [
         ["--points-sweep", "1024", "2048", "4096", "8192", "--vs-reference", *_LEARNED],
     ),
     (
+        "Predict latency as shipped: PointNet++ and CFAR in interleaved rounds, the port in rounds of its own",
+        "bench_predict.py",
+        ["--rounds", "60"],
+        ["--rounds", "120"],
+    ),
+    (
         "As shipped: every learned model with the zoo's allocator setting vs the port, four processes each",
         "bench_vs_port.py",
         ["--rounds", "1", "--iters", "2"],

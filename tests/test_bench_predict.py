@@ -1,0 +1,36 @@
+"""benchmarks/bench_predict.py: rounds rotate the call order; percentiles by nearest rank."""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+
+_DIR = Path(__file__).parents[1] / "benchmarks"
+
+
+def _load():
+    sys.path.insert(0, str(_DIR))
+    try:
+        spec = importlib.util.spec_from_file_location("bench_predict", _DIR / "bench_predict.py")
+        mod = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(mod)
+        return mod
+    finally:
+        sys.path.remove(str(_DIR))
+
+
+def test_rounds_call_every_model_once_in_a_rotating_order():
+    bp = _load()
+    order: list[str] = []
+    calls = {n: (lambda n=n: order.append(n)) for n in "abc"}
+    times = bp.run_rounds(calls, rounds=3, warmup=1)
+    assert order == list("abc") + list("abc") + list("bca") + list("cab")
+    assert {n: len(t) for n, t in times.items()} == {"a": 3, "b": 3, "c": 3}
+
+
+def test_percentile_is_the_nearest_rank():
+    bp = _load()
+    xs = [5.0, 1.0, 4.0, 2.0, 3.0]
+    assert bp.percentile(xs, 0.0) == 1.0 and bp.percentile(xs, 0.5) == 3.0 and bp.percentile(xs, 1.0) == 5.0
+    assert bp.percentile(xs, 0.1) == 1.0 and bp.percentile(xs, 0.9) == 5.0
