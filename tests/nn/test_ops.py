@@ -234,11 +234,16 @@ def test_kernels_give_the_same_result_on_every_instruction_set():
     if kernel is None:
         pytest.skip("C++ point-op kernels unavailable (no compiler): only the torch path exists")
     xyz, mask, centres = _neighbour_case(5)
+    # a grid: exact ties of the farthest distance everywhere (the lowest index must win across vector lanes)
+    g = torch.arange(11.0)
+    grid = torch.stack(torch.meshgrid(g, g, torch.arange(3.0), indexing="ij"), -1).reshape(1, -1, 3) * 0.1
+    grid_ref = ops.farthest_point_sample_torch(grid, None, 60)
     best = kernel.kernel_isa(-1)
     results = []
     try:
         for level in range(best + 1):
             assert kernel.kernel_isa(level) == level
+            assert torch.equal(ops.farthest_point_sample(grid, None, 60), grid_ref)
             fps = ops.farthest_point_sample(xyz, mask, 97)
             balls = ops.ball_query_multi([0.1, 0.3], [8, 24], xyz, centres, mask)
             results.append((fps, *balls, *ops.three_nn(centres, xyz, mask)))

@@ -34,6 +34,7 @@ from typing import Any
 _ISA_BODY = r"""
 namespace isa_@NAME@ {
 typedef float vf __attribute__((vector_size(@VBYTES@)));
+typedef int32_t vi __attribute__((vector_size(@VBYTES@)));
 constexpr int64_t W = @VBYTES@ / 4;
 
 // FPS of one cloud from its first valid point `far`: x, y, z [N] (SoA), dist [N] (1e10 valid, -1 invalid)
@@ -43,9 +44,11 @@ void fps_cloud(const float* x, const float* y, const float* z, float* dist, int6
   for (int64_t j = 0; j < npoint; ++j) {
     o[j] = far;
     const float cx = x[far], cy = y[far], cz = z[far];
-    // pass 1, W points per step: new distances and their maximum (invalid points hold -1 and min(-1, d)
-    // keeps them there, d >= 0); pass 2: the first index holding the maximum (ties to the lowest index)
+    // W points per step: new distances, and per lane the maximum with its first index (invalid points hold
+    // -1 and min(-1, d) keeps them there, d >= 0); then the lanes' maximum, ties to the lowest index
     vf vbest = vf{} - 2.0f;
+    vi vbi = vi{}, vidx = vi{};
+    for (int64_t l = 0; l < W; ++l) vidx[l] = int32_t(l);
     int64_t i0 = 0;
     for (; i0 + W <= N; i0 += W) {
       vf vx, vy, vz, vd;
@@ -57,20 +60,22 @@ void fps_cloud(const float* x, const float* y, const float* z, float* dist, int6
       const vf d = (dx * dx + dy * dy) + dz * dz;
       const vf nd = d < vd ? d : vd;
       std::memcpy(dist + i0, &nd, sizeof(vf));
-      vbest = nd > vbest ? nd : vbest;
+      const auto gt = nd > vbest;
+      vbest = gt ? nd : vbest;
+      vbi = gt ? vidx : vbi;
+      vidx += int32_t(W);
     }
     float best = -2.0f;
-    for (int64_t l = 0; l < W; ++l) best = vbest[l] > best ? vbest[l] : best;
+    int64_t besti = 0;
+    for (int64_t l = 0; l < W; ++l) {
+      if (vbest[l] > best || (vbest[l] == best && vbi[l] < besti)) { best = vbest[l]; besti = vbi[l]; }
+    }
     for (int64_t i = i0; i < N; ++i) {
       const float dx = x[i] - cx, dy = y[i] - cy, dz = z[i] - cz;
       const float d = (dx * dx + dy * dy) + dz * dz;
       const float nd = d < dist[i] ? d : dist[i];
       dist[i] = nd;
-      best = nd > best ? nd : best;
-    }
-    int64_t besti = 0;
-    for (int64_t i = 0; i < N; ++i) {
-      if (dist[i] == best) { besti = i; break; }
+      if (nd > best) { best = nd; besti = i; }
     }
     far = besti;
   }
@@ -220,6 +225,7 @@ struct FpsIO {
 torch::Tensor fps_forward(torch::Tensor xyz, torch::Tensor mask, int64_t npoint) {
   const FpsIO io(xyz, mask, npoint);
   const int64_t B = io.B, N = io.N;
+  TORCH_CHECK(N < (int64_t(1) << 31), "fps: at most 2^31 - 1 points per cloud");
   const float* P = io.P;
   const bool* M = io.M;
   int64_t* O = io.O;
@@ -670,7 +676,7 @@ def load_kernel() -> Any | None:
                 from torch.utils.cpp_extension import load_inline
 
                 _state["module"] = load_inline(
-                    name="floaff_zoo_point_ops_v18",
+                    name="floaff_zoo_point_ops_v19",
                     cpp_sources=[_CPP_DECL, _CPP_SOURCE],
                     functions=[
                         "kernel_isa",
