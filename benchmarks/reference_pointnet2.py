@@ -349,6 +349,7 @@ def reference_ops() -> Iterator[None]:
         (zoo_pn2, "ball_query_multi", _ref_ball_query_multi),
         (zoo_pn2, "three_interpolate", _ref_three_interpolate),
         (zoo_pn2, "GATHER_AFTER_FIRST_LAYER", 1 << 30),
+        (zoo_pn2, "CHUNK_ROWS", 1 << 62),  # eval levels in one pass, through the patched ``pooled``
         (zoo_pn2.SharedMLP, "forward", _ref_mlp_forward),
         (zoo_pn2.SharedMLP, "pooled", _ref_mlp_pooled),
         (zoo_nets, "farthest_point_sample", _ref_fps),
