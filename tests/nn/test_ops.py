@@ -226,6 +226,27 @@ def test_ball_query_and_three_nn_kernels_match_the_torch_path(monkeypatch):
     assert mask.gather(1, fast[2].flatten(1)).all()
 
 
+def test_weighted_gather3_kernel_equals_gather_then_sum(monkeypatch):
+    """The fused C++ gather + weighted sum of 3-NN interpolation sums in torch's order (bit for bit), keeps
+    gradients on the torch path, and names bad indices."""
+    if ops.point_kernel(torch.device("cpu")) is None:
+        pytest.skip("C++ point-op kernels unavailable (no compiler): only the torch path exists")
+    g = torch.Generator().manual_seed(4)
+    feat = torch.randn(2, 57, 37, generator=g)
+    idx = torch.randint(0, 57, (2, 211, 3), generator=g)
+    weight = torch.rand(2, 211, 3, generator=g)
+    want = (ops.index_points(feat, idx) * weight[..., None]).sum(dim=2)
+    assert torch.equal(ops.weighted_gather3(feat, idx, weight), want)
+    want64 = (ops.index_points(feat.double(), idx) * weight.double()[..., None]).sum(dim=2)
+    assert torch.equal(ops.weighted_gather3(feat.double(), idx, weight.double()), want64)
+    leaf = feat.clone().requires_grad_()
+    ops.weighted_gather3(leaf, idx, weight).sum().backward()  # the torch path: differentiable
+    assert leaf.grad is not None and torch.isfinite(leaf.grad).all()
+    kernel = ops.point_kernel(torch.device("cpu"))
+    with pytest.raises(RuntimeError, match="out of range"):
+        kernel.weighted_gather3(feat, torch.full_like(idx, 57), weight)
+
+
 def test_kernels_give_the_same_result_on_every_instruction_set():
     """The AVX-512, AVX2 and baseline builds of the loops (those the CPU runs) agree bit for bit."""
     from floaff_zoo.nn import _fps_ext

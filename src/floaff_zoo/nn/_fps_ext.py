@@ -341,6 +341,44 @@ std::vector<torch::Tensor> three_nn_direct(torch::Tensor src2, torch::Tensor ssq
   return {dist, idx};
 }
 
+// One row of weighted_gather3: o = (f0 w0 + f1 w1) + f2 w2, each product rounded first (no FMA), the order of
+// torch's (gathered * w).sum over the three neighbours. A plain function with restrict pointers so it vectorises.
+template <typename scalar_t>
+__attribute__((noinline)) void gather3_row(const scalar_t* __restrict__ f0, const scalar_t* __restrict__ f1,
+                                           const scalar_t* __restrict__ f2, scalar_t w0, scalar_t w1, scalar_t w2,
+                                           scalar_t* __restrict__ o, int64_t C) {
+  for (int64_t c = 0; c < C; ++c) o[c] = (f0[c] * w0 + f1[c] * w1) + f2[c] * w2;
+}
+
+// out [B, n, C] = sum over k of w[b, i, k] * feat[b, idx[b, i, k], :] (k = 0, 1, 2): 3-NN interpolation's gather
+// and weighted sum in one pass, without the [B, n, 3, C] gathered tensor.
+torch::Tensor weighted_gather3(torch::Tensor feat, torch::Tensor idx, torch::Tensor w) {
+  TORCH_CHECK(feat.dim() == 3 && feat.is_contiguous(), "feat must be a contiguous [B, m, C] tensor");
+  TORCH_CHECK(idx.dim() == 3 && idx.size(2) == 3 && idx.size(0) == feat.size(0) && idx.is_contiguous() &&
+              idx.scalar_type() == torch::kLong, "idx must be a contiguous int64 [B, n, 3] tensor");
+  TORCH_CHECK(w.sizes() == idx.sizes() && w.is_contiguous() && w.scalar_type() == feat.scalar_type(),
+              "w must be a contiguous [B, n, 3] tensor of feat's dtype");
+  const int64_t B = feat.size(0), m = feat.size(1), C = feat.size(2), n = idx.size(1);
+  TORCH_CHECK(idx.numel() == 0 || (idx.min().item<int64_t>() >= 0 && idx.max().item<int64_t>() < m),
+              "idx out of range [0, ", m, ")");
+  auto out = torch::empty({B, n, C}, feat.options());
+  AT_DISPATCH_FLOATING_TYPES(feat.scalar_type(), "weighted_gather3", [&] {
+    const scalar_t* F = feat.data_ptr<scalar_t>();
+    const scalar_t* Wt = w.data_ptr<scalar_t>();
+    const int64_t* I = idx.data_ptr<int64_t>();
+    scalar_t* O = out.data_ptr<scalar_t>();
+    at::parallel_for(0, B * n, 64, [&](int64_t r0, int64_t r1) {
+      for (int64_t r = r0; r < r1; ++r) {
+        const scalar_t* f = F + (r / n) * m * C;
+        const int64_t* i = I + 3 * r;
+        const scalar_t* wr = Wt + 3 * r;
+        gather3_row(f + i[0] * C, f + i[1] * C, f + i[2] * C, wr[0], wr[1], wr[2], O + r * C, C);
+      }
+    });
+  });
+  return out;
+}
+
 // Tie-tolerant FPS (nn/cfar.py tolerant_fps): candidates within tol of the farthest distance are tied and
 // the lowest index wins. d = ((dx*dx + dy*dy) + dz*dz) in float32; invalid points keep -1.
 torch::Tensor tolerant_fps_forward(torch::Tensor xyz, torch::Tensor mask, int64_t npoint, double tol) {
@@ -640,6 +678,7 @@ std::vector<torch::Tensor> ball_direct(torch::Tensor src2, torch::Tensor ssq, to
                                        torch::Tensor mask, std::vector<double> r2, std::vector<int64_t> K);
 std::vector<torch::Tensor> three_nn_direct(torch::Tensor src2, torch::Tensor ssq, torch::Tensor dst, torch::Tensor dsq,
                                            torch::Tensor mask);
+torch::Tensor weighted_gather3(torch::Tensor feat, torch::Tensor idx, torch::Tensor w);
 torch::Tensor tolerant_fps_forward(torch::Tensor xyz, torch::Tensor mask, int64_t npoint, double tol);
 std::vector<torch::Tensor> stable_three_nn(torch::Tensor unknown, torch::Tensor known, double tol);
 std::vector<torch::Tensor> extreme_over_dim(torch::Tensor z, torch::Tensor take_min);
@@ -676,13 +715,14 @@ def load_kernel() -> Any | None:
                 from torch.utils.cpp_extension import load_inline
 
                 _state["module"] = load_inline(
-                    name="floaff_zoo_point_ops_v19",
+                    name="floaff_zoo_point_ops_v20",
                     cpp_sources=[_CPP_DECL, _CPP_SOURCE],
                     functions=[
                         "kernel_isa",
                         "fps_forward",
                         "ball_direct",
                         "three_nn_direct",
+                        "weighted_gather3",
                         "tolerant_fps_forward",
                         "stable_three_nn",
                         "extreme_over_dim",

@@ -31,7 +31,7 @@ import torch
 from torch import Tensor, nn
 
 from floaff_zoo.contract import SampleError
-from floaff_zoo.nn.ops import point_kernel
+from floaff_zoo.nn.ops import point_kernel, weighted_gather3
 from floaff_zoo.nn.pointnet2 import FeaturePropagation, PointNet2Encoder, SharedMLP
 
 __all__ = [
@@ -247,9 +247,7 @@ def stable_three_interpolate(unknown: Tensor, known: Tensor, known_feat: Tensor,
     dist_t, idx_t = _stable_three_nn(unknown.detach(), known.detach(), tol)
     recip = 1.0 / (dist_t.to(known_feat.dtype) + 1e-8)
     weight = recip / recip.sum(-1, keepdim=True)
-    flat = idx_t.reshape(b, -1)
-    grouped = torch.gather(known_feat, 1, flat[..., None].expand(-1, -1, known_feat.shape[-1]))
-    return (grouped.reshape(b, n, -1, known_feat.shape[-1]) * weight[..., None]).sum(2)
+    return weighted_gather3(known_feat, idx_t, weight)
 
 
 def _stable_three_nn(unknown: Tensor, known: Tensor, tol: float) -> tuple[Tensor, Tensor]:

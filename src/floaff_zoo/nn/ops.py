@@ -31,6 +31,7 @@ __all__ = [
     "square_distance",
     "three_interpolate",
     "three_nn",
+    "weighted_gather3",
 ]
 
 #: elements of a [B, S, N] distance/key matrix above which the torch ball query chunks over centres
@@ -354,5 +355,26 @@ def three_interpolate(unknown: Tensor, known: Tensor, known_feat: Tensor, known_
     dist, idx = three_nn(unknown, known, known_mask)
     recip = 1.0 / (dist + 1e-8)  # inf distance -> weight 0
     weight = recip / recip.sum(dim=-1, keepdim=True)
-    grouped = index_points(known_feat, idx)  # [B, n, 3, C]
-    return (grouped * weight[..., None].to(grouped.dtype)).sum(dim=2)
+    return weighted_gather3(known_feat, idx, weight.to(known_feat.dtype))
+
+
+def weighted_gather3(feat: Tensor, idx: Tensor, weight: Tensor) -> Tensor:
+    """``sum_k weight[..., k] * feat[idx[..., k]]``: the gather and weighted sum of 3-NN interpolation.
+
+    Args:
+        feat: [B, m, C]; idx: [B, n, 3] int64 in [0, m); weight: [B, n, 3] in feat's dtype.
+    Returns:
+        [B, n, C]. Without gradients on CPU (fp32/64, eager) one C++ pass that never writes the
+        [B, n, 3, C] gathered tensor and sums in torch's order (bit for bit, tested); else gather + sum.
+    """
+    kernel = point_kernel(feat.device)
+    if (
+        kernel is not None
+        and not (torch.is_grad_enabled() and (feat.requires_grad or weight.requires_grad))
+        and feat.dtype in (torch.float32, torch.float64)
+        and weight.dtype == feat.dtype
+        and idx.shape[-1] == 3
+    ):
+        return kernel.weighted_gather3(feat.contiguous(), idx.contiguous(), weight.contiguous())
+    grouped = index_points(feat, idx)  # [B, n, k, C]
+    return (grouped * weight[..., None]).sum(dim=2)
