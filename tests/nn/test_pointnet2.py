@@ -182,13 +182,14 @@ def test_first_layer_before_grouping_matches_grouping_first(monkeypatch):
 
 
 @pytest.mark.parametrize("per_point", [True, False])
-def test_chunked_inference_equals_one_pass(per_point, monkeypatch):
-    """Without gradients a row-wise level runs in chunks of centres with the one-pass outputs; batch
-    statistics (train mode, or a BN without running statistics) are never chunked."""
+@pytest.mark.parametrize("first_mlp", [[16, 24], [16]])
+def test_chunked_inference_equals_one_pass(per_point, first_mlp, monkeypatch):
+    """Without gradients a row-wise level runs in chunks of centres with the one-pass outputs (one-layer MLPs
+    included); batch statistics (train mode, or a BN without running statistics) are never chunked."""
     import floaff_zoo.nn.pointnet2 as pn2
 
     torch.manual_seed(0)
-    sa = SetAbstraction(40, [0.3, 0.5], [8, 12], 20, [[16, 24], [8, 8]], xyz_first=False)
+    sa = SetAbstraction(40, [0.3, 0.5], [8, 12], 20, [first_mlp, [8, 8]], xyz_first=False)
     for norm in sa.modules():
         if isinstance(norm, torch.nn.BatchNorm1d):  # non-trivial running statistics to fold
             norm.running_mean.uniform_(-0.5, 0.5)

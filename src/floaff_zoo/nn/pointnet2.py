@@ -127,11 +127,7 @@ class SharedMLP(nn.Module):
     def rowwise(self) -> bool:
         """Whether each row's output depends on that row only: no BatchNorm uses batch statistics
         (every norm is an eval-mode BN with running statistics, or none)."""
-        return all(
-            isinstance(n, nn.Identity)
-            or (isinstance(n, nn.BatchNorm1d) and not n.training and n.running_mean is not None)
-            for n in self.norms
-        )
+        return all(isinstance(n, nn.Identity) or _eval_batch_norm(n) for n in self.norms)
 
     def folded_layers(self) -> list[tuple[Tensor, Tensor]]:
         """(weight [O, I], bias [O]) of every layer with its eval-mode BN folded in; for ``rowwise`` MLPs."""
@@ -290,6 +286,11 @@ def inference_linear(h: Tensor, weight: Tensor, bias: Tensor | None = None, relu
         return out.reshape(*h.shape[:-1], weight.shape[0])
     out = F.linear(h, weight, bias)
     return torch.relu_(out) if relu else out
+
+
+def _eval_batch_norm(norm: nn.Module) -> bool:
+    """Whether ``norm`` is an eval-mode BatchNorm on running statistics (an affine map per channel)."""
+    return isinstance(norm, nn.BatchNorm1d) and not norm.training and norm.running_mean is not None
 
 
 def _train_batch_norm(norm: nn.Module) -> bool:
@@ -647,7 +648,8 @@ class SetAbstraction(nn.Module):
             if feat is not None and self.in_channels >= GATHER_AFTER_FIRST_LAYER:
                 per_point = self._first_layer_per_point(mlp, xyz, feat)
             step = _centres_per_chunk(mlp, idx)
-            if step >= idx.shape[1]:
+            # a one-layer MLP given its (gathered) first layer has nothing left to chunk
+            if step >= idx.shape[1] or (per_point is not None and len(mlp.linears) == 1):
                 outs.append(self._group_pool(mlp, xyz, feat, new_xyz, idx, per_point))
                 continue
             layers = mlp.folded_layers()  # folded once for all chunks
@@ -658,8 +660,7 @@ class SetAbstraction(nn.Module):
                     parts.append(_pool_rows(layers, self._grouped(xyz, feat, c, i), pre=False))
                 else:
                     parts.append(_pool_rows(layers, self._gathered_first(per_point, c, i), pre=True))
-            w_last, b_last = layers[-1]
-            out = torch.cat(parts, dim=1) + b_last
+            out = torch.cat(parts, dim=1) + layers[-1][1]
             outs.append(torch.relu_(out) if mlp.last_act() else out)
         return new_xyz, outs[0] if len(outs) == 1 else torch.cat(outs, dim=-1)
 
