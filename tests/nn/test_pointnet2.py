@@ -201,8 +201,10 @@ def test_chunked_inference_equals_one_pass(per_point, first_mlp, monkeypatch):
     with torch.no_grad():
         monkeypatch.setattr(pn2, "CHUNK_ROWS", 10**9)
         whole = sa(xyz, feat, None, idx)[1]
-        monkeypatch.setattr(pn2, "CHUNK_ROWS", 2 * 2 * 12)  # a few centres per chunk, last chunk ragged
-        assert pn2._centres_per_chunk(sa.mlps[1], torch.zeros(2, 40, 12, dtype=torch.long)) == 2
+        monkeypatch.setattr(pn2, "CHUNK_ROWS", 2 * 3 * 12)  # a few centres per chunk, last chunk ragged
+        assert pn2._centres_per_chunk(sa.mlps[1], torch.zeros(2, 40, 12, dtype=torch.long)) == 40  # too few
+        monkeypatch.setattr(pn2, "MIN_CHUNK_CENTRES", 3)
+        assert pn2._centres_per_chunk(sa.mlps[1], torch.zeros(2, 40, 12, dtype=torch.long)) == 3
         chunked = sa(xyz, feat, None, idx)[1]
     assert torch.allclose(chunked, whole, atol=1e-6), (chunked - whole).abs().max()
     groups = torch.zeros(2, 40, 12, dtype=torch.long)

@@ -64,17 +64,15 @@ def _distance_parts(src: Tensor, dst: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     ``-2`` scales ``src`` before the matmul instead of the product after it: a power of two, so
     the result is bit-identical and saves one pass over the [B, N, M] matrix.
     """
+    src2, ssq, dst, dsq = _direct_parts(src, dst)
     with torch.autocast(device_type=src.device.type, enabled=False):
-        src = src.float()
-        dst = dst.float()
-        mm = torch.matmul(src * -2.0, dst.transpose(1, 2))
-        return mm, torch.sum(src**2, -1), torch.sum(dst**2, -1)
+        return torch.matmul(src2, dst.transpose(1, 2)), ssq, dsq
 
 
 def _direct_parts(src: Tensor, dst: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-    """Inputs of the C++ neighbour kernels, which compute ``square_distance`` row by row without writing the
-    [B, N, M] matrix: (-2 src [B, N, 3], |src|^2 [B, N], dst [B, M, 3], |dst|^2 [B, M]), fp32, contiguous,
-    the norms summed by torch exactly as ``_distance_parts`` sums them.
+    """(-2 src [B, N, 3], |src|^2 [B, N], dst [B, M, 3], |dst|^2 [B, M]), fp32, contiguous, autocast off: the
+    pieces of ``square_distance``, shared by the torch path (``_distance_parts``) and the C++ neighbour
+    kernels, which compute the distances row by row without writing the [B, N, M] matrix.
     """
     with torch.autocast(device_type=src.device.type, enabled=False):
         src = src.float()

@@ -120,7 +120,7 @@ class SharedMLP(nn.Module):
         lin, norm = self.linears[-1], self.norms[-1]
         if lin.bias is None:
             return None
-        if isinstance(norm, nn.BatchNorm1d) and not norm.training and norm.running_mean is not None:
+        if _eval_batch_norm(norm):
             return _fold_bn(lin, norm)
         return (lin.weight, lin.bias) if isinstance(norm, nn.Identity) else None
 
@@ -144,7 +144,7 @@ class SharedMLP(nn.Module):
     def first_linear(self) -> tuple[Tensor, Tensor]:
         """(weight [O, I], bias [O]) of the first layer, BN folded in eval mode (as ``forward`` uses)."""
         lin, norm = self.linears[0], self.norms[0]
-        if isinstance(norm, nn.BatchNorm1d) and not norm.training and norm.running_mean is not None:
+        if _eval_batch_norm(norm):
             return _fold_bn(lin, norm)
         return lin.weight, lin.bias
 
@@ -178,7 +178,7 @@ class SharedMLP(nn.Module):
         for i, (lin, norm) in enumerate(zip(self.linears[:stop], self.norms[:stop])):
             skip = pre and i == 0
             act = i < last or (last_relu and self.last_act()) or stop is not None
-            if isinstance(norm, nn.BatchNorm1d) and not norm.training and norm.running_mean is not None:
+            if _eval_batch_norm(norm):
                 if not skip and act and inplace:  # eval, no grad: BN folded, ReLU fused into the GEMM
                     h = inference_linear(h, *_fold_bn(lin, norm), relu=True)
                     continue
@@ -554,21 +554,26 @@ def masked_max(x: Tensor, mask: Tensor | None, dim: int) -> Tensor:
 
 
 #: grouped rows (B x centres x K) per chunk when a set-abstraction level runs row by row (see
-#: ``_centres_per_chunk``): a chunk's activations stay in the CPU caches between its layers (2-core benchmark
-#: machine, the first level of PointNet++ at 1,024 x 32 rows: 9.2 -> 6.5 ms)
+#: ``_centres_per_chunk``): a chunk's activations stay in the CPU caches between its layers
 CHUNK_ROWS = 4096
+#: fewest centres worth a chunk: below this the per-chunk calls cost more than the cache saves (2-core
+#: benchmark machine: a B = 1 PointNet++ predict, 128 centres per chunk, 2-7 % faster; B = 8 validation
+#: batches, 16 centres per chunk, 3-5 % slower, so batches run in one pass)
+MIN_CHUNK_CENTRES = 128
 
 
 def _centres_per_chunk(mlp: SharedMLP, idx: Tensor) -> int:
     """Centres per chunk of a level with groups idx [B, S, K]: all S unless the level may run in chunks.
 
     Chunks only where they change nothing: without gradients, on CPU, eager, and when every row's output
-    depends on that row alone (``SharedMLP.rowwise``: no batch statistics, which a chunk would change).
+    depends on that row alone (``SharedMLP.rowwise``: no batch statistics, which a chunk would change); and
+    only where a chunk holds at least ``MIN_CHUNK_CENTRES`` centres.
     """
     b, s, k = idx.shape
     if torch.is_grad_enabled() or idx.device.type != "cpu" or torch.compiler.is_compiling() or not mlp.rowwise():
         return max(s, 1)
-    return max(1, CHUNK_ROWS // max(1, b * k))
+    step = CHUNK_ROWS // max(1, b * k)
+    return step if step >= MIN_CHUNK_CENTRES else max(s, 1)
 
 
 def _pool_rows(layers: list[tuple[Tensor, Tensor]], h: Tensor, pre: bool) -> Tensor:
