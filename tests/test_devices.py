@@ -5,7 +5,9 @@ DDP relaunches the command line in each process, so the fit runs as a real ``flo
 
 from __future__ import annotations
 
+import copy
 import csv
+import importlib
 import os
 import subprocess
 import sys
@@ -13,8 +15,14 @@ from pathlib import Path
 
 import pytest
 import torch
+import yaml
+from torch import Tensor
 
 from floaff_zoo.cli import run_lightning
+from floaff_zoo.contract import collate_samples
+from floaff_zoo.data.synthetic import make_synthetic_sample
+from floaff_zoo.nn import _fps_ext, ops
+from floaff_zoo.nn.pointnet2 import PointNet2Seg
 from tests.conftest import quiet_trainer_args
 
 DATA = "configs/data/synthetic_tiny.yaml"
@@ -53,12 +61,8 @@ CUDA_MODELS = sorted(
 NO_CUDA = "no CUDA device on this machine"
 
 
-@pytest.mark.cuda
-@pytest.mark.skipif(not torch.cuda.is_available(), reason=NO_CUDA)
-@pytest.mark.parametrize("model", CUDA_MODELS, ids=lambda m: Path(m).stem)
-def test_models_and_metrics_run_on_cuda(model, tmp_path, root, monkeypatch):
-    monkeypatch.chdir(root)
-    args = [*quiet_trainer_args(tmp_path), "--trainer.accelerator", "cuda", "--trainer.devices", "1"]
+def _fit_or_validate(model: str, args: list[str]) -> None:
+    """One epoch of ``model``'s tiny config on the tiny synthetic data (validated if training-free); finite metrics."""
     if "c2f_exp" in model:  # training-free: validated directly
         cli = run_lightning(["validate", "--config", DATA, "--config", model, *args])
     else:
@@ -66,6 +70,123 @@ def test_models_and_metrics_run_on_cuda(model, tmp_path, root, monkeypatch):
     metrics = cli.trainer.callback_metrics
     assert metrics, model
     assert all(torch.isfinite(v).all() for v in metrics.values()), (model, metrics)
+
+
+@pytest.mark.cuda
+@pytest.mark.skipif(not torch.cuda.is_available(), reason=NO_CUDA)
+@pytest.mark.parametrize("model", CUDA_MODELS, ids=lambda m: Path(m).stem)
+def test_models_and_metrics_run_on_cuda(model, tmp_path, root, monkeypatch):
+    monkeypatch.chdir(root)
+    _fit_or_validate(model, [*quiet_trainer_args(tmp_path), "--trainer.accelerator", "cuda", "--trainer.devices", "1"])
+
+
+def _no_kernel():
+    raise AssertionError("a C++ kernel was asked for on the portable path")
+
+
+@pytest.fixture
+def portable(monkeypatch):
+    """CPU tensors run the device-independent code that CUDA runs; asking for a C++ kernel fails the test."""
+    monkeypatch.setenv(ops.CPU_PATHS_ENV, "portable")
+    monkeypatch.setattr(_fps_ext, "load_kernel", _no_kernel)
+
+
+@pytest.mark.parametrize("model", CUDA_MODELS, ids=lambda m: Path(m).stem)
+def test_models_and_metrics_run_on_the_portable_path(model, tmp_path, root, monkeypatch, portable):
+    """What CUDA runs (no C++ kernels, no oneDNN calls, no chunks), checked on CPU through the CLI."""
+    monkeypatch.chdir(root)
+    assert not ops.cpu_fast_paths(torch.device("cpu"))
+    _fit_or_validate(model, [*quiet_trainer_args(tmp_path), "--trainer.accelerator", "cpu", "--trainer.devices", "1"])
+
+
+def _build(config: str, root: Path):
+    cfg = yaml.safe_load((root / config).read_text())["model"]
+    module, name = cfg["class_path"].rsplit(".", 1)
+    return getattr(importlib.import_module(module), name)(**(cfg.get("init_args") or {}))
+
+
+def _outputs(model, batch) -> tuple[Tensor, Tensor]:
+    """(eval output, training loss) of a copy of ``model``, dropout seeded; a training-free model gives a zero loss."""
+    model = copy.deepcopy(model)
+    model.eval()
+    with torch.no_grad():
+        out = model(batch)
+        if not model.trainable:
+            return out, torch.zeros(())
+        model.train()
+        torch.manual_seed(1)
+        loss, _, _ = model.model_step(batch)
+    return out, loss
+
+
+#: the tiny configs plus shipped-size PointNet++ and CFAR, whose predict takes the chunked and oneDNN paths
+PARITY_MODELS = [*CUDA_MODELS, "configs/models/pointnet2_ssg.yaml", "configs/models/cfar.yaml"]
+
+
+@pytest.mark.parametrize("model", PARITY_MODELS, ids=lambda m: Path(m).stem)
+def test_the_portable_path_computes_what_the_cpu_fast_path_does(model, root, monkeypatch):
+    """Same weights and inputs: the eval output and the training loss agree to 1e-4 (gradients: next test).
+
+    The synthetic scenes are jittered by 1 mm: their exact grids and planes tie distances, and the two
+    paths round a distance differently (a GEMM vs the kernels' fma chain), so a tie could pick another
+    neighbour.
+    """
+    torch.manual_seed(0)
+    net = _build(model, root)
+    points = 2048 if model.startswith("configs/models/") else 256
+    batch = collate_samples([make_synthetic_sample(i, num_points=points, floor_cells=8) for i in range(2)])
+    g = torch.Generator().manual_seed(5)
+    for key in ("scene_xyz", "floor_xyz"):
+        batch[key] = batch[key] + 1e-3 * torch.randn(batch[key].shape, generator=g)
+    fast = _outputs(net, batch)
+    monkeypatch.setenv(ops.CPU_PATHS_ENV, "portable")
+    monkeypatch.setattr(_fps_ext, "load_kernel", _no_kernel)
+    slow = _outputs(net, batch)
+    torch.testing.assert_close(slow[0], fast[0], rtol=1e-4, atol=1e-4)
+    torch.testing.assert_close(slow[1], fast[1], rtol=1e-4, atol=1e-4)
+
+
+@pytest.mark.parametrize("xyz_first", [True, False], ids=["ssg", "msg"])
+def test_the_portable_path_gives_the_fast_paths_gradients(xyz_first, monkeypatch):
+    """Every gradient and running statistic of a PointNet++ training step, float64 (in float32 a near-tie
+    of a max pool, which rounding decides, moves a weight gradient by a percent)."""
+    cfg = dict(
+        in_channels=1,
+        npoints=[64, 16],
+        radii=[[0.1, 0.2], [0.4]] if not xyz_first else [[0.2], [0.4]],
+        nsamples=[[8, 16], [16]] if not xyz_first else [[16], [16]],
+        mlps=[[[8, 16], [8, 16]], [[24, 32]]] if not xyz_first else [[[8, 16]], [[24, 32]]],
+        fp_mlps=[[32, 32], [32, 16]],
+        head=[8],
+        xyz_first=xyz_first,
+    )
+    torch.manual_seed(0)
+    net = PointNet2Seg(**cfg).double()
+    g = torch.Generator().manual_seed(5)
+    xyz = torch.rand(2, 256, 3, generator=g, dtype=torch.float64)
+    feat = torch.randn(2, 256, 1, generator=g, dtype=torch.float64)
+    target = torch.rand(2, 256, generator=g, dtype=torch.float64)
+
+    def step(paths: str) -> list[Tensor]:
+        monkeypatch.setenv(ops.CPU_PATHS_ENV, paths)
+        m = copy.deepcopy(net).train()
+        torch.nn.functional.binary_cross_entropy_with_logits(m(xyz, feat, None), target).backward()
+        return [p.grad for p in m.parameters()] + [b.clone() for b in m.buffers()]
+
+    fast = step("fast")
+    monkeypatch.setattr(_fps_ext, "load_kernel", _no_kernel)
+    for a, b in zip(step("portable"), fast, strict=True):
+        # 1e-5: neighbour search and interpolation weights are float32 even for float64 features
+        torch.testing.assert_close(a, b, rtol=1e-5, atol=1e-7)
+
+
+def test_cpu_paths_setting_is_checked(monkeypatch):
+    monkeypatch.setenv(ops.CPU_PATHS_ENV, "portabel")
+    with pytest.raises(ValueError, match="FLOAFF_ZOO_CPU_PATHS='portabel'"):
+        ops.cpu_fast_paths(torch.device("cpu"))
+    monkeypatch.setenv(ops.CPU_PATHS_ENV, "fast")
+    assert ops.cpu_fast_paths(torch.device("cpu"))
+    assert not ops.cpu_fast_paths(torch.device("meta"))
 
 
 @pytest.mark.cuda

@@ -11,6 +11,7 @@ MLPs (docs/background.md §6).
 from __future__ import annotations
 
 import math
+import os
 
 import torch
 from torch import Tensor
@@ -21,6 +22,7 @@ __all__ = [
     "ball_query",
     "ball_query_multi",
     "check_finite",
+    "cpu_fast_paths",
     "extreme_over_dim",
     "farthest_point_sample",
     "farthest_point_sample_torch",
@@ -92,12 +94,34 @@ def square_distance(src: Tensor, dst: Tensor) -> Tensor:
     return mm.add_(ssq[:, :, None]).add_(dsq[:, None, :])
 
 
-def point_kernel(device: torch.device):
-    """The C++ point kernels (``nn/_fps_ext.py``) for CPU tensors in eager mode, else None (torch path).
+#: ``fast`` (default): CPU tensors take the CPU-only paths (C++ kernels, oneDNN calls, cache-sized chunks);
+#: ``portable``: they take the device-independent torch code that CUDA runs, to check that path without a GPU
+CPU_PATHS_ENV = "FLOAFF_ZOO_CPU_PATHS"
 
-    Under ``torch.compile`` the torch path is traced instead (a pybind call would break the graph).
+
+def portable_requested() -> bool:
+    """Whether ``FLOAFF_ZOO_CPU_PATHS=portable`` asks CPU tensors to run the device-independent code.
+
+    Raises:
+        ValueError: for a value other than ``fast`` or ``portable``.
     """
-    if device.type != "cpu" or torch.compiler.is_compiling():
+    value = os.environ.get(CPU_PATHS_ENV, "fast").strip().lower() or "fast"
+    if value not in ("fast", "portable"):
+        raise ValueError(f"{CPU_PATHS_ENV}={value!r}: choose fast or portable")
+    return value == "portable"
+
+
+def cpu_fast_paths(device: torch.device) -> bool:
+    """Whether CPU-only fast paths may serve tensors on ``device``: CPU, eager, not ``portable``.
+
+    Under ``torch.compile`` the torch code is traced instead (a pybind or oneDNN call would break the graph).
+    """
+    return device.type == "cpu" and not torch.compiler.is_compiling() and not portable_requested()
+
+
+def point_kernel(device: torch.device):
+    """The C++ point kernels (``nn/_fps_ext.py``) where ``cpu_fast_paths(device)``, else None (torch path)."""
+    if not cpu_fast_paths(device):
         return None
     return _fps_ext.load_kernel()
 
@@ -209,7 +233,8 @@ def farthest_point_sample(xyz: Tensor, mask: Tensor | None, npoint: int) -> Tens
         ValueError: when a cloud has no valid point, or shapes are wrong.
     """
     mask = _fps_prepare(xyz, mask, npoint)
-    kernel = _fps_ext.load_kernel() if xyz.device.type == "cpu" else None
+    # the kernel also under torch.compile: an unrolled loop of ``npoint`` steps would swamp the graph
+    kernel = _fps_ext.load_kernel() if xyz.device.type == "cpu" and not portable_requested() else None
     if kernel is None:
         return farthest_point_sample_torch(xyz, mask, npoint)
     return kernel.fps_forward(xyz.detach().float().contiguous(), mask.contiguous(), int(npoint))
@@ -239,7 +264,9 @@ def ball_query_multi(
     """``ball_query`` for several (radius, K) pairs sharing one distance matrix (MSG levels).
 
     The torch path chunks over centres so the [B, S, N] matrices stay below ~16 M elements; the C++ path
-    computes one centre's distance row at a time (same rounding as ``square_distance``).
+    computes one centre's distance row at a time (same rounding as ``square_distance``, except for tiny
+    products, at most ~16 points on one side, which torch's matmul may round an ulp apart: a tie can then
+    pick another neighbour).
 
     Returns:
         one [B, S, K_i] int64 tensor per scale.

@@ -28,6 +28,7 @@ from torch import Tensor, nn
 
 from floaff_zoo.nn.ops import (
     ball_query_multi,
+    cpu_fast_paths,
     extreme_over_dim,
     farthest_point_sample,
     index_points,
@@ -223,10 +224,9 @@ def _onednn_ok(h: Tensor, weight: Tensor) -> bool:
     """Whether oneDNN's Linear serves h [..., C_in]: CPU fp32, no autocast, eager, at least ONEDNN_MIN_ROWS rows."""
     return (
         _ONEDNN_LINEAR
-        and h.device.type == "cpu"
+        and cpu_fast_paths(h.device)
         and h.dtype == weight.dtype == torch.float32
         and not torch.is_autocast_enabled("cpu")
-        and not torch.compiler.is_compiling()
         and h.numel() >= ONEDNN_MIN_ROWS * h.shape[-1]
     )
 
@@ -506,7 +506,7 @@ def batch_mean_var(flat: Tensor) -> tuple[Tensor, Tensor]:
     Returns:
         (var [C], mean [C]), the order of ``torch.var_mean``.
     """
-    if flat.device.type != "cpu" or torch.compiler.is_compiling():
+    if not cpu_fast_paths(flat.device):
         return torch.var_mean(flat, dim=0, correction=0)
     kernel = point_kernel(flat.device)
     if kernel is not None and flat.dtype in (torch.float32, torch.float64) and flat.shape[0] > 0:
@@ -570,7 +570,7 @@ def _centres_per_chunk(mlp: SharedMLP, idx: Tensor) -> int:
     only where a chunk holds at least ``MIN_CHUNK_CENTRES`` centres.
     """
     b, s, k = idx.shape
-    if torch.is_grad_enabled() or idx.device.type != "cpu" or torch.compiler.is_compiling() or not mlp.rowwise():
+    if torch.is_grad_enabled() or not cpu_fast_paths(idx.device) or not mlp.rowwise():
         return max(s, 1)
     step = CHUNK_ROWS // max(1, b * k)
     return step if step >= MIN_CHUNK_CENTRES else max(s, 1)
