@@ -50,7 +50,8 @@ def test_ddp_on_cpu_matches_a_single_process_evaluation(tmp_path, root, monkeypa
         assert got[k] == pytest.approx(ddp[k], rel=1e-5, abs=1e-6), (k, got[k], ddp[k])
 
 
-#: every model's tiny config (the CFAR one in its PFAL-free form); each fits and validates on CUDA
+#: every model's tiny config (the CFAR one in its PFAL-free form); each fits and validates on CUDA where there is
+#: one, and on the portable path (what CUDA runs) everywhere
 CUDA_MODELS = sorted(
     [MODEL, "tests/configs/cfar_tiny.yaml", "tests/configs/axisnet_tiny.yaml"]
     + [

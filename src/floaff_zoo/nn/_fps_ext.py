@@ -5,7 +5,8 @@ first use with ``load_inline``.
 The build is cached in ``TORCH_EXTENSIONS_DIR`` (torch's default: ``~/.cache/torch_extensions``),
 so only the first process on a machine pays the one-off g++ compile (~40-60 s). Any failure (no
 compiler, no ninja, read-only cache) is remembered and callers fall back to pure torch.
-Set ``FLOAFF_ZOO_FPS_BACKEND=torch`` to skip the kernels altogether.
+Set ``FLOAFF_ZOO_FPS_BACKEND=torch`` to skip the kernels altogether (``FLOAFF_ZOO_CPU_PATHS=portable`` also skips
+the other CPU-only paths: ``floaff_zoo.nn.ops.cpu_fast_paths``).
 
 FPS matches the torch fallback bit for bit: squared distances are ``(dx*dx + dy*dy) + dz*dz`` in
 float32 with FMA contraction disabled, ties go to the lowest index, invalid points carry distance
