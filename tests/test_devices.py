@@ -18,6 +18,7 @@ import torch
 import yaml
 from torch import Tensor
 
+from floaff_zoo.cli import main as cli_main
 from floaff_zoo.cli import run_lightning
 from floaff_zoo.contract import collate_samples
 from floaff_zoo.data.synthetic import make_synthetic_sample
@@ -181,10 +182,13 @@ def test_the_portable_path_gives_the_fast_paths_gradients(xyz_first, monkeypatch
         torch.testing.assert_close(a, b, rtol=1e-5, atol=1e-7)
 
 
-def test_cpu_paths_setting_is_checked(monkeypatch):
+def test_cpu_paths_setting_is_checked(monkeypatch, capsys):
     monkeypatch.setenv(ops.CPU_PATHS_ENV, "portabel")
     with pytest.raises(ValueError, match="FLOAFF_ZOO_CPU_PATHS='portabel'"):
         ops.cpu_fast_paths(torch.device("cpu"))
+    monkeypatch.setattr(sys, "argv", ["floaff-zoo", "--version"])  # the CLI refuses it before any work
+    assert cli_main() == 2
+    assert "FLOAFF_ZOO_CPU_PATHS='portabel'" in capsys.readouterr().err
     monkeypatch.setenv(ops.CPU_PATHS_ENV, "fast")
     assert ops.cpu_fast_paths(torch.device("cpu"))
     assert not ops.cpu_fast_paths(torch.device("meta"))

@@ -23,6 +23,7 @@ from floaff_zoo._version import __version__
 from floaff_zoo.contract import SampleError
 from floaff_zoo.data.base import FloAffDataModule
 from floaff_zoo.models.base import ZooModule
+from floaff_zoo.nn import ops
 from floaff_zoo.runs import RunError, resolve_ckpt_alias
 
 TRAINER_COMMANDS = ("fit", "validate", "test", "predict")
@@ -280,6 +281,7 @@ def main(args: list[str] | None = None) -> int:
     quiet.install()
     try:
         runtime.keep_freed_memory()  # large activations reuse freed memory instead of fresh pages (runtime.py)
+        ops.portable_requested()  # a mistyped FLOAFF_ZOO_CPU_PATHS fails here, not at the first batch
     except ValueError as exc:
         print(f"floaff-zoo: error: {exc}", file=sys.stderr)
         return 2

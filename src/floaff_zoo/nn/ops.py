@@ -281,7 +281,7 @@ def ball_query_multi(
     b, n, _ = xyz.shape
     s = new_xyz.shape[1]
     kernel = point_kernel(xyz.device)
-    if kernel is not None and len(radii) <= 8:
+    if kernel is not None and len(radii) <= 8:  # the kernel's scan counts hits for at most 8 scales
         # per centre: its distance row (never the [B, S, N] matrix), one scan for every scale, stopping at K hits
         r2 = [float(r) ** 2 for r in radii]
         return list(kernel.ball_direct(*_direct_parts(new_xyz, xyz), mask.contiguous(), r2, [int(k) for k in nsamples]))
@@ -348,8 +348,7 @@ def three_nn(unknown: Tensor, known: Tensor, known_mask: Tensor | None = None) -
     if kernel is not None:
         if known_mask is None:
             known_mask = torch.ones(known.shape[:2], dtype=torch.bool, device=known.device)
-        dist, idx = kernel.three_nn_direct(*_direct_parts(unknown, known), known_mask.bool().contiguous())
-        return dist, idx
+        return tuple(kernel.three_nn_direct(*_direct_parts(unknown, known), known_mask.bool().contiguous()))
     sqr = square_distance(unknown, known)
     if known_mask is not None:
         sqr = sqr.masked_fill(~known_mask[:, None, :].bool(), float("inf"))
