@@ -17,10 +17,10 @@ PRIOR = "configs/models/canonical_prior.yaml"
 
 def test_grid_mean_per_task_and_cell():
     grid = CanonicalLabelGrid(["A", "B"], cell=0.1, extent=1.0, smooth_sigma_cells=0.0)
-    xy = torch.tensor([[[0.05, 0.05], [0.05, 0.06], [0.55, -0.45]]])
+    xy = torch.tensor([[[0.0, 0.0], [0.01, 0.04], [0.5, -0.4]]])
     grid.add(torch.tensor([0]), xy, torch.tensor([[1.0, 0.0, 0.5]]), torch.tensor([[True, True, True]]))
     grid.add(torch.tensor([1]), xy, torch.tensor([[0.2, 0.2, 0.2]]), torch.tensor([[True, False, True]]))
-    got = grid.read(torch.tensor([0, 1]), torch.tensor([[[0.01, 0.09], [0.52, -0.41]], [[0.01, 0.09], [5.0, 5.0]]]))
+    got = grid.read(torch.tensor([0, 1]), torch.tensor([[[-0.04, 0.02], [0.52, -0.41]], [[-0.04, 0.02], [5.0, 5.0]]]))
     # task A: the two labels of the first cell average to 0.5; task B: outside the grid -> fill (0)
     assert torch.allclose(got, torch.tensor([[0.5, 0.5], [0.2, 0.0]]))
     assert grid.seen_tasks() == ["A", "B"]
@@ -42,10 +42,48 @@ def test_grid_read_follows_new_labels_and_loaded_state():
 
 def test_grid_smoothing_keeps_a_constant_map_constant():
     grid = CanonicalLabelGrid(["A"], cell=0.1, extent=1.0, smooth_sigma_cells=1.5)
-    g = torch.stack(torch.meshgrid(torch.linspace(-0.95, 0.95, 20), torch.linspace(-0.95, 0.95, 20), indexing="ij"), -1)
+    g = torch.stack(torch.meshgrid(torch.linspace(-1.0, 0.9, 20), torch.linspace(-1.0, 0.9, 20), indexing="ij"), -1)
     xy = g.reshape(1, -1, 2)
     grid.add(torch.tensor([0]), xy, torch.full((1, xy.shape[1]), 0.3), torch.ones(1, xy.shape[1], dtype=torch.bool))
     assert torch.allclose(grid.read(torch.tensor([0]), xy), torch.full((1, xy.shape[1]), 0.3), atol=1e-5)
+
+
+def _lattice(cell: float, n: int) -> torch.Tensor:
+    """Points at multiples of ``cell`` within n cells of the origin, [1, (2n+1)^2, 2] float64 (a label grid)."""
+    k = torch.arange(-n, n + 1, dtype=torch.float64) * cell
+    return torch.stack(torch.meshgrid(k, k, indexing="ij"), -1).reshape(1, -1, 2)
+
+
+def _turn(xy: torch.Tensor, deg: float) -> torch.Tensor:
+    a = math.radians(deg)
+    rot = torch.tensor([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]], dtype=xy.dtype)
+    return xy @ rot.T
+
+
+@pytest.mark.parametrize("deg", [0.3, -0.3, 1e-6])
+def test_grid_cells_hold_label_lattice_points_under_small_turns(deg):
+    # generated labels sit at multiples of their spacing in the canonical frame: a yaw estimate a fraction of a
+    # degree off must not move any of them into another cell (it did when the cell edges lay on the lattice)
+    xy = _lattice(0.1, 15)  # up to 1.5 m from the target, the label grid's reach
+    centred = CanonicalLabelGrid(["A"], cell=0.05, extent=3.0)
+    assert torch.equal(centred.cells(_turn(xy, deg))[0], centred.cells(xy)[0])
+    edges = CanonicalLabelGrid(["A"], cell=0.05, extent=3.0, centred=False)
+    assert not torch.equal(edges.cells(_turn(xy, deg))[0], edges.cells(xy)[0])
+
+
+def test_grid_state_without_binning_entry_loads_as_edge_binned():
+    # checkpoints written before the grid recorded its binning accumulated with cell edges on the lattice
+    old = CanonicalLabelGrid(["A"], cell=0.1, extent=1.0, smooth_sigma_cells=0.0, centred=False)
+    xy, task = _lattice(0.1, 3).float() + 0.05, torch.tensor([0])
+    old.add(task, xy, torch.rand(1, xy.shape[1]), torch.ones(1, xy.shape[1], dtype=torch.bool))
+    state = {k: v for k, v in old.state_dict().items() if k != "centred"}
+    new = CanonicalLabelGrid(["A"], cell=0.1, extent=1.0, smooth_sigma_cells=0.0)
+    new.load_state_dict(state)
+    assert not bool(new.centred)
+    assert torch.equal(new.read(task, xy), old.read(task, xy))
+    fresh = CanonicalLabelGrid(["A"], cell=0.1, extent=1.0, smooth_sigma_cells=0.0)
+    fresh.load_state_dict(CanonicalLabelGrid(["A"], cell=0.1, extent=1.0).state_dict())
+    assert bool(fresh.centred)
 
 
 def _box_scene(yaw: float, n: int = 1500, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor]:

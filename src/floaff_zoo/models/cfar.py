@@ -121,6 +121,8 @@ class CFARModule(FloAffModule):
         floor_encoder: ``set`` (paper) or ``pointwise`` (query-independent floor features; departure).
         prior_residual: predict a residual over the canonical prior (departure, see module docstring).
         prior_tasks: tasks the prior keeps a grid for (default: the four tasks).
+        prior_centred: the prior's cells centred on the label lattice (``nn.prior``); False reproduces the
+            binning of checkpoints written before (a loaded checkpoint keeps the binning its state records).
         manhattan_radius: neighbourhood (m) of the Manhattan face estimate (``*manhattan`` yaw sources).
         (the rest: see :class:`FloAffModule`; paper: Adam 2e-4, batch 8, 30 epochs/stage, beta = 1.)
     """
@@ -155,6 +157,7 @@ class CFARModule(FloAffModule):
         floor_encoder: Literal["set", "pointwise"] = "set",
         prior_residual: bool = False,
         prior_tasks: list[str] | None = None,
+        prior_centred: bool = True,
         manhattan_radius: float = 1.2,
         feat_channels: int = 1,
         robot_dim: int = 2,
@@ -193,7 +196,7 @@ class CFARModule(FloAffModule):
         )
         self.prior: CanonicalLabelGrid | None = None
         if h["prior_residual"]:
-            self.prior = CanonicalLabelGrid(list(h["prior_tasks"] or TASKS))
+            self.prior = CanonicalLabelGrid(list(h["prior_tasks"] or TASKS), centred=h["prior_centred"])
             # the residual starts at zero: an untrained model predicts the prior
             nn.init.zeros_(self.net.out.weight)
             nn.init.zeros_(self.net.out.bias)
@@ -357,7 +360,12 @@ class CFARModule(FloAffModule):
         if dm is None:
             raise MisconfigurationException("CFARModule: prior_residual needs a datamodule to average its labels")
         fresh = CanonicalLabelGrid(
-            self.prior.tasks, self.prior.cell, self.prior.extent, self.prior.smooth_sigma_cells, self.prior.fill
+            self.prior.tasks,
+            self.prior.cell,
+            self.prior.extent,
+            self.prior.smooth_sigma_cells,
+            self.prior.fill,
+            centred=bool(self.prior.centred),  # a grid loaded from an older checkpoint keeps its binning
         ).to(self.prior.sums.device)
         source = self.train_yaw_source if self.train_yaw_source in ("gt", "none") else "gt"
         for batch in dm.train_dataloader():

@@ -42,6 +42,8 @@ class CanonicalPriorModule(FloAffModule):
         cell: grid cell (m); extent: half-width of the grid around the target (m).
         smooth_sigma_cells: Gaussian smoothing of the mean map (cells; 0 = none).
         fill: prior where no training label fell.
+        centred: cells centred on the label lattice (``nn.prior``); False reproduces the binning of checkpoints
+            written before (a loaded checkpoint keeps the binning its state records).
         yaw_source / eval_yaw_source: yaw used to accumulate / to read (see module docstring).
         axisnet: AxisNetModule checkpoint or hub name (for the ``axisnet*`` sources).
         axisnet_arch: filled automatically (architecture + source + sha256 of the AxisNet); leave None.
@@ -56,6 +58,7 @@ class CanonicalPriorModule(FloAffModule):
         extent: float = 3.0,
         smooth_sigma_cells: float = 1.0,
         fill: float = 0.0,
+        centred: bool = True,
         yaw_source: YawSource = "gt",
         eval_yaw_source: YawSource | None = None,
         axisnet: str | None = None,
@@ -76,7 +79,7 @@ class CanonicalPriorModule(FloAffModule):
         unknown = sorted(set(tasks) - set(TASKS))
         if unknown:
             raise MisconfigurationException(f"CanonicalPriorModule: unknown task(s) {unknown}; known: {list(TASKS)}")
-        self.net = CanonicalLabelGrid(tasks, h["cell"], h["extent"], h["smooth_sigma_cells"], h["fill"])
+        self.net = CanonicalLabelGrid(tasks, h["cell"], h["extent"], h["smooth_sigma_cells"], h["fill"], h["centred"])
         self.axisnet, self.axis_radius, arch = configured_axisnet(h["axisnet"], h["axisnet_arch"], type(self).__name__)
         self.hparams["axisnet_arch"] = arch  # saved with the checkpoint: rebuilds without the file
         sources = {"yaw_source": self.yaw_source, "eval_yaw_source": self.eval_yaw_source}

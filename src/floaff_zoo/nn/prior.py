@@ -4,12 +4,19 @@ The canonical frame is CFAR's (target at the origin, its front normal along -y, 
 :class:`CanonicalLabelGrid` keeps, for every task, the sum and the count of the training labels that fell
 into each cell of a square grid centred on the target; the prior at a point is the (optionally Gaussian
 smoothed) mean of its cell. Cells that no training label reached read as ``fill``.
+
+Cells are centred on multiples of ``cell`` (``centred``, the default). The generated label grids are
+target-aligned lattices with the target at a lattice point, so their cells sit at multiples of their spacing
+in the canonical frame. A grid whose cell *edges* lie there (the binning of checkpoints written before the grid
+recorded it, kept for them) assigns each label by floating-point rounding, and a yaw estimate 0.3 deg off moves
+a cell 1.5 m away across an edge (docs/method.md, "The prior's cells").
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import Any
 
 import torch
 import torch.nn.functional as F
@@ -24,7 +31,9 @@ class CanonicalLabelGrid(nn.Module):
     Args:
         tasks: task names, one grid each; cell: cell size (m); extent: half-width of the grid (m);
         smooth_sigma_cells: std of the Gaussian applied to sums and counts before the division (0 = none);
-        fill: value read in cells that no label reached.
+        fill: value read in cells that no label reached;
+        centred: cell centres at multiples of ``cell`` (True) or cell edges there (False: checkpoints written
+            before this switch existed, whose state has no ``centred`` entry, load as False).
     """
 
     def __init__(
@@ -34,6 +43,7 @@ class CanonicalLabelGrid(nn.Module):
         extent: float = 3.0,
         smooth_sigma_cells: float = 1.0,
         fill: float = 0.0,
+        centred: bool = True,
     ) -> None:
         super().__init__()
         if cell <= 0 or extent <= cell:
@@ -46,6 +56,9 @@ class CanonicalLabelGrid(nn.Module):
         self.smooth_sigma_cells, self.fill = float(smooth_sigma_cells), float(fill)
         self.register_buffer("sums", torch.zeros(len(self.tasks), self.size, self.size, dtype=torch.float64))
         self.register_buffer("counts", torch.zeros(len(self.tasks), self.size, self.size, dtype=torch.float64))
+        # saved with the sums: the binning they were accumulated with
+        self.register_buffer("centred", torch.tensor(bool(centred)))
+        self._lower = self._lower_edge(bool(centred))
         self._maps: tuple[tuple, Tensor] | None = None  # (buffer versions, mean maps): read() runs every batch
 
     def task_index(self, names: Sequence[str]) -> Tensor:
@@ -57,9 +70,19 @@ class CanonicalLabelGrid(nn.Module):
             out.append(self.tasks.index(name))
         return torch.as_tensor(out, dtype=torch.long, device=self.sums.device)
 
+    def _load_from_state_dict(self, state_dict: dict, prefix: str, *args: Any) -> None:
+        # a state saved before the binning was recorded was accumulated with cell edges at multiples of the cell
+        state_dict.setdefault(prefix + "centred", torch.tensor(False))
+        super()._load_from_state_dict(state_dict, prefix, *args)
+        self._lower = self._lower_edge(bool(self.centred))
+
+    def _lower_edge(self, centred: bool) -> float:
+        """Coordinate (m) of the grid's lower cell edge on both axes (kept as a float: no device sync per read)."""
+        return -self.extent - (0.5 * self.cell if centred else 0.0)
+
     def cells(self, xy: Tensor) -> tuple[Tensor, Tensor]:
         """Canonical xy [..., 2] -> (flat cell index [...] long, inside-grid flag [...] bool)."""
-        ij = torch.floor((xy + self.extent) / self.cell).long()
+        ij = torch.floor((xy - self._lower) / self.cell).long()
         inside = ((ij >= 0) & (ij < self.size)).all(-1)
         ij = ij.clamp(0, self.size - 1)
         return ij[..., 1] * self.size + ij[..., 0], inside

@@ -1,0 +1,123 @@
+"""Where the canonical prior's cell edges lie, measured from the generated labels alone (no model, no rollout).
+
+    python scripts/prior_cells.py --root data/floaff_dense --benchmarks layouts styles [--json out.json]
+
+The generator's label grid is target-aligned with the target on a lattice point, so in the canonical frame every
+labelled floor point lies at a multiple of the grid spacing. This script fills a ``CanonicalLabelGrid`` (5 cm cells,
+one cell of smoothing: the prior's defaults) from the training views with the simulator's yaw, once with cell edges
+at multiples of the cell (the old binning) and once with cell centres there (``centred``), and scores each on the
+validation scenes (the DataModule's seeded pick, one per task) and the test scenes: every view stands on the
+prior's argmax among the cells it observes, and its outcome is that cell's annotated rollout. The query yaw is
+the simulator's, or that yaw turned by ``--noise-deg`` (Gaussian, one draw per view: about the error of AxisNet
+snapped to the kitchen's axes). The canonical frame comes from the simulator's target pose (analysis of the
+benchmark, not a model input).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from floaff_zoo.contract import TASKS
+from floaff_zoo.data.floaff_kitchen import FloAffKitchenDataModule
+from floaff_zoo.nn.prior import CanonicalLabelGrid
+from floaff_zoo.sim import fileformat as ff
+from floaff_zoo.sim.views import world_to_target
+
+# per view: (task index, split, canonical xy [M, 2], smoothed label [M], rollout success [M])
+View = tuple[int, str, np.ndarray, np.ndarray, np.ndarray]
+
+
+def validation_scenes(root: Path, benchmark: str) -> set[str]:
+    """Scene ids the DataModule holds out for validation (its default seeded pick, one per task)."""
+    dm = FloAffKitchenDataModule(root=str(root), benchmark=benchmark, tasks=list(TASKS), val_scenes=1)
+    dm.setup("fit")
+    return set(dm.split_scenes["val"])
+
+
+def read_views(root: Path, benchmark: str) -> list[View]:
+    """Every view of the benchmark with its observed cells in the canonical frame (splits: train/val/test)."""
+    val = validation_scenes(root, benchmark)
+    out: list[View] = []
+    for scene in ff.iter_scenes(root, benchmark=benchmark):
+        split = "val" if scene["split"] == "train" and scene["scene_id"] in val else scene["split"]
+        success = np.asarray(scene["labels"]["success"]) > 0
+        cand, target = scene["candidates"], scene["target"]
+        can = world_to_target(np.asarray(cand["xy"], dtype=float), np.asarray(target["pos"]), float(target["yaw"]))
+        for view in scene["views"]:
+            arrays = ff.read_view(Path(scene["dir"]) / view["file"], scene["format_version"])
+            if "floor_index" not in arrays:
+                raise SystemExit(f"prior_cells: {scene['dir']}/{view['file']} has no floor_index (format 2 needed)")
+            idx = arrays["floor_index"]
+            out.append((TASKS.index(scene["task"]), split, can[idx], np.asarray(arrays["floor_label"]), success[idx]))
+    if not out:
+        raise SystemExit(f"prior_cells: no finished scene under {root / benchmark}")
+    return out
+
+
+def turn(xy: np.ndarray, rad: float) -> np.ndarray:
+    """xy [M, 2] rotated by ``rad`` about the target."""
+    c, s = np.cos(rad), np.sin(rad)
+    return xy @ np.array([[c, s], [-s, c]])
+
+
+def fit_grid(views: list[View], centred: bool) -> CanonicalLabelGrid:
+    grid = CanonicalLabelGrid(list(TASKS), centred=centred)
+    for t, split, xy, label, _ in views:
+        if split == "train":
+            mask = torch.ones(1, len(xy), dtype=torch.bool)
+            grid.add(torch.tensor([t]), torch.as_tensor(xy[None]), torch.as_tensor(label[None]), mask)
+    return grid
+
+
+def success_rates(grid: CanonicalLabelGrid, views: list[View], split: str, noise_deg: float, seed: int) -> dict:
+    """SR per task and over all views of ``split`` when every view stands on the grid's argmax."""
+    rng = np.random.default_rng(seed)
+    ok, task = [], []
+    for t, s, xy, _, success in views:
+        if s != split:
+            continue
+        query = turn(xy, np.deg2rad(noise_deg) * rng.standard_normal()) if noise_deg else xy
+        scores = grid.read(torch.tensor([t]), torch.as_tensor(query[None]))[0].numpy()
+        ok.append(bool(success[int(np.argmax(np.round(scores, 6)))]))
+        task.append(t)
+    ok_a, task_a = np.array(ok), np.array(task)
+    row = {TASKS[i]: float(ok_a[task_a == i].mean()) for i in range(len(TASKS)) if (task_a == i).any()}
+    row["all"] = float(ok_a.mean())
+    return row
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--root", default="data/floaff_dense")
+    p.add_argument("--benchmarks", nargs="+", default=["layouts", "styles"])
+    p.add_argument("--noise-deg", type=float, default=0.3)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--json", default=None)
+    a = p.parse_args(argv)
+    rows = []
+    print("| Benchmark | cells | query yaw | split | " + " | ".join(TASKS) + " | all |")
+    print("|---|---|---|---|" + "---:|" * (len(TASKS) + 1))
+    for bench in a.benchmarks:
+        views = read_views(Path(a.root), bench)
+        for centred in (False, True):
+            grid = fit_grid(views, centred)
+            for noise in (0.0, a.noise_deg):
+                for split in ("val", "test"):
+                    sr = success_rates(grid, views, split, noise, a.seed)
+                    rows.append({"benchmark": bench, "centred": centred, "noise_deg": noise, "split": split, "sr": sr})
+                    yaw = "simulator" if noise == 0 else f"simulator + N(0, {noise:g} deg)"
+                    cells = "centred" if centred else "edges on the lattice"
+                    vals = " | ".join(f"{sr[t]:.2f}" for t in TASKS)
+                    print(f"| {bench} | {cells} | {yaw} | {split} | {vals} | {sr['all']:.3f} |")
+    if a.json:
+        Path(a.json).write_text(json.dumps(rows, indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
