@@ -5,6 +5,9 @@
 #   scripts/reproduce_small.sh cfar_pfal_s0 pointnet2_s0   # only these
 #   PAR=1 scripts/reproduce_small.sh ...       # one at a time (each job then may use both cores)
 #   RETEST=1 scripts/reproduce_small.sh ...    # only test the finished runs again (e.g. after adding test scenes)
+#   PRESET=dense RUNS=runs/regen OUT=docs/results/regen scripts/reproduce_small.sh recipe_s0 recipe_edges_s0 \
+#     prior prior_edges styles_recipe_s0 styles_recipe_edges_s0 ...   # the prior's cells, centred vs edge-binned
+#                                              # (docs/results.md, "Regenerated dense data")
 #   EPOCHS=6 scripts/reproduce_small.sh navaff # baselines for another number of epochs (default 20)
 #   PRESET=dense scripts/reproduce_small.sh recipe_s0 prior pointnet2_s0   # the dense preset's equal-budget
 #                                              # protocol (4,000 samples per learned model; docs/results.md)
@@ -129,7 +132,8 @@ training_free() {
 # prior JOB BENCH LABEL [TEST ARGS...]: the canonical prior (one pass over the training labels) with the AxisNet of
 # the recipe's seed-0 curriculum inside its checkpoint (job recipe_s0 first; waited for when it runs in parallel)
 prior() {
-  local job=$1 bench=$2 label=$3 root=$RUNS/$2/prior; shift 3
+  local job=$1 bench=$2 label=$3 root=$RUNS/$2/prior fit=(); shift 3
+  case $job in *_edges) root=$RUNS/$bench/prior_edges fit=(--model.init_args.centred false) ;; esac
   local axis="" lineage=$RUNS/$bench/recipe_s0/lineage.json tries=0
   until axis=$(python3 -c "import json,sys; print(json.load(open(sys.argv[1]))['stages'][0]['checkpoint'])" \
     "$lineage" 2>/dev/null) && [ -f "$axis" ]; do
@@ -139,7 +143,7 @@ prior() {
   if [ "$RETEST" = 0 ] && [ -z "$(find "$root" -name last.ckpt 2>/dev/null)" ]; then
     "$FZ" fit --config "configs/data/floaff_${PRESET}_$bench.yaml" --config configs/models/canonical_prior.yaml \
       --model.init_args.axisnet "$axis" --data.init_args.train_transforms '[]' --trainer.max_epochs 1 \
-      --trainer.default_root_dir "$root"
+      --trainer.default_root_dir "$root" "${fit[@]}"
   fi
   test_run "$(latest_run "$root")" "$label" "$bench" "$job" last "$@"
 }
@@ -222,6 +226,13 @@ run_job() {
     styles_recipe_s[0-9]) curriculum "recipe_s${job#styles_recipe_s}" styles "${job#styles_recipe_s}" "CFAR+PFAL, zoo recipe" \
       --extra-config "$RECIPE" ;;
     styles_prior) prior prior styles "Canonical prior (no network)" ;;
+    # the prior's cell edges on the label lattice, as before the grid centred its cells (docs/method.md)
+    prior_edges) prior prior_edges layouts "Canonical prior, edge-binned" ;;
+    styles_prior_edges) prior prior_edges styles "Canonical prior, edge-binned" ;;
+    recipe_edges_s[0-9]) curriculum "$job" layouts "${job#recipe_edges_s}" "zoo recipe, edge-binned prior" \
+      --extra-config "$RECIPE" --extra-config configs/experiments/recipe/prior_edges.yaml ;;
+    styles_recipe_edges_s[0-9]) curriculum "${job#styles_}" styles "${job#styles_recipe_edges_s}" \
+      "zoo recipe, edge-binned prior" --extra-config "$RECIPE" --extra-config configs/experiments/recipe/prior_edges.yaml ;;
     no_crop|no_align|no_sdl|no_fd)
       curriculum "$job" layouts 0 "w/o ${job#no_}" --extra-config "configs/experiments/ablations/$job.yaml" ;;
     r1.[0-9]*)
@@ -249,6 +260,7 @@ job_out() {  # the file a finished job has written, under $OUT
     axisnet_longer) echo layouts/axisnet_yaw_error.md ;;
     styles_c2f_exp) echo styles/c2f_exp/report.json ;;
     styles_prior) echo styles/prior/report.json ;;
+    styles_prior_edges) echo styles/prior_edges/report.json ;;
     styles_recipe_s*) echo "styles/recipe_s${1#styles_recipe_s}/report.json" ;;
     styles_recipe_no_*) echo "styles/${1#styles_}/report.json" ;;
     styles_recipe_r1.*) echo "styles/recipe_sweep_${1#styles_recipe_}/report.json" ;;
