@@ -9,7 +9,7 @@ Cells are centred on multiples of ``cell`` (``centred``, the default). The gener
 target-aligned lattices with the target at a lattice point, so their cells sit at multiples of their spacing
 in the canonical frame. A grid whose cell *edges* lie there (the binning of checkpoints written before the grid
 recorded it, kept for them) assigns each label by floating-point rounding, and a yaw estimate 0.3 deg off moves
-a cell 1.5 m away across an edge (docs/method.md, "The prior's cells").
+a point 1.5 m from the target by 8 mm, across an edge (docs/method.md, "The prior's cells").
 """
 
 from __future__ import annotations
