@@ -28,7 +28,7 @@ import numpy as np
 
 from floaff_zoo.contract import TASKS
 from floaff_zoo.sim import fileformat as ff
-from floaff_zoo.sim.views import world_to_target
+from floaff_zoo.sim.views import candidates_in_target_frame
 
 # (task, split) -> per view: {canonical cell (i, j): rollout succeeded}
 Views = dict[tuple[str, str], list[dict[tuple[int, int], bool]]]
@@ -36,9 +36,8 @@ Views = dict[tuple[str, str], list[dict[tuple[int, int], bool]]]
 
 def canonical_cells(scene: dict) -> list[tuple[int, int]]:
     """Integer cell of every grid candidate in the target frame, [M] (the grid is target-aligned)."""
-    cand, target = scene["candidates"], scene["target"]
-    can = world_to_target(np.asarray(cand["xy"], dtype=float), np.asarray(target["pos"]), float(target["yaw"]))
-    return [(int(i), int(j)) for i, j in np.round(can / float(cand["cell"])).astype(int)]
+    can = candidates_in_target_frame(scene)
+    return [(int(i), int(j)) for i, j in np.round(can / float(scene["candidates"]["cell"])).astype(int)]
 
 
 def read_views(root: Path, benchmark: str) -> tuple[Views, dict[tuple[str, str], list[int]]]:

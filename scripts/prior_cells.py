@@ -26,7 +26,7 @@ from floaff_zoo.contract import TASKS
 from floaff_zoo.data.floaff_kitchen import FloAffKitchenDataModule
 from floaff_zoo.nn.prior import CanonicalLabelGrid
 from floaff_zoo.sim import fileformat as ff
-from floaff_zoo.sim.views import world_to_target
+from floaff_zoo.sim.views import candidates_in_target_frame
 
 # per view: (task index, split, canonical xy [M, 2], smoothed label [M], rollout success [M])
 View = tuple[int, str, np.ndarray, np.ndarray, np.ndarray]
@@ -46,8 +46,7 @@ def read_views(root: Path, benchmark: str) -> list[View]:
     for scene in ff.iter_scenes(root, benchmark=benchmark):
         split = "val" if scene["split"] == "train" and scene["scene_id"] in val else scene["split"]
         success = np.asarray(scene["labels"]["success"]) > 0
-        cand, target = scene["candidates"], scene["target"]
-        can = world_to_target(np.asarray(cand["xy"], dtype=float), np.asarray(target["pos"]), float(target["yaw"]))
+        can = candidates_in_target_frame(scene)
         for view in scene["views"]:
             arrays = ff.read_view(Path(scene["dir"]) / view["file"], scene["format_version"])
             if "floor_index" not in arrays:

@@ -70,10 +70,25 @@ class CanonicalLabelGrid(nn.Module):
             out.append(self.tasks.index(name))
         return torch.as_tensor(out, dtype=torch.long, device=self.sums.device)
 
-    def _load_from_state_dict(self, state_dict: dict, prefix: str, *args: Any) -> None:
-        # a state saved before the binning was recorded was accumulated with cell edges at multiples of the cell
-        state_dict.setdefault(prefix + "centred", torch.tensor(False))
-        super()._load_from_state_dict(state_dict, prefix, *args)
+    def _load_from_state_dict(
+        self,
+        state_dict: dict[str, Any],
+        prefix: str,
+        local_metadata: dict[str, Any],
+        strict: bool,
+        missing_keys: list[str],
+        unexpected_keys: list[str],
+        error_msgs: list[str],
+    ) -> None:
+        key = prefix + "centred"
+        recorded = key in state_dict
+        super()._load_from_state_dict(
+            state_dict, prefix, local_metadata, strict, missing_keys, unexpected_keys, error_msgs
+        )
+        if not recorded:  # saved before the grid recorded its binning: accumulated with edges on the lattice
+            if key in missing_keys:
+                missing_keys.remove(key)
+            self.centred.fill_(False)
         self._lower = self._lower_edge(bool(self.centred))
 
     def _lower_edge(self, centred: bool) -> float:

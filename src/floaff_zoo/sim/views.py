@@ -30,6 +30,7 @@ __all__ = [
     "ViewConfig",
     "ViewObservation",
     "base_to_world",
+    "candidates_in_target_frame",
     "heading_to",
     "in_front_region",
     "in_side_region",
@@ -102,6 +103,12 @@ def world_to_target(xy: np.ndarray, target_xy: np.ndarray, target_yaw: float) ->
     n = np.array([math.cos(target_yaw), math.sin(target_yaw)])  # outward normal
     lat = np.array([-n[1], n[0]])  # normal rotated +90 deg
     return np.stack([d @ lat, -(d @ n)], axis=-1)
+
+
+def candidates_in_target_frame(scene: dict) -> np.ndarray:
+    """A scene record's (``scene.json``) candidate cells in its target frame, [M, 2] (analysis of the labels)."""
+    cand, target = scene["candidates"], scene["target"]
+    return world_to_target(np.asarray(cand["xy"], dtype=float), np.asarray(target["pos"]), float(target["yaw"]))
 
 
 def target_to_world(xo: np.ndarray, target_xy: np.ndarray, target_yaw: float) -> np.ndarray:
