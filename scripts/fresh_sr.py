@@ -1,0 +1,248 @@
+"""Success rate under fresh episodes: the task's randomness drawn again and the base parked with noise.
+
+    python scripts/fresh_sr.py --root data/floaff_dense --benchmark layouts [MODEL ...] \
+        [--episodes 4] [--sigma-xy 0.02] [--sigma-yaw-deg 2] [--json out.json]
+
+The generated labels and ``floaff-zoo test`` roll every pose out once, with the annotation's task seed (the same
+initial door / drawer opening) at the exact pose, so the Oracle scores 1.00 by construction, on the machine that
+made the labels. A robot parks a few centimetres off and meets a door opened a little more or less. This script
+measures that: for every feasible candidate cell of every test scene it runs ``--episodes`` rollouts, each with a
+fresh task seed (not the annotation's) and the pose perturbed by N(0, sigma_xy) per axis and N(0, sigma_yaw), and
+takes the success fraction as the cell's *fresh success probability*. Cells the generator filtered as infeasible
+(collision, out of reach: never rolled out) keep probability 0.
+
+Every view then stands where each scorer puts it, and its fresh SR is the probability of that cell:
+
+- ``label``: the argmax of the view's ground-truth label (the Oracle of ``floaff-zoo test``);
+- ``best``: the observed cell of highest fresh probability (a hindsight bound for this evaluation);
+- each MODEL (hub name or checkpoint): its predicted argmax, chosen as ``RolloutSuccessRate`` chooses.
+
+For each scorer it also prints ``exact``, the annotated outcome of the chosen cell, which is what
+``floaff-zoo test`` measures when its Oracle scores 1.00 (the pose is the cell's pose, the seed the annotation's).
+Rollouts run in ``--workers`` processes; the probabilities are deterministic for a given ``--seed`` on one machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import zlib
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from floaff_zoo.callbacks.rollout import choose_pose
+from floaff_zoo.contract import TASKS
+from floaff_zoo.frames import ROLLOUT_POSE_DECIMALS, base_to_world
+
+#: first task seed of the fresh episodes (the annotation uses 0)
+FRESH_SEED0 = 1000
+
+Runner = Callable[[int, list[tuple[object, tuple[float, float, float]]]], list[bool]]
+
+
+def perturbed_poses(
+    xy: np.ndarray, yaw: np.ndarray, episode: int, sigma_xy: float, sigma_yaw: float, seed: int
+) -> np.ndarray:
+    """Candidate poses with parking noise for one episode: xy [M, 2], yaw [M] -> [M, 3] (x, y, yaw)."""
+    rng = np.random.default_rng([int(seed), int(episode)])
+    noise = rng.normal(size=(len(xy), 3)) * np.array([sigma_xy, sigma_xy, sigma_yaw])
+    return np.concatenate([np.asarray(xy, float), np.asarray(yaw, float)[:, None]], axis=1) + noise
+
+
+def fresh_probability(
+    scene: dict, run: Runner, episodes: int, sigma_xy: float, sigma_yaw: float, seed: int, seeds: Sequence[int] = ()
+) -> np.ndarray:
+    """Fresh success probability of every candidate cell of a scene record, [M] in [0, 1].
+
+    ``run(task_seed, jobs)`` rolls ``(spec, pose)`` jobs out with that task seed. Episode k uses task seed
+    ``seeds[k]`` (default ``FRESH_SEED0 + k``) and parking noise drawn from (``seed``, the scene id, k).
+    Cells the generator filtered (``candidates.valid`` false) are 0 without a rollout.
+    """
+    from floaff_zoo.sim.kitchen import SceneSpec
+
+    cand = scene["candidates"]
+    xy, yaw = np.asarray(cand["xy"], float), np.asarray(cand["yaw"], float)
+    valid = np.flatnonzero(np.asarray(cand["valid"], bool))
+    spec = SceneSpec.from_dict(scene["spec"])
+    task_seeds = list(seeds) or [FRESH_SEED0 + k for k in range(episodes)]
+    scene_seed = zlib.crc32(scene["scene_id"].encode()) ^ int(seed)
+    wins = np.zeros(len(xy))
+    for k, task_seed in enumerate(task_seeds):
+        poses = perturbed_poses(xy[valid], yaw[valid], k, sigma_xy, sigma_yaw, scene_seed)
+        ok = run(task_seed, [(spec, tuple(float(v) for v in p)) for p in poses])
+        wins[valid] += np.asarray(ok, float)
+    return wins / len(task_seeds)
+
+
+def service_runner(workers: int) -> Runner:
+    """A Runner on the simulator's rollout service: one service (and result cache) per task seed."""
+    from floaff_zoo.sim.rollout import RolloutService
+
+    services: dict[int, RolloutService] = {}
+
+    def run(task_seed: int, jobs: list) -> list[bool]:
+        if task_seed not in services:
+            services[task_seed] = RolloutService(workers=workers, cache_decimals=ROLLOUT_POSE_DECIMALS, seed=task_seed)
+        return [r.success for r in services[task_seed].run(jobs)]
+
+    return run
+
+
+def nearest_cells(cand_xy: np.ndarray, xy: np.ndarray, cell: float, where: str) -> np.ndarray:
+    """Index of the candidate under each world point: cand_xy [M, 2], xy [K, 2] -> [K]; off-grid is an error."""
+    d = np.linalg.norm(np.asarray(xy, float)[:, None, :2] - cand_xy[None], axis=-1)
+    idx = d.argmin(axis=1)
+    far = d[np.arange(len(idx)), idx] > 0.5 * cell
+    if far.any():
+        raise ValueError(f"{where}: {int(far.sum())} floor point(s) lie off the scene's candidate grid")
+    return idx
+
+
+def view_choices(
+    batch: dict, scores: dict[str, np.ndarray], scenes: dict[str, dict], probs: dict[str, np.ndarray]
+) -> list[dict]:
+    """Per view of a batch: task, view, and per scorer the chosen cell's (exact outcome, fresh probability).
+
+    scores: scorer name -> [B, M] per-point scores (``label`` and the models). ``best`` is added: the observed
+    cell of highest fresh probability.
+    """
+    from floaff_zoo.sim.kitchen import SceneSpec
+
+    floor, mask, target = (batch[k].numpy() for k in ("floor_xyz", "floor_mask", "target_xyz"))
+    out = []
+    for i, meta in enumerate(batch["meta"]):
+        sim, tie = meta["sim"], int(meta.get("index", i))
+        sid = SceneSpec.from_dict(sim).scene_id
+        if sid not in scenes:
+            raise KeyError(f"view {meta.get('sample_id', i)}: scene {sid} has no fresh probabilities")
+        scene, p = scenes[sid], probs[sid]
+        cand = np.asarray(scene["candidates"]["xy"], float)
+        cell = float(scene["candidates"]["cell"])
+        exact = np.asarray(scene["labels"]["success"]) > 0
+        where = str(meta.get("sample_id", sid))
+        row = {"task": meta["task"], "view": meta["view"]}
+        for name, s in scores.items():
+            pose, _ = choose_pose(floor[i], s[i], mask[i], target[i], sim["base_pose_world"], seed=tie)
+            c = nearest_cells(cand, np.array([pose[:2]]), cell, where)[0]
+            row[name] = (bool(exact[c]), float(p[c]))
+        seen = nearest_cells(cand, base_to_world(floor[i][mask[i]], sim["base_pose_world"]), cell, where)
+        best = seen[np.argmax(p[seen])]
+        row["best"] = (bool(exact[best]), float(p[best]))
+        out.append(row)
+    return out
+
+
+def summarize(rows: list[dict], scorers: list[str]) -> dict[str, dict[str, dict[str, float]]]:
+    """scorer -> {"exact" | "fresh": {task..., front, side, all: mean}}."""
+    out: dict[str, dict[str, dict[str, float]]] = {}
+    groups = {t: [r for r in rows if r["task"] == t] for t in TASKS}
+    groups.update({v: [r for r in rows if r["view"] == v] for v in ("front", "side")})
+    groups["all"] = rows
+    for s in scorers:
+        out[s] = {
+            kind: {g: float(np.mean([r[s][k] for r in rs])) for g, rs in groups.items() if rs}
+            for k, kind in enumerate(("exact", "fresh"))
+        }
+    return out
+
+
+def cell_stats(scenes: dict[str, dict], probs: dict[str, np.ndarray]) -> dict[str, dict[str, float]]:
+    """Per task: annotated successful cells per scene, their mean fresh probability, and cells with p >= 0.5."""
+    out: dict[str, dict[str, float]] = {}
+    for t in TASKS:
+        ids = [s for s in scenes if scenes[s]["task"] == t]
+        if not ids:
+            continue
+        succ = [np.asarray(scenes[s]["labels"]["success"]) > 0 for s in ids]
+        out[t] = {
+            "scenes": len(ids),
+            "annotated_success_cells": float(np.mean([m.sum() for m in succ])),
+            "fresh_p_of_annotated_successes": float(np.mean(np.concatenate([probs[s][m] for s, m in zip(ids, succ)]))),
+            "fresh_p_of_annotated_failures": float(
+                np.mean(
+                    np.concatenate(
+                        [probs[s][~m & np.asarray(scenes[s]["candidates"]["valid"], bool)] for s, m in zip(ids, succ)]
+                    )
+                )
+            ),
+            "cells_p_ge_half": float(np.mean([(probs[s] >= 0.5).sum() for s in ids])),
+        }
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("models", nargs="*", help="hub names or checkpoint paths")
+    p.add_argument("--root", default="data/floaff_dense")
+    p.add_argument("--benchmark", default="layouts", choices=["layouts", "styles"])
+    p.add_argument("--split", default="test")
+    p.add_argument("--episodes", type=int, default=4)
+    p.add_argument("--sigma-xy", type=float, default=0.02, help="parking noise per axis (m)")
+    p.add_argument("--sigma-yaw-deg", type=float, default=2.0, help="parking heading noise (deg)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--num-points", type=int, default=1024)
+    p.add_argument("--workers", type=int, default=1)
+    p.add_argument("--probs", default=None, help="cache of the fresh probabilities (.npz; read if it exists)")
+    p.add_argument("--json", default=None)
+    a = p.parse_args(argv)
+    if a.episodes < 1 or a.sigma_xy < 0 or a.sigma_yaw_deg < 0:
+        p.error("--episodes must be >= 1 and the sigmas >= 0")
+
+    from floaff_zoo.data.floaff_kitchen import FloAffKitchenDataModule
+    from floaff_zoo.predict import resolve_model
+    from floaff_zoo.sim import fileformat as ff
+
+    scenes = {s["scene_id"]: s for s in ff.iter_scenes(a.root, benchmark=a.benchmark, split=a.split)}
+    if not scenes:
+        raise SystemExit(f"fresh_sr: no finished {a.split} scene of {a.benchmark} under {a.root}")
+    setting = dict(episodes=a.episodes, sigma_xy=a.sigma_xy, sigma_yaw_deg=a.sigma_yaw_deg, seed=a.seed)
+    probs: dict[str, np.ndarray] = {}
+    cache = Path(a.probs) if a.probs else None
+    if cache is not None and cache.is_file():
+        with np.load(cache) as z:
+            if json.loads(str(z["setting"])) != setting:
+                raise SystemExit(f"fresh_sr: {cache} was made with {z['setting']}, not {setting}")
+            probs = {k: z[k] for k in z.files if k != "setting"}
+    run = service_runner(a.workers)
+    for sid, scene in scenes.items():
+        if sid not in probs:
+            probs[sid] = fresh_probability(scene, run, a.episodes, a.sigma_xy, np.radians(a.sigma_yaw_deg), a.seed)
+            print(f"{sid}: {int((probs[sid] > 0).sum())} cells with a fresh success", flush=True)
+    if cache is not None:
+        np.savez(cache, setting=json.dumps(setting), **probs)
+
+    dm = FloAffKitchenDataModule(
+        root=a.root, benchmark=a.benchmark, tasks=list(TASKS), batch_size=8, num_points=a.num_points
+    )
+    dm.setup("test")
+    models = {m: resolve_model(m).eval() for m in a.models}
+    rows: list[dict] = []
+    with torch.no_grad():
+        for batch in dm.test_dataloader():
+            scores = {"label": batch["floor_label"].numpy()}
+            scores.update({m: net(batch).numpy() for m, net in models.items()})
+            rows += view_choices(batch, scores, scenes, probs)
+    scorers = ["label", "best", *a.models]
+    sr = summarize(rows, scorers)
+    cells = cell_stats(scenes, probs)
+    print(f"{a.benchmark} {a.split}: {len(rows)} views, {setting}")
+    cols = [*TASKS, "front", "side", "all"]
+    print("| scorer | SR | " + " | ".join(cols) + " |")
+    print("|---|---|" + "---:|" * len(cols))
+    for s in scorers:
+        for kind in ("exact", "fresh"):
+            print(f"| {s} | {kind} | " + " | ".join(f"{sr[s][kind].get(c, float('nan')):.2f}" for c in cols) + " |")
+    for t, c in cells.items():
+        print(f"{t}: " + ", ".join(f"{k} {v:.2f}" for k, v in c.items()))
+    if a.json:
+        Path(a.json).write_text(
+            json.dumps({"setting": setting, "views": len(rows), "sr": sr, "cells": cells}, indent=1) + "\n"
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,72 @@
+"""scripts/fresh_sr.py: fresh-episode success probabilities of the candidate cells, and the SR of chosen cells."""
+
+import importlib.util
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("mujoco")
+gen = pytest.importorskip("floaff_zoo.sim.generate")
+from floaff_zoo.sim import fileformat as ff  # noqa: E402
+from floaff_zoo.sim.presets import get_preset  # noqa: E402
+
+_SPEC = importlib.util.spec_from_file_location(
+    "fresh_sr", Path(__file__).resolve().parents[1] / "scripts" / "fresh_sr.py"
+)
+fs = importlib.util.module_from_spec(_SPEC)
+_SPEC.loader.exec_module(fs)
+
+
+@pytest.fixture(scope="module")
+def drawer_root(tmp_path_factory):
+    """One generated tiny CloseDrawer test scene (and its training scene), format 2."""
+    out = tmp_path_factory.mktemp("fresh_sr")
+    man = gen.generate(out, get_preset("tiny", tasks=("CloseDrawer",), n_test=1), seed=0, workers=0, quiet=True)
+    assert man["counts"]["scenes_ok"] >= 2
+    return out
+
+
+def test_perturbed_poses_are_seeded_and_scaled():
+    xy, yaw = np.zeros((500, 2)), np.zeros(500)
+    a = fs.perturbed_poses(xy, yaw, 0, 0.02, 0.03, seed=7)
+    assert np.array_equal(a, fs.perturbed_poses(xy, yaw, 0, 0.02, 0.03, seed=7))
+    assert not np.array_equal(a, fs.perturbed_poses(xy, yaw, 1, 0.02, 0.03, seed=7))  # another episode
+    assert np.std(a[:, :2]) == pytest.approx(0.02, rel=0.15) and np.std(a[:, 2]) == pytest.approx(0.03, rel=0.15)
+    assert np.array_equal(fs.perturbed_poses(xy, yaw, 0, 0.0, 0.0, seed=7), np.zeros((500, 3)))
+
+
+def test_annotation_seed_without_noise_gives_back_the_labels(drawer_root):
+    scene = next(ff.iter_scenes(drawer_root, split="test"))
+    p = fs.fresh_probability(scene, fs.service_runner(1), 1, 0.0, 0.0, seed=0, seeds=[gen.ANNOTATE_SEED])
+    success = np.asarray(scene["labels"]["success"]) > 0
+    assert success.any()
+    assert np.array_equal(p > 0.5, success)
+    assert not p[~np.asarray(scene["candidates"]["valid"], bool)].any()  # filtered cells: never rolled out, 0
+
+
+def test_nearest_cells_names_an_off_grid_point():
+    cand = np.array([[0.0, 0.0], [0.1, 0.0]])
+    assert fs.nearest_cells(cand, np.array([[0.09, 0.01], [0.0, 0.0]]), 0.1, "v").tolist() == [1, 0]
+    with pytest.raises(ValueError, match="view7: 1 floor point"):
+        fs.nearest_cells(cand, np.array([[0.5, 0.0]]), 0.1, "view7")
+
+
+def test_cli_scores_the_label_oracle_and_caches_probabilities(drawer_root, tmp_path):
+    out, cache = tmp_path / "fresh.json", tmp_path / "p.npz"
+    args = ["--root", str(drawer_root), "--benchmark", "styles", "--episodes", "2", "--probs", str(cache)]
+    assert fs.main([*args, "--json", str(out)]) == 0
+    rep = json.loads(out.read_text())
+    assert rep["views"] > 0 and rep["setting"]["episodes"] == 2
+    assert rep["sr"]["label"]["exact"]["all"] == 1.0  # the label argmax is an annotated success
+    for kind in ("exact", "fresh"):
+        assert 0.0 <= rep["sr"]["label"][kind]["all"] <= 1.0
+    # the hindsight scorer stands on the best fresh cell, so no scorer beats it under fresh episodes
+    assert rep["sr"]["best"]["fresh"]["all"] >= rep["sr"]["label"]["fresh"]["all"]
+    assert cache.is_file()
+    # the cache is reused (no rollout) only for the setting it was made with
+    assert fs.main([*args, "--json", str(out)]) == 0
+    assert json.loads(out.read_text())["sr"] == rep["sr"]
+    with pytest.raises(SystemExit, match="was made with"):
+        fs.main([*args[:-3], "3", "--probs", str(cache)])
