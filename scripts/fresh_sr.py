@@ -17,6 +17,8 @@ Every view then stands where each scorer puts it, and its fresh SR is the probab
 - ``best``: the observed cell of highest fresh probability (a hindsight bound for this evaluation);
 - each MODEL (hub name or checkpoint): its predicted argmax, chosen as ``RolloutSuccessRate`` chooses.
 
+``--sigma-xy 0 --sigma-yaw-deg 0`` keeps the exact poses (only the task seed is new); ``--annotation-seed`` keeps
+the annotation's task seed (only the parking noise is new): the two parts of the fresh evaluation, separately.
 For each scorer it also prints ``exact``, the annotated outcome of the chosen cell, which is what
 ``floaff-zoo test`` measures when its Oracle scores 1.00 (the pose is the cell's pose, the seed the annotation's).
 Rollouts run in ``--workers`` processes; the probabilities are deterministic for a given ``--seed`` on one machine.
@@ -182,7 +184,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--episodes", type=int, default=4)
     p.add_argument("--sigma-xy", type=float, default=0.02, help="parking noise per axis (m)")
     p.add_argument("--sigma-yaw-deg", type=float, default=2.0, help="parking heading noise (deg)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0, help="seed of the parking noise")
+    p.add_argument(
+        "--annotation-seed", action="store_true", help="every episode keeps the annotation's task seed (noise only)"
+    )
     p.add_argument("--num-points", type=int, default=1024)
     p.add_argument("--workers", type=int, default=1)
     p.add_argument("--probs", default=None, help="cache of the fresh probabilities (.npz; read if it exists)")
@@ -194,11 +199,15 @@ def main(argv: list[str] | None = None) -> int:
     from floaff_zoo.data.floaff_kitchen import FloAffKitchenDataModule
     from floaff_zoo.predict import resolve_model
     from floaff_zoo.sim import fileformat as ff
+    from floaff_zoo.sim.generate import ANNOTATE_SEED
 
     scenes = {s["scene_id"]: s for s in ff.iter_scenes(a.root, benchmark=a.benchmark, split=a.split)}
     if not scenes:
         raise SystemExit(f"fresh_sr: no finished {a.split} scene of {a.benchmark} under {a.root}")
     setting = dict(episodes=a.episodes, sigma_xy=a.sigma_xy, sigma_yaw_deg=a.sigma_yaw_deg, seed=a.seed)
+    if a.annotation_seed:
+        setting["task_seed"] = "annotation"
+    seeds = [ANNOTATE_SEED] * a.episodes if a.annotation_seed else []
     probs: dict[str, np.ndarray] = {}
     cache = Path(a.probs) if a.probs else None
     if cache is not None and cache.is_file():
@@ -209,7 +218,9 @@ def main(argv: list[str] | None = None) -> int:
     run = service_runner(a.workers)
     for sid, scene in scenes.items():
         if sid not in probs:
-            probs[sid] = fresh_probability(scene, run, a.episodes, a.sigma_xy, np.radians(a.sigma_yaw_deg), a.seed)
+            probs[sid] = fresh_probability(
+                scene, run, a.episodes, a.sigma_xy, np.radians(a.sigma_yaw_deg), a.seed, seeds
+            )
             print(f"{sid}: {int((probs[sid] > 0).sum())} cells with a fresh success", flush=True)
     if cache is not None:
         np.savez(cache, setting=json.dumps(setting), **probs)
