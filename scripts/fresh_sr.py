@@ -189,6 +189,8 @@ def main(argv: list[str] | None = None) -> int:
         "--annotation-seed", action="store_true", help="every episode keeps the annotation's task seed (noise only)"
     )
     p.add_argument("--num-points", type=int, default=1024)
+    # the dense configs' test batch: a cropped model's padded cloud, hence its output, depends on the batch
+    p.add_argument("--batch-size", type=int, default=4)
     p.add_argument("--workers", type=int, default=1)
     p.add_argument("--probs", default=None, help="cache of the fresh probabilities (.npz; read if it exists)")
     p.add_argument("--json", default=None)
@@ -226,7 +228,7 @@ def main(argv: list[str] | None = None) -> int:
         np.savez(cache, setting=json.dumps(setting), **probs)
 
     dm = FloAffKitchenDataModule(
-        root=a.root, benchmark=a.benchmark, tasks=list(TASKS), batch_size=8, num_points=a.num_points
+        root=a.root, benchmark=a.benchmark, tasks=list(TASKS), batch_size=a.batch_size, num_points=a.num_points
     )
     dm.setup("test")
     models = {m: resolve_model(m).eval() for m in a.models}

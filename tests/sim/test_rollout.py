@@ -4,8 +4,9 @@ import sys
 import numpy as np
 import pytest
 
+from floaff_zoo.sim.annotate import annotate_scene
 from floaff_zoo.sim.kitchen import SceneSpec
-from floaff_zoo.sim.rollout import RolloutService, heading_to_target, rollout
+from floaff_zoo.sim.rollout import RolloutService, heading_to_target, pose_filter, rollout
 
 
 def _front_pose(sc, dist, lat):
@@ -37,8 +38,28 @@ def test_success_reruns_to_success_and_is_deterministic(scene_factory):
 def test_far_pose_fails(scene_factory):
     for task in ("CloseDrawer", "OpenSingleDoor"):
         sc = scene_factory(task)
+        # refused as the annotation filters it (out of reach), nothing simulated
         r = rollout(sc, _front_pose(sc, 3.0, 0.0))
+        assert not r.success and r.reason == "filtered_reach" and r.sim_seconds == 0.0
+        # simulated anyway, the policy cannot reach the fixture
+        r = rollout(sc, _front_pose(sc, 3.0, 0.0), check_pose=False)
         assert not r.success and r.reason == "ik_unreachable"
+
+
+def test_pose_filter_refuses_what_the_annotation_filters(scene_factory):
+    """Evaluation and annotation share one feasibility filter: a cell the annotation never rolled out (robot in
+    the furniture, behind the front plane, out of reach) is refused with the annotation's reason."""
+    sc = scene_factory("CloseDrawer")
+    a = annotate_scene(sc, cell=0.2)
+    filtered = [i for i, r in enumerate(a.reasons) if r in ("filtered_collision", "filtered_reach")]
+    assert filtered and a.valid.any()
+    for i in range(len(a.reasons)):
+        x, y = a.grid_xy[i]
+        want = a.reasons[i] if i in filtered else ""
+        assert pose_filter(sc, float(x), float(y), float(a.yaw[i])) == want, (i, a.reasons[i])
+    i = filtered[0]
+    r = rollout(sc, (*a.grid_xy[i], a.yaw[i]))
+    assert not r.success and r.reason == a.reasons[i]
 
 
 def test_heading_faces_target(scene_factory):

@@ -32,7 +32,7 @@ import numpy as np
 from floaff_zoo.frames import ROLLOUT_POSE_DECIMALS
 from floaff_zoo.sim.controllers import default_policy
 from floaff_zoo.sim.kitchen import SimScene
-from floaff_zoo.sim.rollout import RolloutService, heading_to_target, rollout, start_rollout
+from floaff_zoo.sim.rollout import RolloutService, heading_to_target, pose_filter, rollout, start_rollout
 from floaff_zoo.sim.tasks import target_frame_to_world
 
 #: Annotation.status codes: filtered as infeasible (collision / wall / reach / IK), rolled out, skipped (budget)
@@ -119,13 +119,12 @@ def annotate_scene(
     task = scene.task
     r_x, r_y = task.candidate_region()
     r_arm = task.r_arm if r_arm is None else float(r_arm)
-    xy, shape, xo = candidate_grid(scene, cell, r_x, r_y)
+    xy, shape, _ = candidate_grid(scene, cell, r_x, r_y)
     xy = np.round(xy, 6)  # the exact poses simulated, identical in every worker
     M = len(xy)
     yaws = np.round(np.array([heading_to_target(scene, x, y) for x, y in xy]), 6)
     reasons = [""] * M
     valid = np.zeros(M, dtype=bool)
-    c = scene.target.pos[:2]
     counts = dict(
         candidates=M,
         filtered_collision=0,
@@ -135,27 +134,11 @@ def annotate_scene(
         positives=0,
         skipped_budget=0,
     )
-    scene.reset_task(np.random.default_rng(seed))
     for i in range(M):
-        x, y = xy[i]
-        if float(np.hypot(x - c[0], y - c[1])) >= r_arm:
-            reasons[i] = "filtered_reach"
-            counts["filtered_reach"] += 1
-            continue
-        # behind the target's front plane (inside the fixture/counter/wall, y° > 0), outside the room
-        # (a wall between the base and the target) or overlapping a furniture footprint
-        if (
-            xo[i, 1] > -1e-9
-            or scene.wall_between(x, y, scene.target.pos[:2])
-            or not scene.footprint_free(x, y, yaws[i])
-        ):
-            reasons[i] = "filtered_collision"
-            counts["filtered_collision"] += 1
-            continue
-        scene.set_base_pose(x, y, yaws[i])
-        if scene.robot_collides():
-            reasons[i] = "filtered_collision"
-            counts["filtered_collision"] += 1
+        # the same filters refuse an infeasible pose at evaluation time (rollout.pose_filter)
+        reasons[i] = pose_filter(scene, float(xy[i, 0]), float(xy[i, 1]), float(yaws[i]), seed, r_arm)
+        if reasons[i]:
+            counts[reasons[i]] += 1
             continue
         valid[i] = True
     # IK pre-filter with the policy's own key-point check
@@ -183,7 +166,7 @@ def annotate_scene(
         finally:
             svc.close()
     else:
-        res = [rollout(scene, (float(xy[i, 0]), float(xy[i, 1]), float(yaws[i])), None, seed) for i in todo]
+        res = [rollout(scene, (float(xy[i, 0]), float(xy[i, 1]), float(yaws[i])), None, seed, False) for i in todo]
     status = np.full(M, FILTERED, dtype=np.int8)
     status[[i for i, r in enumerate(reasons) if r == "skipped_budget"]] = SKIPPED
     status[todo] = ROLLED_OUT

@@ -1,6 +1,9 @@
 """One scripted rollout from a base pose, and a cached, optionally parallel rollout service.
 
-``rollout`` = reset the task (rng from ``seed``), teleport the base, tuck the arm, run the policy at
+``rollout`` = refuse a pose the annotation would have filtered (``pose_filter``: out of reach, behind the
+target's front plane, outside the room, base footprint or robot overlapping the kitchen; a failure with
+the annotation's reason, nothing simulated), reset the task (rng from ``seed``), teleport the base, tuck the arm,
+run the policy at
 20 Hz (25 x 2 ms physics substeps per tick) until success (early exit, as in the paper: "the
 rollout terminates once the task succeeds"), give-up (policy reason) or the task horizon.
 Results are deterministic: the same (scene spec, pose, seed) gives the same result in any process.
@@ -21,6 +24,7 @@ import numpy as np
 from floaff_zoo.frames import ROLLOUT_POSE_DECIMALS
 from floaff_zoo.sim.controllers import CTRL_DT, Policy, default_policy
 from floaff_zoo.sim.kitchen import SceneSpec, SimScene, TargetInfo, build_scene
+from floaff_zoo.sim.tasks import target_frame
 
 
 @dataclass
@@ -36,6 +40,30 @@ def heading_to_target(scene_or_target: SimScene | TargetInfo, x: float, y: float
     """Yaw (rad) of a base at (x, y) facing the target centre's floor projection."""
     t = scene_or_target.target if isinstance(scene_or_target, SimScene) else scene_or_target
     return math.atan2(float(t.pos[1]) - y, float(t.pos[0]) - x)
+
+
+#: a pose this close to the target's front plane (m, target frame) is on it: poses are rounded to 1e-6 m
+FRONT_PLANE_TOL = 1e-4
+
+
+def pose_filter(scene: SimScene, x: float, y: float, yaw: float, seed: int = 0, r_arm: float | None = None) -> str:
+    """The annotation's feasibility filters for one base pose: "" when feasible, else the annotation's reason.
+
+    In the annotation's order: ``filtered_reach`` (base centre at ``r_arm`` or more from the target, default the
+    task's), ``filtered_collision`` (on or behind the target's front plane, a wall between base and target, the
+    N2M footprint over a furniture footprint, or the tucked robot touching the scene in the task's reset state
+    for ``seed``). Leaves the scene in that reset state with the base at the pose.
+    """
+    task, c = scene.task, scene.target.pos[:2]
+    r_arm = task.r_arm if r_arm is None else float(r_arm)
+    if float(np.hypot(x - c[0], y - c[1])) >= r_arm:
+        return "filtered_reach"
+    front = float(target_frame(scene.target, np.array([x, y]))[1]) > -FRONT_PLANE_TOL
+    if front or scene.wall_between(x, y, c) or not scene.footprint_free(x, y, yaw):
+        return "filtered_collision"
+    scene.robot.set_base_pose(scene.data, x, y, yaw)
+    scene.reset_task(np.random.default_rng(int(seed)))
+    return "filtered_collision" if scene.robot_collides() else ""
 
 
 def _check_pose(pose) -> tuple[float, float, float]:
@@ -57,15 +85,26 @@ def start_rollout(scene: SimScene, base_pose, policy: Policy, seed: int = 0) -> 
 
 
 def rollout(
-    scene: SimScene | SceneSpec, base_pose: tuple[float, float, float], policy: Policy | None = None, seed: int = 0
+    scene: SimScene | SceneSpec,
+    base_pose: tuple[float, float, float],
+    policy: Policy | None = None,
+    seed: int = 0,
+    check_pose: bool = True,
 ) -> RolloutResult:
-    """Run one rollout; see the module doc. ``policy`` defaults to the task's scripted policy."""
+    """Run one rollout; see the module doc. ``policy`` defaults to the task's scripted policy.
+
+    ``check_pose=False`` skips ``pose_filter`` (the annotation, which has filtered its candidates already).
+    """
     t0 = time.perf_counter()
     if isinstance(scene, SceneSpec):
         scene = build_scene(scene)
     if policy is None:
         policy = default_policy(scene.spec.task)
     task = scene.task
+    if check_pose:
+        refused = pose_filter(scene, *_check_pose(base_pose), seed=seed)
+        if refused:
+            return RolloutResult(False, refused, 0.0, time.perf_counter() - t0, task.state(scene))
     m, d = scene.model, scene.data
     nsub = max(1, int(round(CTRL_DT / m.opt.timestep)))
     start_rollout(scene, base_pose, policy, seed)
