@@ -20,7 +20,9 @@ Every view then stands where each scorer puts it, and its fresh SR is the probab
 ``--sigma-xy 0 --sigma-yaw-deg 0`` keeps the exact poses (only the task seed is new); ``--annotation-seed`` keeps
 the annotation's task seed (only the parking noise is new): the two parts of the fresh evaluation, separately.
 For each scorer it also prints ``exact``, the annotated outcome of the chosen cell, which is what
-``floaff-zoo test`` measures when its Oracle scores 1.00 (the pose is the cell's pose, the seed the annotation's).
+``floaff-zoo test`` measures when its Oracle scores 1.00 (the pose is the cell's pose, the seed the annotation's, and
+a cell the annotation filtered is refused by the rollout as well). ``--top-k K`` chooses as
+``RolloutSuccessRate(top_k=K, free_space="cloud")``.
 Rollouts run in ``--workers`` processes; the probabilities are deterministic for a given ``--seed`` on one machine.
 """
 
@@ -35,7 +37,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from floaff_zoo.callbacks.rollout import choose_pose
+from floaff_zoo.callbacks.rollout import RolloutSuccessRate, choose_pose
 from floaff_zoo.contract import TASKS
 from floaff_zoo.frames import ROLLOUT_POSE_DECIMALS, base_to_world
 
@@ -104,12 +106,12 @@ def nearest_cells(cand_xy: np.ndarray, xy: np.ndarray, cell: float, where: str) 
 
 
 def view_choices(
-    batch: dict, scores: dict[str, np.ndarray], scenes: dict[str, dict], probs: dict[str, np.ndarray]
+    batch: dict, scores: dict[str, np.ndarray], scenes: dict[str, dict], probs: dict[str, np.ndarray], top_k: int = 1
 ) -> list[dict]:
     """Per view of a batch: task, view, and per scorer the chosen cell's (exact outcome, fresh probability).
 
     scores: scorer name -> [B, M] per-point scores (``label`` and the models). ``best`` is added: the observed
-    cell of highest fresh probability.
+    cell of highest fresh probability. ``top_k`` > 1: the best of the top k poses free in the view's cloud.
     """
     from floaff_zoo.sim.kitchen import SceneSpec
 
@@ -126,8 +128,13 @@ def view_choices(
         exact = np.asarray(scene["labels"]["success"]) > 0
         where = str(meta.get("sample_id", sid))
         row = {"task": meta["task"], "view": meta["view"]}
+        free = None
+        if top_k > 1:  # as RolloutSuccessRate(free_space="cloud")
+            free = RolloutSuccessRate._cloud_free(
+                batch["scene_xyz"][i][batch["scene_mask"][i]].numpy(), sim["base_pose_world"]
+            )
         for name, s in scores.items():
-            pose, _ = choose_pose(floor[i], s[i], mask[i], target[i], sim["base_pose_world"], seed=tie)
+            pose, _ = choose_pose(floor[i], s[i], mask[i], target[i], sim["base_pose_world"], top_k, free, tie)
             c = nearest_cells(cand, np.array([pose[:2]]), cell, where)[0]
             row[name] = (bool(exact[c]), float(p[c]))
         seen = nearest_cells(cand, base_to_world(floor[i][mask[i]], sim["base_pose_world"]), cell, where)
@@ -192,6 +199,7 @@ def main(argv: list[str] | None = None) -> int:
     # the dense configs' test batch: a cropped model's padded cloud, hence its output, depends on the batch
     p.add_argument("--batch-size", type=int, default=4)
     p.add_argument("--workers", type=int, default=1)
+    p.add_argument("--top-k", type=int, default=1, help="> 1: best of the top-k poses free in the view's cloud")
     p.add_argument("--probs", default=None, help="cache of the fresh probabilities (.npz; read if it exists)")
     p.add_argument("--json", default=None)
     a = p.parse_args(argv)
@@ -237,7 +245,7 @@ def main(argv: list[str] | None = None) -> int:
         for batch in dm.test_dataloader():
             scores = {"label": batch["floor_label"].numpy()}
             scores.update({m: net(batch).numpy() for m, net in models.items()})
-            rows += view_choices(batch, scores, scenes, probs)
+            rows += view_choices(batch, scores, scenes, probs, a.top_k)
     scorers = ["label", "best", *a.models]
     sr = summarize(rows, scorers)
     cells = cell_stats(scenes, probs)
@@ -252,7 +260,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{t}: " + ", ".join(f"{k} {v:.2f}" for k, v in c.items()))
     if a.json:
         Path(a.json).write_text(
-            json.dumps({"setting": setting, "views": len(rows), "sr": sr, "cells": cells}, indent=1) + "\n"
+            json.dumps({"setting": setting, "top_k": a.top_k, "views": len(rows), "sr": sr, "cells": cells}, indent=1)
+            + "\n"
         )
     return 0
 

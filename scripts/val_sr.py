@@ -6,7 +6,8 @@ MODEL is a hub name or a checkpoint path. The split is the DataModule's (``val_s
 in training; or the scenes of ``--val-scene-ids``), its points are resampled with the evaluation seed, and the pose
 is chosen as ``RolloutSuccessRate`` does (argmax of the predicted map, ties broken by the sample index) and rolled
 out once. ``--crop-first R`` adds the ``TargetCrop`` evaluation transform for models trained with it
-(configs/experiments/recipe/crop_first.yaml).
+(configs/experiments/recipe/crop_first.yaml). ``--top-k K`` stands on the best of the top K poses whose base footprint
+is free in the view's own cloud (``RolloutSuccessRate(top_k=K, free_space="cloud")``).
 Prints SR per task and over all views.
 """
 
@@ -19,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from floaff_zoo.callbacks.rollout import choose_pose, default_service
+from floaff_zoo.callbacks.rollout import RolloutSuccessRate, choose_pose, default_service
 from floaff_zoo.contract import TASKS
 from floaff_zoo.data.floaff_kitchen import FloAffKitchenDataModule
 from floaff_zoo.data.transforms import TargetCrop
@@ -35,6 +36,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--num-points", type=int, default=1024)
     p.add_argument("--val-scene-ids", nargs="+", default=None, help="pinned validation scenes (as in training)")
     p.add_argument("--crop-first", type=float, default=None, metavar="R", help="TargetCrop radius (m)")
+    p.add_argument("--top-k", type=int, default=1, help="> 1: best of the top-k poses free in the view's cloud")
     p.add_argument("--json", default=None)
     a = p.parse_args(argv)
     dm = FloAffKitchenDataModule(
@@ -59,8 +61,14 @@ def main(argv: list[str] | None = None) -> int:
             for i, meta in enumerate(batch["meta"]):
                 sim, seed = meta["sim"], int(meta.get("index", i))
                 spec = SceneSpec.from_dict(sim)
+                free = None
+                if a.top_k > 1:  # as RolloutSuccessRate(free_space="cloud"): the view's own cloud
+                    xyz = batch["scene_xyz"][i][batch["scene_mask"][i]].numpy()
+                    free = RolloutSuccessRate._cloud_free(xyz, sim["base_pose_world"])
                 for m in a.models:
-                    pose, _ = choose_pose(floor[i], scores[m][i], mask[i], target[i], sim["base_pose_world"], seed=seed)
+                    pose, _ = choose_pose(
+                        floor[i], scores[m][i], mask[i], target[i], sim["base_pose_world"], a.top_k, free, seed
+                    )
                     jobs[m].append((spec, pose))
                 tasks.append(meta["task"])
     service = default_service()
@@ -76,7 +84,9 @@ def main(argv: list[str] | None = None) -> int:
     for m, row in out.items():
         print(f"| {m} | " + " | ".join(f"{v:.2f}" for v in row.values()) + " |")
     if a.json:
-        Path(a.json).write_text(json.dumps({"val_scenes": dm.split_scenes["val"], "sr": out}, indent=1) + "\n")
+        Path(a.json).write_text(
+            json.dumps({"val_scenes": dm.split_scenes["val"], "top_k": a.top_k, "sr": out}, indent=1) + "\n"
+        )
     return 0
 
 

@@ -65,3 +65,22 @@ def test_disc_cut_and_default_window():
 def test_floor_module_is_numpy_only():
     code = "import sys, floaff_zoo.floor; assert 'torch' not in sys.modules, 'floaff_zoo.floor imported torch'"
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_footprint_blocked_sees_obstacles_inside_the_base_rectangle():
+    from floaff_zoo.floor import FOOTPRINT, footprint_blocked
+
+    length, width, front = FOOTPRINT
+    # a base at the origin heading +x covers x in [front - length, front], |y| <= width / 2
+    box = np.array([[front - 0.1, 0.0, 0.5], [front - 0.2, 0.1, 0.3]])  # two points of furniture inside
+    assert footprint_blocked(box, (0.0, 0.0, 0.0))
+    assert not footprint_blocked(box[:1], (0.0, 0.0, 0.0))  # one stray point is noise
+    assert not footprint_blocked(box + [0.0, 0.0, 1.0], (0.0, 0.0, 0.0))  # above the robot (z > 1.2 m)
+    assert not footprint_blocked(box * [1, 1, 0], (0.0, 0.0, 0.0))  # floor points never block
+    assert not footprint_blocked(box + [front + 0.05, 0.0, 0.0], (0.0, 0.0, 0.0))  # in front of the base
+    # the rectangle turns with the heading: 0.4 m ahead of a base facing +x is inside one facing -x
+    ahead = np.array([[0.4, 0.0, 0.5], [0.45, 0.05, 0.5]])
+    assert not footprint_blocked(ahead, (0.0, 0.0, 0.0))
+    assert footprint_blocked(ahead, (0.0, 0.0, math.pi))
+    assert not footprint_blocked(ahead, (0.0, 0.0, math.pi / 2))  # 0.4 m beside a base facing +y
+    assert not footprint_blocked(np.full((3, 3), np.nan), (0.0, 0.0, 0.0))

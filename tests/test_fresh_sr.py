@@ -75,10 +75,11 @@ def test_cli_scores_the_label_oracle_and_caches_probabilities(drawer_root, tmp_p
 def test_cli_annotation_seed_without_noise_is_the_exact_evaluation(drawer_root, tmp_path):
     out = tmp_path / "same.json"
     args = ["--root", str(drawer_root), "--benchmark", "styles", "--episodes", "1", "--annotation-seed"]
-    assert fs.main([*args, "--sigma-xy", "0", "--sigma-yaw-deg", "0", "--json", str(out)]) == 0
-    rep = json.loads(out.read_text())
-    assert rep["setting"]["task_seed"] == "annotation"
-    # the same seed at the same pose reproduces every annotated outcome, so fresh equals exact for every scorer
-    for scorer in ("label", "best"):
-        assert rep["sr"][scorer]["fresh"] == rep["sr"][scorer]["exact"]
-    assert rep["sr"]["label"]["fresh"]["all"] == 1.0
+    for top_k in ("1", "3"):
+        assert fs.main([*args, "--sigma-xy", "0", "--sigma-yaw-deg", "0", "--top-k", top_k, "--json", str(out)]) == 0
+        rep = json.loads(out.read_text())
+        assert rep["setting"]["task_seed"] == "annotation" and rep["top_k"] == int(top_k)
+        # the same seed at the same pose reproduces every annotated outcome, so fresh equals exact for every scorer
+        for scorer in ("label", "best"):
+            assert rep["sr"][scorer]["fresh"] == rep["sr"][scorer]["exact"]
+    assert rep["sr"]["best"]["fresh"]["all"] == 1.0

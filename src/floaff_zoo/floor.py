@@ -20,13 +20,25 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["CANDIDATE_WINDOW", "FLOOR_Z_MAX", "FloorLattice", "ground_mask", "observed_cells"]
+__all__ = [
+    "CANDIDATE_WINDOW",
+    "FLOOR_Z_MAX",
+    "FOOTPRINT",
+    "FloorLattice",
+    "footprint_blocked",
+    "ground_mask",
+    "observed_cells",
+]
 
 #: metres: points below this height are ground points (MoMa-Kitchen: "points below 2 cm")
 FLOOR_Z_MAX = 0.02
 #: (r_x, r_y) m: the generated benchmark's label window around the target, |x°| <= r_x along the front and
 #: |y°| <= r_y along its normal (every task's ``floaff_zoo.sim.tasks.Task.r_x / r_y``; a test keeps them equal)
 CANDIDATE_WINDOW = (1.0, 1.2)
+#: (length, width, front) m: the mobile base's footprint (N2M's 0.63 x 0.5 m), ``front`` of its length ahead of the
+#: base origin along the heading, the rest behind (the simulated robot's, ``floaff_zoo.sim.robot``; a test keeps
+#: them equal)
+FOOTPRINT = (0.63, 0.50, 0.17 * 0.63)
 
 
 @dataclass(frozen=True)
@@ -126,3 +138,33 @@ def observed_cells(
     flat, inside = lattice.index_of(p[ground_mask(p, z_max)])
     h, w = lattice.shape
     return np.bincount(flat[inside], minlength=h * w) >= min_points
+
+
+def footprint_blocked(
+    xyz: np.ndarray,
+    pose: tuple[float, float, float],
+    footprint: tuple[float, float, float] = FOOTPRINT,
+    z_range: tuple[float, float] = (FLOOR_Z_MAX, 1.2),
+    min_points: int = 2,
+) -> bool:
+    """Whether the observed cloud puts an obstacle where the base would stand: from the view alone.
+
+    Args:
+        xyz: [N, 3] observed points (floor at z = 0), same frame as ``pose``.
+        pose: (x, y, yaw) of the base origin, heading ``yaw``.
+        footprint: (length, width, front) of the base rectangle (``FOOTPRINT``).
+        z_range: heights (m) of points that block the base: above the floor, below the tucked robot's top.
+        min_points: points inside the rectangle needed to call it blocked (a stray point is noise).
+    Returns:
+        True when at least ``min_points`` points with z in ``z_range`` lie inside the footprint. Unseen
+        (occluded) space counts as free: the cloud can only rule a pose out.
+    """
+    p = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+    p = p[np.isfinite(p).all(axis=1) & (p[:, 2] > z_range[0]) & (p[:, 2] <= z_range[1])]
+    length, width, front = footprint
+    x, y, yaw = (float(v) for v in pose)
+    c, s = math.cos(yaw), math.sin(yaw)
+    dx, dy = p[:, 0] - x, p[:, 1] - y
+    along, across = c * dx + s * dy, -s * dx + c * dy
+    inside = (along <= front) & (along >= front - length) & (np.abs(across) <= width / 2)
+    return int(inside.sum()) >= min_points

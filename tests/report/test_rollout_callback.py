@@ -146,3 +146,39 @@ def test_bad_sim_metadata_is_named():
     cb = RolloutSuccessRate(service=FakeService, progress=False)
     with pytest.raises(ValueError, match="fake1.*layout_id"):
         _trainer(cb).test(ConstantModule(), dataloaders=loader(samples), verbose=False)
+
+
+def test_top_k_with_cloud_free_space_avoids_an_observed_obstacle():
+    """free_space='cloud': the best pose whose footprint holds furniture points of the view's own cloud is passed
+    over for the next free one, with no simulator in the loop."""
+    import torch
+
+    from floaff_zoo.contract import best_pose
+    from floaff_zoo.floor import footprint_blocked
+
+    samples = make_samples(16)
+    for s in samples:
+        x, y, yaw = best_pose(
+            s["floor_xyz"], s["floor_label"], s["floor_mask"], s["target_xyz"], seed=s["meta"]["index"]
+        )[0]
+        back = np.array([[x - 0.2 * math.cos(yaw), y - 0.2 * math.sin(yaw), 0.5]] * 4, np.float32)  # behind the origin
+        s["scene_xyz"] = torch.cat([s["scene_xyz"], torch.from_numpy(back)])
+        s["scene_feat"] = torch.cat([s["scene_feat"], torch.ones(4, s["scene_feat"].shape[1])])
+        s["scene_mask"] = torch.cat([s["scene_mask"], torch.ones(4, dtype=torch.bool)])
+    for top_k in (1, 8):
+        cb = RolloutSuccessRate(service=FakeService, progress=False, top_k=top_k, free_space="cloud", oracle=False)
+        _trainer(cb).test(LabelModule(), dataloaders=loader(samples), verbose=False)
+        eps = cb.episodes["test"]
+        assert cb.summaries["test"]["free_space"] == "cloud"
+        if top_k == 1:
+            assert all(e["rank"] == 0 for e in eps)
+            continue
+        assert all(e["rank"] > 0 for e in eps)  # the argmax is blocked in every view
+        for e, s in zip(eps, samples):
+            world = base_to_world(s["scene_xyz"].numpy(), s["meta"]["sim"]["base_pose_world"])
+            assert not footprint_blocked(world, e["pose"])
+
+
+def test_free_space_is_checked():
+    with pytest.raises(ValueError, match="free_space"):
+        RolloutSuccessRate(free_space="cloudy")

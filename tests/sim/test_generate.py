@@ -98,6 +98,13 @@ def test_candidate_window_matches_every_task():
         assert tuple(candidate_region(task)) == CANDIDATE_WINDOW, task
 
 
+def test_observed_footprint_is_the_simulated_robots():
+    from floaff_zoo.floor import FOOTPRINT
+    from floaff_zoo.sim import robot
+
+    assert FOOTPRINT == (robot.FOOTPRINT_LENGTH, robot.FOOTPRINT_WIDTH, robot.FOOTPRINT_FRONT)
+
+
 def test_grid_lattice_checks_the_grid():
     from floaff_zoo.floor import FloorLattice
 

@@ -321,7 +321,8 @@ def render_markdown(report: dict[str, Any]) -> str:
         lines += [
             "",
             f"± = {sr.get('std_method')}; {sr.get('n_evaluated')} evaluated, {sr.get('n_skipped')} skipped"
-            f" (no sim metadata); top_k = {sr.get('top_k')}; rollouts took {sr.get('seconds', 0):.1f} s.",
+            f" (no sim metadata); top_k = {sr.get('top_k')} (free space: {sr.get('free_space', 'sim')});"
+            f" rollouts took {sr.get('seconds', 0):.1f} s.",
         ]
     if report.get("figures"):
         lines += ["", "## Figures (ground truth | prediction; x = chosen base pose)", ""]

@@ -6,7 +6,8 @@ For every evaluated sample that carries ``meta['sim']`` (FloAff-Kitchen-style da
 1. picks a base pose from the predicted floor scores: ``contract.best_pose`` (argmax; ties are
    broken by a permutation seeded with the sample's index, so a constant map scores the base
    rate), optionally the best of the top-``k``
-   poses whose robot footprint is free (``top_k > 1``), heading toward the target;
+   poses whose robot footprint is free (``top_k > 1``; free in the view's own cloud by default), heading toward
+   the target;
 2. maps the pose from the view's robot base frame to the world with ``meta['sim']['base_pose_world']``;
 3. runs the task's rollout in the rebuilt scene (``floaff_zoo.sim.rollout.RolloutService``: a
    worker pool or Ray, cached by (scene, task, pose rounded to ``cache_decimals``));
@@ -41,6 +42,7 @@ import torch
 from lightning.pytorch.utilities import rank_zero_warn
 
 from floaff_zoo.contract import best_pose
+from floaff_zoo.floor import footprint_blocked
 from floaff_zoo.frames import ROLLOUT_POSE_DECIMALS, Pose, base_to_world, pose_to_world
 
 __all__ = [
@@ -178,7 +180,10 @@ class RolloutSuccessRate(L.Callback):
         max_val_samples: cap on validation samples per evaluation (the first ones in loader order;
             None = all).
         top_k: 1 = argmax (``best_pose``); > 1 = the best of the top-k poses whose robot footprint is
-            free in the rebuilt scene (``SimScene.footprint_free``).
+            free (``free_space``); the top-1 when none is.
+        free_space: how ``top_k`` decides "free": ``cloud`` from the view's own point cloud
+            (``floor.footprint_blocked``: what the robot sees, usable on a real robot), ``sim`` from the
+            rebuilt scene's furniture footprints (``SimScene.footprint_free``: privileged, an analysis tool).
         oracle: also evaluate the ground-truth labels (the paper's Oracle).
         workers: rollout worker processes.
         backend: ``local`` (process pool) or ``ray``.
@@ -200,6 +205,7 @@ class RolloutSuccessRate(L.Callback):
         every_n_val_epochs: int = 0,
         max_val_samples: int | None = 64,
         top_k: int = 1,
+        free_space: Literal["cloud", "sim"] = "cloud",
         oracle: bool = True,
         workers: int = 1,
         backend: Literal["local", "ray"] = "local",
@@ -212,12 +218,15 @@ class RolloutSuccessRate(L.Callback):
         super().__init__()
         if top_k < 1:
             raise ValueError(f"RolloutSuccessRate: top_k must be >= 1, got {top_k}")
+        if free_space not in ("cloud", "sim"):
+            raise ValueError(f"RolloutSuccessRate: free_space must be 'cloud' or 'sim', got {free_space!r}")
         if every_n_val_epochs < 0:
             raise ValueError(f"RolloutSuccessRate: every_n_val_epochs must be >= 0, got {every_n_val_epochs}")
         self.on_test = on_test
         self.every_n_val_epochs = every_n_val_epochs
         self.max_val_samples = max_val_samples
         self.top_k = top_k
+        self.free_space = free_space
         self.oracle = oracle
         self.workers = workers
         self.backend = backend
@@ -245,6 +254,12 @@ class RolloutSuccessRate(L.Callback):
             self._service = self._service_factory(self.workers, self.backend, self.cache_decimals)
         return self._service
 
+    @staticmethod
+    def _cloud_free(xyz: np.ndarray, base_pose_world: Sequence[float]) -> Callable[[float, float, float], bool]:
+        """``is_free`` for world poses from the view's own cloud [N, 3] (robot base frame)."""
+        world = base_to_world(xyz, base_pose_world)
+        return lambda x, y, yaw: not footprint_blocked(world, (x, y, yaw))
+
     def _is_free(self, spec: Any) -> Callable[[float, float, float], bool]:
         svc = self.service
         if hasattr(svc, "footprint_free"):
@@ -269,6 +284,8 @@ class RolloutSuccessRate(L.Callback):
         mask = batch["floor_mask"].detach().cpu().numpy()
         label = batch["floor_label"].detach().cpu().numpy()
         target = batch["target_xyz"].detach().cpu().numpy()
+        cloud = batch["scene_xyz"].detach().cpu().numpy()
+        cloud_mask = batch["scene_mask"].detach().cpu().numpy()
         pred = scores.detach().float().cpu().numpy()
         for i, meta in enumerate(batch["meta"]):
             sim = (meta or {}).get("sim")
@@ -282,7 +299,13 @@ class RolloutSuccessRate(L.Callback):
             except (ValueError, KeyError, TypeError) as exc:
                 raise ValueError(f"sample {meta.get('sample_id', i)}: bad meta['sim'] ({exc})") from exc
             base = sim["base_pose_world"]
-            free = self._is_free(spec) if self.top_k > 1 else None
+            free = None
+            if self.top_k > 1:
+                free = (
+                    self._cloud_free(cloud[i][cloud_mask[i]], base)
+                    if self.free_space == "cloud"
+                    else self._is_free(spec)
+                )
             tie_seed = int(meta.get("index", i))
             pose, rank = choose_pose(floor[i], pred[i], mask[i], target[i], base, self.top_k, free, tie_seed)
             ep = {
@@ -353,6 +376,7 @@ class RolloutSuccessRate(L.Callback):
                 "std_method": STD_METHOD,
                 "n_bootstrap": self.n_bootstrap,
                 "top_k": self.top_k,
+                "free_space": self.free_space,
             }
             if skipped and stage not in self._warned:
                 self._warned.add(stage)
