@@ -52,7 +52,8 @@ def pose_filter(scene: SimScene, x: float, y: float, yaw: float, seed: int = 0, 
     In the annotation's order: ``filtered_reach`` (base centre at ``r_arm`` or more from the target, default the
     task's), ``filtered_collision`` (on or behind the target's front plane, a wall between base and target, the
     N2M footprint over a furniture footprint, or the tucked robot touching the scene in the task's reset state
-    for ``seed``). Leaves the scene in that reset state with the base at the pose.
+    for ``seed``). The robot check, when reached, leaves the scene in that reset state with the base at the pose.
+    ``rollout`` passes no ``r_arm``: a dataset generated with a preset's own ``r_arm`` is evaluated with the task's.
     """
     task, c = scene.task, scene.target.pos[:2]
     r_arm = task.r_arm if r_arm is None else float(r_arm)
