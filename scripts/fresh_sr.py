@@ -37,7 +37,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from floaff_zoo.callbacks.rollout import RolloutSuccessRate, choose_pose
+from floaff_zoo.callbacks.rollout import choose_pose, cloud_free
 from floaff_zoo.contract import TASKS
 from floaff_zoo.frames import ROLLOUT_POSE_DECIMALS, base_to_world
 
@@ -79,6 +79,22 @@ def fresh_probability(
         ok = run(task_seed, [(spec, tuple(float(v) for v in p)) for p in poses])
         wins[valid] += np.asarray(ok, float)
     return wins / len(task_seeds)
+
+
+def read_probs(path: Path, setting: dict, scenes: dict[str, dict]) -> dict[str, np.ndarray]:
+    """Cached fresh probabilities (scene id -> [M]) made with ``setting``; a mismatch or a corrupt file is an error."""
+    try:
+        with np.load(path) as z:
+            made = json.loads(str(z["setting"]))
+            probs = {k: z[k] for k in z.files if k != "setting"}
+    except (OSError, ValueError, KeyError) as exc:
+        raise SystemExit(f"fresh_sr: {path} is not a probability cache of this script ({exc}); delete it") from exc
+    if made != setting:
+        raise SystemExit(f"fresh_sr: {path} was made with {made}, not {setting}")
+    for sid, p in probs.items():
+        if sid in scenes and p.shape != (len(scenes[sid]["candidates"]["xy"]),):
+            raise SystemExit(f"fresh_sr: {path}: scene {sid} has {p.shape} probabilities for its candidates")
+    return probs
 
 
 def service_runner(workers: int) -> Runner:
@@ -130,9 +146,7 @@ def view_choices(
         row = {"task": meta["task"], "view": meta["view"]}
         free = None
         if top_k > 1:  # as RolloutSuccessRate(free_space="cloud")
-            free = RolloutSuccessRate._cloud_free(
-                batch["scene_xyz"][i][batch["scene_mask"][i]].numpy(), sim["base_pose_world"]
-            )
+            free = cloud_free(batch["scene_xyz"][i][batch["scene_mask"][i]].numpy(), sim["base_pose_world"])
         for name, s in scores.items():
             pose, _ = choose_pose(floor[i], s[i], mask[i], target[i], sim["base_pose_world"], top_k, free, tie)
             c = nearest_cells(cand, np.array([pose[:2]]), cell, where)[0]
@@ -205,6 +219,10 @@ def main(argv: list[str] | None = None) -> int:
     a = p.parse_args(argv)
     if a.episodes < 1 or a.sigma_xy < 0 or a.sigma_yaw_deg < 0:
         p.error("--episodes must be >= 1 and the sigmas >= 0")
+    if min(a.top_k, a.workers, a.batch_size) < 1:
+        p.error("--top-k, --workers and --batch-size must be >= 1")
+    if a.probs and not a.probs.endswith(".npz"):
+        p.error(f"--probs must name a .npz file, got {a.probs!r}")
 
     from floaff_zoo.data.floaff_kitchen import FloAffKitchenDataModule
     from floaff_zoo.predict import resolve_model
@@ -218,13 +236,9 @@ def main(argv: list[str] | None = None) -> int:
     if a.annotation_seed:
         setting["task_seed"] = "annotation"
     seeds = [ANNOTATE_SEED] * a.episodes if a.annotation_seed else []
-    probs: dict[str, np.ndarray] = {}
+    models = {m: resolve_model(m).eval() for m in a.models}  # a bad name fails before any rollout
     cache = Path(a.probs) if a.probs else None
-    if cache is not None and cache.is_file():
-        with np.load(cache) as z:
-            if json.loads(str(z["setting"])) != setting:
-                raise SystemExit(f"fresh_sr: {cache} was made with {z['setting']}, not {setting}")
-            probs = {k: z[k] for k in z.files if k != "setting"}
+    probs = read_probs(cache, setting, scenes) if cache is not None and cache.is_file() else {}
     run = service_runner(a.workers)
     for sid, scene in scenes.items():
         if sid not in probs:
@@ -233,13 +247,13 @@ def main(argv: list[str] | None = None) -> int:
             )
             print(f"{sid}: {int((probs[sid] > 0).sum())} cells with a fresh success", flush=True)
     if cache is not None:
+        cache.parent.mkdir(parents=True, exist_ok=True)
         np.savez(cache, setting=json.dumps(setting), **probs)
 
     dm = FloAffKitchenDataModule(
         root=a.root, benchmark=a.benchmark, tasks=list(TASKS), batch_size=a.batch_size, num_points=a.num_points
     )
     dm.setup("test")
-    models = {m: resolve_model(m).eval() for m in a.models}
     rows: list[dict] = []
     with torch.no_grad():
         for batch in dm.test_dataloader():
@@ -259,6 +273,7 @@ def main(argv: list[str] | None = None) -> int:
     for t, c in cells.items():
         print(f"{t}: " + ", ".join(f"{k} {v:.2f}" for k, v in c.items()))
     if a.json:
+        Path(a.json).parent.mkdir(parents=True, exist_ok=True)
         Path(a.json).write_text(
             json.dumps({"setting": setting, "top_k": a.top_k, "views": len(rows), "sr": sr, "cells": cells}, indent=1)
             + "\n"

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from floaff_zoo.callbacks.rollout import RolloutSuccessRate, choose_pose, default_service
+from floaff_zoo.callbacks.rollout import choose_pose, cloud_free, default_service
 from floaff_zoo.contract import TASKS
 from floaff_zoo.data.floaff_kitchen import FloAffKitchenDataModule
 from floaff_zoo.data.transforms import TargetCrop
@@ -39,6 +39,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--top-k", type=int, default=1, help="> 1: best of the top-k poses free in the view's cloud")
     p.add_argument("--json", default=None)
     a = p.parse_args(argv)
+    if a.top_k < 1:
+        p.error(f"--top-k must be >= 1, got {a.top_k}")
     dm = FloAffKitchenDataModule(
         root=a.root,
         benchmark=a.benchmark,
@@ -64,7 +66,7 @@ def main(argv: list[str] | None = None) -> int:
                 free = None
                 if a.top_k > 1:  # as RolloutSuccessRate(free_space="cloud"): the view's own cloud
                     xyz = batch["scene_xyz"][i][batch["scene_mask"][i]].numpy()
-                    free = RolloutSuccessRate._cloud_free(xyz, sim["base_pose_world"])
+                    free = cloud_free(xyz, sim["base_pose_world"])
                 for m in a.models:
                     pose, _ = choose_pose(
                         floor[i], scores[m][i], mask[i], target[i], sim["base_pose_world"], a.top_k, free, seed

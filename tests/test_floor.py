@@ -84,3 +84,7 @@ def test_footprint_blocked_sees_obstacles_inside_the_base_rectangle():
     assert footprint_blocked(ahead, (0.0, 0.0, math.pi))
     assert not footprint_blocked(ahead, (0.0, 0.0, math.pi / 2))  # 0.4 m beside a base facing +y
     assert not footprint_blocked(np.full((3, 3), np.nan), (0.0, 0.0, 0.0))
+    with pytest.raises(ValueError, match=r"\[N, 3\], got \[4, 2\]"):
+        footprint_blocked(np.zeros((4, 2)), (0.0, 0.0, 0.0))
+    with pytest.raises(ValueError, match="min_points"):
+        footprint_blocked(box, (0.0, 0.0, 0.0), min_points=0)

@@ -54,7 +54,7 @@ def test_nearest_cells_names_an_off_grid_point():
 
 
 def test_cli_scores_the_label_oracle_and_caches_probabilities(drawer_root, tmp_path):
-    out, cache = tmp_path / "fresh.json", tmp_path / "p.npz"
+    out, cache = tmp_path / "fresh.json", tmp_path / "new_dir" / "p.npz"  # folders are made
     args = ["--root", str(drawer_root), "--benchmark", "styles", "--episodes", "2", "--probs", str(cache)]
     assert fs.main([*args, "--json", str(out)]) == 0
     rep = json.loads(out.read_text())
@@ -83,3 +83,17 @@ def test_cli_annotation_seed_without_noise_is_the_exact_evaluation(drawer_root, 
         for scorer in ("label", "best"):
             assert rep["sr"][scorer]["fresh"] == rep["sr"][scorer]["exact"]
     assert rep["sr"]["best"]["fresh"]["all"] == 1.0
+
+
+def test_cli_names_bad_arguments_and_a_corrupt_cache(drawer_root, tmp_path):
+    args = ["--root", str(drawer_root), "--benchmark", "styles"]
+    for bad in (["--top-k", "0"], ["--episodes", "0"], ["--probs", str(tmp_path / "p.txt")]):
+        with pytest.raises(SystemExit):
+            fs.main([*args, *bad])
+    corrupt = tmp_path / "corrupt.npz"
+    corrupt.write_bytes(b"not an npz")
+    with pytest.raises(SystemExit, match="corrupt.npz is not a probability cache"):
+        fs.main([*args, "--probs", str(corrupt)])
+    with pytest.raises(FileNotFoundError, match="no_such_model.ckpt"):  # before any rollout
+        fs.main([*args, "--probs", str(tmp_path / "never.npz"), str(tmp_path / "no_such_model.ckpt")])
+    assert not (tmp_path / "never.npz").exists()

@@ -159,7 +159,11 @@ def footprint_blocked(
         True when at least ``min_points`` points with z in ``z_range`` lie inside the footprint. Unseen
         (occluded) space counts as free: the cloud can only rule a pose out.
     """
-    p = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+    p = np.asarray(xyz, dtype=np.float64)
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise ValueError(f"footprint_blocked: xyz must be [N, 3], got {list(p.shape)}")
+    if min_points < 1:
+        raise ValueError(f"footprint_blocked: min_points must be >= 1, got {min_points}")
     p = p[np.isfinite(p).all(axis=1) & (p[:, 2] > z_range[0]) & (p[:, 2] <= z_range[1])]
     length, width, front = footprint
     x, y, yaw = (float(v) for v in pose)

@@ -47,19 +47,27 @@ def test_far_pose_fails(scene_factory):
 
 
 def test_pose_filter_refuses_what_the_annotation_filters(scene_factory):
-    """Evaluation and annotation share one feasibility filter: a cell the annotation never rolled out (robot in
-    the furniture, behind the front plane, out of reach) is refused with the annotation's reason."""
+    """Evaluation and annotation share one feasibility filter; checked against the scene's primitives, not against
+    itself: out of reach, behind the front plane or with the base over furniture is refused, a successful pose is
+    not, and a refused pose is never simulated."""
     sc = scene_factory("CloseDrawer")
+    t = sc.target
+    assert pose_filter(sc, *_front_pose(sc, 3.0, 0.0)) == "filtered_reach"
+    assert pose_filter(sc, *_front_pose(sc, -0.3, 0.0)) == "filtered_collision"  # inside the fixture
+    assert pose_filter(sc, *_find_success(sc)[0]) == ""
     a = annotate_scene(sc, cell=0.2)
-    filtered = [i for i, r in enumerate(a.reasons) if r in ("filtered_collision", "filtered_reach")]
-    assert filtered and a.valid.any()
-    for i in range(len(a.reasons)):
-        x, y = a.grid_xy[i]
-        want = a.reasons[i] if i in filtered else ""
-        assert pose_filter(sc, float(x), float(y), float(a.yaw[i])) == want, (i, a.reasons[i])
-    i = filtered[0]
+    c = t.pos[:2]
+    for i, (x, y) in enumerate(a.grid_xy):
+        reason = pose_filter(sc, float(x), float(y), float(a.yaw[i]))
+        if np.hypot(x - c[0], y - c[1]) >= sc.task.r_arm:
+            assert reason == "filtered_reach"
+        elif not sc.footprint_free(x, y, a.yaw[i]):
+            assert reason == "filtered_collision"
+        if a.valid[i]:  # the annotation kept it: feasible
+            assert reason == ""
+    i = next(i for i, r in enumerate(a.reasons) if r == "filtered_collision")
     r = rollout(sc, (*a.grid_xy[i], a.yaw[i]))
-    assert not r.success and r.reason == a.reasons[i]
+    assert not r.success and r.reason == "filtered_collision" and r.sim_seconds == 0.0 and r.state == {}
 
 
 def test_heading_faces_target(scene_factory):

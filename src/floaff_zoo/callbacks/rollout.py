@@ -50,6 +50,7 @@ __all__ = [
     "base_to_world",
     "bootstrap_std",
     "choose_pose",
+    "cloud_free",
     "pose_to_world",
     "summarize_episodes",
     "summary_to_logs",
@@ -87,6 +88,13 @@ def choose_pose(
             if is_free(*w):
                 return w, rank
     return world[0], 0
+
+
+def cloud_free(xyz: np.ndarray, base_pose_world: Sequence[float]) -> Callable[[float, float, float], bool]:
+    """``is_free(x, y, yaw)`` for world poses from a view's own cloud xyz [N, 3] (robot base frame): no obstacle
+    points in the base footprint (``floor.footprint_blocked``); what ``free_space="cloud"`` uses."""
+    world = base_to_world(xyz, base_pose_world)
+    return lambda x, y, yaw: not footprint_blocked(world, (x, y, yaw))
 
 
 # ----------------------------------------------------------------------------------------------- statistics
@@ -254,12 +262,6 @@ class RolloutSuccessRate(L.Callback):
             self._service = self._service_factory(self.workers, self.backend, self.cache_decimals)
         return self._service
 
-    @staticmethod
-    def _cloud_free(xyz: np.ndarray, base_pose_world: Sequence[float]) -> Callable[[float, float, float], bool]:
-        """``is_free`` for world poses from the view's own cloud [N, 3] (robot base frame)."""
-        world = base_to_world(xyz, base_pose_world)
-        return lambda x, y, yaw: not footprint_blocked(world, (x, y, yaw))
-
     def _is_free(self, spec: Any) -> Callable[[float, float, float], bool]:
         svc = self.service
         if hasattr(svc, "footprint_free"):
@@ -284,9 +286,11 @@ class RolloutSuccessRate(L.Callback):
         mask = batch["floor_mask"].detach().cpu().numpy()
         label = batch["floor_label"].detach().cpu().numpy()
         target = batch["target_xyz"].detach().cpu().numpy()
-        cloud = batch["scene_xyz"].detach().cpu().numpy()
-        cloud_mask = batch["scene_mask"].detach().cpu().numpy()
         pred = scores.detach().float().cpu().numpy()
+        by_cloud = self.top_k > 1 and self.free_space == "cloud"
+        if by_cloud:  # the view's own cloud decides which poses are free
+            cloud = batch["scene_xyz"].detach().cpu().numpy()
+            cloud_mask = batch["scene_mask"].detach().cpu().numpy()
         for i, meta in enumerate(batch["meta"]):
             sim = (meta or {}).get("sim")
             if not sim or "base_pose_world" not in sim:
@@ -300,12 +304,10 @@ class RolloutSuccessRate(L.Callback):
                 raise ValueError(f"sample {meta.get('sample_id', i)}: bad meta['sim'] ({exc})") from exc
             base = sim["base_pose_world"]
             free = None
-            if self.top_k > 1:
-                free = (
-                    self._cloud_free(cloud[i][cloud_mask[i]], base)
-                    if self.free_space == "cloud"
-                    else self._is_free(spec)
-                )
+            if by_cloud:
+                free = cloud_free(cloud[i][cloud_mask[i]], base)
+            elif self.top_k > 1:
+                free = self._is_free(spec)
             tie_seed = int(meta.get("index", i))
             pose, rank = choose_pose(floor[i], pred[i], mask[i], target[i], base, self.top_k, free, tie_seed)
             ep = {

@@ -105,7 +105,7 @@ def rollout(
     if check_pose:
         refused = pose_filter(scene, *_check_pose(base_pose), seed=seed)
         if refused:
-            return RolloutResult(False, refused, 0.0, time.perf_counter() - t0, task.state(scene))
+            return RolloutResult(False, refused, 0.0, time.perf_counter() - t0)  # nothing simulated, no state
     m, d = scene.model, scene.data
     nsub = max(1, int(round(CTRL_DT / m.opt.timestep)))
     start_rollout(scene, base_pose, policy, seed)
