@@ -30,8 +30,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import zlib
-from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -39,76 +37,10 @@ import torch
 
 from floaff_zoo.callbacks.rollout import choose_pose, cloud_free
 from floaff_zoo.contract import TASKS
-from floaff_zoo.frames import ROLLOUT_POSE_DECIMALS, base_to_world
+from floaff_zoo.frames import base_to_world
+from floaff_zoo.sim.repeat import fresh_probability, perturbed_poses, read_probs, service_runner, write_probs
 
-#: first task seed of the fresh episodes (the annotation uses 0)
-FRESH_SEED0 = 1000
-
-Runner = Callable[[int, list[tuple[object, tuple[float, float, float]]]], list[bool]]
-
-
-def perturbed_poses(
-    xy: np.ndarray, yaw: np.ndarray, episode: int, sigma_xy: float, sigma_yaw: float, seed: int
-) -> np.ndarray:
-    """Candidate poses with parking noise for one episode: xy [M, 2], yaw [M] -> [M, 3] (x, y, yaw)."""
-    rng = np.random.default_rng([int(seed), int(episode)])
-    noise = rng.normal(size=(len(xy), 3)) * np.array([sigma_xy, sigma_xy, sigma_yaw])
-    return np.concatenate([np.asarray(xy, float), np.asarray(yaw, float)[:, None]], axis=1) + noise
-
-
-def fresh_probability(
-    scene: dict, run: Runner, episodes: int, sigma_xy: float, sigma_yaw: float, seed: int, seeds: Sequence[int] = ()
-) -> np.ndarray:
-    """Fresh success probability of every candidate cell of a scene record, [M] in [0, 1].
-
-    ``run(task_seed, jobs)`` rolls ``(spec, pose)`` jobs out with that task seed. Episode k uses task seed
-    ``seeds[k]`` (default ``FRESH_SEED0 + k``) and parking noise drawn from (``seed``, the scene id, k).
-    Cells the generator filtered (``candidates.valid`` false) are 0 without a rollout.
-    """
-    from floaff_zoo.sim.kitchen import SceneSpec
-
-    cand = scene["candidates"]
-    xy, yaw = np.asarray(cand["xy"], float), np.asarray(cand["yaw"], float)
-    valid = np.flatnonzero(np.asarray(cand["valid"], bool))
-    spec = SceneSpec.from_dict(scene["spec"])
-    task_seeds = list(seeds) or [FRESH_SEED0 + k for k in range(episodes)]
-    scene_seed = zlib.crc32(scene["scene_id"].encode()) ^ int(seed)
-    wins = np.zeros(len(xy))
-    for k, task_seed in enumerate(task_seeds):
-        poses = perturbed_poses(xy[valid], yaw[valid], k, sigma_xy, sigma_yaw, scene_seed)
-        ok = run(task_seed, [(spec, tuple(float(v) for v in p)) for p in poses])
-        wins[valid] += np.asarray(ok, float)
-    return wins / len(task_seeds)
-
-
-def read_probs(path: Path, setting: dict, scenes: dict[str, dict]) -> dict[str, np.ndarray]:
-    """Cached fresh probabilities (scene id -> [M]) made with ``setting``; a mismatch or a corrupt file is an error."""
-    try:
-        with np.load(path) as z:
-            made = json.loads(str(z["setting"]))
-            probs = {k: z[k] for k in z.files if k != "setting"}
-    except (OSError, ValueError, KeyError) as exc:
-        raise SystemExit(f"fresh_sr: {path} is not a probability cache of this script ({exc}); delete it") from exc
-    if made != setting:
-        raise SystemExit(f"fresh_sr: {path} was made with {made}, not {setting}")
-    for sid, p in probs.items():
-        if sid in scenes and p.shape != (len(scenes[sid]["candidates"]["xy"]),):
-            raise SystemExit(f"fresh_sr: {path}: scene {sid} has {p.shape} probabilities for its candidates")
-    return probs
-
-
-def service_runner(workers: int) -> Runner:
-    """A Runner on the simulator's rollout service: one service (and result cache) per task seed."""
-    from floaff_zoo.sim.rollout import RolloutService
-
-    services: dict[int, RolloutService] = {}
-
-    def run(task_seed: int, jobs: list) -> list[bool]:
-        if task_seed not in services:
-            services[task_seed] = RolloutService(workers=workers, cache_decimals=ROLLOUT_POSE_DECIMALS, seed=task_seed)
-        return [r.success for r in services[task_seed].run(jobs)]
-
-    return run
+__all__ = ["fresh_probability", "nearest_cells", "perturbed_poses", "service_runner", "summarize", "view_choices"]
 
 
 def nearest_cells(cand_xy: np.ndarray, xy: np.ndarray, cell: float, where: str) -> np.ndarray:
@@ -201,7 +133,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("models", nargs="*", help="hub names or checkpoint paths")
     p.add_argument("--root", default="data/floaff_dense")
     p.add_argument("--benchmark", default="layouts", choices=["layouts", "styles"])
-    p.add_argument("--split", default="test")
+    p.add_argument(
+        "--split",
+        default="test",
+        choices=["test", "val"],
+        help="test scenes, or the validation scenes the DataModule holds out of train (val_scenes=1, seed 0)",
+    )
     p.add_argument("--episodes", type=int, default=4)
     p.add_argument("--sigma-xy", type=float, default=0.02, help="parking noise per axis (m)")
     p.add_argument("--sigma-yaw-deg", type=float, default=2.0, help="parking heading noise (deg)")
@@ -229,7 +166,18 @@ def main(argv: list[str] | None = None) -> int:
     from floaff_zoo.sim import fileformat as ff
     from floaff_zoo.sim.generate import ANNOTATE_SEED
 
-    scenes = {s["scene_id"]: s for s in ff.iter_scenes(a.root, benchmark=a.benchmark, split=a.split)}
+    dm = FloAffKitchenDataModule(
+        root=a.root, benchmark=a.benchmark, tasks=list(TASKS), batch_size=a.batch_size, num_points=a.num_points
+    )
+    dm.setup("test" if a.split == "test" else "fit")
+    # a task with one train scene lends views of it to val: "<id> (views)"
+    keep = {s.removesuffix(" (views)") for s in dm.split_scenes.get(a.split, [])}
+    files_split = "test" if a.split == "test" else "train"  # validation scenes are train scenes on disk
+    scenes = {
+        s["scene_id"]: s
+        for s in ff.iter_scenes(a.root, benchmark=a.benchmark, split=files_split)
+        if s["scene_id"] in keep
+    }
     if not scenes:
         raise SystemExit(f"fresh_sr: no finished {a.split} scene of {a.benchmark} under {a.root}")
     setting = dict(episodes=a.episodes, sigma_xy=a.sigma_xy, sigma_yaw_deg=a.sigma_yaw_deg, seed=a.seed)
@@ -238,7 +186,10 @@ def main(argv: list[str] | None = None) -> int:
     seeds = [ANNOTATE_SEED] * a.episodes if a.annotation_seed else []
     models = {m: resolve_model(m).eval() for m in a.models}  # a bad name fails before any rollout
     cache = Path(a.probs) if a.probs else None
-    probs = read_probs(cache, setting, scenes) if cache is not None and cache.is_file() else {}
+    try:
+        probs = read_probs(cache, setting, scenes) if cache is not None and cache.is_file() else {}
+    except ValueError as exc:
+        raise SystemExit(f"fresh_sr: {exc}") from exc
     run = service_runner(a.workers)
     for sid, scene in scenes.items():
         if sid not in probs:
@@ -247,16 +198,11 @@ def main(argv: list[str] | None = None) -> int:
             )
             print(f"{sid}: {int((probs[sid] > 0).sum())} cells with a fresh success", flush=True)
     if cache is not None:
-        cache.parent.mkdir(parents=True, exist_ok=True)
-        np.savez(cache, setting=json.dumps(setting), **probs)
+        write_probs(cache, setting, probs)
 
-    dm = FloAffKitchenDataModule(
-        root=a.root, benchmark=a.benchmark, tasks=list(TASKS), batch_size=a.batch_size, num_points=a.num_points
-    )
-    dm.setup("test")
     rows: list[dict] = []
     with torch.no_grad():
-        for batch in dm.test_dataloader():
+        for batch in dm.test_dataloader() if a.split == "test" else dm.val_dataloader():
             scores = {"label": batch["floor_label"].numpy()}
             scores.update({m: net(batch).numpy() for m, net in models.items()})
             rows += view_choices(batch, scores, scenes, probs, a.top_k)

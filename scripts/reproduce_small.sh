@@ -133,7 +133,10 @@ training_free() {
 # the recipe's seed-0 curriculum inside its checkpoint (job recipe_s0 first; waited for when it runs in parallel)
 prior() {
   local job=$1 bench=$2 label=$3 root=$RUNS/$2/prior fit=(); shift 3
-  case $job in *_edges) root=$RUNS/$bench/prior_edges fit=(--model.init_args.centred false) ;; esac
+  case $job in
+    *_edges) root=$RUNS/$bench/prior_edges fit=(--model.init_args.centred false) ;;
+    fresh_*) root=$RUNS/$bench/$job fit=(--config "configs/experiments/recipe/fresh_labels_$bench.yaml") ;;
+  esac
   local axis="" lineage=$RUNS/$bench/recipe_s0/lineage.json tries=0
   until axis=$(python3 -c "import json,sys; print(json.load(open(sys.argv[1]))['stages'][0]['checkpoint'])" \
     "$lineage" 2>/dev/null) && [ -f "$axis" ]; do
@@ -226,6 +229,13 @@ run_job() {
     styles_recipe_s[0-9]) curriculum "recipe_s${job#styles_recipe_s}" styles "${job#styles_recipe_s}" "CFAR+PFAL, zoo recipe" \
       --extra-config "$RECIPE" ;;
     styles_prior) prior prior styles "Canonical prior (no network)" ;;
+    # trained on repeated-episode labels (scripts/fresh_labels.py first; docs/results.md)
+    fresh_recipe_s[0-9]|styles_fresh_recipe_s[0-9])
+      local b=layouts j=$job; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
+      curriculum "$j" "$b" "${j#fresh_recipe_s}" "zoo recipe, repeated-episode labels" --extra-config "$RECIPE" \
+        --extra-config "configs/experiments/recipe/fresh_labels_$b.yaml" ;;
+    fresh_prior) prior fresh_prior layouts "Canonical prior, repeated-episode labels" ;;
+    styles_fresh_prior) prior fresh_prior styles "Canonical prior, repeated-episode labels" ;;
     # the prior's cell edges on the label lattice, as before the grid centred its cells (docs/method.md)
     prior_edges) prior prior_edges layouts "Canonical prior, edge-binned" ;;
     styles_prior_edges) prior prior_edges styles "Canonical prior, edge-binned" ;;
@@ -261,6 +271,7 @@ job_out() {  # the file a finished job has written, under $OUT
     styles_c2f_exp) echo styles/c2f_exp/report.json ;;
     styles_prior) echo styles/prior/report.json ;;
     styles_prior_edges) echo styles/prior_edges/report.json ;;
+    styles_fresh_prior) echo styles/fresh_prior/report.json ;;
     styles_recipe_s*) echo "styles/recipe_s${1#styles_recipe_s}/report.json" ;;
     styles_recipe_no_*) echo "styles/${1#styles_}/report.json" ;;
     styles_recipe_r1.*) echo "styles/recipe_sweep_${1#styles_recipe_}/report.json" ;;

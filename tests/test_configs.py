@@ -50,7 +50,9 @@ def plan(cfg: str) -> tuple[str, list[list[str]]]:
     if isinstance(raw.get("model"), dict):  # init_args only: an ablation / sweep override of CFAR
         return "override", [["fit", "--config", TINY_DATA, "--config", "configs/models/cfar.yaml", "--config", cfg]]
     if isinstance(raw.get("data"), dict):  # init_args only: e.g. transforms added to any DataModule
-        return "data_override", [["fit", "--config", TINY_DATA, "--config", TINY_MODEL, "--config", cfg]]
+        # FloAff-Kitchen's own options (train_labels) go over a FloAff-Kitchen data config
+        base = "configs/data/floaff_tiny.yaml" if "train_labels" in (raw["data"].get("init_args") or {}) else TINY_DATA
+        return "data_override", [["fit", "--config", base, "--config", TINY_MODEL, "--config", cfg]]
     if set(raw) == {"trainer"}:
         command = "test" if "callbacks" in (raw["trainer"] or {}) else "fit"
         return "trainer", [[command, "--config", TINY_DATA, "--config", TINY_MODEL, "--config", cfg]]

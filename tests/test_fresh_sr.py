@@ -92,8 +92,47 @@ def test_cli_names_bad_arguments_and_a_corrupt_cache(drawer_root, tmp_path):
             fs.main([*args, *bad])
     corrupt = tmp_path / "corrupt.npz"
     corrupt.write_bytes(b"not an npz")
-    with pytest.raises(SystemExit, match="corrupt.npz is not a probability cache"):
+    with pytest.raises(SystemExit, match="corrupt.npz is not a fresh-probability cache"):
         fs.main([*args, "--probs", str(corrupt)])
     with pytest.raises(FileNotFoundError, match="no_such_model.ckpt"):  # before any rollout
         fs.main([*args, "--probs", str(tmp_path / "never.npz"), str(tmp_path / "no_such_model.ckpt")])
     assert not (tmp_path / "never.npz").exists()
+
+
+def test_fresh_labels_train_the_datamodule_and_val_split_scores(drawer_root, tmp_path):
+    """scripts/fresh_labels.py labels every train scene; the DataModule trains on them; fresh_sr scores val."""
+    spec = importlib.util.spec_from_file_location(
+        "fresh_labels", Path(__file__).resolve().parents[1] / "scripts" / "fresh_labels.py"
+    )
+    fl = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(fl)
+    from floaff_zoo.data.floaff_kitchen import FloAffKitchenDataModule
+    from floaff_zoo.data.scene_labels import read_scene_labels
+
+    out, cache = tmp_path / "labels.npz", tmp_path / "p_train.npz"
+    args = ["--root", str(drawer_root), "--benchmark", "styles", "--episodes", "1", "--probs", str(cache)]
+    assert fl.main([*args, "--out", str(out)]) == 0
+    table, setting = read_scene_labels(out)
+    train = {s["scene_id"]: s for s in ff.iter_scenes(drawer_root, benchmark="styles", split="train")}
+    assert set(table) == set(train) and setting["episodes"] == 1
+    for sid, scene in train.items():
+        xy, label, cell = table[sid]
+        assert np.allclose(xy, scene["candidates"]["xy"]) and cell == scene["candidates"]["cell"]
+        assert label.max() == pytest.approx(1.0) or not label.any()  # max-normalised as the generated labels
+        assert not label[np.asarray(scene["candidates"]["status"]) == 0].any()  # filtered cells stay 0
+    with pytest.raises(SystemExit):
+        fl.main([*args, "--out", str(tmp_path / "labels.txt")])
+
+    dm = FloAffKitchenDataModule(
+        root=str(drawer_root), benchmark="styles", tasks=["CloseDrawer"], train_labels=str(out), num_points=256
+    )
+    dm.setup("fit")
+    s = dm.train_dataloader().dataset[0]
+    sid = s["meta"]["scene_id"]
+    assert s["floor_label"].max() <= 1.0 and sid in table
+
+    # the cache of the train scenes serves fresh_sr on the validation split (no new rollout for its scenes)
+    rep = tmp_path / "val.json"
+    assert fs.main(["--root", str(drawer_root), "--benchmark", "styles", "--episodes", "1", "--split", "val",
+                    "--probs", str(cache), "--json", str(rep)]) == 0  # fmt: skip
+    assert json.loads(rep.read_text())["views"] == len(dm.val_dataloader().dataset)

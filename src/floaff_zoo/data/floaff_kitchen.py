@@ -25,7 +25,7 @@ from typing import Any, Literal
 import numpy as np
 from lightning.pytorch.utilities.exceptions import MisconfigurationException
 
-from floaff_zoo.contract import TASKS, VIEWS, Sample
+from floaff_zoo.contract import TASKS, VIEWS, Sample, SampleError
 from floaff_zoo.data.base import FloAffDataModule
 from floaff_zoo.data.cache import RecordDataset, SampleCache
 from floaff_zoo.data.readers import (
@@ -37,6 +37,7 @@ from floaff_zoo.data.readers import (
     check_names,
     get_reader,
 )
+from floaff_zoo.data.scene_labels import SceneLabels
 from floaff_zoo.data.transforms import SampleTransform, transforms_config
 
 BENCHMARKS: tuple[str, ...] = ("styles", "layouts")
@@ -69,6 +70,9 @@ class FloAffKitchenDataModule(FloAffDataModule):
         val_scene_ids: hold out exactly these train scenes as val instead (the seeded draw is skipped;
             e.g. to keep one validation set while training scenes are added); unknown ids raise.
         val_view_fraction: share of the views of a single-train-scene task that go to val.
+        train_labels: a scene-label file (:mod:`floaff_zoo.data.scene_labels`, e.g. fresh-episode success rates
+            from ``scripts/fresh_labels.py``) whose labels replace the generated ones in the train split only;
+            every train scene must be in it (checked at setup). Validation and test keep the generated labels.
         max_views_per_scene: keep the first N views (per kept view kind order) of each scene (smoke runs).
         strict: raise on the first missing/corrupt file instead of skipping and counting.
         validate: load every sample at setup (fills the cache; bad ones are skipped and counted).
@@ -86,6 +90,7 @@ class FloAffKitchenDataModule(FloAffDataModule):
         val_scenes: int = 1,
         val_scene_ids: list[str] | None = None,
         val_view_fraction: float = 0.2,
+        train_labels: str | None = None,
         max_views_per_scene: int | None = None,
         strict: bool = False,
         validate: bool = True,
@@ -126,6 +131,7 @@ class FloAffKitchenDataModule(FloAffDataModule):
         self.val_scenes = val_scenes
         self.val_scene_ids = None if val_scene_ids is None else list(val_scene_ids)
         self.val_view_fraction = val_view_fraction
+        self.train_labels = None if train_labels is None else SceneLabels(train_labels)
         self.max_views_per_scene = max_views_per_scene
         self.strict = strict
         self.validate = validate
@@ -268,6 +274,8 @@ class FloAffKitchenDataModule(FloAffDataModule):
                 "points are the filtered candidate set, not the observed floor predict() asks about; regenerate "
                 "with `floaff-zoo generate` (format 2) to train models for deployment"
             )
+        if self.train_labels is not None:
+            self._check_train_labels()
         sizes = ", ".join(f"{s} {len(self.datasets[s])}" for s in ("train", "val", "test"))
         print(
             f"FloAffKitchenDataModule[{self.benchmark}, tasks={self.tasks}, views={self.views}]: {sizes} samples. "
@@ -282,6 +290,32 @@ class FloAffKitchenDataModule(FloAffDataModule):
                     f"FloAffKitchenDataModule: the '{split}' split is empty for tasks {self.tasks}, views {self.views} "
                     f"under {self.root}/{self.benchmark} (scenes per split: {self.split_scenes})"
                 )
+
+    def transforms_for(self, split: str) -> list[SampleTransform]:
+        """The configured transforms; the train split's labels are replaced first when ``train_labels`` is set."""
+        extra = [self.train_labels] if split == "train" and self.train_labels is not None else []
+        return [*extra, *super().transforms_for(split)]
+
+    def _check_train_labels(self) -> None:
+        """Every train sample must find its scene and cells in ``train_labels``: fail at setup, not mid-epoch."""
+        assert self.train_labels is not None
+        try:
+            table = self.train_labels.table()
+        except (OSError, ValueError) as exc:
+            raise MisconfigurationException(f"FloAffKitchenDataModule: train_labels: {exc}") from exc
+        missing = sorted(set(self.split_scenes.get("train", [])) - set(table))
+        if missing:
+            raise MisconfigurationException(
+                f"FloAffKitchenDataModule: train_labels {self.train_labels.path} has no labels for the train "
+                f"scene(s) {missing}"
+            )
+        ds = self.datasets["train"]
+        rng = np.random.default_rng(0)
+        for i in range(len(ds)):
+            try:
+                self.train_labels(ds[i], rng)
+            except SampleError as exc:
+                raise MisconfigurationException(f"FloAffKitchenDataModule: train_labels: {exc}") from exc
 
     def describe(self) -> dict[str, Any]:
         """Scene ids per split (after setup): for logs and reports."""

@@ -55,6 +55,20 @@ def cell_labels(label: np.ndarray, status: np.ndarray) -> tuple[np.ndarray, np.n
     return np.where(st == FILTERED, np.float32(0.0), lab).astype(np.float32), st != SKIPPED
 
 
+def probability_label(
+    prob: np.ndarray, status: np.ndarray, shape: tuple[int, int], sigma_cells: float = 1.0
+) -> np.ndarray:
+    """Per-cell labels from success *probabilities* (several episodes per cell) instead of one binary rollout.
+
+    prob [M] in [0, 1], status [M] (``FILTERED`` / ``ROLLED_OUT`` / ``SKIPPED``), shape (H, W) with H*W = M ->
+    label [M] f32: smoothed and max-normalised as the generated labels (step 6), filtered cells 0 (:func:`cell_labels`).
+    """
+    p = np.asarray(prob, dtype=np.float64).reshape(-1)
+    if p.size != int(np.prod(shape)) or not np.all(np.isfinite(p)) or p.min(initial=0) < 0 or p.max(initial=0) > 1:
+        raise ValueError(f"probability_label: need {int(np.prod(shape))} probabilities in [0, 1], got {p.size}")
+    return cell_labels(_smooth(p, shape, sigma_cells), status)[0]
+
+
 @dataclass
 class Annotation:
     """Labels of one scene. Arrays are over M = H*W candidates in row-major (y°, x°) order."""

@@ -1,0 +1,94 @@
+"""Training labels from repeated episodes: every feasible cell of the train scenes rolled out again.
+
+    python scripts/fresh_labels.py --root data/floaff_dense --benchmark layouts \
+        --probs runs/fresh/p_train_layouts.npz --out runs/fresh/labels_train_layouts.npz
+
+A generated label is one rollout per cell with the annotation's task seed, smoothed. Whether that rollout succeeds
+is partly luck (a door opened a little more, a grasp that slips): for CloseDoubleDoor only about half of the
+annotated successes succeed again. This script rolls every feasible cell of every train scene (the validation
+scenes included: they are train scenes on disk) out ``--episodes`` more times with fresh task seeds and parking
+noise (``floaff_zoo.sim.repeat``, as ``scripts/fresh_sr.py`` does on test scenes), takes each cell's success rate
+over those episodes and the annotated one, and smooths it as the generator smooths its binary labels
+(``floaff_zoo.sim.annotate.probability_label``). The result is a scene-label file for
+``FloAffKitchenDataModule(train_labels=...)`` (configs/experiments/recipe/fresh_labels_<benchmark>.yaml), which
+uses it for the train split only. Test scenes are never touched.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from floaff_zoo.contract import TASKS
+
+
+def scene_label(scene: dict, fresh: np.ndarray, episodes: int) -> np.ndarray:
+    """A scene record's label from its fresh probabilities [M] (``episodes`` each) and its annotated outcome: [M]."""
+    from floaff_zoo.sim.annotate import probability_label
+
+    cand = scene["candidates"]
+    annotated = np.asarray(scene["labels"]["success"], float)
+    rate = (annotated + episodes * np.asarray(fresh, float)) / (episodes + 1)
+    return probability_label(rate, np.asarray(cand["status"]), tuple(cand["grid_shape"]), float(scene["sigma"]))
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--root", default="data/floaff_dense")
+    p.add_argument("--benchmark", default="layouts", choices=["layouts", "styles"])
+    p.add_argument("--episodes", type=int, default=4)
+    p.add_argument("--sigma-xy", type=float, default=0.02, help="parking noise per axis (m)")
+    p.add_argument("--sigma-yaw-deg", type=float, default=2.0, help="parking heading noise (deg)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the parking noise")
+    p.add_argument("--workers", type=int, default=1)
+    p.add_argument("--probs", default=None, help="cache of the fresh probabilities (.npz; read if it exists)")
+    p.add_argument("--out", required=True, help="the scene-label file to write (.npz)")
+    a = p.parse_args(argv)
+    if a.episodes < 1 or a.sigma_xy < 0 or a.sigma_yaw_deg < 0 or a.workers < 1:
+        p.error("--episodes and --workers must be >= 1 and the sigmas >= 0")
+    for name in ("probs", "out"):
+        v = getattr(a, name)
+        if v is not None and not v.endswith(".npz"):
+            p.error(f"--{name} must name a .npz file, got {v!r}")
+
+    from floaff_zoo.data.scene_labels import write_scene_labels
+    from floaff_zoo.sim import fileformat as ff
+    from floaff_zoo.sim.repeat import fresh_probability, read_probs, service_runner, write_probs
+
+    scenes = {s["scene_id"]: s for s in ff.iter_scenes(a.root, benchmark=a.benchmark, split="train")}
+    if not scenes:
+        raise SystemExit(f"fresh_labels: no finished train scene of {a.benchmark} under {a.root}")
+    setting = dict(episodes=a.episodes, sigma_xy=a.sigma_xy, sigma_yaw_deg=a.sigma_yaw_deg, seed=a.seed)
+    cache = Path(a.probs) if a.probs else None
+    try:
+        probs = read_probs(cache, setting, scenes) if cache is not None and cache.is_file() else {}
+    except ValueError as exc:
+        raise SystemExit(f"fresh_labels: {exc}") from exc
+    run = service_runner(a.workers)
+    for sid, scene in scenes.items():
+        if sid not in probs:
+            probs[sid] = fresh_probability(scene, run, a.episodes, a.sigma_xy, np.radians(a.sigma_yaw_deg), a.seed)
+            print(f"{sid}: {int((probs[sid] > 0).sum())} cells with a fresh success", flush=True)
+            if cache is not None:  # a killed run resumes scene by scene
+                write_probs(cache, setting, probs)
+
+    labels = {}
+    for sid, scene in scenes.items():
+        label = scene_label(scene, probs[sid], a.episodes)
+        labels[sid] = (np.asarray(scene["candidates"]["xy"], float), label, float(scene["candidates"]["cell"]))
+    write_scene_labels(a.out, labels, {**setting, "benchmark": a.benchmark, "source": "annotated + fresh episodes"})
+    print(f"{a.out}: labels of {len(labels)} train scenes of {a.benchmark} ({setting})")
+    for t in TASKS:
+        ids = [s for s in scenes if scenes[s]["task"] == t]
+        if ids:
+            old = np.mean([np.argmax(scenes[s]["labels"]["label"]) == np.argmax(labels[s][1]) for s in ids])
+            succ = [np.asarray(scenes[s]["labels"]["success"]) > 0 for s in ids]
+            hold = np.mean(np.concatenate([probs[s][m] for s, m in zip(ids, succ)]))
+            print(f"  {t}: {len(ids)} scenes, annotated successes succeed again {hold:.2f}, same peak cell {old:.2f}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

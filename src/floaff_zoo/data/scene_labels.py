@@ -1,0 +1,118 @@
+"""Per-scene cell labels that replace a generated dataset's labels in training (e.g. fresh-episode success rates).
+
+The generated labels come from one rollout per cell; ``scripts/fresh_labels.py`` rolls every feasible cell of the
+training scenes out again with new task seeds and parking noise and writes the success *rates* as labels in this
+file format, which ``FloAffKitchenDataModule(train_labels=...)`` reads for its train split (validation and test
+keep the benchmark's labels, so checkpoint choice and every reported number stay on the benchmark).
+
+File (``.npz``): ``setting`` (JSON text: how the labels were made) and, per scene id, ``<id>/xy`` [M, 2] (world xy
+of the scene's candidate cells), ``<id>/label`` [M] in [0, 1] and ``<id>/cell`` (grid spacing, m).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from floaff_zoo.contract import Sample, SampleError
+from floaff_zoo.data.transforms import SampleTransform
+from floaff_zoo.frames import base_to_world
+
+__all__ = ["SceneLabels", "read_scene_labels", "write_scene_labels"]
+
+#: a view's floor point belongs to a cell when it lies within this fraction of the spacing of the cell's centre
+ON_GRID = 0.25
+
+
+def write_scene_labels(
+    path: str | Path, labels: dict[str, tuple[np.ndarray, np.ndarray, float]], setting: dict[str, Any]
+) -> None:
+    """Write ``{scene id: (xy [M, 2], label [M], cell)}`` and the ``setting`` that made them to ``path`` (.npz)."""
+    arrays: dict[str, Any] = {"setting": json.dumps(setting, sort_keys=True)}
+    for sid, (xy, label, cell) in labels.items():
+        arrays[f"{sid}/xy"] = np.asarray(xy, np.float64)
+        arrays[f"{sid}/label"] = np.asarray(label, np.float32)
+        arrays[f"{sid}/cell"] = np.float64(cell)
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    np.savez(path, **arrays)
+
+
+def read_scene_labels(path: str | Path) -> tuple[dict[str, tuple[np.ndarray, np.ndarray, float]], dict[str, Any]]:
+    """Read a scene-label file -> ({scene id: (xy [M, 2], label [M], cell)}, setting); bad content names the file."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"scene labels: {path} does not exist (make it with scripts/fresh_labels.py)")
+    try:
+        with np.load(path) as z:
+            arrays = {k: z[k] for k in z.files}
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"scene labels: {path} is not a readable .npz file ({exc})") from exc
+    if "setting" not in arrays:
+        raise ValueError(f"scene labels: {path} has no 'setting' entry")
+    setting = json.loads(str(arrays.pop("setting")))
+    ids = sorted({k.rsplit("/", 1)[0] for k in arrays})
+    out: dict[str, tuple[np.ndarray, np.ndarray, float]] = {}
+    for sid in ids:
+        try:
+            xy, label, cell = arrays[f"{sid}/xy"], arrays[f"{sid}/label"], float(arrays[f"{sid}/cell"])
+        except KeyError as exc:
+            raise ValueError(f"scene labels: {path}: scene {sid} lacks the entry {exc}") from None
+        if xy.ndim != 2 or xy.shape[1] != 2 or label.shape != (len(xy),) or not cell > 0:
+            raise ValueError(
+                f"scene labels: {path}: scene {sid} has xy {list(xy.shape)}, label {list(label.shape)}, cell {cell}"
+            )
+        finite = np.all(np.isfinite(xy)) and np.all(np.isfinite(label))
+        if not finite or label.min(initial=0) < 0 or label.max(initial=0) > 1:
+            raise ValueError(f"scene labels: {path}: scene {sid} has non-finite values or labels outside [0, 1]")
+        out[sid] = (xy.astype(np.float64), label.astype(np.float32), cell)
+    if not out:
+        raise ValueError(f"scene labels: {path} holds no scene")
+    return out, setting
+
+
+class SceneLabels(SampleTransform):
+    """Replace a view's floor labels by its scene's labels from a scene-label file (module doc).
+
+    Each floor point is taken to the world with the view's ``meta.sim.base_pose_world`` (rotations by other
+    transforms keep that pose in step) and gets the label of the cell it lies on; a scene missing from the file
+    or a floor point off its grid raises :class:`~floaff_zoo.contract.SampleError` naming both.
+
+    Args:
+        path: the scene-label file (.npz).
+    """
+
+    def __init__(self, path: str) -> None:
+        self.path = str(path)
+        self._table: dict[str, tuple[np.ndarray, np.ndarray, float]] | None = None
+
+    def table(self) -> dict[str, tuple[np.ndarray, np.ndarray, float]]:
+        """The file's {scene id: (xy, label, cell)}, read once per process."""
+        if self._table is None:
+            self._table = read_scene_labels(self.path)[0]
+        return self._table
+
+    def __getstate__(self) -> dict[str, Any]:  # worker processes read the file themselves
+        return {"path": self.path, "_table": None}
+
+    def __call__(self, sample: Sample, rng: np.random.Generator) -> Sample:
+        meta = sample.get("meta") or {}
+        sid = meta.get("scene_id")
+        pose = (meta.get("sim") or {}).get("base_pose_world")
+        where = meta.get("sample_id", sid)
+        if sid not in self.table() or pose is None:
+            raise SampleError(f"{where}: scene {sid} has no labels in {self.path} (or the sample has no base pose)")
+        xy, label, cell = self.table()[sid]
+        floor = base_to_world(sample["floor_xyz"][:, :2].numpy(), pose)  # [K, 2]
+        d = np.linalg.norm(floor[:, None, :] - xy[None], axis=-1)  # [K, M]
+        idx = d.argmin(axis=1)
+        off = (d[np.arange(len(idx)), idx] > ON_GRID * cell) & sample["floor_mask"].numpy()
+        if off.any():
+            raise SampleError(f"{where}: {int(off.sum())} floor point(s) lie off scene {sid}'s grid in {self.path}")
+        out = dict(sample)
+        new = torch.from_numpy(label[idx]).to(sample["floor_label"].dtype)
+        out["floor_label"] = torch.where(sample["floor_mask"], new, sample["floor_label"])
+        return out

@@ -1,0 +1,105 @@
+"""Fresh episodes of a scene's candidate cells: the task's randomness drawn again and the base parked with noise.
+
+The generated labels roll every feasible cell out once, with the annotation's task seed (the same initial door or
+drawer opening) at the exact cell pose. :func:`fresh_probability` rolls each feasible cell out ``episodes`` more
+times, each with a fresh task seed and the pose perturbed by N(0, sigma_xy) per axis and N(0, sigma_yaw), and
+returns the success fraction: the cell's *fresh success probability*. Cells the generator filtered keep 0.
+``scripts/fresh_sr.py`` scores chosen poses with it; ``scripts/fresh_labels.py`` turns it into training labels.
+Probabilities are cached in ``.npz`` files (:func:`read_probs` / :func:`write_probs`) tagged with their setting.
+"""
+
+from __future__ import annotations
+
+import json
+import zlib
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from floaff_zoo.frames import ROLLOUT_POSE_DECIMALS
+
+__all__ = [
+    "FRESH_SEED0",
+    "Runner",
+    "fresh_probability",
+    "perturbed_poses",
+    "read_probs",
+    "service_runner",
+    "write_probs",
+]
+
+#: first task seed of the fresh episodes (the annotation uses 0)
+FRESH_SEED0 = 1000
+
+Runner = Callable[[int, list[tuple[object, tuple[float, float, float]]]], list[bool]]
+
+
+def perturbed_poses(
+    xy: np.ndarray, yaw: np.ndarray, episode: int, sigma_xy: float, sigma_yaw: float, seed: int
+) -> np.ndarray:
+    """Candidate poses with parking noise for one episode: xy [M, 2], yaw [M] -> [M, 3] (x, y, yaw)."""
+    rng = np.random.default_rng([int(seed), int(episode)])
+    noise = rng.normal(size=(len(xy), 3)) * np.array([sigma_xy, sigma_xy, sigma_yaw])
+    return np.concatenate([np.asarray(xy, float), np.asarray(yaw, float)[:, None]], axis=1) + noise
+
+
+def fresh_probability(
+    scene: dict, run: Runner, episodes: int, sigma_xy: float, sigma_yaw: float, seed: int, seeds: Sequence[int] = ()
+) -> np.ndarray:
+    """Fresh success probability of every candidate cell of a scene record, [M] in [0, 1].
+
+    ``run(task_seed, jobs)`` rolls ``(spec, pose)`` jobs out with that task seed. Episode k uses task seed
+    ``seeds[k]`` (default ``FRESH_SEED0 + k``) and parking noise drawn from (``seed``, the scene id, k).
+    Cells the generator filtered (``candidates.valid`` false) are 0 without a rollout.
+    """
+    from floaff_zoo.sim.kitchen import SceneSpec
+
+    cand = scene["candidates"]
+    xy, yaw = np.asarray(cand["xy"], float), np.asarray(cand["yaw"], float)
+    valid = np.flatnonzero(np.asarray(cand["valid"], bool))
+    spec = SceneSpec.from_dict(scene["spec"])
+    task_seeds = list(seeds) or [FRESH_SEED0 + k for k in range(episodes)]
+    scene_seed = zlib.crc32(scene["scene_id"].encode()) ^ int(seed)
+    wins = np.zeros(len(xy))
+    for k, task_seed in enumerate(task_seeds):
+        poses = perturbed_poses(xy[valid], yaw[valid], k, sigma_xy, sigma_yaw, scene_seed)
+        ok = run(task_seed, [(spec, tuple(float(v) for v in p)) for p in poses])
+        wins[valid] += np.asarray(ok, float)
+    return wins / len(task_seeds)
+
+
+def read_probs(path: Path, setting: dict, scenes: dict[str, dict]) -> dict[str, np.ndarray]:
+    """Cached fresh probabilities (scene id -> [M]) made with ``setting``; a mismatch or a corrupt file is an error."""
+    try:
+        with np.load(path) as z:
+            made = json.loads(str(z["setting"]))
+            probs = {k: z[k] for k in z.files if k != "setting"}
+    except (OSError, ValueError, KeyError) as exc:
+        raise ValueError(f"{path} is not a fresh-probability cache ({exc}); delete it") from exc
+    if made != setting:
+        raise ValueError(f"{path} was made with {made}, not {setting}")
+    for sid, p in probs.items():
+        if sid in scenes and p.shape != (len(scenes[sid]["candidates"]["xy"]),):
+            raise ValueError(f"{path}: scene {sid} has {p.shape} probabilities for its candidates")
+    return probs
+
+
+def write_probs(path: Path, setting: dict, probs: dict[str, np.ndarray]) -> None:
+    """Cache ``probs`` (scene id -> [M]) made with ``setting`` in ``path`` (.npz)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.savez(path, setting=json.dumps(setting), **probs)
+
+
+def service_runner(workers: int) -> Runner:
+    """A Runner on the simulator's rollout service: one service (and result cache) per task seed."""
+    from floaff_zoo.sim.rollout import RolloutService
+
+    services: dict[int, RolloutService] = {}
+
+    def run(task_seed: int, jobs: list) -> list[bool]:
+        if task_seed not in services:
+            services[task_seed] = RolloutService(workers=workers, cache_decimals=ROLLOUT_POSE_DECIMALS, seed=task_seed)
+        return [r.success for r in services[task_seed].run(jobs)]
+
+    return run
