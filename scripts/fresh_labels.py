@@ -55,24 +55,16 @@ def main(argv: list[str] | None = None) -> int:
 
     from floaff_zoo.data.scene_labels import write_scene_labels
     from floaff_zoo.sim import fileformat as ff
-    from floaff_zoo.sim.repeat import fresh_probability, read_probs, service_runner, write_probs
+    from floaff_zoo.sim.repeat import scene_probabilities
 
     scenes = {s["scene_id"]: s for s in ff.iter_scenes(a.root, benchmark=a.benchmark, split="train")}
     if not scenes:
         raise SystemExit(f"fresh_labels: no finished train scene of {a.benchmark} under {a.root}")
     setting = dict(episodes=a.episodes, sigma_xy=a.sigma_xy, sigma_yaw_deg=a.sigma_yaw_deg, seed=a.seed)
-    cache = Path(a.probs) if a.probs else None
     try:
-        probs = read_probs(cache, setting, scenes) if cache is not None and cache.is_file() else {}
+        probs = scene_probabilities(scenes, setting, Path(a.probs) if a.probs else None, a.workers)
     except ValueError as exc:
         raise SystemExit(f"fresh_labels: {exc}") from exc
-    run = service_runner(a.workers)
-    for sid, scene in scenes.items():
-        if sid not in probs:
-            probs[sid] = fresh_probability(scene, run, a.episodes, a.sigma_xy, np.radians(a.sigma_yaw_deg), a.seed)
-            print(f"{sid}: {int((probs[sid] > 0).sum())} cells with a fresh success", flush=True)
-            if cache is not None:  # a killed run resumes scene by scene
-                write_probs(cache, setting, probs)
 
     labels = {}
     for sid, scene in scenes.items():

@@ -38,7 +38,7 @@ import torch
 from floaff_zoo.callbacks.rollout import choose_pose, cloud_free
 from floaff_zoo.contract import TASKS
 from floaff_zoo.frames import base_to_world
-from floaff_zoo.sim.repeat import fresh_probability, perturbed_poses, read_probs, service_runner, write_probs
+from floaff_zoo.sim.repeat import fresh_probability, perturbed_poses, scene_probabilities, service_runner
 
 __all__ = ["fresh_probability", "nearest_cells", "perturbed_poses", "service_runner", "summarize", "view_choices"]
 
@@ -185,20 +185,10 @@ def main(argv: list[str] | None = None) -> int:
         setting["task_seed"] = "annotation"
     seeds = [ANNOTATE_SEED] * a.episodes if a.annotation_seed else []
     models = {m: resolve_model(m).eval() for m in a.models}  # a bad name fails before any rollout
-    cache = Path(a.probs) if a.probs else None
     try:
-        probs = read_probs(cache, setting, scenes) if cache is not None and cache.is_file() else {}
+        probs = scene_probabilities(scenes, setting, Path(a.probs) if a.probs else None, a.workers, seeds)
     except ValueError as exc:
         raise SystemExit(f"fresh_sr: {exc}") from exc
-    run = service_runner(a.workers)
-    for sid, scene in scenes.items():
-        if sid not in probs:
-            probs[sid] = fresh_probability(
-                scene, run, a.episodes, a.sigma_xy, np.radians(a.sigma_yaw_deg), a.seed, seeds
-            )
-            print(f"{sid}: {int((probs[sid] > 0).sum())} cells with a fresh success", flush=True)
-    if cache is not None:
-        write_probs(cache, setting, probs)
 
     rows: list[dict] = []
     with torch.no_grad():

@@ -25,6 +25,7 @@ __all__ = [
     "fresh_probability",
     "perturbed_poses",
     "read_probs",
+    "scene_probabilities",
     "service_runner",
     "write_probs",
 ]
@@ -103,3 +104,27 @@ def service_runner(workers: int) -> Runner:
         return [r.success for r in services[task_seed].run(jobs)]
 
     return run
+
+
+def scene_probabilities(
+    scenes: dict[str, dict], setting: dict, cache: Path | None = None, workers: int = 1, seeds: Sequence[int] = ()
+) -> dict[str, np.ndarray]:
+    """Fresh probabilities of scene records (scene id -> [M]) for ``setting``, through the cache ``cache`` (.npz).
+
+    ``setting`` holds ``episodes``, ``sigma_xy``, ``sigma_yaw_deg`` (degrees) and ``seed``; ``seeds`` as in
+    :func:`fresh_probability`. Scenes in the cache are not rolled out again; the cache is rewritten after every new
+    scene (a killed run resumes). A cache made with another setting raises ``ValueError``.
+    """
+    probs = read_probs(cache, setting, scenes) if cache is not None and cache.is_file() else {}
+    run: Runner | None = None
+    for sid, scene in scenes.items():
+        if sid in probs:
+            continue
+        run = run or service_runner(workers)
+        yaw = float(np.radians(setting["sigma_yaw_deg"]))
+        n, sxy, seed = setting["episodes"], setting["sigma_xy"], setting["seed"]
+        probs[sid] = fresh_probability(scene, run, n, sxy, yaw, seed, seeds)
+        print(f"{sid}: {int((probs[sid] > 0).sum())} cells with a fresh success", flush=True)
+        if cache is not None:
+            write_probs(cache, setting, probs)
+    return probs
