@@ -126,7 +126,7 @@ def test_fit_with_train_labels_through_the_cli(tmp_path, root, monkeypatch, floa
         bench, sid, vid = s["meta"]["sample_id"].split("/")
         with np.load(ff.scene_dir(data_root, bench, sid) / "views" / f"{vid}.npz") as z:
             assert s["floor_label"].numpy() == pytest.approx(z["floor_label"])
-    # a label file without one of the train scenes fails at setup, naming the file and the scene
+    # a label file without one of the train scenes fails before training, naming the file and the scene
     train_id = dm.split_scenes["train"][0]
     write_scene_labels(labels, {k: v for k, v in table.items() if k != train_id}, {})
     with pytest.raises(MisconfigurationException, match=f"train_labels .*train_labels.npz has no labels .*{train_id}"):
@@ -137,5 +137,7 @@ def test_datamodule_names_a_missing_label_file(floaff_root, tmp_path):
     dm = FloAffKitchenDataModule(
         root=str(floaff_root[0]), benchmark="layouts", train_labels=str(tmp_path / "nope.npz"), num_points=64
     )
+    dm.setup("test")  # testing never reads the training labels
+    assert len(dm.test_dataloader().dataset)
     with pytest.raises(MisconfigurationException, match="nope.npz does not exist"):
-        dm.setup("fit")
+        dm.train_dataloader()

@@ -72,7 +72,8 @@ class FloAffKitchenDataModule(FloAffDataModule):
         val_view_fraction: share of the views of a single-train-scene task that go to val.
         train_labels: a scene-label file (:mod:`floaff_zoo.data.scene_labels`, e.g. fresh-episode success rates
             from ``scripts/fresh_labels.py``) whose labels replace the generated ones in the train split only;
-            every train scene must be in it (checked at setup). Validation and test keep the generated labels.
+            every train scene must be in it (checked when the train loader is first made, before training).
+            Validation and test keep the generated labels.
         max_views_per_scene: keep the first N views (per kept view kind order) of each scene (smoke runs).
         strict: raise on the first missing/corrupt file instead of skipping and counting.
         validate: load every sample at setup (fills the cache; bad ones are skipped and counted).
@@ -132,6 +133,7 @@ class FloAffKitchenDataModule(FloAffDataModule):
         self.val_scene_ids = None if val_scene_ids is None else list(val_scene_ids)
         self.val_view_fraction = val_view_fraction
         self.train_labels = None if train_labels is None else SceneLabels(train_labels)
+        self._train_labels_checked = False
         self.max_views_per_scene = max_views_per_scene
         self.strict = strict
         self.validate = validate
@@ -274,8 +276,6 @@ class FloAffKitchenDataModule(FloAffDataModule):
                 "points are the filtered candidate set, not the observed floor predict() asks about; regenerate "
                 "with `floaff-zoo generate` (format 2) to train models for deployment"
             )
-        if self.train_labels is not None:
-            self._check_train_labels()
         sizes = ", ".join(f"{s} {len(self.datasets[s])}" for s in ("train", "val", "test"))
         print(
             f"FloAffKitchenDataModule[{self.benchmark}, tasks={self.tasks}, views={self.views}]: {sizes} samples. "
@@ -296,8 +296,14 @@ class FloAffKitchenDataModule(FloAffDataModule):
         extra = [self.train_labels] if split == "train" and self.train_labels is not None else []
         return [*extra, *super().transforms_for(split)]
 
+    def train_dataloader(self) -> Any:
+        if self.train_labels is not None and not self._train_labels_checked:
+            self._check_train_labels()  # once, and only when the train split is used (not for test / predict)
+            self._train_labels_checked = True
+        return super().train_dataloader()
+
     def _check_train_labels(self) -> None:
-        """Every train sample must find its scene and cells in ``train_labels``: fail at setup, not mid-epoch."""
+        """Every train sample must find its scene and cells in ``train_labels``: fail before training, not mid-epoch."""
         assert self.train_labels is not None
         try:
             table = self.train_labels.table()

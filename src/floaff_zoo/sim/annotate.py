@@ -65,7 +65,10 @@ def probability_label(
     """
     p = np.asarray(prob, dtype=np.float64).reshape(-1)
     if p.size != int(np.prod(shape)) or not np.all(np.isfinite(p)) or p.min(initial=0) < 0 or p.max(initial=0) > 1:
-        raise ValueError(f"probability_label: need {int(np.prod(shape))} probabilities in [0, 1], got {p.size}")
+        raise ValueError(
+            f"probability_label: need {int(np.prod(shape))} finite probabilities in [0, 1] for grid {tuple(shape)}, "
+            f"got {p.size} (min {np.nanmin(p, initial=0):.3g}, max {np.nanmax(p, initial=0):.3g})"
+        )
     return cell_labels(_smooth(p, shape, sigma_cells), status)[0]
 
 
