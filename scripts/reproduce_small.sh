@@ -59,6 +59,7 @@ RECIPE=configs/experiments/recipe/cfar_recipe.yaml
 # test_run RUN_DIR LABEL BENCH JOB [CKPT [TEST ARGS...]]: test a fit run on all tasks, copy its report
 test_run() {
   local run=$1 label=$2 bench=$3 job=$4 ckpt=${5:-best}; shift 5 || shift $#
+  if [ "${TRAIN_ONLY:-0}" = 1 ]; then echo "$job: trained, not tested (TRAIN_ONLY=1)"; return 0; fi
   local before=$run/../.tested_$job
   touch "$before"
   "$FZ" test --config "$run/config.yaml" --config "$EVAL" --data.init_args.tasks "$TASKS" \
@@ -136,6 +137,8 @@ prior() {
   case $job in
     *_edges) root=$RUNS/$bench/prior_edges fit=(--model.init_args.centred false) ;;
     fresh_*) root=$RUNS/$bench/$job fit=(--config "configs/experiments/recipe/fresh_labels_$bench.yaml") ;;
+    # mirrored views: 4 passes, each view reflected with probability 0.5, so the average is near-symmetric
+    mirror_*) root=$RUNS/$bench/$job fit=(--config configs/experiments/recipe/mirror.yaml --trainer.max_epochs 4) ;;
   esac
   local axis="" lineage=$RUNS/$bench/recipe_s0/lineage.json tries=0
   until axis=$(python3 -c "import json,sys; print(json.load(open(sys.argv[1]))['stages'][0]['checkpoint'])" \
@@ -235,6 +238,13 @@ run_job() {
       curriculum "$j" "$b" "${j#fresh_recipe_s}" "zoo recipe, repeated-episode labels" --extra-config "$RECIPE" \
         --extra-config "configs/experiments/recipe/fresh_labels_$b.yaml" ;;
     fresh_prior) prior fresh_prior layouts "Canonical prior, repeated-episode labels" ;;
+    # trained on views and their mirror images (configs/experiments/recipe/mirror.yaml; docs/results.md)
+    mirror_recipe_s[0-9]|styles_mirror_recipe_s[0-9])
+      local b=layouts j=$job; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
+      curriculum "$j" "$b" "${j#mirror_recipe_s}" "zoo recipe, mirrored views" --extra-config "$RECIPE" \
+        --extra-config configs/experiments/recipe/mirror.yaml ;;
+    mirror_prior) prior mirror_prior layouts "Canonical prior, mirrored views" ;;
+    styles_mirror_prior) prior mirror_prior styles "Canonical prior, mirrored views" ;;
     styles_fresh_prior) prior fresh_prior styles "Canonical prior, repeated-episode labels" ;;
     # the prior's cell edges on the label lattice, as before the grid centred its cells (docs/method.md)
     prior_edges) prior prior_edges layouts "Canonical prior, edge-binned" ;;
@@ -272,6 +282,7 @@ job_out() {  # the file a finished job has written, under $OUT
     styles_prior) echo styles/prior/report.json ;;
     styles_prior_edges) echo styles/prior_edges/report.json ;;
     styles_fresh_prior) echo styles/fresh_prior/report.json ;;
+    styles_mirror_prior) echo styles/mirror_prior/report.json ;;
     styles_recipe_s*) echo "styles/recipe_s${1#styles_recipe_s}/report.json" ;;
     styles_recipe_no_*) echo "styles/${1#styles_}/report.json" ;;
     styles_recipe_r1.*) echo "styles/recipe_sweep_${1#styles_recipe_}/report.json" ;;

@@ -11,6 +11,7 @@ from floaff_zoo.data.plot import plot
 from floaff_zoo.data.synthetic import SyntheticDataModule, make_synthetic_sample
 from floaff_zoo.data.transforms import (
     Jitter,
+    LateralMirror,
     OfficialNormalize,
     ResamplePoints,
     SampleTransform,
@@ -20,6 +21,7 @@ from floaff_zoo.data.transforms import (
     rotate_sample,
     transforms_config,
 )
+from floaff_zoo.nn.cfar import canonical_transform
 
 
 def _sample():
@@ -95,6 +97,42 @@ def test_yaw_perturb_is_consistent():
     assert s["meta"]["sim"]["base_pose_world"][2] == 0.3  # input untouched
     back = rotate_sample(out, -ang)
     assert torch.allclose(back["scene_xyz"], s["scene_xyz"], atol=1e-5)
+
+
+def test_lateral_mirror_flips_the_canonical_frame_laterally():
+    s = _sample()
+    s["target_yaw"] = torch.tensor(0.7)
+    out = LateralMirror(p=1.0)(s, np.random.default_rng(0))
+    validate_sample(out)
+    for key in ("scene_xyz", "floor_xyz"):
+        assert torch.equal(out[key][:, 0], s[key][:, 0]) and torch.equal(out[key][:, 2], s[key][:, 2])
+        assert torch.equal(out[key][:, 1], -s[key][:, 1])
+    assert torch.equal(out["floor_label"], s["floor_label"]) and torch.equal(out["scene_feat"], s["scene_feat"])
+    assert float(out["target_yaw"]) == pytest.approx(-0.7)
+    # a mirror-image kitchen: no simulator scene matches it, so nothing can roll it out
+    assert "sim" not in out["meta"] and out["meta"]["mirrored"] is True and "sim" in s["meta"]
+
+    def canon(x):
+        return canonical_transform(
+            x["scene_xyz"][None],
+            x["scene_mask"][None],
+            x["floor_xyz"][None],
+            x["target_xyz"][None],
+            x["target_yaw"].reshape(1),
+            None,
+        )
+
+    # in CFAR's canonical frame (front towards -y) the reflection is x -> -x: a left hinge becomes a right one
+    a, b = canon(s), canon(out)
+    assert torch.allclose(b.floor_xyz[..., 0], -a.floor_xyz[..., 0], atol=1e-5)
+    assert torch.allclose(b.floor_xyz[..., 1:], a.floor_xyz[..., 1:], atol=1e-5)
+    assert torch.allclose(b.xyz[..., 0], -a.xyz[..., 0], atol=1e-5)
+    # p is a probability; p = 0 never reflects
+    assert LateralMirror(p=0.0)(s, np.random.default_rng(0)) is s
+    hits = sum("mirrored" in LateralMirror(0.5)(s, np.random.default_rng(i))["meta"] for i in range(200))
+    assert 70 < hits < 130
+    with pytest.raises(ValueError, match="p must be"):
+        LateralMirror(p=1.5)
 
 
 def test_jitter_and_official_normalize():

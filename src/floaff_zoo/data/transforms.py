@@ -1,4 +1,4 @@
-"""Per-sample transforms: resampling, yaw perturbation, jitter, the official MoMa-Kitchen normalisation.
+"""Per-sample transforms: resampling, yaw perturbation, jitter, lateral mirroring, MoMa-Kitchen's normalisation.
 
 A transform is a small class with typed constructor args (so LightningCLI/jsonargparse builds it
 from ``class_path``) and ``__call__(sample, rng) -> sample``; ``rng`` is a seeded
@@ -194,6 +194,41 @@ class Jitter(SampleTransform):
         return out
 
 
+class LateralMirror(SampleTransform):
+    """Reflect the sample across the robot's x-z plane (y -> -y) with probability ``p``.
+
+    The reflected sample is what the robot would see of the mirror-image kitchen from the mirror-image
+    pose: scene, floor and target move to -y and ``target_yaw`` becomes ``-target_yaw``; labels stay with
+    their floor points. In CFAR's canonical frame this flips the lateral axis, so a door hinged on the left
+    becomes one hinged on the right. It assumes the robot and the tasks are left-right symmetric (the
+    PandaOmron's arm sits on the base's centre line; docs/method.md). ``meta['sim']`` is dropped from a
+    reflected sample (no simulator scene matches it) and ``meta['mirrored']`` is set, so a rollout can never
+    be run from it: use it on the train split only.
+
+    Args:
+        p: probability of reflecting a sample (0 = never, 1 = always).
+    """
+
+    def __init__(self, p: float = 0.5) -> None:
+        if not 0.0 <= p <= 1.0:
+            raise ValueError(f"LateralMirror: p must be in [0, 1], got {p}")
+        self.p = p
+
+    def __call__(self, sample: Sample, rng: np.random.Generator) -> Sample:
+        if not float(rng.random()) < self.p:
+            return sample
+        flip = torch.tensor([1.0, -1.0, 1.0], dtype=sample["scene_xyz"].dtype)
+        out = dict(sample)
+        out["scene_xyz"] = sample["scene_xyz"] * flip
+        out["floor_xyz"] = sample["floor_xyz"] * flip.to(sample["floor_xyz"].dtype)
+        out["target_xyz"] = sample["target_xyz"] * flip.to(sample["target_xyz"].dtype)
+        out["target_yaw"] = -sample["target_yaw"]
+        meta = {k: v for k, v in (sample.get("meta") or {}).items() if k != "sim"}
+        meta["mirrored"] = True
+        out["meta"] = meta
+        return out
+
+
 class OfficialNormalize(SampleTransform):
     """MoMa-Kitchen's ``pc_normalize`` of the global cloud: minus centroid, divided by the max radius.
 
@@ -226,6 +261,7 @@ def transforms_config(transforms: Sequence[SampleTransform] | None) -> list[dict
 
 __all__ = [
     "Jitter",
+    "LateralMirror",
     "OfficialNormalize",
     "ResamplePoints",
     "SampleTransform",
