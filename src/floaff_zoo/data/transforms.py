@@ -200,8 +200,8 @@ class LateralMirror(SampleTransform):
     The reflected sample is what the robot would see of the mirror-image kitchen from the mirror-image
     pose: scene, floor and target move to -y and ``target_yaw`` becomes ``-target_yaw``; labels stay with
     their floor points. In CFAR's canonical frame this flips the lateral axis, so a door hinged on the left
-    becomes one hinged on the right. It assumes the robot and the tasks are left-right symmetric (the
-    PandaOmron's arm sits on the base's centre line; docs/method.md). ``meta['sim']`` is dropped from a
+    becomes one hinged on the right. The labels are right only for a left-right symmetric robot and task; the
+    generated OpenSingleDoor labels are not symmetric (docs/method.md). ``meta['sim']`` is dropped from a
     reflected sample (no simulator scene matches it) and ``meta['mirrored']`` is set, so a rollout can never
     be run from it: use it on the train split only.
 
