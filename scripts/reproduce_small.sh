@@ -13,7 +13,8 @@
 #                                              # protocol (4,000 samples per learned model; docs/results.md)
 #   PRESET=dense scripts/reproduce_small.sh recipe_no_crop styles_recipe_r1.30   # ablations / crop sweep on
 #                                              # top of the zoo recipe (recipe_no_{crop,align,sdl,fd}, recipe_r1.xx,
-#                                              # each also as styles_<job>; ablation seeds: recipe_no_crop_s1, ...)
+#                                              # each also as styles_<job>; other seeds: recipe_no_crop_s1,
+#                                              # recipe_r1.10_s2, ...)
 #
 # Needs the data:
 #   floaff-zoo generate --preset small --benchmarks layouts styles --out data/floaff_small --workers 2 --n-test 4
@@ -223,8 +224,12 @@ run_job() {
       curriculum "$j" "$b" "$seed" "recipe w/o ${abl#no_}" --extra-config "$RECIPE" \
         --extra-config "configs/experiments/ablations/$abl.yaml" ;;
     recipe_r1.[0-9]*|styles_recipe_r1.[0-9]*)  # the crop sweep on top of the zoo recipe (CFAR's radius only)
-      local b=layouts r=${job#recipe_}; [ "${job#styles_}" != "$job" ] && b=styles r=${job#styles_recipe_}
-      curriculum "recipe_sweep_$r" "$b" 0 "recipe, r=${r#r}" --extra-config "$RECIPE" \
+      # seed 0 without suffix, other seeds as recipe_r1.xx_s<seed>
+      local b=layouts r=${job#recipe_} seed=0 name; [ "${job#styles_}" != "$job" ] && b=styles r=${job#styles_recipe_}
+      case $r in *_s[0-9]) seed=${r##*_s} r=${r%_s*} ;; esac
+      [ -f "configs/experiments/sweep_crop/$r.yaml" ] || { echo "unknown sweep radius '$r'" >&2; return 2; }
+      name=recipe_sweep_$r; [ "$seed" = 0 ] || name=${name}_s$seed
+      curriculum "$name" "$b" "$seed" "recipe, r=${r#r}" --extra-config "$RECIPE" \
         --extra-config "configs/experiments/sweep_crop/$r.yaml" ;;
     prior) prior prior layouts "Canonical prior (no network)" ;;
     prior_gtyaw) prior prior_gtyaw layouts "Canonical prior, simulator yaw" --model.init_args.eval_yaw_source gt ;;

@@ -43,10 +43,16 @@ for bench in layouts styles; do  # the ablations and the crop sweep on top of th
     table --runs "${ABLR[@]}" --preset sr_views --no-oracle
     table --runs "${ABLR[@]}" --preset sr_tasks --no-oracle
   fi
+  # rows pool the seeds of one radius; the recipe's own radius takes as many recipe seeds as the sweep has
   SWR=("$R/$bench/recipe_s0")
   for d in "$R/$bench"/recipe_sweep_r*; do [ -f "$d/report.json" ] && SWR+=("$d"); done
+  for s in 1 2; do
+    if compgen -G "$R/$bench/recipe_sweep_r*_s$s/report.json" > /dev/null && [ -f "$R/$bench/recipe_s$s/report.json" ]; then
+      SWR+=("$R/$bench/recipe_s$s")
+    fi
+  done
   if [ ${#SWR[@]} -gt 1 ]; then
-    echo "### Crop-radius sweep of the zoo recipe on $name (seed 0 each)"; echo
+    echo "### Crop-radius sweep of the zoo recipe on $name (seeds pooled per radius)"; echo
     floaff-zoo table --format md --runs "${SWR[@]}" --preset sweep; echo
     table --runs "${SWR[@]}" --preset sr_views --no-oracle
   fi
