@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from floaff_zoo.sim.annotate import FILTERED, ROLLED_OUT, SKIPPED, annotate_scene
+from floaff_zoo.sim.annotate import FILTERED, ROLLED_OUT, SKIPPED, annotate_scene, probability_label
 from floaff_zoo.sim.rollout import heading_to_target, rollout
 from floaff_zoo.sim.tasks import target_frame, target_frame_to_world
 
@@ -92,3 +92,27 @@ def test_close_double_door_poses(scene_factory):
     assert ok.success and max(ok.state.values()) <= 0.05, ok
     bad = rollout(sc, pose(0.0, -0.8))
     assert not bad.success and bad.reason != "ik_unreachable", bad
+
+
+def test_probability_label_smooths_rates_like_the_binary_map():
+    shape = (3, 4)
+    prob = np.zeros(12)
+    prob[0], prob[5], prob[6] = 0.8, 1.0, 0.5  # cell 0 is filtered: its rate must not survive
+    status = np.full(12, ROLLED_OUT)
+    status[0] = FILTERED
+    lab = probability_label(prob, status, shape, sigma_cells=0.0)
+    assert lab.dtype == np.float32 and lab.shape == (12,)
+    assert lab[5] == 1.0 and lab[6] == pytest.approx(0.5) and lab[0] == 0.0  # max-normalised, filtered cell 0
+    smooth = probability_label(prob, status, shape, sigma_cells=1.0)
+    assert smooth.max() == pytest.approx(1.0) and 0 < smooth[1] < 1  # spread to the neighbours
+    half = probability_label(prob * 0.5, status, shape, sigma_cells=1.0)
+    assert half == pytest.approx(smooth)  # rates are relative: the map is normalised to its peak
+    with pytest.raises(ValueError, match=r"need 12 .*grid \(3, 4\), got 11"):
+        probability_label(prob[:11], status[:11], shape)
+    bad = prob.copy()
+    bad[2] = 1.5
+    with pytest.raises(ValueError, match=r"0 not finite, range \[0, 1.5\]"):
+        probability_label(bad, status, shape)
+    bad[2] = np.nan
+    with pytest.raises(ValueError, match="1 not finite"):
+        probability_label(bad, status, shape)

@@ -64,10 +64,12 @@ def probability_label(
     label [M] f32: smoothed and max-normalised as the generated labels (step 6), filtered cells 0 (:func:`cell_labels`).
     """
     p = np.asarray(prob, dtype=np.float64).reshape(-1)
-    if p.size != int(np.prod(shape)) or not np.all(np.isfinite(p)) or p.min(initial=0) < 0 or p.max(initial=0) > 1:
+    finite = p[np.isfinite(p)]
+    if p.size != int(np.prod(shape)) or finite.size < p.size or finite.min(initial=0) < 0 or finite.max(initial=0) > 1:
+        span = f"range [{finite.min():.3g}, {finite.max():.3g}]" if finite.size else "no finite value"
         raise ValueError(
             f"probability_label: need {int(np.prod(shape))} finite probabilities in [0, 1] for grid {tuple(shape)}, "
-            f"got {p.size} (min {np.nanmin(p, initial=0):.3g}, max {np.nanmax(p, initial=0):.3g})"
+            f"got {p.size} ({p.size - finite.size} not finite, {span})"
         )
     return cell_labels(_smooth(p, shape, sigma_cells), status)[0]
 
