@@ -249,6 +249,11 @@ run_job() {
       curriculum "$j" "$b" "${j#mirror_recipe_s}" "zoo recipe, mirrored views" --extra-config "$RECIPE" \
         --extra-config configs/experiments/recipe/mirror.yaml ;;
     mirror_prior) prior mirror_prior layouts "Canonical prior, mirrored views" ;;
+    # the decoder also reads the base footprint's occupancy from the view (configs/experiments/recipe/occupancy.yaml)
+    occ_recipe_s[0-9]|styles_occ_recipe_s[0-9])
+      local b=layouts j=$job; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
+      curriculum "$j" "$b" "${j#occ_recipe_s}" "zoo recipe, footprint occupancy input" --extra-config "$RECIPE" \
+        --extra-config configs/experiments/recipe/occupancy.yaml ;;
     styles_mirror_prior) prior mirror_prior styles "Canonical prior, mirrored views" ;;
     styles_fresh_prior) prior fresh_prior styles "Canonical prior, repeated-episode labels" ;;
     # the prior's cell edges on the label lattice, as before the grid centred its cells (docs/method.md)

@@ -88,3 +88,32 @@ def test_footprint_blocked_sees_obstacles_inside_the_base_rectangle():
         footprint_blocked(np.zeros((4, 2)), (0.0, 0.0, 0.0))
     with pytest.raises(ValueError, match="min_points"):
         footprint_blocked(box, (0.0, 0.0, 0.0), min_points=0)
+
+
+def test_footprint_counts_agree_with_footprint_blocked():
+    """The batched torch count behind CFAR's occupancy input calls blocked exactly what the callback's check does."""
+    import torch
+
+    from floaff_zoo.contract import best_pose
+    from floaff_zoo.floor import footprint_blocked
+    from floaff_zoo.nn.placement import footprint_counts
+
+    rng = np.random.default_rng(0)
+    b, n, m = 3, 400, 60
+    xyz = rng.uniform([-1.5, -1.5, -0.05], [1.5, 1.5, 1.5], size=(b, n, 3))
+    xyz[1, :5] = np.nan  # invalid points never count
+    mask = rng.random((b, n)) > 0.2
+    floor = np.concatenate([rng.uniform(-1.2, 1.2, size=(b, m, 2)), np.zeros((b, m, 1))], axis=-1)
+    target = rng.uniform(-0.3, 0.3, size=(b, 3))
+    counts = footprint_counts(
+        torch.tensor(xyz), torch.tensor(mask), torch.tensor(floor[..., :2]), torch.tensor(target[:, :2]), chunk=7
+    )
+    assert counts.shape == (b, m)
+    blocked = 0
+    for i in range(b):
+        poses = best_pose(floor[i], -np.arange(m, dtype=float), None, target[i], k=m)  # floor points in order
+        for j, pose in enumerate(poses):
+            for k in (1, 2, 5):
+                assert bool(counts[i, j] >= k) == footprint_blocked(xyz[i][mask[i]], pose, min_points=k), (i, j, k)
+            blocked += int(counts[i, j] >= 2)
+    assert 0 < blocked < b * m  # both outcomes occur: the comparison can fail

@@ -222,3 +222,49 @@ def test_axisnet_is_frozen_embedded_and_used_at_eval(tmp_path, root, monkeypatch
     assert swapped.model.hparams.axisnet_arch["source"] == axis2_ckpt
     for k, v in swapped.model.net.state_dict().items():  # the CFAR weights are still the student's
         assert torch.equal(v, re.net.state_dict()[k]), k
+
+
+def test_occupancy_input_reads_the_footprint_from_the_view(tmp_path, root, monkeypatch):
+    """``occupancy_input``: an obstacle put into one floor point's base footprint changes that point's input and
+    score; the switch trains, tests and reloads through the CLI."""
+    from floaff_zoo.nn.placement import footprint_counts
+
+    b = _batch(2)
+    model = CFARModule(**tiny_args(root), occupancy_input=True, eval_yaw_source="gt").eval()
+    assert model.net.head.linears[0].in_features == CFARModule(**tiny_args(root)).net.head.linears[0].in_features + 2
+    occ = model.occupancy(b)
+    assert occ.shape == (*b["floor_xyz"].shape[:2], 2) and torch.isfinite(occ).all()
+    # park on floor point 0 of sample 0: put ten points 0.2 m tall just behind it (inside the footprint)
+    floor0, target0 = b["floor_xyz"][0, 0], b["target_xyz"][0]
+    heading = torch.atan2(target0[1] - floor0[1], target0[0] - floor0[0])
+    behind = floor0[:2] - 0.2 * torch.stack([torch.cos(heading), torch.sin(heading)])
+    blocked = dict(b)
+    blocked["scene_xyz"] = b["scene_xyz"].clone()
+    blocked["scene_xyz"][0, :10] = torch.cat([behind, torch.tensor([0.2])])
+    blocked["scene_mask"] = b["scene_mask"].clone()
+    blocked["scene_mask"][0, :10] = True
+    count = footprint_counts(
+        blocked["scene_xyz"], blocked["scene_mask"], b["floor_xyz"][..., :2], b["target_xyz"][..., :2]
+    )
+    assert count[0, 0] >= 10 and model.occupancy(blocked)[0, 0, 1] == 1.0
+    with torch.no_grad():
+        s0 = model(b)
+        s1 = model(blocked)
+    assert (s0[0, 0] - s1[0, 0]).abs() > 1e-6
+    with pytest.raises(ValueError, match="floor_feat must be"):
+        model.net.logits(b["scene_xyz"], b["scene_feat"], b["scene_mask"], b["floor_xyz"], b["floor_mask"], b["robot"])
+    # through the CLI: fit, test, reload with the switch kept
+    monkeypatch.chdir(root)
+    base = [
+        "--config",
+        DATA,
+        "--config",
+        CFAR,
+        *quiet_trainer_args(tmp_path),
+        "--model.init_args.occupancy_input",
+        "true",
+    ]
+    cli = run_lightning(["fit", *base, "--trainer.max_epochs", "1"])
+    ckpt = cli.trainer.checkpoint_callback.best_model_path
+    assert torch.isfinite(run_lightning(["test", *base, "--ckpt_path", ckpt]).trainer.callback_metrics["test_sim"])
+    assert CFARModule.load_from_checkpoint(ckpt, weights_only=True).net.floor_feat_channels == 2

@@ -31,7 +31,10 @@ AxisNet of a trained model can be swapped: when ``axisnet`` names another AxisNe
 Departures from the paper (switches, off by default; docs/method.md): ``prior_residual`` predicts a residual
 logit over the canonical prior (a per-task label average on a canonical grid, filled from the training data at
 the start of ``fit`` for tasks it has not seen, kept in the checkpoint); ``floor_encoder: pointwise`` encodes
-each floor point alone, so scores do not depend on the other queries.
+each floor point alone, so scores do not depend on the other queries; ``occupancy_input`` gives the decoder, per floor
+point, the obstacle points of the view's own cloud inside the base footprint parked there
+(``nn.placement.footprint_counts``, the rectangle of ``floor.footprint_blocked``): two channels, log(1 + count) and
+count >= 2 (what the callback's ``free_space: cloud`` check calls blocked).
 
 PFAL teacher (``teacher``: checkpoint path or hub name of the previous stage's best): loaded lazily in
 ``setup("fit")`` (so test/predict/``load_from_checkpoint`` never need the file), frozen, in eval mode,
@@ -73,12 +76,17 @@ from floaff_zoo.models.yaw import (
 )
 from floaff_zoo.nn.axisnet import AxisNet
 from floaff_zoo.nn.cfar import CanonicalCloud, CFARNet, canonical_transform, robot_from_canonical, sample_levels
+from floaff_zoo.nn.placement import footprint_counts
 from floaff_zoo.nn.prior import CanonicalLabelGrid
 
 TEACHER_PREFIX = "teacher."
 #: the prior is clamped to [eps, 1 - eps] before its logit
 PRIOR_EPS = 1e-3
 DISTILLED_PREFIX = "net.local_encoder."
+#: ``occupancy_input`` channels: log(1 + obstacle points in the footprint), and the count reaching the callback's
+#: ``free_space: cloud`` threshold (``floor.footprint_blocked``'s ``min_points``)
+OCCUPANCY_CHANNELS = 2
+OCCUPANCY_MIN_POINTS = 2
 
 
 @contextmanager
@@ -120,6 +128,8 @@ class CFARModule(FloAffModule):
         local_* / floor_* / robot_mlp / head: :class:`~floaff_zoo.nn.cfar.CFARNet` architecture.
         floor_encoder: ``set`` (paper) or ``pointwise`` (query-independent floor features; departure).
         prior_residual: predict a residual over the canonical prior (departure, see module docstring).
+        occupancy_input: give the decoder the base footprint's occupancy from the view's cloud at each floor
+            point (departure, see module docstring; off by default).
         prior_tasks: tasks the prior keeps a grid for (default: the four tasks).
         prior_centred: the prior's cells centred on the label lattice (``nn.prior``); False reproduces the
             binning of checkpoints written before (a loaded checkpoint keeps the binning its state records).
@@ -156,6 +166,7 @@ class CFARModule(FloAffModule):
         head: list[int] | None = None,
         floor_encoder: Literal["set", "pointwise"] = "set",
         prior_residual: bool = False,
+        occupancy_input: bool = False,
         prior_tasks: list[str] | None = None,
         prior_centred: bool = True,
         manhattan_radius: float = 1.2,
@@ -192,7 +203,11 @@ class CFARModule(FloAffModule):
             if h[k] is not None
         }
         self.net = CFARNet(
-            feat_channels=h["feat_channels"], robot_dim=h["robot_dim"], floor_encoder=h["floor_encoder"], **arch
+            feat_channels=h["feat_channels"],
+            robot_dim=h["robot_dim"],
+            floor_encoder=h["floor_encoder"],
+            floor_feat_channels=OCCUPANCY_CHANNELS if h["occupancy_input"] else 0,
+            **arch,
         )
         self.prior: CanonicalLabelGrid | None = None
         if h["prior_residual"]:
@@ -335,12 +350,23 @@ class CFARModule(FloAffModule):
     def _run(self, batch: Batch) -> tuple[Tensor, Tensor, CanonicalCloud, Tensor | None]:
         canon, yaw = self.canonicalize(batch)
         feat = batch["scene_feat"][..., : self.hparams["feat_channels"]]
-        logits, g = self.net.logits(canon.xyz, feat, canon.mask, canon.floor_xyz, batch["floor_mask"], batch["robot"])
+        occ = self.occupancy(batch) if self.hparams["occupancy_input"] else None
+        logits, g = self.net.logits(
+            canon.xyz, feat, canon.mask, canon.floor_xyz, batch["floor_mask"], batch["robot"], occ
+        )
         if self.prior is not None:
             tasks = self.prior.task_index([str(m.get("task")) for m in batch["meta"]])
             p = self.prior.read(tasks, canon.floor_xyz[..., :2]).to(logits.dtype).clamp(PRIOR_EPS, 1 - PRIOR_EPS)
             logits = logits + torch.log(p) - torch.log1p(-p)
         return torch.sigmoid(logits), g, canon, yaw
+
+    @staticmethod
+    def occupancy(batch: Batch) -> Tensor:
+        """Footprint occupancy [B, M, 2] at every floor point from the view's whole (uncropped) cloud, robot frame."""
+        counts = footprint_counts(
+            batch["scene_xyz"], batch["scene_mask"], batch["floor_xyz"][..., :2], batch["target_xyz"][..., :2]
+        )
+        return torch.stack([torch.log1p(counts), (counts >= OCCUPANCY_MIN_POINTS).to(counts.dtype)], dim=-1)
 
     # ----------------------------------------------------------------- prior
     def on_fit_start(self) -> None:

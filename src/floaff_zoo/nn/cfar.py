@@ -322,6 +322,8 @@ class CFARNet(nn.Module):
             the other points asked) or ``pointwise`` (each floor point encoded alone from Fourier features
             of its canonical xy: scores do not depend on which other queries are asked; a departure).
         floor_point_mlp / fourier_freqs: widths and number of octaves of the pointwise floor encoder.
+        floor_feat_channels: extra per-floor-point input channels given to the decoder (``floor_feat`` of
+            :meth:`logits`, e.g. the footprint occupancy of ``CFARModule(occupancy_input=True)``); 0 = none.
     """
 
     def __init__(
@@ -343,8 +345,12 @@ class CFARNet(nn.Module):
         floor_encoder: str = "set",
         floor_point_mlp: Sequence[int] = (64, 64),
         fourier_freqs: int = 4,
+        floor_feat_channels: int = 0,
     ) -> None:
         super().__init__()
+        if floor_feat_channels < 0:
+            raise ValueError(f"CFARNet: floor_feat_channels must be >= 0, got {floor_feat_channels}")
+        self.floor_feat_channels = int(floor_feat_channels)
         if not local_npoints or not floor_npoints:
             raise ValueError("CFARNet needs at least one local and one floor set-abstraction level")
         if floor_encoder not in ("set", "pointwise"):
@@ -388,6 +394,7 @@ class CFARNet(nn.Module):
         self.global_channels = self.local_encoder.out_channels
         context_channels = self.local_encoder.level_channels[-2]
         fused = cur + self.global_channels + (robot_mlp[-1] if robot_mlp else robot_dim) + context_channels + 3
+        fused += self.floor_feat_channels
         self.head = SharedMLP(fused, list(head))
         self.out = nn.Linear(head[-1] if head else fused, 1)
 
@@ -423,27 +430,48 @@ class CFARNet(nn.Module):
         return cur
 
     def forward(
-        self, xyz: Tensor, feat: Tensor, mask: Tensor, floor_xyz: Tensor, floor_mask: Tensor, robot: Tensor
+        self,
+        xyz: Tensor,
+        feat: Tensor,
+        mask: Tensor,
+        floor_xyz: Tensor,
+        floor_mask: Tensor,
+        robot: Tensor,
+        floor_feat: Tensor | None = None,
     ) -> tuple[Tensor, Tensor]:
         """Canonical inputs -> (scores [B, M] in [0, 1], g [B, C_g]).
 
         xyz [B,N,3], feat [B,N,C], mask [B,N] (canonical local cloud), floor_xyz [B,M,3] (canonical),
-        floor_mask [B,M], robot [B,R].
+        floor_mask [B,M], robot [B,R], floor_feat [B,M,floor_feat_channels] (None when 0 channels).
         """
-        logits, g = self.logits(xyz, feat, mask, floor_xyz, floor_mask, robot)
+        logits, g = self.logits(xyz, feat, mask, floor_xyz, floor_mask, robot, floor_feat)
         return torch.sigmoid(logits), g
 
     def logits(
-        self, xyz: Tensor, feat: Tensor, mask: Tensor, floor_xyz: Tensor, floor_mask: Tensor, robot: Tensor
+        self,
+        xyz: Tensor,
+        feat: Tensor,
+        mask: Tensor,
+        floor_xyz: Tensor,
+        floor_mask: Tensor,
+        robot: Tensor,
+        floor_feat: Tensor | None = None,
     ) -> tuple[Tensor, Tensor]:
         """As :meth:`forward`, before the sigmoid: (logits [B, M], g [B, C_g])."""
+        b, m = floor_xyz.shape[:2]
+        want = (b, m, self.floor_feat_channels)
+        if self.floor_feat_channels and (floor_feat is None or tuple(floor_feat.shape) != want):
+            got = None if floor_feat is None else list(floor_feat.shape)
+            raise ValueError(f"CFARNet: floor_feat must be {list(want)}, got {got}")
+        if not self.floor_feat_channels and floor_feat is not None:
+            raise ValueError("CFARNet: floor_feat given but the net was built with floor_feat_channels=0")
         g, levels = self.encode_local(xyz, feat, mask)
         cur = self.encode_floor(floor_xyz, floor_mask)
         # local context: last SA level (before group-all), interpolated in the horizontal plane
         cxyz, cfeat = levels[-2]
         flat = torch.tensor([1.0, 1.0, 0.0], device=floor_xyz.device, dtype=floor_xyz.dtype)
         ctx = stable_three_interpolate(floor_xyz * flat, cxyz * flat, cfeat)
-        m = floor_xyz.shape[1]
         rob = self.robot_mlp(robot)
-        z = torch.cat([cur, g[:, None].expand(-1, m, -1), rob[:, None].expand(-1, m, -1), ctx, floor_xyz], dim=-1)
+        parts = [cur, g[:, None].expand(-1, m, -1), rob[:, None].expand(-1, m, -1), ctx, floor_xyz]
+        z = torch.cat(parts + ([floor_feat.to(cur.dtype)] if floor_feat is not None else []), dim=-1)
         return self.out(self.head(z)).squeeze(-1), g

@@ -13,7 +13,9 @@ import math
 import torch
 from torch import Tensor
 
-__all__ = ["footprint_collides", "heading_to", "occupied_cells"]
+from floaff_zoo.floor import FLOOR_Z_MAX, FOOTPRINT
+
+__all__ = ["footprint_collides", "footprint_counts", "heading_to", "occupied_cells"]
 
 
 def occupied_cells(xyz: Tensor, mask: Tensor | None = None, cell: float = 0.02, z_min: float = 0.05) -> Tensor:
@@ -58,6 +60,46 @@ def footprint_collides(
     side = -d[..., 0] * s + d[..., 1] * c
     inside = (fwd >= -back_frac * length) & (fwd <= (1 - back_frac) * length) & (side.abs() <= width / 2)
     return inside.any(dim=1)
+
+
+@torch.no_grad()
+def footprint_counts(
+    xyz: Tensor,
+    mask: Tensor,
+    floor_xy: Tensor,
+    target_xy: Tensor,
+    footprint: tuple[float, float, float] = FOOTPRINT,
+    z_range: tuple[float, float] = (FLOOR_Z_MAX, 1.2),
+    chunk: int = 256,
+) -> Tensor:
+    """Obstacle points of each view's cloud inside the base footprint parked on each floor point, facing the target.
+
+    The batched torch form of ``floaff_zoo.floor.footprint_blocked`` (same rectangle, same heights):
+    ``footprint_blocked(cloud, pose) == (count >= min_points)`` for the pose ``best_pose`` gives a floor point.
+
+    Args:
+        xyz: [B, N, 3] clouds (floor at z = 0); mask: [B, N] bool valid points;
+        floor_xy: [B, M, 2] base positions; target_xy: [B, 2] (the base faces it);
+        footprint: (length, width, front) m (``floor.FOOTPRINT``); z_range: heights that block;
+        chunk: floor points per pass (bounds the [B, chunk, N] temporaries).
+    Returns:
+        [B, M] counts in ``xyz``'s dtype (no gradient).
+    """
+    length, width, front = footprint
+    z = xyz[..., 2]
+    keep = mask.bool() & torch.isfinite(xyz).all(-1) & (z > z_range[0]) & (z <= z_range[1])  # [B, N]
+    yaw = heading_to(floor_xy, target_xy[:, None, :])  # [B, M]
+    c, s = torch.cos(yaw), torch.sin(yaw)
+    out = []
+    for m0 in range(0, floor_xy.shape[1], max(1, int(chunk))):
+        sl = slice(m0, m0 + max(1, int(chunk)))
+        d = xyz[:, None, :, :2] - floor_xy[:, sl, None, :]  # [B, m, N, 2]
+        cc, ss = c[:, sl, None], s[:, sl, None]
+        along = d[..., 0] * cc + d[..., 1] * ss
+        across = -d[..., 0] * ss + d[..., 1] * cc
+        inside = (along <= front) & (along >= front - length) & (across.abs() <= width / 2) & keep[:, None, :]
+        out.append(inside.sum(-1))
+    return torch.cat(out, dim=1).to(xyz.dtype)
 
 
 def heading_to(xy: Tensor, target_xy: Tensor) -> Tensor:
