@@ -247,6 +247,13 @@ def test_occupancy_input_reads_the_footprint_from_the_view(tmp_path, root, monke
         blocked["scene_xyz"], blocked["scene_mask"], b["floor_xyz"][..., :2], b["target_xyz"][..., :2]
     )
     assert count[0, 0] >= 10 and model.occupancy(blocked)[0, 0, 1] == 1.0
+    # the feature is read per 1,024 valid points: the same cloud at twice the density gives the same input
+    doubled = dict(blocked)
+    doubled["scene_xyz"] = torch.cat([blocked["scene_xyz"]] * 2, dim=1)
+    doubled["scene_mask"] = torch.cat([blocked["scene_mask"]] * 2, dim=1)
+    assert torch.allclose(model.occupancy(doubled), model.occupancy(blocked))
+    n_valid = blocked["scene_mask"].sum(1)
+    assert torch.allclose(model.occupancy(blocked)[..., 0], torch.log1p(count * 1024 / n_valid[:, None]))
     with torch.no_grad():
         s0 = model(b)
         s1 = model(blocked)
