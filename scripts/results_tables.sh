@@ -43,6 +43,16 @@ for bench in layouts styles; do  # the ablations and the crop sweep on top of th
     table --runs "${ABLR[@]}" --preset sr_views --no-oracle
     table --runs "${ABLR[@]}" --preset sr_tasks --no-oracle
   fi
+  OCC=()  # the footprint-occupancy input (a hypothesis tested after its validation decision; docs/results.md)
+  for d in "$R/$bench"/recipe_s? "$R/$bench"/occ_recipe_s? "$R/$bench"/prior; do
+    [ -f "$d/report.json" ] && OCC+=("$d")
+  done
+  if [ -f "$R/$bench/occ_recipe_s0/report.json" ]; then
+    echo "### Footprint occupancy as an input on $name (test split, a diagnostic; seeds pooled per row)"; echo
+    table --runs "${OCC[@]}" --preset ablation
+    table --runs "${OCC[@]}" --preset sr_views --no-oracle
+    table --runs "${OCC[@]}" --preset sr_tasks --no-oracle
+  fi
   # rows pool the seeds of one radius; the recipe's own radius takes as many recipe seeds as the sweep has
   SWR=("$R/$bench/recipe_s0")
   for d in "$R/$bench"/recipe_sweep_r*; do [ -f "$d/report.json" ] && SWR+=("$d"); done
