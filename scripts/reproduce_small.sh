@@ -254,6 +254,10 @@ run_job() {
       local b=layouts j=$job; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
       curriculum "$j" "$b" "${j#occ_recipe_s}" "zoo recipe, footprint occupancy input" --extra-config "$RECIPE" \
         --extra-config configs/experiments/recipe/occupancy.yaml ;;
+    occ_cfar_pfal_s[0-9]|styles_occ_cfar_pfal_s[0-9])  # the same input on the paper's path (no recipe departures)
+      local b=layouts j=$job; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
+      curriculum "$j" "$b" "${j#occ_cfar_pfal_s}" "CFAR+PFAL, footprint occupancy input" \
+        --extra-config configs/experiments/recipe/occupancy.yaml ;;
     styles_mirror_prior) prior mirror_prior styles "Canonical prior, mirrored views" ;;
     styles_fresh_prior) prior fresh_prior styles "Canonical prior, repeated-episode labels" ;;
     # the prior's cell edges on the label lattice, as before the grid centred its cells (docs/method.md)

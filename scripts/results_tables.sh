@@ -44,7 +44,7 @@ for bench in layouts styles; do  # the ablations and the crop sweep on top of th
     table --runs "${ABLR[@]}" --preset sr_tasks --no-oracle
   fi
   OCC=()  # the footprint-occupancy input (a hypothesis tested after its validation decision; docs/results.md)
-  for d in "$R/$bench"/recipe_s? "$R/$bench"/occ_recipe_s? "$R/$bench"/prior; do
+  for d in "$R/$bench"/{recipe_s?,occ_recipe_s?,cfar_pfal_s?,occ_cfar_pfal_s?,prior}; do
     [ -f "$d/report.json" ] && OCC+=("$d")
   done
   if [ -f "$R/$bench/occ_recipe_s0/report.json" ]; then
