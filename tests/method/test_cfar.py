@@ -255,9 +255,11 @@ def test_occupancy_input_reads_the_footprint_from_the_view(tmp_path, root, monke
     n_valid = blocked["scene_mask"].sum(1)
     assert torch.allclose(model.occupancy(blocked)[..., 0], torch.log1p(count * 1024 / n_valid[:, None]))
     with torch.no_grad():
-        s0 = model(b)
         s1 = model(blocked)
-    assert (s0[0, 0] - s1[0, 0]).abs() > 1e-6
+        monkeypatch.setattr(model, "occupancy", lambda batch: torch.zeros_like(occ))  # same scene, no occupancy
+        s0 = model(blocked)
+        monkeypatch.undo()
+    assert (s0[0, 0] - s1[0, 0]).abs() > 1e-6  # the score reads the occupancy channels
     with pytest.raises(ValueError, match="floor_feat must be"):
         model.net.logits(b["scene_xyz"], b["scene_feat"], b["scene_mask"], b["floor_xyz"], b["floor_mask"], b["robot"])
     # through the CLI: fit, test, reload with the switch kept
