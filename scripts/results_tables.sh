@@ -15,6 +15,12 @@ for d in "$R"/layouts/{recipe_s?,cfar_pfal_s?,prior,prior_gtyaw,pointnet2_s?,nav
   [ -f "$d/report.json" ] && MAIN+=("$d")
 done
 table() { floaff-zoo table --format md --group-by label "$@"; echo; }
+# variant_tables RUN...: map metrics, SR by view and SR by task of runs pooled per label (ablations, variants)
+variant_tables() {
+  table --runs "$@" --preset ablation
+  table --runs "$@" --preset sr_views --no-oracle
+  table --runs "$@" --preset sr_tasks --no-oracle
+}
 
 echo "### Map metrics (analogue of Table 1)"; echo
 table --runs "${MAIN[@]}" --preset map
@@ -39,9 +45,7 @@ for bench in layouts styles; do  # the ablations and the crop sweep on top of th
   done
   if [ -f "$R/$bench/recipe_no_crop/report.json" ]; then
     echo "### Ablations of the zoo recipe on $name (analogue of Tables 4-5; seeds pooled per row)"; echo
-    table --runs "${ABLR[@]}" --preset ablation
-    table --runs "${ABLR[@]}" --preset sr_views --no-oracle
-    table --runs "${ABLR[@]}" --preset sr_tasks --no-oracle
+    variant_tables "${ABLR[@]}"
   fi
   OCC=()  # the footprint-occupancy input (a hypothesis tested after its validation decision; docs/results.md)
   for d in "$R/$bench"/{recipe_s?,occ_recipe_s?,cfar_pfal_s?,occ_cfar_pfal_s?,prior}; do
@@ -49,9 +53,7 @@ for bench in layouts styles; do  # the ablations and the crop sweep on top of th
   done
   if [ -f "$R/$bench/occ_recipe_s0/report.json" ]; then
     echo "### Footprint occupancy as an input on $name (test split, a diagnostic; seeds pooled per row)"; echo
-    table --runs "${OCC[@]}" --preset ablation
-    table --runs "${OCC[@]}" --preset sr_views --no-oracle
-    table --runs "${OCC[@]}" --preset sr_tasks --no-oracle
+    variant_tables "${OCC[@]}"
   fi
   # rows pool the seeds of one radius; the recipe's own radius takes as many recipe seeds as the sweep has
   SWR=("$R/$bench/recipe_s0")
