@@ -107,16 +107,16 @@ stage_test() {
   test_run "$(dirname "$(dirname "$ckpt")")" "$label" layouts "$job" "$ckpt" "$@"
 }
 
-# baseline JOB BENCH SEED MODEL_CONFIG LABEL: fit (resumed from last.ckpt when killed), then test
+# baseline JOB BENCH SEED MODEL_CONFIG LABEL [FIT ARGS...]: fit (resumed from last.ckpt when killed), then test
 baseline() {
-  local job=$1 bench=$2 seed=$3 model=$4 label=$5 root=$RUNS/$2/$1 last=()
+  local job=$1 bench=$2 seed=$3 model=$4 label=$5 root=$RUNS/$2/$1 last=(); shift 5
   if [ -d "$root" ]; then
     local prev; prev=$(find "$root" -name last.ckpt | head -n 1)
     if [ -n "$prev" ]; then last=(--ckpt_path "$prev"); fi
   fi
   if [ "$RETEST" = 0 ]; then
     "$FZ" fit --config "configs/data/floaff_${PRESET}_$bench.yaml" --config "$model" \
-      --seed_everything "$seed" --trainer.default_root_dir "$root" "${BUDGET[@]}" "${last[@]}"
+      --seed_everything "$seed" --trainer.default_root_dir "$root" "${BUDGET[@]}" "$@" "${last[@]}"
   fi
   test_run "$(latest_run "$root")" "$label" "$bench" "$job"
 }
@@ -258,6 +258,10 @@ run_job() {
       local b=layouts j=$job; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
       curriculum "$j" "$b" "${j#occ_cfar_pfal_s}" "CFAR+PFAL, footprint occupancy input" \
         --extra-config configs/experiments/recipe/occupancy.yaml ;;
+    occ_pointnet2_s[0-9]|styles_occ_pointnet2_s[0-9])  # the same input for PointNet++ (a fairness check)
+      local b=layouts j=$job; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
+      baseline "$j" "$b" "${j#occ_pointnet2_s}" configs/demo/pointnet2_demo.yaml "PointNet++, footprint occupancy input" \
+        --config configs/experiments/recipe/occupancy.yaml ;;
     styles_mirror_prior) prior mirror_prior styles "Canonical prior, mirrored views" ;;
     styles_fresh_prior) prior fresh_prior styles "Canonical prior, repeated-episode labels" ;;
     # the prior's cell edges on the label lattice, as before the grid centred its cells (docs/method.md)

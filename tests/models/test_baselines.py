@@ -244,6 +244,54 @@ def test_bf16_flag_runs(batch):
     assert torch.isfinite(loss) and all(g is not None and torch.isfinite(g).all() for g in grads)
 
 
+def test_pointnet2_occupancy_input_reads_the_footprint(batch, monkeypatch, tmp_path):
+    """``PointNet2Module(occupancy_input=True)`` (the fairness check of CFAR's input): the floor skip grows by the two
+    ``footprint_occupancy`` channels, an obstacle in floor point 0's footprint changes its score, the channels are
+    checked, and the switch trains, tests and reloads through the CLI."""
+    import floaff_zoo.models.pointnet2 as pn2
+    from floaff_zoo.nn.placement import footprint_occupancy
+
+    torch.manual_seed(0)
+    cfg = yaml.safe_load((TINY / "pointnet2_ssg_tiny.yaml").read_text())["model"]["init_args"]
+    plain = PointNet2Module(**cfg)
+    model = PointNet2Module(**cfg, occupancy_input=True).eval()
+    assert model.net.floor_fp.mlp.linears[0].in_features == plain.net.floor_fp.mlp.linears[0].in_features + 2
+    # ten points 0.2 m tall just behind floor point 0 of sample 0 (inside the base footprint facing the target)
+    floor0, target0 = batch["floor_xyz"][0, 0], batch["target_xyz"][0]
+    heading = torch.atan2(target0[1] - floor0[1], target0[0] - floor0[0])
+    behind = floor0[:2] - 0.2 * torch.stack([torch.cos(heading), torch.sin(heading)])
+    blocked = dict(batch)
+    blocked["scene_xyz"] = batch["scene_xyz"].clone()
+    blocked["scene_xyz"][0, :10] = torch.cat([behind, torch.tensor([0.2])])
+    occ = footprint_occupancy(blocked["scene_xyz"], blocked["scene_mask"], blocked["floor_xyz"], blocked["target_xyz"])
+    assert occ[0, 0, 1] == 1.0
+    with torch.no_grad():
+        s1 = model(blocked)
+        monkeypatch.setattr(pn2, "footprint_occupancy", lambda *a: torch.zeros_like(occ))  # same scene, no occupancy
+        s0 = model(blocked)
+        monkeypatch.undo()
+    assert (s0[0, 0] - s1[0, 0]).abs() > 1e-6
+    args = [blocked[k] for k in ("scene_xyz", "scene_feat", "scene_mask", "floor_xyz", "floor_mask", "robot")]
+    with pytest.raises(ValueError, match="floor_feat must be"):
+        model.net(*args, blocked["target_xyz"], floor_feat=occ[..., :1])
+    with pytest.raises(ValueError, match="floor_feat given"):
+        plain.net(*args, blocked["target_xyz"], floor_feat=occ)
+    # through the CLI: fit, test, reload with the switch kept
+    from floaff_zoo.cli import main
+
+    cli_cfg = [
+        "--config",
+        str(ROOT / "configs/data/synthetic_tiny.yaml"),
+        "--config",
+        str(TINY / "pointnet2_ssg_tiny.yaml"),
+    ]
+    cli_cfg += ["--model.init_args.occupancy_input", "true"]
+    assert main(["fit", *cli_cfg, "--trainer.max_epochs", "1", *_cli_common(tmp_path)]) == 0
+    ckpt = sorted(glob.glob(str(tmp_path / "**" / "*.ckpt"), recursive=True))[-1]
+    assert main(["test", *cli_cfg, "--ckpt_path", ckpt, *_cli_common(tmp_path)]) == 0
+    assert PointNet2Module.load_from_checkpoint(ckpt, weights_only=True).net.floor_feat_channels == 2
+
+
 # --------------------------------------------------------------------------- CLI round trips
 def _cli_common(tmp_path: Path) -> list[str]:
     return [

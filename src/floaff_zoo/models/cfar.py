@@ -33,7 +33,7 @@ logit over the canonical prior (a per-task label average on a canonical grid, fi
 the start of ``fit`` for tasks it has not seen, kept in the checkpoint); ``floor_encoder: pointwise`` encodes
 each floor point alone, so scores do not depend on the other queries; ``occupancy_input`` gives the decoder, per floor
 point, the obstacle points of the view's own cloud inside the base footprint parked there
-(``nn.placement.footprint_counts``, the rectangle of ``floor.footprint_blocked``): two channels, log(1 + count) and
+(``nn.placement.footprint_occupancy``, the rectangle of ``floor.footprint_blocked``): two channels, log(1 + count) and
 count >= 2 (what the callback's ``free_space: cloud`` check calls blocked), counts rescaled to a 1,024-point cloud.
 
 PFAL teacher (``teacher``: checkpoint path or hub name of the previous stage's best): loaded lazily in
@@ -76,19 +76,13 @@ from floaff_zoo.models.yaw import (
 )
 from floaff_zoo.nn.axisnet import AxisNet
 from floaff_zoo.nn.cfar import CanonicalCloud, CFARNet, canonical_transform, robot_from_canonical, sample_levels
-from floaff_zoo.nn.placement import footprint_counts
+from floaff_zoo.nn.placement import OCCUPANCY_CHANNELS, footprint_occupancy
 from floaff_zoo.nn.prior import CanonicalLabelGrid
 
 TEACHER_PREFIX = "teacher."
 #: the prior is clamped to [eps, 1 - eps] before its logit
 PRIOR_EPS = 1e-3
 DISTILLED_PREFIX = "net.local_encoder."
-#: ``occupancy_input`` channels: log(1 + obstacle points in the footprint), and the count reaching the callback's
-#: ``free_space: cloud`` threshold (``floor.footprint_blocked``'s ``min_points``)
-OCCUPANCY_CHANNELS = 2
-OCCUPANCY_MIN_POINTS = 2
-#: occupancy counts are expressed for a cloud of this many valid points (density-independent feature)
-OCCUPANCY_REF_POINTS = 1024
 
 
 @contextmanager
@@ -364,18 +358,9 @@ class CFARModule(FloAffModule):
 
     @staticmethod
     def occupancy(batch: Batch) -> Tensor:
-        """Footprint occupancy [B, M, 2] at every floor point from the view's whole (uncropped) cloud, robot frame.
-
-        Counts are rescaled to a cloud of ``OCCUPANCY_REF_POINTS`` valid points (the dense recipe's training size,
-        where the scale is 1), so a model trained at one density reads the same feature from a denser or sparser
-        cloud at deployment (``predict`` feeds 4,096 points by default).
-        """
-        counts = footprint_counts(
-            batch["scene_xyz"], batch["scene_mask"], batch["floor_xyz"][..., :2], batch["target_xyz"][..., :2]
-        )
-        valid = batch["scene_mask"].sum(dim=1, keepdim=True).clamp(min=1).to(counts.dtype)  # [B, 1]
-        counts = counts * (OCCUPANCY_REF_POINTS / valid)
-        return torch.stack([torch.log1p(counts), (counts >= OCCUPANCY_MIN_POINTS).to(counts.dtype)], dim=-1)
+        """Footprint occupancy [B, M, 2] at every floor point from the view's whole (uncropped) cloud, robot frame
+        (``nn.placement.footprint_occupancy``; independent of the yaw estimate and the crop)."""
+        return footprint_occupancy(batch["scene_xyz"], batch["scene_mask"], batch["floor_xyz"], batch["target_xyz"])
 
     # ----------------------------------------------------------------- prior
     def on_fit_start(self) -> None:

@@ -16,6 +16,7 @@ from torch import Tensor, nn
 from floaff_zoo.contract import Batch
 from floaff_zoo.models.base import FloAffModule, FloAffTrainConfig
 from floaff_zoo.nn.nets import PointNet2Net, check_inputs, require_valid
+from floaff_zoo.nn.placement import OCCUPANCY_CHANNELS, footprint_occupancy
 
 #: default PointNet++ sizes for scenes in metres (robot base frame, a few metres across)
 SSG_DEFAULTS: dict[str, Any] = {
@@ -70,17 +71,22 @@ def maybe_bf16(enabled: bool, device: torch.device) -> Iterator[None]:
         yield
 
 
-def run_scene_floor_net(net: nn.Module, batch: Batch, feat_channels: int, bf16: bool) -> Any:
+def run_scene_floor_net(
+    net: nn.Module, batch: Batch, feat_channels: int, bf16: bool, occupancy_input: bool = False
+) -> Any:
     """``net(scene, floor, robot, target, fps=...)`` on a batch (PointNet++, VoteNet- and H3DNet-style nets).
 
-    Inputs are checked; FPS runs first, outside autocast; the MLPs run in bf16 when ``bf16``.
+    Inputs are checked; FPS runs first, outside autocast; the MLPs run in bf16 when ``bf16``. With
+    ``occupancy_input`` the net also gets ``floor_feat`` = ``nn.placement.footprint_occupancy`` [B, M, 2].
     Returns what the net returns (scores [B, M], possibly with aux geometry), not cast.
     """
     xyz, feat, mask = scene_inputs(batch, feat_channels)
     fxyz, fmask = floor_inputs(batch)
+    target = batch["target_xyz"].float()
+    extra = {"floor_feat": footprint_occupancy(xyz, mask, fxyz, target)} if occupancy_input else {}
     fps = net.sample(xyz, mask)
     with maybe_bf16(bf16, xyz.device):
-        return net(xyz, feat, mask, fxyz, fmask, batch["robot"].float(), batch["target_xyz"].float(), fps=fps)
+        return net(xyz, feat, mask, fxyz, fmask, batch["robot"].float(), target, fps=fps, **extra)
 
 
 def maybe_compile(net: nn.Module, enabled: bool) -> None:
@@ -110,6 +116,9 @@ class PointNet2Module(FloAffModule):
             (``SSG_DEFAULTS``/``MSG_DEFAULTS``). ``fp_mlps`` has one entry per SA level; the last is
             the FP onto the floor points.
         robot_width, head_width, dropout: robot MLP width, head width, head dropout.
+        occupancy_input: append the base footprint's occupancy from the view's cloud at each floor point to the
+            floor skip features (``nn.placement.footprint_occupancy``, the input of ``CFARModule(occupancy_input)``;
+            off by default: a fairness check of that input, not part of the MoMa-Kitchen baseline).
         compile: ``torch.compile`` the net (opt-in; 30-50 s first step on CPU).
         bf16: bf16 autocast for the MLPs (opt-in; needs AVX512-BF16/AMX to pay off on CPU).
         (the rest: see :class:`FloAffModule`)
@@ -126,6 +135,7 @@ class PointNet2Module(FloAffModule):
         robot_width: int = 64,
         head_width: int = 64,
         dropout: float = 0.1,
+        occupancy_input: bool = False,
         compile: bool = False,
         bf16: bool = False,
         feat_channels: int = 1,
@@ -152,9 +162,11 @@ class PointNet2Module(FloAffModule):
             robot_width=h["robot_width"],
             head_width=h["head_width"],
             dropout=h["dropout"],
+            floor_feat_channels=OCCUPANCY_CHANNELS if h["occupancy_input"] else 0,
             **sizes,
         )
         maybe_compile(self.net, h["compile"])
 
     def forward(self, batch: Batch) -> Tensor:
-        return run_scene_floor_net(self.net, batch, self.hparams["feat_channels"], self.hparams["bf16"]).float()
+        h = self.hparams
+        return run_scene_floor_net(self.net, batch, h["feat_channels"], h["bf16"], h["occupancy_input"]).float()

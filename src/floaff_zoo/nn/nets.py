@@ -148,7 +148,9 @@ class PointNet2Net(nn.Module):
     Args:
         variant: ``ssg`` or ``msg`` (grouped channel order of the classic port);
         fp_mlps: FP widths, deepest first; the last entry is the FP onto the floor points
-            (skip = floor xyz, xy offset and distance to the target).
+            (skip = floor xyz, xy offset and distance to the target [, ``floor_feat``]);
+        floor_feat_channels: extra per-floor-point input channels appended to that skip (``floor_feat`` of
+            :meth:`forward`, e.g. ``nn.placement.footprint_occupancy``); 0 = none.
     """
 
     def __init__(
@@ -164,14 +166,18 @@ class PointNet2Net(nn.Module):
         robot_width: int = 64,
         head_width: int = 64,
         dropout: float = 0.1,
+        floor_feat_channels: int = 0,
     ) -> None:
         super().__init__()
         if len(fp_mlps) != len(npoints):
             raise ValueError(f"fp_mlps needs {len(npoints)} entries (one per SA level), got {len(fp_mlps)}")
+        if floor_feat_channels < 0:
+            raise ValueError(f"PointNet2Net: floor_feat_channels must be >= 0, got {floor_feat_channels}")
+        self.floor_feat_channels = int(floor_feat_channels)
         self.scene = SceneEncoderDecoder(
             feat_channels, robot_dim, robot_width, npoints, radii, nsamples, mlps, fp_mlps[:-1], variant == "ssg"
         )
-        self.floor_fp = FeaturePropagation(6 + self.scene.out_channels, fp_mlps[-1])
+        self.floor_fp = FeaturePropagation(6 + self.floor_feat_channels + self.scene.out_channels, fp_mlps[-1])
         self.head = PerPointHead(self.floor_fp.out_channels, head_width, dropout)
 
     def sample(self, scene_xyz: Tensor, scene_mask: Tensor) -> list[Tensor | None]:
@@ -187,10 +193,21 @@ class PointNet2Net(nn.Module):
         robot: Tensor,
         target_xyz: Tensor,
         fps: list[Tensor | None] | None = None,
+        floor_feat: Tensor | None = None,
     ) -> Tensor:
-        """Scene [B,N,3]/[B,N,C]/[B,N], floor [B,M,3]/[B,M], robot [B,R], target [B,3] -> scores [B,M] in [0,1]."""
+        """Scene [B,N,3]/[B,N,C]/[B,N], floor [B,M,3]/[B,M], robot [B,R], target [B,3],
+        floor_feat [B,M,floor_feat_channels] (None when 0 channels) -> scores [B,M] in [0,1]."""
+        skip = floor_local_features(floor_xyz, target_xyz)
+        want = (*floor_xyz.shape[:2], self.floor_feat_channels)
+        if self.floor_feat_channels and (floor_feat is None or tuple(floor_feat.shape) != want):
+            got = None if floor_feat is None else list(floor_feat.shape)
+            raise ValueError(f"PointNet2Net: floor_feat must be {list(want)}, got {got}")
+        if not self.floor_feat_channels and floor_feat is not None:
+            raise ValueError("PointNet2Net: floor_feat given but the net was built with floor_feat_channels=0")
+        if floor_feat is not None:
+            skip = torch.cat([skip, floor_feat.to(skip.dtype)], dim=-1)
         sxyz, sfeat, _ = self.scene(scene_xyz, scene_feat, scene_mask, robot, fps)
-        h = self.floor_fp(floor_xyz, sxyz, floor_local_features(floor_xyz, target_xyz), sfeat)
+        h = self.floor_fp(floor_xyz, sxyz, skip, sfeat)
         return torch.sigmoid(self.head(h).float())
 
 

@@ -1,4 +1,4 @@
-"""Base-placement geometry shared by N2M-style and C2F-Exp-style models (pure torch).
+"""Base-placement geometry shared by N2M-style and C2F-Exp-style models and the footprint-occupancy input (pure torch).
 
 Occupancy follows N2M's collision check (docs/background.md §3): points higher than ``z_min`` are
 rasterised into ``cell``-sized cells; a base pose collides when an occupied cell centre lies in
@@ -15,7 +15,14 @@ from torch import Tensor
 
 from floaff_zoo.floor import FLOOR_Z_MAX, FOOTPRINT
 
-__all__ = ["footprint_collides", "footprint_counts", "heading_to", "occupied_cells"]
+__all__ = ["footprint_collides", "footprint_counts", "footprint_occupancy", "heading_to", "occupied_cells"]
+
+#: ``footprint_occupancy`` channels: log(1 + obstacle points in the footprint), and the count reaching the rollout
+#: callback's ``free_space: cloud`` threshold (``floor.footprint_blocked``'s ``min_points``)
+OCCUPANCY_CHANNELS = 2
+OCCUPANCY_MIN_POINTS = 2
+#: occupancy counts are expressed for a cloud of this many valid points (density-independent feature)
+OCCUPANCY_REF_POINTS = 1024
 
 
 def occupied_cells(xyz: Tensor, mask: Tensor | None = None, cell: float = 0.02, z_min: float = 0.05) -> Tensor:
@@ -100,6 +107,25 @@ def footprint_counts(
         inside = (along <= front) & (along >= front - length) & (across.abs() <= width / 2) & keep[:, None, :]
         out.append(inside.sum(-1))
     return torch.cat(out, dim=1).to(xyz.dtype)
+
+
+@torch.no_grad()
+def footprint_occupancy(xyz: Tensor, mask: Tensor, floor_xyz: Tensor, target_xyz: Tensor) -> Tensor:
+    """Per-floor-point input channels saying whether a base parked there would stand in the view's obstacles.
+
+    Counts (``footprint_counts``, robot frame, the whole cloud) are rescaled to a cloud of ``OCCUPANCY_REF_POINTS``
+    valid points, so a model trained at one density reads the same feature from a denser or sparser cloud at
+    deployment. Models with an ``occupancy_input`` switch (CFAR, PointNet++) feed this to their floor decoder.
+
+    Args:
+        xyz: [B, N, 3] clouds; mask: [B, N] valid points; floor_xyz: [B, M, 3]; target_xyz: [B, 3].
+    Returns:
+        [B, M, OCCUPANCY_CHANNELS]: log(1 + count), and count >= ``OCCUPANCY_MIN_POINTS`` as 0/1.
+    """
+    counts = footprint_counts(xyz, mask, floor_xyz[..., :2], target_xyz[..., :2])
+    valid = mask.sum(dim=1, keepdim=True).clamp(min=1).to(counts.dtype)  # [B, 1]
+    counts = counts * (OCCUPANCY_REF_POINTS / valid)
+    return torch.stack([torch.log1p(counts), (counts >= OCCUPANCY_MIN_POINTS).to(counts.dtype)], dim=-1)
 
 
 def heading_to(xy: Tensor, target_xy: Tensor) -> Tensor:
