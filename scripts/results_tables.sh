@@ -47,8 +47,8 @@ for bench in layouts styles; do  # the ablations and the crop sweep on top of th
     echo "### Ablations of the zoo recipe on $name (analogue of Tables 4-5; seeds pooled per row)"; echo
     variant_tables "${ABLR[@]}"
   fi
-  OCC=()  # the footprint-occupancy input (a hypothesis tested after its validation decision; docs/results.md)
-  for d in "$R/$bench"/{recipe_s?,occ_recipe_s?,cfar_pfal_s?,occ_cfar_pfal_s?,prior}; do
+  OCC=()  # the footprint-occupancy input on CFAR (tested after its validation decision) and PointNet++ (fairness check)
+  for d in "$R/$bench"/{recipe_s?,occ_recipe_s?,cfar_pfal_s?,occ_cfar_pfal_s?,pointnet2_s?,occ_pointnet2_s?,prior}; do
     [ -f "$d/report.json" ] && OCC+=("$d")
   done
   if [ -f "$R/$bench/occ_recipe_s0/report.json" ]; then
