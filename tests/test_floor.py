@@ -117,3 +117,12 @@ def test_footprint_counts_agree_with_footprint_blocked():
                 assert bool(counts[i, j] >= k) == footprint_blocked(xyz[i][mask[i]], pose, min_points=k), (i, j, k)
             blocked += int(counts[i, j] >= 2)
     assert 0 < blocked < b * m  # both outcomes occur: the comparison can fail
+    # shapes are checked, naming the argument
+    t = [torch.tensor(xyz), torch.tensor(mask), torch.tensor(floor[..., :2]), torch.tensor(target[:, :2])]
+    for i, (name, bad) in enumerate(
+        [("xyz", t[0][..., :2]), ("mask", t[1][:, :-1]), ("floor_xy", t[2][:2]), ("target_xy", t[3][:, :1])]
+    ):
+        args = list(t)
+        args[i] = bad
+        with pytest.raises(ValueError, match=f"{name} must be"):
+            footprint_counts(*args)

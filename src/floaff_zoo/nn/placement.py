@@ -69,6 +69,20 @@ def footprint_collides(
     return inside.any(dim=1)
 
 
+def _check_batch_shapes(xyz: Tensor, mask: Tensor, floor_xy: Tensor, target_xy: Tensor) -> None:
+    """Raise ValueError naming the argument whose shape does not fit [B, N, 3] / [B, N] / [B, M, 2] / [B, 2]."""
+    b = xyz.shape[0] if xyz.dim() == 3 else None
+    if b is None or xyz.shape[-1] != 3:
+        raise ValueError(f"footprint_counts: xyz must be [B, N, 3], got {list(xyz.shape)}")
+    for name, t, want in (
+        ("mask", mask, [b, xyz.shape[1]]),
+        ("floor_xy", floor_xy, [b, floor_xy.shape[1] if floor_xy.dim() == 3 else -1, 2]),
+        ("target_xy", target_xy, [b, 2]),
+    ):
+        if list(t.shape) != want:
+            raise ValueError(f"footprint_counts: {name} must be {want}, got {list(t.shape)}")
+
+
 @torch.no_grad()
 def footprint_counts(
     xyz: Tensor,
@@ -92,6 +106,7 @@ def footprint_counts(
     Returns:
         [B, M] counts in ``xyz``'s dtype (no gradient).
     """
+    _check_batch_shapes(xyz, mask, floor_xy, target_xy)
     length, width, front = footprint
     z = xyz[..., 2]
     keep = mask.bool() & torch.isfinite(xyz).all(-1) & (z > z_range[0]) & (z <= z_range[1])  # [B, N]
