@@ -43,3 +43,17 @@ def quiet_trainer_args(tmp_path) -> list[str]:
         "--trainer.enable_model_summary",
         "false",
     ]
+
+
+def block_first_footprint(batch: dict, n: int = 10) -> dict:
+    """A copy of ``batch`` whose sample 0 has ``n`` valid cloud points 0.2 m tall just behind floor point 0, inside the
+    base footprint parked there facing the target (what the occupancy inputs must see)."""
+    floor0, target0 = batch["floor_xyz"][0, 0], batch["target_xyz"][0]
+    heading = torch.atan2(target0[1] - floor0[1], target0[0] - floor0[0])
+    behind = floor0[:2] - 0.2 * torch.stack([torch.cos(heading), torch.sin(heading)])
+    blocked = dict(batch)
+    blocked["scene_xyz"] = batch["scene_xyz"].clone()
+    blocked["scene_xyz"][0, :n] = torch.cat([behind, torch.tensor([0.2])])
+    blocked["scene_mask"] = batch["scene_mask"].clone()
+    blocked["scene_mask"][0, :n] = True
+    return blocked

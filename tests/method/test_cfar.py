@@ -14,7 +14,7 @@ from floaff_zoo.data.synthetic import make_synthetic_sample
 from floaff_zoo.losses import masked_mse
 from floaff_zoo.models.cfar import CFARModule
 from floaff_zoo.nn.cfar import canonical_to_robot, canonical_transform, crop_mask, robot_from_canonical
-from tests.conftest import quiet_trainer_args
+from tests.conftest import block_first_footprint, quiet_trainer_args
 
 DATA = "configs/data/synthetic_tiny.yaml"
 CFAR = "tests/configs/cfar_tiny.yaml"
@@ -235,14 +235,7 @@ def test_occupancy_input_reads_the_footprint_from_the_view(tmp_path, root, monke
     occ = model.occupancy(b)
     assert occ.shape == (*b["floor_xyz"].shape[:2], 2) and torch.isfinite(occ).all()
     # park on floor point 0 of sample 0: put ten points 0.2 m tall just behind it (inside the footprint)
-    floor0, target0 = b["floor_xyz"][0, 0], b["target_xyz"][0]
-    heading = torch.atan2(target0[1] - floor0[1], target0[0] - floor0[0])
-    behind = floor0[:2] - 0.2 * torch.stack([torch.cos(heading), torch.sin(heading)])
-    blocked = dict(b)
-    blocked["scene_xyz"] = b["scene_xyz"].clone()
-    blocked["scene_xyz"][0, :10] = torch.cat([behind, torch.tensor([0.2])])
-    blocked["scene_mask"] = b["scene_mask"].clone()
-    blocked["scene_mask"][0, :10] = True
+    blocked = block_first_footprint(b)
     count = footprint_counts(
         blocked["scene_xyz"], blocked["scene_mask"], b["floor_xyz"][..., :2], b["target_xyz"][..., :2]
     )

@@ -18,6 +18,7 @@ from floaff_zoo.models.n2m import N2MModule
 from floaff_zoo.models.navaff import NavAffModule
 from floaff_zoo.models.pointnet2 import PointNet2Module
 from floaff_zoo.models.votenet import VoteNetModule
+from tests.conftest import block_first_footprint
 
 ROOT = Path(__file__).resolve().parents[2]
 TINY = ROOT / "tests" / "configs" / "models"
@@ -256,13 +257,7 @@ def test_pointnet2_occupancy_input_reads_the_footprint(batch, monkeypatch, tmp_p
     plain = PointNet2Module(**cfg)
     model = PointNet2Module(**cfg, occupancy_input=True).eval()
     assert model.net.floor_fp.mlp.linears[0].in_features == plain.net.floor_fp.mlp.linears[0].in_features + 2
-    # ten points 0.2 m tall just behind floor point 0 of sample 0 (inside the base footprint facing the target)
-    floor0, target0 = batch["floor_xyz"][0, 0], batch["target_xyz"][0]
-    heading = torch.atan2(target0[1] - floor0[1], target0[0] - floor0[0])
-    behind = floor0[:2] - 0.2 * torch.stack([torch.cos(heading), torch.sin(heading)])
-    blocked = dict(batch)
-    blocked["scene_xyz"] = batch["scene_xyz"].clone()
-    blocked["scene_xyz"][0, :10] = torch.cat([behind, torch.tensor([0.2])])
+    blocked = block_first_footprint(batch)  # obstacle points in floor point 0's base footprint
     occ = footprint_occupancy(blocked["scene_xyz"], blocked["scene_mask"], blocked["floor_xyz"], blocked["target_xyz"])
     assert occ[0, 0, 1] == 1.0
     with torch.no_grad():
