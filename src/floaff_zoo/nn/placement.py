@@ -71,15 +71,16 @@ def footprint_collides(
 
 def _check_batch_shapes(xyz: Tensor, mask: Tensor, floor_xy: Tensor, target_xy: Tensor) -> None:
     """Raise ValueError naming the argument whose shape does not fit [B, N, 3] / [B, N] / [B, M, 2] / [B, 2]."""
-    b = xyz.shape[0] if xyz.dim() == 3 else None
-    if b is None or xyz.shape[-1] != 3:
+    if xyz.dim() != 3 or xyz.shape[-1] != 3:
         raise ValueError(f"footprint_counts: xyz must be [B, N, 3], got {list(xyz.shape)}")
-    for name, t, want in (
-        ("mask", mask, [b, xyz.shape[1]]),
-        ("floor_xy", floor_xy, [b, floor_xy.shape[1] if floor_xy.dim() == 3 else -1, 2]),
-        ("target_xy", target_xy, [b, 2]),
-    ):
-        if list(t.shape) != want:
+    b, n = xyz.shape[:2]
+    checks = (
+        ("mask", mask, f"[B, N] = [{b}, {n}]", list(mask.shape) == [b, n]),
+        ("floor_xy", floor_xy, f"[B, M, 2] with B = {b}", floor_xy.dim() == 3 and list(floor_xy.shape[::2]) == [b, 2]),
+        ("target_xy", target_xy, f"[B, 2] = [{b}, 2]", list(target_xy.shape) == [b, 2]),
+    )
+    for name, t, want, ok in checks:
+        if not ok:
             raise ValueError(f"footprint_counts: {name} must be {want}, got {list(t.shape)}")
 
 
