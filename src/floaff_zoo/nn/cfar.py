@@ -31,7 +31,7 @@ import torch
 from torch import Tensor, nn
 
 from floaff_zoo.contract import SampleError
-from floaff_zoo.nn.ops import point_kernel, weighted_gather3
+from floaff_zoo.nn.ops import check_floor_feat, point_kernel, weighted_gather3
 from floaff_zoo.nn.pointnet2 import FeaturePropagation, PointNet2Encoder, SharedMLP
 
 __all__ = [
@@ -458,13 +458,8 @@ class CFARNet(nn.Module):
         floor_feat: Tensor | None = None,
     ) -> tuple[Tensor, Tensor]:
         """As :meth:`forward`, before the sigmoid: (logits [B, M], g [B, C_g])."""
-        b, m = floor_xyz.shape[:2]
-        want = (b, m, self.floor_feat_channels)
-        if self.floor_feat_channels and (floor_feat is None or tuple(floor_feat.shape) != want):
-            got = None if floor_feat is None else list(floor_feat.shape)
-            raise ValueError(f"CFARNet: floor_feat must be {list(want)}, got {got}")
-        if not self.floor_feat_channels and floor_feat is not None:
-            raise ValueError("CFARNet: floor_feat given but the net was built with floor_feat_channels=0")
+        m = floor_xyz.shape[1]
+        check_floor_feat("CFARNet", floor_feat, floor_xyz, self.floor_feat_channels)
         g, levels = self.encode_local(xyz, feat, mask)
         cur = self.encode_floor(floor_xyz, floor_mask)
         # local context: last SA level (before group-all), interpolated in the horizontal plane

@@ -17,6 +17,7 @@ from torch import Tensor, nn
 
 from floaff_zoo.nn.ops import (
     check_finite,
+    check_floor_feat,
     farthest_point_sample,
     three_interpolate,
     three_nn,
@@ -197,13 +198,8 @@ class PointNet2Net(nn.Module):
     ) -> Tensor:
         """Scene [B,N,3]/[B,N,C]/[B,N], floor [B,M,3]/[B,M], robot [B,R], target [B,3],
         floor_feat [B,M,floor_feat_channels] (None when 0 channels) -> scores [B,M] in [0,1]."""
+        check_floor_feat("PointNet2Net", floor_feat, floor_xyz, self.floor_feat_channels)
         skip = floor_local_features(floor_xyz, target_xyz)
-        want = (*floor_xyz.shape[:2], self.floor_feat_channels)
-        if self.floor_feat_channels and (floor_feat is None or tuple(floor_feat.shape) != want):
-            got = None if floor_feat is None else list(floor_feat.shape)
-            raise ValueError(f"PointNet2Net: floor_feat must be {list(want)}, got {got}")
-        if not self.floor_feat_channels and floor_feat is not None:
-            raise ValueError("PointNet2Net: floor_feat given but the net was built with floor_feat_channels=0")
         if floor_feat is not None:
             skip = torch.cat([skip, floor_feat.to(skip.dtype)], dim=-1)
         sxyz, sfeat, _ = self.scene(scene_xyz, scene_feat, scene_mask, robot, fps)

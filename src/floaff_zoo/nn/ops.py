@@ -47,6 +47,21 @@ def check_finite(name: str, x: Tensor) -> None:
         raise ValueError(f"{name} contains {bad} NaN/Inf value(s)")
 
 
+def check_floor_feat(owner: str, floor_feat: Tensor | None, floor_xyz: Tensor, channels: int) -> None:
+    """Raise ``ValueError`` unless ``floor_feat`` is [B, M, channels] for floor [B, M, 3] (None when 0 channels).
+
+    Shared by the nets that take extra per-floor-point inputs (``floor_feat_channels``); ``owner`` names the net.
+    """
+    if channels and floor_feat is None:
+        raise ValueError(f"{owner}: floor_feat must be {[*floor_xyz.shape[:2], channels]}, got None")
+    if not channels and floor_feat is not None:
+        raise ValueError(f"{owner}: floor_feat given but the net was built with floor_feat_channels=0")
+    if channels and list(floor_feat.shape) != [*floor_xyz.shape[:2], channels]:
+        raise ValueError(
+            f"{owner}: floor_feat must be {[*floor_xyz.shape[:2], channels]}, got {list(floor_feat.shape)}"
+        )
+
+
 def _check_points(name: str, xyz: Tensor) -> None:
     if xyz.ndim != 3 or xyz.shape[-1] != 3:
         raise ValueError(f"{name} must be [B, N, 3], got {list(xyz.shape)}")
