@@ -381,6 +381,45 @@ def test_resume_regenerates_only_the_deleted_scene_identically_with_one_worker(m
     assert man["counts"]["scenes_ok"] == len(before)
 
 
+def test_view_requests_top_up_the_missing_views_front_first():
+    job = gen.SceneJob("styles", "CloseDrawer", "train", 0, 0, 0, (1,), 2, 3)
+    served: list[int] = []
+
+    def run(min_views: int, per_request: dict[str, int]) -> list[tuple[str, int]]:
+        """Serve each request with at most per_request[kind] views; return the requests made."""
+        served.clear()
+        reqs = []
+        for kind, n in gen.view_requests(job, get_preset("tiny", min_views=min_views), lambda: sum(served)):
+            reqs.append((kind, n))
+            served.append(min(n, per_request[kind]))
+        return reqs
+
+    assert run(0, {"front": 9, "side": 9}) == [("front", 2), ("side", 3)]  # off: the preset's own counts
+    assert run(4, {"front": 9, "side": 9}) == [("front", 2), ("side", 3)]  # reached: nothing more
+    assert run(8, {"front": 9, "side": 9}) == [("front", 2), ("side", 3), ("front", 3)]
+    # a front region that yields nothing leaves the gap to the side region
+    assert run(8, {"front": 0, "side": 9}) == [("front", 2), ("side", 3), ("front", 5), ("side", 5)]
+    with pytest.raises(ValueError, match="min_views"):
+        get_preset("tiny", min_views=-1).validate()
+
+
+def test_top_up_keeps_the_presets_views_and_adds_to_min_views(mini_run, tmp_path):
+    """min_views draws the preset's views first, identically, then adds views from the same regions."""
+    src, _ = mini_run
+    man = gen.generate(tmp_path, get_preset("tiny", **MINI, min_views=3), seed=0, workers=0, quiet=True)
+    assert man["status"] == "done" and man["config"]["min_views"] == 3
+    before = {s["scene_id"]: s for s in ff.iter_scenes(src)}
+    after = list(ff.iter_scenes(tmp_path))
+    assert sorted(s["scene_id"] for s in after) == sorted(before)
+    for s in after:
+        old = before[s["scene_id"]]
+        assert len(s["views"]) >= 3 > len(old["views"]) and s["labels"] == old["labels"]
+        for v in old["views"]:  # the preset's own views come first and are unchanged
+            a = ff.read_view(Path(old["dir"]) / v["file"])
+            b = ff.read_view(Path(s["dir"]) / v["file"])
+            assert all(np.array_equal(a[k], b[k]) for k in a), (s["scene_id"], v["view_id"])
+
+
 @pytest.fixture(scope="module")
 def tiny_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("tiny")

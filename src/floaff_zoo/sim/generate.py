@@ -32,7 +32,7 @@ import shutil
 import sys
 import time
 import traceback
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -258,6 +258,22 @@ def view_floor_cells(scene_xyz: np.ndarray, base_pose: np.ndarray, lattice: Any)
     return observed_cells(world, lattice, FLOOR_Z_MAX)
 
 
+def view_requests(job: SceneJob, preset: GenPreset, n_done: Callable[[], int]) -> Iterator[tuple[str, int]]:
+    """The (view kind, count) requests of one scene, in order: the preset's front and side counts, then the top-up.
+
+    The top-up asks each region in turn (front, then side) for the views still missing to ``preset.min_views``;
+    ``n_done()`` is read after each request is served, so a region that fills the gap ends it. The same rng serves
+    every request, so the views before the top-up are those a preset without it draws.
+    """
+    yield "front", job.n_front
+    yield "side", job.n_side
+    for kind in ("front", "side"):
+        missing = preset.min_views - n_done()
+        if missing <= 0:
+            return
+        yield kind, missing
+
+
 def _write_scene(
     out: Path,
     job: SceneJob,
@@ -323,7 +339,7 @@ def _write_scene(
     first_rgb: dict[str, np.ndarray] = {}
     renderer = Renderer(scene.model, preset.image_size, preset.image_size)
     try:
-        for kind, n in (("front", job.n_front), ("side", job.n_side)):
+        for kind, n in view_requests(job, preset, lambda: len(views)):
             for pose, obs in sample_view_poses(scene, renderer, kind, n, vcfg, rng_views, accept=keep_view):
                 vid = f"{kind}_{sum(v['view'] == kind for v in views):04d}"
                 seen = view_floor_cells(obs.scene_xyz, pose, lattice)
@@ -846,6 +862,12 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="override: front and side views per scene",
     )
+    p.add_argument(
+        "--min-views",
+        type=int,
+        default=None,
+        help="override: top a scene up to this many views from the same regions (0 = off; dense: 200)",
+    )
     p.add_argument("--image-size", type=int, default=None, help="override: ego image size (pixels)")
     p.add_argument("--quiet", action="store_true", help="no progress output")
     return p
@@ -863,6 +885,7 @@ def main(argv: list[str] | None = None) -> int:
         cell=args.cell,
         max_candidates=args.max_candidates or None,
         views_per_scene=tuple(args.views) if args.views else None,
+        min_views=args.min_views,
         image_size=args.image_size,
     )
     if args.max_candidates == 0:
