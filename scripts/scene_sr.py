@@ -1,0 +1,202 @@
+"""Success rate per test scene, and error bars that resample scenes instead of views.
+
+    python scripts/scene_sr.py --root data/floaff_dense --benchmark layouts [--split test] [--json out.json] \
+        recipe=<ckpt or hub name> recipe=<another seed> prior=canonical-prior.floaff-dense-layouts.v4 ...
+
+Every view of a test scene asks the same question about one kitchen, and a model tends to choose the same
+target-relative cell in most of them, so one scene's 200 views are not 200 independent trials: a scene adds
+or removes its whole weight at once. ``floaff-zoo test``'s bootstrap resamples views and says nothing about
+that. This script scores each model's argmax as ``RolloutSuccessRate`` chooses it (top 1) by the annotated
+outcome of the chosen cell (equal to the test's SR: the rollouts replay the annotation's episode and refuse the
+cells it filtered), then reports:
+
+- SR per scene, per task and over all views, for every NAME (runs given under one NAME, e.g. seeds, are averaged
+  per scene: a row of the tables);
+- a **scene bootstrap**: the test scenes of each task resampled with replacement (``--draws`` times), SR_all
+  recomputed; its std is the error bar of SR_all over kitchens;
+- for every pair of NAMEs, the difference of SR_all with its scene-bootstrap 90 % interval (paired: the same
+  resampled scenes for both).
+
+Labels only, no simulator; about a minute per model and benchmark on one core.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from fresh_sr import nearest_cells  # noqa: E402
+
+from floaff_zoo.callbacks.rollout import choose_pose  # noqa: E402
+from floaff_zoo.contract import TASKS  # noqa: E402
+
+# per view: (task, scene id, {name: [outcome per run]})
+Row = tuple[str, str, dict[str, list[bool]]]
+
+
+def parse_models(specs: list[str]) -> dict[str, list[str]]:
+    """['name=model', ...] -> {name: [model, ...]} in order; a bare model is its own name."""
+    out: dict[str, list[str]] = defaultdict(list)
+    for s in specs:
+        name, sep, model = s.partition("=")
+        if not sep:
+            name, model = s, s
+        if not name or not model:
+            raise SystemExit(f"scene_sr: bad model argument {s!r}; use NAME=MODEL")
+        out[name].append(model)
+    return dict(out)
+
+
+def view_outcomes(batch: dict, scores: dict[str, list[np.ndarray]], scenes: dict[str, dict]) -> list[Row]:
+    """Annotated outcome of each run's chosen cell, per view of a batch (scores: name -> per run [B, M])."""
+    from floaff_zoo.sim.kitchen import SceneSpec
+
+    floor, mask, target = (batch[k].numpy() for k in ("floor_xyz", "floor_mask", "target_xyz"))
+    rows = []
+    for i, meta in enumerate(batch["meta"]):
+        sim = meta["sim"]
+        sid = SceneSpec.from_dict(sim).scene_id
+        if sid not in scenes:
+            raise KeyError(f"view {meta.get('sample_id', i)}: scene {sid} is not under the data root")
+        scene = scenes[sid]
+        cand = np.asarray(scene["candidates"]["xy"], float)
+        cell = float(scene["candidates"]["cell"])
+        success = np.asarray(scene["labels"]["success"]) > 0
+        out: dict[str, list[bool]] = {}
+        for name, runs in scores.items():
+            out[name] = []
+            for s in runs:
+                pose, _ = choose_pose(
+                    floor[i], s[i], mask[i], target[i], sim["base_pose_world"], 1, None, int(meta.get("index", i))
+                )
+                out[name].append(bool(success[nearest_cells(cand, np.array([pose[:2]]), cell, sid)[0]]))
+        rows.append((meta["task"], sid, out))
+    return rows
+
+
+def per_scene(rows: list[Row], names: list[str]) -> dict[str, dict]:
+    """scene id -> {task, views, SR per name (runs averaged)}."""
+    acc: dict[str, dict] = {}
+    for task, sid, out in rows:
+        a = acc.setdefault(sid, {"task": task, "views": 0, "sum": defaultdict(float)})
+        a["views"] += 1
+        for n in names:
+            a["sum"][n] += float(np.mean(out[n]))
+    return {
+        sid: {"task": a["task"], "views": a["views"], "sr": {n: a["sum"][n] / a["views"] for n in names}}
+        for sid, a in sorted(acc.items())
+    }
+
+
+def sr_all(scenes: dict[str, dict], ids: list[str], name: str) -> float:
+    """SR over all views of the listed scenes (a scene listed twice counts twice)."""
+    views = np.array([scenes[s]["views"] for s in ids], float)
+    return float(np.dot(views, [scenes[s]["sr"][name] for s in ids]) / views.sum())
+
+
+def scene_bootstrap(scenes: dict[str, dict], names: list[str], draws: int, seed: int) -> np.ndarray:
+    """[draws, len(names)] SR_all with the scenes of each task resampled with replacement."""
+    rng = np.random.default_rng(seed)
+    by_task = defaultdict(list)
+    for sid, s in scenes.items():
+        by_task[s["task"]].append(sid)
+    out = np.empty((draws, len(names)))
+    for d in range(draws):
+        ids = [sid for t in sorted(by_task) for sid in rng.choice(by_task[t], size=len(by_task[t]))]
+        out[d] = [sr_all(scenes, ids, n) for n in names]
+    return out
+
+
+def summarize(scenes: dict[str, dict], names: list[str], draws: int, seed: int) -> dict:
+    """SR per task and over all views, scene-bootstrap std, and paired differences with 90 % intervals."""
+    ids = list(scenes)
+    boot = scene_bootstrap(scenes, names, draws, seed)
+    res: dict = {"models": {}, "differences": {}}
+    for k, n in enumerate(names):
+        tasks = {
+            t: sr_all(scenes, [s for s in ids if scenes[s]["task"] == t], n)
+            for t in TASKS
+            if any(scenes[s]["task"] == t for s in ids)
+        }
+        res["models"][n] = {"sr_all": sr_all(scenes, ids, n), "scene_bootstrap_std": float(boot[:, k].std()), **tasks}
+    for a in range(len(names)):
+        for b in range(a + 1, len(names)):
+            d = boot[:, a] - boot[:, b]
+            res["differences"][f"{names[a]} - {names[b]}"] = {
+                "diff": res["models"][names[a]]["sr_all"] - res["models"][names[b]]["sr_all"],
+                "p05": float(np.quantile(d, 0.05)),
+                "p95": float(np.quantile(d, 0.95)),
+            }
+    return res
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("models", nargs="+", help="NAME=MODEL (hub name or checkpoint); repeat a NAME to pool runs")
+    p.add_argument("--root", default="data/floaff_dense")
+    p.add_argument("--benchmark", default="layouts", choices=["layouts", "styles"])
+    p.add_argument("--split", default="test", choices=["test", "val"])
+    p.add_argument("--draws", type=int, default=2000, help="scene-bootstrap draws")
+    p.add_argument("--seed", type=int, default=0, help="seed of the scene bootstrap")
+    p.add_argument("--num-points", type=int, default=1024)
+    p.add_argument("--json", default=None)
+    a = p.parse_args(argv)
+    if a.draws < 1:
+        p.error("--draws must be >= 1")
+
+    from floaff_zoo.data.floaff_kitchen import FloAffKitchenDataModule
+    from floaff_zoo.predict import resolve_model
+    from floaff_zoo.sim import fileformat as ff
+
+    groups = parse_models(a.models)
+    nets = {n: [resolve_model(m).eval() for m in ms] for n, ms in groups.items()}  # a bad name fails first
+    dm = FloAffKitchenDataModule(root=a.root, benchmark=a.benchmark, tasks=list(TASKS), num_points=a.num_points)
+    dm.setup("test" if a.split == "test" else "fit")
+    files_split = "test" if a.split == "test" else "train"  # validation scenes are train scenes on disk
+    scenes = {s["scene_id"]: s for s in ff.iter_scenes(a.root, benchmark=a.benchmark, split=files_split)}
+    if not scenes:
+        raise SystemExit(f"scene_sr: no finished {files_split} scene of {a.benchmark} under {a.root}")
+    rows: list[Row] = []
+    with torch.no_grad():
+        for batch in dm.test_dataloader() if a.split == "test" else dm.val_dataloader():
+            scores = {n: [net(batch).numpy() for net in runs] for n, runs in nets.items()}
+            rows += view_outcomes(batch, scores, scenes)
+    names = list(groups)
+    table = per_scene(rows, names)
+    res = summarize(table, names, a.draws, a.seed)
+
+    print(
+        f"{a.benchmark} {a.split}: {len(rows)} views in {len(table)} scenes; runs per name: "
+        + ", ".join(f"{n} {len(r)}" for n, r in groups.items())
+    )
+    print("| scene | task | views | " + " | ".join(names) + " |")
+    print("|---|---|---:|" + "---:|" * len(names))
+    for sid, s in table.items():
+        print(f"| {sid} | {s['task']} | {s['views']} | " + " | ".join(f"{s['sr'][n]:.2f}" for n in names) + " |")
+    print()
+    print("| name | SR_all | scene-bootstrap std | " + " | ".join(TASKS) + " |")
+    print("|---|---:|---:|" + "---:|" * len(TASKS))
+    for n, m in res["models"].items():
+        print(
+            f"| {n} | {m['sr_all']:.3f} | {m['scene_bootstrap_std']:.3f} | "
+            + " | ".join(f"{m.get(t, float('nan')):.2f}" for t in TASKS)
+            + " |"
+        )
+    for pair, d in res["differences"].items():
+        print(f"{pair}: {d['diff']:+.3f} (scene bootstrap 90 %: {d['p05']:+.3f} to {d['p95']:+.3f})")
+    if a.json:
+        Path(a.json).parent.mkdir(parents=True, exist_ok=True)
+        out = {"benchmark": a.benchmark, "split": a.split, "runs": groups, "draws": a.draws, "scenes": table, **res}
+        Path(a.json).write_text(json.dumps(out, indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
