@@ -420,6 +420,24 @@ def test_top_up_keeps_the_presets_views_and_adds_to_min_views(mini_run, tmp_path
             assert all(np.array_equal(a[k], b[k]) for k in a), (s["scene_id"], v["view_id"])
 
 
+def test_resume_keeps_only_scenes_drawn_with_the_same_top_up(mini_run, tmp_path):
+    src, _ = mini_run
+    out = tmp_path / "copy"
+    shutil.copytree(src, out)
+    preset = get_preset("tiny", **MINI)
+    from floaff_zoo.sim.kitchen import LAYOUTS, STYLES
+
+    jobs = gen.plan_jobs(preset, 0, list(LAYOUTS), list(STYLES))
+    assert all(gen.find_done(out, j, 0) for j in jobs)
+    assert not any(gen.find_done(out, j, 3) for j in jobs)  # drawn without the top-up: regenerate
+    # a scene written before scene.json recorded min_views counts as topped up when it holds enough views
+    rec_path = ff.scene_dir(out, "styles", gen.find_done(out, jobs[0], 0)) / ff.SCENE_JSON
+    rec = json.loads(rec_path.read_text())
+    del rec["min_views"]
+    rec_path.write_text(json.dumps(rec))
+    assert gen.find_done(out, jobs[0], len(rec["views"])) and not gen.find_done(out, jobs[0], len(rec["views"]) + 1)
+
+
 @pytest.fixture(scope="module")
 def tiny_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("tiny")

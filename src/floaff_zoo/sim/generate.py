@@ -127,17 +127,24 @@ def _scene_id(spec: Any) -> str:
     return sid() if callable(sid) else str(sid)
 
 
-def find_done(out: Path, job: SceneJob) -> str | None:
+def find_done(out: Path, job: SceneJob, min_views: int = 0) -> str | None:
     """scene_id of an already committed scene of this slot (any attempt) in this format version, else None.
 
     A scene of another format version (an older generator) is not resumed: it is regenerated, so one dataset never
-    mixes floor rules.
+    mixes floor rules. Nor is a scene drawn with another top-up (``min_views`` in its scene.json; a scene written
+    before the field existed counts as topped up when it holds at least ``min_views`` views).
     """
     for s in job.seeds:
         sid = _scene_id(_spec(job, s))
         if ff.scene_is_done(out, job.benchmark, sid):
             rec = ff.read_json(ff.scene_dir(out, job.benchmark, sid) / ff.SCENE_JSON)
-            if rec.get("slot") == job.key and rec.get("format_version", 1) == ff.FORMAT_VERSION:
+            if rec.get("slot") != job.key or rec.get("format_version", 1) != ff.FORMAT_VERSION:
+                continue
+            if "min_views" in rec:
+                topped_up = rec["min_views"] == min_views
+            else:
+                topped_up = len(rec.get("views", [])) >= min_views
+            if topped_up:
                 return sid
     return None
 
@@ -426,6 +433,7 @@ def _write_scene(
         "robot": [round(float(v), 6) for v in ROBOT_DESCRIPTOR],
         "views": views,
         "n_views": {"front": sum(v["view"] == "front" for v in views), "side": sum(v["view"] == "side" for v in views)},
+        "min_views": int(preset.min_views),
         "views_rejected": rejected,
         "pictures": ["topdown.png"] + [f"{k}.png" for k in ("front", "side") if k in first_rgb],
         "status": "ok",
@@ -773,7 +781,7 @@ def generate(
             "layout_id": job.layout_id,
             "style_id": job.style_id,
         }
-        sid = find_done(outp, job)
+        sid = find_done(outp, job, preset.min_views)
         if sid is not None:
             prev = (old or {}).get("scenes", {}).get(job.key, {})
             rec = ff.read_scene(ff.scene_dir(outp, job.benchmark, sid))
