@@ -17,7 +17,7 @@ cells it filtered), then reports:
 - for every pair of NAMEs, the difference of SR_all with its scene-bootstrap 90 % interval (paired: the same
   resampled scenes for both).
 
-Labels only, no simulator; about a minute per model and benchmark on one core.
+Labels only, no simulator; one to two minutes per model and benchmark on one core.
 """
 
 from __future__ import annotations
@@ -101,31 +101,37 @@ def sr_all(scenes: dict[str, dict], ids: list[str], name: str) -> float:
     return float(np.dot(views, [scenes[s]["sr"][name] for s in ids]) / views.sum())
 
 
+def scenes_by_task(scenes: dict[str, dict]) -> dict[str, list[str]]:
+    """task -> its scene ids, tasks in sorted order."""
+    by_task: dict[str, list[str]] = defaultdict(list)
+    for sid, s in scenes.items():
+        by_task[s["task"]].append(sid)
+    return dict(sorted(by_task.items()))
+
+
 def scene_bootstrap(scenes: dict[str, dict], names: list[str], draws: int, seed: int) -> np.ndarray:
     """[draws, len(names)] SR_all with the scenes of each task resampled with replacement."""
     rng = np.random.default_rng(seed)
-    by_task = defaultdict(list)
-    for sid, s in scenes.items():
-        by_task[s["task"]].append(sid)
+    by_task = scenes_by_task(scenes)
     out = np.empty((draws, len(names)))
     for d in range(draws):
-        ids = [sid for t in sorted(by_task) for sid in rng.choice(by_task[t], size=len(by_task[t]))]
+        ids = [sid for t in by_task for sid in rng.choice(by_task[t], size=len(by_task[t]))]
         out[d] = [sr_all(scenes, ids, n) for n in names]
     return out
 
 
 def summarize(scenes: dict[str, dict], names: list[str], draws: int, seed: int) -> dict:
     """SR per task and over all views, scene-bootstrap std, and paired differences with 90 % intervals."""
-    ids = list(scenes)
+    by_task = scenes_by_task(scenes)
     boot = scene_bootstrap(scenes, names, draws, seed)
     res: dict = {"models": {}, "differences": {}}
     for k, n in enumerate(names):
-        tasks = {
-            t: sr_all(scenes, [s for s in ids if scenes[s]["task"] == t], n)
-            for t in TASKS
-            if any(scenes[s]["task"] == t for s in ids)
+        tasks = {t: sr_all(scenes, ids, n) for t, ids in by_task.items()}
+        res["models"][n] = {
+            "sr_all": sr_all(scenes, list(scenes), n),
+            "scene_bootstrap_std": float(boot[:, k].std()),
+            **tasks,
         }
-        res["models"][n] = {"sr_all": sr_all(scenes, ids, n), "scene_bootstrap_std": float(boot[:, k].std()), **tasks}
     for a in range(len(names)):
         for b in range(a + 1, len(names)):
             d = boot[:, a] - boot[:, b]
@@ -151,14 +157,19 @@ def main(argv: list[str] | None = None) -> int:
     if a.draws < 1:
         p.error("--draws must be >= 1")
 
+    from lightning.fabric.utilities.exceptions import MisconfigurationException
+
     from floaff_zoo.data.floaff_kitchen import FloAffKitchenDataModule
     from floaff_zoo.predict import resolve_model
     from floaff_zoo.sim import fileformat as ff
 
     groups = parse_models(a.models)
-    nets = {n: [resolve_model(m).eval() for m in ms] for n, ms in groups.items()}  # a bad name fails first
-    dm = FloAffKitchenDataModule(root=a.root, benchmark=a.benchmark, tasks=list(TASKS), num_points=a.num_points)
-    dm.setup("test" if a.split == "test" else "fit")
+    try:  # a bad model name or data root ends here with its message, before any scoring
+        nets = {n: [resolve_model(m).eval() for m in ms] for n, ms in groups.items()}
+        dm = FloAffKitchenDataModule(root=a.root, benchmark=a.benchmark, tasks=list(TASKS), num_points=a.num_points)
+        dm.setup("test" if a.split == "test" else "fit")
+    except (OSError, ValueError, LookupError, MisconfigurationException) as exc:
+        raise SystemExit(f"scene_sr: {exc}") from exc
     files_split = "test" if a.split == "test" else "train"  # validation scenes are train scenes on disk
     scenes = {s["scene_id"]: s for s in ff.iter_scenes(a.root, benchmark=a.benchmark, split=files_split)}
     if not scenes:
@@ -167,7 +178,10 @@ def main(argv: list[str] | None = None) -> int:
     with torch.no_grad():
         for batch in dm.test_dataloader() if a.split == "test" else dm.val_dataloader():
             scores = {n: [net(batch).numpy() for net in runs] for n, runs in nets.items()}
-            rows += view_outcomes(batch, scores, scenes)
+            try:
+                rows += view_outcomes(batch, scores, scenes)
+            except KeyError as exc:
+                raise SystemExit(f"scene_sr: {exc.args[0]}") from exc
     names = list(groups)
     table = per_scene(rows, names)
     res = summarize(table, names, a.draws, a.seed)
