@@ -431,7 +431,7 @@ def test_resume_keeps_only_scenes_drawn_with_the_same_top_up(mini_run, tmp_path)
     assert all(gen.find_done(out, j, 0) for j in jobs)
     assert not any(gen.find_done(out, j, 3) for j in jobs)  # drawn without the top-up: regenerate
     # a scene written before scene.json recorded min_views counts as topped up when it holds enough views
-    rec_path = ff.scene_dir(out, "styles", gen.find_done(out, jobs[0], 0)) / ff.SCENE_JSON
+    rec_path = ff.scene_dir(out, jobs[0].benchmark, gen.find_done(out, jobs[0], 0)) / ff.SCENE_JSON
     rec = json.loads(rec_path.read_text())
     del rec["min_views"]
     rec_path.write_text(json.dumps(rec))
