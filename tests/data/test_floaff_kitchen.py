@@ -55,6 +55,29 @@ def test_val_scene_ids_pin_the_validation_scenes(floaff_root):
         _dm(root, val_scene_ids=["nope"]).setup("fit")
 
 
+def _held_out(dm, task):
+    """(validation scene ids, validation sample keys) of one task after setup."""
+    recs = [r for r in dm.datasets["val"].records if r.meta["task"] == task]
+    return sorted({r.meta["scene_id"] for r in recs}), sorted(r.key for r in recs)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_tasks_validation_draw_does_not_depend_on_the_other_tasks_loaded(floaff_root, seed):
+    """A PFAL stage that loads some tasks, in its own order, holds out what an all-task run holds out."""
+    root, _ = floaff_root
+    runs = {}
+    for tasks in (None, ["CloseDrawer", "PnPCounterToCab"], ["PnPCounterToCab", "CloseDrawer"], ["CloseDrawer"]):
+        dm = _dm(root, tasks=tasks, seed=seed)
+        dm.setup("fit")
+        runs[str(tasks)] = dm
+    ref = runs["None"]
+    for name, dm in runs.items():
+        assert _held_out(dm, "CloseDrawer") == _held_out(ref, "CloseDrawer"), name
+        if "PnPCounterToCab" in dm.tasks:  # one train scene: the seeded view split
+            assert _held_out(dm, "PnPCounterToCab") == _held_out(ref, "PnPCounterToCab"), name
+    assert len(_held_out(ref, "CloseDrawer")[0]) == 1
+
+
 def test_single_task_views_filter_and_layouts(floaff_root):
     root, exp = floaff_root
     dm = _dm(root, benchmark="layouts", tasks=["OpenSingleDoor"], views=["front"])

@@ -186,21 +186,37 @@ class FloAffKitchenDataModule(FloAffDataModule):
         return vs
 
     def split_records(self, scenes: list[SceneEntry]) -> dict[str, list[SampleRecord]]:
-        """Scene-level train/val/test records (module docstring), ordered by task, scene, view."""
+        """Scene-level train/val/test records (module docstring), ordered by task, scene, view.
+
+        The seeded validation draw runs over every task of the benchmark in the canonical order (``TASKS``),
+        whichever tasks this run loads and in whatever order: a task holds out the same scenes in a run of all
+        four tasks and in a PFAL stage that loads only some, so no stage trains on another model's validation
+        scenes.
+        """
         rng = np.random.default_rng(self.seed)
+        fixed = self._fixed_val_ids(scenes)
+        held: dict[str, tuple[set[str] | None, set[int]]] = {}
+        for task in TASKS:  # every task draws, loaded or not: the rng stream does not depend on self.tasks
+            train = [s for s in scenes if s.task == task and s.split == "train"]
+            val_ids, val_idx = fixed, set()
+            n_val = min(self.val_scenes, len(train) - 1)
+            if val_ids is None and len(train) >= 2 and n_val > 0:
+                val_ids = set(rng.permutation([s.scene_id for s in train])[:n_val].tolist())
+            elif val_ids is None and len(train) == 1:
+                n = len(self._views(train[0]))
+                k = int(round(self.val_view_fraction * n))
+                k = min(max(k, 1 if self.val_view_fraction > 0 and n > 1 else 0), max(n - 1, 0))
+                val_idx = set(rng.permutation(n)[:k].tolist())
+            held[task] = (val_ids, val_idx)
         out: dict[str, list[SampleRecord]] = {"train": [], "val": [], "test": []}
         self.split_scenes = {"train": [], "val": [], "test": []}
-        fixed = self._fixed_val_ids(scenes)
         for task in self.tasks:
             mine = [s for s in scenes if s.task == task]
             train = [s for s in mine if s.split == "train"]
             for s in (s for s in mine if s.split == "test"):
                 out["test"] += self._records(s, self._views(s))
                 self.split_scenes["test"].append(s.scene_id)
-            n_val = min(self.val_scenes, len(train) - 1)
-            val_ids = fixed
-            if val_ids is None and len(train) >= 2 and n_val > 0:
-                val_ids = set(rng.permutation([s.scene_id for s in train])[:n_val].tolist())
+            val_ids, val_idx = held[task]
             if val_ids is not None:
                 for s in train:
                     split = "val" if s.scene_id in val_ids else "train"
@@ -209,13 +225,10 @@ class FloAffKitchenDataModule(FloAffDataModule):
             elif len(train) == 1:
                 s = train[0]
                 vs = self._views(s)
-                k = int(round(self.val_view_fraction * len(vs)))
-                k = min(max(k, 1 if self.val_view_fraction > 0 and len(vs) > 1 else 0), max(len(vs) - 1, 0))
-                val_idx = set(rng.permutation(len(vs))[:k].tolist())
                 out["val"] += self._records(s, [v for i, v in enumerate(vs) if i in val_idx])
                 out["train"] += self._records(s, [v for i, v in enumerate(vs) if i not in val_idx])
                 self.split_scenes["train"].append(s.scene_id)
-                if k:
+                if val_idx:
                     self.split_scenes["val"].append(s.scene_id + " (views)")
             else:
                 for s in train:
