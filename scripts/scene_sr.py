@@ -17,12 +17,17 @@ cells it filtered), then reports:
 - for every pair of NAMEs, the difference of SR_all with its scene-bootstrap 90 % interval (paired: the same
   resampled scenes for both).
 
+``--residual-scales 0,0.5`` also scores every NAME whose runs all predict a residual over the canonical prior
+(``CFARModule`` with ``prior_residual``) with the learned residual logit scaled by each value (``residual_scale``;
+0 = the checkpoint's own prior with its AxisNet yaw), as NAME@0, NAME@0.5.
+
 Labels only, no simulator; one to two minutes per model and benchmark on one core.
 """
 
 from __future__ import annotations
 
 import argparse
+import copy
 import json
 import sys
 from collections import defaultdict
@@ -52,6 +57,33 @@ def parse_models(specs: list[str]) -> dict[str, list[str]]:
             raise SystemExit(f"scene_sr: bad model argument {s!r}; use NAME=MODEL")
         out[name].append(model)
     return dict(out)
+
+
+def parse_scales(text: str | None) -> list[float]:
+    """'0,0.5,1.5' -> [0.0, 0.5, 1.5]; every value finite and >= 0."""
+    if not text:
+        return []
+    try:
+        vals = [float(v) for v in text.split(",")]
+    except ValueError:
+        raise SystemExit(f"scene_sr: --residual-scales takes comma-separated numbers, got {text!r}") from None
+    if not all(np.isfinite(v) and v >= 0 for v in vals):
+        raise SystemExit(f"scene_sr: --residual-scales must be finite and >= 0, got {text!r}")
+    return vals
+
+
+def with_residual_scales(nets: dict[str, list], scales: list[float]) -> dict[str, list]:
+    """Add NAME@s (copies of NAME's runs with ``residual_scale = s``) for every NAME whose runs have a prior."""
+    out = dict(nets)
+    for name, runs in nets.items():
+        if not all(getattr(r, "prior", None) is not None for r in runs):
+            continue
+        for s in scales:
+            copies = [copy.deepcopy(r) for r in runs]
+            for c in copies:
+                c.hparams["residual_scale"] = s
+            out[f"{name}@{s:g}"] = copies
+    return out
 
 
 def view_outcomes(batch: dict, scores: dict[str, list[np.ndarray]], scenes: dict[str, dict]) -> list[Row]:
@@ -152,10 +184,16 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--draws", type=int, default=2000, help="scene-bootstrap draws")
     p.add_argument("--seed", type=int, default=0, help="seed of the scene bootstrap")
     p.add_argument("--num-points", type=int, default=1024)
+    p.add_argument(
+        "--residual-scales",
+        default=None,
+        help="e.g. 0,0.5,1.5: also score prior-residual models with their residual scaled by each (NAME@s)",
+    )
     p.add_argument("--json", default=None)
     a = p.parse_args(argv)
     if a.draws < 1:
         p.error("--draws must be >= 1")
+    scales = parse_scales(a.residual_scales)
 
     from lightning.fabric.utilities.exceptions import MisconfigurationException
 
@@ -165,7 +203,7 @@ def main(argv: list[str] | None = None) -> int:
 
     groups = parse_models(a.models)
     try:  # a bad model name or data root ends here with its message, before any scoring
-        nets = {n: [resolve_model(m).eval() for m in ms] for n, ms in groups.items()}
+        nets = with_residual_scales({n: [resolve_model(m).eval() for m in ms] for n, ms in groups.items()}, scales)
         dm = FloAffKitchenDataModule(root=a.root, benchmark=a.benchmark, tasks=list(TASKS), num_points=a.num_points)
         dm.setup("test" if a.split == "test" else "fit")
     except (OSError, ValueError, LookupError, MisconfigurationException) as exc:
@@ -182,13 +220,13 @@ def main(argv: list[str] | None = None) -> int:
                 rows += view_outcomes(batch, scores, scenes)
             except KeyError as exc:
                 raise SystemExit(f"scene_sr: {exc.args[0]}") from exc
-    names = list(groups)
+    names = list(nets)
     table = per_scene(rows, names)
     res = summarize(table, names, a.draws, a.seed)
 
     print(
         f"{a.benchmark} {a.split}: {len(rows)} views in {len(table)} scenes; runs per name: "
-        + ", ".join(f"{n} {len(r)}" for n, r in groups.items())
+        + ", ".join(f"{n} {len(r)}" for n, r in nets.items())
     )
     print("| scene | task | views | " + " | ".join(names) + " |")
     print("|---|---|---:|" + "---:|" * len(names))
@@ -207,7 +245,16 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{pair}: {d['diff']:+.3f} (scene bootstrap 90 %: {d['p05']:+.3f} to {d['p95']:+.3f})")
     if a.json:
         Path(a.json).parent.mkdir(parents=True, exist_ok=True)
-        out = {"benchmark": a.benchmark, "split": a.split, "runs": groups, "draws": a.draws, "scenes": table, **res}
+        runs = {n: groups[n] if n in groups else groups[n.rpartition("@")[0]] for n in nets}
+        out = {
+            "benchmark": a.benchmark,
+            "split": a.split,
+            "runs": runs,
+            "residual_scales": scales,
+            "draws": a.draws,
+            "scenes": table,
+            **res,
+        }
         Path(a.json).write_text(json.dumps(out, indent=1) + "\n")
     return 0
 

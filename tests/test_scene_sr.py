@@ -70,3 +70,20 @@ def test_bad_arguments_exit_with_a_message(tmp_path, capsys):
     # an unknown model ends the script with a message naming it, not a traceback
     with pytest.raises(SystemExit, match="scene_sr: .*no-such-model.ckpt"):
         ssr.main(["--root", str(tmp_path), "a=no-such-model.ckpt"])
+
+
+def test_residual_scales_parse_and_copy_only_prior_residual_runs():
+    assert ssr.parse_scales(None) == [] and ssr.parse_scales("0,0.5,2") == [0.0, 0.5, 2.0]
+    for bad in ("a,1", "-1", "nan"):
+        with pytest.raises(SystemExit, match="--residual-scales"):
+            ssr.parse_scales(bad)
+
+    class Run:
+        def __init__(self, prior):
+            self.prior, self.hparams = prior, {"residual_scale": 1.0}
+
+    nets = {"recipe": [Run(object()), Run(object())], "plain": [Run(None)]}
+    out = ssr.with_residual_scales(nets, [0.0, 0.5])
+    assert list(out) == ["recipe", "plain", "recipe@0", "recipe@0.5"]
+    assert [r.hparams["residual_scale"] for r in out["recipe@0.5"]] == [0.5, 0.5]
+    assert nets["recipe"][0].hparams["residual_scale"] == 1.0  # the originals are untouched

@@ -270,3 +270,25 @@ def test_occupancy_input_reads_the_footprint_from_the_view(tmp_path, root, monke
     ckpt = cli.trainer.checkpoint_callback.best_model_path
     assert torch.isfinite(run_lightning(["test", *base, "--ckpt_path", ckpt]).trainer.callback_metrics["test_sim"])
     assert CFARModule.load_from_checkpoint(ckpt, weights_only=True).net.floor_feat_channels == 2
+
+
+def test_residual_scale_shrinks_the_learned_residual_towards_the_prior(root):
+    """scores = sigmoid(scale * residual + logit(prior)): 0 reads the prior alone, 1 the model as trained."""
+    args = tiny_args(root)
+    b = _batch(2)
+    m = CFARModule(**args, prior_residual=True).eval()
+    canon, _ = m.canonicalize(b)
+    tasks = m.prior.task_index([str(x.get("task")) for x in b["meta"]])
+    m.prior.add(tasks, canon.floor_xyz[..., :2], b["floor_label"], b["floor_mask"])
+    torch.nn.init.normal_(m.net.out.weight, std=0.5)  # a residual that is not zero
+    logit = lambda p: torch.log(p) - torch.log1p(-p)  # noqa: E731
+    with torch.no_grad():
+        full = logit(m(b).double())
+        m.hparams["residual_scale"] = 0.0
+        prior = logit(m(b).double())
+        m.hparams["residual_scale"] = 0.5
+        half = logit(m(b).double())
+    assert not torch.allclose(full, prior, atol=1e-3)
+    assert torch.allclose(half, (full + prior) / 2, atol=1e-3)
+    with pytest.raises(MisconfigurationException, match="residual_scale"):
+        CFARModule(**args, prior_residual=True, residual_scale=-1.0)

@@ -124,6 +124,9 @@ class CFARModule(FloAffModule):
         local_* / floor_* / robot_mlp / head: :class:`~floaff_zoo.nn.cfar.CFARNet` architecture.
         floor_encoder: ``set`` (paper) or ``pointwise`` (query-independent floor features; departure).
         prior_residual: predict a residual over the canonical prior (departure, see module docstring).
+        residual_scale: the learned residual logit is multiplied by this before it is added to the prior's logit
+            (with ``prior_residual``; 1 = the residual as trained, 0 = the prior alone). A shrinkage knob that can
+            be set at test time (``--model.init_args.residual_scale``) without retraining.
         occupancy_input: give the decoder the base footprint's occupancy from the view's cloud at each floor
             point (departure, see module docstring; off by default).
         prior_tasks: tasks the prior keeps a grid for (default: the four tasks).
@@ -162,6 +165,7 @@ class CFARModule(FloAffModule):
         head: list[int] | None = None,
         floor_encoder: Literal["set", "pointwise"] = "set",
         prior_residual: bool = False,
+        residual_scale: float = 1.0,
         occupancy_input: bool = False,
         prior_tasks: list[str] | None = None,
         prior_centred: bool = True,
@@ -180,6 +184,10 @@ class CFARModule(FloAffModule):
             raise MisconfigurationException(f"CFARModule: crop_radius must be > 0, got {h['crop_radius']}")
         if h["distill_weight"] < 0:
             raise MisconfigurationException(f"CFARModule: distill_weight must be >= 0, got {h['distill_weight']}")
+        if not (math.isfinite(h["residual_scale"]) and h["residual_scale"] >= 0):
+            raise MisconfigurationException(
+                f"CFARModule: residual_scale must be a finite number >= 0, got {h['residual_scale']}"
+            )
         arch = {
             k: h[k]
             for k in (
@@ -353,7 +361,7 @@ class CFARModule(FloAffModule):
         if self.prior is not None:
             tasks = self.prior.task_index([str(m.get("task")) for m in batch["meta"]])
             p = self.prior.read(tasks, canon.floor_xyz[..., :2]).to(logits.dtype).clamp(PRIOR_EPS, 1 - PRIOR_EPS)
-            logits = logits + torch.log(p) - torch.log1p(-p)
+            logits = self.hparams["residual_scale"] * logits + torch.log(p) - torch.log1p(-p)
         return torch.sigmoid(logits), g, canon, yaw
 
     @staticmethod
