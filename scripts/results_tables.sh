@@ -2,6 +2,7 @@
 # The tables and pictures of docs/results.md from the committed report.json files:
 #   scripts/results_tables.sh > /tmp/tables.md      (pictures need the runs/ of scripts/reproduce_small.sh)
 #   OUT=docs/results/dense RUNS=runs/dense scripts/results_tables.sh   # the dense preset's protocol
+#   OUT=docs/results/split BASE=docs/results/topup scripts/results_tables.sh   # main rows missing from OUT from BASE
 set -euo pipefail
 SELF=$(realpath "$0")
 cd "$(dirname "$SELF")/.."
@@ -9,10 +10,14 @@ if ! command -v floaff-zoo > /dev/null && [ -x .venv/bin/floaff-zoo ]; then PATH
 R=${OUT:-docs/results/small_v2}
 
 MAIN=()   # the method and every baseline, both benchmarks (rows: the report's label, seeds pooled)
-for d in "$R"/layouts/{recipe_s?,cfar_pfal_s?,prior,prior_gtyaw,pointnet2_s?,navaff,votenet,h3dnet,n2m} \
-         "$R"/layouts/{navaff_s?,votenet_s?,h3dnet_s?,n2m_s?,c2f_exp,c2f_exp_gtyaw} \
-         "$R"/styles/{recipe_s?,cfar_pfal_s?,prior,pointnet2_s?,navaff_s?,votenet_s?,h3dnet_s?,n2m_s?,c2f_exp}; do
-  [ -f "$d/report.json" ] && MAIN+=("$d")
+declare -A SEEN  # BASE=<another OUT>: a job missing from $R is read from there (runs a change did not touch)
+for root in "$R" ${BASE:+"$BASE"}; do
+  for d in "$root"/layouts/{recipe_s?,cfar_pfal_s?,prior,prior_gtyaw,pointnet2_s?,navaff,votenet,h3dnet,n2m} \
+           "$root"/layouts/{navaff_s?,votenet_s?,h3dnet_s?,n2m_s?,c2f_exp,c2f_exp_gtyaw} \
+           "$root"/styles/{recipe_s?,cfar_pfal_s?,prior,pointnet2_s?,navaff_s?,votenet_s?,h3dnet_s?,n2m_s?,c2f_exp}; do
+    job=${d#"$root"/}
+    if [ -f "$d/report.json" ] && [ -z "${SEEN[$job]:-}" ]; then MAIN+=("$d"); SEEN[$job]=1; fi
+  done
 done
 table() { floaff-zoo table --format md --group-by label "$@"; echo; }
 # variant_tables RUN...: map metrics, SR by view and SR by task of runs pooled per label (ablations, variants)
