@@ -21,6 +21,9 @@ cells it filtered), then reports:
 (``CFARModule`` with ``prior_residual``) with the learned residual logit scaled by each value (``residual_scale``;
 0 = the checkpoint's own prior with its AxisNet yaw), as NAME@0, NAME@0.5.
 
+``--top-k 10`` stands each view on the best of its top 10 cells whose base footprint is free in the view's own cloud
+(the callback's ``free_space: cloud`` footprint check) instead of the argmax.
+
 Labels only, no simulator; one to two minutes per model and benchmark on one core.
 """
 
@@ -39,7 +42,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from fresh_sr import nearest_cells  # noqa: E402
 
-from floaff_zoo.callbacks.rollout import choose_pose  # noqa: E402
+from floaff_zoo.callbacks.rollout import choose_pose, cloud_free  # noqa: E402
 from floaff_zoo.contract import TASKS  # noqa: E402
 
 # per view: (task, scene id, {name: [outcome per run]})
@@ -86,8 +89,14 @@ def with_residual_scales(nets: dict[str, list], scales: list[float]) -> dict[str
     return out
 
 
-def view_outcomes(batch: dict, scores: dict[str, list[np.ndarray]], scenes: dict[str, dict]) -> list[Row]:
-    """Annotated outcome of each run's chosen cell, per view of a batch (scores: name -> per run [B, M])."""
+def view_outcomes(
+    batch: dict, scores: dict[str, list[np.ndarray]], scenes: dict[str, dict], top_k: int = 1
+) -> list[Row]:
+    """Annotated outcome of each run's chosen cell, per view of a batch (scores: name -> per run [B, M]).
+
+    ``top_k`` > 1: the best of the top-k cells whose base footprint is free in the view's own cloud, as
+    ``RolloutSuccessRate(top_k=k, free_space="cloud")`` chooses.
+    """
     from floaff_zoo.sim.kitchen import SceneSpec
 
     floor, mask, target = (batch[k].numpy() for k in ("floor_xyz", "floor_mask", "target_xyz"))
@@ -101,12 +110,15 @@ def view_outcomes(batch: dict, scores: dict[str, list[np.ndarray]], scenes: dict
         cand = np.asarray(scene["candidates"]["xy"], float)
         cell = float(scene["candidates"]["cell"])
         success = np.asarray(scene["labels"]["success"]) > 0
+        free = None
+        if top_k > 1:
+            free = cloud_free(batch["scene_xyz"][i][batch["scene_mask"][i]].numpy(), sim["base_pose_world"])
         out: dict[str, list[bool]] = {}
         for name, runs in scores.items():
             out[name] = []
             for s in runs:
                 pose, _ = choose_pose(
-                    floor[i], s[i], mask[i], target[i], sim["base_pose_world"], 1, None, int(meta.get("index", i))
+                    floor[i], s[i], mask[i], target[i], sim["base_pose_world"], top_k, free, int(meta.get("index", i))
                 )
                 out[name].append(bool(success[nearest_cells(cand, np.array([pose[:2]]), cell, sid)[0]]))
         rows.append((meta["task"], sid, out))
@@ -189,10 +201,13 @@ def main(argv: list[str] | None = None) -> int:
         default=None,
         help="e.g. 0,0.5,1.5: also score prior-residual models with their residual scaled by each (NAME@s)",
     )
+    p.add_argument("--top-k", type=int, default=1, help="> 1: best of the top-k cells free in the view's cloud")
     p.add_argument("--json", default=None)
     a = p.parse_args(argv)
     if a.draws < 1:
         p.error("--draws must be >= 1")
+    if a.top_k < 1:
+        p.error(f"--top-k must be >= 1, got {a.top_k}")
     scales = parse_scales(a.residual_scales)
 
     from lightning.fabric.utilities.exceptions import MisconfigurationException
@@ -217,7 +232,7 @@ def main(argv: list[str] | None = None) -> int:
         for batch in dm.test_dataloader() if a.split == "test" else dm.val_dataloader():
             scores = {n: [net(batch).numpy() for net in runs] for n, runs in nets.items()}
             try:
-                rows += view_outcomes(batch, scores, scenes)
+                rows += view_outcomes(batch, scores, scenes, a.top_k)
             except KeyError as exc:
                 raise SystemExit(f"scene_sr: {exc.args[0]}") from exc
     names = list(nets)
@@ -251,6 +266,7 @@ def main(argv: list[str] | None = None) -> int:
             "split": a.split,
             "runs": runs,
             "residual_scales": scales,
+            "top_k": a.top_k,
             "draws": a.draws,
             "scenes": table,
             **res,

@@ -67,6 +67,9 @@ def test_bad_arguments_exit_with_a_message(tmp_path, capsys):
     with pytest.raises(SystemExit):
         ssr.main(["--draws", "0", "a=x"])
     assert "--draws must be >= 1" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        ssr.main(["--top-k", "0", "a=x"])
+    assert "--top-k must be >= 1" in capsys.readouterr().err
     # an unknown model ends the script with a message naming it, not a traceback
     with pytest.raises(SystemExit, match="scene_sr: .*no-such-model.ckpt"):
         ssr.main(["--root", str(tmp_path), "a=no-such-model.ckpt"])
