@@ -9,6 +9,7 @@ cd "$(dirname "$SELF")/.."
 if ! command -v floaff-zoo > /dev/null && [ -x .venv/bin/floaff-zoo ]; then PATH=$PWD/.venv/bin:$PATH; fi
 R=${OUT:-docs/results/small_v2}
 
+if [ -n "${BASE:-}" ] && [ ! -d "$BASE" ]; then echo "results_tables.sh: BASE=$BASE is not a directory" >&2; exit 2; fi
 MAIN=()   # the method and every baseline, both benchmarks (rows: the report's label, seeds pooled)
 declare -A SEEN  # BASE=<another OUT>: a job missing from $R is read from there (runs a change did not touch)
 for root in "$R" ${BASE:+"$BASE"}; do

@@ -292,3 +292,5 @@ def test_residual_scale_shrinks_the_learned_residual_towards_the_prior(root):
     assert torch.allclose(half, (full + prior) / 2, atol=1e-3)
     with pytest.raises(MisconfigurationException, match="residual_scale"):
         CFARModule(**args, prior_residual=True, residual_scale=-1.0)
+    with pytest.raises(MisconfigurationException, match="residual_scale.*prior_residual"):
+        CFARModule(**args, residual_scale=0.5)  # no prior to shrink towards: not silently ignored

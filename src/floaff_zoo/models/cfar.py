@@ -188,6 +188,10 @@ class CFARModule(FloAffModule):
             raise MisconfigurationException(
                 f"CFARModule: residual_scale must be a finite number >= 0, got {h['residual_scale']}"
             )
+        if h["residual_scale"] != 1.0 and not h["prior_residual"]:  # it would be ignored: say so instead
+            raise MisconfigurationException(
+                "CFARModule: residual_scale scales the prior residual; set prior_residual: true"
+            )
         arch = {
             k: h[k]
             for k in (
