@@ -1,5 +1,6 @@
 """Both file DataModules through the real CLI: shipped data configs + tiny model, fit then test --ckpt_path."""
 
+import json
 from pathlib import Path
 
 import pytest
@@ -58,6 +59,11 @@ def test_floaff_styles_cli(tmp_path, root, monkeypatch, floaff_root):
         ["--data.init_args.tasks", "[CloseDrawer, PnPCounterToCab]"],
     )
     assert {m for m in cli.datamodule.tasks} == {"CloseDrawer", "PnPCounterToCab"}
+    # the test's report names the labels of every scene it read, so tables can refuse to mix copies of the data
+    (report,) = (tmp_path / "runs").rglob("report.json")
+    digests = json.loads(report.read_text())["data"]["labels_sha256"]
+    assert digests == cli.datamodule.labels_digests and digests
+    assert all(s.startswith(("CloseDrawer", "PnPCounterToCab")) for s in digests)
 
 
 @pytest.mark.parametrize("cfg", DATA_CONFIGS)

@@ -1,10 +1,13 @@
 """FloAffKitchenDataModule on a fixture in the generator's format (tests/data/floaff_fixture.py)."""
 
+import json
+
 import pytest
 from lightning.pytorch.utilities.exceptions import MisconfigurationException
 
 from floaff_zoo.data.floaff_kitchen import FloAffKitchenDataModule
 from floaff_zoo.data.readers import READERS, DataError, GeneratedReader, get_reader, register_reader
+from floaff_zoo.sim import fileformat as ff
 
 
 def _dm(root, **kw):
@@ -37,6 +40,24 @@ def test_scene_level_splits_meta_and_skips(floaff_root, capsys):
     assert s["scene_feat"].shape[1] == 4
     b = next(iter(dm.val_dataloader()))
     assert b["scene_xyz"].shape == (2, 128, 3) and isinstance(b["meta"][0]["sim"], dict)
+
+
+def test_labels_digests_cover_the_tasks_scenes_and_follow_their_labels(floaff_root):
+    root, exp = floaff_root
+    dm = _dm(root, tasks=["CloseDrawer"])
+    dm.setup("test")
+    before = dict(dm.labels_digests)
+    assert before and all(s.startswith("CloseDrawer") for s in before)
+    assert set(exp["scenes"]["styles"]["test"]) & set(before)
+    # one rollout outcome flipped in one scene (another CPU's copy): only that scene's hash moves
+    sid = sorted(before)[0]
+    path = ff.scene_dir(root, "styles", sid) / ff.SCENE_JSON
+    rec = json.loads(path.read_text())
+    rec["labels"]["success"][0] = 1 - int(rec["labels"]["success"][0])
+    path.write_text(json.dumps(rec))
+    again = _dm(root, tasks=["CloseDrawer"])
+    again.setup("test")
+    assert {k for k in before if before[k] != again.labels_digests[k]} == {sid}
 
 
 def test_val_scene_ids_pin_the_validation_scenes(floaff_root):

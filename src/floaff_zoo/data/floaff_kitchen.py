@@ -143,6 +143,8 @@ class FloAffKitchenDataModule(FloAffDataModule):
         self.pre_transforms = list(pre_transforms or [])
         self.skips: SkipLog | None = None
         self.split_scenes: dict[str, list[str]] = {}
+        #: scene id -> short hash of its labels, for every scene of this run's tasks (after setup; reports record it)
+        self.labels_digests: dict[str, str] = {}
 
     # ------------------------------------------------------------------ indexing
     def _records(self, scene: SceneEntry, views: list[ViewEntry]) -> list[SampleRecord]:
@@ -267,6 +269,7 @@ class FloAffKitchenDataModule(FloAffDataModule):
                 f"(reader {self.reader_cls.name!r})\n{skips.summary()}"
             )
         records = self.split_records(scenes)
+        self.labels_digests = {s.scene_id: s.labels_digest for s in scenes if s.task in self.tasks and s.labels_digest}
         cache = None
         if self.use_cache:
             cfg = {**reader.config(), "pre_transforms": transforms_config(self.pre_transforms), "seed": self.seed}

@@ -159,6 +159,7 @@ class SceneEntry:
     views: list[ViewEntry]
     sources: list[str] = field(default_factory=list)  # scene-level files (e.g. scene.json)
     format_version: int | None = None  # generated data's on-disk format (1 or 2, docs/data_format.md); else None
+    labels_digest: str | None = None  # short hash of the scene's labels (``fileformat.labels_digest``); else None
 
 
 class FloAffReader(abc.ABC):
@@ -270,6 +271,7 @@ class GeneratedReader(FloAffReader):
                     views=views,
                     sources=[str(sj)],
                     format_version=int(rec["format_version"]),
+                    labels_digest=ff.labels_digest(rec),
                 )
             )
         return out

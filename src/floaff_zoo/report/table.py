@@ -23,6 +23,10 @@ seeds); a row with a single run shows its SR bootstrap std (see ``RolloutSuccess
 ± for map metrics. The best mean of each column within a section is bold (the Oracle row never).
 ``--group-by`` takes ``model`` (class name), ``label``, ``benchmark`` or any dotted path into
 ``report.json`` (``model.hparams.crop_radius``, ``config.data.init_args.crop_radius``, ``seed``).
+
+Runs whose reports give one scene different label hashes (``data.labels_sha256``: copies of a preset generated on
+different CPUs differ in a few rollouts) are not put in one table unless ``--allow-mixed-data`` says so; reports
+written before the hash was recorded are not checked.
 """
 
 from __future__ import annotations
@@ -274,14 +278,40 @@ def _short(bench: str) -> str:
     return bench.split("(", 1)[1].rstrip(")") if bench.startswith("FloAff-Kitchen (") else bench
 
 
+def check_one_copy(reports: list[dict[str, Any]]) -> None:
+    """Raise TableError when two reports record different label hashes for one scene of one benchmark."""
+    seen: dict[tuple[str, str], tuple[str, str]] = {}  # (benchmark, scene) -> (hash, run)
+    for r in reports:
+        data = r.get("data") or {}
+        run = str(r.get("run_dir") or r.get("label") or "?")
+        for scene, digest in sorted((data.get("labels_sha256") or {}).items()):
+            key = (benchmark_name(r), scene)
+            first = seen.setdefault(key, (digest, run))
+            if first[0] != digest:
+                raise TableError(
+                    f"scene {scene} ({key[0]}) has different labels in {first[1]} ({first[0]}) and {run} ({digest}): "
+                    "the runs used different copies of the data (labels depend on the CPU that generated them); "
+                    "tabulate runs of one copy, or pass --allow-mixed-data"
+                )
+
+
 def build_table(
-    reports: list[dict[str, Any]], preset: str = "map", group_by: str | None = None, oracle: bool = True
+    reports: list[dict[str, Any]],
+    preset: str = "map",
+    group_by: str | None = None,
+    oracle: bool = True,
+    mixed_data: bool = False,
 ) -> Table:
-    """A Table of one preset from parsed reports (rows = groups; cells = mean ± std over runs)."""
+    """A Table of one preset from parsed reports (rows = groups; cells = mean ± std over runs).
+
+    ``mixed_data``: allow runs whose reports disagree on a scene's labels (``check_one_copy``).
+    """
     if preset not in PRESETS:
         raise TableError(f"unknown preset {preset!r}; choose from {list(PRESETS)}")
     if not reports:
         raise TableError("no report.json to tabulate")
+    if not mixed_data:
+        check_one_copy(reports)
     group_by = group_by or DEFAULT_GROUP[preset]
     numeric = preset == "sweep"
     note = (
@@ -498,6 +528,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--format", choices=FORMATS, default="md")
     p.add_argument("--preset", choices=PRESETS, default="map")
     p.add_argument("--no-oracle", action="store_true", help="leave out the Oracle row of SR presets")
+    p.add_argument(
+        "--allow-mixed-data",
+        action="store_true",
+        help="tabulate runs whose reports record different labels for a scene (different copies of the data)",
+    )
     p.add_argument("--out", default=None, help="write the table here instead of stdout")
     return p
 
@@ -512,7 +547,13 @@ def main(argv: list[str] | None = None) -> int:
         print(f"floaff-zoo table: error: no report.json found in {args.runs}", file=sys.stderr)
         return 2
     try:
-        table = build_table([r for _, r in reports], args.preset, args.group_by, oracle=not args.no_oracle)
+        table = build_table(
+            [r for _, r in reports],
+            args.preset,
+            args.group_by,
+            oracle=not args.no_oracle,
+            mixed_data=args.allow_mixed_data,
+        )
         text = render(table, args.format)
     except TableError as exc:
         print(f"floaff-zoo table: error: {exc}", file=sys.stderr)

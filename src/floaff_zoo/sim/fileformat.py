@@ -21,6 +21,7 @@ Versions (``format_version`` in scene.json and manifest.json; the readers here t
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import shutil
@@ -46,6 +47,7 @@ __all__ = [
     "check_format_version",
     "commit_scene_dir",
     "iter_scenes",
+    "labels_digest",
     "read_json",
     "read_manifest",
     "read_sample",
@@ -283,6 +285,22 @@ def read_scene(scene_path: str | Path) -> dict[str, Any]:
             raise FormatError(f"{p}: labels.{k} has {len(rec['labels'][k])} entries, candidates.xy has {m}")
     rec["dir"] = str(p.parent)
     return rec
+
+
+def labels_digest(rec: dict[str, Any]) -> str:
+    """Short sha256 (16 hex) of a scene record's candidate cells and rollout labels.
+
+    Rollouts are bit-reproducible on one machine but not across CPUs (docs/background.md), so two copies of a
+    preset generated with the same code and seeds can differ in a few cells. Reports record this digest per scene,
+    and ``floaff-zoo table`` refuses to put runs whose scenes carry different labels in one table.
+    """
+    keep = {
+        "scene_id": rec.get("scene_id"),
+        "candidates": {k: rec["candidates"].get(k) for k in ("xy", "yaw", "cell", "valid")},
+        "labels": {k: rec["labels"].get(k) for k in ("success", "label", "known", "cell_label")},
+    }
+    blob = json.dumps(keep, sort_keys=True, default=_json_default).encode()
+    return hashlib.sha256(blob).hexdigest()[:16]
 
 
 def iter_scenes(
