@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 
 _SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
 sys.path.insert(0, str(_SCRIPTS))  # scene_sr imports its neighbour fresh_sr
@@ -90,3 +91,62 @@ def test_residual_scales_parse_and_copy_only_prior_residual_runs():
     assert list(out) == ["recipe", "plain", "recipe@0", "recipe@0.5"]
     assert [r.hparams["residual_scale"] for r in out["recipe@0.5"]] == [0.5, 0.5]
     assert nets["recipe"][0].hparams["residual_scale"] == 1.0  # the originals are untouched
+
+
+def _behind(batch) -> np.ndarray:
+    """Scores [B, M] in (0, 1): the floor points farthest behind the robot first (a poor map: the footprint check
+    matters)."""
+    return torch.sigmoid(-batch["floor_xyz"][..., 0]).numpy()
+
+
+def _noisy_labels(batch) -> np.ndarray:
+    """Scores [B, M] in (0, 1): the labels plus a fixed ripple over the floor (some views pick a failure)."""
+    xy = batch["floor_xyz"][..., :2]
+    return torch.sigmoid(batch["floor_label"] + 2.5 * torch.sin(37 * xy[..., 0] + 11 * xy[..., 1])).numpy()
+
+
+@pytest.fixture(scope="module")
+def sim_scenes(tmp_path_factory):
+    """One generated tiny test scene each of CloseDrawer and OpenSingleDoor: scene records and samples."""
+    pytest.importorskip("mujoco")
+    from floaff_zoo.contract import validate_sample
+    from floaff_zoo.sim import fileformat as ff
+    from floaff_zoo.sim import generate as gen
+
+    out = tmp_path_factory.mktemp("scene_sr_sim")
+    args = ["--preset", "tiny", "--out", str(out), "--tasks", "CloseDrawer", "OpenSingleDoor", "--n-train", "0"]
+    assert gen.main([*args, "--n-test", "1", "--workers", "0", "--quiet"]) == 0
+    scenes = {s["scene_id"]: s for s in ff.iter_scenes(out)}
+    samples = [validate_sample(ff.read_sample(sc, v, out)) for sc in scenes.values() for v in sc["views"]]
+    return scenes, samples
+
+
+def test_annotated_outcomes_equal_the_callbacks_rollouts(sim_scenes):
+    """scene_sr scores a choice by the annotated outcome of its cell; the test's callback rolls it out. Both must
+    give the same SR, with and without the footprint check (``top_k``, ``free_space: cloud``)."""
+    import lightning as L
+
+    from floaff_zoo.callbacks import RolloutSuccessRate
+    from tests.report._fake_world import ConstantModule, loader
+
+    scenes, samples = sim_scenes
+    seen = set()
+    for scorer in (_behind, _noisy_labels):
+
+        class Module(ConstantModule):
+            def forward(self, batch, scorer=scorer):
+                return torch.as_tensor(scorer(batch)) + 0.0 * self.net.weight.sum()
+
+        for top_k in (1, 5):
+            cb = RolloutSuccessRate(progress=False, top_k=top_k, free_space="cloud", oracle=False)
+            trainer = L.Trainer(accelerator="cpu", logger=False, enable_progress_bar=False, enable_checkpointing=False)
+            trainer.callbacks.append(cb)
+            res = trainer.test(Module(), dataloaders=loader(samples, 4), verbose=False)[0]
+            rows = []
+            for batch in loader(samples, 4):
+                rows += ssr.view_outcomes(batch, {"m": [scorer(batch)]}, scenes, top_k)
+            outcomes = [r[2]["m"][0] for r in rows]
+            assert len(outcomes) == len(samples) > 0
+            assert np.mean(outcomes) == pytest.approx(res["test_sr_all"]), (scorer.__name__, top_k)
+            seen |= set(outcomes)
+    assert seen == {True, False}  # both outcomes occur, so the agreement says something
