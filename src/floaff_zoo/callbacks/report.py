@@ -255,7 +255,7 @@ class TestReport(L.Callback):
                 "views": sorted(self._seen.get("view", ())),
                 "num_samples": self._n,
                 # scene id -> labels hash: copies generated on different CPUs differ (floaff-zoo table checks it)
-                "labels_sha256": dict(getattr(dm, "labels_digests", None) or {}) or None,
+                "labels_sha256": getattr(dm, "labels_digests", None) or None,
             },
             "sim_variant": (hp.get("train") or {}).get("sim_variant"),
             "metric_reduction": (hp.get("train") or {}).get("metric_reduction"),
