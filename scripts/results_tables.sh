@@ -10,12 +10,12 @@ if ! command -v floaff-zoo > /dev/null && [ -x .venv/bin/floaff-zoo ]; then PATH
 R=${OUT:-docs/results/small_v2}
 
 if [ -n "${BASE:-}" ] && [ ! -d "$BASE" ]; then echo "results_tables.sh: BASE=$BASE is not a directory" >&2; exit 2; fi
-MAIN=()   # the method and every baseline, both benchmarks (rows: the report's label, seeds pooled)
+MAIN=()   # the method (its variants too) and every baseline, both benchmarks (rows: the report's label, seeds pooled)
 declare -A SEEN  # BASE=<another OUT>: a job missing from $R is read from there (runs a change did not touch)
 for root in "$R" ${BASE:+"$BASE"}; do
-  for d in "$root"/layouts/{recipe_s?,cfar_pfal_s?,prior,prior_gtyaw,pointnet2_s?,navaff,votenet,h3dnet,n2m} \
+  for d in "$root"/layouts/{recipe_s?,occ_recipe_s?,cfar_pfal_s?,prior,prior_gtyaw,pointnet2_s?,navaff,votenet,h3dnet,n2m} \
            "$root"/layouts/{navaff_s?,votenet_s?,h3dnet_s?,n2m_s?,c2f_exp,c2f_exp_gtyaw} \
-           "$root"/styles/{recipe_s?,cfar_pfal_s?,prior,pointnet2_s?,navaff_s?,votenet_s?,h3dnet_s?,n2m_s?,c2f_exp}; do
+           "$root"/styles/{recipe_s?,occ_recipe_s?,cfar_pfal_s?,prior,pointnet2_s?,navaff_s?,votenet_s?,h3dnet_s?,n2m_s?,c2f_exp}; do
     job=${d#"$root"/}
     if [ -f "$d/report.json" ] && [ -z "${SEEN[$job]:-}" ]; then MAIN+=("$d"); SEEN[$job]=1; fi
   done
@@ -81,9 +81,11 @@ for d in "$R"/layouts/sweep_r*; do [ -f "$d/report.json" ] && SWEEP+=("$d"); don
 REC=("$R"/layouts/recipe_s0)
 NO_FD=no_fd; [ -f "$R/layouts/recipe_no_crop/report.json" ] && NO_FD=""  # then in the recipe's ablation table
 for d in "$R"/layouts/recipe_{no_prior,no_snap,pointwise,$NO_FD} "$R"/layouts/cfar_pfal_s0; do [ -f "$d/report.json" ] && REC+=("$d"); done
-echo "### The zoo recipe's switches on Layouts (seed 0 each)"; echo
-table --runs "${REC[@]}" --preset ablation
-table --runs "${REC[@]}" --preset sr_views --no-oracle
+if [ ${#REC[@]} -gt 1 ]; then  # the recipe alone is no comparison
+  echo "### The zoo recipe's switches on Layouts (seed 0 each)"; echo
+  table --runs "${REC[@]}" --preset ablation
+  table --runs "${REC[@]}" --preset sr_views --no-oracle
+fi
 
 if [ ${#SWEEP[@]} -gt 1 ]; then
   echo "### Crop-radius sweep on Layouts (seed 0 each)"; echo
