@@ -1,6 +1,6 @@
 """Success rate under fresh episodes: the task's randomness drawn again and the base parked with noise.
 
-    python scripts/fresh_sr.py --root data/floaff_dense --benchmark layouts [MODEL ...] \
+    python scripts/fresh_sr.py --root data/floaff_dense --benchmark layouts [[NAME=]MODEL ...] \
         [--episodes 4] [--sigma-xy 0.02] [--sigma-yaw-deg 2] [--json out.json]
 
 The generated labels and ``floaff-zoo test`` roll every pose out once, with the annotation's task seed (the same
@@ -16,6 +16,8 @@ Every view then stands where each scorer puts it, and its fresh SR is the probab
 - ``label``: the argmax of the view's ground-truth label (the Oracle of ``floaff-zoo test``);
 - ``best``: the observed cell of highest fresh probability (a hindsight bound for this evaluation);
 - each MODEL (hub name or checkpoint): its predicted argmax, chosen as ``RolloutSuccessRate`` chooses.
+  ``NAME=MODEL`` names it; repeating a NAME (one checkpoint per seed) adds a pooled row: the mean and sample std
+  over those runs (``pooled`` in the JSON; each run keeps its own row as ``NAME/<k>``).
 
 ``--sigma-xy 0 --sigma-yaw-deg 0`` keeps the exact poses (only the task seed is new); ``--annotation-seed`` keeps
 the annotation's task seed (only the parking noise is new): the two parts of the fresh evaluation, separately.
@@ -40,7 +42,16 @@ from floaff_zoo.contract import TASKS
 from floaff_zoo.frames import base_to_world
 from floaff_zoo.sim.repeat import fresh_probability, perturbed_poses, scene_probabilities, service_runner
 
-__all__ = ["fresh_probability", "nearest_cells", "perturbed_poses", "service_runner", "summarize", "view_choices"]
+__all__ = [
+    "fresh_probability",
+    "nearest_cells",
+    "parse_models",
+    "perturbed_poses",
+    "pool_runs",
+    "service_runner",
+    "summarize",
+    "view_choices",
+]
 
 
 def nearest_cells(cand_xy: np.ndarray, xy: np.ndarray, cell: float, where: str) -> np.ndarray:
@@ -104,6 +115,45 @@ def summarize(rows: list[dict], scorers: list[str]) -> dict[str, dict[str, dict[
     return out
 
 
+def parse_models(specs: list[str]) -> tuple[dict[str, str], dict[str, list[str]]]:
+    """['[NAME=]MODEL', ...] -> (scorer key -> model, NAME -> its scorer keys); a bare MODEL is its own NAME.
+
+    A NAME given once is its own key; a repeated NAME gets keys ``NAME/0``, ``NAME/1``, ... in order.
+    """
+    pairs = []
+    for s in specs:
+        name, sep, model = s.partition("=")
+        if not sep:
+            name, model = s, s
+        if not name or not model or name in ("label", "best"):
+            raise SystemExit(f"fresh_sr: bad model argument {s!r}; use NAME=MODEL (NAME not 'label' or 'best')")
+        pairs.append((name, model))
+    count = {n: sum(1 for m, _ in pairs if m == n) for n, _ in pairs}
+    keys: dict[str, str] = {}
+    groups: dict[str, list[str]] = {}
+    for name, model in pairs:
+        key = name if count[name] == 1 else f"{name}/{len(groups.get(name, []))}"
+        keys[key] = model
+        groups.setdefault(name, []).append(key)
+    return keys, groups
+
+
+def pool_runs(sr: dict[str, dict[str, dict[str, float]]], groups: dict[str, list[str]]) -> dict[str, dict]:
+    """NAME -> {"runs": n, "exact" | "fresh": {column: {"mean", "std"}}} over the NAME's runs (std: ddof 1, 0 alone)."""
+    out: dict[str, dict] = {}
+    for name, keys in groups.items():
+        row: dict = {"runs": len(keys)}
+        for kind in ("exact", "fresh"):
+            cols = sr[keys[0]][kind]
+            vals = {c: np.array([sr[k][kind][c] for k in keys], float) for c in cols}
+            row[kind] = {
+                c: {"mean": float(v.mean()), "std": float(v.std(ddof=1)) if len(v) > 1 else 0.0}
+                for c, v in vals.items()
+            }
+        out[name] = row
+    return out
+
+
 def cell_stats(scenes: dict[str, dict], probs: dict[str, np.ndarray]) -> dict[str, dict[str, float]]:
     """Per task: annotated successful cells per scene, their mean fresh probability, and cells with p >= 0.5."""
     out: dict[str, dict[str, float]] = {}
@@ -130,7 +180,7 @@ def cell_stats(scenes: dict[str, dict], probs: dict[str, np.ndarray]) -> dict[st
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("models", nargs="*", help="hub names or checkpoint paths")
+    p.add_argument("models", nargs="*", help="[NAME=]MODEL: hub name or checkpoint; repeat a NAME to pool runs")
     p.add_argument("--root", default="data/floaff_dense")
     p.add_argument("--benchmark", default="layouts", choices=["layouts", "styles"])
     p.add_argument(
@@ -184,7 +234,8 @@ def main(argv: list[str] | None = None) -> int:
     if a.annotation_seed:
         setting["task_seed"] = "annotation"
     seeds = [ANNOTATE_SEED] * a.episodes if a.annotation_seed else []
-    models = {m: resolve_model(m).eval() for m in a.models}  # a bad name fails before any rollout
+    keys, groups = parse_models(a.models)
+    models = {k: resolve_model(m).eval() for k, m in keys.items()}  # a bad name fails before any rollout
     try:
         probs = scene_probabilities(scenes, setting, Path(a.probs) if a.probs else None, a.workers, seeds)
     except ValueError as exc:
@@ -196,8 +247,9 @@ def main(argv: list[str] | None = None) -> int:
             scores = {"label": batch["floor_label"].numpy()}
             scores.update({m: net(batch).numpy() for m, net in models.items()})
             rows += view_choices(batch, scores, scenes, probs, a.top_k)
-    scorers = ["label", "best", *a.models]
+    scorers = ["label", "best", *keys]
     sr = summarize(rows, scorers)
+    pooled = pool_runs(sr, {n: ks for n, ks in groups.items() if len(ks) > 1})
     cells = cell_stats(scenes, probs)
     print(f"{a.benchmark} {a.split}: {len(rows)} views, {setting}")
     cols = [*TASKS, "front", "side", "all"]
@@ -206,12 +258,27 @@ def main(argv: list[str] | None = None) -> int:
     for s in scorers:
         for kind in ("exact", "fresh"):
             print(f"| {s} | {kind} | " + " | ".join(f"{sr[s][kind].get(c, float('nan')):.2f}" for c in cols) + " |")
+    for n, row in pooled.items():
+        for kind in ("exact", "fresh"):
+            cells_txt = " | ".join(f"{row[kind][c]['mean']:.2f} ± {row[kind][c]['std']:.2f}" for c in cols)
+            print(f"| {n} ({row['runs']} runs) | {kind} | {cells_txt} |")
     for t, c in cells.items():
         print(f"{t}: " + ", ".join(f"{k} {v:.2f}" for k, v in c.items()))
     if a.json:
         Path(a.json).parent.mkdir(parents=True, exist_ok=True)
         Path(a.json).write_text(
-            json.dumps({"setting": setting, "top_k": a.top_k, "views": len(rows), "sr": sr, "cells": cells}, indent=1)
+            json.dumps(
+                {
+                    "setting": setting,
+                    "top_k": a.top_k,
+                    "views": len(rows),
+                    "models": keys,
+                    "sr": sr,
+                    "pooled": pooled,
+                    "cells": cells,
+                },
+                indent=1,
+            )
             + "\n"
         )
     return 0

@@ -136,3 +136,23 @@ def test_fresh_labels_train_the_datamodule_and_val_split_scores(drawer_root, tmp
     assert fs.main(["--root", str(drawer_root), "--benchmark", "styles", "--episodes", "1", "--split", "val",
                     "--probs", str(cache), "--json", str(rep)]) == 0  # fmt: skip
     assert json.loads(rep.read_text())["views"] == len(dm.val_dataloader().dataset)
+
+
+def test_named_models_pool_their_runs():
+    keys, groups = fs.parse_models(["occ=a.ckpt", "prior=p.ckpt", "occ=b.ckpt", "hub.name"])
+    assert keys == {"occ/0": "a.ckpt", "prior": "p.ckpt", "occ/1": "b.ckpt", "hub.name": "hub.name"}
+    assert groups == {"occ": ["occ/0", "occ/1"], "prior": ["prior"], "hub.name": ["hub.name"]}
+    sr = {
+        "occ/0": {"exact": {"all": 0.8}, "fresh": {"all": 0.6}},
+        "occ/1": {"exact": {"all": 0.6}, "fresh": {"all": 0.6}},
+        "prior": {"exact": {"all": 0.7}, "fresh": {"all": 0.5}},
+    }
+    pooled = fs.pool_runs(sr, {"occ": groups["occ"], "prior": groups["prior"]})
+    assert pooled["occ"]["runs"] == 2
+    assert pooled["occ"]["exact"]["all"]["mean"] == pytest.approx(0.7)
+    assert pooled["occ"]["exact"]["all"]["std"] == pytest.approx(np.std([0.8, 0.6], ddof=1))
+    assert pooled["occ"]["fresh"]["all"] == {"mean": pytest.approx(0.6), "std": pytest.approx(0.0)}
+    assert pooled["prior"]["exact"]["all"] == {"mean": pytest.approx(0.7), "std": 0.0}
+    for bad in (["=a.ckpt"], ["occ="], ["label=a.ckpt"]):
+        with pytest.raises(SystemExit, match="bad model argument"):
+            fs.parse_models(bad)
