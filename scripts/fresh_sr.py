@@ -118,12 +118,13 @@ def summarize(rows: list[dict], scorers: list[str]) -> dict[str, dict[str, dict[
 def parse_models(specs: list[str]) -> tuple[dict[str, str], dict[str, list[str]]]:
     """['[NAME=]MODEL', ...] -> (scorer key -> model, NAME -> its scorer keys); a bare MODEL is its own NAME.
 
-    A NAME given once is its own key; a repeated NAME gets keys ``NAME/0``, ``NAME/1``, ... in order.
+    A NAME given once is its own key; a repeated NAME gets keys ``NAME/0``, ``NAME/1``, ... in order. A spec whose
+    part before ``=`` holds a ``/``, or that names an existing file, is a bare MODEL.
     """
     pairs = []
     for s in specs:
         name, sep, model = s.partition("=")
-        if not sep:
+        if not sep or "/" in name or Path(s).exists():  # a bare path may hold '=' (epoch=1-step=9.ckpt)
             name, model = s, s
         if not name or not model or name in ("label", "best"):
             raise SystemExit(f"fresh_sr: bad model argument {s!r}; use NAME=MODEL (NAME not 'label' or 'best')")

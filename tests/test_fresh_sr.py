@@ -153,6 +153,8 @@ def test_named_models_pool_their_runs():
     assert pooled["occ"]["exact"]["all"]["std"] == pytest.approx(np.std([0.8, 0.6], ddof=1))
     assert pooled["occ"]["fresh"]["all"] == {"mean": pytest.approx(0.6), "std": pytest.approx(0.0)}
     assert pooled["prior"]["exact"]["all"] == {"mean": pytest.approx(0.7), "std": 0.0}
+    keys, _ = fs.parse_models(["runs/x/epoch=1-step=9.ckpt"])
+    assert keys == {"runs/x/epoch=1-step=9.ckpt": "runs/x/epoch=1-step=9.ckpt"}
     for bad in (["=a.ckpt"], ["occ="], ["label=a.ckpt"]):
         with pytest.raises(SystemExit, match="bad model argument"):
             fs.parse_models(bad)
