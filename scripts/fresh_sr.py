@@ -40,6 +40,7 @@ import torch
 from floaff_zoo.callbacks.rollout import choose_pose, cloud_free
 from floaff_zoo.contract import TASKS
 from floaff_zoo.frames import base_to_world
+from floaff_zoo.predict import named_models
 from floaff_zoo.sim.repeat import fresh_probability, perturbed_poses, scene_probabilities, service_runner
 
 __all__ = [
@@ -116,26 +117,21 @@ def summarize(rows: list[dict], scorers: list[str]) -> dict[str, dict[str, dict[
 
 
 def parse_models(specs: list[str]) -> tuple[dict[str, str], dict[str, list[str]]]:
-    """['[NAME=]MODEL', ...] -> (scorer key -> model, NAME -> its scorer keys); a bare MODEL is its own NAME.
+    """['[NAME=]MODEL', ...] -> (scorer key -> model, NAME -> its scorer keys), as ``predict.named_models`` reads them.
 
-    A NAME given once is its own key; a repeated NAME gets keys ``NAME/0``, ``NAME/1``, ... in order. A spec whose
-    part before ``=`` holds a ``/``, or that names an existing file, is a bare MODEL.
+    A NAME given once is its own key; a repeated NAME gets keys ``NAME/0``, ``NAME/1``, ... in order.
     """
-    pairs = []
-    for s in specs:
-        name, sep, model = s.partition("=")
-        if not sep or "/" in name or Path(s).exists():  # a bare path may hold '=' (epoch=1-step=9.ckpt)
-            name, model = s, s
-        if not name or not model or name in ("label", "best"):
-            raise SystemExit(f"fresh_sr: bad model argument {s!r}; use NAME=MODEL (NAME not 'label' or 'best')")
-        pairs.append((name, model))
-    count = {n: sum(1 for m, _ in pairs if m == n) for n, _ in pairs}
+    try:
+        named = named_models(specs)
+    except ValueError as exc:
+        raise SystemExit(f"fresh_sr: {exc}") from exc
+    if {"label", "best"} & named.keys():
+        raise SystemExit("fresh_sr: bad model argument: 'label' and 'best' name the built-in scorers")
     keys: dict[str, str] = {}
     groups: dict[str, list[str]] = {}
-    for name, model in pairs:
-        key = name if count[name] == 1 else f"{name}/{len(groups.get(name, []))}"
-        keys[key] = model
-        groups.setdefault(name, []).append(key)
+    for name, models in named.items():
+        groups[name] = [name] if len(models) == 1 else [f"{name}/{k}" for k in range(len(models))]
+        keys.update(zip(groups[name], models))
     return keys, groups
 
 

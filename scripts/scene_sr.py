@@ -44,6 +44,7 @@ from fresh_sr import nearest_cells  # noqa: E402
 
 from floaff_zoo.callbacks.rollout import choose_pose, cloud_free  # noqa: E402
 from floaff_zoo.contract import TASKS  # noqa: E402
+from floaff_zoo.predict import named_models  # noqa: E402
 
 # per view: (task, scene id, {name: [outcome per run]})
 Row = tuple[str, str, dict[str, list[bool]]]
@@ -51,15 +52,10 @@ Row = tuple[str, str, dict[str, list[bool]]]
 
 def parse_models(specs: list[str]) -> dict[str, list[str]]:
     """['name=model', ...] -> {name: [model, ...]} in order; a bare model is its own name."""
-    out: dict[str, list[str]] = defaultdict(list)
-    for s in specs:
-        name, sep, model = s.partition("=")
-        if not sep:
-            name, model = s, s
-        if not name or not model:
-            raise SystemExit(f"scene_sr: bad model argument {s!r}; use NAME=MODEL")
-        out[name].append(model)
-    return dict(out)
+    try:
+        return named_models(specs)
+    except ValueError as exc:
+        raise SystemExit(f"scene_sr: {exc}") from exc
 
 
 def parse_scales(text: str | None) -> list[float]:

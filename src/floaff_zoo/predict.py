@@ -97,6 +97,23 @@ def resolve_model(model: Any, model_class: type | str | None = None, device: str
     return model.to(device).eval()
 
 
+def named_models(specs: list[str]) -> dict[str, list[str]]:
+    """Command-line ``[NAME=]MODEL`` specs -> {NAME: [MODEL, ...]} in order (a repeated NAME pools runs).
+
+    A bare MODEL is its own NAME; so is a spec whose part before ``=`` holds a ``/`` or that names an existing
+    file (a checkpoint path may hold ``=``: ``epoch=1-step=9.ckpt``). An empty NAME or MODEL is a ValueError.
+    """
+    out: dict[str, list[str]] = {}
+    for spec in specs:
+        name, sep, model = spec.partition("=")
+        if not sep or "/" in name or Path(spec).exists():
+            name, model = spec, spec
+        if not name or not model:
+            raise ValueError(f"bad model argument {spec!r}; use NAME=MODEL (a hub name or checkpoint)")
+        out.setdefault(name, []).append(model)
+    return out
+
+
 # ------------------------------------------------------------------------------------------ geometry
 def backproject_depth(
     depth: np.ndarray,
