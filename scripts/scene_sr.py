@@ -21,6 +21,10 @@ cells it filtered), then reports:
 (``CFARModule`` with ``prior_residual``) with the learned residual logit scaled by each value (``residual_scale``;
 0 = the checkpoint's own prior with its AxisNet yaw), as NAME@0, NAME@0.5.
 
+``--ensemble`` also scores every NAME with two runs or more as one model, NAME+ens, that averages its runs' maps
+before the argmax (a deep ensemble: it costs the runs' training budgets together, so it is a diagnostic of seed
+variance, not a row of an equal-budget table).
+
 ``--top-k 10`` stands each view on the best of its top 10 cells whose base footprint is free in the view's own cloud
 (the callback's ``free_space: cloud`` footprint check) instead of the argmax.
 
@@ -82,6 +86,15 @@ def with_residual_scales(nets: dict[str, list], scales: list[float]) -> dict[str
             for c in copies:
                 c.hparams["residual_scale"] = s
             out[f"{name}@{s:g}"] = copies
+    return out
+
+
+def ensemble_scores(scores: dict[str, list[np.ndarray]]) -> dict[str, list[np.ndarray]]:
+    """Add NAME+ens, the mean of NAME's runs' scores (one run, [B, M]), for every NAME with two runs or more."""
+    out = dict(scores)
+    for name, runs in scores.items():
+        if len(runs) > 1:
+            out[f"{name}+ens"] = [np.mean(np.stack(runs), axis=0)]
     return out
 
 
@@ -198,6 +211,7 @@ def main(argv: list[str] | None = None) -> int:
         help="e.g. 0,0.5,1.5: also score prior-residual models with their residual scaled by each (NAME@s)",
     )
     p.add_argument("--top-k", type=int, default=1, help="> 1: best of the top-k cells free in the view's cloud")
+    p.add_argument("--ensemble", action="store_true", help="also score NAME+ens: the mean map of NAME's runs")
     p.add_argument("--json", default=None)
     a = p.parse_args(argv)
     if a.draws < 1:
@@ -227,17 +241,19 @@ def main(argv: list[str] | None = None) -> int:
     with torch.no_grad():
         for batch in dm.test_dataloader() if a.split == "test" else dm.val_dataloader():
             scores = {n: [net(batch).numpy() for net in runs] for n, runs in nets.items()}
+            if a.ensemble:
+                scores = ensemble_scores(scores)
             try:
                 rows += view_outcomes(batch, scores, scenes, a.top_k)
             except KeyError as exc:
                 raise SystemExit(f"scene_sr: {exc.args[0]}") from exc
-    names = list(nets)
+    names = list(rows[0][2]) if rows else list(nets)
     table = per_scene(rows, names)
     res = summarize(table, names, a.draws, a.seed)
 
     print(
         f"{a.benchmark} {a.split}: {len(rows)} views in {len(table)} scenes; runs per name: "
-        + ", ".join(f"{n} {len(r)}" for n, r in nets.items())
+        + ", ".join(f"{n} {len(rows[0][2][n]) if rows else 0}" for n in names)
     )
     print("| scene | task | views | " + " | ".join(names) + " |")
     print("|---|---|---:|" + "---:|" * len(names))
@@ -257,11 +273,13 @@ def main(argv: list[str] | None = None) -> int:
     if a.json:
         Path(a.json).parent.mkdir(parents=True, exist_ok=True)
         runs = {n: groups[n] if n in groups else groups[n.rpartition("@")[0]] for n in nets}
+        runs.update({n: runs[n.removesuffix("+ens")] for n in names if n not in runs})
         out = {
             "benchmark": a.benchmark,
             "split": a.split,
             "runs": runs,
             "residual_scales": scales,
+            "ensemble": a.ensemble,
             "top_k": a.top_k,
             "draws": a.draws,
             "scenes": table,

@@ -93,6 +93,16 @@ def test_residual_scales_parse_and_copy_only_prior_residual_runs():
     assert nets["recipe"][0].hparams["residual_scale"] == 1.0  # the originals are untouched
 
 
+def test_ensemble_averages_the_maps_of_a_name_with_several_runs():
+    a0, a1 = np.array([[0.9, 0.1, 0.5]]), np.array([[0.1, 0.8, 0.6]])
+    out = ssr.ensemble_scores({"a": [a0, a1], "solo": [a0]})
+    assert list(out) == ["a", "solo", "a+ens"]  # one run has nothing to average
+    assert len(out["a+ens"]) == 1 and np.allclose(out["a+ens"][0], [[0.5, 0.45, 0.55]])
+    # the mean map's argmax is a cell neither run chose: an ensemble is not a vote between its members
+    assert int(out["a+ens"][0].argmax()) == 2 and {int(a0.argmax()), int(a1.argmax())} == {0, 1}
+    assert out["a"] == [a0, a1]
+
+
 def _behind(batch) -> np.ndarray:
     """Scores [B, M] in (0, 1): the floor points farthest behind the robot first (a poor map: the footprint check
     matters)."""
