@@ -89,13 +89,14 @@ def with_residual_scales(nets: dict[str, list], scales: list[float]) -> dict[str
     return out
 
 
+def ensembled(groups: dict[str, list]) -> list[str]:
+    """The NAMEs that get an ensemble row: those given two runs or more."""
+    return [name for name, runs in groups.items() if len(runs) > 1]
+
+
 def ensemble_scores(scores: dict[str, list[np.ndarray]]) -> dict[str, list[np.ndarray]]:
     """Add NAME+ens, the mean of NAME's runs' scores (one run, [B, M]), for every NAME with two runs or more."""
-    out = dict(scores)
-    for name, runs in scores.items():
-        if len(runs) > 1:
-            out[f"{name}+ens"] = [np.mean(np.stack(runs), axis=0)]
-    return out
+    return {**scores, **{f"{name}+ens": [np.mean(np.stack(scores[name]), axis=0)] for name in ensembled(scores)}}
 
 
 def view_outcomes(
@@ -219,6 +220,9 @@ def main(argv: list[str] | None = None) -> int:
     if a.top_k < 1:
         p.error(f"--top-k must be >= 1, got {a.top_k}")
     scales = parse_scales(a.residual_scales)
+    groups = parse_models(a.models)
+    if a.ensemble and not ensembled(groups):
+        p.error("--ensemble averages the runs of one NAME: give some NAME two runs or more (NAME=a.ckpt NAME=b.ckpt)")
 
     from lightning.fabric.utilities.exceptions import MisconfigurationException
 
@@ -226,7 +230,6 @@ def main(argv: list[str] | None = None) -> int:
     from floaff_zoo.predict import resolve_model
     from floaff_zoo.sim import fileformat as ff
 
-    groups = parse_models(a.models)
     try:  # a bad model name or data root ends here with its message, before any scoring
         nets = with_residual_scales({n: [resolve_model(m).eval() for m in ms] for n, ms in groups.items()}, scales)
         dm = FloAffKitchenDataModule(root=a.root, benchmark=a.benchmark, tasks=list(TASKS), num_points=a.num_points)
@@ -247,13 +250,16 @@ def main(argv: list[str] | None = None) -> int:
                 rows += view_outcomes(batch, scores, scenes, a.top_k)
             except KeyError as exc:
                 raise SystemExit(f"scene_sr: {exc.args[0]}") from exc
-    names = list(rows[0][2]) if rows else list(nets)
+    n_runs = {n: len(r) for n, r in nets.items()}
+    if a.ensemble:
+        n_runs.update({f"{n}+ens": 1 for n in ensembled(nets)})
+    names = list(n_runs)
     table = per_scene(rows, names)
     res = summarize(table, names, a.draws, a.seed)
 
     print(
         f"{a.benchmark} {a.split}: {len(rows)} views in {len(table)} scenes; runs per name: "
-        + ", ".join(f"{n} {len(rows[0][2][n]) if rows else 0}" for n in names)
+        + ", ".join(f"{n} {k}" for n, k in n_runs.items())
     )
     print("| scene | task | views | " + " | ".join(names) + " |")
     print("|---|---|---:|" + "---:|" * len(names))

@@ -101,6 +101,13 @@ def test_ensemble_averages_the_maps_of_a_name_with_several_runs():
     # the mean map's argmax is a cell neither run chose: an ensemble is not a vote between its members
     assert int(out["a+ens"][0].argmax()) == 2 and {int(a0.argmax()), int(a1.argmax())} == {0, 1}
     assert out["a"] == [a0, a1]
+    assert ssr.ensembled({"a": [1, 2], "solo": [1]}) == ["a"]
+
+
+def test_ensemble_without_a_pooled_name_is_refused_before_loading(tmp_path, capsys):
+    with pytest.raises(SystemExit):
+        ssr.main(["--root", str(tmp_path), "--ensemble", "a=x.ckpt", "b=y.ckpt"])
+    assert "--ensemble averages the runs of one NAME" in capsys.readouterr().err
 
 
 def _behind(batch) -> np.ndarray:
