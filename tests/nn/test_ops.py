@@ -317,3 +317,46 @@ def test_extreme_over_dim_kernel_matches_torch_max_and_min(monkeypatch, dtype):
     assert ref[1][2, 0, 4] == 1 and ref[1][1, 2, 0] == 3  # the first NaN
     with pytest.raises(ValueError, match="channel"):
         ops.extreme_over_dim(z, -1, take_min)
+
+
+def test_build_folder_is_per_torch_install_under_the_extensions_dir(tmp_path, monkeypatch):
+    """One folder per torch install (build.ninja holds its include paths) under TORCH_EXTENSIONS_DIR."""
+    monkeypatch.setenv("TORCH_EXTENSIONS_DIR", str(tmp_path))
+    folder = _fps_ext.build_directory()
+    assert folder.parent == tmp_path / "floaff_zoo"
+    assert folder.name.startswith(_fps_ext._NAME + "_") and folder.name.isidentifier()
+    assert folder == _fps_ext.build_directory()
+
+
+def test_build_guard_clears_the_baton_of_a_killed_compile(tmp_path):
+    """A compile killed inside the guard leaves torch's plain 'lock' file; the next build removes it, not waits."""
+    import subprocess
+    import sys
+    import textwrap
+
+    folder = tmp_path / "ext"
+    holder = textwrap.dedent(
+        f"""
+        import sys, time
+        from pathlib import Path
+        from floaff_zoo.nn._fps_ext import build_guard
+        with build_guard(Path({str(folder)!r})):
+            (Path({str(folder)!r}) / "lock").touch()  # torch's baton, as load_inline creates it
+            print("holding", flush=True)
+            time.sleep(120)
+        """
+    )
+    proc = subprocess.Popen([sys.executable, "-c", holder], stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "holding"
+        fcntl = pytest.importorskip("fcntl")
+        with open(tmp_path / "ext.flock", "a+") as handle:  # a live holder: the guard is really exclusive
+            with pytest.raises(BlockingIOError):
+                fcntl.flock(handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    finally:
+        proc.kill()
+        proc.wait(timeout=30)
+    assert (folder / "lock").exists()
+    with pytest.warns(UserWarning, match="stale build lock"):
+        with _fps_ext.build_guard(folder):
+            assert not (folder / "lock").exists()

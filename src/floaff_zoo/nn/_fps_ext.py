@@ -2,9 +2,13 @@
 max-with-index of the fused BatchNorm+max, the passes of the fused train-mode BatchNorm+ReLU), compiled on
 first use with ``load_inline``.
 
-The build is cached in ``TORCH_EXTENSIONS_DIR`` (torch's default: ``~/.cache/torch_extensions``),
-so only the first process on a machine pays the one-off g++ compile (~40-60 s). Any failure (no
-compiler, no ninja, read-only cache) is remembered and callers fall back to pure torch.
+The build is cached under ``TORCH_EXTENSIONS_DIR`` (torch's default: ``~/.cache/torch_extensions``), in
+``floaff_zoo/<name>_<tag>`` with one tag per torch install (``build.ninja`` holds that install's include
+paths, so two environments sharing one cache would otherwise rebuild each other's kernel on every switch).
+Only the first process of an install pays the one-off g++ compile (~40-60 s). Builds are serialised by an
+OS file lock that is released when its holder dies, which also clears the plain ``lock`` file torch leaves
+when a compile is killed (torch alone would wait on it forever). Any failure (no compiler, no ninja,
+read-only cache) is remembered and callers fall back to pure torch.
 Set ``FLOAFF_ZOO_FPS_BACKEND=torch`` to skip the kernels altogether (``FLOAFF_ZOO_CPU_PATHS=portable`` also skips
 the other CPU-only paths: ``floaff_zoo.nn.ops.cpu_fast_paths``).
 
@@ -23,9 +27,14 @@ gives the same results (tested).
 
 from __future__ import annotations
 
+import contextlib
+import hashlib
 import os
+import sys
 import threading
 import warnings
+from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 #: loops compiled once per instruction set (``namespace isa_<name>``, ``vf`` = one vector register of floats
@@ -689,6 +698,7 @@ void bn_relu_grad_(torch::Tensor z, torch::Tensor dy, torch::Tensor y, torch::Te
 std::vector<torch::Tensor> column_var_mean(torch::Tensor z);
 """
 
+_NAME = "floaff_zoo_point_ops_v20"
 _lock = threading.Lock()
 _state: dict[str, Any] = {"module": None, "error": None}
 
@@ -699,6 +709,76 @@ def backend_requested() -> str:
     if value not in ("auto", "cpp", "torch"):
         raise ValueError(f"FLOAFF_ZOO_FPS_BACKEND={value!r}: choose auto, cpp or torch")
     return value
+
+
+def build_directory() -> Path:
+    """This torch install's build folder: ``<TORCH_EXTENSIONS_DIR or torch's root>/floaff_zoo/<name>_<tag>``."""
+    import torch
+    from torch.utils.cpp_extension import get_default_build_root
+
+    install = (
+        f"{torch.__version__}|{Path(torch.__file__).resolve().parent}|{sys.version}|{getattr(sys, 'abiflags', '')}"
+    )
+    tag = hashlib.sha1(install.encode()).hexdigest()[:10]
+    root = os.environ.get("TORCH_EXTENSIONS_DIR") or get_default_build_root()
+    return Path(root) / "floaff_zoo" / f"{_NAME}_{tag}"
+
+
+@contextlib.contextmanager
+def build_guard(folder: Path) -> Iterator[None]:
+    """Hold an exclusive ``flock`` on ``<folder>.flock`` and clear a baton no live build owns.
+
+    torch's own baton (``<folder>/lock``) is a plain file: a compile killed half-way leaves it behind and every
+    later ``load_inline`` sleeps on it forever. Each build of ours takes this kernel lock first, and the kernel
+    drops it when the holder exits however it exits, so whoever holds it knows any baton left is stale.
+    """
+    folder.mkdir(parents=True, exist_ok=True)
+    try:
+        import fcntl
+    except ImportError:  # not POSIX: torch's baton alone, as before
+        yield
+        return
+    with open(folder.parent / f"{folder.name}.flock", "a+") as handle:
+        fcntl.flock(handle.fileno(), fcntl.LOCK_EX)
+        try:
+            baton = folder / "lock"
+            if baton.exists():
+                warnings.warn(
+                    f"floaff_zoo: removing the stale build lock {baton} (left by a killed compile)", stacklevel=3
+                )
+                baton.unlink(missing_ok=True)
+            yield
+        finally:
+            fcntl.flock(handle.fileno(), fcntl.LOCK_UN)
+
+
+def _build(load_inline: Any, folder: Path) -> Any:
+    """Compile (or load the cached build of) the kernels into ``folder``."""
+    return load_inline(
+        name=folder.name,
+        build_directory=str(folder),
+        cpp_sources=[_CPP_DECL, _CPP_SOURCE],
+        functions=[
+            "kernel_isa",
+            "fps_forward",
+            "ball_direct",
+            "three_nn_direct",
+            "weighted_gather3",
+            "tolerant_fps_forward",
+            "stable_three_nn",
+            "extreme_over_dim",
+            "affine_relu",
+            "relu_grad_sums",
+            "bn_relu_grad_",
+            "column_var_mean",
+        ],
+        # -fopenmp: at::parallel_for is OpenMP in these headers, serial without it; the
+        # runtime is the libgomp torch has already loaded (same soname), so one thread pool.
+        # -fno-trapping-math lets selects vectorise (no reassociation, no FMA: same results)
+        extra_cflags=["-O3", "-ffp-contract=off", "-fno-trapping-math", "-fopenmp"],
+        extra_ldflags=["-fopenmp"],
+        verbose=False,
+    )
 
 
 def load_kernel() -> Any | None:
@@ -715,30 +795,9 @@ def load_kernel() -> Any | None:
             try:
                 from torch.utils.cpp_extension import load_inline
 
-                _state["module"] = load_inline(
-                    name="floaff_zoo_point_ops_v20",
-                    cpp_sources=[_CPP_DECL, _CPP_SOURCE],
-                    functions=[
-                        "kernel_isa",
-                        "fps_forward",
-                        "ball_direct",
-                        "three_nn_direct",
-                        "weighted_gather3",
-                        "tolerant_fps_forward",
-                        "stable_three_nn",
-                        "extreme_over_dim",
-                        "affine_relu",
-                        "relu_grad_sums",
-                        "bn_relu_grad_",
-                        "column_var_mean",
-                    ],
-                    # -fopenmp: at::parallel_for is OpenMP in these headers, serial without it; the
-                    # runtime is the libgomp torch has already loaded (same soname), so one thread pool.
-                    # -fno-trapping-math lets selects vectorise (no reassociation, no FMA: same results)
-                    extra_cflags=["-O3", "-ffp-contract=off", "-fno-trapping-math", "-fopenmp"],
-                    extra_ldflags=["-fopenmp"],
-                    verbose=False,
-                )
+                folder = build_directory()
+                with build_guard(folder):
+                    _state["module"] = _build(load_inline, folder)
             except Exception as exc:  # noqa: BLE001 - any build failure means "use the fallback"
                 _state["error"] = f"{type(exc).__name__}: {exc}"
                 if want == "auto":
