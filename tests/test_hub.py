@@ -112,6 +112,21 @@ def test_push_list_from_pretrained_round_trip(run_dir, batch, capsys):
         assert torch.equal(FloAffModule.from_pretrained(NAME)(batch), ref)
 
 
+def test_pushed_files_get_the_umask_mode_not_mkstemp_s(run_dir):
+    """Weights and index are written through temp files; they must end up readable as a plain open makes them."""
+    import os
+
+    run, _, _ = run_dir
+    old = os.umask(0o022)
+    try:
+        assert _push(run) == 0
+    finally:
+        os.umask(old)
+    entry = load_registry()[NAME]
+    for path in (hub_dir() / NAME / entry.filename, hub_dir() / "index.json"):
+        assert path.stat().st_mode & 0o777 == 0o644, path
+
+
 def test_push_uses_report_json_metrics(run_dir, tmp_path):
     run, _, _ = run_dir
     (run / "report.json").write_text(json.dumps({"metrics": {"test_rmse": 0.2, "test_sim": 0.7, "note": "x"}}))

@@ -40,6 +40,7 @@ from floaff_zoo.hub.registry import (
     RegistryFormatError,
     hub_dir,
     is_offline,
+    publish,
     register,
     sha256_file,
     unique_filename,
@@ -176,7 +177,7 @@ def _write_weights(
         save_file(state, str(tmp), metadata={SAFETENSORS_META_KEY: json.dumps(header)})
         sha = sha256_file(tmp)
         name = filename(sha) if callable(filename) else filename
-        os.replace(tmp, out / name)
+        publish(tmp, out / name)
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise

@@ -42,6 +42,7 @@ from floaff_zoo.hub.registry import (
     get_entry,
     hub_dir,
     is_offline,
+    publish,
     sha256_file,
 )
 
@@ -192,7 +193,7 @@ def _download_url(url: str, dest: Path, sha256: str) -> Path:
                 f"download of {url} for {dest.name}: sha256 {h.hexdigest()} != registered {sha256}; "
                 "the file was discarded"
             )
-        os.replace(tmp, dest)
+        publish(tmp, dest)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise

@@ -219,6 +219,18 @@ def read_index(path: Path) -> list[HubEntry]:
     return entries
 
 
+def publish(tmp: str | os.PathLike[str], dest: Path) -> None:
+    """Rename a finished temp file onto ``dest`` with the mode a plain ``open`` would have given it.
+
+    ``mkstemp`` makes owner-only files: an index or weights file with that mode in a shared hub directory, or
+    packaged into a wheel, cannot be read by anyone else.
+    """
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o666 & ~umask)
+    os.replace(tmp, dest)
+
+
 def write_index(path: Path, entries: list[HubEntry]) -> None:
     """Write an index atomically (temp file + rename) so a crash never leaves half a JSON file."""
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -228,7 +240,7 @@ def write_index(path: Path, entries: list[HubEntry]) -> None:
         with os.fdopen(fd, "w", encoding="utf-8") as f:
             json.dump(payload, f, indent=2, sort_keys=False)
             f.write("\n")
-        os.replace(tmp, path)
+        publish(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
