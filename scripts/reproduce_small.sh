@@ -11,6 +11,11 @@
 #   EPOCHS=6 scripts/reproduce_small.sh navaff # baselines for another number of epochs (default 20)
 #   PRESET=dense scripts/reproduce_small.sh recipe_s0 prior pointnet2_s0   # the dense preset's equal-budget
 #                                              # protocol (4,000 samples per learned model; docs/results.md)
+#   PRESET=dense DATA_ROOT=data/floaff_dense05 RUNS=runs/grid05 OUT=docs/results/grid05 \
+#     scripts/reproduce_small.sh occ_recipe_s0 styles_occ_recipe_s0 prior styles_prior  # the same protocol on
+#                                              # another copy of the data (here the 0.05 m grid; every fit, curriculum
+#                                              # stage and training-free test reads DATA_ROOT); AXIS_JOB names the
+#                                              # curriculum whose AxisNet the prior uses (default recipe_s0)
 #   PRESET=dense scripts/reproduce_small.sh recipe_no_crop styles_recipe_r1.30   # ablations / crop sweep on
 #                                              # top of the zoo recipe (recipe_no_{crop,align,sdl,fd}, recipe_r1.xx,
 #                                              # each also as styles_<job>; other seeds: recipe_no_crop_s1,
@@ -39,6 +44,9 @@ else RUNS=${RUNS:-runs/$PRESET} OUT=${OUT:-docs/results/$PRESET}; fi
 if [ "$PRESET" = dense ]; then BUDGET=(--config configs/trainer/dense_budget.yaml)
 else BUDGET=(--trainer.max_epochs "${EPOCHS:-20}"); fi
 PAR=${PAR:-2}
+# another copy of the preset's data than its data configs name (e.g. generated with --cell 0.05)
+ROOT_ARGS=() ROOT_SET=()
+if [ -n "${DATA_ROOT:-}" ]; then ROOT_ARGS=(--data.init_args.root "$DATA_ROOT") ROOT_SET=(--set "data.init_args.root=$DATA_ROOT"); fi
 TASKS='["PnPCounterToCab","OpenSingleDoor","CloseDrawer","CloseDoubleDoor"]'
 EVAL=configs/trainer/eval_sr.yaml
 
@@ -88,7 +96,7 @@ curriculum() {
   local job=$1 bench=$2 seed=$3 label=$4; shift 4
   if [ "$RETEST" = 0 ]; then
     "$FZ" curriculum --config "configs/experiments/pfal_${PRESET}_$bench.yaml" --root "$RUNS/$bench/$job" \
-      --set "seed_everything=$seed" "$@"
+      --set "seed_everything=$seed" "${ROOT_SET[@]}" "$@"
   fi
   local ckpt stage
   ckpt=$(python3 -c "import json,sys; print(json.load(open(sys.argv[1]))['stages'][-1]['checkpoint'])" \
@@ -116,7 +124,7 @@ baseline() {
   fi
   if [ "$RETEST" = 0 ]; then
     "$FZ" fit --config "configs/data/floaff_${PRESET}_$bench.yaml" --config "$model" \
-      --seed_everything "$seed" --trainer.default_root_dir "$root" "${BUDGET[@]}" "$@" "${last[@]}"
+      --seed_everything "$seed" --trainer.default_root_dir "$root" "${BUDGET[@]}" "${ROOT_ARGS[@]}" "$@" "${last[@]}"
   fi
   test_run "$(latest_run "$root")" "$label" "$bench" "$job"
 }
@@ -127,7 +135,7 @@ training_free() {
   local before=$RUNS/.tested_${bench}_$job
   mkdir -p "$RUNS"; touch "$before"
   "$FZ" test --config "configs/data/floaff_${PRESET}_$bench.yaml" --config configs/models/c2f_exp.yaml \
-    --config "$EVAL" --trainer.default_root_dir "$root" --trainer.callbacks.init_args.label "$label" "$@"
+    --config "$EVAL" --trainer.default_root_dir "$root" --trainer.callbacks.init_args.label "$label" "${ROOT_ARGS[@]}" "$@"
   copy_report "$(find "$root" -name report.json -newer "$before" | head -n 1)" "$bench" "$job"
 }
 
@@ -141,16 +149,16 @@ prior() {
     # mirrored views: 4 passes, each view reflected with probability 0.5, so the average is near-symmetric
     mirror_*) root=$RUNS/$bench/$job fit=(--config configs/experiments/recipe/mirror.yaml --trainer.max_epochs 4) ;;
   esac
-  local axis="" lineage=$RUNS/$bench/recipe_s0/lineage.json tries=0
+  local axis="" lineage=$RUNS/$bench/${AXIS_JOB:-recipe_s0}/lineage.json tries=0
   until axis=$(python3 -c "import json,sys; print(json.load(open(sys.argv[1]))['stages'][0]['checkpoint'])" \
     "$lineage" 2>/dev/null) && [ -f "$axis" ]; do
-    tries=$((tries + 1)); [ $tries -le 180 ] || { echo "$job: no AxisNet in $lineage (run recipe_s0)" >&2; return 1; }
+    tries=$((tries + 1)); [ $tries -le 180 ] || { echo "$job: no AxisNet in $lineage (run ${AXIS_JOB:-recipe_s0})" >&2; return 1; }
     sleep 10
   done
   if [ "$RETEST" = 0 ] && [ -z "$(find "$root" -name last.ckpt 2>/dev/null)" ]; then
     "$FZ" fit --config "configs/data/floaff_${PRESET}_$bench.yaml" --config configs/models/canonical_prior.yaml \
       --model.init_args.axisnet "$axis" --data.init_args.train_transforms '[]' --trainer.max_epochs 1 \
-      --trainer.default_root_dir "$root" "${fit[@]}"
+      --trainer.default_root_dir "$root" "${ROOT_ARGS[@]}" "${fit[@]}"
   fi
   test_run "$(latest_run "$root")" "$label" "$bench" "$job" last "$@"
 }
