@@ -1,7 +1,8 @@
-"""Benchmark the FloAff generator: render ms per view, wall time of the tiny preset (and small on request), and how
-generation time grows with the number of scenes.
+"""Benchmark the FloAff generator: render ms per view, wall time of the tiny preset (and small on request), how
+generation time grows with the number of scenes, and (``--grid``) what the paper's 0.05 m candidate grid costs
+against the dense preset's 0.1 m in the same run.
 
-    python benchmarks/bench_generate.py [--small] [--workers 1] [--views 8] [--out DIR]
+    python benchmarks/bench_generate.py [--small] [--grid] [--workers 1] [--views 8] [--out DIR]
 
 Prints a small report; nothing is kept unless --out is given.
 """
@@ -78,9 +79,32 @@ def _phase_means(man: dict) -> str:
     return f"per scene attempt: build {f(b)} s, annotate {f(a)} s, views+write {f(v)} s"
 
 
+def grid_rows(workers: int, cells: tuple[float, ...] = (0.1, 0.05)) -> list[str]:
+    """Annotate one Layouts training scene per task on each candidate grid (the dense preset otherwise, one view of
+    each kind so annotation dominates); a line per grid: candidates, annotate seconds, and both against the first."""
+    got = {}
+    for cell in cells:
+        one_view = {"views_per_scene": (1, 1), "min_views": 0}
+        wall, man = bench_preset(
+            "dense", workers, None, benchmarks=("layouts",), n_train=1, n_test=0, cell=cell, **one_view
+        )
+        atts = [a for sc in man["scenes"].values() for a in sc.get("attempts", []) if "annotate_s" in a]
+        if not atts:
+            raise RuntimeError(f"--grid: no scene was annotated at {cell} m (counts: {man.get('counts')})")
+        got[cell] = (sum(a.get("n_candidates", 0) for a in atts), sum(a["annotate_s"] for a in atts), wall, len(atts))
+    ref = cells[0]
+    lines = [
+        f"[grid] {cell:.2f} m: {n} scene attempts, {cand} candidates, annotate {ann:.1f} s, wall {wall:.1f} s "
+        f"(x{cand / max(1, got[ref][0]):.2f} candidates, x{ann / max(1e-9, got[ref][1]):.2f} annotate time vs {ref} m)"
+        for cell, (cand, ann, wall, n) in got.items()
+    ]
+    return lines
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--small", action="store_true", help="also time the small preset (long: many minutes)")
+    ap.add_argument("--grid", action="store_true", help="also compare the 0.05 m candidate grid with 0.1 m")
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--views", type=int, default=8, help="views per kind for the render benchmark")
     ap.add_argument("--image-size", type=int, default=128)
@@ -125,6 +149,9 @@ def main(argv: list[str] | None = None) -> int:
             f"[small] {c['scenes_ok']} scenes ok, {c['scenes_dropped']} dropped, {c['views_total']} views: "
             f"{wall / 60:.1f} min wall (workers={args.workers}); " + _phase_means(man)
         )
+    if args.grid:
+        for line in grid_rows(args.workers):
+            print(line)
     for line in manifest_walls(Path(args.data)):
         print(line)
     return 0
