@@ -44,7 +44,7 @@ else RUNS=${RUNS:-runs/$PRESET} OUT=${OUT:-docs/results/$PRESET}; fi
 if [ "$PRESET" = dense ]; then BUDGET=(--config configs/trainer/dense_budget.yaml)
 else BUDGET=(--trainer.max_epochs "${EPOCHS:-20}"); fi
 PAR=${PAR:-2}
-# another copy of the preset's data than its data configs name (e.g. generated with --cell 0.05)
+# DATA_ROOT: a copy of the preset's data other than the one its data configs name (e.g. generated with --cell 0.05)
 ROOT_ARGS=() ROOT_SET=()
 if [ -n "${DATA_ROOT:-}" ]; then ROOT_ARGS=(--data.init_args.root "$DATA_ROOT") ROOT_SET=(--set "data.init_args.root=$DATA_ROOT"); fi
 TASKS='["PnPCounterToCab","OpenSingleDoor","CloseDrawer","CloseDoubleDoor"]'
