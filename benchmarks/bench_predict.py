@@ -11,6 +11,7 @@ the caches and slows the next call of any model by ~10 %). The allocator is set 
 
     python benchmarks/bench_predict.py                       # 60 rounds, PointNet++ and CFAR
     python benchmarks/bench_predict.py --rounds 20 --models pointnet2_ssg votenet cfar_axisnet
+    python benchmarks/bench_predict.py --device cuda         # on a GPU: each call ends with a synchronize
 """
 
 from __future__ import annotations
@@ -39,30 +40,42 @@ def percentile(xs: list[float], q: float) -> float:
     return s[min(len(s) - 1, max(0, round(q * (len(s) - 1))))]
 
 
-def callers(names: list[str], points: int, floor_cells: int) -> dict[str, Callable[[], None]]:
-    """name -> a zero-argument predict call; the reference port under ``REFERENCE``."""
-    single = bm.make_batch(1, points, floor_cells)
+def synced(device: torch.device) -> Callable[[], None]:
+    """What ends a timed call: a CUDA synchronize (kernels run asynchronously), nothing on the CPU."""
+    return (lambda: torch.cuda.synchronize(device)) if device.type == "cuda" else (lambda: None)
+
+
+def callers(
+    names: list[str], points: int, floor_cells: int, device: torch.device | None = None
+) -> dict[str, Callable[[], None]]:
+    """name -> a zero-argument predict call on ``device``; the reference port under ``REFERENCE``."""
+    device = device or torch.device("cpu")
+    single = {k: v.to(device) if torch.is_tensor(v) else v for k, v in bm.make_batch(1, points, floor_cells).items()}
+    sync = synced(device)
     calls: dict[str, Callable[[], None]] = {}
     for name in names:
         torch.manual_seed(0)
-        model = bm.build(name).eval()
+        model = bm.build(name).eval().to(device)
 
         def call(model=model):
             with torch.inference_mode():
                 model(single)
+            sync()
 
         calls[name] = call
     ref_mod = bm.load_reference()
     torch.manual_seed(0)
-    ref = ref_mod.RefPointNet2Seg(**bm.SEG).eval()
+    ref = ref_mod.RefPointNet2Seg(**bm.SEG).eval().to(device)
     g = torch.Generator().manual_seed(0)
     xyz = torch.rand(1, points, 3, generator=g)
     xyz[..., 2] *= 0.3
     feat = torch.randn(1, points, 1, generator=g)
+    xyz, feat = xyz.to(device), feat.to(device)
 
     def ref_call():
         with torch.inference_mode():
             ref(xyz, feat)
+        sync()
 
     calls[REFERENCE] = ref_call
     return calls
@@ -91,11 +104,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--points", type=int, default=4096)
     p.add_argument("--floor-cells", type=int, default=32, help="floor grid side (32 -> 1024 floor points)")
     p.add_argument("--malloc", default="keep", choices=["keep", "system"], help="keep: as resolve_model sets it")
+    p.add_argument("--device", default="cpu", help="torch device of the models and the batch, e.g. cuda")
     a = p.parse_args(argv)
     if a.rounds < 1:
         p.error("--rounds must be >= 1")
+    device = torch.device(a.device)
+    if device.type == "cuda" and not torch.cuda.is_available():
+        p.error(f"--device {a.device}: torch sees no CUDA device here")
     kept = runtime.keep_freed_memory() if a.malloc == "keep" else False
-    calls = callers(a.models, a.points, a.floor_cells)
+    calls = callers(a.models, a.points, a.floor_cells, device)
     ref_call = {REFERENCE: calls.pop(REFERENCE)}
     ref_rounds = max(1, a.rounds // 6)  # the port is ~10x slower: fewer calls give as steady a median
     before = run_rounds(ref_call, ref_rounds, 1)[REFERENCE]
@@ -103,7 +120,8 @@ def main(argv: list[str] | None = None) -> int:
     times[REFERENCE] = before + run_rounds(ref_call, ref_rounds, 0)[REFERENCE]
     print(
         f"== predict B=1 x {a.points} points ({a.floor_cells**2} floor points), {a.rounds} interleaved rounds, "
-        f"malloc {a.malloc} (kept: {kept}), torch {torch.__version__}, threads {torch.get_num_threads()}"
+        f"malloc {a.malloc} (kept: {kept}), torch {torch.__version__}, threads {torch.get_num_threads()}, "
+        f"device {device}{' (' + torch.cuda.get_device_name(device) + ')' if device.type == 'cuda' else ''}"
     )
     print(f"{'model':<16}{'median':>10}{'p10':>9}{'p90':>9}{'min':>9}   reference median / model median")
     ref = statistics.median(times[REFERENCE])

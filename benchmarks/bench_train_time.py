@@ -11,9 +11,12 @@ the rollout callback are not timed.
 
     python benchmarks/bench_train_time.py                # every job (about 15 minutes on 2 cores)
     python benchmarks/bench_train_time.py --jobs cfar_pfal_stage2 pointnet2 --steps 20
+    python benchmarks/bench_train_time.py --accelerators gpu cpu --threads 16 --jobs paper_cfar   # GPU vs CPU
 
-The table's last columns extrapolate to the recipe's sample counts: ``--recipe-samples`` (default:
-20 epochs x 173 training views, the Layouts split of the small preset) and 10,000 samples.
+With several ``--accelerators`` every job runs on each in turn, and the last column gives its samples/s as a
+multiple of the first accelerator's in the same run. The table's other columns extrapolate to the recipe's
+sample counts: ``--recipe-samples`` (default: 20 epochs x 173 training views, the Layouts split of the small
+preset) and 10,000 samples.
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import torch
 from lightning.pytorch.callbacks import Callback
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -63,6 +67,8 @@ class StepTimer(Callback):
         self.out, self.warmup, self.ends = out, warmup, []
 
     def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx) -> None:
+        if pl_module.device.type == "cuda":  # kernels run asynchronously: a step ends when its last one does
+            torch.cuda.synchronize(pl_module.device)
         self.ends.append(time.perf_counter())
 
     def on_train_end(self, trainer, pl_module) -> None:
@@ -70,8 +76,8 @@ class StepTimer(Callback):
         Path(self.out).write_text(json.dumps({"seconds": timed[-1] - timed[0], "steps": len(timed) - 1}))
 
 
-def fit_args(configs: list[str], sizes: dict[str, int], steps: int, root: Path) -> list[str]:
-    """The ``floaff-zoo fit`` command line of one run of ``steps`` optimizer steps."""
+def fit_args(configs: list[str], sizes: dict[str, int], steps: int, root: Path, accelerator: str = "cpu") -> list[str]:
+    """The ``floaff-zoo fit`` command line of one run of ``steps`` optimizer steps on ``accelerator``."""
     n_train = sizes["batch"] * steps
     args = [sys.executable, "-m", "floaff_zoo.cli", "fit", "--config", "configs/data/synthetic_tiny.yaml"]
     for c in configs:
@@ -102,7 +108,9 @@ def fit_args(configs: list[str], sizes: dict[str, int], steps: int, root: Path) 
         "--trainer.enable_model_summary",
         "false",
         "--trainer.accelerator",
-        "cpu",
+        accelerator,
+        "--trainer.devices",
+        "1",
         "--trainer.default_root_dir",
         str(root),
     ]
@@ -121,7 +129,7 @@ def run(args: list[str], env: dict[str, str]) -> float:
 def teacher_checkpoint(
     configs: list[str], sizes: dict[str, int], root: Path, env: dict[str, str], extra: list[str]
 ) -> Path:
-    """A stage-1 CFAR checkpoint (one step) to serve as the frozen PFAL teacher of stage 2."""
+    """A stage-1 CFAR checkpoint (one step, on the CPU) to serve as the frozen PFAL teacher of stage 2."""
     args = fit_args(configs, sizes, 1, root) + extra
     args[args.index("--trainer.enable_checkpointing") + 1] = "true"
     run(args, env)
@@ -138,6 +146,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--warmup", type=int, default=3, help="untimed first steps")
     p.add_argument("--recipe-samples", type=int, default=20 * 173, help="samples of one recipe job")
     p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--accelerators", nargs="+", default=["cpu"], choices=["cpu", "gpu"],
+                   help="run every job on each; the last column compares with the first")  # fmt: skip
     a = p.parse_args(argv)
     env = {**os.environ, "OMP_NUM_THREADS": str(a.threads), "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
     env["PYTHONPATH"] = os.pathsep.join([str(ROOT / "src"), str(ROOT / "benchmarks"), env.get("PYTHONPATH", "")])
@@ -145,33 +155,39 @@ def main(argv: list[str] | None = None) -> int:
         f"real `floaff-zoo fit` on synthetic data, {a.threads} threads; per-sample cost = wall time of {a.steps} "
         f"steps after {a.warmup} warm-up steps / ({a.steps} x batch); recipe job = {a.recipe_samples} samples"
     )
+    if "gpu" in a.accelerators and torch.cuda.is_available():
+        print(f"gpu: {torch.cuda.get_device_name(0)}, torch {torch.__version__}")
     print(
-        f"{'job':<22} {'points':>6} {'batch':>5} {'samples/s':>9} {'s/1k samples':>12} "
-        f"{'recipe job':>10} {'10k samples':>11}"
+        f"{'job':<22} {'acc':>4} {'points':>6} {'batch':>5} {'samples/s':>9} {'s/1k samples':>12} "
+        f"{'recipe job':>10} {'10k samples':>11} {'x ' + a.accelerators[0]:>8}"
     )
     with tempfile.TemporaryDirectory() as tmp:
         for name in a.jobs:
             configs, sizes, what = JOBS[name]
-            root = Path(tmp) / name
             extra: list[str] = []
             if name.startswith("cfar_pfal"):
                 # training uses the simulator's yaw (the recipe); AxisNet only serves evaluation, not timed
                 extra += ["--model.init_args.eval_yaw_source", "manhattan"]
             if name.endswith("stage2"):
-                teacher = teacher_checkpoint(configs, sizes, root / "teacher", env, extra)
+                teacher = teacher_checkpoint(configs, sizes, Path(tmp) / name / "teacher", env, extra)
                 extra += ["--model.init_args.teacher", str(teacher)]
-            timing = root / "timing.json"
-            timer = ["--trainer.callbacks+=bench_train_time.StepTimer", f"--trainer.callbacks.out={timing}",
-                     f"--trainer.callbacks.warmup={a.warmup}"]  # fmt: skip
-            run(fit_args(configs, sizes, a.warmup + a.steps, root / "run") + extra + timer, env)
-            t = json.loads(timing.read_text())
-            per_sample = t["seconds"] / (t["steps"] * sizes["batch"])
-            recipe_min = per_sample * a.recipe_samples / 60
-            print(
-                f"{name:<22} {sizes['points']:>6} {sizes['batch']:>5} {1 / per_sample:>9.2f} "
-                f"{1000 * per_sample:>12.0f} {recipe_min:>8.1f} m {per_sample * 10_000 / 3600:>9.2f} h   ({what})",
-                flush=True,
-            )
+            first: float | None = None
+            for acc in a.accelerators:
+                root = Path(tmp) / name / acc
+                timing = root / "timing.json"
+                timer = ["--trainer.callbacks+=bench_train_time.StepTimer", f"--trainer.callbacks.out={timing}",
+                         f"--trainer.callbacks.warmup={a.warmup}"]  # fmt: skip
+                run(fit_args(configs, sizes, a.warmup + a.steps, root / "run", acc) + extra + timer, env)
+                t = json.loads(timing.read_text())
+                per_sample = t["seconds"] / (t["steps"] * sizes["batch"])
+                first = per_sample if first is None else first
+                recipe_min = per_sample * a.recipe_samples / 60
+                print(
+                    f"{name:<22} {acc:>4} {sizes['points']:>6} {sizes['batch']:>5} {1 / per_sample:>9.2f} "
+                    f"{1000 * per_sample:>12.0f} {recipe_min:>8.1f} m {per_sample * 10_000 / 3600:>9.2f} h "
+                    f"{first / per_sample:>7.2f}x   ({what})",
+                    flush=True,
+                )
     return 0
 
 
