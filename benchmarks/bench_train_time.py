@@ -149,13 +149,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--accelerators", nargs="+", default=["cpu"], choices=["cpu", "gpu"],
                    help="run every job on each; the last column compares with the first")  # fmt: skip
     a = p.parse_args(argv)
+    if "gpu" in a.accelerators and not torch.cuda.is_available():
+        p.error("--accelerators gpu: torch sees no CUDA device here")
     env = {**os.environ, "OMP_NUM_THREADS": str(a.threads), "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
     env["PYTHONPATH"] = os.pathsep.join([str(ROOT / "src"), str(ROOT / "benchmarks"), env.get("PYTHONPATH", "")])
     print(
         f"real `floaff-zoo fit` on synthetic data, {a.threads} threads; per-sample cost = wall time of {a.steps} "
         f"steps after {a.warmup} warm-up steps / ({a.steps} x batch); recipe job = {a.recipe_samples} samples"
     )
-    if "gpu" in a.accelerators and torch.cuda.is_available():
+    if "gpu" in a.accelerators:
         print(f"gpu: {torch.cuda.get_device_name(0)}, torch {torch.__version__}")
     print(
         f"{'job':<22} {'acc':>4} {'points':>6} {'batch':>5} {'samples/s':>9} {'s/1k samples':>12} "
