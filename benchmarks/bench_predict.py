@@ -108,7 +108,10 @@ def main(argv: list[str] | None = None) -> int:
     a = p.parse_args(argv)
     if a.rounds < 1:
         p.error("--rounds must be >= 1")
-    device = torch.device(a.device)
+    try:
+        device = torch.device(a.device)
+    except RuntimeError as e:
+        p.error(f"--device {a.device!r}: not a torch device ({e})")
     if device.type == "cuda" and not torch.cuda.is_available():
         p.error(f"--device {a.device}: torch sees no CUDA device here")
     kept = runtime.keep_freed_memory() if a.malloc == "keep" else False

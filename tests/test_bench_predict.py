@@ -6,6 +6,9 @@ import importlib.util
 import sys
 from pathlib import Path
 
+import pytest
+import torch
+
 _DIR = Path(__file__).parents[1] / "benchmarks"
 
 
@@ -34,3 +37,21 @@ def test_percentile_is_the_nearest_rank():
     xs = [5.0, 1.0, 4.0, 2.0, 3.0]
     assert bp.percentile(xs, 0.0) == 1.0 and bp.percentile(xs, 0.5) == 3.0 and bp.percentile(xs, 1.0) == 5.0
     assert bp.percentile(xs, 0.1) == 1.0 and bp.percentile(xs, 0.9) == 5.0
+
+
+def test_a_bad_or_absent_device_is_refused_by_name(capsys):
+    bp = _load()
+    with pytest.raises(SystemExit):
+        bp.main(["--device", "gpu0"])
+    assert "--device 'gpu0': not a torch device" in capsys.readouterr().err
+    if not torch.cuda.is_available():
+        with pytest.raises(SystemExit):
+            bp.main(["--device", "cuda"])
+        assert "torch sees no CUDA device" in capsys.readouterr().err
+
+
+def test_calls_on_the_cpu_device_run_the_model():
+    bp = _load()
+    calls = bp.callers(["pointnet2_ssg"], points=256, floor_cells=4, device=torch.device("cpu"))
+    assert set(calls) == {"pointnet2_ssg", bp.REFERENCE}
+    calls["pointnet2_ssg"]()  # a real forward on the moved batch
