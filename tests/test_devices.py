@@ -216,3 +216,11 @@ def test_point_ops_on_cuda_match_the_cpu_kernels():
     d_gpu, _ = ops.three_nn(xyz.to(dev), centres.to(dev))
     assert torch.allclose(d_gpu.cpu(), d_cpu, atol=1e-6)
     assert torch.equal(cfar.tolerant_fps(xyz.to(dev), mask.to(dev), 32).cpu(), cfar.tolerant_fps(xyz, mask, 32))
+    # paper-size clouds (the Triton kernel's block of 4,096 points), padded tails, a regular grid full of ties
+    big = torch.rand(3, 4096, 3, generator=g)
+    big_mask = torch.rand(3, 4096, generator=g) > 0.1
+    on_gpu = ops.farthest_point_sample(big.to(dev), big_mask.to(dev), 1024).cpu()
+    assert torch.equal(on_gpu, ops.farthest_point_sample(big, big_mask, 1024))
+    side = torch.arange(32, dtype=torch.float32) * 0.05
+    grid = torch.stack([*torch.meshgrid(side, side, indexing="ij"), torch.zeros(32, 32)], -1).reshape(1, -1, 3)
+    assert torch.equal(cfar.tolerant_fps(grid.to(dev), None, 256).cpu(), cfar.tolerant_fps(grid, None, 256))

@@ -31,7 +31,7 @@ import torch
 from torch import Tensor, nn
 
 from floaff_zoo.contract import SampleError
-from floaff_zoo.nn.ops import check_floor_feat, point_kernel, weighted_gather3
+from floaff_zoo.nn.ops import check_floor_feat, gpu_fps_kernel, point_kernel, weighted_gather3
 from floaff_zoo.nn.pointnet2 import FeaturePropagation, PointNet2Encoder, SharedMLP
 
 __all__ = [
@@ -213,6 +213,9 @@ def tolerant_fps(xyz: Tensor, mask: Tensor | None, npoint: int, tol: float = FPS
     kernel = point_kernel(xyz.device)
     if kernel is not None:  # the same loop in C++ (one Python call instead of ~6 ops per centre)
         return kernel.tolerant_fps_forward(xyz.detach().float().contiguous(), mask.contiguous(), int(npoint), tol)
+    gpu = gpu_fps_kernel(xyz)
+    if gpu is not None:  # CUDA: the same loop as one Triton launch
+        return gpu.fps(xyz, mask, int(npoint), tol)
     pts = xyz.detach().float()  # float32 noise (~1e-6 m^2) is far below tol
     dist = torch.where(mask, torch.full((b, n), float("inf"), dtype=pts.dtype, device=xyz.device), -1.0)
     cur = mask.long().argmax(dim=1)

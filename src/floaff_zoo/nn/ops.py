@@ -27,6 +27,7 @@ __all__ = [
     "farthest_point_sample",
     "farthest_point_sample_torch",
     "fps_backend",
+    "gpu_fps_kernel",
     "index_points",
     "knn",
     "point_kernel",
@@ -187,8 +188,23 @@ def index_points(points: Tensor, idx: Tensor) -> Tensor:
 
 # ----------------------------------------------------------------------------- FPS
 def fps_backend() -> str:
-    """Which FPS implementation ``farthest_point_sample`` uses right now: ``cpp`` or ``torch``."""
+    """Which FPS implementation ``farthest_point_sample`` uses for CPU tensors right now: ``cpp`` or ``torch``.
+
+    CUDA tensors take the Triton kernel (``nn/_fps_triton.py``) wherever Triton is installed.
+    """
     return "cpp" if _fps_ext.load_kernel() is not None else "torch"
+
+
+def gpu_fps_kernel(xyz: Tensor):
+    """The Triton FPS module (``nn/_fps_triton.py``) where it serves ``xyz`` (CUDA, Triton installed), else None.
+
+    Imported on first use: Triton's import costs ~0.2 s, which CPU-only processes need not pay.
+    """
+    if not xyz.is_cuda and os.environ.get("TRITON_INTERPRET", "0") in ("", "0"):
+        return None
+    from floaff_zoo.nn import _fps_triton
+
+    return _fps_triton if _fps_triton.available(xyz) else None
 
 
 def _fps_prepare(xyz: Tensor, mask: Tensor | None, npoint: int) -> Tensor:
@@ -250,9 +266,12 @@ def farthest_point_sample(xyz: Tensor, mask: Tensor | None, npoint: int) -> Tens
     mask = _fps_prepare(xyz, mask, npoint)
     # the kernel also under torch.compile: an unrolled loop of ``npoint`` steps would swamp the graph
     kernel = _fps_ext.load_kernel() if xyz.device.type == "cpu" and not portable_requested() else None
-    if kernel is None:
-        return farthest_point_sample_torch(xyz, mask, npoint)
-    return kernel.fps_forward(xyz.detach().float().contiguous(), mask.contiguous(), int(npoint))
+    if kernel is not None:
+        return kernel.fps_forward(xyz.detach().float().contiguous(), mask.contiguous(), int(npoint))
+    gpu = gpu_fps_kernel(xyz)
+    if gpu is not None:  # CUDA: one launch instead of ~10 per centre
+        return gpu.fps(xyz, mask, int(npoint))
+    return farthest_point_sample_torch(xyz, mask, npoint)
 
 
 # ----------------------------------------------------------------------------- neighbours
