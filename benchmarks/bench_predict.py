@@ -29,6 +29,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_models as bm  # noqa: E402  (this folder's helper: shipped configs, synthetic batches)
 
 from floaff_zoo import runtime  # noqa: E402
+from floaff_zoo.nn.ops import fps_backend  # noqa: E402
 
 DEFAULT_MODELS = ["pointnet2_ssg", "cfar", "cfar_axisnet"]
 REFERENCE = "reference port"
@@ -124,7 +125,8 @@ def main(argv: list[str] | None = None) -> int:
     print(
         f"== predict B=1 x {a.points} points ({a.floor_cells**2} floor points), {a.rounds} interleaved rounds, "
         f"malloc {a.malloc} (kept: {kept}), torch {torch.__version__}, threads {torch.get_num_threads()}, "
-        f"device {device}{' (' + torch.cuda.get_device_name(device) + ')' if device.type == 'cuda' else ''}"
+        f"device {device}{' (' + torch.cuda.get_device_name(device) + ')' if device.type == 'cuda' else ''}, "
+        f"FPS {fps_backend(device)}"
     )
     print(f"{'model':<16}{'median':>10}{'p10':>9}{'p90':>9}{'min':>9}   reference median / model median")
     ref = statistics.median(times[REFERENCE])

@@ -158,7 +158,9 @@ def main(argv: list[str] | None = None) -> int:
         f"steps after {a.warmup} warm-up steps / ({a.steps} x batch); recipe job = {a.recipe_samples} samples"
     )
     if "gpu" in a.accelerators:
-        print(f"gpu: {torch.cuda.get_device_name(0)}, torch {torch.__version__}")
+        from floaff_zoo.nn.ops import fps_backend
+
+        print(f"gpu: {torch.cuda.get_device_name(0)}, torch {torch.__version__}, FPS {fps_backend('cuda')}")
     print(
         f"{'job':<22} {'acc':>4} {'points':>6} {'batch':>5} {'samples/s':>9} {'s/1k samples':>12} "
         f"{'recipe job':>10} {'10k samples':>11} {'x ' + a.accelerators[0]:>8}"

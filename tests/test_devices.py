@@ -217,6 +217,7 @@ def test_point_ops_on_cuda_match_the_cpu_kernels():
     assert torch.allclose(d_gpu.cpu(), d_cpu, atol=1e-6)
     assert torch.equal(cfar.tolerant_fps(xyz.to(dev), mask.to(dev), 32).cpu(), cfar.tolerant_fps(xyz, mask, 32))
     # paper-size clouds (the Triton kernel's block of 4,096 points), padded tails, a regular grid full of ties
+    assert ops.fps_backend(dev) == "triton"
     big = torch.rand(3, 4096, 3, generator=g)
     big_mask = torch.rand(3, 4096, generator=g) > 0.1
     on_gpu = ops.farthest_point_sample(big.to(dev), big_mask.to(dev), 1024).cpu()

@@ -14,7 +14,7 @@ import textwrap
 import pytest
 import torch
 
-from floaff_zoo.nn import _fps_triton
+from floaff_zoo.nn import _fps_triton, ops
 
 pytest.importorskip("triton")
 
@@ -87,6 +87,7 @@ def test_the_kernel_serves_cuda_tensors_only(monkeypatch):
     """Without the interpreter a CPU cloud keeps the CPU paths; a cloud past MAX_POINTS or the torch switch too."""
     assert not _fps_triton.INTERPRETED  # this process did not ask for the interpreter
     assert not _fps_triton.available(torch.zeros(1, 64, 3))
+    assert ops.fps_backend("cpu") in ("cpp", "torch")  # the CPU never reports the GPU kernel
     monkeypatch.setattr(_fps_triton, "INTERPRETED", True)
     assert _fps_triton.available(torch.zeros(1, 64, 3))
     assert not _fps_triton.available(torch.zeros(1, _fps_triton.MAX_POINTS + 1, 3))

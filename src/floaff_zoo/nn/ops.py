@@ -187,11 +187,15 @@ def index_points(points: Tensor, idx: Tensor) -> Tensor:
 
 
 # ----------------------------------------------------------------------------- FPS
-def fps_backend() -> str:
-    """Which FPS implementation ``farthest_point_sample`` uses for CPU tensors right now: ``cpp`` or ``torch``.
+def fps_backend(device: str | torch.device = "cpu") -> str:
+    """Which FPS implementation ``farthest_point_sample`` uses on ``device`` right now.
 
-    CUDA tensors take the Triton kernel (``nn/_fps_triton.py``) wherever Triton is installed.
+    ``cpp`` (the C++ kernel) or ``torch`` on the CPU; ``triton`` (``nn/_fps_triton.py``, where Triton is installed)
+    or ``torch`` on CUDA.
     """
+    device = torch.device(device)
+    if device.type != "cpu":
+        return "triton" if gpu_fps_kernel(torch.empty(1, 1, 3, device=device)) is not None else "torch"
     return "cpp" if _fps_ext.load_kernel() is not None else "torch"
 
 
