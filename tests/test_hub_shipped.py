@@ -12,9 +12,9 @@ import yaml
 
 from floaff_zoo.contract import collate_samples
 from floaff_zoo.data.synthetic import make_synthetic_sample
-from floaff_zoo.hub import hub_dir, load_model, load_registry
+from floaff_zoo.hub import RetiredEntryError, UnknownWeightsError, hub_dir, load_model, load_registry
 from floaff_zoo.hub.export import export_checkpoint
-from floaff_zoo.hub.registry import SHIPPED_INDEX, read_index
+from floaff_zoo.hub.registry import SHIPPED_INDEX, RegistryFormatError, read_index, read_retired
 from floaff_zoo.models.cfar import CFARModule
 
 SHIPPED = sorted(e.name for e in read_index(SHIPPED_INDEX))
@@ -29,7 +29,32 @@ def batch():
 
 
 def test_the_package_ships_checkpoints():
-    assert len(SHIPPED) >= 4 and "cfar-pfal.floaff-small-layouts.v1" in SHIPPED
+    assert len(SHIPPED) >= 4 and "cfar-pfal.floaff-small-layouts.v2" in SHIPPED
+
+
+def test_a_retired_name_names_its_successor_and_where_it_is_kept():
+    commit, retired = read_retired()
+    assert retired and not set(retired) & set(SHIPPED)  # retired names are gone from the index ...
+    assert set(retired.values()) <= set(SHIPPED)  # ... and each successor ships
+    packaged = {p.name for p in SHIPPED_INDEX.parent.iterdir() if p.is_dir()}
+    assert not set(retired) & packaged  # no retired weights left in the package
+    name = "cfar-pfal.floaff-dense-layouts.v4"
+    with pytest.raises(RetiredEntryError, match=r"superseded by 'cfar-pfal\.floaff-dense-layouts\.v8'") as err:
+        load_model(name, allow_download=False)
+    assert f"git archive {commit} src/floaff_zoo/hub/{name}" in str(err.value)
+    with pytest.raises(UnknownWeightsError, match="did you mean") as err:  # a typo is not reported as retired
+        load_model("cfar-pfal.floaff-dense-layouts.v9", allow_download=False)
+    assert not isinstance(err.value, RetiredEntryError)
+
+
+def test_a_malformed_retired_file_is_named(tmp_path):
+    bad = tmp_path / "retired.json"
+    bad.write_text('{"commit": "abc", "entries": {}}')
+    with pytest.raises(RegistryFormatError, match="retired.json"):
+        read_retired(bad)
+    bad.write_text("{not json")
+    with pytest.raises(RegistryFormatError, match="retired.json"):
+        read_retired(bad)
 
 
 @pytest.mark.parametrize("name", SHIPPED)

@@ -25,8 +25,8 @@ and measures the sensitivity = the largest change of a near query's score betwee
 Measured with the tiny configs (seed 0, CPU, untrained; absolute / relative to the spread of the near scores):
 tiny, PointNet++ SSG/MSG, H3DNet, canonical prior, CFAR ``floor_encoder="pointwise"`` 0 / 0; VoteNet 6e-8 / 6e-6
 (float round-off); NavAff 5e-6 / 0.022; CFAR ``set`` 7e-5 / 0.017; N2M 0.17 / 6.8 (max-normalised); C2F-Exp ~1e-16
-(its near scores are ~0 here). The shipped ``cfar-pfal.floaff-small-layouts.v1`` (set, trained on format-1 data) gives
-4e-3 / 1.06 on the same sets: its near scores move by as much as they differ. Untrained set
+(its near scores are ~0 here). The then shipped ``cfar-pfal.floaff-small-layouts.v1`` (set, trained on format-1
+data; since retired) gave 4e-3 / 1.06 on the same sets: its near scores move by as much as they differ. Untrained set
 encoders give almost flat maps, so their absolute sensitivity understates what a trained one shows (issue 17: every
 score <= 0.01 on the API's default disc for the shipped CFAR); the relative number is the one asserted.
 """

@@ -14,6 +14,10 @@ An index file is JSON ``{"version": 1, "entries": [ENTRY, ...]}``. One entry::
       "meta": {"dataset": ..., "benchmark": ..., "metrics": {...}, "license": ..., ...}
     }
 
+Entries superseded by a newer version leave the package (its size is kept to the current tables' checkpoints);
+``floaff_zoo/hub/retired.json`` maps each retired name to its successor and names the commit whose tree still holds
+its exported directory, so asking for a retired name says where to find it.
+
 The shipped index (``floaff_zoo/hub/index.json``) is read first; ``<hub dir>/index.json`` (the user
 index, written by ``floaff-zoo hub push``) is merged over it by name. The hub directory is
 ``$FLOAFF_ZOO_HUB`` (default ``~/.cache/floaff_zoo/hub``).
@@ -33,6 +37,7 @@ from typing import Any
 
 INDEX_VERSION = 1
 SHIPPED_INDEX = Path(__file__).with_name("index.json")
+RETIRED_INDEX = Path(__file__).with_name("retired.json")
 USER_INDEX_NAME = "index.json"
 DEFAULT_HUB_DIR = Path("~/.cache/floaff_zoo/hub")
 #: weight file formats the hub reads (all without executing code: safetensors / weights-only torch.load)
@@ -57,6 +62,10 @@ class RegistryFormatError(HubError, ValueError):
 
 class UnknownWeightsError(HubError, LookupError):
     """A name that is neither a file, an exported directory nor a registry entry."""
+
+
+class RetiredEntryError(UnknownWeightsError):
+    """A name that the package shipped once and retired (the message names its successor and where it is kept)."""
 
 
 class ChecksumError(HubError, ValueError):
@@ -257,11 +266,33 @@ def load_registry(directory: str | os.PathLike[str] | None = None) -> dict[str, 
     return merged
 
 
+def read_retired(path: Path = RETIRED_INDEX) -> tuple[str, dict[str, str]]:
+    """The commit that last shipped the retired entries, and retired name -> successor (empty without the file)."""
+    if not path.is_file():
+        return "", {}
+    try:
+        raw = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, json.JSONDecodeError) as exc:
+        raise RegistryFormatError(f"{path}: not a readable JSON file ({exc})") from exc
+    commit = raw.get("commit") if isinstance(raw, dict) else None
+    if not isinstance(commit, str) or not _COMMIT_RE.match(commit) or not isinstance(raw.get("entries"), dict):
+        raise RegistryFormatError(f"{path}: expected {{'commit': '<40 hex>', 'entries': {{name: successor}}}}")
+    return commit, raw["entries"]
+
+
 def get_entry(name: str, directory: str | os.PathLike[str] | None = None) -> HubEntry:
-    """The entry called ``name``; an unknown name lists close matches."""
+    """The entry called ``name``; a retired name says where it went, an unknown one lists close matches."""
     reg = load_registry(directory)
     if name in reg:
         return reg[name]
+    commit, retired = read_retired()
+    if name in retired:
+        folder = f"src/floaff_zoo/hub/{name}"
+        raise RetiredEntryError(
+            f"{name!r} is no longer shipped: it was superseded by {retired[name]!r}. Its exported directory is in "
+            f"the floaff-zoo git history; from a clone: `git archive {commit} {folder} | tar -x -C <dir>`, "
+            f"then load <dir>/{folder} (a directory loads like a name)"
+        )
     close = difflib.get_close_matches(name, list(reg), n=5, cutoff=0.5)
     if close:
         hint = f"; did you mean {close}?"
