@@ -91,6 +91,8 @@ def fps(xyz: Tensor, mask: Tensor, npoint: int, tol: float = 0.0) -> Tensor:
     b, n, _ = xyz.shape
     soa = xyz.detach().float().transpose(1, 2).contiguous()  # [B, 3, N]: coalesced loads per coordinate
     out = torch.empty(b, npoint, dtype=torch.long, device=xyz.device)
+    if b == 0 or npoint == 0:  # nothing to launch
+        return out
     block = triton.next_power_of_2(max(n, 16))
     warps = min(32, max(4, block // 512))  # about 16 points per thread
     # no FMA contraction: the same rounding as the torch path and the C++ kernel
