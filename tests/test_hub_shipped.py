@@ -107,3 +107,4 @@ def test_every_entry_is_listed_by_the_cli(capsys):
     assert main(["hub", "list"]) == 0
     out = capsys.readouterr().out
     assert all(name in out for name in SHIPPED)
+    assert f"({len(read_retired()[1])} earlier versions retired from the package" in out

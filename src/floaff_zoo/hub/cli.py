@@ -14,6 +14,7 @@ from floaff_zoo.hub.registry import (
     hub_dir,
     is_offline,
     load_registry,
+    read_retired,
     sha256_file,
     user_index_path,
 )
@@ -95,6 +96,9 @@ def cmd_list(args: argparse.Namespace) -> int:
     widths = [max(len(r[i]) for r in [head, *rows]) for i in range(len(head))]
     for r in [head, *rows]:
         print("  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip())
+    retired = [n for n in read_retired()[1] if n not in reg]
+    if retired:
+        print(f"({len(retired)} earlier versions retired from the package; `floaff-zoo hub info NAME` says where)")
     return 0
 
 
