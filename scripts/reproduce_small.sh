@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The experiments of docs/results.md ("small preset") on a 2-core CPU machine, two jobs at a time.
+# The experiments of docs/results.md and docs/results_history.md on a 2-core CPU machine, two jobs at a time.
 #
 #   scripts/reproduce_small.sh                 # every job, in the order of JOBS below
 #   scripts/reproduce_small.sh cfar_pfal_s0 pointnet2_s0   # only these
@@ -7,7 +7,7 @@
 #   RETEST=1 scripts/reproduce_small.sh ...    # only test the finished runs again (e.g. after adding test scenes)
 #   PRESET=dense RUNS=runs/regen OUT=docs/results/regen scripts/reproduce_small.sh recipe_s0 recipe_edges_s0 \
 #     prior prior_edges styles_recipe_s0 styles_recipe_edges_s0 ...   # the prior's cells, centred vs edge-binned
-#                                              # (docs/results.md, "Regenerated dense data")
+#                                              # (docs/results_history.md, "Regenerated dense data")
 #   EPOCHS=6 scripts/reproduce_small.sh navaff # baselines for another number of epochs (default 20)
 #   PRESET=dense scripts/reproduce_small.sh recipe_s0 prior pointnet2_s0   # the dense preset's equal-budget
 #                                              # protocol (4,000 samples per learned model; docs/results.md)

@@ -152,7 +152,7 @@ PRESETS: dict[str, GenPreset] = {
     # the paper's view density at 2-core cost: both benchmarks, all tasks, 5 train + 4 test scenes per task
     # (4 test scenes for statistics), 80 front + 120 side views per scene (the paper's ~2:3 front/side mix,
     # ~560 views per scene in the paper), topped up to 200 where a region yields fewer (at least 200 views in every
-    # scene; `--min-views 0` gives the copy behind docs/results.md's earlier chapters), every filtered candidate
+    # scene; `--min-views 0` gives the copy behind the chapters of docs/results_history.md), every filtered candidate
     # rolled out on the small preset's 0.1 m grid (0.05 m quadruples the rollouts: docs/performance.md)
     "dense": GenPreset(
         name="dense",
