@@ -10,11 +10,12 @@ import os
 import subprocess
 import sys
 import textwrap
+import warnings
 
 import pytest
 import torch
 
-from floaff_zoo.nn import _fps_triton, ops
+from floaff_zoo.nn import _fps_triton, cfar, ops
 
 pytest.importorskip("triton")
 
@@ -96,3 +97,35 @@ def test_the_kernel_serves_cuda_tensors_only(monkeypatch):
     monkeypatch.setenv("FLOAFF_ZOO_FPS_BACKEND", "trition")
     with pytest.raises(ValueError, match="FLOAFF_ZOO_FPS_BACKEND='trition'"):
         _fps_triton.available(torch.zeros(1, 64, 3))
+
+
+class _BrokenLaunch:
+    """Stands in for the jitted kernel where Triton cannot compile it (``kernel[grid](...)`` raises)."""
+
+    def __getitem__(self, grid):
+        def launch(*args, **kwargs):
+            raise RuntimeError("PTX .version 8.7 does not support .target sm_60\nmore")
+
+        return launch
+
+
+def test_a_kernel_that_cannot_run_falls_back_to_the_torch_loop_once(monkeypatch):
+    """Triton installed but unable to compile for the GPU: one warning, the torch loop's centres, no second try."""
+    monkeypatch.setattr(_fps_triton, "INTERPRETED", True)  # lets a CPU tensor reach the kernel
+    monkeypatch.setenv("TRITON_INTERPRET", "1")
+    monkeypatch.setenv("FLOAFF_ZOO_CPU_PATHS", "portable")  # no C++ kernel in front of it
+    monkeypatch.setattr(_fps_triton, "_fps_kernel", _BrokenLaunch())
+    monkeypatch.setitem(_fps_triton._state, "error", None)
+    xyz = torch.rand(2, 300, 3, generator=torch.Generator().manual_seed(3))
+    mask = torch.ones(2, 300, dtype=torch.bool)
+    assert _fps_triton.available(xyz)
+    with pytest.warns(UserWarning, match=r"Triton FPS kernel unavailable, using the torch loop \(RuntimeError: PTX"):
+        got = ops.farthest_point_sample(xyz, mask, 32)
+    assert torch.equal(got, ops.farthest_point_sample_torch(xyz, mask, 32))
+    assert not _fps_triton.available(xyz) and "sm_60" in _fps_triton._state["error"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # remembered: neither a second launch nor a second warning
+        assert torch.equal(ops.farthest_point_sample(xyz, mask, 32), got)
+        tolerant = cfar.tolerant_fps(xyz, mask, 16)
+    monkeypatch.setenv("FLOAFF_ZOO_FPS_BACKEND", "torch")
+    assert torch.equal(tolerant, cfar.tolerant_fps(xyz, mask, 16))

@@ -11,13 +11,15 @@ within ``tol`` of it). Distances are ``(dx*dx + dy*dy) + dz*dz`` in float32 with
 the torch path and the C++ kernel round them, so the three give the same centres.
 
 Triton ships with the CUDA builds of torch; where it is missing (CPU builds) ``available()`` is False and callers
-keep the torch path, as they do with ``FLOAFF_ZOO_FPS_BACKEND=torch``. ``TRITON_INTERPRET=1`` runs the kernel on
-CPU tensors (the tests use it).
+keep the torch path, as they do with ``FLOAFF_ZOO_FPS_BACKEND=torch`` and, after one warning, where Triton is
+installed but cannot compile or launch the kernel (a GPU or driver it does not support). ``TRITON_INTERPRET=1``
+runs the kernel on CPU tensors (the tests use it).
 """
 
 from __future__ import annotations
 
 import os
+import warnings
 
 import torch
 from torch import Tensor
@@ -34,6 +36,9 @@ except ImportError:  # pragma: no cover - depends on the install
 MAX_POINTS = 1 << 16
 
 
+#: why the kernel could not run here (set by the first failed launch; the torch loop serves from then on)
+_state: dict[str, str | None] = {"error": None}
+
 #: whether Triton's CPU interpreter runs the kernel (``TRITON_INTERPRET=1`` when this module was imported: the
 #: decorator reads it then), which serves CPU tensors too
 INTERPRETED = os.environ.get("TRITON_INTERPRET", "0") not in ("", "0")
@@ -47,7 +52,7 @@ def available(xyz: Tensor) -> bool:
     """
     if triton is None or xyz.shape[1] > MAX_POINTS or torch.compiler.is_compiling():
         return False
-    if _fps_ext.backend_requested() == "torch":
+    if _fps_ext.backend_requested() == "torch" or _state["error"] is not None:
         return False
     return xyz.is_cuda or INTERPRETED
 
@@ -79,14 +84,16 @@ if triton is not None:
             far = tl.min(tl.where(dist >= best - tol, offs, BLOCK), axis=0)
 
 
-def fps(xyz: Tensor, mask: Tensor, npoint: int, tol: float = 0.0) -> Tensor:
-    """FPS from the first valid point, ties within ``tol`` (m^2) to the lowest index.
+def fps(xyz: Tensor, mask: Tensor, npoint: int, tol: float = 0.0) -> Tensor | None:
+    """FPS from the first valid point, ties within ``tol`` (m^2) to the lowest index; None if the kernel cannot run.
 
     Args:
         xyz: [B, N, 3] on CUDA (any tensor under the interpreter); mask: [B, N] bool with a valid point per
             cloud (checked by the callers); npoint: centres; tol: 0 for exact FPS.
     Returns:
-        [B, npoint] int64; a cloud with fewer valid points than ``npoint`` repeats its first valid point.
+        [B, npoint] int64; a cloud with fewer valid points than ``npoint`` repeats its first valid point. None (with
+        one warning, and ``available`` False from then on) when Triton cannot compile or launch it here: the caller
+        runs the torch loop.
     """
     b, n, _ = xyz.shape
     soa = xyz.detach().float().transpose(1, 2).contiguous()  # [B, 3, N]: coalesced loads per coordinate
@@ -95,7 +102,12 @@ def fps(xyz: Tensor, mask: Tensor, npoint: int, tol: float = 0.0) -> Tensor:
         return out
     block = triton.next_power_of_2(max(n, 16))
     warps = min(32, max(4, block // 512))  # about 16 points per thread
-    # no FMA contraction: the same rounding as the torch path and the C++ kernel
-    _fps_kernel[(b,)](soa, mask.to(torch.uint8).contiguous(), out, n, npoint, float(tol),
-                      BLOCK=block, num_warps=warps, enable_fp_fusion=False)  # fmt: skip
+    try:  # no FMA contraction: the same rounding as the torch path and the C++ kernel
+        _fps_kernel[(b,)](soa, mask.to(torch.uint8).contiguous(), out, n, npoint, float(tol),
+                          BLOCK=block, num_warps=warps, enable_fp_fusion=False)  # fmt: skip
+    except Exception as exc:  # noqa: BLE001 - e.g. a GPU older than Triton supports: the torch loop serves
+        _state["error"] = f"{type(exc).__name__}: {exc}"
+        first_line = _state["error"].splitlines()[0][:200]
+        warnings.warn(f"floaff_zoo: Triton FPS kernel unavailable, using the torch loop ({first_line})", stacklevel=3)
+        return None
     return out

@@ -214,8 +214,9 @@ def tolerant_fps(xyz: Tensor, mask: Tensor | None, npoint: int, tol: float = FPS
     if kernel is not None:  # the same loop in C++ (one Python call instead of ~6 ops per centre)
         return kernel.tolerant_fps_forward(xyz.detach().float().contiguous(), mask.contiguous(), int(npoint), tol)
     gpu = gpu_fps_kernel(xyz)
-    if gpu is not None:  # CUDA: the same loop as one Triton launch
-        return gpu.fps(xyz, mask, int(npoint), tol)
+    out = gpu.fps(xyz, mask, int(npoint), tol) if gpu is not None else None  # CUDA: the loop as one Triton launch
+    if out is not None:
+        return out
     pts = xyz.detach().float()  # float32 noise (~1e-6 m^2) is far below tol
     dist = torch.where(mask, torch.full((b, n), float("inf"), dtype=pts.dtype, device=xyz.device), -1.0)
     cur = mask.long().argmax(dim=1)

@@ -273,9 +273,8 @@ def farthest_point_sample(xyz: Tensor, mask: Tensor | None, npoint: int) -> Tens
     if kernel is not None:
         return kernel.fps_forward(xyz.detach().float().contiguous(), mask.contiguous(), int(npoint))
     gpu = gpu_fps_kernel(xyz)
-    if gpu is not None:  # CUDA: one launch instead of ~10 per centre
-        return gpu.fps(xyz, mask, int(npoint))
-    return farthest_point_sample_torch(xyz, mask, npoint)
+    out = gpu.fps(xyz, mask, int(npoint)) if gpu is not None else None  # CUDA: one launch, not ~10 per centre
+    return out if out is not None else farthest_point_sample_torch(xyz, mask, npoint)
 
 
 # ----------------------------------------------------------------------------- neighbours
