@@ -52,6 +52,17 @@ def load_reference():
     return mod
 
 
+def parse_device(parser: argparse.ArgumentParser, value: str) -> torch.device:
+    """``--device value`` as a torch device; a name torch does not know, or CUDA without a device, ends ``parser``."""
+    try:
+        device = torch.device(value)
+    except RuntimeError as exc:
+        parser.error(f"--device {value!r}: not a torch device ({exc})")
+    if device.type == "cuda" and not torch.cuda.is_available():
+        parser.error(f"--device {value!r}: torch sees no CUDA device here")
+    return device
+
+
 def make_batch(b: int, n: int, floor_cells: int):
     from floaff_zoo.contract import collate_samples
     from floaff_zoo.data.synthetic import make_synthetic_sample

@@ -109,12 +109,7 @@ def main(argv: list[str] | None = None) -> int:
     a = p.parse_args(argv)
     if a.rounds < 1:
         p.error("--rounds must be >= 1")
-    try:
-        device = torch.device(a.device)
-    except RuntimeError as e:
-        p.error(f"--device {a.device!r}: not a torch device ({e})")
-    if device.type == "cuda" and not torch.cuda.is_available():
-        p.error(f"--device {a.device}: torch sees no CUDA device here")
+    device = bm.parse_device(p, a.device)
     kept = runtime.keep_freed_memory() if a.malloc == "keep" else False
     calls = callers(a.models, a.points, a.floor_cells, device)
     ref_call = {REFERENCE: calls.pop(REFERENCE)}

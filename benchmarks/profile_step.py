@@ -83,12 +83,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--warmup", type=int, default=3)
     p.add_argument("--rows", type=int, default=14, help="ops listed per model")
     a = p.parse_args(argv)
-    try:
-        device = torch.device(a.device)
-    except RuntimeError as exc:
-        p.error(f"--device {a.device!r}: {exc}")
-    if device.type == "cuda" and not torch.cuda.is_available():
-        p.error(f"--device {a.device!r}: torch sees no CUDA device here")
+    device = bm.parse_device(p, a.device)
     print(f"torch {torch.__version__}, threads {torch.get_num_threads()}, device {device}, FPS {fps_backend(device)}")
     with warnings.catch_warnings():  # training_step logs; outside a Trainer Lightning warns on every call
         warnings.filterwarnings("ignore", message=".*self.trainer.* reference is not registered.*")

@@ -2,25 +2,14 @@
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import pytest
 import torch
 
-_DIR = Path(__file__).parents[1] / "benchmarks"
+from tests.conftest import load_benchmark
 
 
 def _load():
-    sys.path.insert(0, str(_DIR))
-    try:
-        spec = importlib.util.spec_from_file_location("bench_predict", _DIR / "bench_predict.py")
-        mod = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(mod)
-        return mod
-    finally:
-        sys.path.remove(str(_DIR))
+    return load_benchmark("bench_predict")
 
 
 def test_rounds_call_every_model_once_in_a_rotating_order():

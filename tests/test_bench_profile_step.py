@@ -2,25 +2,14 @@
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import pytest
 import torch
 
-_DIR = Path(__file__).parents[1] / "benchmarks"
+from tests.conftest import load_benchmark
 
 
 def _load():
-    sys.path.insert(0, str(_DIR))
-    try:
-        spec = importlib.util.spec_from_file_location("profile_step", _DIR / "profile_step.py")
-        mod = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(mod)
-        return mod
-    finally:
-        sys.path.remove(str(_DIR))
+    return load_benchmark("profile_step")
 
 
 def test_a_step_is_timed_and_its_ops_listed(capsys):

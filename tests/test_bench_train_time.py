@@ -2,25 +2,14 @@
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import pytest
 import torch
 
-_DIR = Path(__file__).parents[1] / "benchmarks"
+from tests.conftest import load_benchmark
 
 
 def _load():
-    sys.path.insert(0, str(_DIR))
-    try:
-        spec = importlib.util.spec_from_file_location("bench_train_time", _DIR / "bench_train_time.py")
-        mod = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(mod)
-        return mod
-    finally:
-        sys.path.remove(str(_DIR))
+    return load_benchmark("bench_train_time")
 
 
 def test_fit_args_run_on_the_named_accelerator_with_one_device(tmp_path):

@@ -35,7 +35,6 @@ except ImportError:  # pragma: no cover - depends on the install
 #: clouds larger than this keep the torch path (the kernel holds a whole cloud in one program's registers)
 MAX_POINTS = 1 << 16
 
-
 #: why the kernel could not run here (set by the first failed launch; the torch loop serves from then on)
 _state: dict[str, str | None] = {"error": None}
 
