@@ -63,6 +63,11 @@ def parse_device(parser: argparse.ArgumentParser, value: str) -> torch.device:
     return device
 
 
+def synced(device: torch.device):
+    """What ends a timed call on ``device``: a CUDA synchronize (kernels run asynchronously), nothing on the CPU."""
+    return (lambda: torch.cuda.synchronize(device)) if device.type == "cuda" else (lambda: None)
+
+
 def make_batch(b: int, n: int, floor_cells: int):
     from floaff_zoo.contract import collate_samples
     from floaff_zoo.data.synthetic import make_synthetic_sample

@@ -41,18 +41,13 @@ def percentile(xs: list[float], q: float) -> float:
     return s[min(len(s) - 1, max(0, round(q * (len(s) - 1))))]
 
 
-def synced(device: torch.device) -> Callable[[], None]:
-    """What ends a timed call: a CUDA synchronize (kernels run asynchronously), nothing on the CPU."""
-    return (lambda: torch.cuda.synchronize(device)) if device.type == "cuda" else (lambda: None)
-
-
 def callers(
     names: list[str], points: int, floor_cells: int, device: torch.device | None = None
 ) -> dict[str, Callable[[], None]]:
     """name -> a zero-argument predict call on ``device``; the reference port under ``REFERENCE``."""
     device = device or torch.device("cpu")
     single = {k: v.to(device) if torch.is_tensor(v) else v for k, v in bm.make_batch(1, points, floor_cells).items()}
-    sync = synced(device)
+    sync = bm.synced(device)
     calls: dict[str, Callable[[], None]] = {}
     for name in names:
         torch.manual_seed(0)

@@ -36,14 +36,14 @@ TRAINABLE = [m for m in bm.MODELS if m not in ("c2f_exp", "cfar_axisnet")]
 
 def make_step(model: torch.nn.Module, batch: dict, device: torch.device):
     """A zero-argument training step of ``model`` on ``batch``: loss, backward, zeroed gradients (synchronized)."""
+    sync = bm.synced(device)
 
     def step() -> None:
         out = model.training_step(batch, 0)
         loss = out["loss"] if isinstance(out, dict) else out
         loss.backward()
         model.zero_grad(set_to_none=True)
-        if device.type == "cuda":
-            torch.cuda.synchronize(device)
+        sync()
 
     return step
 

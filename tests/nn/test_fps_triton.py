@@ -86,7 +86,7 @@ def test_the_triton_kernel_picks_the_torch_paths_centres(root):
 
 def test_the_kernel_serves_cuda_tensors_only(monkeypatch):
     """Without the interpreter a CPU cloud keeps the CPU paths; a cloud past MAX_POINTS or the torch switch too."""
-    assert not _fps_triton.INTERPRETED  # this process did not ask for the interpreter
+    monkeypatch.setattr(_fps_triton, "INTERPRETED", False)  # as in a process that did not ask for the interpreter
     assert not _fps_triton.available(torch.zeros(1, 64, 3))
     assert ops.fps_backend("cpu") in ("cpp", "torch")  # the CPU never reports the GPU kernel
     monkeypatch.setattr(_fps_triton, "INTERPRETED", True)
