@@ -44,7 +44,7 @@ from floaff_zoo.sim.presets import ALL_BENCHMARKS, ALL_TASKS, PRESETS, GenPreset
 
 __all__ = ["GENERATOR_VERSION", "SceneJob", "derive_seed", "generate", "main", "plan_jobs", "run_job"]
 
-GENERATOR_VERSION = "2.0.0"
+GENERATOR_VERSION = "2.1.0"
 #: task reset seed of the rollouts (annotate_scene) and of the rendered views, so both see the same fixture state
 ANNOTATE_SEED = 0
 
