@@ -436,6 +436,11 @@ def test_resume_keeps_only_scenes_drawn_with_the_same_top_up(mini_run, tmp_path)
     del rec["min_views"]
     rec_path.write_text(json.dumps(rec))
     assert gen.find_done(out, jobs[0], len(rec["views"])) and not gen.find_done(out, jobs[0], len(rec["views"]) + 1)
+    # a scene of another generator minor version (other rollouts, other labels) is regenerated; a patch version is not
+    for version, kept in ((gen.GENERATOR_VERSION, True), ("2.0.0", False), (gen.GENERATOR_VERSION + "-dev", True)):
+        rec["generator_version"] = version
+        rec_path.write_text(json.dumps(rec))
+        assert bool(gen.find_done(out, jobs[0], len(rec["views"]))) is kept, version
 
 
 @pytest.fixture(scope="module")

@@ -127,18 +127,27 @@ def _scene_id(spec: Any) -> str:
     return sid() if callable(sid) else str(sid)
 
 
+def _minor(version: str) -> tuple[str, ...]:
+    """'2.1.0' -> ('2', '1'): the part of a generator version that labels depend on."""
+    return tuple(version.split(".")[:2])
+
+
 def find_done(out: Path, job: SceneJob, min_views: int = 0) -> str | None:
     """scene_id of an already committed scene of this slot (any attempt) in this format version, else None.
 
     A scene of another format version (an older generator) is not resumed: it is regenerated, so one dataset never
-    mixes floor rules. Nor is a scene drawn with another top-up (``min_views`` in its scene.json; a scene written
-    before the field existed counts as topped up when it holds at least ``min_views`` views).
+    mixes floor rules; nor is a scene of another generator minor version (its rollouts, hence labels, may differ:
+    2.1 changed the CloseDoubleDoor push). Nor is a scene drawn with another top-up (``min_views`` in its
+    scene.json; a scene written before the field existed counts as topped up when it holds at least ``min_views``
+    views).
     """
     for s in job.seeds:
         sid = _scene_id(_spec(job, s))
         if ff.scene_is_done(out, job.benchmark, sid):
             rec = ff.read_json(ff.scene_dir(out, job.benchmark, sid) / ff.SCENE_JSON)
             if rec.get("slot") != job.key or rec.get("format_version", 1) != ff.FORMAT_VERSION:
+                continue
+            if _minor(str(rec.get("generator_version", ""))) != _minor(GENERATOR_VERSION):
                 continue
             if "min_views" in rec:
                 topped_up = rec["min_views"] == min_views
