@@ -98,7 +98,7 @@ def test_close_double_door_poses(scene_factory):
 def test_close_double_door_band(scene_factory):
     """The tilted push shuts both doors from a band of poses 0.7 m in front, on both sides of the centre.
 
-    Generator 2.0 pushed with the fingers pointing down and the hand above the door; the hand met the counter top
+    Generator 2.0 pushed with the fingers pointing down and the hand above the door; the hand met the cabinet top
     as the door closed, and this scene had one successful cell on the 0.1 m grid (0.6 m in front, centred).
     """
     sc = scene_factory("CloseDoubleDoor")

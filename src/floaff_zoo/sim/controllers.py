@@ -313,7 +313,7 @@ class CloseDoubleDoorPolicy(ScriptedPolicy):
     closes: the fingertips touch the face at ``R_FRAC`` of the door width from the hinge and
     ``Z_BELOW_TOP`` below the top edge, and the hand stays outside the face. (Generator 2.0 pushed
     with the fingers pointing straight down and the hand above the door: as the door neared closed
-    the hand ran into the counter top above it, and most rollouts ended blocked with the door a few
+    the hand ran into the cabinet top above it, and most rollouts ended blocked with the door a few
     degrees open.) The door nearer to the base goes first; the hand then rises above the door tops,
     pointing down, and goes around the other door's free edge. No grasp and no assist: contact forces
     alone move the doors.
