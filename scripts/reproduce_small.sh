@@ -19,7 +19,8 @@
 #   PRESET=dense scripts/reproduce_small.sh recipe_no_crop styles_recipe_r1.30   # ablations / crop sweep on
 #                                              # top of the zoo recipe (recipe_no_{crop,align,sdl,fd}, recipe_r1.xx,
 #                                              # each also as styles_<job>; other seeds: recipe_no_crop_s1,
-#                                              # recipe_r1.10_s2, ...)
+#                                              # recipe_r1.10_s2, ...); occ_recipe_no_{crop,align,sdl,fd}[_s<seed>]
+#                                              # (and styles_...) ablate the best configuration (recipe + occupancy)
 #
 # Needs the data:
 #   floaff-zoo generate --preset small --benchmarks layouts styles --out data/floaff_small --workers 2 --n-test 4
@@ -231,6 +232,14 @@ run_job() {
       case $abl in no_crop|no_align|no_sdl|no_fd) ;; *) echo "unknown ablation '$abl'" >&2; return 2 ;; esac
       curriculum "$j" "$b" "$seed" "recipe w/o ${abl#no_}" --extra-config "$RECIPE" \
         --extra-config "configs/experiments/ablations/$abl.yaml" ;;
+    occ_recipe_no_*|styles_occ_recipe_no_*)
+      # the same ablations on top of the best configuration (recipe + footprint occupancy input)
+      local b=layouts j=$job seed=0 abl; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
+      abl=${j#occ_recipe_}
+      case $abl in *_s[0-9]) seed=${abl##*_s} abl=${abl%_s*} ;; esac
+      case $abl in no_crop|no_align|no_sdl|no_fd) ;; *) echo "unknown ablation '$abl'" >&2; return 2 ;; esac
+      curriculum "$j" "$b" "$seed" "occupancy recipe w/o ${abl#no_}" --extra-config "$RECIPE" \
+        --extra-config configs/experiments/recipe/occupancy.yaml --extra-config "configs/experiments/ablations/$abl.yaml" ;;
     recipe_r1.[0-9]*|styles_recipe_r1.[0-9]*)  # the crop sweep on top of the zoo recipe (CFAR's radius only)
       # seed 0 without suffix, other seeds as recipe_r1.xx_s<seed>
       local b=layouts r=${job#recipe_} seed=0 name; [ "${job#styles_}" != "$job" ] && b=styles r=${job#styles_recipe_}
@@ -310,7 +319,7 @@ job_out() {  # the file a finished job has written, under $OUT
     styles_fresh_prior) echo styles/fresh_prior/report.json ;;
     styles_mirror_prior) echo styles/mirror_prior/report.json ;;
     styles_recipe_s*) echo "styles/recipe_s${1#styles_recipe_s}/report.json" ;;
-    styles_recipe_no_*) echo "styles/${1#styles_}/report.json" ;;
+    styles_recipe_no_*|styles_occ_recipe_no_*) echo "styles/${1#styles_}/report.json" ;;
     styles_recipe_r1.*) echo "styles/recipe_sweep_${1#styles_recipe_}/report.json" ;;
     recipe_r1.*) echo "layouts/recipe_sweep_${1#recipe_}/report.json" ;;
     styles_*_s[0-9]) echo "styles/${1#styles_}/report.json" ;;
