@@ -955,6 +955,25 @@ class SimScene:
         )
         return bool(hit.any())
 
+    def robot_contacts(self) -> list[tuple[str, str, float]]:
+        """Robot-scene contacts as posed now, by name: (robot body, scene body, distance m < 0), deepest first.
+
+        The pairs ``robot_collides`` reduces to a bool (floor excluded); for tracing why a pose or a rollout failed.
+        """
+        m, d = self.model, self.data
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_collision(m, d)
+        out = []
+        for k in range(d.ncon):
+            g1, g2, dist = int(d.contact.geom1[k]), int(d.contact.geom2[k]), float(d.contact.dist[k])
+            if self._robot_mask[g2] and self._scene_mask[g1]:
+                g1, g2 = g2, g1
+            if dist >= 0 or not (self._robot_mask[g1] and self._scene_mask[g2]):
+                continue
+            names = (mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, int(m.geom_bodyid[g])) for g in (g1, g2))
+            out.append((*(n or "?" for n in names), dist))
+        return sorted(out, key=lambda c: c[2])
+
     def footprint_free(self, x: float, y: float, yaw: float) -> bool:
         """N2M footprint (0.63 x 0.5 m, 0.83 L behind / 0.17 L in front of the origin) vs furniture/wall footprints."""
         c, s = math.cos(yaw), math.sin(yaw)
