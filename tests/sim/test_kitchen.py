@@ -76,10 +76,14 @@ def test_collision_and_footprint(scene_factory):
     assert not sc.footprint_free(inside[0], inside[1], t.yaw + math.pi)
     sc.set_base_pose(inside[0], inside[1], t.yaw + math.pi)
     assert sc.robot_collides()
+    touched = sc.robot_contacts()  # the same contacts by name, deepest first
+    assert touched and all(d < 0 for *_, d in touched) and [c[2] for c in touched] == sorted(c[2] for c in touched)
+    robot_bodies = {sc.model.body(int(sc.model.geom_bodyid[g])).name for g in sc.robot_geom_ids}
+    assert all(a in robot_bodies and b not in robot_bodies for a, b, _ in touched)
     free = t.pos[:2] + 1.1 * n
     assert sc.footprint_free(free[0], free[1], t.yaw + math.pi)
     sc.set_base_pose(free[0], free[1], t.yaw + math.pi)
-    assert not sc.robot_collides()
+    assert not sc.robot_collides() and sc.robot_contacts() == []
     outline = sc.floor_outline()
     assert outline and all(p.shape == (4, 2) for p in outline)
 
