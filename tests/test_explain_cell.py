@@ -9,7 +9,7 @@ import pytest
 
 from floaff_zoo.sim.annotate import candidate_grid
 from floaff_zoo.sim.kitchen import SceneSpec, build_scene
-from floaff_zoo.sim.rollout import heading_to_target
+from floaff_zoo.sim.rollout import heading_to_target, pose_filter
 
 _SPEC = importlib.util.spec_from_file_location(
     "explain_cell", Path(__file__).resolve().parents[1] / "scripts" / "explain_cell.py"
@@ -84,3 +84,15 @@ def test_reason_map_and_errors(record, capsys):
         ec.main([str(record.parent / "missing"), "--grid"])
     assert ec.main([str(record), "--grid"]) == 0
     assert "|#" in capsys.readouterr().out
+
+
+def test_step_by_step_verdict_agrees_with_the_annotation_filter(record):
+    """explain_cell re-runs the filters one at a time; its verdict must stay the one ``pose_filter`` gives."""
+    scene = ec.ff.read_scene(record)
+    sim = build_scene(SceneSpec.from_dict(scene["spec"]))
+    for xo, yo in ((0.0, -0.7), (0.0, 0.3), (1.0, -1.2), (-0.9, -0.1), (0.5, -0.4)):
+        i = ec.nearest_candidate(scene, xo, yo)
+        x, y = scene["candidates"]["xy"][i]
+        yaw = scene["candidates"]["yaw"][i]
+        steps = dict(ec.check_pose(sim, x, y, yaw, 0))
+        assert steps["verdict"] == (pose_filter(sim, x, y, yaw, 0) or "feasible"), (xo, yo, steps)
