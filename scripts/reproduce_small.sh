@@ -20,7 +20,8 @@
 #                                              # top of the zoo recipe (recipe_no_{crop,align,sdl,fd}, recipe_r1.xx,
 #                                              # each also as styles_<job>; other seeds: recipe_no_crop_s1,
 #                                              # recipe_r1.10_s2, ...); occ_recipe_no_{crop,align,sdl,fd}[_s<seed>]
-#                                              # (and styles_...) ablate the best configuration (recipe + occupancy)
+#                                              # (and styles_...) ablate the best configuration (recipe + occupancy),
+#                                              # occ_recipe_r1.xx[_s<seed>] sweep its crop radius
 #
 # Needs the data:
 #   floaff-zoo generate --preset small --benchmarks layouts styles --out data/floaff_small --workers 2 --n-test 4
@@ -240,13 +241,18 @@ run_job() {
       case $abl in no_crop|no_align|no_sdl|no_fd) ;; *) echo "unknown ablation '$abl'" >&2; return 2 ;; esac
       curriculum "$j" "$b" "$seed" "occupancy recipe w/o ${abl#no_}" --extra-config "$RECIPE" \
         --extra-config configs/experiments/recipe/occupancy.yaml --extra-config "configs/experiments/ablations/$abl.yaml" ;;
-    recipe_r1.[0-9]*|styles_recipe_r1.[0-9]*)  # the crop sweep on top of the zoo recipe (CFAR's radius only)
-      # seed 0 without suffix, other seeds as recipe_r1.xx_s<seed>
-      local b=layouts r=${job#recipe_} seed=0 name; [ "${job#styles_}" != "$job" ] && b=styles r=${job#styles_recipe_}
+    recipe_r1.[0-9]*|styles_recipe_r1.[0-9]*|occ_recipe_r1.[0-9]*|styles_occ_recipe_r1.[0-9]*)
+      # the crop sweep (CFAR's radius only) on top of the zoo recipe, or with occ_ on top of the best configuration
+      # (recipe + footprint occupancy input); seed 0 without suffix, other seeds as recipe_r1.xx_s<seed>
+      local b=layouts j=$job seed=0 r name label=recipe occ=(); [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
+      if [ "${j#occ_}" != "$j" ]; then
+        j=${j#occ_} label="occupancy recipe" occ=(--extra-config configs/experiments/recipe/occupancy.yaml)
+      fi
+      r=${j#recipe_}
       case $r in *_s[0-9]) seed=${r##*_s} r=${r%_s*} ;; esac
       [ -f "configs/experiments/sweep_crop/$r.yaml" ] || { echo "unknown sweep radius '$r'" >&2; return 2; }
-      name=recipe_sweep_$r; [ "$seed" = 0 ] || name=${name}_s$seed
-      curriculum "$name" "$b" "$seed" "recipe, r=${r#r}" --extra-config "$RECIPE" \
+      name=recipe_sweep_$r; [ ${#occ[@]} = 0 ] || name=occ_$name; [ "$seed" = 0 ] || name=${name}_s$seed
+      curriculum "$name" "$b" "$seed" "$label, r=${r#r}" --extra-config "$RECIPE" "${occ[@]}" \
         --extra-config "configs/experiments/sweep_crop/$r.yaml" ;;
     prior) prior prior layouts "Canonical prior (no network)" ;;
     prior_gtyaw) prior prior_gtyaw layouts "Canonical prior, simulator yaw" --model.init_args.eval_yaw_source gt ;;
