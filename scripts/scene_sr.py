@@ -15,7 +15,11 @@ cells it filtered), then reports:
 - a **scene bootstrap**: the test scenes of each task resampled with replacement (``--draws`` times), SR_all
   recomputed; its std is the error bar of SR_all over kitchens;
 - for every pair of NAMEs, the difference of SR_all with its scene-bootstrap 90 % interval (paired: the same
-  resampled scenes for both).
+  resampled scenes for both);
+- **why the chosen cells fail**: per task, the share of views whose chosen cell the annotation marks as a success,
+  refused for the base footprint over furniture (``filtered_collision``), out of reach (``filtered_reach``), without
+  an arm solution (``ik_unreachable``), or rolled out and failed (``rollout``: a collision, a door not opened...),
+  runs averaged: what a better free-space reading could win, and what only a better reading of the task could.
 
 ``--residual-scales 0,0.5`` also scores every NAME whose runs all predict a residual over the canonical prior
 (``CFARModule`` with ``prior_residual``) with the learned residual logit scaled by each value (``residual_scale``;
@@ -50,8 +54,10 @@ from floaff_zoo.callbacks.rollout import choose_pose, cloud_free  # noqa: E402
 from floaff_zoo.contract import TASKS  # noqa: E402
 from floaff_zoo.predict import named_models  # noqa: E402
 
-# per view: (task, scene id, {name: [outcome per run]})
-Row = tuple[str, str, dict[str, list[bool]]]
+# per view: (task, scene id, {name: [outcome per run]}, {name: [annotation reason of the chosen cell per run]})
+Row = tuple[str, str, dict[str, list[bool]], dict[str, list[str]]]
+#: the annotation's reasons kept apart in the breakdown; every other one is a failed rollout
+REASONS = ("success", "filtered_collision", "filtered_reach", "ik_unreachable")
 
 
 def parse_models(specs: list[str]) -> dict[str, list[str]]:
@@ -123,22 +129,47 @@ def view_outcomes(
         free = None
         if top_k > 1:
             free = cloud_free(batch["scene_xyz"][i][batch["scene_mask"][i]].numpy(), sim["base_pose_world"])
+        reasons = scene["labels"].get("reasons")
         out: dict[str, list[bool]] = {}
+        why: dict[str, list[str]] = {}
         for name, runs in scores.items():
-            out[name] = []
+            out[name], why[name] = [], []
             for s in runs:
                 pose, _ = choose_pose(
                     floor[i], s[i], mask[i], target[i], sim["base_pose_world"], top_k, free, int(meta.get("index", i))
                 )
-                out[name].append(bool(success[nearest_cells(cand, np.array([pose[:2]]), cell, sid)[0]]))
-        rows.append((meta["task"], sid, out))
+                c = nearest_cells(cand, np.array([pose[:2]]), cell, sid)[0]
+                out[name].append(bool(success[c]))
+                why[name].append(failure_kind(reasons[c]) if reasons is not None else "unknown")
+        rows.append((meta["task"], sid, out, why))
     return rows
+
+
+def failure_kind(reason: str) -> str:
+    """An annotation reason as a column of the breakdown: one of ``REASONS`` or ``rollout``."""
+    return reason if reason in REASONS else "rollout"
+
+
+def reason_shares(rows: list[Row], names: list[str]) -> dict[str, dict[str, dict[str, float]]]:
+    """name -> task (and ``all``) -> {kind: share of views}, runs averaged; kinds: ``REASONS``, ``rollout``
+    (and ``unknown`` for scenes written before the annotation kept its reasons)."""
+    counts: dict[str, dict[str, dict[str, float]]] = {n: defaultdict(lambda: defaultdict(float)) for n in names}
+    views: dict[str, int] = defaultdict(int)
+    for task, _sid, _out, why in rows:
+        views[task] += 1
+        views["all"] += 1
+        for n in names:
+            for kind in why[n]:
+                for t in (task, "all"):
+                    counts[n][t][kind] += 1.0 / len(why[n])
+    order = sorted(set(views) - {"all"}) + ["all"]
+    return {n: {t: {k: v / views[t] for k, v in sorted(counts[n][t].items())} for t in order} for n in names}
 
 
 def per_scene(rows: list[Row], names: list[str]) -> dict[str, dict]:
     """scene id -> {task, views, SR per name (runs averaged)}."""
     acc: dict[str, dict] = {}
-    for task, sid, out in rows:
+    for task, sid, out, *_ in rows:
         a = acc.setdefault(sid, {"task": task, "views": 0, "sum": defaultdict(float)})
         a["views"] += 1
         for n in names:
@@ -276,6 +307,15 @@ def main(argv: list[str] | None = None) -> int:
         )
     for pair, d in res["differences"].items():
         print(f"{pair}: {d['diff']:+.3f} (scene bootstrap 90 %: {d['p05']:+.3f} to {d['p95']:+.3f})")
+    shares = reason_shares(rows, names)
+    kinds = [*REASONS, "rollout"] + (["unknown"] if any("unknown" in t["all"] for t in shares.values()) else [])
+    print()
+    print("Share of views by the annotation's verdict on the chosen cell:")
+    print("| name | task | " + " | ".join(kinds) + " |")
+    print("|---|---|" + "---:|" * len(kinds))
+    for n, by_task in shares.items():
+        for t, by_kind in by_task.items():
+            print(f"| {n} | {t} | " + " | ".join(f"{by_kind.get(k, 0.0):.2f}" for k in kinds) + " |")
     if a.json:
         Path(a.json).parent.mkdir(parents=True, exist_ok=True)
         runs = {n: groups[n] if n in groups else groups[n.rpartition("@")[0]] for n in nets}
@@ -290,6 +330,7 @@ def main(argv: list[str] | None = None) -> int:
             "draws": a.draws,
             "scenes": table,
             **res,
+            "reasons": shares,
         }
         Path(a.json).write_text(json.dumps(out, indent=1) + "\n")
     return 0

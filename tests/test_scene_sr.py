@@ -55,6 +55,20 @@ def test_scene_bootstrap_spreads_only_when_scenes_differ():
     assert res["models"]["a"]["PnPCounterToCab"] == pytest.approx(4 / 6)
 
 
+def test_reason_shares_average_runs_per_task_and_overall():
+    rows = [
+        ("t1", "s", {"a": [True, False]}, {"a": ["success", "filtered_collision"]}),
+        ("t1", "s", {"a": [False, False]}, {"a": ["collision", "not_open"]}),
+        ("t2", "u", {"a": [False, False]}, {"a": ["ik_unreachable", "ik_unreachable"]}),
+    ]
+    rows = [(t, sid, out, {n: [ssr.failure_kind(r) for r in rs] for n, rs in why.items()}) for t, sid, out, why in rows]
+    shares = ssr.reason_shares(rows, ["a"])["a"]
+    assert list(shares) == ["t1", "t2", "all"]
+    assert shares["t1"] == pytest.approx({"filtered_collision": 0.25, "rollout": 0.5, "success": 0.25})
+    assert shares["t2"] == {"ik_unreachable": 1.0}
+    assert sum(shares["all"].values()) == pytest.approx(1.0) and shares["all"]["rollout"] == pytest.approx(1 / 3)
+
+
 def test_paired_difference_of_a_constant_shift_has_no_spread():
     rows = [(t, f"{t}{k}", {"a": [v < k + 1], "b": [v < k]}) for t in ("x", "y") for k in range(3) for v in range(4)]
     table = ssr.per_scene(rows, ["a", "b"])
@@ -163,6 +177,8 @@ def test_annotated_outcomes_equal_the_callbacks_rollouts(sim_scenes):
             for batch in loader(samples, 4):
                 rows += ssr.view_outcomes(batch, {"m": [scorer(batch)]}, scenes, top_k)
             outcomes = [r[2]["m"][0] for r in rows]
+            # the breakdown's verdict is the annotation's: success exactly where the outcome is one
+            assert [r[3]["m"][0] == "success" for r in rows] == outcomes
             assert len(outcomes) == len(samples) > 0
             assert np.mean(outcomes) == pytest.approx(res["test_sr_all"]), (scorer.__name__, top_k)
             seen |= set(outcomes)
