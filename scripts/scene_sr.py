@@ -30,7 +30,9 @@ before the argmax (a deep ensemble: it costs the runs' training budgets together
 variance, not a row of an equal-budget table).
 
 ``--top-k 10`` stands each view on the best of its top 10 cells whose base footprint is free in the view's own cloud
-(the callback's ``free_space: cloud`` footprint check) instead of the argmax.
+(the callback's ``free_space: cloud`` footprint check) instead of the argmax; ``--footprint-margin 0.05`` grows the
+checked footprint by 5 cm on every side (a cloud too sparse to put two points into a thin overlap with furniture
+may still put them just outside it).
 
 Labels only, no simulator; one to two minutes per model and benchmark on one core.
 """
@@ -106,12 +108,12 @@ def ensemble_scores(scores: dict[str, list[np.ndarray]]) -> dict[str, list[np.nd
 
 
 def view_outcomes(
-    batch: dict, scores: dict[str, list[np.ndarray]], scenes: dict[str, dict], top_k: int = 1
+    batch: dict, scores: dict[str, list[np.ndarray]], scenes: dict[str, dict], top_k: int = 1, margin: float = 0.0
 ) -> list[Row]:
     """Annotated outcome of each run's chosen cell, per view of a batch (scores: name -> per run [B, M]).
 
     ``top_k`` > 1: the best of the top-k cells whose base footprint is free in the view's own cloud, as
-    ``RolloutSuccessRate(top_k=k, free_space="cloud")`` chooses.
+    ``RolloutSuccessRate(top_k=k, free_space="cloud")`` chooses, the footprint grown by ``margin`` (m) on every side.
     """
     from floaff_zoo.sim.kitchen import SceneSpec
 
@@ -128,7 +130,7 @@ def view_outcomes(
         success = np.asarray(scene["labels"]["success"]) > 0
         free = None
         if top_k > 1:
-            free = cloud_free(batch["scene_xyz"][i][batch["scene_mask"][i]].numpy(), sim["base_pose_world"])
+            free = cloud_free(batch["scene_xyz"][i][batch["scene_mask"][i]].numpy(), sim["base_pose_world"], margin)
         reasons = scene["labels"].get("reasons")
         out: dict[str, list[bool]] = {}
         why: dict[str, list[str]] = {}
@@ -243,6 +245,9 @@ def main(argv: list[str] | None = None) -> int:
         help="e.g. 0,0.5,1.5: also score prior-residual models with their residual scaled by each (NAME@s)",
     )
     p.add_argument("--top-k", type=int, default=1, help="> 1: best of the top-k cells free in the view's cloud")
+    p.add_argument(
+        "--footprint-margin", type=float, default=0.0, help="with --top-k: grow the checked footprint by this (m)"
+    )
     p.add_argument("--ensemble", action="store_true", help="also score NAME+ens: the mean map of NAME's runs")
     p.add_argument("--json", default=None)
     a = p.parse_args(argv)
@@ -250,6 +255,10 @@ def main(argv: list[str] | None = None) -> int:
         p.error("--draws must be >= 1")
     if a.top_k < 1:
         p.error(f"--top-k must be >= 1, got {a.top_k}")
+    if not (np.isfinite(a.footprint_margin) and a.footprint_margin >= 0):
+        p.error(f"--footprint-margin must be finite and >= 0, got {a.footprint_margin}")
+    if a.footprint_margin > 0 and a.top_k == 1:
+        p.error("--footprint-margin grows the footprint that --top-k checks: give --top-k > 1")
     scales = parse_scales(a.residual_scales)
     groups = parse_models(a.models)
     if a.ensemble and not ensembled(groups):
@@ -278,7 +287,7 @@ def main(argv: list[str] | None = None) -> int:
             if a.ensemble:
                 scores = ensemble_scores(scores)
             try:
-                rows += view_outcomes(batch, scores, scenes, a.top_k)
+                rows += view_outcomes(batch, scores, scenes, a.top_k, a.footprint_margin)
             except KeyError as exc:
                 raise SystemExit(f"scene_sr: {exc.args[0]}") from exc
     n_runs = {n: len(r) for n, r in nets.items()}
@@ -327,6 +336,7 @@ def main(argv: list[str] | None = None) -> int:
             "residual_scales": scales,
             "ensemble": a.ensemble,
             "top_k": a.top_k,
+            "footprint_margin": a.footprint_margin,
             "draws": a.draws,
             "scenes": table,
             **res,

@@ -12,6 +12,7 @@ from floaff_zoo.callbacks.rollout import (
     base_to_world,
     bootstrap_std,
     choose_pose,
+    cloud_free,
     pose_to_world,
     summarize_episodes,
 )
@@ -182,3 +183,17 @@ def test_top_k_with_cloud_free_space_avoids_an_observed_obstacle():
 def test_free_space_is_checked():
     with pytest.raises(ValueError, match="free_space"):
         RolloutSuccessRate(free_space="cloudy")
+
+
+def test_cloud_free_margin_grows_the_footprint_on_every_side():
+    """An obstacle 5 cm outside each side of the footprint is free at margin 0 and blocked at margin 0.1."""
+    from floaff_zoo.floor import FOOTPRINT
+
+    length, width, front = FOOTPRINT
+    pose = (0.0, 0.0, 0.0)  # world = base frame: the view's robot stands at the origin facing +x
+    for x, y in ((front + 0.05, 0.0), (front - length - 0.05, 0.0), (0.0, width / 2 + 0.05), (0.0, -width / 2 - 0.05)):
+        cloud = np.array([[x, y, 0.5]] * 2)
+        assert cloud_free(cloud, pose)(*pose)
+        assert not cloud_free(cloud, pose, margin=0.1)(*pose), (x, y)
+    with pytest.raises(ValueError, match="margin"):
+        cloud_free(np.zeros((2, 3)), pose, margin=-0.1)
