@@ -61,19 +61,24 @@ for bench in layouts styles; do  # the ablations and the crop sweep on top of th
     echo "### Footprint occupancy as an input on $name (test split, a diagnostic; seeds pooled per row)"; echo
     variant_tables "${OCC[@]}"
   fi
-  # rows pool the seeds of one radius; the recipe's own radius takes as many recipe seeds as the sweep has
-  SWR=("$R/$bench/recipe_s0")
-  for d in "$R/$bench"/recipe_sweep_r*; do [ -f "$d/report.json" ] && SWR+=("$d"); done
-  for s in 1 2; do
-    if compgen -G "$R/$bench/recipe_sweep_r*_s$s/report.json" > /dev/null && [ -f "$R/$bench/recipe_s$s/report.json" ]; then
-      SWR+=("$R/$bench/recipe_s$s")
+  # the crop sweep of the zoo recipe and (occ_) of the best configuration, recipe + footprint occupancy input:
+  # rows pool the seeds of one radius; the own radius takes as many seeds of the configuration as the sweep has
+  for pre in "" occ_; do
+    what="the zoo recipe"; [ -n "$pre" ] && what="the best configuration (recipe + footprint occupancy input)"
+    SWR=("$R/$bench/${pre}recipe_s0")
+    for d in "$R/$bench/${pre}"recipe_sweep_r*; do [ -f "$d/report.json" ] && SWR+=("$d"); done
+    for s in 1 2; do
+      if compgen -G "$R/$bench/${pre}recipe_sweep_r*_s$s/report.json" > /dev/null \
+        && [ -f "$R/$bench/${pre}recipe_s$s/report.json" ]; then
+        SWR+=("$R/$bench/${pre}recipe_s$s")
+      fi
+    done
+    if [ ${#SWR[@]} -gt 1 ]; then
+      echo "### Crop-radius sweep of $what on $name (seeds pooled per radius)"; echo
+      floaff-zoo table --format md --runs "${SWR[@]}" --preset sweep; echo
+      table --runs "${SWR[@]}" --preset sr_views --no-oracle
     fi
   done
-  if [ ${#SWR[@]} -gt 1 ]; then
-    echo "### Crop-radius sweep of the zoo recipe on $name (seeds pooled per radius)"; echo
-    floaff-zoo table --format md --runs "${SWR[@]}" --preset sweep; echo
-    table --runs "${SWR[@]}" --preset sr_views --no-oracle
-  fi
 done
 
 SWEEP=("$R"/layouts/cfar_pfal_s0)
