@@ -85,6 +85,13 @@ def test_bad_arguments_exit_with_a_message(tmp_path, capsys):
     with pytest.raises(SystemExit):
         ssr.main(["--top-k", "0", "a=x"])
     assert "--top-k must be >= 1" in capsys.readouterr().err
+    for args, msg in (
+        (["--top-k", "10", "--footprint-margin", "-0.1"], "finite and >= 0"),
+        (["--footprint-margin", "0.05"], "give --top-k > 1"),
+    ):
+        with pytest.raises(SystemExit):
+            ssr.main([*args, "a=x"])
+        assert msg in capsys.readouterr().err
     # an unknown model ends the script with a message naming it, not a traceback
     with pytest.raises(SystemExit, match="scene_sr: .*no-such-model.ckpt"):
         ssr.main(["--root", str(tmp_path), "a=no-such-model.ckpt"])
