@@ -126,3 +126,16 @@ def test_footprint_counts_agree_with_footprint_blocked():
         args[i] = bad
         with pytest.raises(ValueError, match=f"{name} must be"):
             footprint_counts(*args)
+
+
+def test_grown_footprint_adds_the_margin_on_every_side():
+    from floaff_zoo.floor import FOOTPRINT, grown_footprint
+
+    length, width, front = FOOTPRINT
+    assert grown_footprint(0.0) == FOOTPRINT
+    grown = grown_footprint(0.05)
+    assert grown == pytest.approx((length + 0.1, width + 0.1, front + 0.05))
+    assert grown[2] - grown[0] == pytest.approx(front - length - 0.05)  # the back edge moves back by the margin
+    for bad in (-0.1, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="margin"):
+            grown_footprint(bad)

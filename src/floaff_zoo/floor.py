@@ -26,6 +26,7 @@ __all__ = [
     "FOOTPRINT",
     "FloorLattice",
     "footprint_blocked",
+    "grown_footprint",
     "ground_mask",
     "observed_cells",
 ]
@@ -138,6 +139,14 @@ def observed_cells(
     flat, inside = lattice.index_of(p[ground_mask(p, z_max)])
     h, w = lattice.shape
     return np.bincount(flat[inside], minlength=h * w) >= min_points
+
+
+def grown_footprint(margin: float, footprint: tuple[float, float, float] = FOOTPRINT) -> tuple[float, float, float]:
+    """``footprint`` (length, width, front) m grown by ``margin`` m on every side: a clearance around the base."""
+    if not (math.isfinite(margin) and margin >= 0):
+        raise ValueError(f"grown_footprint: margin must be finite and >= 0, got {margin!r}")
+    length, width, front = footprint
+    return (length + 2 * margin, width + 2 * margin, front + margin)
 
 
 def footprint_blocked(

@@ -31,7 +31,6 @@ when no sample has sim metadata nothing is logged and the summary says ``availab
 
 from __future__ import annotations
 
-import math
 import time
 import warnings
 from collections.abc import Callable, Sequence
@@ -43,7 +42,7 @@ import torch
 from lightning.pytorch.utilities import rank_zero_warn
 
 from floaff_zoo.contract import best_pose
-from floaff_zoo.floor import FOOTPRINT, footprint_blocked
+from floaff_zoo.floor import footprint_blocked, grown_footprint
 from floaff_zoo.frames import ROLLOUT_POSE_DECIMALS, Pose, base_to_world, pose_to_world
 
 __all__ = [
@@ -97,10 +96,7 @@ def cloud_free(
     """``is_free(x, y, yaw)`` for world poses from a view's own cloud xyz [N, 3] (robot base frame): no obstacle
     points in the base footprint (``floor.footprint_blocked``) grown by ``margin`` (m) on every side; what
     ``free_space="cloud"`` uses."""
-    if not (math.isfinite(margin) and margin >= 0):
-        raise ValueError(f"cloud_free: margin must be finite and >= 0, got {margin!r}")
-    length, width, front = FOOTPRINT
-    footprint = (length + 2 * margin, width + 2 * margin, front + margin)
+    footprint = grown_footprint(margin)
     world = base_to_world(xyz, base_pose_world)
     return lambda x, y, yaw: not footprint_blocked(world, (x, y, yaw), footprint)
 
