@@ -21,7 +21,8 @@
 #                                              # each also as styles_<job>; other seeds: recipe_no_crop_s1,
 #                                              # recipe_r1.10_s2, ...); occ_recipe_no_{crop,align,sdl,fd}[_s<seed>]
 #                                              # (and styles_...) ablate the best configuration (recipe + occupancy),
-#                                              # occ_recipe_r1.xx[_s<seed>] sweep its crop radius
+#                                              # occ_recipe_r1.xx[_s<seed>] sweep its crop radius,
+#                                              # rank_occ_recipe_s<seed> adds the listwise ranking term
 #
 # Needs the data:
 #   floaff-zoo generate --preset small --benchmarks layouts styles --out data/floaff_small --workers 2 --n-test 4
@@ -277,6 +278,11 @@ run_job() {
       local b=layouts j=$job; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
       curriculum "$j" "$b" "${j#occ_recipe_s}" "zoo recipe, footprint occupancy input" --extra-config "$RECIPE" \
         --extra-config configs/experiments/recipe/occupancy.yaml ;;
+    rank_occ_recipe_s[0-9]|styles_rank_occ_recipe_s[0-9])
+      # the best configuration plus a listwise ranking term in the loss (configs/experiments/recipe/rank.yaml)
+      local b=layouts j=$job; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
+      curriculum "$j" "$b" "${j#rank_occ_recipe_s}" "occupancy recipe, listwise ranking term" --extra-config "$RECIPE" \
+        --extra-config configs/experiments/recipe/occupancy.yaml --extra-config configs/experiments/recipe/rank.yaml ;;
     occ_cfar_pfal_s[0-9]|styles_occ_cfar_pfal_s[0-9])  # the same input on the paper's path (no recipe departures)
       local b=layouts j=$job; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
       curriculum "$j" "$b" "${j#occ_cfar_pfal_s}" "CFAR+PFAL, footprint occupancy input" \

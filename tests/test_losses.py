@@ -6,7 +6,14 @@ import numpy as np
 import pytest
 import torch
 
-from floaff_zoo.losses import affordance_loss, build_loss, masked_mse, navaff_weighted_mse, soft_dice_loss
+from floaff_zoo.losses import (
+    affordance_loss,
+    build_loss,
+    listwise_rank_loss,
+    masked_mse,
+    navaff_weighted_mse,
+    soft_dice_loss,
+)
 
 
 def data(seed=0, b=4, m=30):
@@ -28,6 +35,20 @@ def np_sdl(p, g, m, eps):
     return np.mean(vals)
 
 
+def np_rank(p, g, m, temp):
+    """Per sample with a positive label: KL(g / sum g || softmax(logit(p) / T)) over the valid points; mean."""
+    vals = []
+    for i in range(len(p)):
+        gi, pi = np.clip(g[i][m[i]], 0, None), np.clip(p[i][m[i]], 1e-6, 1 - 1e-6)
+        if gi.sum() <= 0:
+            continue
+        q = gi / gi.sum()
+        z = np.log(pi / (1 - pi)) / temp
+        log_soft = z - z.max() - np.log(np.exp(z - z.max()).sum())
+        vals.append(np.sum(q[q > 0] * (np.log(q[q > 0]) - log_soft[q > 0])))
+    return np.mean(vals)
+
+
 def t(x):
     return torch.from_numpy(np.asarray(x))
 
@@ -43,10 +64,45 @@ def test_values_match_numpy(eps):
     assert float(build_loss("mse")(t(p), t(g), t(m))) == pytest.approx(np_mse(p, g, m))
 
 
-@pytest.mark.parametrize("name", ["mse", "aff", "navaff"])
-def test_masked_points_do_not_matter_and_grads_finite(name):
+@pytest.mark.parametrize("temp", [1.0, 0.5])
+def test_rank_values_match_numpy(temp):
+    p, g, m = data(seed=2)
+    p = 0.05 + 0.9 * p  # away from the clamp
+    assert float(listwise_rank_loss(t(p), t(g), t(m), temp)) == pytest.approx(np_rank(p, g, m, temp))
+    fn = build_loss("aff", beta=0.3, rank_weight=0.2, rank_temperature=temp)
+    want = np_mse(p, g, m) + 0.3 * np_sdl(p, g, m, 1.0) + 0.2 * np_rank(p, g, m, temp)
+    assert float(fn(t(p), t(g), t(m))) == pytest.approx(want)
+
+
+def test_rank_rewards_mass_on_the_successful_cells():
+    """Same scores, permuted: the map that ranks the labelled cells first costs less; 0 when softmax == q."""
+    g = torch.tensor([[1.0, 1.0, 0.0, 0.0, 0.0]])
+    m = torch.ones_like(g, dtype=torch.bool)
+    good = torch.tensor([[0.9, 0.8, 0.2, 0.1, 0.1]])
+    bad = torch.tensor([[0.1, 0.2, 0.9, 0.8, 0.1]])
+    assert float(listwise_rank_loss(good, g, m)) < float(listwise_rank_loss(bad, g, m))
+    # log-odds equal to log q (plus a constant) on the positives and the clamp's floor elsewhere: KL ~ 0
+    q_exact = torch.tensor([[0.5, 0.5, 1e-9, 1e-9, 1e-9]])
+    assert float(listwise_rank_loss(q_exact, g, m)) == pytest.approx(0.0, abs=1e-4)
+
+
+def test_rank_skips_samples_without_a_positive_label():
+    p = torch.rand(3, 6, requires_grad=True)
+    g = torch.zeros(3, 6)
+    g[1, 2] = 1.0
+    m = torch.ones(3, 6, dtype=torch.bool)
+    alone = listwise_rank_loss(p[1:2], g[1:2], m[1:2])
+    assert float(listwise_rank_loss(p, g, m)) == pytest.approx(float(alone))
+    nothing = listwise_rank_loss(p, torch.zeros(3, 6), m)
+    assert float(nothing) == 0.0
+    nothing.backward()
+    assert torch.isfinite(p.grad).all()
+
+
+@pytest.mark.parametrize("name,rank", [("mse", 0.0), ("aff", 0.0), ("navaff", 0.0), ("aff", 0.5)])
+def test_masked_points_do_not_matter_and_grads_finite(name, rank):
     p, g, m = data(seed=1)
-    fn = build_loss(name)
+    fn = build_loss(name, rank_weight=rank)
     p2, g2 = p.copy(), g.copy()
     p2[~m] = np.nan  # garbage (even NaN) in padding
     g2[~m] = 123.0
@@ -101,6 +157,12 @@ def test_navaff_expected_weight():
 def test_bad_input():
     with pytest.raises(ValueError, match="unknown loss"):
         build_loss("l1")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="rank_weight"):
+        build_loss("aff", rank_weight=-0.1)
+    with pytest.raises(ValueError, match="rank_temperature"):
+        build_loss("aff", rank_weight=0.1, rank_temperature=0.0)
+    with pytest.raises(ValueError, match="temperature"):
+        listwise_rank_loss(torch.zeros(2, 3), torch.zeros(2, 3), None, temperature=float("nan"))
     with pytest.raises(ValueError, match=r"\[B, M\]"):
         masked_mse(torch.zeros(2, 3), torch.zeros(3, 2), None)
     with pytest.raises(ValueError, match="mask"):

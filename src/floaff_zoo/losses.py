@@ -10,6 +10,10 @@ gives 0 (with a graph attached), never NaN.
   whose label map is all zero and whose prediction is near zero, instead of pushing such samples at full
   strength (with a tiny eps an all-zero label gives a loss of ~1 for any non-zero prediction).
 * ``affordance_loss``: the paper's L_aff = L_mse + beta * L_sdl.
+* ``listwise_rank_loss``: a departure, off by default (``rank_weight = 0``): per sample, the KL divergence from the
+  label map normalised over the valid points to the softmax of the predicted log-odds. The success rate scores
+  only the map's argmax; MSE and Dice weigh every cell alike, this term pays for probability mass on the cells that
+  fail, wherever they are, so it concentrates training on the top of the ranking.
 * ``navaff_weighted_mse``: NavAff's training loss (``MoMaKitchen/MoMaKitchen:train.py@64ca7a4``,
   docs/background.md §3): weight 0.7 where the label is 0 *and* a fresh Bernoulli(0.5) draw fires, else 1;
   mean(w (p - g)^2) over valid points (expected weight 0.85 on zero-label points).
@@ -17,15 +21,28 @@ gives 0 (with a graph attached), never NaN.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from typing import Literal
 
 import torch
 from torch import Tensor
 
-__all__ = ["affordance_loss", "build_loss", "masked_mse", "navaff_weighted_mse", "soft_dice_loss"]
+__all__ = [
+    "affordance_loss",
+    "build_loss",
+    "listwise_rank_loss",
+    "masked_mse",
+    "navaff_weighted_mse",
+    "soft_dice_loss",
+]
 
 LossFn = Callable[[Tensor, Tensor, Tensor], Tensor]
+
+#: scores are clamped to [eps, 1 - eps] before their log-odds (a sigmoid output never reaches 0 or 1 in float32 use)
+LOGIT_EPS = 1e-6
+#: log-odds given to padded points: exp(-1e4) is 0 in any float type, and unlike -inf it keeps gradients finite
+MASKED_LOGIT = -1e4
 
 
 def _prepare(name: str, pred: Tensor, target: Tensor, mask: Tensor | None) -> tuple[Tensor, Tensor, Tensor]:
@@ -94,23 +111,62 @@ def navaff_weighted_mse(
     return _masked_mean(w * (p - g) ** 2, m, pred)
 
 
-def build_loss(name: Literal["mse", "aff", "navaff"], beta: float = 1.0) -> LossFn:
+def listwise_rank_loss(pred: Tensor, target: Tensor, mask: Tensor | None, temperature: float = 1.0) -> Tensor:
+    """KL(q || softmax(logit(pred) / T)) per sample over its valid points, mean over samples with a positive label.
+
+    pred (scores in [0, 1]), target (labels >= 0), mask bool, all [B, M] -> scalar; q = target / sum(target) over the
+    sample's valid points. 0 when the softmax equals q; samples whose labels are all 0 (nothing to rank first) are
+    left out of the mean (0 with a graph if none is left).
+    """
+    if not (math.isfinite(temperature) and temperature > 0):
+        raise ValueError(f"listwise_rank_loss: temperature must be a finite number > 0, got {temperature}")
+    p, g, m = _prepare("listwise_rank_loss", pred, target, mask)
+    z = torch.logit(p.clamp(LOGIT_EPS, 1.0 - LOGIT_EPS)) / temperature
+    log_soft = torch.log_softmax(torch.where(m, z, MASKED_LOGIT), dim=1)  # [B, M]
+    w = torch.where(m, g.clamp_min(0.0), 0.0)
+    total = w.sum(1)  # [B]
+    keep = total > 0
+    if not bool(keep.any()):
+        return pred.sum() * 0.0
+    q = w / total.clamp_min(1e-12).unsqueeze(1)
+    # q log q is 0 where q is 0; where() keeps log(0) out of the value
+    kl = torch.where(q > 0, q * (torch.log(q.clamp_min(1e-30)) - log_soft), 0.0).sum(1)  # [B]
+    return kl[keep].mean()
+
+
+def build_loss(
+    name: Literal["mse", "aff", "navaff"],
+    beta: float = 1.0,
+    rank_weight: float = 0.0,
+    rank_temperature: float = 1.0,
+) -> LossFn:
     """Loss callable ``(pred [B, M], target [B, M], mask [B, M]) -> scalar`` by name.
 
-    ``mse`` = masked MSE, ``aff`` = MSE + beta * soft Dice (paper), ``navaff`` = NavAff's weighted MSE.
+    ``mse`` = masked MSE, ``aff`` = MSE + beta * soft Dice (paper), ``navaff`` = NavAff's weighted MSE; with
+    ``rank_weight > 0`` plus ``rank_weight * listwise_rank_loss(..., rank_temperature)``.
     """
+    if not (math.isfinite(rank_weight) and rank_weight >= 0):
+        raise ValueError(f"build_loss: rank_weight must be a finite number >= 0, got {rank_weight}")
     if name == "mse":
-        return masked_mse
-    if name == "aff":
+        base: LossFn = masked_mse
+    elif name == "aff":
 
-        def aff(pred: Tensor, target: Tensor, mask: Tensor) -> Tensor:
+        def base(pred: Tensor, target: Tensor, mask: Tensor) -> Tensor:
             return affordance_loss(pred, target, mask, beta=beta)
 
-        return aff
-    if name == "navaff":
+    elif name == "navaff":
 
-        def navaff(pred: Tensor, target: Tensor, mask: Tensor) -> Tensor:
+        def base(pred: Tensor, target: Tensor, mask: Tensor) -> Tensor:
             return navaff_weighted_mse(pred, target, mask)
 
-        return navaff
-    raise ValueError(f"build_loss: unknown loss {name!r}; expected one of 'mse', 'aff', 'navaff'")
+    else:
+        raise ValueError(f"build_loss: unknown loss {name!r}; expected one of 'mse', 'aff', 'navaff'")
+    if rank_weight == 0:
+        return base
+    if not (math.isfinite(rank_temperature) and rank_temperature > 0):
+        raise ValueError(f"build_loss: rank_temperature must be a finite number > 0, got {rank_temperature}")
+
+    def ranked(pred: Tensor, target: Tensor, mask: Tensor) -> Tensor:
+        return base(pred, target, mask) + rank_weight * listwise_rank_loss(pred, target, mask, rank_temperature)
+
+    return ranked

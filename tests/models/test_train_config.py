@@ -101,6 +101,8 @@ def test_train_defaults_are_per_model_and_partial_dicts_keep_them():
         ({"lr": 0.0}, "train.lr must be > 0"),
         ({"optimizer": "sgd"}, "train.optimizer: 'sgd' is not one of"),
         ({"loss": "bce"}, "train.loss: 'bce' is not one of"),
+        ({"rank_weight": -0.5}, "train.rank_weight must be a finite number >= 0"),
+        ({"rank_temperature": 0.0}, "train.rank_temperature must be a finite number > 0"),
     ],
 )
 def test_bad_train_values_name_the_field(train, match):
@@ -132,6 +134,23 @@ def test_cli_train_group_partial_override(tmp_path, root, monkeypatch):
         ]
     )
     assert cli.model.train_cfg == FloAffTrainConfig(loss="navaff", lr=1e-4, weight_decay=1e-3)
+
+
+def test_cli_rank_weight_adds_the_listwise_term(tmp_path, root, monkeypatch):
+    from floaff_zoo.cli import run_lightning
+    from floaff_zoo.losses import listwise_rank_loss, masked_mse
+
+    monkeypatch.chdir(root)
+    args = ["--config", "configs/data/synthetic_tiny.yaml", "--config", "configs/models/tiny_pointnet.yaml"]
+    cli = run_lightning(
+        ["fit", *args, "--model.init_args.train.rank_weight", "0.5", "--trainer.fast_dev_run", "1"]
+        + quiet_trainer_args(tmp_path)
+    )
+    assert cli.model.train_cfg.rank_weight == 0.5 and cli.model.train_cfg.loss == "mse"
+    p, g = torch.rand(2, 9), torch.rand(2, 9)
+    m = torch.ones(2, 9, dtype=torch.bool)
+    want = masked_mse(p, g, m) + 0.5 * listwise_rank_loss(p, g, m)
+    assert float(cli.model.criterion(p, g, m)) == pytest.approx(float(want))
 
 
 # --------------------------------------------------------------------------- old checkpoints

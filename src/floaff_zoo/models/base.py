@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
+import math
 import os
 import typing
 from collections.abc import Mapping
@@ -79,6 +80,9 @@ class FloAffTrainConfig(TrainConfig):
         loss: ``mse``; ``aff`` = MSE + ``sdl_beta`` x Soft Dice (paper); ``navaff`` = NavAff's
             randomised 0.7-weighted MSE.
         sdl_beta: weight of the Soft Dice term for ``loss="aff"`` (>= 0).
+        rank_weight: weight of the listwise ranking term added to ``loss`` (``losses.listwise_rank_loss``;
+            a departure, 0 = off, the default).
+        rank_temperature: temperature of that term's softmax over the predicted log-odds (> 0).
         sim_variant: SIM metric variant, ``cosine`` (FloAff paper) or ``hist`` (MoMa-Kitchen code).
         metric_reduction: ``per_sample`` or ``official_batchwise`` (64-sample chunks, MoMa-Kitchen).
         optimizer, lr, weight_decay, scheduler: see :class:`TrainConfig`.
@@ -86,6 +90,8 @@ class FloAffTrainConfig(TrainConfig):
 
     loss: Literal["mse", "aff", "navaff"] = "mse"
     sdl_beta: float = 1.0
+    rank_weight: float = 0.0
+    rank_temperature: float = 1.0
     sim_variant: Literal["cosine", "hist"] = "cosine"
     metric_reduction: Literal["per_sample", "official_batchwise"] = "per_sample"
 
@@ -93,6 +99,10 @@ class FloAffTrainConfig(TrainConfig):
         super().__post_init__()
         if not self.sdl_beta >= 0:
             raise ValueError(f"train.sdl_beta must be >= 0, got {self.sdl_beta}")
+        if not (math.isfinite(self.rank_weight) and self.rank_weight >= 0):
+            raise ValueError(f"train.rank_weight must be a finite number >= 0, got {self.rank_weight}")
+        if not (math.isfinite(self.rank_temperature) and self.rank_temperature > 0):
+            raise ValueError(f"train.rank_temperature must be a finite number > 0, got {self.rank_temperature}")
 
 
 #: the arguments every model took flat before the ``train`` group (older checkpoints and hub configs)
@@ -421,7 +431,7 @@ class FloAffModule(ZooModule):
     def configure_losses(self) -> None:
         """Set ``self.criterion(pred [B,M], target [B,M], mask [B,M]) -> scalar``."""
         t: FloAffTrainConfig = self.train_cfg  # type: ignore[assignment]
-        self.criterion = build_loss(t.loss, beta=t.sdl_beta)
+        self.criterion = build_loss(t.loss, t.sdl_beta, t.rank_weight, t.rank_temperature)
 
     def configure_metrics(self) -> None:
         """One MetricCollection per stage (train keeps the cheap ones)."""

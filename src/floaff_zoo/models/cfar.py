@@ -234,7 +234,7 @@ class CFARModule(FloAffModule):
     def configure_losses(self) -> None:
         t = self.train_cfg
         name = "mse" if not self.hparams["use_sdl"] and t.loss == "aff" else t.loss  # w/o-SDL ablation
-        self.criterion = build_loss(name, beta=t.sdl_beta)
+        self.criterion = build_loss(name, t.sdl_beta, t.rank_weight, t.rank_temperature)
 
     # ----------------------------------------------------------------- yaw sources
     @property
