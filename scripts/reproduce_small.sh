@@ -22,7 +22,9 @@
 #                                              # recipe_r1.10_s2, ...); occ_recipe_no_{crop,align,sdl,fd}[_s<seed>]
 #                                              # (and styles_...) ablate the best configuration (recipe + occupancy),
 #                                              # occ_recipe_r1.xx[_s<seed>] sweep its crop radius,
-#                                              # rank_occ_recipe_s<seed> adds the listwise ranking term
+#                                              # rank_occ_recipe_s<seed> adds the listwise ranking term;
+#                                              # cv<f>_{occ,rank,prior} (and styles_...): leave-one-layout-out folds
+#                                              # f = 0..4 scored on their validation scenes (scripts/cv_sr.py pools them)
 #
 # Needs the data:
 #   floaff-zoo generate --preset small --benchmarks layouts styles --out data/floaff_small --workers 2 --n-test 4
@@ -93,6 +95,20 @@ copy_report() {
 # newest fit run (the directory holding checkpoints/last.ckpt) under a root
 latest_run() { dirname "$(find "$1" -name last.ckpt -printf '%T@ %h\n' | sort -n | tail -n 1 | cut -d' ' -f2)"; }
 RETEST=${RETEST:-0}
+
+# stage_ckpt RUN_ROOT INDEX: the best checkpoint of a curriculum's stage (0 = the first, -1 = the last)
+stage_ckpt() {
+  python3 -c "import json,sys; print(json.load(open(sys.argv[1]))['stages'][int(sys.argv[2])]['checkpoint'])" \
+    "$1/lineage.json" "$2"
+}
+
+# cv_score JOB BENCH FOLD NAME=CKPT: SR on the validation scenes of a leave-one-layout-out fold (scripts/scene_sr.py),
+# to $OUT/cv/BENCH/JOB.json; scripts/cv_sr.py pools the folds
+cv_score() {
+  mkdir -p "$OUT/cv/$2"
+  python3 scripts/scene_sr.py --root "${DATA_ROOT:-data/floaff_$PRESET}" --benchmark "$2" --split val --val-layout "$3" \
+    --json "$OUT/cv/$2/$1.json" "$4"
+}
 
 # curriculum JOB BENCH SEED LABEL [--extra-config FILE]: PFAL, then test the last stage's best
 curriculum() {
@@ -283,6 +299,33 @@ run_job() {
       local b=layouts j=$job; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
       curriculum "$j" "$b" "${j#rank_occ_recipe_s}" "occupancy recipe, listwise ranking term" --extra-config "$RECIPE" \
         --extra-config configs/experiments/recipe/occupancy.yaml --extra-config configs/experiments/recipe/rank.yaml ;;
+    cv[0-4]_occ|cv[0-4]_rank|styles_cv[0-4]_occ|styles_cv[0-4]_rank)
+      # leave-one-layout-out validation, fold f = the train scenes of layout f held out for every task (seed 0): the
+      # best configuration, or it plus the listwise ranking term; trained, then scored on the fold's validation
+      # scenes (no test)
+      local b=layouts j=$job f extra=(); [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
+      f=${j:2:1}
+      [ "${j#*_}" = rank ] && extra=(--extra-config configs/experiments/recipe/rank.yaml)
+      if [ "$RETEST" = 0 ]; then
+        "$FZ" curriculum --config "configs/experiments/pfal_${PRESET}_$b.yaml" --root "$RUNS/$b/$j" --set seed_everything=0 \
+          --set "data.init_args.val_layout=$f" "${ROOT_SET[@]}" --extra-config "$RECIPE" \
+          --extra-config configs/experiments/recipe/occupancy.yaml "${extra[@]}"
+      fi
+      cv_score "$j" "$b" "$f" "${j#*_}=$(stage_ckpt "$RUNS/$b/$j" -1)" ;;
+    cv[0-4]_prior|styles_cv[0-4]_prior)
+      # the fold's canonical prior, with the fold's AxisNet (job cv<f>_occ first: this one waits for it)
+      local b=layouts j=$job f axis="" tries=0; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
+      f=${j:2:1}
+      until axis=$(stage_ckpt "$RUNS/$b/cv${f}_occ" 0 2>/dev/null) && [ -f "$axis" ]; do
+        tries=$((tries + 1)); [ $tries -le 180 ] || { echo "$job: no AxisNet of cv${f}_occ" >&2; return 1; }
+        sleep 10
+      done
+      if [ "$RETEST" = 0 ] && [ -z "$(find "$RUNS/$b/$j" -name last.ckpt 2>/dev/null)" ]; then
+        "$FZ" fit --config "configs/data/floaff_${PRESET}_$b.yaml" --config configs/models/canonical_prior.yaml \
+          --model.init_args.axisnet "$axis" --data.init_args.train_transforms '[]' --trainer.max_epochs 1 \
+          --data.init_args.val_layout "$f" --trainer.default_root_dir "$RUNS/$b/$j" "${ROOT_ARGS[@]}"
+      fi
+      cv_score "$j" "$b" "$f" "prior=$(latest_run "$RUNS/$b/$j")/checkpoints/last.ckpt" ;;
     occ_cfar_pfal_s[0-9]|styles_occ_cfar_pfal_s[0-9])  # the same input on the paper's path (no recipe departures)
       local b=layouts j=$job; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
       curriculum "$j" "$b" "${j#occ_cfar_pfal_s}" "CFAR+PFAL, footprint occupancy input" \
@@ -334,6 +377,8 @@ job_out() {  # the file a finished job has written, under $OUT
     styles_recipe_no_*|styles_occ_recipe_no_*) echo "styles/${1#styles_}/report.json" ;;
     styles_recipe_r1.*) echo "styles/recipe_sweep_${1#styles_recipe_}/report.json" ;;
     recipe_r1.*) echo "layouts/recipe_sweep_${1#recipe_}/report.json" ;;
+    styles_cv[0-4]_*) echo "cv/styles/${1#styles_}.json" ;;
+    cv[0-4]_*) echo "cv/layouts/$1.json" ;;
     styles_*_s[0-9]) echo "styles/${1#styles_}/report.json" ;;
     styles_*) echo "styles/${1#styles_}_s0/report.json" ;;
     r1.*) echo "layouts/sweep_$1/report.json" ;;

@@ -236,6 +236,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--root", default="data/floaff_dense")
     p.add_argument("--benchmark", default="layouts", choices=["layouts", "styles"])
     p.add_argument("--split", default="test", choices=["test", "val"])
+    p.add_argument(
+        "--val-layout",
+        type=int,
+        default=None,
+        help="with --split val: the validation scenes are every train scene of this layout (a cross-validation fold, "
+        "the DataModule's val_layout, as the models were trained)",
+    )
     p.add_argument("--draws", type=int, default=2000, help="scene-bootstrap draws")
     p.add_argument("--seed", type=int, default=0, help="seed of the scene bootstrap")
     p.add_argument("--num-points", type=int, default=1024)
@@ -253,6 +260,8 @@ def main(argv: list[str] | None = None) -> int:
     a = p.parse_args(argv)
     if a.draws < 1:
         p.error("--draws must be >= 1")
+    if a.val_layout is not None and a.split != "val":
+        p.error("--val-layout chooses the validation scenes: give --split val")
     if a.top_k < 1:
         p.error(f"--top-k must be >= 1, got {a.top_k}")
     if not (np.isfinite(a.footprint_margin) and a.footprint_margin >= 0):
@@ -272,7 +281,9 @@ def main(argv: list[str] | None = None) -> int:
 
     try:  # a bad model name or data root ends here with its message, before any scoring
         nets = with_residual_scales({n: [resolve_model(m).eval() for m in ms] for n, ms in groups.items()}, scales)
-        dm = FloAffKitchenDataModule(root=a.root, benchmark=a.benchmark, tasks=list(TASKS), num_points=a.num_points)
+        dm = FloAffKitchenDataModule(
+            root=a.root, benchmark=a.benchmark, tasks=list(TASKS), num_points=a.num_points, val_layout=a.val_layout
+        )
         dm.setup("test" if a.split == "test" else "fit")
     except (OSError, ValueError, LookupError, MisconfigurationException) as exc:
         raise SystemExit(f"scene_sr: {exc}") from exc
@@ -332,6 +343,7 @@ def main(argv: list[str] | None = None) -> int:
         out = {
             "benchmark": a.benchmark,
             "split": a.split,
+            "val_layout": a.val_layout,
             "runs": runs,
             "residual_scales": scales,
             "ensemble": a.ensemble,

@@ -88,6 +88,7 @@ def test_bad_arguments_exit_with_a_message(tmp_path, capsys):
     for args, msg in (
         (["--top-k", "10", "--footprint-margin", "-0.1"], "finite and >= 0"),
         (["--footprint-margin", "0.05"], "give --top-k > 1"),
+        (["--val-layout", "2"], "give --split val"),
     ):
         with pytest.raises(SystemExit):
             ssr.main([*args, "a=x"])

@@ -76,6 +76,26 @@ def test_val_scene_ids_pin_the_validation_scenes(floaff_root):
         _dm(root, val_scene_ids=["nope"]).setup("fit")
 
 
+def test_val_layout_holds_out_every_train_scene_of_one_layout(floaff_root):
+    root, _ = floaff_root
+    ref = _dm(root, tasks=["CloseDrawer", "PnPCounterToCab"])
+    ref.setup("fit")
+    layout = {r.meta["scene_id"]: str(r.meta["layout_id"]) for r in ref.datasets["train"].records}
+    layout |= {r.meta["scene_id"]: str(r.meta["layout_id"]) for r in ref.datasets["val"].records}
+    assert len(set(layout.values())) >= 2  # the fixture has train scenes in more than one layout
+    fold = sorted(set(layout.values()))[0]
+    dm = _dm(root, tasks=["CloseDrawer", "PnPCounterToCab"], val_layout=int(fold))
+    dm.setup("fit")
+    val = {r.meta["scene_id"] for r in dm.datasets["val"].records}
+    train = {r.meta["scene_id"] for r in dm.datasets["train"].records}
+    assert val == {sid for sid, lay in layout.items() if lay == fold} and val
+    assert train and all(layout[sid] != fold for sid in train) and not val & train
+    with pytest.raises(ValueError, match="val_layout 99 has no train scene"):
+        _dm(root, val_layout=99).setup("fit")
+    with pytest.raises(ValueError, match="val_scene_ids or val_layout, not both"):
+        _dm(root, val_layout=0, val_scene_ids=["x"])
+
+
 def _held_out(dm, task):
     """(validation scene ids, validation sample keys) of one task after setup."""
     recs = [r for r in dm.datasets["val"].records if r.meta["task"] == task]

@@ -69,6 +69,9 @@ class FloAffKitchenDataModule(FloAffDataModule):
         val_scenes: train scenes per task held out as val (seeded; at least one scene stays in train).
         val_scene_ids: hold out exactly these train scenes as val instead (the seeded draw is skipped;
             e.g. to keep one validation set while training scenes are added); unknown ids raise.
+        val_layout: hold out every train scene of this layout id (all tasks) as val instead: leave-one-layout-out
+            validation, the fold of a cross-validation over the training layouts (the seeded draw is skipped; not
+            together with ``val_scene_ids``; a layout without train scenes raises).
         val_view_fraction: share of the views of a single-train-scene task that go to val.
         train_labels: a scene-label file (:mod:`floaff_zoo.data.scene_labels`, e.g. fresh-episode success rates
             from ``scripts/fresh_labels.py``) whose labels replace the generated ones in the train split only;
@@ -90,6 +93,7 @@ class FloAffKitchenDataModule(FloAffDataModule):
         reader: str = "generated",
         val_scenes: int = 1,
         val_scene_ids: list[str] | None = None,
+        val_layout: int | None = None,
         val_view_fraction: float = 0.2,
         train_labels: str | None = None,
         max_views_per_scene: int | None = None,
@@ -131,6 +135,9 @@ class FloAffKitchenDataModule(FloAffDataModule):
         self.root = Path(root)
         self.val_scenes = val_scenes
         self.val_scene_ids = None if val_scene_ids is None else list(val_scene_ids)
+        if val_layout is not None and val_scene_ids is not None:
+            raise ValueError("FloAffKitchenDataModule: give val_scene_ids or val_layout, not both")
+        self.val_layout = val_layout
         self.val_view_fraction = val_view_fraction
         self.train_labels = None if train_labels is None else SceneLabels(train_labels)
         self._train_labels_checked = False
@@ -239,7 +246,17 @@ class FloAffKitchenDataModule(FloAffDataModule):
         return out
 
     def _fixed_val_ids(self, scenes: list[SceneEntry]) -> set[str] | None:
-        """``val_scene_ids`` checked against the benchmark's train scenes, any task (None when not set)."""
+        """``val_scene_ids`` checked against the benchmark's train scenes, any task, or the train scenes of
+        ``val_layout`` (None when neither is set)."""
+        if self.val_layout is not None:
+            layouts = {str(s.layout_id) for s in scenes if s.split == "train"}
+            ids = {s.scene_id for s in scenes if s.split == "train" and str(s.layout_id) == str(self.val_layout)}
+            if not ids:
+                raise ValueError(
+                    f"FloAffKitchenDataModule: val_layout {self.val_layout} has no train scene under "
+                    f"{self.root}/{self.benchmark} (train layouts: {sorted(layouts)})"
+                )
+            return ids
         if self.val_scene_ids is None:
             return None
         known = {s.scene_id for s in scenes if s.split == "train"}

@@ -1,0 +1,135 @@
+"""Pool the folds of a leave-one-layout-out cross-validation into one validation table.
+
+    python scripts/cv_sr.py docs/results/v21/cv/layouts [--json out.json]      # a folder of fold JSONs, or files
+
+Each input is a ``scripts/scene_sr.py --split val --val-layout F --json ...`` output (written per fold and model by
+the ``cv<f>_*`` jobs of ``scripts/reproduce_small.sh``): one model NAME scored on the validation scenes of one fold,
+the models of that fold trained without them. Pooled, every train scene of the benchmark is a validation scene once,
+so a hypothesis is decided on 19-20 kitchens instead of the 4 of the default split. The script merges the per-scene
+success rates by NAME, checks that every NAME covers the same scenes (a fold missing for one NAME is an error that
+names it: a comparison on different kitchens is not paired), and prints SR per scene, per task and over all views,
+SR per fold, and the paired scene-bootstrap differences of ``scene_sr.py``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections import defaultdict
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from scene_sr import summarize  # noqa: E402
+
+from floaff_zoo.contract import TASKS  # noqa: E402
+
+
+def fold_files(paths: list[str]) -> list[Path]:
+    """Files and folders (their ``*.json``) -> the fold JSONs, sorted; an empty or missing input exits."""
+    out: list[Path] = []
+    for p in map(Path, paths):
+        if p.is_dir():
+            out += sorted(p.glob("*.json"))
+        elif p.is_file():
+            out.append(p)
+        else:
+            raise SystemExit(f"cv_sr: {p}: no such file or folder")
+    if not out:
+        raise SystemExit(f"cv_sr: no fold JSON in {paths}")
+    return out
+
+
+def merge_folds(docs: list[tuple[str, dict]]) -> tuple[dict[str, dict], dict[str, dict[str, float]], str]:
+    """[(file, scene_sr JSON)] -> (scene id -> {task, views, fold, sr: {name: SR}}, fold -> {name: SR_all}, benchmark).
+
+    Every JSON must be a validation fold (``split`` val, ``val_layout`` set) of one benchmark; a scene scored twice
+    for one NAME, or scored with different view counts, exits with the files named.
+    """
+    scenes: dict[str, dict] = {}
+    seen: dict[tuple[str, str], str] = {}
+    first: dict[str, str] = {}  # scene id -> the file that first scored it
+    benchmarks = set()
+    for f, d in docs:
+        if d.get("split") != "val" or d.get("val_layout") is None:
+            raise SystemExit(f"cv_sr: {f} is not a fold (scene_sr.py --split val --val-layout F)")
+        benchmarks.add(d.get("benchmark"))
+        for sid, s in d["scenes"].items():
+            row = scenes.setdefault(sid, {"task": s["task"], "views": s["views"], "fold": d["val_layout"], "sr": {}})
+            first.setdefault(sid, f)
+            if row["views"] != s["views"] or row["fold"] != d["val_layout"]:
+                raise SystemExit(f"cv_sr: scene {sid} has other views or another fold in {f} than in {first[sid]}")
+            for name, v in s["sr"].items():
+                if (sid, name) in seen:
+                    raise SystemExit(f"cv_sr: {name} scored twice on {sid} ({seen[sid, name]} and {f})")
+                seen[sid, name] = f
+                row["sr"][name] = v
+    if len(benchmarks) != 1:
+        raise SystemExit(f"cv_sr: the folds mix benchmarks {sorted(map(str, benchmarks))}")
+    names = sorted({n for s in scenes.values() for n in s["sr"]})
+    for sid, s in sorted(scenes.items()):
+        missing = [n for n in names if n not in s["sr"]]
+        if missing:
+            raise SystemExit(f"cv_sr: {sid} (fold {s['fold']}) is not scored for {missing}; run those folds first")
+    per_fold: dict[str, dict[str, float]] = defaultdict(dict)
+    for fold in sorted({s["fold"] for s in scenes.values()}):
+        ids = [sid for sid, s in scenes.items() if s["fold"] == fold]
+        views = sum(scenes[i]["views"] for i in ids)
+        for n in names:
+            per_fold[str(fold)][n] = sum(scenes[i]["views"] * scenes[i]["sr"][n] for i in ids) / views
+    return dict(sorted(scenes.items())), dict(per_fold), benchmarks.pop()
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("inputs", nargs="+", help="fold JSONs of scene_sr.py, or folders of them")
+    p.add_argument("--draws", type=int, default=2000, help="scene-bootstrap draws")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--json", default=None)
+    a = p.parse_args(argv)
+    if a.draws < 1:
+        p.error("--draws must be >= 1")
+    files = fold_files(a.inputs)
+    docs = []
+    for f in files:
+        try:
+            docs.append((str(f), json.loads(f.read_text())))
+        except (OSError, ValueError) as exc:
+            raise SystemExit(f"cv_sr: {f}: {exc}") from exc
+    scenes, per_fold, bench = merge_folds(docs)
+    names = sorted({n for s in scenes.values() for n in s["sr"]})
+    res = summarize(scenes, names, a.draws, a.seed)
+
+    print(f"{bench} cross-validation: {len(per_fold)} folds, {len(scenes)} validation scenes, {len(files)} files")
+    print("| scene | fold | task | views | " + " | ".join(names) + " |")
+    print("|---|---:|---|---:|" + "---:|" * len(names))
+    for sid, s in scenes.items():
+        srs = " | ".join(f"{s['sr'][n]:.2f}" for n in names)
+        print(f"| {sid} | {s['fold']} | {s['task']} | {s['views']} | {srs} |")
+    print()
+    print("| fold (layout held out) | " + " | ".join(names) + " |")
+    print("|---|" + "---:|" * len(names))
+    for fold, by_name in per_fold.items():
+        print(f"| {fold} | " + " | ".join(f"{by_name[n]:.3f}" for n in names) + " |")
+    print()
+    print("| name | SR_all | scene-bootstrap std | " + " | ".join(TASKS) + " |")
+    print("|---|---:|---:|" + "---:|" * len(TASKS))
+    for n, m in res["models"].items():
+        print(
+            f"| {n} | {m['sr_all']:.3f} | {m['scene_bootstrap_std']:.3f} | "
+            + " | ".join(f"{m.get(t, float('nan')):.2f}" for t in TASKS)
+            + " |"
+        )
+    for pair, d in res["differences"].items():
+        print(f"{pair}: {d['diff']:+.3f} (scene bootstrap 90 %: {d['p05']:+.3f} to {d['p95']:+.3f})")
+    if a.json:
+        Path(a.json).parent.mkdir(parents=True, exist_ok=True)
+        out = {"benchmark": bench, "files": [str(f) for f in files], "draws": a.draws, "seed": a.seed}
+        out |= {"scenes": scenes, "folds": per_fold, **res}
+        Path(a.json).write_text(json.dumps(out, indent=1) + "\n")
+        print(f"wrote {a.json}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

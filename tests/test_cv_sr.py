@@ -1,0 +1,79 @@
+"""scripts/cv_sr.py: leave-one-layout-out folds of scene_sr.py pooled into one validation table."""
+
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+_SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
+sys.path.insert(0, str(_SCRIPTS))  # cv_sr imports its neighbour scene_sr
+_SPEC = importlib.util.spec_from_file_location("cv_sr", _SCRIPTS / "cv_sr.py")
+cv = importlib.util.module_from_spec(_SPEC)
+_SPEC.loader.exec_module(cv)
+
+
+def fold(layout, name, srs, split="val", bench="layouts"):
+    """A scene_sr.py JSON of one fold and one model: srs = {scene id: (task, views, SR)}."""
+    scenes = {sid: {"task": t, "views": v, "sr": {name: sr}} for sid, (t, v, sr) in srs.items()}
+    return {"benchmark": bench, "split": split, "val_layout": layout, "scenes": scenes}
+
+
+F0 = {"L0_pnp": ("PnPCounterToCab", 4, 1.0), "L0_cd": ("CloseDrawer", 2, 0.5)}
+F1 = {"L1_pnp": ("PnPCounterToCab", 2, 0.0), "L1_cd": ("CloseDrawer", 2, 1.0)}
+
+
+def _docs():
+    return [
+        ("a0", fold(0, "occ", F0)),
+        ("b0", fold(0, "prior", {k: (t, v, sr / 2) for k, (t, v, sr) in F0.items()})),
+        ("a1", fold(1, "occ", F1)),
+        ("b1", fold(1, "prior", F1)),
+    ]
+
+
+def test_folds_merge_by_scene_and_weigh_views():
+    scenes, per_fold, bench = cv.merge_folds(_docs())
+    assert bench == "layouts" and sorted(scenes) == ["L0_cd", "L0_pnp", "L1_cd", "L1_pnp"]
+    assert scenes["L0_pnp"] == {"task": "PnPCounterToCab", "views": 4, "fold": 0, "sr": {"occ": 1.0, "prior": 0.5}}
+    assert per_fold["0"] == pytest.approx({"occ": (4 * 1.0 + 2 * 0.5) / 6, "prior": (4 * 0.5 + 2 * 0.25) / 6})
+    assert per_fold["1"] == pytest.approx({"occ": 0.5, "prior": 0.5})
+
+
+@pytest.mark.parametrize(
+    ("docs", "match"),
+    [
+        (lambda d: d[:3], r"L1_\w+ \(fold 1\) is not scored for \['prior'\]"),
+        (lambda d: d + [("c1", fold(1, "occ", F1))], "occ scored twice on L1_"),
+        (lambda d: d + [("t", fold(1, "x", F1, split="test"))], "t is not a fold"),
+        (lambda d: d + [("s", fold(1, "x", F1, bench="styles"))], "mix benchmarks"),
+        (lambda d: d + [("v", fold(1, "x", {"L1_cd": ("CloseDrawer", 3, 1.0)}))], "L1_cd has other views"),
+    ],
+)
+def test_bad_folds_exit_naming_what_is_wrong(docs, match):
+    with pytest.raises(SystemExit, match=match):
+        cv.merge_folds(docs(_docs()))
+
+
+def test_main_pools_every_fold_and_writes_json(tmp_path, capsys):
+    folder = tmp_path / "cv"
+    folder.mkdir()
+    for name, doc in _docs():
+        (folder / f"{name}.json").write_text(json.dumps(doc))
+    out = tmp_path / "pooled.json"
+    assert cv.main([str(folder), "--draws", "50", "--json", str(out)]) == 0
+    res = json.loads(out.read_text())
+    # occ: (4 + 1 + 0 + 2) / 10 views; prior: (2 + 0.5 + 0 + 2) / 10
+    assert res["models"]["occ"]["sr_all"] == pytest.approx(0.7)
+    assert res["models"]["prior"]["sr_all"] == pytest.approx(0.45)
+    assert res["differences"]["occ - prior"]["diff"] == pytest.approx(0.25)
+    assert "2 folds, 4 validation scenes, 4 files" in capsys.readouterr().out
+
+
+def test_missing_or_empty_inputs_exit(tmp_path):
+    with pytest.raises(SystemExit, match="no such file or folder"):
+        cv.fold_files([str(tmp_path / "nope")])
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(SystemExit, match="no fold JSON"):
+        cv.fold_files([str(tmp_path / "empty")])
