@@ -24,7 +24,9 @@
 #                                              # occ_recipe_r1.xx[_s<seed>] sweep its crop radius,
 #                                              # rank_occ_recipe_s<seed> adds the listwise ranking term;
 #                                              # cv<f>_{occ,rank,prior} (and styles_...): leave-one-layout-out folds
-#                                              # f = 0..4 scored on their validation scenes (scripts/cv_sr.py pools them)
+#                                              # f = 0..4 scored on their validation scenes (scripts/cv_sr.py pools them);
+#                                              # occ_recipe_rs<scale>_s<seed> tests the best configuration with its
+#                                              # learned residual scaled (no training)
 #
 # Needs the data:
 #   floaff-zoo generate --preset small --benchmarks layouts styles --out data/floaff_small --workers 2 --n-test 4
@@ -299,6 +301,14 @@ run_job() {
       local b=layouts j=$job; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
       curriculum "$j" "$b" "${j#rank_occ_recipe_s}" "occupancy recipe, listwise ranking term" --extra-config "$RECIPE" \
         --extra-config configs/experiments/recipe/occupancy.yaml --extra-config configs/experiments/recipe/rank.yaml ;;
+    occ_recipe_rs[0-9]*_s[0-9]|styles_occ_recipe_rs[0-9]*_s[0-9])
+      # the best configuration (job occ_recipe_s<seed> first) tested again with its learned residual logit scaled
+      # (residual_scale, no training): occ_recipe_rs2_s0 = scale 2, the scale the leave-one-layout-out folds chose
+      local b=layouts j=$job ckpt scale seed; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
+      seed=${j##*_s} scale=${j#occ_recipe_rs}; scale=${scale%_s*}
+      ckpt=$(stage_ckpt "$RUNS/$b/occ_recipe_s$seed" -1)
+      test_run "$(dirname "$(dirname "$ckpt")")" "zoo recipe, footprint occupancy input, residual x$scale" "$b" "$j" \
+        "$ckpt" --model.init_args.residual_scale "$scale" ;;
     cv[0-4]_occ|cv[0-4]_rank|styles_cv[0-4]_occ|styles_cv[0-4]_rank)
       # leave-one-layout-out validation, fold f = the train scenes of layout f held out for every task (seed 0): the
       # best configuration, or it plus the listwise ranking term; trained, then scored on the fold's validation
