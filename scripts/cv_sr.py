@@ -20,9 +20,7 @@ from collections import defaultdict
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from scene_sr import summarize  # noqa: E402
-
-from floaff_zoo.contract import TASKS  # noqa: E402
+from scene_sr import print_scenes, print_summary, summarize  # noqa: E402
 
 
 def fold_files(paths: list[str]) -> list[Path]:
@@ -101,27 +99,14 @@ def main(argv: list[str] | None = None) -> int:
     res = summarize(scenes, names, a.draws, a.seed)
 
     print(f"{bench} cross-validation: {len(per_fold)} folds, {len(scenes)} validation scenes, {len(files)} files")
-    print("| scene | fold | task | views | " + " | ".join(names) + " |")
-    print("|---|---:|---|---:|" + "---:|" * len(names))
-    for sid, s in scenes.items():
-        srs = " | ".join(f"{s['sr'][n]:.2f}" for n in names)
-        print(f"| {sid} | {s['fold']} | {s['task']} | {s['views']} | {srs} |")
+    print_scenes(scenes, names, extra="fold")
     print()
     print("| fold (layout held out) | " + " | ".join(names) + " |")
     print("|---|" + "---:|" * len(names))
     for fold, by_name in per_fold.items():
         print(f"| {fold} | " + " | ".join(f"{by_name[n]:.3f}" for n in names) + " |")
     print()
-    print("| name | SR_all | scene-bootstrap std | " + " | ".join(TASKS) + " |")
-    print("|---|---:|---:|" + "---:|" * len(TASKS))
-    for n, m in res["models"].items():
-        print(
-            f"| {n} | {m['sr_all']:.3f} | {m['scene_bootstrap_std']:.3f} | "
-            + " | ".join(f"{m.get(t, float('nan')):.2f}" for t in TASKS)
-            + " |"
-        )
-    for pair, d in res["differences"].items():
-        print(f"{pair}: {d['diff']:+.3f} (scene bootstrap 90 %: {d['p05']:+.3f} to {d['p95']:+.3f})")
+    print_summary(res)
     if a.json:
         Path(a.json).parent.mkdir(parents=True, exist_ok=True)
         out = {"benchmark": bench, "files": [str(f) for f in files], "draws": a.draws, "seed": a.seed}

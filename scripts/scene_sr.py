@@ -230,6 +230,30 @@ def summarize(scenes: dict[str, dict], names: list[str], draws: int, seed: int) 
     return res
 
 
+def print_scenes(table: dict[str, dict], names: list[str], extra: str | None = None) -> None:
+    """Print SR per scene and name (``per_scene``'s table); ``extra``: a per-scene field shown after the id."""
+    cols = [extra] if extra else []
+    print("| scene | " + "".join(f"{c} | " for c in cols) + "task | views | " + " | ".join(names) + " |")
+    print("|---|" + "---:|" * len(cols) + "---|---:|" + "---:|" * len(names))
+    for sid, s in table.items():
+        lead = "".join(f"{s[c]} | " for c in cols)
+        print(f"| {sid} | {lead}{s['task']} | {s['views']} | " + " | ".join(f"{s['sr'][n]:.2f}" for n in names) + " |")
+
+
+def print_summary(res: dict) -> None:
+    """Print ``summarize``'s result: SR per name (all views, per task) and the paired differences."""
+    print("| name | SR_all | scene-bootstrap std | " + " | ".join(TASKS) + " |")
+    print("|---|---:|---:|" + "---:|" * len(TASKS))
+    for n, m in res["models"].items():
+        print(
+            f"| {n} | {m['sr_all']:.3f} | {m['scene_bootstrap_std']:.3f} | "
+            + " | ".join(f"{m.get(t, float('nan')):.2f}" for t in TASKS)
+            + " |"
+        )
+    for pair, d in res["differences"].items():
+        print(f"{pair}: {d['diff']:+.3f} (scene bootstrap 90 %: {d['p05']:+.3f} to {d['p95']:+.3f})")
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("models", nargs="+", help="NAME=MODEL (hub name or checkpoint); repeat a NAME to pool runs")
@@ -312,21 +336,9 @@ def main(argv: list[str] | None = None) -> int:
         f"{a.benchmark} {a.split}: {len(rows)} views in {len(table)} scenes; runs per name: "
         + ", ".join(f"{n} {k}" for n, k in n_runs.items())
     )
-    print("| scene | task | views | " + " | ".join(names) + " |")
-    print("|---|---|---:|" + "---:|" * len(names))
-    for sid, s in table.items():
-        print(f"| {sid} | {s['task']} | {s['views']} | " + " | ".join(f"{s['sr'][n]:.2f}" for n in names) + " |")
+    print_scenes(table, names)
     print()
-    print("| name | SR_all | scene-bootstrap std | " + " | ".join(TASKS) + " |")
-    print("|---|---:|---:|" + "---:|" * len(TASKS))
-    for n, m in res["models"].items():
-        print(
-            f"| {n} | {m['sr_all']:.3f} | {m['scene_bootstrap_std']:.3f} | "
-            + " | ".join(f"{m.get(t, float('nan')):.2f}" for t in TASKS)
-            + " |"
-        )
-    for pair, d in res["differences"].items():
-        print(f"{pair}: {d['diff']:+.3f} (scene bootstrap 90 %: {d['p05']:+.3f} to {d['p95']:+.3f})")
+    print_summary(res)
     shares = reason_shares(rows, names)
     kinds = [*REASONS, "rollout"] + (["unknown"] if any("unknown" in t["all"] for t in shares.values()) else [])
     print()
