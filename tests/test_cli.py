@@ -30,6 +30,9 @@ def test_fit_test_predict_round_trip(tmp_path, root, monkeypatch):
     cli = run_lightning(["fit", *base, "--trainer.max_epochs", "2"])
     ckpt = cli.trainer.checkpoint_callback.best_model_path
     assert Path(ckpt).is_file()
+    # last.ckpt is the final state whichever epoch was the best (LatestCheckpoint, tests/test_checkpoint.py)
+    last = torch.load(Path(ckpt).parent / "last.ckpt", map_location="cpu", weights_only=True)
+    assert last["global_step"] == cli.trainer.global_step
     assert "val_rmse" in cli.trainer.callback_metrics
     state = torch.load(ckpt, map_location="cpu", weights_only=True)  # primitives only
     assert state["hyper_parameters"]["width"] == 32

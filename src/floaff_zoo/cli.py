@@ -20,6 +20,7 @@ from lightning.pytorch.utilities.exceptions import MisconfigurationException
 
 from floaff_zoo import quiet, runtime
 from floaff_zoo._version import __version__
+from floaff_zoo.callbacks.checkpoint import LatestCheckpoint
 from floaff_zoo.contract import SampleError
 from floaff_zoo.data.base import FloAffDataModule
 from floaff_zoo.models.base import ZooModule
@@ -149,7 +150,7 @@ class FloAffCLI(LightningCLI):
             and self.subcommand == "fit"
         ):
             extra.append(
-                ModelCheckpoint(
+                LatestCheckpoint(
                     monitor=model.monitor,
                     mode=model.mode,
                     save_last=True,

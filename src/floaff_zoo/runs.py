@@ -2,7 +2,8 @@
 
 A run directory is ``<default_root_dir>/<model>/version_<n>/`` with ``config.yaml`` and
 ``checkpoints/`` (``last.ckpt`` and the best by the model's monitor). A ``last.ckpt`` alone does not
-say that the fit ended: Lightning writes it every epoch, so a killed fit leaves one too. Whoever
+say that the fit ended: the fit's checkpoint callback (``callbacks.checkpoint.LatestCheckpoint``) rewrites it at every
+validation, so a killed fit leaves one too. Whoever
 needs a finished run (the demo) writes ``finished.json`` after ``fit`` returns and checks it later.
 
 This module reads files only (torch for ``weights_only`` checkpoint loading): the CLI and the hub's

@@ -1,0 +1,61 @@
+"""LatestCheckpoint: last.ckpt is the newest training state, the best stays the best (and keeps its state key)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import lightning as L
+import pytest
+import torch
+from lightning.pytorch.demos.boring_classes import BoringModel
+
+from floaff_zoo.callbacks.checkpoint import LatestCheckpoint
+from floaff_zoo.runs import resolve_ckpt_alias
+
+
+class GetsWorse(BoringModel):
+    """A validation metric that grows every step: only the first validation is the best."""
+
+    def validation_step(self, batch, batch_idx):
+        self.log("worse", float(self.global_step))
+        return super().validation_step(batch, batch_idx)
+
+
+def _fit(tmp_path: Path, callback) -> L.Trainer:
+    trainer = L.Trainer(
+        default_root_dir=tmp_path,
+        max_steps=7,
+        val_check_interval=2,
+        check_val_every_n_epoch=None,
+        limit_val_batches=1,
+        callbacks=[callback],
+        logger=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+    )
+    trainer.fit(GetsWorse())
+    return trainer
+
+
+def _step(path: str | Path) -> int:
+    return torch.load(path, map_location="cpu", weights_only=True)["global_step"]
+
+
+def test_last_is_the_final_state_and_best_the_first(tmp_path):
+    cb = LatestCheckpoint(dirpath=tmp_path / "ck", monitor="worse", mode="min", save_last=True)
+    _fit(tmp_path, cb)
+    assert _step(tmp_path / "ck" / "last.ckpt") == 7  # the end of training, after the last validation (step 6)
+    assert _step(cb.best_model_path) == 2
+    # the aliases of `floaff-zoo test --ckpt_path` read the same: the state key is ModelCheckpoint's
+    state = torch.load(tmp_path / "ck" / "last.ckpt", map_location="cpu", weights_only=True)
+    assert any(k.startswith("ModelCheckpoint{") for k in state["callbacks"])
+    assert _step(resolve_ckpt_alias("best", tmp_path / "ck")) == 2
+    assert _step(resolve_ckpt_alias("last", tmp_path / "ck")) == 7
+
+
+@pytest.mark.parametrize("latest", [False, True])
+def test_plain_model_checkpoint_keeps_the_best_as_last(tmp_path, latest):
+    """Why the subclass exists: Lightning's own last.ckpt stops at the last improvement."""
+    cls = LatestCheckpoint if latest else L.pytorch.callbacks.ModelCheckpoint
+    _fit(tmp_path, cls(dirpath=tmp_path / "ck", monitor="worse", mode="min", save_last=True))
+    assert _step(tmp_path / "ck" / "last.ckpt") == (7 if latest else 2)
