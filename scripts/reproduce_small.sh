@@ -104,6 +104,17 @@ stage_ckpt() {
     "$1/lineage.json" "$2"
 }
 
+# wait_axisnet RUN_ROOT JOB: the AxisNet checkpoint (stage 0) of the curriculum under RUN_ROOT, waiting up to 30 minutes
+# for a job running beside this one to write it
+wait_axisnet() {
+  local axis="" tries=0
+  until axis=$(stage_ckpt "$1" 0 2>/dev/null) && [ -f "$axis" ]; do
+    tries=$((tries + 1)); [ $tries -le 180 ] || { echo "$2: no AxisNet in $1/lineage.json (run that curriculum)" >&2; return 1; }
+    sleep 10
+  done
+  echo "$axis"
+}
+
 # cv_score JOB BENCH FOLD NAME=CKPT: SR on the validation scenes of a leave-one-layout-out fold (scripts/scene_sr.py),
 # to $OUT/cv/BENCH/JOB.json; scripts/cv_sr.py pools the folds
 cv_score() {
@@ -120,8 +131,7 @@ curriculum() {
       --set "seed_everything=$seed" "${ROOT_SET[@]}" "$@"
   fi
   local ckpt stage
-  ckpt=$(python3 -c "import json,sys; print(json.load(open(sys.argv[1]))['stages'][-1]['checkpoint'])" \
-    "$RUNS/$bench/$job/lineage.json")
+  ckpt=$(stage_ckpt "$RUNS/$bench/$job" -1)
   stage=$(dirname "$(dirname "$ckpt")")
   test_run "$stage" "$label" "$bench" "$job" "$ckpt"
 }
@@ -131,8 +141,7 @@ curriculum() {
 stage_test() {
   local job=$1 src=$2 idx=$3 label=$4; shift 4
   local ckpt
-  ckpt=$(python3 -c "import json,sys; print(json.load(open(sys.argv[1]))['stages'][int(sys.argv[2])]['checkpoint'])" \
-    "$RUNS/layouts/$src/lineage.json" "$idx")
+  ckpt=$(stage_ckpt "$RUNS/layouts/$src" "$idx")
   test_run "$(dirname "$(dirname "$ckpt")")" "$label" layouts "$job" "$ckpt" "$@"
 }
 
@@ -170,12 +179,7 @@ prior() {
     # mirrored views: 4 passes, each view reflected with probability 0.5, so the average is near-symmetric
     mirror_*) root=$RUNS/$bench/$job fit=(--config configs/experiments/recipe/mirror.yaml --trainer.max_epochs 4) ;;
   esac
-  local axis="" lineage=$RUNS/$bench/${AXIS_JOB:-recipe_s0}/lineage.json tries=0
-  until axis=$(python3 -c "import json,sys; print(json.load(open(sys.argv[1]))['stages'][0]['checkpoint'])" \
-    "$lineage" 2>/dev/null) && [ -f "$axis" ]; do
-    tries=$((tries + 1)); [ $tries -le 180 ] || { echo "$job: no AxisNet in $lineage (run ${AXIS_JOB:-recipe_s0})" >&2; return 1; }
-    sleep 10
-  done
+  local axis; axis=$(wait_axisnet "$RUNS/$bench/${AXIS_JOB:-recipe_s0}" "$job") || return 1
   if [ "$RETEST" = 0 ] && [ -z "$(find "$root" -name last.ckpt 2>/dev/null)" ]; then
     "$FZ" fit --config "configs/data/floaff_${PRESET}_$bench.yaml" --config configs/models/canonical_prior.yaml \
       --model.init_args.axisnet "$axis" --data.init_args.train_transforms '[]' --trainer.max_epochs 1 \
@@ -197,8 +201,7 @@ axisnet_longer() {
   fi
   local new old
   new=$(find "$root" -name 'epoch*.ckpt' | head -n 1)
-  old=$(python3 -c "import json,sys; print(json.load(open(sys.argv[1]))['stages'][0]['checkpoint'])" \
-    "$RUNS/layouts/cfar_pfal_s0/lineage.json")
+  old=$(stage_ckpt "$RUNS/layouts/cfar_pfal_s0" 0)
   { echo "| AxisNet | $(echo "$TASKS" | tr -d '[]"' | sed 's/,/ | /g') |"; echo "|---|---:|---:|---:|---:|"; } > "$out.tmp"
   local ck name row t err
   for ck in "$old" "$new"; do
@@ -324,12 +327,9 @@ run_job() {
       cv_score "$j" "$b" "$f" "${j#*_}=$(stage_ckpt "$RUNS/$b/$j" -1)" ;;
     cv[0-4]_prior|styles_cv[0-4]_prior)
       # the fold's canonical prior, with the fold's AxisNet (job cv<f>_occ first: this one waits for it)
-      local b=layouts j=$job f axis="" tries=0; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
+      local b=layouts j=$job f axis; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
       f=${j:2:1}
-      until axis=$(stage_ckpt "$RUNS/$b/cv${f}_occ" 0 2>/dev/null) && [ -f "$axis" ]; do
-        tries=$((tries + 1)); [ $tries -le 180 ] || { echo "$job: no AxisNet of cv${f}_occ" >&2; return 1; }
-        sleep 10
-      done
+      axis=$(wait_axisnet "$RUNS/$b/cv${f}_occ" "$job") || return 1
       if [ "$RETEST" = 0 ] && [ -z "$(find "$RUNS/$b/$j" -name last.ckpt 2>/dev/null)" ]; then
         "$FZ" fit --config "configs/data/floaff_${PRESET}_$b.yaml" --config configs/models/canonical_prior.yaml \
           --model.init_args.axisnet "$axis" --data.init_args.train_transforms '[]' --trainer.max_epochs 1 \
