@@ -23,7 +23,7 @@
 #                                              # (and styles_...) ablate the best configuration (recipe + occupancy),
 #                                              # occ_recipe_r1.xx[_s<seed>] sweep its crop radius,
 #                                              # rank_occ_recipe_s<seed> adds the listwise ranking term;
-#                                              # cv<f>_{occ,rank,prior} (and styles_...): leave-one-layout-out folds
+#                                              # cv<f>_{occ,rank,prior,last} (and styles_...): leave-one-layout-out folds
 #                                              # f = 0..4 scored on their validation scenes (scripts/cv_sr.py pools them);
 #                                              # occ_recipe_rs<scale>_s<seed> tests the best configuration with its
 #                                              # learned residual scaled (no training)
@@ -115,12 +115,12 @@ wait_axisnet() {
   echo "$axis"
 }
 
-# cv_score JOB BENCH FOLD NAME=CKPT: SR on the validation scenes of a leave-one-layout-out fold (scripts/scene_sr.py),
+# cv_score JOB BENCH FOLD NAME=CKPT [NAME=CKPT ...]: SR on the validation scenes of a leave-one-layout-out fold (scripts/scene_sr.py),
 # to $OUT/cv/BENCH/JOB.json; scripts/cv_sr.py pools the folds
 cv_score() {
   mkdir -p "$OUT/cv/$2"
   python3 scripts/scene_sr.py --root "${DATA_ROOT:-data/floaff_$PRESET}" --benchmark "$2" --split val --val-layout "$3" \
-    --json "$OUT/cv/$2/$1.json" "$4"
+    --json "$OUT/cv/$2/$1.json" "${@:4}"
 }
 
 # curriculum JOB BENCH SEED LABEL [--extra-config FILE]: PFAL, then test the last stage's best
@@ -312,11 +312,12 @@ run_job() {
       ckpt=$(stage_ckpt "$RUNS/$b/occ_recipe_s$seed" -1)
       test_run "$(dirname "$(dirname "$ckpt")")" "zoo recipe, footprint occupancy input, residual x$scale" "$b" "$j" \
         "$ckpt" --model.init_args.residual_scale "$scale" ;;
-    cv[0-4]_occ|cv[0-4]_rank|styles_cv[0-4]_occ|styles_cv[0-4]_rank)
+    cv[0-4]_occ|cv[0-4]_rank|cv[0-4]_last|styles_cv[0-4]_occ|styles_cv[0-4]_rank|styles_cv[0-4]_last)
       # leave-one-layout-out validation, fold f = the train scenes of layout f held out for every task (seed 0): the
       # best configuration, or it plus the listwise ranking term; trained, then scored on the fold's validation
-      # scenes (no test)
-      local b=layouts j=$job f extra=(); [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
+      # scenes (no test). cv<f>_last trains the best configuration again (with last.ckpt the newest state) and scores
+      # its chosen checkpoint (occ2) and its last one (last2)
+      local b=layouts j=$job f extra=() ck; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
       f=${j:2:1}
       [ "${j#*_}" = rank ] && extra=(--extra-config configs/experiments/recipe/rank.yaml)
       if [ "$RETEST" = 0 ]; then
@@ -324,7 +325,9 @@ run_job() {
           --set "data.init_args.val_layout=$f" "${ROOT_SET[@]}" --extra-config "$RECIPE" \
           --extra-config configs/experiments/recipe/occupancy.yaml "${extra[@]}"
       fi
-      cv_score "$j" "$b" "$f" "${j#*_}=$(stage_ckpt "$RUNS/$b/$j" -1)" ;;
+      ck=$(stage_ckpt "$RUNS/$b/$j" -1)
+      if [ "${j#*_}" = last ]; then cv_score "$j" "$b" "$f" "occ2=$ck" "last2=$(dirname "$ck")/last.ckpt"
+      else cv_score "$j" "$b" "$f" "${j#*_}=$ck"; fi ;;
     cv[0-4]_prior|styles_cv[0-4]_prior)
       # the fold's canonical prior, with the fold's AxisNet (job cv<f>_occ first: this one waits for it)
       local b=layouts j=$job f axis; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
