@@ -20,7 +20,6 @@ from lightning.pytorch.utilities.exceptions import MisconfigurationException
 
 from floaff_zoo import quiet, runtime
 from floaff_zoo._version import __version__
-from floaff_zoo.callbacks.checkpoint import LatestCheckpoint
 from floaff_zoo.contract import SampleError
 from floaff_zoo.data.base import FloAffDataModule
 from floaff_zoo.models.base import ZooModule
@@ -149,6 +148,8 @@ class FloAffCLI(LightningCLI):
             and not any(isinstance(c, ModelCheckpoint) for c in user)
             and self.subcommand == "fit"
         ):
+            from floaff_zoo.callbacks.checkpoint import LatestCheckpoint  # here: the callbacks package is not light
+
             extra.append(
                 LatestCheckpoint(
                     monitor=model.monitor,

@@ -23,6 +23,8 @@ class LatestCheckpoint(ModelCheckpoint):
     Its state is stored under ``ModelCheckpoint``'s own key, so checkpoints written before read the same way.
     """
 
+    _latest_step: int | None = None  # the global step whose state ``_refresh_last`` last wrote
+
     @property
     def state_key(self) -> str:
         return super().state_key.replace(type(self).__qualname__, "ModelCheckpoint", 1)
@@ -47,7 +49,7 @@ class LatestCheckpoint(ModelCheckpoint):
             return
         if trainer.state.fn != TrainerFn.FITTING or self._last_global_step_saved == trainer.global_step:
             return
-        if getattr(self, "_latest_step", None) == trainer.global_step:
+        if self._latest_step == trainer.global_step:
             return
         saved = self._last_global_step_saved
         self._save_last_checkpoint(trainer, self._monitor_candidates(trainer))
