@@ -12,6 +12,15 @@ over those episodes and the annotated one, and smooths it as the generator smoot
 (``floaff_zoo.sim.annotate.probability_label``). The result is a scene-label file for
 ``FloAffKitchenDataModule(train_labels=...)`` (configs/experiments/recipe/fresh_labels_<benchmark>.yaml), which
 uses it for the train split only. Test scenes are never touched.
+
+``--zero-failures`` keeps the smoothed map only on cells that succeeded at least once and sets every other cell to 0.
+The generated map is smoothed over all cells, so a cell whose rollout failed keeps the value of its successful
+neighbours; where failures form holes inside a successful region (the arm without an IK solution at cells next
+to ones with a solution, OpenSingleDoor) the map's peak can lie on a failure. With ``--episodes 0`` nothing is
+rolled out (the annotated outcome alone, seconds):
+
+    python scripts/fresh_labels.py --root data/floaff_dense --benchmark layouts --episodes 0 --zero-failures \
+        --out runs/labels/success_train_layouts.npz
 """
 
 from __future__ import annotations
@@ -24,30 +33,35 @@ import numpy as np
 from floaff_zoo.contract import TASKS
 
 
-def scene_label(scene: dict, fresh: np.ndarray, episodes: int) -> np.ndarray:
-    """A scene record's label from its fresh probabilities [M] (``episodes`` each) and its annotated outcome: [M]."""
+def scene_label(scene: dict, fresh: np.ndarray, episodes: int, zero_failures: bool = False) -> np.ndarray:
+    """A scene record's label from its fresh probabilities [M] (``episodes`` each) and its annotated outcome: [M].
+
+    ``zero_failures``: 0 on every cell whose success rate is 0 (the smoothed map kept on the others).
+    """
     from floaff_zoo.sim.annotate import probability_label
 
     cand = scene["candidates"]
     annotated = np.asarray(scene["labels"]["success"], float)
     rate = (annotated + episodes * np.asarray(fresh, float)) / (episodes + 1)
-    return probability_label(rate, np.asarray(cand["status"]), tuple(cand["grid_shape"]), float(scene["sigma"]))
+    label = probability_label(rate, np.asarray(cand["status"]), tuple(cand["grid_shape"]), float(scene["sigma"]))
+    return np.where(rate > 0, label, 0.0).astype(label.dtype) if zero_failures else label
 
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--root", default="data/floaff_dense")
     p.add_argument("--benchmark", default="layouts", choices=["layouts", "styles"])
-    p.add_argument("--episodes", type=int, default=4)
+    p.add_argument("--episodes", type=int, default=4, help="fresh episodes per cell (0: the annotated outcome only)")
     p.add_argument("--sigma-xy", type=float, default=0.02, help="parking noise per axis (m)")
     p.add_argument("--sigma-yaw-deg", type=float, default=2.0, help="parking heading noise (deg)")
     p.add_argument("--seed", type=int, default=0, help="seed of the parking noise")
     p.add_argument("--workers", type=int, default=1)
     p.add_argument("--probs", default=None, help="cache of the fresh probabilities (.npz; read if it exists)")
+    p.add_argument("--zero-failures", action="store_true", help="label 0 on cells that never succeeded (module doc)")
     p.add_argument("--out", required=True, help="the scene-label file to write (.npz)")
     a = p.parse_args(argv)
-    if a.episodes < 1 or a.sigma_xy < 0 or a.sigma_yaw_deg < 0 or a.workers < 1:
-        p.error("--episodes and --workers must be >= 1 and the sigmas >= 0")
+    if a.episodes < 0 or a.sigma_xy < 0 or a.sigma_yaw_deg < 0 or a.workers < 1:
+        p.error("--episodes must be >= 0, --workers >= 1 and the sigmas >= 0")
     for name in ("probs", "out"):
         v = getattr(a, name)
         if v is not None and not v.endswith(".npz"):
@@ -61,24 +75,32 @@ def main(argv: list[str] | None = None) -> int:
     if not scenes:
         raise SystemExit(f"fresh_labels: no finished train scene of {a.benchmark} under {a.root}")
     setting = dict(episodes=a.episodes, sigma_xy=a.sigma_xy, sigma_yaw_deg=a.sigma_yaw_deg, seed=a.seed)
-    try:
-        probs = scene_probabilities(scenes, setting, Path(a.probs) if a.probs else None, a.workers)
-    except ValueError as exc:
-        raise SystemExit(f"fresh_labels: {exc}") from exc
+    if a.episodes == 0:  # the annotated outcome only: nothing to roll out
+        probs = {sid: np.asarray(s["labels"]["success"], float) for sid, s in scenes.items()}
+    else:
+        try:
+            probs = scene_probabilities(scenes, setting, Path(a.probs) if a.probs else None, a.workers)
+        except ValueError as exc:
+            raise SystemExit(f"fresh_labels: {exc}") from exc
 
     labels = {}
     for sid, scene in scenes.items():
-        label = scene_label(scene, probs[sid], a.episodes)
+        label = scene_label(scene, probs[sid], a.episodes, a.zero_failures)
         labels[sid] = (np.asarray(scene["candidates"]["xy"], float), label, float(scene["candidates"]["cell"]))
-    write_scene_labels(a.out, labels, {**setting, "benchmark": a.benchmark, "source": "annotated + fresh episodes"})
+    source = "annotated + fresh episodes" if a.episodes else "annotated"
+    setting = {**setting, "zero_failures": a.zero_failures}
+    write_scene_labels(a.out, labels, {**setting, "benchmark": a.benchmark, "source": source})
     print(f"{a.out}: labels of {len(labels)} train scenes of {a.benchmark} ({setting})")
     for t in TASKS:
         ids = [s for s in scenes if scenes[s]["task"] == t]
         if ids:
             old = np.mean([np.argmax(scenes[s]["labels"]["label"]) == np.argmax(labels[s][1]) for s in ids])
             succ = [np.asarray(scenes[s]["labels"]["success"]) > 0 for s in ids]
-            hold = np.mean(np.concatenate([probs[s][m] for s, m in zip(ids, succ)]))
-            print(f"  {t}: {len(ids)} scenes, annotated successes succeed again {hold:.2f}, same peak cell {old:.2f}")
+            again = ""
+            if a.episodes:
+                hold = np.mean(np.concatenate([probs[s][m] for s, m in zip(ids, succ)]))
+                again = f", annotated successes succeed again {hold:.2f}"
+            print(f"  {t}: {len(ids)} scenes{again}, same peak cell {old:.2f}")
     return 0
 
 

@@ -23,7 +23,7 @@
 #                                              # (and styles_...) ablate the best configuration (recipe + occupancy),
 #                                              # occ_recipe_r1.xx[_s<seed>] sweep its crop radius,
 #                                              # rank_occ_recipe_s<seed> adds the listwise ranking term;
-#                                              # cv<f>_{occ,rank,prior,last} (and styles_...): leave-one-layout-out folds
+#                                              # cv<f>_{occ,rank,prior,last,succ,sprior} (and styles_...): leave-one-layout-out folds
 #                                              # f = 0..4 scored on their validation scenes (scripts/cv_sr.py pools them);
 #                                              # occ_recipe_rs<scale>_s<seed> tests the best configuration with its
 #                                              # learned residual scaled (no training)
@@ -121,6 +121,18 @@ cv_score() {
   mkdir -p "$OUT/cv/$2"
   python3 scripts/scene_sr.py --root "${DATA_ROOT:-data/floaff_$PRESET}" --benchmark "$2" --split val --val-layout "$3" \
     --json "$OUT/cv/$2/$1.json" "${@:4}"
+}
+
+# success_labels BENCH: the train labels with failed cells set to 0 (configs/experiments/recipe/success_labels_BENCH.yaml
+# reads them), made once from the annotation (no rollout); written aside and moved, so jobs running beside it never
+# read half a file
+success_labels() {
+  local f=runs/labels/success_train_$1.npz
+  [ -f "$f" ] && return 0
+  mkdir -p runs/labels
+  python3 scripts/fresh_labels.py --root "${DATA_ROOT:-data/floaff_$PRESET}" --benchmark "$1" --episodes 0 \
+    --zero-failures --out "$f.$$.npz"
+  mv "$f.$$.npz" "$f"
 }
 
 # curriculum JOB BENCH SEED LABEL [--extra-config FILE]: PFAL, then test the last stage's best
@@ -312,14 +324,19 @@ run_job() {
       ckpt=$(stage_ckpt "$RUNS/$b/occ_recipe_s$seed" -1)
       test_run "$(dirname "$(dirname "$ckpt")")" "zoo recipe, footprint occupancy input, residual x$scale" "$b" "$j" \
         "$ckpt" --model.init_args.residual_scale "$scale" ;;
-    cv[0-4]_occ|cv[0-4]_rank|cv[0-4]_last|styles_cv[0-4]_occ|styles_cv[0-4]_rank|styles_cv[0-4]_last)
+    cv[0-4]_occ|cv[0-4]_rank|cv[0-4]_last|cv[0-4]_succ|styles_cv[0-4]_occ|styles_cv[0-4]_rank|styles_cv[0-4]_last|\
+    styles_cv[0-4]_succ)
       # leave-one-layout-out validation, fold f = the train scenes of layout f held out for every task (seed 0): the
-      # best configuration, or it plus the listwise ranking term; trained, then scored on the fold's validation
-      # scenes (no test). cv<f>_last trains the best configuration again (with last.ckpt the newest state) and scores
-      # its chosen checkpoint (occ2) and its last one (last2)
+      # best configuration, or it plus the listwise ranking term (rank) or trained on labels with failed cells set
+      # to 0 (succ); trained, then scored on the fold's validation scenes (no test). cv<f>_last trains the best
+      # configuration again (with last.ckpt the newest state) and scores its chosen checkpoint (occ2) and its last
+      # one (last2)
       local b=layouts j=$job f extra=() ck; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
       f=${j:2:1}
       [ "${j#*_}" = rank ] && extra=(--extra-config configs/experiments/recipe/rank.yaml)
+      if [ "${j#*_}" = succ ]; then
+        success_labels "$b"; extra=(--extra-config "configs/experiments/recipe/success_labels_$b.yaml")
+      fi
       if [ "$RETEST" = 0 ]; then
         "$FZ" curriculum --config "configs/experiments/pfal_${PRESET}_$b.yaml" --root "$RUNS/$b/$j" --set seed_everything=0 \
           --set "data.init_args.val_layout=$f" "${ROOT_SET[@]}" --extra-config "$RECIPE" \
@@ -328,17 +345,21 @@ run_job() {
       ck=$(stage_ckpt "$RUNS/$b/$j" -1)
       if [ "${j#*_}" = last ]; then cv_score "$j" "$b" "$f" "occ2=$ck" "last2=$(dirname "$ck")/last.ckpt"
       else cv_score "$j" "$b" "$f" "${j#*_}=$ck"; fi ;;
-    cv[0-4]_prior|styles_cv[0-4]_prior)
-      # the fold's canonical prior, with the fold's AxisNet (job cv<f>_occ first: this one waits for it)
-      local b=layouts j=$job f axis; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
+    cv[0-4]_prior|cv[0-4]_sprior|styles_cv[0-4]_prior|styles_cv[0-4]_sprior)
+      # the fold's canonical prior, with the fold's AxisNet (job cv<f>_occ first: this one waits for it); sprior
+      # fills it from the labels with failed cells set to 0
+      local b=layouts j=$job f axis fit=(); [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
       f=${j:2:1}
+      if [ "${j#*_}" = sprior ]; then
+        success_labels "$b"; fit=(--config "configs/experiments/recipe/success_labels_$b.yaml")
+      fi
       axis=$(wait_axisnet "$RUNS/$b/cv${f}_occ" "$job") || return 1
       if [ "$RETEST" = 0 ] && [ -z "$(find "$RUNS/$b/$j" -name last.ckpt 2>/dev/null)" ]; then
         "$FZ" fit --config "configs/data/floaff_${PRESET}_$b.yaml" --config configs/models/canonical_prior.yaml \
           --model.init_args.axisnet "$axis" --data.init_args.train_transforms '[]' --trainer.max_epochs 1 \
-          --data.init_args.val_layout "$f" --trainer.default_root_dir "$RUNS/$b/$j" "${ROOT_ARGS[@]}"
+          --data.init_args.val_layout "$f" --trainer.default_root_dir "$RUNS/$b/$j" "${ROOT_ARGS[@]}" "${fit[@]}"
       fi
-      cv_score "$j" "$b" "$f" "prior=$(latest_run "$RUNS/$b/$j")/checkpoints/last.ckpt" ;;
+      cv_score "$j" "$b" "$f" "${j#*_}=$(latest_run "$RUNS/$b/$j")/checkpoints/last.ckpt" ;;
     occ_cfar_pfal_s[0-9]|styles_occ_cfar_pfal_s[0-9])  # the same input on the paper's path (no recipe departures)
       local b=layouts j=$job; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
       curriculum "$j" "$b" "${j#occ_cfar_pfal_s}" "CFAR+PFAL, footprint occupancy input" \

@@ -138,6 +138,36 @@ def test_fresh_labels_train_the_datamodule_and_val_split_scores(drawer_root, tmp
     assert json.loads(rep.read_text())["views"] == len(dm.val_dataloader().dataset)
 
 
+def test_fresh_labels_without_episodes_zero_the_failed_cells(drawer_root, tmp_path):
+    """--episodes 0 gives back the generated labels (no rollout); --zero-failures keeps them on successes only."""
+    spec = importlib.util.spec_from_file_location(
+        "fresh_labels", Path(__file__).resolve().parents[1] / "scripts" / "fresh_labels.py"
+    )
+    fl = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(fl)
+    from floaff_zoo.data.scene_labels import read_scene_labels
+
+    base = ["--root", str(drawer_root), "--benchmark", "styles", "--episodes", "0", "--probs", str(tmp_path / "p.npz")]
+    assert fl.main([*base, "--out", str(tmp_path / "plain.npz")]) == 0
+    assert fl.main([*base, "--zero-failures", "--out", str(tmp_path / "zero.npz")]) == 0
+    assert not (tmp_path / "p.npz").exists()  # nothing rolled out, nothing cached
+    plain, setting = read_scene_labels(tmp_path / "plain.npz")
+    zero, zsetting = read_scene_labels(tmp_path / "zero.npz")
+    assert setting["source"] == "annotated" and not setting["zero_failures"] and zsetting["zero_failures"]
+    failed_with_value = 0
+    for scene in ff.iter_scenes(drawer_root, benchmark="styles", split="train"):
+        sid, labels = scene["scene_id"], scene["labels"]
+        generated = np.asarray(labels["cell_label"], np.float32)
+        success = np.asarray(labels["success"], bool)
+        assert np.array_equal(plain[sid][1], generated)  # the generator's smoothing, reproduced exactly
+        assert np.array_equal(zero[sid][1][success], generated[success])
+        assert not zero[sid][1][~success].any()
+        failed_with_value += int((generated[~success] > 0).sum())
+    assert failed_with_value > 0  # the generated map does give failed cells a value (what the option removes)
+    with pytest.raises(SystemExit):
+        fl.main([*base[:-2], "--episodes", "-1", "--out", str(tmp_path / "x.npz")])
+
+
 def test_named_models_pool_their_runs():
     keys, groups = fs.parse_models(["occ=a.ckpt", "prior=p.ckpt", "occ=b.ckpt", "hub.name"])
     assert keys == {"occ/0": "a.ckpt", "prior": "p.ckpt", "occ/1": "b.ckpt", "hub.name": "hub.name"}
