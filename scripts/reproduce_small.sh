@@ -23,6 +23,8 @@
 #                                              # (and styles_...) ablate the best configuration (recipe + occupancy),
 #                                              # occ_recipe_r1.xx[_s<seed>] sweep its crop radius,
 #                                              # rank_occ_recipe_s<seed> adds the listwise ranking term;
+#                                              # succ_occ_recipe_s<seed> / succ_prior train on labels with failed
+#                                              # cells set to 0;
 #                                              # cv<f>_{occ,rank,prior,last,succ,sprior} (and styles_...): leave-one-layout-out folds
 #                                              # f = 0..4 scored on their validation scenes (scripts/cv_sr.py pools them);
 #                                              # occ_recipe_rs<scale>_s<seed> tests the best configuration with its
@@ -188,6 +190,7 @@ prior() {
   case $job in
     *_edges) root=$RUNS/$bench/prior_edges fit=(--model.init_args.centred false) ;;
     fresh_*) root=$RUNS/$bench/$job fit=(--config "configs/experiments/recipe/fresh_labels_$bench.yaml") ;;
+    succ_*) root=$RUNS/$bench/$job fit=(--config "configs/experiments/recipe/success_labels_$bench.yaml") ;;
     # mirrored views: 4 passes, each view reflected with probability 0.5, so the average is near-symmetric
     mirror_*) root=$RUNS/$bench/$job fit=(--config configs/experiments/recipe/mirror.yaml --trainer.max_epochs 4) ;;
   esac
@@ -300,6 +303,16 @@ run_job() {
       curriculum "$j" "$b" "${j#fresh_recipe_s}" "zoo recipe, repeated-episode labels" --extra-config "$RECIPE" \
         --extra-config "configs/experiments/recipe/fresh_labels_$b.yaml" ;;
     fresh_prior) prior fresh_prior layouts "Canonical prior, repeated-episode labels" ;;
+    # trained on the labels with failed cells set to 0 (configs/experiments/recipe/success_labels_<bench>.yaml;
+    # docs/results.md): the best configuration, and the canonical prior filled from them
+    succ_occ_recipe_s[0-9]|styles_succ_occ_recipe_s[0-9])
+      local b=layouts j=$job; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
+      success_labels "$b"
+      curriculum "$j" "$b" "${j#succ_occ_recipe_s}" "occupancy recipe, failed cells 0 in training" --extra-config "$RECIPE" \
+        --extra-config configs/experiments/recipe/occupancy.yaml --extra-config "configs/experiments/recipe/success_labels_$b.yaml" ;;
+    succ_prior|styles_succ_prior)
+      local b=layouts; [ "${job#styles_}" != "$job" ] && b=styles
+      success_labels "$b"; prior succ_prior "$b" "Canonical prior, failed cells 0" ;;
     # trained on views and their mirror images (configs/experiments/recipe/mirror.yaml; docs/results.md)
     mirror_recipe_s[0-9]|styles_mirror_recipe_s[0-9])
       local b=layouts j=$job; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
@@ -406,6 +419,7 @@ job_out() {  # the file a finished job has written, under $OUT
     styles_prior) echo styles/prior/report.json ;;
     styles_prior_edges) echo styles/prior_edges/report.json ;;
     styles_fresh_prior) echo styles/fresh_prior/report.json ;;
+    styles_succ_prior) echo styles/succ_prior/report.json ;;
     styles_mirror_prior) echo styles/mirror_prior/report.json ;;
     styles_recipe_s*) echo "styles/recipe_s${1#styles_recipe_s}/report.json" ;;
     styles_recipe_no_*|styles_occ_recipe_no_*) echo "styles/${1#styles_}/report.json" ;;
