@@ -43,7 +43,7 @@ def test_a_retired_name_names_its_successor_and_where_it_is_kept():
         load_model(name, allow_download=False)
     assert f"git archive {commit} src/floaff_zoo/hub/{name}" in str(err.value)
     with pytest.raises(UnknownWeightsError, match="did you mean") as err:  # a typo is not reported as retired
-        load_model("cfar-pfal.floaff-dense-layouts.v10", allow_download=False)
+        load_model("cfar-pfal.floaff-dense-layuots.v9", allow_download=False)
     assert not isinstance(err.value, RetiredEntryError)
 
 
