@@ -127,7 +127,7 @@ cv_score() {
 
 # success_labels BENCH: the train labels with failed cells set to 0 (configs/experiments/recipe/success_labels_BENCH.yaml
 # reads them), made once from the annotation (no rollout); written aside and moved, so jobs running beside it never
-# read half a file
+# read half a file. The file's name holds no data copy: delete it before training on another DATA_ROOT
 success_labels() {
   local f=runs/labels/success_train_$1.npz
   [ -f "$f" ] && return 0
