@@ -56,7 +56,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--sigma-yaw-deg", type=float, default=2.0, help="parking heading noise (deg)")
     p.add_argument("--seed", type=int, default=0, help="seed of the parking noise")
     p.add_argument("--workers", type=int, default=1)
-    p.add_argument("--probs", default=None, help="cache of the fresh probabilities (.npz; read if it exists)")
+    p.add_argument(
+        "--probs",
+        default=None,
+        help="cache of the fresh probabilities (.npz; read if it exists; unused with --episodes 0)",
+    )
     p.add_argument("--zero-failures", action="store_true", help="label 0 on cells that never succeeded (module doc)")
     p.add_argument("--out", required=True, help="the scene-label file to write (.npz)")
     a = p.parse_args(argv)
