@@ -24,7 +24,8 @@
 #                                              # occ_recipe_r1.xx[_s<seed>] sweep its crop radius,
 #                                              # rank_occ_recipe_s<seed> adds the listwise ranking term;
 #                                              # succ_occ_recipe_s<seed> / succ_prior train on labels with failed
-#                                              # cells set to 0;
+#                                              # cells set to 0; pool_succ_occ_recipe_s<seed> / pool_succ_prior
+#                                              # the same refit on every train scene (no validation scene);
 #                                              # cv<f>_{occ,rank,prior,last,succ,sprior} (and styles_...): leave-one-layout-out folds
 #                                              # f = 0..4 scored on their validation scenes (scripts/cv_sr.py pools them);
 #                                              # occ_recipe_rs<scale>_s<seed> tests the best configuration with its
@@ -191,6 +192,8 @@ prior() {
     *_edges) root=$RUNS/$bench/prior_edges fit=(--model.init_args.centred false) ;;
     fresh_*) root=$RUNS/$bench/$job fit=(--config "configs/experiments/recipe/fresh_labels_$bench.yaml") ;;
     succ_*) root=$RUNS/$bench/$job fit=(--config "configs/experiments/recipe/success_labels_$bench.yaml") ;;
+    pool_succ_*) root=$RUNS/$bench/$job fit=(--config "configs/experiments/recipe/success_labels_$bench.yaml"
+      --data.init_args.val_scenes 0) ;;
     # mirrored views: 4 passes, each view reflected with probability 0.5, so the average is near-symmetric
     mirror_*) root=$RUNS/$bench/$job fit=(--config configs/experiments/recipe/mirror.yaml --trainer.max_epochs 4) ;;
   esac
@@ -313,6 +316,18 @@ run_job() {
     succ_prior|styles_succ_prior)
       local b=layouts; [ "${job#styles_}" != "$job" ] && b=styles
       success_labels "$b"; prior succ_prior "$b" "Canonical prior, failed cells 0" ;;
+    # the best configuration and its prior refit on the whole training pool: every train scene trains (val_scenes 0,
+    # every stage, AxisNet included), no validation, each stage's last checkpoint (docs/results.md)
+    pool_succ_occ_recipe_s[0-9]|styles_pool_succ_occ_recipe_s[0-9])
+      local b=layouts j=$job; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
+      success_labels "$b"
+      curriculum "$j" "$b" "${j#pool_succ_occ_recipe_s}" "occupancy recipe, failed cells 0, whole training pool" \
+        --set data.init_args.val_scenes=0 --extra-config "$RECIPE" --extra-config configs/experiments/recipe/occupancy.yaml \
+        --extra-config "configs/experiments/recipe/success_labels_$b.yaml" ;;
+    pool_succ_prior|styles_pool_succ_prior)  # with the AxisNet of pool_succ_occ_recipe_s0 (waited for)
+      local b=layouts; [ "${job#styles_}" != "$job" ] && b=styles
+      success_labels "$b"
+      AXIS_JOB=pool_succ_occ_recipe_s0 prior pool_succ_prior "$b" "Canonical prior, failed cells 0, whole training pool" ;;
     # trained on views and their mirror images (configs/experiments/recipe/mirror.yaml; docs/results.md)
     mirror_recipe_s[0-9]|styles_mirror_recipe_s[0-9])
       local b=layouts j=$job; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
@@ -420,6 +435,7 @@ job_out() {  # the file a finished job has written, under $OUT
     styles_prior_edges) echo styles/prior_edges/report.json ;;
     styles_fresh_prior) echo styles/fresh_prior/report.json ;;
     styles_succ_prior) echo styles/succ_prior/report.json ;;
+    styles_pool_succ_prior) echo styles/pool_succ_prior/report.json ;;
     styles_mirror_prior) echo styles/mirror_prior/report.json ;;
     styles_recipe_s*) echo "styles/recipe_s${1#styles_recipe_s}/report.json" ;;
     styles_recipe_no_*|styles_occ_recipe_no_*) echo "styles/${1#styles_}/report.json" ;;

@@ -150,12 +150,15 @@ class FloAffCLI(LightningCLI):
         ):
             from floaff_zoo.callbacks.checkpoint import LatestCheckpoint  # here: the callbacks package is not light
 
+            # a data module without validation (val_scenes 0) leaves nothing to monitor: last.ckpt only
+            monitor = model.monitor if getattr(self.datamodule, "validates", True) else None
             extra.append(
                 LatestCheckpoint(
-                    monitor=model.monitor,
+                    monitor=monitor,
                     mode=model.mode,
                     save_last=True,
-                    filename="epoch{epoch:03d}-" + model.monitor + "{" + model.monitor + ":.4f}",
+                    save_top_k=1 if monitor else 0,
+                    filename="epoch{epoch:03d}-" + model.monitor + "{" + model.monitor + ":.4f}" if monitor else None,
                     auto_insert_metric_name=False,
                 )
             )

@@ -5,6 +5,7 @@ from pathlib import Path
 
 import pytest
 import torch
+from lightning.pytorch.utilities.exceptions import MisconfigurationException
 
 from floaff_zoo.cli import main, run_lightning
 from tests.conftest import quiet_trainer_args
@@ -64,6 +65,39 @@ def test_floaff_styles_cli(tmp_path, root, monkeypatch, floaff_root):
     digests = json.loads(report.read_text())["data"]["labels_sha256"]
     assert digests == cli.datamodule.labels_digests and digests
     assert all(s.startswith(("CloseDrawer", "PnPCounterToCab")) for s in digests)
+
+
+def test_fit_without_validation_keeps_the_last_checkpoint(tmp_path, root, monkeypatch, floaff_root):
+    """val_scenes 0: every train scene trains, no validation loop, last.ckpt is the checkpoint 'best' resolves to."""
+    monkeypatch.chdir(root)
+    base = [
+        "--config",
+        "configs/data/floaff_styles.yaml",
+        "--config",
+        MODEL,
+        "--data.init_args.root",
+        str(floaff_root[0]),
+        "--data.init_args.tasks",
+        "[CloseDrawer, PnPCounterToCab]",
+        "--data.init_args.num_points",
+        "256",
+        "--data.init_args.batch_size",
+        "2",
+        "--data.init_args.val_scenes",
+        "0",
+        *quiet_trainer_args(tmp_path / "runs"),
+    ]
+    cli = run_lightning(["fit", *base, "--trainer.max_epochs", "2"])
+    assert not any(k.startswith("val_") for k in cli.trainer.callback_metrics)
+    ckpts = sorted(p.name for p in (tmp_path / "runs").rglob("*.ckpt"))
+    assert ckpts == ["last.ckpt"]  # no monitored top-k file without a validation metric
+    last = next((tmp_path / "runs").rglob("last.ckpt"))
+    assert torch.load(last, map_location="cpu", weights_only=True)["global_step"] == cli.trainer.global_step
+    res = run_lightning(["test", *base, "--ckpt_path", "best"])
+    assert Path(res.config_init["test"]["ckpt_path"]).resolve() == last.resolve()
+    # a scheduler that follows the validation metric cannot run: said before training
+    with pytest.raises(MisconfigurationException, match="'plateau' follows val_rmse.*val_scenes 0"):
+        run_lightning(["fit", *base, "--trainer.max_epochs", "1", "--model.init_args.train.scheduler", "plateau"])
 
 
 @pytest.mark.parametrize("cfg", DATA_CONFIGS)

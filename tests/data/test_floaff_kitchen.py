@@ -96,6 +96,23 @@ def test_val_layout_holds_out_every_train_scene_of_one_layout(floaff_root):
         _dm(root, val_layout=0, val_scene_ids=["x"])
 
 
+def test_val_scenes_0_trains_every_train_scene_and_view_without_validation(floaff_root):
+    root, _ = floaff_root
+    ref = _dm(root, tasks=["CloseDrawer", "PnPCounterToCab"])
+    ref.setup("fit")
+    pool = {r.key for s in ("train", "val") for r in ref.datasets[s].records}
+    assert len(ref.datasets["val"]) > 0  # the default holds some out, scenes and (one-scene PnP) views
+    dm = _dm(root, tasks=["CloseDrawer", "PnPCounterToCab"], val_scenes=0)
+    dm.setup("fit")
+    assert not dm.validates and len(dm.datasets["val"]) == 0
+    assert {r.key for r in dm.datasets["train"].records} == pool
+    assert dm.val_dataloader() == []  # Lightning runs no validation loop
+    with pytest.raises(MisconfigurationException, match=r"'val' split is empty \(val_scenes 0: no validation split\)"):
+        _dm(root, tasks=["CloseDrawer"], val_scenes=0).setup("validate")
+    # val_scenes 0 beside pinned scenes or a fold still validates on those
+    assert _dm(root, val_scenes=0, val_layout=0).validates and _dm(root, val_scenes=0, val_scene_ids=["x"]).validates
+
+
 def _held_out(dm, task):
     """(validation scene ids, validation sample keys) of one task after setup."""
     recs = [r for r in dm.datasets["val"].records if r.meta["task"] == task]

@@ -66,7 +66,10 @@ class FloAffKitchenDataModule(FloAffDataModule):
             one task = single-task run).
         views: any subset of front, side (None = both).
         reader: registered reader name or ``pkg.module:Class``.
-        val_scenes: train scenes per task held out as val (seeded; at least one scene stays in train).
+        val_scenes: train scenes per task held out as val (seeded; at least one scene stays in train). 0 (with
+            neither ``val_scene_ids`` nor ``val_layout``): no validation, every train scene and view trains, ``fit``
+            runs without a validation loop and its checkpoint is the last one (refitting on the whole training
+            pool once the choices are made on the ``val_layout`` folds).
         val_scene_ids: hold out exactly these train scenes as val instead (the seeded draw is skipped;
             e.g. to keep one validation set while training scenes are added); unknown ids raise.
         val_layout: hold out every train scene of this layout id (all tasks) as val instead: leave-one-layout-out
@@ -138,6 +141,8 @@ class FloAffKitchenDataModule(FloAffDataModule):
         if val_layout is not None and val_scene_ids is not None:
             raise ValueError("FloAffKitchenDataModule: give val_scene_ids or val_layout, not both")
         self.val_layout = val_layout
+        # val_scenes 0 alone means no validation at all (module docstring)
+        self.validates = not (val_scenes == 0 and val_scene_ids is None and val_layout is None)
         self.val_view_fraction = val_view_fraction
         self.train_labels = None if train_labels is None else SceneLabels(train_labels)
         self._train_labels_checked = False
@@ -211,7 +216,7 @@ class FloAffKitchenDataModule(FloAffDataModule):
             n_val = min(self.val_scenes, len(train) - 1)
             if val_ids is None and len(train) >= 2 and n_val > 0:
                 val_ids = set(rng.permutation([s.scene_id for s in train])[:n_val].tolist())
-            elif val_ids is None and len(train) == 1:
+            elif val_ids is None and len(train) == 1 and self.validates:
                 n = len(self._views(train[0]))
                 k = int(round(self.val_view_fraction * n))
                 k = min(max(k, 1 if self.val_view_fraction > 0 and n > 1 else 0), max(n - 1, 0))
@@ -314,14 +319,13 @@ class FloAffKitchenDataModule(FloAffDataModule):
             f"FloAffKitchenDataModule[{self.benchmark}, tasks={self.tasks}, views={self.views}]: {sizes} samples. "
             f"{skips.summary()}"
         )
-        need = {"fit": ["train", "val"], "validate": ["val"], "test": ["test"], "predict": ["test"]}.get(
-            stage or "", []
-        )
-        for split in need:
+        need = {"fit": ["train", "val"] if self.validates else ["train"], "validate": ["val"], "test": ["test"]}
+        for split in need.get(stage or "", ["test"] if stage == "predict" else []):
             if len(self.datasets[split]) == 0:
+                why = " (val_scenes 0: no validation split)" if split == "val" and not self.validates else ""
                 raise MisconfigurationException(
-                    f"FloAffKitchenDataModule: the '{split}' split is empty for tasks {self.tasks}, views {self.views} "
-                    f"under {self.root}/{self.benchmark} (scenes per split: {self.split_scenes})"
+                    f"FloAffKitchenDataModule: the '{split}' split is empty{why} for tasks {self.tasks}, views "
+                    f"{self.views} under {self.root}/{self.benchmark} (scenes per split: {self.split_scenes})"
                 )
 
     def transforms_for(self, split: str) -> list[SampleTransform]:
@@ -334,6 +338,10 @@ class FloAffKitchenDataModule(FloAffDataModule):
             self._check_train_labels()  # once, and only when the train split is used (not for test / predict)
             self._train_labels_checked = True
         return super().train_dataloader()
+
+    def val_dataloader(self) -> Any:
+        # no loaders: Lightning then runs no validation loop (val_scenes 0, module docstring)
+        return super().val_dataloader() if self.validates else []
 
     def _check_train_labels(self) -> None:
         """Every train sample must find its scene and cells in ``train_labels``: fail before training, not mid-epoch."""

@@ -309,6 +309,11 @@ class ZooModule(L.LightningModule):
                 sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=t_max, eta_min=1e-6)
                 return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "epoch"}}
             case "plateau":
+                if getattr(getattr(self._trainer, "datamodule", None), "validates", True) is False:
+                    raise MisconfigurationException(
+                        f"{type(self).__name__}: train.scheduler 'plateau' follows {self.monitor}, but the data "
+                        "module has no validation (val_scenes 0): use 'cosine' or 'none'"
+                    )
                 sched = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, mode=self.mode, patience=3)
                 return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "monitor": self.monitor}}
         raise MisconfigurationException(f"unknown scheduler {t.scheduler!r}")
