@@ -25,7 +25,8 @@
 #                                              # rank_occ_recipe_s<seed> adds the listwise ranking term;
 #                                              # succ_occ_recipe_s<seed> / succ_prior train on labels with failed
 #                                              # cells set to 0; pool_succ_occ_recipe_s<seed> / pool_succ_prior
-#                                              # the same refit on every train scene (no validation scene);
+#                                              # the same refit on every train scene (no validation scene),
+#                                              # pool_pointnet2_s<seed> the strongest baseline on it;
 #                                              # cv<f>_{occ,rank,prior,last,succ,sprior} (and styles_...): leave-one-layout-out folds
 #                                              # f = 0..4 scored on their validation scenes (scripts/cv_sr.py pools them);
 #                                              # occ_recipe_rs<scale>_s<seed> tests the best configuration with its
@@ -392,6 +393,10 @@ run_job() {
       local b=layouts j=$job; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
       curriculum "$j" "$b" "${j#occ_cfar_pfal_s}" "CFAR+PFAL, footprint occupancy input" \
         --extra-config configs/experiments/recipe/occupancy.yaml ;;
+    pool_pointnet2_s[0-9]|styles_pool_pointnet2_s[0-9])  # the strongest baseline on the whole training pool too
+      local b=layouts j=$job; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
+      baseline "$j" "$b" "${j#pool_pointnet2_s}" configs/demo/pointnet2_demo.yaml "PointNet++, whole training pool" \
+        --data.init_args.val_scenes 0 ;;
     occ_pointnet2_s[0-9]|styles_occ_pointnet2_s[0-9])  # the same input for PointNet++ (a fairness check)
       local b=layouts j=$job; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
       baseline "$j" "$b" "${j#occ_pointnet2_s}" configs/demo/pointnet2_demo.yaml "PointNet++, footprint occupancy input" \
