@@ -26,7 +26,8 @@
 #                                              # succ_occ_recipe_s<seed> / succ_prior train on labels with failed
 #                                              # cells set to 0; pool_succ_occ_recipe_s<seed> / pool_succ_prior
 #                                              # the same refit on every train scene (no validation scene),
-#                                              # pool_pointnet2_s<seed> the strongest baseline on it;
+#                                              # pool_pointnet2_s<seed> the strongest baseline on it,
+#                                              # pool_succ_occ_recipe_no_{crop,align,sdl,fd}[_s<seed>] its ablations;
 #                                              # cv<f>_{occ,rank,prior,last,succ,sprior} (and styles_...): leave-one-layout-out folds
 #                                              # f = 0..4 scored on their validation scenes (scripts/cv_sr.py pools them);
 #                                              # occ_recipe_rs<scale>_s<seed> tests the best configuration with its
@@ -325,6 +326,16 @@ run_job() {
       curriculum "$j" "$b" "${j#pool_succ_occ_recipe_s}" "occupancy recipe, failed cells 0, whole training pool" \
         --set data.init_args.val_scenes=0 --extra-config "$RECIPE" --extra-config configs/experiments/recipe/occupancy.yaml \
         --extra-config "configs/experiments/recipe/success_labels_$b.yaml" ;;
+    pool_succ_occ_recipe_no_*|styles_pool_succ_occ_recipe_no_*)
+      # the ablations of the headline configuration: the best configuration refit on the whole training pool
+      local b=layouts j=$job seed=0 abl; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
+      abl=${j#pool_succ_occ_recipe_}
+      case $abl in *_s[0-9]) seed=${abl##*_s} abl=${abl%_s*} ;; esac
+      case $abl in no_crop|no_align|no_sdl|no_fd) ;; *) echo "unknown ablation '$abl'" >&2; return 2 ;; esac
+      success_labels "$b"
+      curriculum "$j" "$b" "$seed" "whole-pool configuration w/o ${abl#no_}" --set data.init_args.val_scenes=0 \
+        --extra-config "$RECIPE" --extra-config configs/experiments/recipe/occupancy.yaml \
+        --extra-config "configs/experiments/recipe/success_labels_$b.yaml" --extra-config "configs/experiments/ablations/$abl.yaml" ;;
     pool_succ_prior|styles_pool_succ_prior)  # with the AxisNet of pool_succ_occ_recipe_s0 (waited for)
       local b=layouts; [ "${job#styles_}" != "$job" ] && b=styles
       success_labels "$b"
@@ -443,7 +454,7 @@ job_out() {  # the file a finished job has written, under $OUT
     styles_pool_succ_prior) echo styles/pool_succ_prior/report.json ;;
     styles_mirror_prior) echo styles/mirror_prior/report.json ;;
     styles_recipe_s*) echo "styles/recipe_s${1#styles_recipe_s}/report.json" ;;
-    styles_recipe_no_*|styles_occ_recipe_no_*) echo "styles/${1#styles_}/report.json" ;;
+    styles_recipe_no_*|styles_occ_recipe_no_*|styles_pool_succ_occ_recipe_no_*) echo "styles/${1#styles_}/report.json" ;;
     styles_recipe_r1.*) echo "styles/recipe_sweep_${1#styles_recipe_}/report.json" ;;
     recipe_r1.*) echo "layouts/recipe_sweep_${1#recipe_}/report.json" ;;
     styles_cv[0-4]_*) echo "cv/styles/${1#styles_}.json" ;;
