@@ -319,8 +319,9 @@ class FloAffKitchenDataModule(FloAffDataModule):
             f"FloAffKitchenDataModule[{self.benchmark}, tasks={self.tasks}, views={self.views}]: {sizes} samples. "
             f"{skips.summary()}"
         )
-        need = {"fit": ["train", "val"] if self.validates else ["train"], "validate": ["val"], "test": ["test"]}
-        for split in need.get(stage or "", ["test"] if stage == "predict" else []):
+        fit = ["train", "val"] if self.validates else ["train"]
+        need = {"fit": fit, "validate": ["val"], "test": ["test"], "predict": ["test"]}.get(stage or "", [])
+        for split in need:
             if len(self.datasets[split]) == 0:
                 why = " (val_scenes 0: no validation split)" if split == "val" and not self.validates else ""
                 raise MisconfigurationException(
