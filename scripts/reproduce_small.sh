@@ -275,14 +275,21 @@ run_job() {
       case $abl in no_crop|no_align|no_sdl|no_fd) ;; *) echo "unknown ablation '$abl'" >&2; return 2 ;; esac
       curriculum "$j" "$b" "$seed" "recipe w/o ${abl#no_}" --extra-config "$RECIPE" \
         --extra-config "configs/experiments/ablations/$abl.yaml" ;;
-    occ_recipe_no_*|styles_occ_recipe_no_*)
-      # the same ablations on top of the best configuration (recipe + footprint occupancy input)
-      local b=layouts j=$job seed=0 abl; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
-      abl=${j#occ_recipe_}
+    occ_recipe_no_*|styles_occ_recipe_no_*|pool_succ_occ_recipe_no_*|styles_pool_succ_occ_recipe_no_*)
+      # the same ablations on top of the best configuration (recipe + footprint occupancy input), or with pool_succ_
+      # on top of the headline one (also failed cells 0 in training, refit on the whole training pool)
+      local b=layouts j=$job seed=0 abl label="occupancy recipe" pre=() post=()
+      [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
+      abl=${j#*occ_recipe_}
       case $abl in *_s[0-9]) seed=${abl##*_s} abl=${abl%_s*} ;; esac
       case $abl in no_crop|no_align|no_sdl|no_fd) ;; *) echo "unknown ablation '$abl'" >&2; return 2 ;; esac
-      curriculum "$j" "$b" "$seed" "occupancy recipe w/o ${abl#no_}" --extra-config "$RECIPE" \
-        --extra-config configs/experiments/recipe/occupancy.yaml --extra-config "configs/experiments/ablations/$abl.yaml" ;;
+      if [ "${j#pool_succ_}" != "$j" ]; then
+        success_labels "$b"; label="whole-pool configuration"
+        pre=(--set data.init_args.val_scenes=0) post=(--extra-config "configs/experiments/recipe/success_labels_$b.yaml")
+      fi
+      curriculum "$j" "$b" "$seed" "$label w/o ${abl#no_}" "${pre[@]}" --extra-config "$RECIPE" \
+        --extra-config configs/experiments/recipe/occupancy.yaml "${post[@]}" \
+        --extra-config "configs/experiments/ablations/$abl.yaml" ;;
     recipe_r1.[0-9]*|styles_recipe_r1.[0-9]*|occ_recipe_r1.[0-9]*|styles_occ_recipe_r1.[0-9]*)
       # the crop sweep (CFAR's radius only) on top of the zoo recipe, or with occ_ on top of the best configuration
       # (recipe + footprint occupancy input); seed 0 without suffix, other seeds as recipe_r1.xx_s<seed>
@@ -326,16 +333,6 @@ run_job() {
       curriculum "$j" "$b" "${j#pool_succ_occ_recipe_s}" "occupancy recipe, failed cells 0, whole training pool" \
         --set data.init_args.val_scenes=0 --extra-config "$RECIPE" --extra-config configs/experiments/recipe/occupancy.yaml \
         --extra-config "configs/experiments/recipe/success_labels_$b.yaml" ;;
-    pool_succ_occ_recipe_no_*|styles_pool_succ_occ_recipe_no_*)
-      # the ablations of the headline configuration: the best configuration refit on the whole training pool
-      local b=layouts j=$job seed=0 abl; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
-      abl=${j#pool_succ_occ_recipe_}
-      case $abl in *_s[0-9]) seed=${abl##*_s} abl=${abl%_s*} ;; esac
-      case $abl in no_crop|no_align|no_sdl|no_fd) ;; *) echo "unknown ablation '$abl'" >&2; return 2 ;; esac
-      success_labels "$b"
-      curriculum "$j" "$b" "$seed" "whole-pool configuration w/o ${abl#no_}" --set data.init_args.val_scenes=0 \
-        --extra-config "$RECIPE" --extra-config configs/experiments/recipe/occupancy.yaml \
-        --extra-config "configs/experiments/recipe/success_labels_$b.yaml" --extra-config "configs/experiments/ablations/$abl.yaml" ;;
     pool_succ_prior|styles_pool_succ_prior)  # with the AxisNet of pool_succ_occ_recipe_s0 (waited for)
       local b=layouts; [ "${job#styles_}" != "$job" ] && b=styles
       success_labels "$b"
