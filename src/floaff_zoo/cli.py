@@ -158,7 +158,7 @@ class FloAffCLI(LightningCLI):
                     mode=model.mode,
                     save_last=True,
                     save_top_k=1 if monitor else 0,
-                    filename="epoch{epoch:03d}-" + model.monitor + "{" + model.monitor + ":.4f}" if monitor else None,
+                    filename=("epoch{epoch:03d}-" + monitor + "{" + monitor + ":.4f}") if monitor else None,
                     auto_insert_metric_name=False,
                 )
             )

@@ -71,8 +71,11 @@ class FloAffDataModule(L.LightningDataModule):
         eval_transforms: per-sample transforms of val/test/predict (seeded per sample index).
 
     Subclasses (or a method's code) may override :meth:`sample_transform`, a hook applied to every
-    sample after the configured transforms.
+    sample after the configured transforms. A subclass configured to train without any validation split sets
+    ``validates`` False: ``fit`` then monitors no checkpoint metric and refuses a scheduler that follows one.
     """
+
+    validates: bool = True
 
     def __init__(
         self,
