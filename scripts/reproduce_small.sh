@@ -26,7 +26,8 @@
 #                                              # succ_occ_recipe_s<seed> / succ_prior train on labels with failed
 #                                              # cells set to 0; pool_succ_occ_recipe_s<seed> / pool_succ_prior
 #                                              # the same refit on every train scene (no validation scene),
-#                                              # pool_pointnet2_s<seed> the strongest baseline on it,
+#                                              # pool_<model>_s<seed> (pointnet2, navaff, votenet, h3dnet,
+#                                              # n2m, cfar_pfal: the paper's path) the other learned models on it,
 #                                              # pool_succ_occ_recipe_no_{crop,align,sdl,fd}[_s<seed>] its ablations;
 #                                              # cv<f>_{occ,rank,prior,last,succ,sprior} (and styles_...): leave-one-layout-out folds
 #                                              # f = 0..4 scored on their validation scenes (scripts/cv_sr.py pools them);
@@ -401,10 +402,18 @@ run_job() {
       local b=layouts j=$job; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
       curriculum "$j" "$b" "${j#occ_cfar_pfal_s}" "CFAR+PFAL, footprint occupancy input" \
         --extra-config configs/experiments/recipe/occupancy.yaml ;;
-    pool_pointnet2_s[0-9]|styles_pool_pointnet2_s[0-9])  # the strongest baseline on the whole training pool too
-      local b=layouts j=$job; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
-      baseline "$j" "$b" "${j#pool_pointnet2_s}" configs/demo/pointnet2_demo.yaml "PointNet++, whole training pool" \
+    pool_pointnet2_s[0-9]|pool_navaff_s[0-9]|pool_votenet_s[0-9]|pool_h3dnet_s[0-9]|pool_n2m_s[0-9]|\
+    styles_pool_pointnet2_s[0-9]|styles_pool_navaff_s[0-9]|styles_pool_votenet_s[0-9]|styles_pool_h3dnet_s[0-9]|\
+    styles_pool_n2m_s[0-9])
+      # every learned baseline on the whole training pool too (pool_<model>_s<seed>; the benchmark's labels, as the
+      # paper trains them)
+      local b=layouts j=$job m; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
+      m=${j#pool_}; m=${m%_s*}
+      baseline "$j" "$b" "${j##*_s}" "configs/demo/${m}_demo.yaml" "$(label_of "$m"), whole training pool" \
         --data.init_args.val_scenes 0 ;;
+    pool_cfar_pfal_s[0-9]|styles_pool_cfar_pfal_s[0-9])  # the paper's path (no zoo departures) on the whole pool
+      local b=layouts j=$job; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
+      curriculum "$j" "$b" "${j#pool_cfar_pfal_s}" "CFAR+PFAL, whole training pool" --set data.init_args.val_scenes=0 ;;
     occ_pointnet2_s[0-9]|styles_occ_pointnet2_s[0-9])  # the same input for PointNet++ (a fairness check)
       local b=layouts j=$job; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
       baseline "$j" "$b" "${j#occ_pointnet2_s}" configs/demo/pointnet2_demo.yaml "PointNet++, footprint occupancy input" \
