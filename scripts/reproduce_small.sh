@@ -28,7 +28,8 @@
 #                                              # the same refit on every train scene (no validation scene),
 #                                              # pool_<model>_s<seed> (pointnet2, navaff, votenet, h3dnet,
 #                                              # n2m, cfar_pfal: the paper's path) the other learned models on it,
-#                                              # pool_succ_occ_recipe_no_{crop,align,sdl,fd}[_s<seed>] its ablations;
+#                                              # pool_succ_occ_recipe_no_{crop,align,sdl,fd}[_s<seed>] its ablations,
+#                                              # pool_succ_occ_recipe_r1.xx[_s<seed>] its crop sweep;
 #                                              # cv<f>_{occ,rank,prior,last,succ,sprior} (and styles_...): leave-one-layout-out folds
 #                                              # f = 0..4 scored on their validation scenes (scripts/cv_sr.py pools them);
 #                                              # occ_recipe_rs<scale>_s<seed> tests the best configuration with its
@@ -291,19 +292,25 @@ run_job() {
       curriculum "$j" "$b" "$seed" "$label w/o ${abl#no_}" "${pre[@]}" --extra-config "$RECIPE" \
         --extra-config configs/experiments/recipe/occupancy.yaml "${post[@]}" \
         --extra-config "configs/experiments/ablations/$abl.yaml" ;;
-    recipe_r1.[0-9]*|styles_recipe_r1.[0-9]*|occ_recipe_r1.[0-9]*|styles_occ_recipe_r1.[0-9]*)
-      # the crop sweep (CFAR's radius only) on top of the zoo recipe, or with occ_ on top of the best configuration
-      # (recipe + footprint occupancy input); seed 0 without suffix, other seeds as recipe_r1.xx_s<seed>
-      local b=layouts j=$job seed=0 r name label=recipe occ=(); [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
-      if [ "${j#occ_}" != "$j" ]; then
-        j=${j#occ_} label="occupancy recipe" occ=(--extra-config configs/experiments/recipe/occupancy.yaml)
-      fi
-      r=${j#recipe_}
+    recipe_r1.[0-9]*|styles_recipe_r1.[0-9]*|occ_recipe_r1.[0-9]*|styles_occ_recipe_r1.[0-9]*|\
+    pool_succ_occ_recipe_r1.[0-9]*|styles_pool_succ_occ_recipe_r1.[0-9]*)
+      # the crop sweep (CFAR's radius only) on top of the zoo recipe, with occ_ on top of the best configuration
+      # (recipe + footprint occupancy input), with pool_succ_occ_ on top of the headline one (also failed cells 0 in
+      # training, refit on the whole training pool); seed 0 without suffix, other seeds as recipe_r1.xx_s<seed>;
+      # the run is named as job_out says (recipe_r1.xx -> recipe_sweep_r1.xx)
+      local b=layouts j=$job seed=0 r label=recipe pre=() post=(); [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
+      case $j in
+        occ_*) label="occupancy recipe" post=(--extra-config configs/experiments/recipe/occupancy.yaml) ;;
+        pool_succ_occ_*)
+          success_labels "$b"; label="whole-pool configuration" pre=(--set data.init_args.val_scenes=0)
+          post=(--extra-config configs/experiments/recipe/occupancy.yaml
+            --extra-config "configs/experiments/recipe/success_labels_$b.yaml") ;;
+      esac
+      r=${j#*recipe_}
       case $r in *_s[0-9]) seed=${r##*_s} r=${r%_s*} ;; esac
       [ -f "configs/experiments/sweep_crop/$r.yaml" ] || { echo "unknown sweep radius '$r'" >&2; return 2; }
-      name=recipe_sweep_$r; [ ${#occ[@]} = 0 ] || name=occ_$name; [ "$seed" = 0 ] || name=${name}_s$seed
-      curriculum "$name" "$b" "$seed" "$label, r=${r#r}" --extra-config "$RECIPE" "${occ[@]}" \
-        --extra-config "configs/experiments/sweep_crop/$r.yaml" ;;
+      curriculum "${j/recipe_r/recipe_sweep_r}" "$b" "$seed" "$label, r=${r#r}" "${pre[@]}" --extra-config "$RECIPE" \
+        "${post[@]}" --extra-config "configs/experiments/sweep_crop/$r.yaml" ;;
     prior) prior prior layouts "Canonical prior (no network)" ;;
     prior_gtyaw) prior prior_gtyaw layouts "Canonical prior, simulator yaw" --model.init_args.eval_yaw_source gt ;;
     styles_recipe) curriculum recipe_s0 styles 0 "CFAR+PFAL, zoo recipe" --extra-config "$RECIPE" ;;
@@ -461,8 +468,9 @@ job_out() {  # the file a finished job has written, under $OUT
     styles_mirror_prior) echo styles/mirror_prior/report.json ;;
     styles_recipe_s*) echo "styles/recipe_s${1#styles_recipe_s}/report.json" ;;
     styles_recipe_no_*|styles_occ_recipe_no_*|styles_pool_succ_occ_recipe_no_*) echo "styles/${1#styles_}/report.json" ;;
-    styles_recipe_r1.*) echo "styles/recipe_sweep_${1#styles_recipe_}/report.json" ;;
-    recipe_r1.*) echo "layouts/recipe_sweep_${1#recipe_}/report.json" ;;
+    styles_recipe_r1.*|styles_occ_recipe_r1.*|styles_pool_succ_occ_recipe_r1.*)
+      local j=${1#styles_}; echo "styles/${j/recipe_r/recipe_sweep_r}/report.json" ;;
+    recipe_r1.*|occ_recipe_r1.*|pool_succ_occ_recipe_r1.*) echo "layouts/${1/recipe_r/recipe_sweep_r}/report.json" ;;
     styles_cv[0-4]_*) echo "cv/styles/${1#styles_}.json" ;;
     cv[0-4]_*) echo "cv/layouts/$1.json" ;;
     styles_*_s[0-9]) echo "styles/${1#styles_}/report.json" ;;
