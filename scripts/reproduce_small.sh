@@ -44,6 +44,9 @@
 # Then: scripts/results_tables.sh (the tables and pictures of docs/results.md).
 # Order matters for the diagnostic jobs: gtyaw_*, stage1_*, axisnet_longer need cfar_pfal_s<seed> finished,
 # axis100_* need axisnet_longer (a job whose input is missing fails with a message; rerun it later).
+# The whole script is one brace group ending in exit: bash parses all of it before running any of it, so editing this
+# file while jobs run (each job is a new process of it) cannot hand a job in flight a half-read line.
+{
 set -euo pipefail
 SELF=$(realpath "$0")
 cd "$(dirname "$SELF")/.."
@@ -498,3 +501,5 @@ fi
 [ $# -gt 0 ] && JOBS=("$@")
 [ "$PAR" -gt 1 ] || export OMP_NUM_THREADS=${OMP_NUM_THREADS:-2}
 printf '%s\n' "${JOBS[@]}" | xargs -P "$PAR" -I{} "$SELF" --one {}
+exit
+}
