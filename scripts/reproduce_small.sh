@@ -248,6 +248,9 @@ label_of() {  # table label of a baseline model name
     n2m) echo N2M ;; *) echo "$1" ;; esac
 }
 
+# split_job: the benchmark (b) and the job name without its styles_ prefix (j) of $job, set in the caller's locals
+split_job() { b=layouts j=$job; if [ "${job#styles_}" != "$job" ]; then b=styles j=${job#styles_}; fi; }
+
 run_job() {
   local job=$1
   case $job in
@@ -274,7 +277,7 @@ run_job() {
     recipe_no_crop|recipe_no_align|recipe_no_sdl|recipe_no_fd|styles_recipe_no_crop|styles_recipe_no_align|\
     styles_recipe_no_sdl|styles_recipe_no_fd|recipe_no_*_s[0-9]|styles_recipe_no_*_s[0-9])
       # the ablations of Tables 4-5 on top of the zoo recipe; seed 0 without suffix, other seeds as _s<seed>
-      local b=layouts j=$job seed=0 abl; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
+      local b j seed=0 abl; split_job
       abl=${j#recipe_}
       case $abl in *_s[0-9]) seed=${abl##*_s} abl=${abl%_s*} ;; esac
       case $abl in no_crop|no_align|no_sdl|no_fd) ;; *) echo "unknown ablation '$abl'" >&2; return 2 ;; esac
@@ -283,8 +286,7 @@ run_job() {
     occ_recipe_no_*|styles_occ_recipe_no_*|pool_succ_occ_recipe_no_*|styles_pool_succ_occ_recipe_no_*)
       # the same ablations on top of the best configuration (recipe + footprint occupancy input), or with pool_succ_
       # on top of the headline one (also failed cells 0 in training, refit on the whole training pool)
-      local b=layouts j=$job seed=0 abl label="occupancy recipe" pre=() post=()
-      [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
+      local b j seed=0 abl label="occupancy recipe" pre=() post=(); split_job
       abl=${j#*occ_recipe_}
       case $abl in *_s[0-9]) seed=${abl##*_s} abl=${abl%_s*} ;; esac
       case $abl in no_crop|no_align|no_sdl|no_fd) ;; *) echo "unknown ablation '$abl'" >&2; return 2 ;; esac
@@ -301,7 +303,7 @@ run_job() {
       # (recipe + footprint occupancy input), with pool_succ_occ_ on top of the headline one (also failed cells 0 in
       # training, refit on the whole training pool); seed 0 without suffix, other seeds as recipe_r1.xx_s<seed>;
       # the run is named as job_out says (recipe_r1.xx -> recipe_sweep_r1.xx)
-      local b=layouts j=$job seed=0 r label=recipe pre=() post=(); [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
+      local b j seed=0 r label=recipe pre=() post=(); split_job
       case $j in
         occ_*) label="occupancy recipe" post=(--extra-config configs/experiments/recipe/occupancy.yaml) ;;
         pool_succ_occ_*)
@@ -322,52 +324,52 @@ run_job() {
     styles_prior) prior prior styles "Canonical prior (no network)" ;;
     # trained on repeated-episode labels (scripts/fresh_labels.py first; docs/results.md)
     fresh_recipe_s[0-9]|styles_fresh_recipe_s[0-9])
-      local b=layouts j=$job; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
+      local b j; split_job
       curriculum "$j" "$b" "${j#fresh_recipe_s}" "zoo recipe, repeated-episode labels" --extra-config "$RECIPE" \
         --extra-config "configs/experiments/recipe/fresh_labels_$b.yaml" ;;
     fresh_prior) prior fresh_prior layouts "Canonical prior, repeated-episode labels" ;;
     # trained on the labels with failed cells set to 0 (configs/experiments/recipe/success_labels_<bench>.yaml;
     # docs/results.md): the best configuration, and the canonical prior filled from them
     succ_occ_recipe_s[0-9]|styles_succ_occ_recipe_s[0-9])
-      local b=layouts j=$job; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
+      local b j; split_job
       success_labels "$b"
       curriculum "$j" "$b" "${j#succ_occ_recipe_s}" "occupancy recipe, failed cells 0 in training" --extra-config "$RECIPE" \
         --extra-config configs/experiments/recipe/occupancy.yaml --extra-config "configs/experiments/recipe/success_labels_$b.yaml" ;;
     succ_prior|styles_succ_prior)
-      local b=layouts; [ "${job#styles_}" != "$job" ] && b=styles
+      local b j; split_job
       success_labels "$b"; prior succ_prior "$b" "Canonical prior, failed cells 0" ;;
     # the best configuration and its prior refit on the whole training pool: every train scene trains (val_scenes 0,
     # every stage, AxisNet included), no validation, each stage's last checkpoint (docs/results.md)
     pool_succ_occ_recipe_s[0-9]|styles_pool_succ_occ_recipe_s[0-9])
-      local b=layouts j=$job; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
+      local b j; split_job
       success_labels "$b"
       curriculum "$j" "$b" "${j#pool_succ_occ_recipe_s}" "occupancy recipe, failed cells 0, whole training pool" \
         --set data.init_args.val_scenes=0 --extra-config "$RECIPE" --extra-config configs/experiments/recipe/occupancy.yaml \
         --extra-config "configs/experiments/recipe/success_labels_$b.yaml" ;;
     pool_succ_prior|styles_pool_succ_prior)  # with the AxisNet of pool_succ_occ_recipe_s0 (waited for)
-      local b=layouts; [ "${job#styles_}" != "$job" ] && b=styles
+      local b j; split_job
       success_labels "$b"
       AXIS_JOB=pool_succ_occ_recipe_s0 prior pool_succ_prior "$b" "Canonical prior, failed cells 0, whole training pool" ;;
     # trained on views and their mirror images (configs/experiments/recipe/mirror.yaml; docs/results.md)
     mirror_recipe_s[0-9]|styles_mirror_recipe_s[0-9])
-      local b=layouts j=$job; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
+      local b j; split_job
       curriculum "$j" "$b" "${j#mirror_recipe_s}" "zoo recipe, mirrored views" --extra-config "$RECIPE" \
         --extra-config configs/experiments/recipe/mirror.yaml ;;
     mirror_prior) prior mirror_prior layouts "Canonical prior, mirrored views" ;;
     # the decoder also reads the base footprint's occupancy from the view (configs/experiments/recipe/occupancy.yaml)
     occ_recipe_s[0-9]|styles_occ_recipe_s[0-9])
-      local b=layouts j=$job; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
+      local b j; split_job
       curriculum "$j" "$b" "${j#occ_recipe_s}" "zoo recipe, footprint occupancy input" --extra-config "$RECIPE" \
         --extra-config configs/experiments/recipe/occupancy.yaml ;;
     rank_occ_recipe_s[0-9]|styles_rank_occ_recipe_s[0-9])
       # the best configuration plus a listwise ranking term in the loss (configs/experiments/recipe/rank.yaml)
-      local b=layouts j=$job; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
+      local b j; split_job
       curriculum "$j" "$b" "${j#rank_occ_recipe_s}" "occupancy recipe, listwise ranking term" --extra-config "$RECIPE" \
         --extra-config configs/experiments/recipe/occupancy.yaml --extra-config configs/experiments/recipe/rank.yaml ;;
     occ_recipe_rs[0-9]*_s[0-9]|styles_occ_recipe_rs[0-9]*_s[0-9])
       # the best configuration (job occ_recipe_s<seed> first) tested again with its learned residual logit scaled
       # (residual_scale, no training): occ_recipe_rs2_s0 = scale 2, the scale the leave-one-layout-out folds chose
-      local b=layouts j=$job ckpt scale seed; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
+      local b j ckpt scale seed; split_job
       seed=${j##*_s} scale=${j#occ_recipe_rs}; scale=${scale%_s*}
       ckpt=$(stage_ckpt "$RUNS/$b/occ_recipe_s$seed" -1)
       test_run "$(dirname "$(dirname "$ckpt")")" "zoo recipe, footprint occupancy input, residual x$scale" "$b" "$j" \
@@ -379,7 +381,7 @@ run_job() {
       # to 0 (succ); trained, then scored on the fold's validation scenes (no test). cv<f>_last trains the best
       # configuration again (with last.ckpt the newest state) and scores its chosen checkpoint (occ2) and its last
       # one (last2)
-      local b=layouts j=$job f extra=() ck; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
+      local b j f extra=() ck; split_job
       f=${j:2:1}
       [ "${j#*_}" = rank ] && extra=(--extra-config configs/experiments/recipe/rank.yaml)
       if [ "${j#*_}" = succ ]; then
@@ -396,7 +398,7 @@ run_job() {
     cv[0-4]_prior|cv[0-4]_sprior|styles_cv[0-4]_prior|styles_cv[0-4]_sprior)
       # the fold's canonical prior, with the fold's AxisNet (job cv<f>_occ first: this one waits for it); sprior
       # fills it from the labels with failed cells set to 0
-      local b=layouts j=$job f axis fit=(); [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
+      local b j f axis fit=(); split_job
       f=${j:2:1}
       if [ "${j#*_}" = sprior ]; then
         success_labels "$b"; fit=(--config "configs/experiments/recipe/success_labels_$b.yaml")
@@ -409,7 +411,7 @@ run_job() {
       fi
       cv_score "$j" "$b" "$f" "${j#*_}=$(latest_run "$RUNS/$b/$j")/checkpoints/last.ckpt" ;;
     occ_cfar_pfal_s[0-9]|styles_occ_cfar_pfal_s[0-9])  # the same input on the paper's path (no recipe departures)
-      local b=layouts j=$job; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
+      local b j; split_job
       curriculum "$j" "$b" "${j#occ_cfar_pfal_s}" "CFAR+PFAL, footprint occupancy input" \
         --extra-config configs/experiments/recipe/occupancy.yaml ;;
     pool_pointnet2_s[0-9]|pool_navaff_s[0-9]|pool_votenet_s[0-9]|pool_h3dnet_s[0-9]|pool_n2m_s[0-9]|\
@@ -417,15 +419,15 @@ run_job() {
     styles_pool_n2m_s[0-9])
       # every learned baseline on the whole training pool too (pool_<model>_s<seed>; the benchmark's labels, as the
       # paper trains them)
-      local b=layouts j=$job m; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
+      local b j m; split_job
       m=${j#pool_}; m=${m%_s*}
       baseline "$j" "$b" "${j##*_s}" "configs/demo/${m}_demo.yaml" "$(label_of "$m"), whole training pool" \
         --data.init_args.val_scenes 0 ;;
     pool_cfar_pfal_s[0-9]|styles_pool_cfar_pfal_s[0-9])  # the paper's path (no zoo departures) on the whole pool
-      local b=layouts j=$job; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
+      local b j; split_job
       curriculum "$j" "$b" "${j#pool_cfar_pfal_s}" "CFAR+PFAL, whole training pool" --set data.init_args.val_scenes=0 ;;
     occ_pointnet2_s[0-9]|styles_occ_pointnet2_s[0-9])  # the same input for PointNet++ (a fairness check)
-      local b=layouts j=$job; [ "${job#styles_}" != "$job" ] && b=styles j=${job#styles_}
+      local b j; split_job
       baseline "$j" "$b" "${j#occ_pointnet2_s}" configs/demo/pointnet2_demo.yaml "PointNet++, footprint occupancy input" \
         --config configs/experiments/recipe/occupancy.yaml ;;
     styles_mirror_prior) prior mirror_prior styles "Canonical prior, mirrored views" ;;
