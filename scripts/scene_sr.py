@@ -32,7 +32,8 @@ variance, not a row of an equal-budget table).
 ``--top-k 10`` stands each view on the best of its top 10 cells whose base footprint is free in the view's own cloud
 (the callback's ``free_space: cloud`` footprint check) instead of the argmax; ``--footprint-margin 0.05`` grows the
 checked footprint by 5 cm on every side (a cloud too sparse to put two points into a thin overlap with furniture
-may still put them just outside it).
+may still put them just outside it); ``--full-cloud`` checks it in every point the view's file stores (4,096 in the
+``dense`` preset, what the robot's depth image gave) instead of the ``--num-points`` sample the network reads.
 
 Labels only, no simulator; one to two minutes per model and benchmark on one core.
 """
@@ -108,12 +109,18 @@ def ensemble_scores(scores: dict[str, list[np.ndarray]]) -> dict[str, list[np.nd
 
 
 def view_outcomes(
-    batch: dict, scores: dict[str, list[np.ndarray]], scenes: dict[str, dict], top_k: int = 1, margin: float = 0.0
+    batch: dict,
+    scores: dict[str, list[np.ndarray]],
+    scenes: dict[str, dict],
+    top_k: int = 1,
+    margin: float = 0.0,
+    full_cloud: bool = False,
 ) -> list[Row]:
     """Annotated outcome of each run's chosen cell, per view of a batch (scores: name -> per run [B, M]).
 
     ``top_k`` > 1: the best of the top-k cells whose base footprint is free in the view's own cloud, as
-    ``RolloutSuccessRate(top_k=k, free_space="cloud")`` chooses, the footprint grown by ``margin`` (m) on every side.
+    ``RolloutSuccessRate(top_k=k, free_space="cloud")`` chooses, the footprint grown by ``margin`` (m) on every side;
+    ``full_cloud``: in every point the view's file stores (``stored_cloud``), not the batch's sample.
     """
     from floaff_zoo.sim.kitchen import SceneSpec
 
@@ -130,7 +137,8 @@ def view_outcomes(
         success = np.asarray(scene["labels"]["success"]) > 0
         free = None
         if top_k > 1:
-            free = cloud_free(batch["scene_xyz"][i][batch["scene_mask"][i]].numpy(), sim["base_pose_world"], margin)
+            xyz = stored_cloud(scene, meta) if full_cloud else batch["scene_xyz"][i][batch["scene_mask"][i]].numpy()
+            free = cloud_free(xyz, sim["base_pose_world"], margin)
         reasons = scene["labels"].get("reasons")
         out: dict[str, list[bool]] = {}
         why: dict[str, list[str]] = {}
@@ -145,6 +153,17 @@ def view_outcomes(
                 why[name].append(failure_kind(reasons[c]) if reasons is not None else "unknown")
         rows.append((meta["task"], sid, out, why))
     return rows
+
+
+def stored_cloud(scene: dict, meta: dict) -> np.ndarray:
+    """[N, 3] every point the view's file stores (robot base frame), for the view ``meta['sample_id']`` names."""
+    from floaff_zoo.sim import fileformat as ff
+
+    view_id = meta["sample_id"].rsplit("/", 1)[-1]
+    view = next((v for v in scene["views"] if v["view_id"] == view_id), None)
+    if view is None:
+        raise KeyError(f"view {meta['sample_id']}: no such view in {scene['scene_id']}")
+    return ff.read_view(Path(scene["dir"]) / view["file"])["scene_xyz"]
 
 
 def failure_kind(reason: str) -> str:
@@ -279,6 +298,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument(
         "--footprint-margin", type=float, default=0.0, help="with --top-k: grow the checked footprint by this (m)"
     )
+    p.add_argument(
+        "--full-cloud",
+        action="store_true",
+        help="with --top-k: check the footprint in every point the view's file stores, not the network's sample",
+    )
     p.add_argument("--ensemble", action="store_true", help="also score NAME+ens: the mean map of NAME's runs")
     p.add_argument("--json", default=None)
     a = p.parse_args(argv)
@@ -292,6 +316,8 @@ def main(argv: list[str] | None = None) -> int:
         p.error(f"--footprint-margin must be finite and >= 0, got {a.footprint_margin}")
     if a.footprint_margin > 0 and a.top_k == 1:
         p.error("--footprint-margin grows the footprint that --top-k checks: give --top-k > 1")
+    if a.full_cloud and a.top_k == 1:
+        p.error("--full-cloud chooses the cloud that --top-k checks: give --top-k > 1")
     scales = parse_scales(a.residual_scales)
     groups = parse_models(a.models)
     if a.ensemble and not ensembled(groups):
@@ -322,7 +348,7 @@ def main(argv: list[str] | None = None) -> int:
             if a.ensemble:
                 scores = ensemble_scores(scores)
             try:
-                rows += view_outcomes(batch, scores, scenes, a.top_k, a.footprint_margin)
+                rows += view_outcomes(batch, scores, scenes, a.top_k, a.footprint_margin, a.full_cloud)
             except KeyError as exc:
                 raise SystemExit(f"scene_sr: {exc.args[0]}") from exc
     n_runs = {n: len(r) for n, r in nets.items()}
@@ -361,6 +387,7 @@ def main(argv: list[str] | None = None) -> int:
             "ensemble": a.ensemble,
             "top_k": a.top_k,
             "footprint_margin": a.footprint_margin,
+            "full_cloud": a.full_cloud,
             "draws": a.draws,
             "scenes": table,
             **res,

@@ -88,6 +88,7 @@ def test_bad_arguments_exit_with_a_message(tmp_path, capsys):
     for args, msg in (
         (["--top-k", "10", "--footprint-margin", "-0.1"], "finite and >= 0"),
         (["--footprint-margin", "0.05"], "give --top-k > 1"),
+        (["--full-cloud"], "give --top-k > 1"),
         (["--val-layout", "2"], "give --split val"),
     ):
         with pytest.raises(SystemExit):
@@ -191,3 +192,23 @@ def test_annotated_outcomes_equal_the_callbacks_rollouts(sim_scenes):
             assert np.mean(outcomes) == pytest.approx(res["test_sr_all"]), (scorer.__name__, top_k)
             seen |= set(outcomes)
     assert seen == {True, False}  # both outcomes occur, so the agreement says something
+
+
+def test_full_cloud_checks_every_stored_point_not_the_batch_sample(sim_scenes):
+    """``full_cloud`` reads the view's file: with the batch's cloud masked out it chooses as the full batch does."""
+    from tests.report._fake_world import loader
+
+    scenes, samples = sim_scenes
+    refused = 0  # views whose choice the cloud check changes: without them the comparison says nothing
+    for batch in loader(samples, 4):
+        meta = batch["meta"][0]
+        scene = scenes[meta["scene_id"]]
+        np.testing.assert_array_equal(ssr.stored_cloud(scene, meta), batch["scene_xyz"][0].numpy())
+        blind = {**batch, "scene_mask": torch.zeros_like(batch["scene_mask"])}  # no point left in the sample
+        scores = {"m": [_behind(batch)]}  # a poor map: the footprint check changes choices
+        full = ssr.view_outcomes(batch, scores, scenes, top_k=5)
+        assert ssr.view_outcomes(blind, scores, scenes, top_k=5, full_cloud=True) == full
+        refused += sum(x != y for x, y in zip(ssr.view_outcomes(blind, scores, scenes, top_k=5), full))
+    assert refused > 0
+    with pytest.raises(KeyError, match="no such view"):
+        ssr.stored_cloud(scene, {**meta, "sample_id": meta["sample_id"] + "_missing"})
