@@ -349,7 +349,7 @@ def main(argv: list[str] | None = None) -> int:
                 scores = ensemble_scores(scores)
             try:
                 rows += view_outcomes(batch, scores, scenes, a.top_k, a.footprint_margin, a.full_cloud)
-            except KeyError as exc:
+            except (KeyError, ff.FormatError) as exc:  # a view missing from its scene, or a corrupt view file
                 raise SystemExit(f"scene_sr: {exc.args[0]}") from exc
     n_runs = {n: len(r) for n, r in nets.items()}
     if a.ensemble:

@@ -212,3 +212,19 @@ def test_full_cloud_checks_every_stored_point_not_the_batch_sample(sim_scenes):
     assert refused > 0
     with pytest.raises(KeyError, match="no such view"):
         ssr.stored_cloud(scene, {**meta, "sample_id": meta["sample_id"] + "_missing"})
+
+
+def test_a_corrupt_view_file_names_the_file(sim_scenes, tmp_path):
+    """``stored_cloud`` reads the file again: a corrupt one is a FormatError naming it (main exits with it)."""
+    import shutil
+
+    from floaff_zoo.sim import fileformat as ff
+
+    scenes, samples = sim_scenes
+    meta = samples[0]["meta"]
+    scene = dict(scenes[meta["scene_id"]], dir=str(tmp_path / "copy"))
+    shutil.copytree(scenes[meta["scene_id"]]["dir"], scene["dir"])
+    view = next(v for v in scene["views"] if meta["sample_id"].endswith(v["view_id"]))
+    (Path(scene["dir"]) / view["file"]).write_bytes(b"not an npz")
+    with pytest.raises(ff.FormatError, match=view["file"].rsplit("/", 1)[-1]):
+        ssr.stored_cloud(scene, meta)
