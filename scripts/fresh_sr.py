@@ -24,7 +24,8 @@ the annotation's task seed (only the parking noise is new): the two parts of the
 For each scorer it also prints ``exact``, the annotated outcome of the chosen cell, which is what
 ``floaff-zoo test`` measures when its Oracle scores 1.00 (the pose is the cell's pose, the seed the annotation's, and
 a cell the annotation filtered is refused by the rollout as well). ``--top-k K`` chooses as
-``RolloutSuccessRate(top_k=K, free_space="cloud")``.
+``RolloutSuccessRate(top_k=K, free_space="cloud")``; with ``--full-cloud`` the footprint is checked in every point the
+view's file stores instead of the ``--num-points`` sample (``stored_cloud``).
 Rollouts run in ``--workers`` processes; the probabilities are deterministic for a given ``--seed`` on one machine.
 """
 
@@ -65,13 +66,30 @@ def nearest_cells(cand_xy: np.ndarray, xy: np.ndarray, cell: float, where: str) 
     return idx
 
 
+def stored_cloud(scene: dict, meta: dict) -> np.ndarray:
+    """[N, 3] every point the view's file stores (robot base frame), for the view ``meta['sample_id']`` names."""
+    from floaff_zoo.sim import fileformat as ff
+
+    view_id = meta["sample_id"].rsplit("/", 1)[-1]
+    view = next((v for v in scene["views"] if v["view_id"] == view_id), None)
+    if view is None:
+        raise KeyError(f"view {meta['sample_id']}: no such view in {scene['scene_id']}")
+    return ff.read_view(Path(scene["dir"]) / view["file"])["scene_xyz"]
+
+
 def view_choices(
-    batch: dict, scores: dict[str, np.ndarray], scenes: dict[str, dict], probs: dict[str, np.ndarray], top_k: int = 1
+    batch: dict,
+    scores: dict[str, np.ndarray],
+    scenes: dict[str, dict],
+    probs: dict[str, np.ndarray],
+    top_k: int = 1,
+    full_cloud: bool = False,
 ) -> list[dict]:
     """Per view of a batch: task, view, and per scorer the chosen cell's (exact outcome, fresh probability).
 
     scores: scorer name -> [B, M] per-point scores (``label`` and the models). ``best`` is added: the observed
-    cell of highest fresh probability. ``top_k`` > 1: the best of the top k poses free in the view's cloud.
+    cell of highest fresh probability. ``top_k`` > 1: the best of the top k poses free in the view's cloud (every
+    stored point with ``full_cloud``, else the batch's sample).
     """
     from floaff_zoo.sim.kitchen import SceneSpec
 
@@ -90,7 +108,8 @@ def view_choices(
         row = {"task": meta["task"], "view": meta["view"]}
         free = None
         if top_k > 1:  # as RolloutSuccessRate(free_space="cloud")
-            free = cloud_free(batch["scene_xyz"][i][batch["scene_mask"][i]].numpy(), sim["base_pose_world"])
+            xyz = stored_cloud(scene, meta) if full_cloud else batch["scene_xyz"][i][batch["scene_mask"][i]].numpy()
+            free = cloud_free(xyz, sim["base_pose_world"])
         for name, s in scores.items():
             pose, _ = choose_pose(floor[i], s[i], mask[i], target[i], sim["base_pose_world"], top_k, free, tie)
             c = nearest_cells(cand, np.array([pose[:2]]), cell, where)[0]
@@ -198,6 +217,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--batch-size", type=int, default=4)
     p.add_argument("--workers", type=int, default=1)
     p.add_argument("--top-k", type=int, default=1, help="> 1: best of the top-k poses free in the view's cloud")
+    p.add_argument(
+        "--full-cloud", action="store_true", help="with --top-k: check in every stored point, not the network's sample"
+    )
     p.add_argument("--probs", default=None, help="cache of the fresh probabilities (.npz; read if it exists)")
     p.add_argument("--json", default=None)
     a = p.parse_args(argv)
@@ -205,6 +227,8 @@ def main(argv: list[str] | None = None) -> int:
         p.error("--episodes must be >= 1 and the sigmas >= 0")
     if min(a.top_k, a.workers, a.batch_size) < 1:
         p.error("--top-k, --workers and --batch-size must be >= 1")
+    if a.full_cloud and a.top_k == 1:
+        p.error("--full-cloud chooses the cloud that --top-k checks: give --top-k > 1")
     if a.probs and not a.probs.endswith(".npz"):
         p.error(f"--probs must name a .npz file, got {a.probs!r}")
 
@@ -243,7 +267,10 @@ def main(argv: list[str] | None = None) -> int:
         for batch in dm.test_dataloader() if a.split == "test" else dm.val_dataloader():
             scores = {"label": batch["floor_label"].numpy()}
             scores.update({m: net(batch).numpy() for m, net in models.items()})
-            rows += view_choices(batch, scores, scenes, probs, a.top_k)
+            try:
+                rows += view_choices(batch, scores, scenes, probs, a.top_k, a.full_cloud)
+            except (KeyError, ff.FormatError) as exc:  # a scene without probabilities, a missing or corrupt view
+                raise SystemExit(f"fresh_sr: {exc.args[0]}") from exc
     scorers = ["label", "best", *keys]
     sr = summarize(rows, scorers)
     pooled = pool_runs(sr, {n: ks for n, ks in groups.items() if len(ks) > 1})
@@ -268,6 +295,7 @@ def main(argv: list[str] | None = None) -> int:
                 {
                     "setting": setting,
                     "top_k": a.top_k,
+                    "full_cloud": a.full_cloud,
                     "views": len(rows),
                     "models": keys,
                     "sr": sr,

@@ -51,7 +51,7 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from fresh_sr import nearest_cells  # noqa: E402
+from fresh_sr import nearest_cells, stored_cloud  # noqa: E402
 
 from floaff_zoo.callbacks.rollout import choose_pose, cloud_free  # noqa: E402
 from floaff_zoo.contract import TASKS  # noqa: E402
@@ -153,17 +153,6 @@ def view_outcomes(
                 why[name].append(failure_kind(reasons[c]) if reasons is not None else "unknown")
         rows.append((meta["task"], sid, out, why))
     return rows
-
-
-def stored_cloud(scene: dict, meta: dict) -> np.ndarray:
-    """[N, 3] every point the view's file stores (robot base frame), for the view ``meta['sample_id']`` names."""
-    from floaff_zoo.sim import fileformat as ff
-
-    view_id = meta["sample_id"].rsplit("/", 1)[-1]
-    view = next((v for v in scene["views"] if v["view_id"] == view_id), None)
-    if view is None:
-        raise KeyError(f"view {meta['sample_id']}: no such view in {scene['scene_id']}")
-    return ff.read_view(Path(scene["dir"]) / view["file"])["scene_xyz"]
 
 
 def failure_kind(reason: str) -> str:

@@ -75,10 +75,12 @@ def test_cli_scores_the_label_oracle_and_caches_probabilities(drawer_root, tmp_p
 def test_cli_annotation_seed_without_noise_is_the_exact_evaluation(drawer_root, tmp_path):
     out = tmp_path / "same.json"
     args = ["--root", str(drawer_root), "--benchmark", "styles", "--episodes", "1", "--annotation-seed"]
-    for top_k in ("1", "3"):
-        assert fs.main([*args, "--sigma-xy", "0", "--sigma-yaw-deg", "0", "--top-k", top_k, "--json", str(out)]) == 0
+    for top_k, cloud in (("1", []), ("3", []), ("3", ["--full-cloud"])):  # the check in the sample or every point
+        argv = [*args, "--sigma-xy", "0", "--sigma-yaw-deg", "0", "--top-k", top_k, *cloud, "--json", str(out)]
+        assert fs.main(argv) == 0
         rep = json.loads(out.read_text())
         assert rep["setting"]["task_seed"] == "annotation" and rep["top_k"] == int(top_k)
+        assert rep["full_cloud"] == bool(cloud)
         # the same seed at the same pose reproduces every annotated outcome, so fresh equals exact for every scorer
         for scorer in ("label", "best"):
             assert rep["sr"][scorer]["fresh"] == rep["sr"][scorer]["exact"]
@@ -87,7 +89,7 @@ def test_cli_annotation_seed_without_noise_is_the_exact_evaluation(drawer_root, 
 
 def test_cli_names_bad_arguments_and_a_corrupt_cache(drawer_root, tmp_path):
     args = ["--root", str(drawer_root), "--benchmark", "styles"]
-    for bad in (["--top-k", "0"], ["--episodes", "0"], ["--probs", str(tmp_path / "p.txt")]):
+    for bad in (["--top-k", "0"], ["--episodes", "0"], ["--probs", str(tmp_path / "p.txt")], ["--full-cloud"]):
         with pytest.raises(SystemExit):
             fs.main([*args, *bad])
     corrupt = tmp_path / "corrupt.npz"
