@@ -67,14 +67,18 @@ def nearest_cells(cand_xy: np.ndarray, xy: np.ndarray, cell: float, where: str) 
 
 
 def stored_cloud(scene: dict, meta: dict) -> np.ndarray:
-    """[N, 3] every point the view's file stores (robot base frame), for the view ``meta['sample_id']`` names."""
+    """[N, 3] every point the view's file stores (robot base frame), for the view ``meta['sample_id']`` names.
+
+    Read as the DataModule reads it (``fileformat.read_sample``: the scene's format version, the file validated), so
+    a missing view is a KeyError and a corrupt file a FormatError, each naming it.
+    """
     from floaff_zoo.sim import fileformat as ff
 
     view_id = meta["sample_id"].rsplit("/", 1)[-1]
     view = next((v for v in scene["views"] if v["view_id"] == view_id), None)
     if view is None:
         raise KeyError(f"view {meta['sample_id']}: no such view in {scene['scene_id']}")
-    return ff.read_view(Path(scene["dir"]) / view["file"])["scene_xyz"]
+    return ff.read_sample(scene, view)["scene_xyz"]
 
 
 def view_choices(

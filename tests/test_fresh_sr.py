@@ -190,3 +190,31 @@ def test_named_models_pool_their_runs():
     for bad in (["=a.ckpt"], ["occ="], ["label=a.ckpt"]):
         with pytest.raises(SystemExit, match="bad model argument"):
             fs.parse_models(bad)
+
+
+def test_view_choices_with_full_cloud_check_every_stored_point(drawer_root):
+    """``full_cloud`` reads the view's file: with the batch's cloud masked out it chooses as the full batch does, and
+    without it the masked batch chooses otherwise in some view (so the comparison can fail)."""
+    import torch
+
+    from floaff_zoo.contract import validate_sample
+    from floaff_zoo.nn.placement import footprint_counts
+    from tests.report._fake_world import loader
+
+    scenes = {s["scene_id"]: s for s in ff.iter_scenes(drawer_root)}
+    samples = [validate_sample(ff.read_sample(sc, v, drawer_root)) for sc in scenes.values() for v in sc["views"]]
+    probs = {sid: np.arange(len(s["candidates"]["xy"]), dtype=float) for sid, s in scenes.items()}  # tells cells apart
+    changed = 0
+    for batch in loader(samples, 4):
+        m = batch["floor_xyz"].shape[1]
+        # the cells whose footprint holds the most obstacle points first: the check must refuse the top ones
+        counts = footprint_counts(
+            batch["scene_xyz"], batch["scene_mask"], batch["floor_xyz"][..., :2], batch["target_xyz"][..., :2]
+        )
+        blocked_first = {"m": torch.sigmoid(counts).numpy()}
+        blind = {**batch, "scene_mask": torch.zeros_like(batch["scene_mask"])}
+        full = fs.view_choices(batch, blocked_first, scenes, probs, top_k=m)
+        assert fs.view_choices(blind, blocked_first, scenes, probs, top_k=m, full_cloud=True) == full
+        sample_only = fs.view_choices(blind, blocked_first, scenes, probs, top_k=m)
+        changed += sum(a["m"] != b["m"] for a, b in zip(sample_only, full))
+    assert changed > 0

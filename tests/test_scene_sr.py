@@ -215,7 +215,8 @@ def test_full_cloud_checks_every_stored_point_not_the_batch_sample(sim_scenes):
 
 
 def test_a_corrupt_view_file_names_the_file(sim_scenes, tmp_path):
-    """``stored_cloud`` reads the file again: a corrupt one is a FormatError naming it (main exits with it)."""
+    """``stored_cloud`` reads the file again: a corrupt one is a FormatError naming it (``main`` turns it into an exit
+    with that message, as it does a missing view)."""
     import shutil
 
     from floaff_zoo.sim import fileformat as ff
