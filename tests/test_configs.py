@@ -50,9 +50,12 @@ def plan(cfg: str) -> tuple[str, list[list[str]]]:
     if isinstance(raw.get("model"), dict):  # init_args only: an ablation / sweep override of CFAR
         return "override", [["fit", "--config", TINY_DATA, "--config", "configs/models/cfar.yaml", "--config", cfg]]
     if isinstance(raw.get("data"), dict):  # init_args only: e.g. transforms added to any DataModule
-        # FloAff-Kitchen's own options (train_labels) go over a FloAff-Kitchen data config
-        base = "configs/data/floaff_tiny.yaml" if "train_labels" in (raw["data"].get("init_args") or {}) else TINY_DATA
-        return "data_override", [["fit", "--config", base, "--config", TINY_MODEL, "--config", cfg]]
+        # FloAff-Kitchen's own options (train_labels, full_cloud) go over a FloAff-Kitchen data config
+        own = {"train_labels", "full_cloud"} & set(raw["data"].get("init_args") or {})
+        base = "configs/data/floaff_tiny.yaml" if own else TINY_DATA
+        # with evaluation callbacks (eval_sr_top10_full.yaml) it is a `test` preset
+        command = "test" if "callbacks" in (raw.get("trainer") or {}) else "fit"
+        return "data_override", [[command, "--config", base, "--config", TINY_MODEL, "--config", cfg]]
     if set(raw) == {"trainer"}:
         command = "test" if "callbacks" in (raw["trainer"] or {}) else "fit"
         return "trainer", [[command, "--config", TINY_DATA, "--config", TINY_MODEL, "--config", cfg]]

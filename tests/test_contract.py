@@ -101,3 +101,24 @@ def test_best_pose_random_tie_break_is_seeded_and_uniform():
     assert counts.min() > 15 and counts.max() < 70  # roughly uniform (expected 40 each)
     # a strict maximum always wins, whatever the seed
     assert all(best_pose(floor, torch.eye(10)[3], None, target, seed=s)[0][0] == 3.0 for s in range(20))
+
+
+def test_full_cloud_is_checked_and_padded_never_resampled():
+    """The optional stored cloud: validated (shape, NaN named), zero-padded to the batch's largest with full_mask,
+    kept whole when the scene points are resampled; a batch where only some samples have one is refused."""
+    a = validate_sample(_sample(10, 6, full_xyz=np.random.rand(40, 3).astype(np.float32)))
+    b = validate_sample(_sample(4, 3, full_xyz=np.random.rand(25, 3).astype(np.float32)))
+    batch = collate_samples([a, b], num_points=8, mode="resample", generator=torch.Generator().manual_seed(0))
+    assert batch["scene_xyz"].shape == (2, 8, 3) and batch["full_xyz"].shape == (2, 40, 3)
+    assert batch["full_mask"].sum(1).tolist() == [40, 25]
+    assert torch.equal(batch["full_xyz"][1, :25], b["full_xyz"]) and (batch["full_xyz"][1, 25:] == 0).all()
+    assert "full_xyz" not in collate_samples([validate_sample(_sample())])
+    with pytest.raises(SampleError, match="full_xyz is in some samples.*s1"):
+        collate_samples([a, validate_sample(_sample())])
+    for bad, msg in (
+        (np.zeros((5, 2), np.float32), r"full_xyz must be \[K >= 1, 3\]"),
+        (np.full((5, 3), np.nan), "NaN"),
+    ):
+        with pytest.raises(SampleError, match=msg) as err:
+            validate_sample(_sample(full_xyz=bad))
+        assert "s1" in str(err.value)

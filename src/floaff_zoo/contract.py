@@ -22,10 +22,15 @@ target_yaw    float32 []       yaw of the target's front-facing outward normal (
 meta          dict             dataset, task, view (front/side/''), scene_id, layout_id,
                                style_id, sample_id, index (position in the split) and, for
                                simulated data, ``sim`` (JSON-able, enough to rebuild the scene)
+full_xyz      float32 [K, 3]   optional (``FULL_CLOUD_KEY``): every point the view stores, robot
+                               base frame, before any crop or resampling; only when a DataModule
+                               is asked for it (``full_cloud``), for the rollout callback's
+                               footprint check. Models never read it.
 ============  ===============  ==============================================================
 
 A **batch** has the same keys with a leading batch dimension ``B``; ``meta`` becomes a list of
 dicts. Padded entries are zeros with their mask ``False``; models and metrics must ignore them.
+``full_xyz`` is zero-padded to the batch's largest cloud (never resampled) with ``full_mask`` [B, K].
 """
 
 from __future__ import annotations
@@ -59,6 +64,8 @@ REQUIRED_KEYS: tuple[str, ...] = (
     "target_xyz",
     "target_yaw",
 )
+#: optional key: every stored point of the view (module docstring); transforms that move the frame move it too
+FULL_CLOUD_KEY = "full_xyz"
 META_KEYS: tuple[str, ...] = (
     "dataset",
     "task",
@@ -142,8 +149,21 @@ def validate_sample(sample: Sample) -> Sample:
         raise SampleError(f"{where}: floor_label must lie in [0, 1] (min {label.min():.3g}, max {label.max():.3g})")
     out["scene_mask"] = _mask(sample.get("scene_mask"), xyz.shape[0], where, "scene_mask")
     out["floor_mask"] = _mask(sample.get("floor_mask"), floor.shape[0], where, "floor_mask")
+    if FULL_CLOUD_KEY in sample:
+        out[FULL_CLOUD_KEY] = _full_cloud(sample[FULL_CLOUD_KEY], where)
     out["meta"] = dict(sample.get("meta") or {})
     return out
+
+
+def _full_cloud(value: Any, where: str) -> Tensor:
+    """The optional stored cloud checked: float32 [K, 3], K >= 1, finite."""
+    full = torch.as_tensor(np.asarray(value) if not torch.is_tensor(value) else value).float()
+    if full.ndim != 2 or full.shape[1] != 3 or full.shape[0] == 0:
+        raise SampleError(f"{where}: {FULL_CLOUD_KEY} must be [K >= 1, 3], got {list(full.shape)}")
+    if not torch.isfinite(full).all():
+        bad = int((~torch.isfinite(full)).sum())
+        raise SampleError(f"{where}: field {FULL_CLOUD_KEY} contains {bad} NaN/Inf value(s)")
+    return full
 
 
 def _mask(mask: Any, n: int, where: str, name: str) -> Tensor:
@@ -229,7 +249,26 @@ def collate_samples(
         batch["floor_xyz"][i, :m] = s["floor_xyz"][:m]
         batch["floor_label"][i, :m] = s["floor_label"][:m]
         batch["floor_mask"][i, :m] = s["floor_mask"][:m]
+    _collate_full_cloud(samples, batch)
     return batch
+
+
+def _collate_full_cloud(samples: Sequence[Sample], batch: Batch) -> None:
+    """Add ``full_xyz`` [B, K, 3] and ``full_mask`` [B, K] (K = the largest cloud, zero-padded) when every sample
+    has a stored cloud; a batch where only some do is refused (a DataModule gives it to all or none)."""
+    have = [FULL_CLOUD_KEY in s for s in samples]
+    if not any(have):
+        return
+    if not all(have):
+        missing = [_where(s.get("meta")) for s, h in zip(samples, have) if not h][:3]
+        raise SampleError(f"{FULL_CLOUD_KEY} is in some samples of the batch but not in {missing}")
+    k_max = max(s[FULL_CLOUD_KEY].shape[0] for s in samples)
+    batch[FULL_CLOUD_KEY] = torch.zeros(len(samples), k_max, 3)
+    batch["full_mask"] = torch.zeros(len(samples), k_max, dtype=torch.bool)
+    for i, s in enumerate(samples):
+        k = s[FULL_CLOUD_KEY].shape[0]
+        batch[FULL_CLOUD_KEY][i, :k] = s[FULL_CLOUD_KEY]
+        batch["full_mask"][i, :k] = True
 
 
 def check_batch(batch: Batch) -> None:

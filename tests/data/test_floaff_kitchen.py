@@ -206,3 +206,30 @@ def test_cache_and_workers(floaff_root):
     dm2 = _dm(root, cache=True, tasks=["CloseDrawer"])
     dm2.setup("fit")
     assert dict(dm2.skips.counts) == {k: v for k, v in exp["skips"].items()}
+
+
+def test_full_cloud_carries_every_stored_point_past_crop_cache_and_resampling(floaff_root):
+    """full_cloud: the batch's full_xyz is the view file's whole cloud (as fileformat reads it), while scene_xyz is
+    the cropped, resampled sample; the cache keeps it under its own key, and without the flag batches have none."""
+    import torch
+
+    from floaff_zoo.data.transforms import TargetCrop
+
+    root, _ = floaff_root
+    kw = dict(
+        tasks=["CloseDrawer"], eval_batch_size=1, cache=True, eval_transforms=[TargetCrop(radius=0.5, min_points=1)]
+    )
+    plain = _dm(root, **kw)
+    plain.setup("test")
+    assert "full_xyz" not in next(iter(plain.test_dataloader()))
+    dm = _dm(root, full_cloud=True, **kw)
+    dm.setup("test")
+    assert len({p.parent for p in (root / ".cache").rglob("*.pt")}) == 2  # its own cache directory
+    for _ in range(2):  # the second pass reads the cache
+        batch = next(iter(dm.test_dataloader()))
+        stored = torch.as_tensor(ff.read_view(dm.datasets["test"].records[0].payload["view"]["file"])["scene_xyz"])
+        assert batch["scene_xyz"].shape == (1, 128, 3)
+        assert batch["full_xyz"].shape == (1, len(stored), 3) and batch["full_mask"].all()
+        assert torch.equal(batch["full_xyz"][0], stored)
+        crop = (batch["scene_xyz"][0] - batch["target_xyz"][0]).norm(dim=1)
+        assert crop.max() <= 0.5 + 1e-5 < (stored - batch["target_xyz"][0]).norm(dim=1).max()

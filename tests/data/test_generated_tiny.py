@@ -41,3 +41,29 @@ def test_generated_tiny_reads_and_round_trips(tiny_root, tmp_path, root, monkeyp
     ckpt = cli.trainer.checkpoint_callback.best_model_path
     res = run_lightning(["test", *base, "--ckpt_path", ckpt]).trainer.callback_metrics
     assert torch.isfinite(res["test_rmse"])
+
+
+def test_full_cloud_footprint_check_through_the_cli(tiny_root, tmp_path, root, monkeypatch):
+    """`floaff-zoo test` with eval_sr_top10_full.yaml over a run's config: the data override reaches the DataModule,
+    the callback checks footprints in the stored cloud, and the report says so."""
+    import json
+    from pathlib import Path
+
+    monkeypatch.chdir(root)
+    base = [
+        "--config",
+        "configs/data/floaff_tiny.yaml",
+        "--config",
+        "configs/models/tiny_pointnet.yaml",
+        "--data.init_args.root",
+        str(tiny_root),
+        "--data.init_args.tasks",
+        '["CloseDrawer"]',
+        *quiet_trainer_args(tmp_path),
+    ]
+    ckpt = run_lightning(["fit", *base, "--trainer.max_epochs", "1"]).trainer.checkpoint_callback.best_model_path
+    cli = run_lightning(["test", *base, "--config", "configs/trainer/eval_sr_top10_full.yaml", "--ckpt_path", ckpt])
+    assert cli.datamodule.full_cloud is True
+    rep = json.loads((Path(cli.trainer.log_dir) / "report.json").read_text())
+    assert rep["sr"]["free_space"] == "full_cloud" and rep["sr"]["top_k"] == 10
+    assert rep["sr"]["n_evaluated"] == len(cli.datamodule.datasets["test"]) > 0

@@ -97,6 +97,10 @@ def test_yaw_perturb_is_consistent():
     assert s["meta"]["sim"]["base_pose_world"][2] == 0.3  # input untouched
     back = rotate_sample(out, -ang)
     assert torch.allclose(back["scene_xyz"], s["scene_xyz"], atol=1e-5)
+    # the stored cloud (full_xyz) turns with the scene, so a footprint check in it stays in the sample's frame
+    s["full_xyz"] = s["scene_xyz"].clone()
+    turned = rotate_sample(s, 0.2)
+    assert torch.allclose(turned["full_xyz"], turned["scene_xyz"], atol=1e-6)
 
 
 def test_lateral_mirror_flips_the_canonical_frame_laterally():
@@ -109,6 +113,8 @@ def test_lateral_mirror_flips_the_canonical_frame_laterally():
         assert torch.equal(out[key][:, 1], -s[key][:, 1])
     assert torch.equal(out["floor_label"], s["floor_label"]) and torch.equal(out["scene_feat"], s["scene_feat"])
     assert float(out["target_yaw"]) == pytest.approx(-0.7)
+    s2 = {**s, "full_xyz": s["scene_xyz"].clone()}
+    assert torch.equal(LateralMirror(p=1.0)(s2, np.random.default_rng(0))["full_xyz"], out["scene_xyz"])
     # a mirror-image kitchen: no simulator scene matches it, so nothing can roll it out
     assert "sim" not in out["meta"] and out["meta"]["mirrored"] is True and "sim" in s["meta"]
 

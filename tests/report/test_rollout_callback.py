@@ -195,3 +195,57 @@ def test_cloud_free_margin_grows_the_footprint_on_every_side():
         cloud = np.array([[x, y, 0.5]] * 2)
         assert cloud_free(cloud, pose)(*pose)
         assert not cloud_free(cloud, pose, margin=0.1)(*pose), (x, y)
+
+
+def _stored_obstacle(samples: list[dict]) -> list[dict]:
+    """Give every sample a stored cloud (``full_xyz``) that holds, besides its own points, four obstacle points in
+    the footprint of the label's argmax pose; the batch's sample (``scene_xyz``) stays without them."""
+    import torch
+
+    from floaff_zoo.contract import best_pose
+
+    for s in samples:
+        x, y, yaw = best_pose(
+            s["floor_xyz"], s["floor_label"], s["floor_mask"], s["target_xyz"], seed=s["meta"]["index"]
+        )[0]
+        back = np.array([[x - 0.2 * math.cos(yaw), y - 0.2 * math.sin(yaw), 0.5]] * 4, np.float32)
+        s["full_xyz"] = torch.cat([s["scene_xyz"], torch.from_numpy(back)])
+    return samples
+
+
+def test_full_cloud_free_space_reads_the_stored_cloud_not_the_sample():
+    """free_space='full_cloud' sees an obstacle that only the stored cloud holds; 'cloud' (the batch's sample) does not,
+    so the two choose differently on the same batch."""
+    from floaff_zoo.floor import footprint_blocked
+
+    samples = _stored_obstacle(make_samples(16))
+    chosen = {}
+    for free_space in ("cloud", "full_cloud"):
+        cb = RolloutSuccessRate(service=FakeService, progress=False, top_k=8, free_space=free_space, oracle=False)
+        _trainer(cb).test(LabelModule(), dataloaders=loader(samples), verbose=False)
+        assert cb.summaries["test"]["free_space"] == free_space
+        chosen[free_space] = cb.episodes["test"]
+    assert all(e["rank"] == 0 for e in chosen["cloud"])  # the sample holds no obstacle: the argmax stands
+    assert all(e["rank"] > 0 for e in chosen["full_cloud"])  # the stored cloud blocks the argmax in every view
+    for e, s in zip(chosen["full_cloud"], samples):
+        world = base_to_world(s["full_xyz"].numpy(), s["meta"]["sim"]["base_pose_world"])
+        assert not footprint_blocked(world, e["pose"])
+
+
+def test_full_cloud_free_space_without_a_stored_cloud_is_refused():
+    """A batch without full_xyz is named at its first batch; a DataModule with full_cloud false before any epoch."""
+    from lightning.pytorch.utilities.exceptions import MisconfigurationException
+
+    cb = RolloutSuccessRate(service=FakeService, progress=False, top_k=8, free_space="full_cloud", oracle=False)
+    with pytest.raises(ValueError, match="full_xyz.*full_cloud: true"):
+        _trainer(cb).test(LabelModule(), dataloaders=loader(make_samples(4)), verbose=False)
+
+    class NoStoredCloud(L.LightningDataModule):
+        full_cloud = False
+
+        def test_dataloader(self):
+            return loader(make_samples(4))
+
+    cb = RolloutSuccessRate(service=FakeService, progress=False, top_k=8, free_space="full_cloud", oracle=False)
+    with pytest.raises(MisconfigurationException, match="NoStoredCloud has full_cloud: false"):
+        _trainer(cb).test(LabelModule(), datamodule=NoStoredCloud(), verbose=False)

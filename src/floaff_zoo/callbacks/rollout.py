@@ -6,8 +6,8 @@ For every evaluated sample that carries ``meta['sim']`` (FloAff-Kitchen-style da
 1. picks a base pose from the predicted floor scores: ``contract.best_pose`` (argmax; ties are
    broken by a permutation seeded with the sample's index, so a constant map scores the base
    rate), optionally the best of the top-``k``
-   poses whose robot footprint is free (``top_k > 1``; free in the view's own cloud by default), heading toward
-   the target;
+   poses whose robot footprint is free (``top_k > 1``; free in the view's own cloud by default, in every point
+   the view stores with ``free_space: full_cloud``), heading toward the target;
 2. maps the pose from the view's robot base frame to the world with ``meta['sim']['base_pose_world']``;
 3. runs the task's rollout in the rebuilt scene (``floaff_zoo.sim.rollout.RolloutService``: a
    worker pool or Ray, cached by (scene, task, pose rounded to ``cache_decimals``));
@@ -40,8 +40,9 @@ import lightning as L
 import numpy as np
 import torch
 from lightning.pytorch.utilities import rank_zero_warn
+from lightning.pytorch.utilities.exceptions import MisconfigurationException
 
-from floaff_zoo.contract import best_pose
+from floaff_zoo.contract import FULL_CLOUD_KEY, best_pose
 from floaff_zoo.floor import footprint_blocked, grown_footprint
 from floaff_zoo.frames import ROLLOUT_POSE_DECIMALS, Pose, base_to_world, pose_to_world
 
@@ -57,6 +58,9 @@ __all__ = [
 ]
 
 STD_METHOD = "bootstrap std of the mean over evaluated episodes"
+FREE_SPACE: tuple[str, ...] = ("cloud", "full_cloud", "sim")
+#: free_space -> the batch's (points, mask) keys the footprint check reads
+_CLOUD_KEYS = {"cloud": ("scene_xyz", "scene_mask"), "full_cloud": (FULL_CLOUD_KEY, "full_mask")}
 
 
 # ----------------------------------------------------------------------------------------------- poses
@@ -193,9 +197,11 @@ class RolloutSuccessRate(L.Callback):
             None = all).
         top_k: 1 = argmax (``best_pose``); > 1 = the best of the top-k poses whose robot footprint is
             free (``free_space``); the top-1 when none is.
-        free_space: how ``top_k`` decides "free": ``cloud`` from the view's own point cloud
-            (``floor.footprint_blocked``: what the robot sees, usable on a real robot), ``sim`` from the
-            rebuilt scene's furniture footprints (``SimScene.footprint_free``: privileged, an analysis tool).
+        free_space: how ``top_k`` decides "free": ``cloud`` from the view's own point cloud as the batch holds it
+            (``floor.footprint_blocked``: what the robot sees, usable on a real robot; after the DataModule's crop and
+            resampling), ``full_cloud`` from every point the view stores (the batch's ``full_xyz``: the DataModule
+            needs ``full_cloud: true``, checked when the callback is set up), ``sim`` from the rebuilt scene's
+            furniture footprints (``SimScene.footprint_free``: privileged, an analysis tool).
         oracle: also evaluate the ground-truth labels (the paper's Oracle).
         workers: rollout worker processes.
         backend: ``local`` (process pool) or ``ray``.
@@ -217,7 +223,7 @@ class RolloutSuccessRate(L.Callback):
         every_n_val_epochs: int = 0,
         max_val_samples: int | None = 64,
         top_k: int = 1,
-        free_space: Literal["cloud", "sim"] = "cloud",
+        free_space: Literal["cloud", "full_cloud", "sim"] = "cloud",
         oracle: bool = True,
         workers: int = 1,
         backend: Literal["local", "ray"] = "local",
@@ -230,8 +236,8 @@ class RolloutSuccessRate(L.Callback):
         super().__init__()
         if top_k < 1:
             raise ValueError(f"RolloutSuccessRate: top_k must be >= 1, got {top_k}")
-        if free_space not in ("cloud", "sim"):
-            raise ValueError(f"RolloutSuccessRate: free_space must be 'cloud' or 'sim', got {free_space!r}")
+        if free_space not in FREE_SPACE:
+            raise ValueError(f"RolloutSuccessRate: free_space must be one of {list(FREE_SPACE)}, got {free_space!r}")
         if every_n_val_epochs < 0:
             raise ValueError(f"RolloutSuccessRate: every_n_val_epochs must be >= 0, got {every_n_val_epochs}")
         self.on_test = on_test
@@ -291,10 +297,16 @@ class RolloutSuccessRate(L.Callback):
         label = batch["floor_label"].detach().cpu().numpy()
         target = batch["target_xyz"].detach().cpu().numpy()
         pred = scores.detach().float().cpu().numpy()
-        by_cloud = self.top_k > 1 and self.free_space == "cloud"
+        by_cloud = self.top_k > 1 and self.free_space in _CLOUD_KEYS
         if by_cloud:  # the view's own cloud decides which poses are free
-            cloud = batch["scene_xyz"].detach().cpu().numpy()
-            cloud_mask = batch["scene_mask"].detach().cpu().numpy()
+            xyz_key, mask_key = _CLOUD_KEYS[self.free_space]
+            if xyz_key not in batch:
+                raise ValueError(
+                    f"RolloutSuccessRate(free_space={self.free_space!r}): the batch has no {xyz_key!r}; "
+                    "set the DataModule's full_cloud: true (configs/trainer/eval_sr_top10_full.yaml)"
+                )
+            cloud = batch[xyz_key].detach().cpu().numpy()
+            cloud_mask = batch[mask_key].detach().cpu().numpy()
         for i, meta in enumerate(batch["meta"]):
             sim = (meta or {}).get("sim")
             if not sim or "base_pose_world" not in sim:
@@ -403,6 +415,17 @@ class RolloutSuccessRate(L.Callback):
                 pl_module.log(name, float(value), on_step=False, on_epoch=True, sync_dist=False)
 
     # -------------------------------------------------------------------------------- hooks
+    def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
+        """Refuse ``free_space: full_cloud`` before any epoch when the DataModule will not give the stored cloud."""
+        if self.free_space != "full_cloud" or self.top_k <= 1:
+            return
+        dm = getattr(trainer, "datamodule", None)
+        if dm is not None and getattr(dm, "full_cloud", None) is False:
+            raise MisconfigurationException(
+                f"RolloutSuccessRate(free_space='full_cloud'): {type(dm).__name__} has full_cloud: false, so batches "
+                "carry no stored cloud; set data.init_args.full_cloud: true (configs/trainer/eval_sr_top10_full.yaml)"
+            )
+
     def on_test_epoch_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         self._start("test", self.on_test)
 

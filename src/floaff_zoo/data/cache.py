@@ -30,7 +30,7 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from floaff_zoo.contract import TENSOR_KEYS, Sample, SampleError, validate_sample
+from floaff_zoo.contract import FULL_CLOUD_KEY, TENSOR_KEYS, Sample, SampleError, validate_sample
 from floaff_zoo.data.readers import SampleRecord, SkipLog, source_signature
 from floaff_zoo.data.transforms import SampleTransform, apply_transforms
 
@@ -153,7 +153,7 @@ class RecordDataset(Dataset):
         raw["meta"] = {**rec.meta, **(raw.get("meta") or {}), "path": rec.key}
         s = validate_sample(raw)
         s = apply_transforms(s, self.pre_transforms, _record_seed(self.seed, rec.key))
-        return {k: s[k].contiguous() for k in TENSOR_KEYS}
+        return {k: s[k].contiguous() for k in (*TENSOR_KEYS, FULL_CLOUD_KEY) if k in s}
 
     def _tensors(self, rec: SampleRecord) -> dict[str, torch.Tensor]:
         if self.cache is None:

@@ -25,7 +25,7 @@ from typing import Any, Literal
 import numpy as np
 from lightning.pytorch.utilities.exceptions import MisconfigurationException
 
-from floaff_zoo.contract import TASKS, VIEWS, Sample, SampleError
+from floaff_zoo.contract import FULL_CLOUD_KEY, TASKS, VIEWS, Sample, SampleError
 from floaff_zoo.data.base import FloAffDataModule
 from floaff_zoo.data.cache import RecordDataset, SampleCache
 from floaff_zoo.data.readers import (
@@ -44,15 +44,23 @@ BENCHMARKS: tuple[str, ...] = ("styles", "layouts")
 
 
 class _ViewLoader:
-    """Picklable record -> sample function (worker processes rebuild the reader from its class and root)."""
+    """Picklable record -> sample function (worker processes rebuild the reader from its class and root).
 
-    def __init__(self, reader: FloAffReader) -> None:
+    ``full_cloud``: keep every valid stored point as ``full_xyz`` before any pre-transform crops or resamples it.
+    """
+
+    def __init__(self, reader: FloAffReader, full_cloud: bool = False) -> None:
         self.reader = reader
+        self.full_cloud = full_cloud
 
     def __call__(self, rec: SampleRecord) -> Sample:
         scene = SceneEntry(**{k: v for k, v in rec.payload["scene"].items() if k != "views"}, views=[])
         s = self.reader.load_view(scene, ViewEntry(**rec.payload["view"]))
         s["meta"] = {}
+        if self.full_cloud:
+            xyz = np.asarray(s["scene_xyz"], dtype=np.float32)
+            mask = s.get("scene_mask")
+            s[FULL_CLOUD_KEY] = xyz if mask is None else xyz[np.asarray(mask, dtype=bool).reshape(-1)]
         return s
 
 
@@ -84,6 +92,10 @@ class FloAffKitchenDataModule(FloAffDataModule):
         strict: raise on the first missing/corrupt file instead of skipping and counting.
         validate: load every sample at setup (fills the cache; bad ones are skipped and counted).
         cache / cache_dir / cache_hash / pre_transforms: see :class:`~floaff_zoo.data.cache.SampleCache`.
+        full_cloud: also give every sample ``full_xyz``, every point its view file stores (before ``pre_transforms``,
+            ``eval_transforms`` and the loader's resampling), and batches ``full_xyz`` / ``full_mask``: what the
+            rollout callback's ``free_space: full_cloud`` checks a base footprint against
+            (``configs/trainer/eval_sr_top10_full.yaml`` sets both). Models do not read it.
         (the rest: see :class:`FloAffDataModule`)
     """
 
@@ -106,6 +118,7 @@ class FloAffKitchenDataModule(FloAffDataModule):
         cache_dir: str | None = None,
         cache_hash: Literal["stat", "content"] = "stat",
         pre_transforms: list[SampleTransform] | None = None,
+        full_cloud: bool = False,
         batch_size: int = 8,
         eval_batch_size: int | None = None,
         num_workers: int = 0,
@@ -153,6 +166,7 @@ class FloAffKitchenDataModule(FloAffDataModule):
         self.cache_dir = Path(cache_dir) if cache_dir else self.root / ".cache"
         self.cache_hash = cache_hash
         self.pre_transforms = list(pre_transforms or [])
+        self.full_cloud = full_cloud
         self.skips: SkipLog | None = None
         self.split_scenes: dict[str, list[str]] = {}
         #: scene id -> short hash of its labels, for every scene of this run's tasks (after setup; reports record it)
@@ -295,8 +309,10 @@ class FloAffKitchenDataModule(FloAffDataModule):
         cache = None
         if self.use_cache:
             cfg = {**reader.config(), "pre_transforms": transforms_config(self.pre_transforms), "seed": self.seed}
+            if self.full_cloud:  # only then: caches made without it keep their key
+                cfg["full_cloud"] = True
             cache = SampleCache(self.cache_dir, f"floaff_{self.benchmark}", cfg, self.cache_hash)
-        loader = _ViewLoader(reader)
+        loader = _ViewLoader(reader, self.full_cloud)
         for split, recs in records.items():
             ds = RecordDataset(recs, loader, cache, self.pre_transforms, self.seed, f"floaff_{self.benchmark}/{split}")
             if self.validate:

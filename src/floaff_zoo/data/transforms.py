@@ -26,7 +26,7 @@ from typing import Any, Literal
 import numpy as np
 import torch
 
-from floaff_zoo.contract import Sample, SampleError, yaw_matrix
+from floaff_zoo.contract import FULL_CLOUD_KEY, Sample, SampleError, yaw_matrix
 
 
 class SampleTransform:
@@ -134,7 +134,8 @@ class TargetCrop(SampleTransform):
 
 
 def rotate_sample(sample: Sample, angle: float) -> Sample:
-    """Rotate scene, floor and target about the robot origin's z axis by ``angle`` (rad).
+    """Rotate scene, floor and target (and the stored cloud ``full_xyz`` when present) about the robot origin's
+    z axis by ``angle`` (rad).
 
     ``target_yaw`` turns by the same angle; ``meta['sim']['base_pose_world']`` is updated so the
     base frame -> world mapping stays right (the virtual robot turned by ``-angle``).
@@ -143,6 +144,8 @@ def rotate_sample(sample: Sample, angle: float) -> Sample:
     out = dict(sample)
     out["scene_xyz"] = sample["scene_xyz"] @ rot.T
     out["floor_xyz"] = sample["floor_xyz"] @ rot.T
+    if FULL_CLOUD_KEY in sample:
+        out[FULL_CLOUD_KEY] = sample[FULL_CLOUD_KEY] @ rot.T
     out["target_xyz"] = rot @ sample["target_xyz"]
     yaw = float(sample["target_yaw"]) + angle
     out["target_yaw"] = torch.tensor(math.atan2(math.sin(yaw), math.cos(yaw)), dtype=torch.float32)
@@ -198,8 +201,8 @@ class LateralMirror(SampleTransform):
     """Reflect the sample across the robot's x-z plane (y -> -y) with probability ``p``.
 
     The reflected sample is what the robot would see of the mirror-image kitchen from the mirror-image
-    pose: scene, floor and target move to -y and ``target_yaw`` becomes ``-target_yaw``; labels stay with
-    their floor points. In CFAR's canonical frame this flips the lateral axis, so a door hinged on the left
+    pose: scene (and ``full_xyz``), floor and target move to -y and ``target_yaw`` becomes ``-target_yaw``; labels
+    stay with their floor points. In CFAR's canonical frame this flips the lateral axis, so a door hinged on the left
     becomes one hinged on the right. The labels are right only for a left-right symmetric robot and task; the
     generated OpenSingleDoor labels are not symmetric (docs/method.md). ``meta['sim']`` is dropped from a
     reflected sample (no simulator scene matches it) and ``meta['mirrored']`` is set, so a rollout can never
@@ -221,6 +224,8 @@ class LateralMirror(SampleTransform):
         out = dict(sample)
         out["scene_xyz"] = sample["scene_xyz"] * flip
         out["floor_xyz"] = sample["floor_xyz"] * flip.to(sample["floor_xyz"].dtype)
+        if FULL_CLOUD_KEY in sample:
+            out[FULL_CLOUD_KEY] = sample[FULL_CLOUD_KEY] * flip.to(sample[FULL_CLOUD_KEY].dtype)
         out["target_xyz"] = sample["target_xyz"] * flip.to(sample["target_xyz"].dtype)
         out["target_yaw"] = -sample["target_yaw"]
         meta = {k: v for k, v in (sample.get("meta") or {}).items() if k != "sim"}
