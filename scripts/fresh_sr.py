@@ -25,7 +25,7 @@ For each scorer it also prints ``exact``, the annotated outcome of the chosen ce
 ``floaff-zoo test`` measures when its Oracle scores 1.00 (the pose is the cell's pose, the seed the annotation's, and
 a cell the annotation filtered is refused by the rollout as well). ``--top-k K`` chooses as
 ``RolloutSuccessRate(top_k=K, free_space="cloud")``; with ``--full-cloud`` the footprint is checked in every point the
-view's file stores instead of the ``--num-points`` sample (``stored_cloud``).
+view's file stores instead of the ``--num-points`` sample (the DataModule's ``full_cloud``: ``check_cloud``).
 Rollouts run in ``--workers`` processes; the probabilities are deterministic for a given ``--seed`` on one machine.
 """
 
@@ -66,19 +66,14 @@ def nearest_cells(cand_xy: np.ndarray, xy: np.ndarray, cell: float, where: str) 
     return idx
 
 
-def stored_cloud(scene: dict, meta: dict) -> np.ndarray:
-    """[N, 3] every point the view's file stores (robot base frame), for the view ``meta['sample_id']`` names.
-
-    Read as the DataModule reads it (``fileformat.read_sample``: the scene's format version, the file validated), so
-    a missing view is a KeyError and a corrupt file a FormatError, each naming it.
-    """
-    from floaff_zoo.sim import fileformat as ff
-
-    view_id = meta["sample_id"].rsplit("/", 1)[-1]
-    view = next((v for v in scene["views"] if v["view_id"] == view_id), None)
-    if view is None:
-        raise KeyError(f"view {meta['sample_id']}: no such view in {scene['scene_id']}")
-    return ff.read_sample(scene, view)["scene_xyz"]
+def check_cloud(batch: dict, i: int, full_cloud: bool = False) -> np.ndarray:
+    """[N, 3] the points view ``i`` of a batch checks a base footprint in: the batch's sample, or with ``full_cloud``
+    every point the view's file stores (the batch's ``full_xyz``, which the DataModule gives when built with
+    ``full_cloud=True``, as ``RolloutSuccessRate(free_space="full_cloud")`` reads it). KeyError without it."""
+    xyz, mask = ("full_xyz", "full_mask") if full_cloud else ("scene_xyz", "scene_mask")
+    if xyz not in batch:
+        raise KeyError(f"the batch has no {xyz!r}: build the DataModule with full_cloud=True")
+    return batch[xyz][i][batch[mask][i]].numpy()
 
 
 def view_choices(
@@ -112,8 +107,7 @@ def view_choices(
         row = {"task": meta["task"], "view": meta["view"]}
         free = None
         if top_k > 1:  # as RolloutSuccessRate(free_space="cloud")
-            xyz = stored_cloud(scene, meta) if full_cloud else batch["scene_xyz"][i][batch["scene_mask"][i]].numpy()
-            free = cloud_free(xyz, sim["base_pose_world"])
+            free = cloud_free(check_cloud(batch, i, full_cloud), sim["base_pose_world"])
         for name, s in scores.items():
             pose, _ = choose_pose(floor[i], s[i], mask[i], target[i], sim["base_pose_world"], top_k, free, tie)
             c = nearest_cells(cand, np.array([pose[:2]]), cell, where)[0]
@@ -242,7 +236,12 @@ def main(argv: list[str] | None = None) -> int:
     from floaff_zoo.sim.generate import ANNOTATE_SEED
 
     dm = FloAffKitchenDataModule(
-        root=a.root, benchmark=a.benchmark, tasks=list(TASKS), batch_size=a.batch_size, num_points=a.num_points
+        root=a.root,
+        benchmark=a.benchmark,
+        tasks=list(TASKS),
+        batch_size=a.batch_size,
+        num_points=a.num_points,
+        full_cloud=a.full_cloud,
     )
     dm.setup("test" if a.split == "test" else "fit")
     # a task with one train scene lends views of it to val: "<id> (views)"
@@ -273,7 +272,7 @@ def main(argv: list[str] | None = None) -> int:
             scores.update({m: net(batch).numpy() for m, net in models.items()})
             try:
                 rows += view_choices(batch, scores, scenes, probs, a.top_k, a.full_cloud)
-            except (KeyError, ff.FormatError) as exc:  # a scene without probabilities, a missing or corrupt view
+            except KeyError as exc:  # a scene without probabilities
                 raise SystemExit(f"fresh_sr: {exc.args[0]}") from exc
     scorers = ["label", "best", *keys]
     sr = summarize(rows, scorers)

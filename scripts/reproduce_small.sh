@@ -5,6 +5,9 @@
 #   scripts/reproduce_small.sh cfar_pfal_s0 pointnet2_s0   # only these
 #   PAR=1 scripts/reproduce_small.sh ...       # one at a time (each job then may use both cores)
 #   RETEST=1 scripts/reproduce_small.sh ...    # only test the finished runs again (e.g. after adding test scenes)
+#   RETEST=1 EVAL=configs/trainer/eval_sr_top10_full.yaml PRESET=dense RUNS=runs/v21 OUT=docs/results/v21_fullcloud \
+#     scripts/reproduce_small.sh pool_succ_occ_recipe_s0 ...   # test again with other evaluation callbacks (here the
+#                                              # best of the top 10 cells free in the whole stored cloud)
 #   PRESET=dense RUNS=runs/regen OUT=docs/results/regen scripts/reproduce_small.sh recipe_s0 recipe_edges_s0 \
 #     prior prior_edges styles_recipe_s0 styles_recipe_edges_s0 ...   # the prior's cells, centred vs edge-binned
 #                                              # (docs/results_history.md, "Regenerated dense data")
@@ -65,7 +68,7 @@ PAR=${PAR:-2}
 ROOT_ARGS=() ROOT_SET=()
 if [ -n "${DATA_ROOT:-}" ]; then ROOT_ARGS=(--data.init_args.root "$DATA_ROOT") ROOT_SET=(--set "data.init_args.root=$DATA_ROOT"); fi
 TASKS='["PnPCounterToCab","OpenSingleDoor","CloseDrawer","CloseDoubleDoor"]'
-EVAL=configs/trainer/eval_sr.yaml
+EVAL=${EVAL:-configs/trainer/eval_sr.yaml}
 
 JOBS=(
   recipe_s0 prior prior_gtyaw cfar_pfal_s0 pointnet2_s0 c2f_exp c2f_exp_gtyaw

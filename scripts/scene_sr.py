@@ -51,7 +51,7 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from fresh_sr import nearest_cells, stored_cloud  # noqa: E402
+from fresh_sr import check_cloud, nearest_cells  # noqa: E402
 
 from floaff_zoo.callbacks.rollout import choose_pose, cloud_free  # noqa: E402
 from floaff_zoo.contract import TASKS  # noqa: E402
@@ -120,7 +120,8 @@ def view_outcomes(
 
     ``top_k`` > 1: the best of the top-k cells whose base footprint is free in the view's own cloud, as
     ``RolloutSuccessRate(top_k=k, free_space="cloud")`` chooses, the footprint grown by ``margin`` (m) on every side;
-    ``full_cloud``: in every point the view's file stores (``stored_cloud``), not the batch's sample.
+    ``full_cloud``: in every point the view's file stores (the batch's ``full_xyz``: ``check_cloud``), not the
+    batch's sample.
     """
     from floaff_zoo.sim.kitchen import SceneSpec
 
@@ -137,8 +138,7 @@ def view_outcomes(
         success = np.asarray(scene["labels"]["success"]) > 0
         free = None
         if top_k > 1:
-            xyz = stored_cloud(scene, meta) if full_cloud else batch["scene_xyz"][i][batch["scene_mask"][i]].numpy()
-            free = cloud_free(xyz, sim["base_pose_world"], margin)
+            free = cloud_free(check_cloud(batch, i, full_cloud), sim["base_pose_world"], margin)
         reasons = scene["labels"].get("reasons")
         out: dict[str, list[bool]] = {}
         why: dict[str, list[str]] = {}
@@ -321,7 +321,12 @@ def main(argv: list[str] | None = None) -> int:
     try:  # a bad model name or data root ends here with its message, before any scoring
         nets = with_residual_scales({n: [resolve_model(m).eval() for m in ms] for n, ms in groups.items()}, scales)
         dm = FloAffKitchenDataModule(
-            root=a.root, benchmark=a.benchmark, tasks=list(TASKS), num_points=a.num_points, val_layout=a.val_layout
+            root=a.root,
+            benchmark=a.benchmark,
+            tasks=list(TASKS),
+            num_points=a.num_points,
+            val_layout=a.val_layout,
+            full_cloud=a.full_cloud,
         )
         dm.setup("test" if a.split == "test" else "fit")
     except (OSError, ValueError, LookupError, MisconfigurationException) as exc:
@@ -338,7 +343,7 @@ def main(argv: list[str] | None = None) -> int:
                 scores = ensemble_scores(scores)
             try:
                 rows += view_outcomes(batch, scores, scenes, a.top_k, a.footprint_margin, a.full_cloud)
-            except (KeyError, ff.FormatError) as exc:  # a view missing from its scene, or a corrupt view file
+            except KeyError as exc:  # a view whose scene is not under the data root
                 raise SystemExit(f"scene_sr: {exc.args[0]}") from exc
     n_runs = {n: len(r) for n, r in nets.items()}
     if a.ensemble:

@@ -193,8 +193,9 @@ def test_named_models_pool_their_runs():
 
 
 def test_view_choices_with_full_cloud_check_every_stored_point(drawer_root):
-    """``full_cloud`` reads the view's file: with the batch's cloud masked out it chooses as the full batch does, and
-    without it the masked batch chooses otherwise in some view (so the comparison can fail)."""
+    """``full_cloud`` reads the batch's ``full_xyz`` (every stored point; the DataModule's ``full_cloud``): with the
+    batch's sample masked out it chooses as the full sample does, and without it the masked batch chooses otherwise in
+    some view (so the comparison can fail)."""
     import torch
 
     from floaff_zoo.contract import validate_sample
@@ -203,6 +204,7 @@ def test_view_choices_with_full_cloud_check_every_stored_point(drawer_root):
 
     scenes = {s["scene_id"]: s for s in ff.iter_scenes(drawer_root)}
     samples = [validate_sample(ff.read_sample(sc, v, drawer_root)) for sc in scenes.values() for v in sc["views"]]
+    samples = [{**s, "full_xyz": s["scene_xyz"].clone()} for s in samples]  # as the DataModule's full_cloud gives it
     probs = {sid: np.arange(len(s["candidates"]["xy"]), dtype=float) for sid, s in scenes.items()}  # tells cells apart
     changed = 0
     for batch in loader(samples, 4):

@@ -194,38 +194,41 @@ def test_annotated_outcomes_equal_the_callbacks_rollouts(sim_scenes):
     assert seen == {True, False}  # both outcomes occur, so the agreement says something
 
 
-def test_full_cloud_checks_every_stored_point_not_the_batch_sample(sim_scenes):
-    """``full_cloud`` reads the view's file: with the batch's cloud masked out it chooses as the full batch does."""
+def test_full_cloud_checks_the_batchs_stored_cloud_not_its_sample(sim_scenes):
+    """``full_cloud`` reads the batch's ``full_xyz`` (every stored point, as the DataModule's ``full_cloud`` gives it):
+    with the sample masked out it chooses as the full sample does; a batch without it is a KeyError naming the fix."""
     from tests.report._fake_world import loader
 
     scenes, samples = sim_scenes
+    stored = [{**s, "full_xyz": s["scene_xyz"].clone()} for s in samples]
     refused = 0  # views whose choice the cloud check changes: without them the comparison says nothing
-    for batch in loader(samples, 4):
-        meta = batch["meta"][0]
-        scene = scenes[meta["scene_id"]]
-        np.testing.assert_array_equal(ssr.stored_cloud(scene, meta), batch["scene_xyz"][0].numpy())
+    for batch in loader(stored, 4):
         blind = {**batch, "scene_mask": torch.zeros_like(batch["scene_mask"])}  # no point left in the sample
         scores = {"m": [_behind(batch)]}  # a poor map: the footprint check changes choices
         full = ssr.view_outcomes(batch, scores, scenes, top_k=5)
         assert ssr.view_outcomes(blind, scores, scenes, top_k=5, full_cloud=True) == full
         refused += sum(x != y for x, y in zip(ssr.view_outcomes(blind, scores, scenes, top_k=5), full))
     assert refused > 0
-    with pytest.raises(KeyError, match="no such view"):
-        ssr.stored_cloud(scene, {**meta, "sample_id": meta["sample_id"] + "_missing"})
+    batch = next(iter(loader(samples, 4)))
+    with pytest.raises(KeyError, match="full_cloud=True"):
+        ssr.view_outcomes(batch, {"m": [_behind(batch)]}, scenes, top_k=5, full_cloud=True)
 
 
-def test_a_corrupt_view_file_names_the_file(sim_scenes, tmp_path):
-    """``stored_cloud`` reads the file again: a corrupt one is a FormatError naming it (``main`` turns it into an exit
-    with that message, as it does a missing view)."""
-    import shutil
+def test_main_asks_the_datamodule_for_the_stored_cloud(monkeypatch, tmp_path):
+    """``--full-cloud`` builds the DataModule with ``full_cloud=True`` (its batches then carry ``full_xyz``)."""
+    import floaff_zoo.data.floaff_kitchen as fk
+    import floaff_zoo.predict as pr
 
-    from floaff_zoo.sim import fileformat as ff
+    seen: dict = {}
 
-    scenes, samples = sim_scenes
-    meta = samples[0]["meta"]
-    scene = dict(scenes[meta["scene_id"]], dir=str(tmp_path / "copy"))
-    shutil.copytree(scenes[meta["scene_id"]]["dir"], scene["dir"])
-    view = next(v for v in scene["views"] if meta["sample_id"].endswith(v["view_id"]))
-    (Path(scene["dir"]) / view["file"]).write_bytes(b"not an npz")
-    with pytest.raises(ff.FormatError, match=view["file"].rsplit("/", 1)[-1]):
-        ssr.stored_cloud(scene, meta)
+    class Spy:
+        def __init__(self, **kwargs):
+            seen.update(kwargs)
+            raise ValueError("spy: stop before loading data")
+
+    monkeypatch.setattr(fk, "FloAffKitchenDataModule", Spy)
+    monkeypatch.setattr(pr, "resolve_model", lambda name: torch.nn.Identity())
+    for flags, expected in ((["--top-k", "10", "--full-cloud"], True), (["--top-k", "10"], False)):
+        with pytest.raises(SystemExit, match="spy: stop before loading data"):
+            ssr.main(["--root", str(tmp_path), *flags, "m=some.ckpt"])
+        assert seen["full_cloud"] is expected
