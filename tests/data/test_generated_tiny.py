@@ -16,6 +16,12 @@ def tiny_root(tmp_path_factory):
     return out
 
 
+def _cli_args(tiny_root, tmp_path) -> list[str]:
+    """The tiny data and model over the generated root, quiet, under tmp_path."""
+    data = ["--config", "configs/data/floaff_tiny.yaml", "--data.init_args.root", str(tiny_root)]
+    return [*data, "--config", "configs/models/tiny_pointnet.yaml", *quiet_trainer_args(tmp_path)]
+
+
 def test_generated_tiny_reads_and_round_trips(tiny_root, tmp_path, root, monkeypatch):
     from floaff_zoo.data.floaff_kitchen import FloAffKitchenDataModule
 
@@ -28,15 +34,7 @@ def test_generated_tiny_reads_and_round_trips(tiny_root, tmp_path, root, monkeyp
     assert s["scene_feat"].shape[1] == 4 and s["meta"]["sim"]["scene_dir"].startswith(str(tiny_root))
     assert {r.meta["view"] for r in dm.datasets["test"].records} == {"front", "side"}
     monkeypatch.chdir(root)
-    base = [
-        "--config",
-        "configs/data/floaff_tiny.yaml",
-        "--config",
-        "configs/models/tiny_pointnet.yaml",
-        "--data.init_args.root",
-        str(tiny_root),
-        *quiet_trainer_args(tmp_path),
-    ]
+    base = _cli_args(tiny_root, tmp_path)
     cli = run_lightning(["fit", *base, "--trainer.max_epochs", "1"])
     ckpt = cli.trainer.checkpoint_callback.best_model_path
     res = run_lightning(["test", *base, "--ckpt_path", ckpt]).trainer.callback_metrics
@@ -50,17 +48,7 @@ def test_full_cloud_footprint_check_through_the_cli(tiny_root, tmp_path, root, m
     from pathlib import Path
 
     monkeypatch.chdir(root)
-    base = [
-        "--config",
-        "configs/data/floaff_tiny.yaml",
-        "--config",
-        "configs/models/tiny_pointnet.yaml",
-        "--data.init_args.root",
-        str(tiny_root),
-        "--data.init_args.tasks",
-        '["CloseDrawer"]',
-        *quiet_trainer_args(tmp_path),
-    ]
+    base = [*_cli_args(tiny_root, tmp_path), "--data.init_args.tasks", '["CloseDrawer"]']
     ckpt = run_lightning(["fit", *base, "--trainer.max_epochs", "1"]).trainer.checkpoint_callback.best_model_path
     cli = run_lightning(["test", *base, "--config", "configs/trainer/eval_sr_top10_full.yaml", "--ckpt_path", ckpt])
     assert cli.datamodule.full_cloud is True
