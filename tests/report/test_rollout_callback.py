@@ -239,6 +239,13 @@ def test_full_cloud_free_space_without_a_stored_cloud_is_refused():
     cb = RolloutSuccessRate(service=FakeService, progress=False, top_k=8, free_space="full_cloud", oracle=False)
     with pytest.raises(ValueError, match="full_xyz.*full_cloud: true"):
         _trainer(cb).test(LabelModule(), dataloaders=loader(make_samples(4)), verbose=False)
+    no_sim = make_samples(4)  # nothing to roll out (MoMa-Kitchen-like): skipped and counted, not refused
+    for s in no_sim:
+        s["meta"].pop("sim")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        _trainer(cb).test(LabelModule(), dataloaders=loader(no_sim), verbose=False)
+    assert cb.summaries["test"]["available"] is False and cb.summaries["test"]["n_skipped"] == 4
 
     class NoStoredCloud(L.LightningDataModule):
         full_cloud = False

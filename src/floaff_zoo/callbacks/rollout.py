@@ -298,7 +298,8 @@ class RolloutSuccessRate(L.Callback):
         target = batch["target_xyz"].detach().cpu().numpy()
         pred = scores.detach().float().cpu().numpy()
         by_cloud = self.top_k > 1 and self.free_space in _CLOUD_KEYS
-        if by_cloud:  # the view's own cloud decides which poses are free
+        # the view's own cloud decides which poses are free (only samples with sim metadata are rolled out)
+        if by_cloud and any((m or {}).get("sim") for m in batch["meta"]):
             xyz_key, mask_key = _CLOUD_KEYS[self.free_space]
             if xyz_key not in batch:
                 raise ValueError(
