@@ -25,7 +25,7 @@ For each scorer it also prints ``exact``, the annotated outcome of the chosen ce
 ``floaff-zoo test`` measures when its Oracle scores 1.00 (the pose is the cell's pose, the seed the annotation's, and
 a cell the annotation filtered is refused by the rollout as well). ``--top-k K`` chooses as
 ``RolloutSuccessRate(top_k=K, free_space="cloud")``; with ``--full-cloud`` the footprint is checked in every point the
-view's file stores instead of the ``--num-points`` sample (the DataModule's ``full_cloud``: ``check_cloud``).
+view's file stores instead of the ``--num-points`` sample (the batch's ``full_xyz``: the DataModule's ``full_cloud``).
 Rollouts run in ``--workers`` processes; the probabilities are deterministic for a given ``--seed`` on one machine.
 """
 
@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from floaff_zoo.callbacks.rollout import choose_pose, cloud_free
+from floaff_zoo.callbacks.rollout import check_clouds, choose_pose, cloud_free
 from floaff_zoo.contract import TASKS
 from floaff_zoo.frames import base_to_world
 from floaff_zoo.predict import named_models
@@ -66,16 +66,6 @@ def nearest_cells(cand_xy: np.ndarray, xy: np.ndarray, cell: float, where: str) 
     return idx
 
 
-def check_cloud(batch: dict, i: int, full_cloud: bool = False) -> np.ndarray:
-    """[N, 3] the points view ``i`` of a batch checks a base footprint in: the batch's sample, or with ``full_cloud``
-    every point the view's file stores (the batch's ``full_xyz``, which the DataModule gives when built with
-    ``full_cloud=True``, as ``RolloutSuccessRate(free_space="full_cloud")`` reads it). KeyError without it."""
-    xyz, mask = ("full_xyz", "full_mask") if full_cloud else ("scene_xyz", "scene_mask")
-    if xyz not in batch:
-        raise KeyError(f"the batch has no {xyz!r}: build the DataModule with full_cloud=True")
-    return batch[xyz][i][batch[mask][i]].numpy()
-
-
 def view_choices(
     batch: dict,
     scores: dict[str, np.ndarray],
@@ -93,6 +83,8 @@ def view_choices(
     from floaff_zoo.sim.kitchen import SceneSpec
 
     floor, mask, target = (batch[k].numpy() for k in ("floor_xyz", "floor_mask", "target_xyz"))
+    if top_k > 1:  # as RolloutSuccessRate(free_space="cloud" | "full_cloud")
+        cloud, cloud_mask = check_clouds(batch, "full_cloud" if full_cloud else "cloud")
     out = []
     for i, meta in enumerate(batch["meta"]):
         sim, tie = meta["sim"], int(meta.get("index", i))
@@ -106,8 +98,8 @@ def view_choices(
         where = str(meta.get("sample_id", sid))
         row = {"task": meta["task"], "view": meta["view"]}
         free = None
-        if top_k > 1:  # as RolloutSuccessRate(free_space="cloud")
-            free = cloud_free(check_cloud(batch, i, full_cloud), sim["base_pose_world"])
+        if top_k > 1:
+            free = cloud_free(cloud[i][cloud_mask[i]], sim["base_pose_world"])
         for name, s in scores.items():
             pose, _ = choose_pose(floor[i], s[i], mask[i], target[i], sim["base_pose_world"], top_k, free, tie)
             c = nearest_cells(cand, np.array([pose[:2]]), cell, where)[0]
@@ -272,7 +264,7 @@ def main(argv: list[str] | None = None) -> int:
             scores.update({m: net(batch).numpy() for m, net in models.items()})
             try:
                 rows += view_choices(batch, scores, scenes, probs, a.top_k, a.full_cloud)
-            except KeyError as exc:  # a scene without probabilities
+            except (KeyError, ValueError) as exc:  # a scene without probabilities, a floor point off its grid
                 raise SystemExit(f"fresh_sr: {exc.args[0]}") from exc
     scorers = ["label", "best", *keys]
     sr = summarize(rows, scorers)

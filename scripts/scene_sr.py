@@ -51,9 +51,9 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from fresh_sr import check_cloud, nearest_cells  # noqa: E402
+from fresh_sr import nearest_cells  # noqa: E402
 
-from floaff_zoo.callbacks.rollout import choose_pose, cloud_free  # noqa: E402
+from floaff_zoo.callbacks.rollout import check_clouds, choose_pose, cloud_free  # noqa: E402
 from floaff_zoo.contract import TASKS  # noqa: E402
 from floaff_zoo.predict import named_models  # noqa: E402
 
@@ -120,12 +120,14 @@ def view_outcomes(
 
     ``top_k`` > 1: the best of the top-k cells whose base footprint is free in the view's own cloud, as
     ``RolloutSuccessRate(top_k=k, free_space="cloud")`` chooses, the footprint grown by ``margin`` (m) on every side;
-    ``full_cloud``: in every point the view's file stores (the batch's ``full_xyz``: ``check_cloud``), not the
+    ``full_cloud``: in every point the view's file stores (the batch's ``full_xyz``: ``check_clouds``), not the
     batch's sample.
     """
     from floaff_zoo.sim.kitchen import SceneSpec
 
     floor, mask, target = (batch[k].numpy() for k in ("floor_xyz", "floor_mask", "target_xyz"))
+    if top_k > 1:
+        cloud, cloud_mask = check_clouds(batch, "full_cloud" if full_cloud else "cloud")
     rows = []
     for i, meta in enumerate(batch["meta"]):
         sim = meta["sim"]
@@ -138,7 +140,7 @@ def view_outcomes(
         success = np.asarray(scene["labels"]["success"]) > 0
         free = None
         if top_k > 1:
-            free = cloud_free(check_cloud(batch, i, full_cloud), sim["base_pose_world"], margin)
+            free = cloud_free(cloud[i][cloud_mask[i]], sim["base_pose_world"], margin)
         reasons = scene["labels"].get("reasons")
         out: dict[str, list[bool]] = {}
         why: dict[str, list[str]] = {}
@@ -343,7 +345,7 @@ def main(argv: list[str] | None = None) -> int:
                 scores = ensemble_scores(scores)
             try:
                 rows += view_outcomes(batch, scores, scenes, a.top_k, a.footprint_margin, a.full_cloud)
-            except KeyError as exc:  # a view whose scene is not under the data root
+            except (KeyError, ValueError) as exc:  # a view whose scene is not under the root, a point off its grid
                 raise SystemExit(f"scene_sr: {exc.args[0]}") from exc
     n_runs = {n: len(r) for n, r in nets.items()}
     if a.ensemble:

@@ -196,7 +196,7 @@ def test_annotated_outcomes_equal_the_callbacks_rollouts(sim_scenes):
 
 def test_full_cloud_checks_the_batchs_stored_cloud_not_its_sample(sim_scenes):
     """``full_cloud`` reads the batch's ``full_xyz`` (every stored point, as the DataModule's ``full_cloud`` gives it):
-    with the sample masked out it chooses as the full sample does; a batch without it is a KeyError naming the fix."""
+    with the sample masked out it chooses as the full sample does; a batch without it is an error naming the fix."""
     from tests.report._fake_world import loader
 
     scenes, samples = sim_scenes
@@ -210,7 +210,7 @@ def test_full_cloud_checks_the_batchs_stored_cloud_not_its_sample(sim_scenes):
         refused += sum(x != y for x, y in zip(ssr.view_outcomes(blind, scores, scenes, top_k=5), full))
     assert refused > 0
     batch = next(iter(loader(samples, 4)))
-    with pytest.raises(KeyError, match="full_cloud=True"):
+    with pytest.raises(ValueError, match="full_cloud: true"):
         ssr.view_outcomes(batch, {"m": [_behind(batch)]}, scenes, top_k=5, full_cloud=True)
 
 

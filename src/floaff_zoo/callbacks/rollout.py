@@ -50,6 +50,7 @@ __all__ = [
     "RolloutSuccessRate",
     "base_to_world",
     "bootstrap_std",
+    "check_clouds",
     "choose_pose",
     "cloud_free",
     "pose_to_world",
@@ -92,6 +93,22 @@ def choose_pose(
             if is_free(*w):
                 return w, rank
     return world[0], 0
+
+
+def check_clouds(batch: dict[str, Any], free_space: str) -> tuple[np.ndarray, np.ndarray]:
+    """The points a batch's footprint check reads: (xyz [B, N, 3], mask [B, N]) as numpy, the batch's sample for
+    ``free_space="cloud"``, every stored point (``full_xyz`` / ``full_mask``) for ``"full_cloud"``.
+
+    Raises:
+        ValueError: the batch has no stored cloud (its DataModule was built without ``full_cloud``).
+    """
+    xyz_key, mask_key = _CLOUD_KEYS[free_space]
+    if xyz_key not in batch:
+        raise ValueError(
+            f"free_space {free_space!r}: the batch has no {xyz_key!r}; set the DataModule's full_cloud: true "
+            "(configs/trainer/eval_sr_top10_full.yaml)"
+        )
+    return batch[xyz_key].detach().cpu().numpy(), batch[mask_key].detach().cpu().numpy()
 
 
 def cloud_free(
@@ -300,14 +317,7 @@ class RolloutSuccessRate(L.Callback):
         by_cloud = self.top_k > 1 and self.free_space in _CLOUD_KEYS
         # the view's own cloud decides which poses are free (only samples with sim metadata are rolled out)
         if by_cloud and any((m or {}).get("sim") for m in batch["meta"]):
-            xyz_key, mask_key = _CLOUD_KEYS[self.free_space]
-            if xyz_key not in batch:
-                raise ValueError(
-                    f"RolloutSuccessRate(free_space={self.free_space!r}): the batch has no {xyz_key!r}; "
-                    "set the DataModule's full_cloud: true (configs/trainer/eval_sr_top10_full.yaml)"
-                )
-            cloud = batch[xyz_key].detach().cpu().numpy()
-            cloud_mask = batch[mask_key].detach().cpu().numpy()
+            cloud, cloud_mask = check_clouds(batch, self.free_space)
         for i, meta in enumerate(batch["meta"]):
             sim = (meta or {}).get("sim")
             if not sim or "base_pose_world" not in sim:
