@@ -33,7 +33,9 @@ variance, not a row of an equal-budget table).
 (the callback's ``free_space: cloud`` footprint check) instead of the argmax; ``--footprint-margin 0.05`` grows the
 checked footprint by 5 cm on every side (a cloud too sparse to put two points into a thin overlap with furniture
 may still put them just outside it); ``--full-cloud`` checks it in every point the view's file stores (4,096 in the
-``dense`` preset, what the robot's depth image gave) instead of the ``--num-points`` sample the network reads.
+``dense`` preset, what the robot's depth image gave) instead of the ``--num-points`` sample the network reads;
+``--min-observed 0.5`` prefers, among the free cells, those whose footprint that cloud shows on half its 0.1 m
+sub-squares or more (the callback's ``min_observed``).
 
 Labels only, no simulator; one to two minutes per model and benchmark on one core.
 """
@@ -53,7 +55,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from fresh_sr import nearest_cells  # noqa: E402
 
-from floaff_zoo.callbacks.rollout import check_clouds, choose_pose, cloud_free  # noqa: E402
+from floaff_zoo.callbacks.rollout import check_clouds, choose_pose, cloud_free, cloud_observed  # noqa: E402
 from floaff_zoo.contract import TASKS  # noqa: E402
 from floaff_zoo.predict import named_models  # noqa: E402
 
@@ -115,13 +117,15 @@ def view_outcomes(
     top_k: int = 1,
     margin: float = 0.0,
     full_cloud: bool = False,
+    min_observed: float = 0.0,
 ) -> list[Row]:
     """Annotated outcome of each run's chosen cell, per view of a batch (scores: name -> per run [B, M]).
 
     ``top_k`` > 1: the best of the top-k cells whose base footprint is free in the view's own cloud, as
     ``RolloutSuccessRate(top_k=k, free_space="cloud")`` chooses, the footprint grown by ``margin`` (m) on every side;
     ``full_cloud``: in every point the view's file stores (the batch's ``full_xyz``: ``check_clouds``), not the
-    batch's sample.
+    batch's sample; ``min_observed`` > 0: free cells whose footprint that cloud shows on at least this share come
+    first (``cloud_observed``).
     """
     from floaff_zoo.sim.kitchen import SceneSpec
 
@@ -138,18 +142,19 @@ def view_outcomes(
         cand = np.asarray(scene["candidates"]["xy"], float)
         cell = float(scene["candidates"]["cell"])
         success = np.asarray(scene["labels"]["success"]) > 0
-        free = None
+        free = prefer = None
         if top_k > 1:
             free = cloud_free(cloud[i][cloud_mask[i]], sim["base_pose_world"], margin)
+            if min_observed > 0:
+                prefer = cloud_observed(cloud[i][cloud_mask[i]], sim["base_pose_world"], min_observed)
         reasons = scene["labels"].get("reasons")
         out: dict[str, list[bool]] = {}
         why: dict[str, list[str]] = {}
+        base, tie = sim["base_pose_world"], int(meta.get("index", i))
         for name, runs in scores.items():
             out[name], why[name] = [], []
             for s in runs:
-                pose, _ = choose_pose(
-                    floor[i], s[i], mask[i], target[i], sim["base_pose_world"], top_k, free, int(meta.get("index", i))
-                )
+                pose, _ = choose_pose(floor[i], s[i], mask[i], target[i], base, top_k, free, tie, prefer)
                 c = nearest_cells(cand, np.array([pose[:2]]), cell, sid)[0]
                 out[name].append(bool(success[c]))
                 why[name].append(failure_kind(reasons[c]) if reasons is not None else "unknown")
@@ -294,6 +299,12 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="with --top-k: check the footprint in every point the view's file stores, not the network's sample",
     )
+    p.add_argument(
+        "--min-observed",
+        type=float,
+        default=0.0,
+        help="with --top-k: prefer free cells whose footprint the checked cloud shows on this share of it (0 = off)",
+    )
     p.add_argument("--ensemble", action="store_true", help="also score NAME+ens: the mean map of NAME's runs")
     p.add_argument("--json", default=None)
     a = p.parse_args(argv)
@@ -307,6 +318,10 @@ def main(argv: list[str] | None = None) -> int:
         p.error(f"--footprint-margin must be finite and >= 0, got {a.footprint_margin}")
     if a.footprint_margin > 0 and a.top_k == 1:
         p.error("--footprint-margin grows the footprint that --top-k checks: give --top-k > 1")
+    if not 0.0 <= a.min_observed <= 1.0:
+        p.error(f"--min-observed must be in [0, 1], got {a.min_observed}")
+    if a.min_observed > 0 and a.top_k == 1:
+        p.error("--min-observed orders the cells that --top-k checks: give --top-k > 1")
     if a.full_cloud and a.top_k == 1:
         p.error("--full-cloud chooses the cloud that --top-k checks: give --top-k > 1")
     scales = parse_scales(a.residual_scales)
@@ -344,7 +359,7 @@ def main(argv: list[str] | None = None) -> int:
             if a.ensemble:
                 scores = ensemble_scores(scores)
             try:
-                rows += view_outcomes(batch, scores, scenes, a.top_k, a.footprint_margin, a.full_cloud)
+                rows += view_outcomes(batch, scores, scenes, a.top_k, a.footprint_margin, a.full_cloud, a.min_observed)
             except (KeyError, ValueError) as exc:  # a view whose scene is not under the root, a point off its grid
                 raise SystemExit(f"scene_sr: {exc.args[0]}") from exc
     n_runs = {n: len(r) for n, r in nets.items()}
@@ -384,6 +399,7 @@ def main(argv: list[str] | None = None) -> int:
             "top_k": a.top_k,
             "footprint_margin": a.footprint_margin,
             "full_cloud": a.full_cloud,
+            "min_observed": a.min_observed,
             "draws": a.draws,
             "scenes": table,
             **res,

@@ -90,6 +90,32 @@ def test_footprint_blocked_sees_obstacles_inside_the_base_rectangle():
         footprint_blocked(box, (0.0, 0.0, 0.0), min_points=0)
 
 
+def test_footprint_coverage_is_the_share_of_the_footprint_the_cloud_shows():
+    from floaff_zoo.floor import FOOTPRINT, footprint_coverage
+
+    length, width, front = FOOTPRINT  # 0.63 x 0.5 m: 7 x 5 sub-squares of 0.1 m
+    pose = (0.0, 0.0, 0.0)
+    assert footprint_coverage(np.zeros((0, 3)), pose) == 0.0
+    # one floor point at the centre of every sub-square: fully seen; points outside the rectangle add nothing
+    a = front - length + 0.1 * (np.arange(7) + 0.5)
+    a[-1] = front - 0.01  # the last sub-square is 0.03 m deep
+    b = -width / 2 + 0.1 * (np.arange(5) + 0.5)
+    grid = np.array([[x, y, 0.0] for x in a for y in b])
+    assert footprint_coverage(grid, pose) == pytest.approx(1.0)
+    outside = grid + [length + 0.2, 0.0, 0.0]
+    assert footprint_coverage(np.concatenate([grid[:7], outside]), pose) == pytest.approx(7 / 35)
+    # two points in one sub-square count once; obstacle points count as seen too; NaN points are ignored
+    assert footprint_coverage(np.array([[a[0], b[0], 0.0], [a[0], b[0] + 0.01, 0.7], [np.nan, 0, 0]]), pose) == (
+        pytest.approx(1 / 35)
+    )
+    # the rectangle turns with the heading: the grid seen from a base facing -x is behind it, out of the footprint
+    assert footprint_coverage(grid, (0.0, 0.0, math.pi)) < 0.3
+    with pytest.raises(ValueError, match=r"\[N, 3\], got \[4, 2\]"):
+        footprint_coverage(np.zeros((4, 2)), pose)
+    with pytest.raises(ValueError, match="cell"):
+        footprint_coverage(grid, pose, cell=0.0)
+
+
 def test_footprint_counts_agree_with_footprint_blocked():
     """The batched torch count behind CFAR's occupancy input calls blocked exactly what the callback's check does."""
     import torch

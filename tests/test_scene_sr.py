@@ -89,6 +89,8 @@ def test_bad_arguments_exit_with_a_message(tmp_path, capsys):
         (["--top-k", "10", "--footprint-margin", "-0.1"], "finite and >= 0"),
         (["--footprint-margin", "0.05"], "give --top-k > 1"),
         (["--full-cloud"], "give --top-k > 1"),
+        (["--min-observed", "0.5"], "give --top-k > 1"),
+        (["--top-k", "10", "--min-observed", "1.5"], "must be in [0, 1]"),
         (["--val-layout", "2"], "give --split val"),
     ):
         with pytest.raises(SystemExit):
@@ -212,6 +214,22 @@ def test_full_cloud_checks_the_batchs_stored_cloud_not_its_sample(sim_scenes):
     batch = next(iter(loader(samples, 4)))
     with pytest.raises(ValueError, match="full_cloud: true"):
         ssr.view_outcomes(batch, {"m": [_behind(batch)]}, scenes, top_k=5, full_cloud=True)
+
+
+def test_min_observed_changes_choices_only_among_free_cells(sim_scenes):
+    """``min_observed`` 0 is the free-only check; a high share moves some views to other cells of their top-k (with
+    another outcome: the tiny scenes' views see little of the floor)."""
+    from tests.report._fake_world import loader
+
+    scenes, samples = sim_scenes
+    moved = 0
+    for batch in loader(samples, 4):
+        scores = {"m": [_noisy_labels(batch)]}
+        free_only = ssr.view_outcomes(batch, scores, scenes, top_k=5)
+        assert ssr.view_outcomes(batch, scores, scenes, top_k=5, min_observed=0.0) == free_only
+        observed = ssr.view_outcomes(batch, scores, scenes, top_k=5, min_observed=0.9)
+        moved += sum(x != y for x, y in zip(observed, free_only))
+    assert moved > 0
 
 
 def test_main_asks_the_datamodule_for_the_stored_cloud(monkeypatch, tmp_path):

@@ -26,6 +26,7 @@ __all__ = [
     "FOOTPRINT",
     "FloorLattice",
     "footprint_blocked",
+    "footprint_coverage",
     "grown_footprint",
     "ground_mask",
     "observed_cells",
@@ -181,3 +182,39 @@ def footprint_blocked(
     along, across = c * dx + s * dy, -s * dx + c * dy
     inside = (along <= front) & (along >= front - length) & (np.abs(across) <= width / 2)
     return int(inside.sum()) >= min_points
+
+
+def footprint_coverage(
+    xyz: np.ndarray,
+    pose: tuple[float, float, float],
+    footprint: tuple[float, float, float] = FOOTPRINT,
+    cell: float = 0.1,
+) -> float:
+    """How much of the base footprint the observed cloud shows: the share of its ``cell`` m sub-squares holding a point.
+
+    ``footprint_blocked`` can only rule a pose out; a footprint the view barely sees (occluded, or out of the
+    camera's field) is free by default, and furniture the view misses stands there as often as not. This measures
+    what the view knows: floor and obstacle points (any height) both count as seen.
+
+    Args:
+        xyz: [N, 3] observed points, same frame as ``pose``; pose: (x, y, yaw) of the base origin;
+        footprint: (length, width, front) (``FOOTPRINT``); cell: side (m) of the sub-squares.
+    Returns:
+        Share in [0, 1] of the ceil(length / cell) x ceil(width / cell) sub-squares with at least one point.
+    """
+    p = np.asarray(xyz, dtype=np.float64)
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise ValueError(f"footprint_coverage: xyz must be [N, 3], got {list(p.shape)}")
+    if not (cell > 0 and math.isfinite(cell)):
+        raise ValueError(f"footprint_coverage: cell must be finite and > 0, got {cell!r}")
+    p = p[np.isfinite(p).all(axis=1)]
+    length, width, front = footprint
+    x, y, yaw = (float(v) for v in pose)
+    c, s = math.cos(yaw), math.sin(yaw)
+    dx, dy = p[:, 0] - x, p[:, 1] - y
+    along, across = c * dx + s * dy, -s * dx + c * dy
+    inside = (along <= front) & (along >= front - length) & (np.abs(across) <= width / 2)
+    na, nw = math.ceil(length / cell - 1e-9), math.ceil(width / cell - 1e-9)
+    ia = np.clip(((along[inside] - (front - length)) / cell).astype(int), 0, na - 1)
+    iw = np.clip(((across[inside] + width / 2) / cell).astype(int), 0, nw - 1)
+    return float(np.unique(ia * nw + iw).size) / (na * nw)

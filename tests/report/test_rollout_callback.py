@@ -13,6 +13,7 @@ from floaff_zoo.callbacks.rollout import (
     bootstrap_std,
     choose_pose,
     cloud_free,
+    cloud_observed,
     pose_to_world,
     summarize_episodes,
 )
@@ -50,6 +51,30 @@ def test_choose_pose_top_k_skips_blocked_footprints():
     assert math.isclose(pose[2], math.pi)  # heading toward the target
     # nothing free -> top-1
     assert choose_pose(floor, scores, None, target, base, top_k=3, is_free=lambda *a: False)[1] == 0
+
+
+def test_choose_pose_prefers_free_poses_that_pass_the_stricter_check():
+    floor = np.array([[1.0, 0, 0], [2.0, 0, 0], [3.0, 0, 0], [4.0, 0, 0]])
+    scores = np.array([0.9, 0.8, 0.7, 0.6])
+    target, base = np.array([0.0, 0.0, 0.9]), (0.0, 0.0, 0.0)
+    free = lambda x, y, yaw: x > 1.5  # noqa: E731
+    # the best free and preferred candidate wins over a better-scored free one
+    pose, rank = choose_pose(floor, scores, None, target, base, 4, free, prefer=lambda x, y, yaw: x > 2.5)
+    assert (pose[:2], rank) == ((3.0, 0.0), 2)
+    # a preferred candidate that is not free never wins
+    assert choose_pose(floor, scores, None, target, base, 4, free, prefer=lambda x, y, yaw: x < 1.5)[1] == 1
+    # none of the top-k preferred: the free-only choice; outside the top-k nothing counts
+    assert choose_pose(floor, scores, None, target, base, 4, free, prefer=lambda *a: False)[1] == 1
+    assert choose_pose(floor, scores, None, target, base, 2, free, prefer=lambda x, y, yaw: x > 3.5)[1] == 1
+
+
+def test_cloud_observed_reads_the_footprint_coverage_in_the_world():
+    """A view whose robot faces +y sees floor points ahead of it; a pose there is observed, one beside it is not."""
+    base = (1.0, 2.0, math.pi / 2)
+    ahead = np.array([[x, y, 0.0] for x in np.arange(0.6, 1.3, 0.05) for y in np.arange(-0.3, 0.3, 0.05)])
+    observed = cloud_observed(ahead, base, 0.5)
+    assert observed(1.0, 2.0 + 0.9 + 0.2, math.pi / 2)  # the world pose 0.9 m + 0.2 m ahead of the view's robot
+    assert not observed(3.0, 2.0, 0.0)
 
 
 def test_constant_map_uses_documented_tie_break():

@@ -43,7 +43,7 @@ from lightning.pytorch.utilities import rank_zero_warn
 from lightning.pytorch.utilities.exceptions import MisconfigurationException
 
 from floaff_zoo.contract import FULL_CLOUD_KEY, best_pose
-from floaff_zoo.floor import footprint_blocked, grown_footprint
+from floaff_zoo.floor import footprint_blocked, footprint_coverage, grown_footprint
 from floaff_zoo.frames import ROLLOUT_POSE_DECIMALS, Pose, base_to_world, pose_to_world
 
 __all__ = [
@@ -53,6 +53,7 @@ __all__ = [
     "check_clouds",
     "choose_pose",
     "cloud_free",
+    "cloud_observed",
     "pose_to_world",
     "summarize_episodes",
     "summary_to_logs",
@@ -74,6 +75,7 @@ def choose_pose(
     top_k: int = 1,
     is_free: Callable[[float, float, float], bool] | None = None,
     seed: int = 0,
+    prefer: Callable[[float, float, float], bool] | None = None,
 ) -> tuple[Pose, int]:
     """World base pose chosen from per-point scores.
 
@@ -82,6 +84,8 @@ def choose_pose(
         base_pose_world: (x, y, yaw) of the view's robot base in the world.
         top_k: candidates considered; the best-scored one whose footprint ``is_free`` wins
             (the top-1 when none is free or ``is_free`` is None).
+        prefer: a stricter check tried first: the best-scored candidate that is free and ``prefer``-ed wins; when
+            none of the top-k is, ``is_free`` alone decides (``scripts/scene_sr.py --min-observed``).
     Returns:
         ((x, y, yaw) world, rank of the chosen candidate among the top-k).
         ``seed`` seeds ``best_pose``'s tie-break (the sample's index, so runs are repeatable).
@@ -89,9 +93,15 @@ def choose_pose(
     poses = best_pose(floor_xyz, scores, mask, target_xyz, k=max(1, top_k), seed=seed)
     world = [pose_to_world(p, base_pose_world) for p in poses]
     if top_k > 1 and is_free is not None:
+        first_free = None
         for rank, w in enumerate(world):
-            if is_free(*w):
+            if not is_free(*w):
+                continue
+            if prefer is None or prefer(*w):
                 return w, rank
+            first_free = rank if first_free is None else first_free
+        if first_free is not None:
+            return world[first_free], first_free
     return world[0], 0
 
 
@@ -120,6 +130,18 @@ def cloud_free(
     footprint = grown_footprint(margin)
     world = base_to_world(xyz, base_pose_world)
     return lambda x, y, yaw: not footprint_blocked(world, (x, y, yaw), footprint)
+
+
+def cloud_observed(
+    xyz: np.ndarray, base_pose_world: Sequence[float], min_observed: float
+) -> Callable[[float, float, float], bool]:
+    """``observed(x, y, yaw)`` for world poses: at least ``min_observed`` of the base footprint's 0.1 m sub-squares
+    hold a point of the view's cloud xyz [N, 3] (robot base frame; ``floor.footprint_coverage``), for ``choose_pose``'s
+    ``prefer``. Free space the view does not show is often furniture it missed, but preferring shown footprints chose
+    worse cells on the benchmark's validation folds (docs/results.md, "Preferring footprints the view shows"), so the
+    callback does not offer it."""
+    world = base_to_world(xyz, base_pose_world)
+    return lambda x, y, yaw: footprint_coverage(world, (x, y, yaw)) >= min_observed
 
 
 # ----------------------------------------------------------------------------------------------- statistics
