@@ -175,13 +175,19 @@ def footprint_blocked(
     if min_points < 1:
         raise ValueError(f"footprint_blocked: min_points must be >= 1, got {min_points}")
     p = p[np.isfinite(p).all(axis=1) & (p[:, 2] > z_range[0]) & (p[:, 2] <= z_range[1])]
+    return len(_in_footprint(p, pose, footprint)) >= min_points
+
+
+def _in_footprint(p: np.ndarray, pose: tuple[float, float, float], footprint: tuple[float, float, float]) -> np.ndarray:
+    """[K, 2] (along the heading from the footprint's back edge, across from its left edge) m of the points of
+    p [N, 3] inside the base footprint parked at ``pose``."""
     length, width, front = footprint
     x, y, yaw = (float(v) for v in pose)
     c, s = math.cos(yaw), math.sin(yaw)
     dx, dy = p[:, 0] - x, p[:, 1] - y
     along, across = c * dx + s * dy, -s * dx + c * dy
     inside = (along <= front) & (along >= front - length) & (np.abs(across) <= width / 2)
-    return int(inside.sum()) >= min_points
+    return np.stack([along[inside] - (front - length), across[inside] + width / 2], axis=1)
 
 
 def footprint_coverage(
@@ -207,14 +213,9 @@ def footprint_coverage(
         raise ValueError(f"footprint_coverage: xyz must be [N, 3], got {list(p.shape)}")
     if not (cell > 0 and math.isfinite(cell)):
         raise ValueError(f"footprint_coverage: cell must be finite and > 0, got {cell!r}")
-    p = p[np.isfinite(p).all(axis=1)]
-    length, width, front = footprint
-    x, y, yaw = (float(v) for v in pose)
-    c, s = math.cos(yaw), math.sin(yaw)
-    dx, dy = p[:, 0] - x, p[:, 1] - y
-    along, across = c * dx + s * dy, -s * dx + c * dy
-    inside = (along <= front) & (along >= front - length) & (np.abs(across) <= width / 2)
+    local = _in_footprint(p[np.isfinite(p).all(axis=1)], pose, footprint)
+    length, width, _ = footprint
     na, nw = math.ceil(length / cell - 1e-9), math.ceil(width / cell - 1e-9)
-    ia = np.clip(((along[inside] - (front - length)) / cell).astype(int), 0, na - 1)
-    iw = np.clip(((across[inside] + width / 2) / cell).astype(int), 0, nw - 1)
+    ia = np.clip((local[:, 0] / cell).astype(int), 0, na - 1)
+    iw = np.clip((local[:, 1] / cell).astype(int), 0, nw - 1)
     return float(np.unique(ia * nw + iw).size) / (na * nw)
