@@ -35,7 +35,8 @@ checked footprint by 5 cm on every side (a cloud too sparse to put two points in
 may still put them just outside it); ``--full-cloud`` checks it in every point the view's file stores (4,096 in the
 ``dense`` preset, what the robot's depth image gave) instead of the ``--num-points`` sample the network reads;
 ``--min-observed 0.5`` prefers, among the free cells, those whose footprint that cloud shows on half its 0.1 m
-sub-squares or more (the callback's ``min_observed``).
+sub-squares or more (``floor.footprint_coverage``; a rejected hypothesis, not offered by the callback: docs/results.md,
+"Preferring footprints the view shows").
 
 Labels only, no simulator; one to two minutes per model and benchmark on one core.
 """

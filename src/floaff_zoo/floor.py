@@ -199,8 +199,9 @@ def footprint_coverage(
     """How much of the base footprint the observed cloud shows: the share of its ``cell`` m sub-squares holding a point.
 
     ``footprint_blocked`` can only rule a pose out; a footprint the view barely sees (occluded, or out of the
-    camera's field) is free by default, and furniture the view misses stands there as often as not. This measures
-    what the view knows: floor and obstacle points (any height) both count as seen.
+    camera's field) is free by default, and over the benchmark's candidate cells such footprints stand over furniture
+    the view missed more often than well-seen ones (``scripts/coverage_reasons.py``). This measures what the view
+    knows: floor and obstacle points (any height) both count as seen.
 
     Args:
         xyz: [N, 3] observed points, same frame as ``pose``; pose: (x, y, yaw) of the base origin;
