@@ -154,6 +154,35 @@ def test_footprint_counts_agree_with_footprint_blocked():
             footprint_counts(*args)
 
 
+def test_footprint_seen_agrees_with_footprint_coverage():
+    """The batched torch share behind CFAR's coverage input equals the numpy one, chunk by chunk."""
+    import torch
+
+    from floaff_zoo.contract import best_pose
+    from floaff_zoo.floor import footprint_coverage
+    from floaff_zoo.nn.placement import footprint_seen
+
+    rng = np.random.default_rng(1)
+    b, n, m = 3, 300, 50
+    xyz = rng.uniform([-1.5, -1.5, -0.05], [1.5, 1.5, 1.5], size=(b, n, 3))
+    xyz[2, :4] = np.nan  # invalid points are not seen
+    mask = rng.random((b, n)) > 0.3
+    floor = np.concatenate([rng.uniform(-1.2, 1.2, size=(b, m, 2)), np.zeros((b, m, 1))], axis=-1)
+    target = rng.uniform(-0.3, 0.3, size=(b, 3))
+    t = [torch.tensor(xyz), torch.tensor(mask), torch.tensor(floor[..., :2]), torch.tensor(target[:, :2])]
+    seen = footprint_seen(*t, chunk=7)
+    assert seen.shape == (b, m)
+    for i in range(b):
+        poses = best_pose(floor[i], -np.arange(m, dtype=float), None, target[i], k=m)  # floor points in order
+        ref = [footprint_coverage(xyz[i][mask[i]], pose) for pose in poses]
+        assert np.allclose(seen[i].numpy(), ref)
+    assert 0 < float(seen.min()) < float(seen.max()) <= 1  # shares differ: the comparison can fail
+    with pytest.raises(ValueError, match="mask must be"):
+        footprint_seen(t[0], t[1][:, :-1], t[2], t[3])
+    with pytest.raises(ValueError, match="cell"):
+        footprint_seen(*t, cell=float("nan"))
+
+
 def test_grown_footprint_adds_the_margin_on_every_side():
     from floaff_zoo.floor import FOOTPRINT, grown_footprint
 

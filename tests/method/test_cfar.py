@@ -272,6 +272,47 @@ def test_occupancy_input_reads_the_footprint_from_the_view(tmp_path, root, monke
     assert CFARModule.load_from_checkpoint(ckpt, weights_only=True).net.floor_feat_channels == 2
 
 
+def test_coverage_input_reads_how_much_of_the_footprint_the_view_shows(tmp_path, root, monkeypatch):
+    """``coverage_input``: one channel after the occupancy's, the share of each floor point's footprint the view's cloud
+    shows; points put into one footprint raise it there and change that score; the switch trains and reloads."""
+    from floaff_zoo.nn.placement import footprint_seen
+
+    b = _batch(2)
+    model = CFARModule(**tiny_args(root), occupancy_input=True, coverage_input=True, eval_yaw_source="gt").eval()
+    plain = CFARModule(**tiny_args(root)).net.head.linears[0].in_features
+    assert model.net.head.linears[0].in_features == plain + 3
+    assert CFARModule(**tiny_args(root), coverage_input=True).net.head.linears[0].in_features == plain + 1
+    feats = model.floor_features(b)
+    assert feats.shape == (*b["floor_xyz"].shape[:2], 3)
+    assert torch.equal(feats[..., :2], model.occupancy(b))
+    torch.manual_seed(0)
+    shown = block_first_footprint(b, n=40)
+    shown["scene_xyz"][0, :40, :2] += torch.randn(40, 2) * 0.1  # spread over the footprint's sub-squares
+    cov = footprint_seen(shown["scene_xyz"], shown["scene_mask"], b["floor_xyz"][..., :2], b["target_xyz"][..., :2])
+    assert cov[0, 0] > feats[0, 0, 2] and torch.equal(model.floor_features(shown)[..., 2], cov)
+    with torch.no_grad():
+        s1 = model(shown)
+        real = model.floor_features
+        monkeypatch.setattr(
+            model, "floor_features", lambda batch: torch.cat([real(batch)[..., :2], 0 * cov[..., None]], -1)
+        )
+        s0 = model(shown)
+        monkeypatch.undo()
+    assert (s0[0, 0] - s1[0, 0]).abs() > 1e-6  # the score reads the coverage channel
+    monkeypatch.chdir(root)
+    base = [
+        "--config",
+        DATA,
+        "--config",
+        CFAR,
+        *quiet_trainer_args(tmp_path),
+        "--model.init_args.coverage_input",
+        "true",
+    ]
+    ckpt = run_lightning(["fit", *base, "--trainer.max_epochs", "1"]).trainer.checkpoint_callback.best_model_path
+    assert CFARModule.load_from_checkpoint(ckpt, weights_only=True).net.floor_feat_channels == 1
+
+
 def test_residual_scale_shrinks_the_learned_residual_towards_the_prior(root):
     """scores = sigmoid(scale * residual + logit(prior)): 0 reads the prior alone, 1 the model as trained."""
     args = tiny_args(root)

@@ -34,7 +34,9 @@ the start of ``fit`` for tasks it has not seen, kept in the checkpoint); ``floor
 each floor point alone, so scores do not depend on the other queries; ``occupancy_input`` gives the decoder, per floor
 point, the obstacle points of the view's own cloud inside the base footprint parked there
 (``nn.placement.footprint_occupancy``, the rectangle of ``floor.footprint_blocked``): two channels, log(1 + count) and
-count >= 2 (what the callback's ``free_space: cloud`` check calls blocked), counts rescaled to a 1,024-point cloud.
+count >= 2 (what the callback's ``free_space: cloud`` check calls blocked), counts rescaled to a 1,024-point cloud;
+``coverage_input`` adds one channel after them: the share of that footprint the view's cloud shows
+(``nn.placement.footprint_seen``; a footprint the view does not show may hide furniture).
 
 PFAL teacher (``teacher``: checkpoint path or hub name of the previous stage's best): loaded lazily in
 ``setup("fit")`` (so test/predict/``load_from_checkpoint`` never need the file), frozen, in eval mode,
@@ -76,7 +78,7 @@ from floaff_zoo.models.yaw import (
 )
 from floaff_zoo.nn.axisnet import AxisNet
 from floaff_zoo.nn.cfar import CanonicalCloud, CFARNet, canonical_transform, robot_from_canonical, sample_levels
-from floaff_zoo.nn.placement import OCCUPANCY_CHANNELS, footprint_occupancy
+from floaff_zoo.nn.placement import OCCUPANCY_CHANNELS, footprint_occupancy, footprint_seen
 from floaff_zoo.nn.prior import CanonicalLabelGrid
 
 TEACHER_PREFIX = "teacher."
@@ -129,6 +131,8 @@ class CFARModule(FloAffModule):
             be set at test time (``--model.init_args.residual_scale``) without retraining.
         occupancy_input: give the decoder the base footprint's occupancy from the view's cloud at each floor
             point (departure, see module docstring; off by default).
+        coverage_input: also give the decoder the share of that footprint the view's cloud shows (one channel after
+            the occupancy's, if any; departure, see module docstring; off by default).
         prior_tasks: tasks the prior keeps a grid for (default: the four tasks).
         prior_centred: the prior's cells centred on the label lattice (``nn.prior``); False reproduces the
             binning of checkpoints written before (a loaded checkpoint keeps the binning its state records).
@@ -167,6 +171,7 @@ class CFARModule(FloAffModule):
         prior_residual: bool = False,
         residual_scale: float = 1.0,
         occupancy_input: bool = False,
+        coverage_input: bool = False,
         prior_tasks: list[str] | None = None,
         prior_centred: bool = True,
         manhattan_radius: float = 1.2,
@@ -214,7 +219,7 @@ class CFARModule(FloAffModule):
             feat_channels=h["feat_channels"],
             robot_dim=h["robot_dim"],
             floor_encoder=h["floor_encoder"],
-            floor_feat_channels=OCCUPANCY_CHANNELS if h["occupancy_input"] else 0,
+            floor_feat_channels=OCCUPANCY_CHANNELS * bool(h["occupancy_input"]) + int(bool(h.get("coverage_input"))),
             **arch,
         )
         self.prior: CanonicalLabelGrid | None = None
@@ -358,15 +363,32 @@ class CFARModule(FloAffModule):
     def _run(self, batch: Batch) -> tuple[Tensor, Tensor, CanonicalCloud, Tensor | None]:
         canon, yaw = self.canonicalize(batch)
         feat = batch["scene_feat"][..., : self.hparams["feat_channels"]]
-        occ = self.occupancy(batch) if self.hparams["occupancy_input"] else None
         logits, g = self.net.logits(
-            canon.xyz, feat, canon.mask, canon.floor_xyz, batch["floor_mask"], batch["robot"], occ
+            canon.xyz,
+            feat,
+            canon.mask,
+            canon.floor_xyz,
+            batch["floor_mask"],
+            batch["robot"],
+            self.floor_features(batch),
         )
         if self.prior is not None:
             tasks = self.prior.task_index([str(m.get("task")) for m in batch["meta"]])
             p = self.prior.read(tasks, canon.floor_xyz[..., :2]).to(logits.dtype).clamp(PRIOR_EPS, 1 - PRIOR_EPS)
             logits = self.hparams["residual_scale"] * logits + torch.log(p) - torch.log1p(-p)
         return torch.sigmoid(logits), g, canon, yaw
+
+    def floor_features(self, batch: Batch) -> Tensor | None:
+        """The decoder's extra per-floor-point channels [B, M, C] (occupancy, then coverage), None when switched off."""
+        parts = []
+        if self.hparams["occupancy_input"]:
+            parts.append(self.occupancy(batch))
+        if self.hparams.get("coverage_input"):
+            xy = batch["floor_xyz"][..., :2]
+            parts.append(
+                footprint_seen(batch["scene_xyz"], batch["scene_mask"], xy, batch["target_xyz"][..., :2])[..., None]
+            )
+        return torch.cat(parts, dim=-1) if parts else None
 
     @staticmethod
     def occupancy(batch: Batch) -> Tensor:

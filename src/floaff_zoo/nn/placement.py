@@ -9,13 +9,21 @@ origin, the rest in front).
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 
 import torch
 from torch import Tensor
 
 from floaff_zoo.floor import FLOOR_Z_MAX, FOOTPRINT
 
-__all__ = ["footprint_collides", "footprint_counts", "footprint_occupancy", "heading_to", "occupied_cells"]
+__all__ = [
+    "footprint_collides",
+    "footprint_counts",
+    "footprint_occupancy",
+    "footprint_seen",
+    "heading_to",
+    "occupied_cells",
+]
 
 #: ``footprint_occupancy`` channels: log(1 + obstacle points in the footprint), and the count reaching the rollout
 #: callback's ``free_space: cloud`` threshold (``floor.footprint_blocked``'s ``min_points``)
@@ -111,18 +119,64 @@ def footprint_counts(
     length, width, front = footprint
     z = xyz[..., 2]
     keep = mask.bool() & torch.isfinite(xyz).all(-1) & (z > z_range[0]) & (z <= z_range[1])  # [B, N]
-    yaw = heading_to(floor_xy, target_xy[:, None, :])  # [B, M]
-    c, s = torch.cos(yaw), torch.sin(yaw)
     out = []
-    for m0 in range(0, floor_xy.shape[1], max(1, int(chunk))):
-        sl = slice(m0, m0 + max(1, int(chunk)))
-        d = xyz[:, None, :, :2] - floor_xy[:, sl, None, :]  # [B, m, N, 2]
-        cc, ss = c[:, sl, None], s[:, sl, None]
-        along = d[..., 0] * cc + d[..., 1] * ss
-        across = -d[..., 0] * ss + d[..., 1] * cc
+    for along, across in _footprint_frames(xyz, floor_xy, target_xy, chunk):
         inside = (along <= front) & (along >= front - length) & (across.abs() <= width / 2) & keep[:, None, :]
         out.append(inside.sum(-1))
     return torch.cat(out, dim=1).to(xyz.dtype)
+
+
+def _footprint_frames(xyz: Tensor, floor_xy: Tensor, target_xy: Tensor, chunk: int) -> Iterator[tuple[Tensor, Tensor]]:
+    """Every point in the frame of a base parked on each floor point facing the target, ``chunk`` floor points at a
+    time: (along the heading, across it) [B, m, N] each, m <= chunk, in floor-point order."""
+    yaw = heading_to(floor_xy, target_xy[:, None, :])  # [B, M]
+    c, s = torch.cos(yaw), torch.sin(yaw)
+    step = max(1, int(chunk))
+    for m0 in range(0, floor_xy.shape[1], step):
+        sl = slice(m0, m0 + step)
+        d = xyz[:, None, :, :2] - floor_xy[:, sl, None, :]  # [B, m, N, 2]
+        cc, ss = c[:, sl, None], s[:, sl, None]
+        yield d[..., 0] * cc + d[..., 1] * ss, -d[..., 0] * ss + d[..., 1] * cc
+
+
+@torch.no_grad()
+def footprint_seen(
+    xyz: Tensor,
+    mask: Tensor,
+    floor_xy: Tensor,
+    target_xy: Tensor,
+    footprint: tuple[float, float, float] = FOOTPRINT,
+    cell: float = 0.1,
+    chunk: int = 128,
+) -> Tensor:
+    """Share of the base footprint parked on each floor point, facing the target, that each view's cloud shows.
+
+    The batched torch form of ``floaff_zoo.floor.footprint_coverage`` (same rectangle, same ``cell`` m sub-squares;
+    any point of any height counts as seen): what ``CFARModule(coverage_input=True)`` gives its decoder.
+
+    Args:
+        xyz: [B, N, 3] clouds; mask: [B, N] bool valid points; floor_xy: [B, M, 2]; target_xy: [B, 2];
+        footprint: (length, width, front) m; cell: sub-square side (m); chunk: floor points per pass.
+    Returns:
+        [B, M] shares in [0, 1] in ``xyz``'s dtype (no gradient).
+    """
+    _check_batch_shapes(xyz, mask, floor_xy, target_xy)
+    if not (cell > 0 and math.isfinite(cell)):
+        raise ValueError(f"footprint_seen: cell must be finite and > 0, got {cell!r}")
+    length, width, front = footprint
+    na, nw = math.ceil(length / cell - 1e-9), math.ceil(width / cell - 1e-9)
+    keep = mask.bool() & torch.isfinite(xyz).all(-1)  # [B, N]
+    out = []
+    for along, across in _footprint_frames(xyz, floor_xy, target_xy, chunk):
+        a0, w0 = along - (front - length), across + width / 2  # from the footprint's back-left corner
+        inside = (a0 >= 0) & (a0 <= length) & (w0 >= 0) & (w0 <= width) & keep[:, None, :]
+        ia = torch.clamp(torch.floor(a0 / cell), 0, na - 1).long()
+        iw = torch.clamp(torch.floor(w0 / cell), 0, nw - 1).long()
+        idx = torch.where(inside, ia * nw + iw, torch.full_like(ia, na * nw))  # points outside: a spare bin
+        seen = torch.zeros(*idx.shape[:2], na * nw + 1, dtype=torch.bool, device=xyz.device)
+        seen.scatter_(2, idx, True)
+        out.append(seen[..., :-1].sum(-1))
+    return torch.cat(out, dim=1).to(xyz.dtype) / (na * nw)
 
 
 @torch.no_grad()
