@@ -224,6 +224,15 @@ def test_axisnet_is_frozen_embedded_and_used_at_eval(tmp_path, root, monkeypatch
         assert torch.equal(v, re.net.state_dict()[k]), k
 
 
+def _fit_with_switch(tmp_path, root, monkeypatch, switch: str) -> tuple[list[str], str]:
+    """One epoch of the tiny CFAR config through the CLI with ``--model.init_args.<switch> true``: (the CLI arguments
+    without the subcommand, the best checkpoint)."""
+    monkeypatch.chdir(root)
+    base = ["--config", DATA, "--config", CFAR, *quiet_trainer_args(tmp_path), f"--model.init_args.{switch}", "true"]
+    cli = run_lightning(["fit", *base, "--trainer.max_epochs", "1"])
+    return base, cli.trainer.checkpoint_callback.best_model_path
+
+
 def test_occupancy_input_reads_the_footprint_from_the_view(tmp_path, root, monkeypatch):
     """``occupancy_input``: an obstacle put into one floor point's base footprint changes that point's input and
     score; the switch trains, tests and reloads through the CLI."""
@@ -256,18 +265,7 @@ def test_occupancy_input_reads_the_footprint_from_the_view(tmp_path, root, monke
     with pytest.raises(ValueError, match="floor_feat must be"):
         model.net.logits(b["scene_xyz"], b["scene_feat"], b["scene_mask"], b["floor_xyz"], b["floor_mask"], b["robot"])
     # through the CLI: fit, test, reload with the switch kept
-    monkeypatch.chdir(root)
-    base = [
-        "--config",
-        DATA,
-        "--config",
-        CFAR,
-        *quiet_trainer_args(tmp_path),
-        "--model.init_args.occupancy_input",
-        "true",
-    ]
-    cli = run_lightning(["fit", *base, "--trainer.max_epochs", "1"])
-    ckpt = cli.trainer.checkpoint_callback.best_model_path
+    base, ckpt = _fit_with_switch(tmp_path, root, monkeypatch, "occupancy_input")
     assert torch.isfinite(run_lightning(["test", *base, "--ckpt_path", ckpt]).trainer.callback_metrics["test_sim"])
     assert CFARModule.load_from_checkpoint(ckpt, weights_only=True).net.floor_feat_channels == 2
 
@@ -299,17 +297,7 @@ def test_coverage_input_reads_how_much_of_the_footprint_the_view_shows(tmp_path,
         s0 = model(shown)
         monkeypatch.undo()
     assert (s0[0, 0] - s1[0, 0]).abs() > 1e-6  # the score reads the coverage channel
-    monkeypatch.chdir(root)
-    base = [
-        "--config",
-        DATA,
-        "--config",
-        CFAR,
-        *quiet_trainer_args(tmp_path),
-        "--model.init_args.coverage_input",
-        "true",
-    ]
-    ckpt = run_lightning(["fit", *base, "--trainer.max_epochs", "1"]).trainer.checkpoint_callback.best_model_path
+    _, ckpt = _fit_with_switch(tmp_path, root, monkeypatch, "coverage_input")
     assert CFARModule.load_from_checkpoint(ckpt, weights_only=True).net.floor_feat_channels == 1
 
 
