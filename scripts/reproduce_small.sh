@@ -381,9 +381,9 @@ run_job() {
     styles_cv[0-4]_last|styles_cv[0-4]_succ|styles_cv[0-4]_cov)
       # leave-one-layout-out validation, fold f = the train scenes of layout f held out for every task (seed 0): the
       # best configuration, or it plus the listwise ranking term (rank) or trained on labels with failed cells set
-      # to 0 (succ), or that with the footprint coverage input as well (cov); trained, then scored on the fold's validation scenes (no test). cv<f>_last trains the best
-      # configuration again (with last.ckpt the newest state) and scores its chosen checkpoint (occ2) and its last
-      # one (last2)
+      # to 0 (succ), or that with the footprint coverage input as well (cov); trained, then scored on the fold's
+      # validation scenes (no test). cv<f>_last trains the best configuration again (with last.ckpt the newest
+      # state) and scores its chosen checkpoint (occ2) and its last one (last2)
       local b j f extra=() ck; split_job
       f=${j:2:1}
       [ "${j#*_}" = rank ] && extra=(--extra-config configs/experiments/recipe/rank.yaml)
