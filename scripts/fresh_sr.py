@@ -34,6 +34,7 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -54,6 +55,52 @@ __all__ = [
     "summarize",
     "view_choices",
 ]
+
+
+def split_data(
+    prog: str,
+    root: str,
+    benchmark: str,
+    split: str,
+    num_points: int,
+    full_cloud: bool,
+    batch_size: int = 8,
+    val_layout: int | None = None,
+) -> tuple[Any, dict[str, dict]]:
+    """The FloAff-Kitchen DataModule set up for ``split`` ("test" or "val", the latter with the fold ``val_layout``)
+    and {scene id: scene record} of that split's scenes, as ``fresh_sr.py`` and ``scene_sr.py`` read them.
+
+    Validation scenes are train scenes on disk (a task with one train scene lends views of it to val). A missing root,
+    a corrupt file or no finished scene ends the script with ``prog``'s message.
+    """
+    from lightning.pytorch.utilities.exceptions import MisconfigurationException
+
+    from floaff_zoo.data.floaff_kitchen import FloAffKitchenDataModule
+    from floaff_zoo.sim import fileformat as ff
+
+    try:
+        dm = FloAffKitchenDataModule(
+            root=root,
+            benchmark=benchmark,
+            tasks=list(TASKS),
+            batch_size=batch_size,
+            num_points=num_points,
+            val_layout=val_layout,
+            full_cloud=full_cloud,
+        )
+        dm.setup("test" if split == "test" else "fit")
+        keep = {s.removesuffix(" (views)") for s in dm.split_scenes.get(split, [])}
+        files_split = "test" if split == "test" else "train"
+        scenes = {
+            s["scene_id"]: s
+            for s in ff.iter_scenes(root, benchmark=benchmark, split=files_split)
+            if s["scene_id"] in keep
+        }
+    except (OSError, ValueError, LookupError, MisconfigurationException) as exc:
+        raise SystemExit(f"{prog}: {exc}") from exc
+    if not scenes:
+        raise SystemExit(f"{prog}: no finished {split} scene of {benchmark} under {root}")
+    return dm, scenes
 
 
 def nearest_cells(cand_xy: np.ndarray, xy: np.ndarray, cell: float, where: str) -> np.ndarray:
@@ -222,30 +269,10 @@ def main(argv: list[str] | None = None) -> int:
     if a.probs and not a.probs.endswith(".npz"):
         p.error(f"--probs must name a .npz file, got {a.probs!r}")
 
-    from floaff_zoo.data.floaff_kitchen import FloAffKitchenDataModule
     from floaff_zoo.predict import resolve_model
-    from floaff_zoo.sim import fileformat as ff
     from floaff_zoo.sim.generate import ANNOTATE_SEED
 
-    dm = FloAffKitchenDataModule(
-        root=a.root,
-        benchmark=a.benchmark,
-        tasks=list(TASKS),
-        batch_size=a.batch_size,
-        num_points=a.num_points,
-        full_cloud=a.full_cloud,
-    )
-    dm.setup("test" if a.split == "test" else "fit")
-    # a task with one train scene lends views of it to val: "<id> (views)"
-    keep = {s.removesuffix(" (views)") for s in dm.split_scenes.get(a.split, [])}
-    files_split = "test" if a.split == "test" else "train"  # validation scenes are train scenes on disk
-    scenes = {
-        s["scene_id"]: s
-        for s in ff.iter_scenes(a.root, benchmark=a.benchmark, split=files_split)
-        if s["scene_id"] in keep
-    }
-    if not scenes:
-        raise SystemExit(f"fresh_sr: no finished {a.split} scene of {a.benchmark} under {a.root}")
+    dm, scenes = split_data("fresh_sr", a.root, a.benchmark, a.split, a.num_points, a.full_cloud, a.batch_size)
     setting = dict(episodes=a.episodes, sigma_xy=a.sigma_xy, sigma_yaw_deg=a.sigma_yaw_deg, seed=a.seed)
     if a.annotation_seed:
         setting["task_seed"] = "annotation"

@@ -54,7 +54,7 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from fresh_sr import nearest_cells  # noqa: E402
+from fresh_sr import nearest_cells, split_data  # noqa: E402
 
 from floaff_zoo.callbacks.rollout import check_clouds, choose_pose, cloud_free, cloud_observed  # noqa: E402
 from floaff_zoo.contract import TASKS  # noqa: E402
@@ -330,29 +330,15 @@ def main(argv: list[str] | None = None) -> int:
     if a.ensemble and not ensembled(groups):
         p.error("--ensemble averages the runs of one NAME: give some NAME two runs or more (NAME=a.ckpt NAME=b.ckpt)")
 
-    from lightning.fabric.utilities.exceptions import MisconfigurationException
-
-    from floaff_zoo.data.floaff_kitchen import FloAffKitchenDataModule
     from floaff_zoo.predict import resolve_model
-    from floaff_zoo.sim import fileformat as ff
 
-    try:  # a bad model name or data root ends here with its message, before any scoring
+    try:  # a bad model name ends here with its message, before any data is read
         nets = with_residual_scales({n: [resolve_model(m).eval() for m in ms] for n, ms in groups.items()}, scales)
-        dm = FloAffKitchenDataModule(
-            root=a.root,
-            benchmark=a.benchmark,
-            tasks=list(TASKS),
-            num_points=a.num_points,
-            val_layout=a.val_layout,
-            full_cloud=a.full_cloud,
-        )
-        dm.setup("test" if a.split == "test" else "fit")
-    except (OSError, ValueError, LookupError, MisconfigurationException) as exc:
+    except (OSError, ValueError, LookupError) as exc:
         raise SystemExit(f"scene_sr: {exc}") from exc
-    files_split = "test" if a.split == "test" else "train"  # validation scenes are train scenes on disk
-    scenes = {s["scene_id"]: s for s in ff.iter_scenes(a.root, benchmark=a.benchmark, split=files_split)}
-    if not scenes:
-        raise SystemExit(f"scene_sr: no finished {files_split} scene of {a.benchmark} under {a.root}")
+    dm, scenes = split_data(
+        "scene_sr", a.root, a.benchmark, a.split, a.num_points, a.full_cloud, val_layout=a.val_layout
+    )
     rows: list[Row] = []
     with torch.no_grad():
         for batch in dm.test_dataloader() if a.split == "test" else dm.val_dataloader():

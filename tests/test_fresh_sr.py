@@ -220,3 +220,15 @@ def test_view_choices_with_full_cloud_check_every_stored_point(drawer_root):
         sample_only = fs.view_choices(blind, blocked_first, scenes, probs, top_k=m)
         changed += sum(a["m"] != b["m"] for a, b in zip(sample_only, full))
     assert changed > 0
+
+
+def test_split_data_ends_bad_data_with_the_scripts_message(tmp_path, drawer_root):
+    """Both scripts read their split through ``split_data``: a missing root or a benchmark without a usable scene ends
+    with a message naming the script, not a traceback; a good root gives the split's scenes only."""
+    with pytest.raises(SystemExit, match="fresh_sr: .*does not exist"):
+        fs.split_data("fresh_sr", str(tmp_path / "missing"), "styles", "test", 256, False)
+    dm, scenes = fs.split_data("scene_sr", str(drawer_root), "styles", "val", 256, False)
+    val = {s.removesuffix(" (views)") for s in dm.split_scenes["val"]}
+    assert set(scenes) == val and scenes
+    with pytest.raises(SystemExit, match="scene_sr: .*no usable 'layouts' scene"):
+        fs.split_data("scene_sr", str(drawer_root), "layouts", "test", 256, False)
