@@ -210,7 +210,8 @@ def test_cache_and_workers(floaff_root):
 
 def test_full_cloud_carries_every_stored_point_past_crop_cache_and_resampling(floaff_root):
     """full_cloud: the batch's full_xyz is the view file's whole cloud (as fileformat reads it), while scene_xyz is
-    the cropped, resampled sample; the cache keeps it under its own key, and without the flag batches have none."""
+    the cropped, resampled sample; the cache keeps it under its own key, and without the flag batches have none.
+    The train split never carries it and shares the cache of full_cloud false."""
     import torch
 
     from floaff_zoo.data.transforms import TargetCrop
@@ -222,9 +223,14 @@ def test_full_cloud_carries_every_stored_point_past_crop_cache_and_resampling(fl
     plain = _dm(root, **kw)
     plain.setup("test")
     assert "full_xyz" not in next(iter(plain.test_dataloader()))
+    (plain_dir,) = {p.parent for p in (root / ".cache").rglob("*.pt")}
+    n_plain = len(list(plain_dir.glob("*.pt")))
     dm = _dm(root, full_cloud=True, **kw)
     dm.setup("test")
-    assert len({p.parent for p in (root / ".cache").rglob("*.pt")}) == 2  # its own cache directory
+    (full_dir,) = {p.parent for p in (root / ".cache").rglob("*.pt")} - {plain_dir}  # its own cache directory
+    assert len(list(full_dir.glob("*.pt"))) == len(dm.datasets["val"]) + len(dm.datasets["test"])
+    assert len(list(plain_dir.glob("*.pt"))) == n_plain  # the train split's entries are the plain ones
+    assert "full_xyz" not in dm.datasets["train"][0] and "full_xyz" in dm.datasets["val"][0]
     for _ in range(2):  # the second pass reads the cache
         batch = next(iter(dm.test_dataloader()))
         stored = torch.as_tensor(ff.read_view(dm.datasets["test"].records[0].payload["view"]["file"])["scene_xyz"])

@@ -92,10 +92,11 @@ class FloAffKitchenDataModule(FloAffDataModule):
         strict: raise on the first missing/corrupt file instead of skipping and counting.
         validate: load every sample at setup (fills the cache; bad ones are skipped and counted).
         cache / cache_dir / cache_hash / pre_transforms: see :class:`~floaff_zoo.data.cache.SampleCache`.
-        full_cloud: also give every sample ``full_xyz``, every point its view file stores (before ``pre_transforms``,
-            ``eval_transforms`` and the loader's resampling), and batches ``full_xyz`` / ``full_mask``: what the
-            rollout callback's ``free_space: full_cloud`` checks a base footprint against
-            (``configs/trainer/eval_sr_top10_full.yaml`` sets both). Models do not read it.
+        full_cloud: also give every val, test and predict sample ``full_xyz``, every point its view file stores
+            (before ``pre_transforms``, ``eval_transforms`` and the loader's resampling), and their batches
+            ``full_xyz`` / ``full_mask``: what the rollout callback's ``free_space: full_cloud`` checks a base
+            footprint against (``configs/trainer/eval_sr_top10_full.yaml`` sets both). Models do not read it; the
+            train split never carries it and shares the cache of ``full_cloud: false``.
         (the rest: see :class:`FloAffDataModule`)
     """
 
@@ -306,14 +307,12 @@ class FloAffKitchenDataModule(FloAffDataModule):
             )
         records = self.split_records(scenes)
         self.labels_digests = {s.scene_id: s.labels_digest for s in scenes if s.task in self.tasks and s.labels_digest}
-        cache = None
-        if self.use_cache:
-            cfg = {**reader.config(), "pre_transforms": transforms_config(self.pre_transforms), "seed": self.seed}
-            if self.full_cloud:  # only then: caches made without it keep their key
-                cfg["full_cloud"] = True
-            cache = SampleCache(self.cache_dir, f"floaff_{self.benchmark}", cfg, self.cache_hash)
-        loader = _ViewLoader(reader, self.full_cloud)
         for split, recs in records.items():
+            # the stored cloud serves the rollout check of evaluated poses only: the train split never carries it, so
+            # it shares the cache of full_cloud false and its batches stay small
+            full = self.full_cloud and split != "train"
+            cache = self._cache(reader, full) if self.use_cache else None
+            loader = _ViewLoader(reader, full)
             ds = RecordDataset(recs, loader, cache, self.pre_transforms, self.seed, f"floaff_{self.benchmark}/{split}")
             if self.validate:
                 ds.build(skips, self.num_workers)
@@ -344,6 +343,13 @@ class FloAffKitchenDataModule(FloAffDataModule):
                     f"FloAffKitchenDataModule: the '{split}' split is empty{why} for tasks {self.tasks}, views "
                     f"{self.views} under {self.root}/{self.benchmark} (scenes per split: {self.split_scenes})"
                 )
+
+    def _cache(self, reader: FloAffReader, full_cloud: bool) -> SampleCache:
+        """The sample cache of this reader and these pre-transforms, with or without the stored cloud."""
+        cfg = {**reader.config(), "pre_transforms": transforms_config(self.pre_transforms), "seed": self.seed}
+        if full_cloud:  # only then: caches made without it keep their key
+            cfg["full_cloud"] = True
+        return SampleCache(self.cache_dir, f"floaff_{self.benchmark}", cfg, self.cache_hash)
 
     def transforms_for(self, split: str) -> list[SampleTransform]:
         """The configured transforms; the train split's labels are replaced first when ``train_labels`` is set."""
