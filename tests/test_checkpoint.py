@@ -20,13 +20,13 @@ class GetsWorse(BoringModel):
         return super().validation_step(batch, batch_idx)
 
 
-def _fit(tmp_path: Path, callback) -> L.Trainer:
+def _fit(tmp_path: Path, callback, max_steps: int = 7, val_batches: int = 1) -> L.Trainer:
     trainer = L.Trainer(
         default_root_dir=tmp_path,
-        max_steps=7,
+        max_steps=max_steps,
         val_check_interval=2,
         check_val_every_n_epoch=None,
-        limit_val_batches=1,
+        limit_val_batches=val_batches,
         callbacks=[callback],
         logger=False,
         enable_progress_bar=False,
@@ -59,3 +59,22 @@ def test_plain_model_checkpoint_keeps_the_best_as_last(tmp_path):
         L.pytorch.callbacks.ModelCheckpoint(dirpath=tmp_path / "ck", monitor="worse", mode="min", save_last=True),
     )
     assert _step(tmp_path / "ck" / "last.ckpt") == 2
+
+
+def test_a_second_fit_into_the_same_directory_keeps_the_first_last(tmp_path):
+    """As Lightning does: another fit's last.ckpt stays, the new fit's newest state goes to last-v1.ckpt (here a fit
+    without validation that stops inside its first epoch: only the end of training writes it)."""
+    _fit(tmp_path, LatestCheckpoint(dirpath=tmp_path / "ck", monitor="worse", mode="min", save_last=True))
+    first = (tmp_path / "ck" / "last.ckpt").read_bytes()
+    cb = LatestCheckpoint(dirpath=tmp_path / "ck", save_last=True)
+    _fit(tmp_path, cb, max_steps=3, val_batches=0)
+    assert (tmp_path / "ck" / "last.ckpt").read_bytes() == first
+    assert Path(cb.last_model_path).name == "last-v1.ckpt" and _step(cb.last_model_path) == 3
+
+
+def test_link_mode_never_writes_through_the_link(tmp_path):
+    """save_last="link" makes last.ckpt a link to a top-k file: refreshing it must replace the link, not write the
+    newest state into the best file."""
+    cb = LatestCheckpoint(dirpath=tmp_path / "ck", monitor="worse", mode="min", save_last="link")
+    _fit(tmp_path, cb)
+    assert _step(cb.best_model_path) == 2 and _step(tmp_path / "ck" / "last.ckpt") == 7

@@ -5,7 +5,10 @@ Lightning 2.6's ``ModelCheckpoint(save_last=True)`` refreshes ``last.ckpt`` only
 checkpoint, i.e. where the monitored metric improved; after that its ``last.ckpt`` is the best state, not the latest,
 so a fit that ends without improving loses its final weights and a killed fit resumes from the best step.
 :class:`LatestCheckpoint` also writes ``last.ckpt`` at every checkpointing point (validation or epoch end) and at the
-end of training.
+end of training. It uses Lightning's public API only (``trainer.save_checkpoint``, ``format_checkpoint_name``,
+``last_model_path``), so a Lightning upgrade that changes ``ModelCheckpoint``'s internals does not break it; where
+Lightning itself saved ``last.ckpt`` in the same step (an improvement) the file is written a second time with the
+same state.
 """
 
 from __future__ import annotations
@@ -31,28 +34,34 @@ class LatestCheckpoint(ModelCheckpoint):
 
     def on_validation_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         super().on_validation_end(trainer, pl_module)
-        if not self._should_save_on_train_epoch_end(trainer):  # else the top-k save comes at the epoch's end
-            self._refresh_last(trainer)
+        self._refresh_last(trainer)
 
     def on_train_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         super().on_train_epoch_end(trainer, pl_module)
-        if self._should_save_on_train_epoch_end(trainer):
-            self._refresh_last(trainer)
+        self._refresh_last(trainer)  # a validation at this epoch's end already wrote this step: skipped
 
     def on_train_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         super().on_train_end(trainer, pl_module)
         self._refresh_last(trainer)
 
     def _refresh_last(self, trainer: L.Trainer) -> None:
-        """Write ``last.ckpt`` unless checkpointing is off or this step already wrote it (a top-k save)."""
-        if not self.save_last or trainer.fast_dev_run or trainer.sanity_checking:
+        """Write ``last.ckpt`` with the current state, once per global step, while fitting with ``save_last``."""
+        if not self.save_last or trainer.fast_dev_run or trainer.sanity_checking or self.dirpath is None:
             return
-        if trainer.state.fn != TrainerFn.FITTING or self._last_global_step_saved == trainer.global_step:
+        if trainer.state.fn != TrainerFn.FITTING or self._latest_step == trainer.global_step:
             return
-        if self._latest_step == trainer.global_step:
-            return
-        saved = self._last_global_step_saved
-        self._save_last_checkpoint(trainer, self._monitor_candidates(trainer))
-        # the step counter says "a top-k checkpoint was saved here": writing last.ckpt must not block a later one
-        self._last_global_step_saved = saved
+        path = self.last_model_path or self._new_last_path(trainer)
+        self.last_model_path = path  # before saving: the state this checkpoint records names it
+        trainer.save_checkpoint(path, self.save_weights_only)
         self._latest_step = trainer.global_step
+
+    def _new_last_path(self, trainer: L.Trainer) -> str:
+        """``<dirpath>/last.ckpt``, or ``last-v1.ckpt``, ... where another fit's file is there (kept, as Lightning
+        keeps it)."""
+        metrics = dict(trainer.callback_metrics)
+        path = self.format_checkpoint_name(metrics, self.CHECKPOINT_NAME_LAST)
+        ver = self.STARTING_VERSION
+        while self.file_exists(path, trainer):
+            path = self.format_checkpoint_name(metrics, self.CHECKPOINT_NAME_LAST, ver=ver)
+            ver += 1
+        return path
