@@ -189,12 +189,18 @@ def resample_indices(n_valid: int, size: int, generator: torch.Generator | None 
     return torch.cat([torch.arange(n_valid), extra])
 
 
+def _sample_generator(seed: int, index: int) -> torch.Generator:
+    """A generator of its own for sample ``index`` under ``seed`` (distinct pairs give unrelated streams)."""
+    return torch.Generator().manual_seed(hash((int(seed), int(index))) & 0x7FFF_FFFF_FFFF_FFFF)
+
+
 def collate_samples(
     samples: Sequence[Sample],
     num_points: int | None = None,
     num_floor: int | None = None,
     mode: Literal["pad", "resample"] = "pad",
     generator: torch.Generator | None = None,
+    seed: int | None = None,
 ) -> Batch:
     """Stack samples into a batch with fixed sizes and masks.
 
@@ -206,6 +212,10 @@ def collate_samples(
             longer clouds are truncated); ``resample`` draws exactly N valid points (with repeats
             when short, every slot valid). Floor points are only padded/truncated, never resampled,
             so labels stay aligned with their points.
+        generator: the random stream of ``resample`` (None: torch's global one).
+        seed: instead of ``generator``, resample each sample with its own stream seeded by ``(seed, meta['index'])``
+            (its position in the batch when meta has no index): the points then do not depend on the batch, the
+            worker or the epoch, as repeatable evaluation needs.
     Returns:
         a batch dict: tensors with a leading dim B, ``meta`` a list of dicts.
     """
@@ -238,7 +248,8 @@ def collate_samples(
     for i, s in enumerate(samples):
         valid = s["scene_mask"].nonzero().squeeze(1)
         if mode == "resample":
-            valid = valid[resample_indices(valid.numel(), n_max, generator)]
+            gen = generator if seed is None else _sample_generator(seed, batch["meta"][i].get("index", i))
+            valid = valid[resample_indices(valid.numel(), n_max, gen)]
         else:
             valid = valid[:n_max]
         k = valid.numel()

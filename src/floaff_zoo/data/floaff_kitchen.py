@@ -220,12 +220,13 @@ class FloAffKitchenDataModule(FloAffDataModule):
         The seeded validation draw runs over every task of the benchmark in the canonical order (``TASKS``),
         whichever tasks this run loads and in whatever order: a task holds out the same scenes in a run of all
         four tasks and in a PFAL stage that loads only some, so no stage trains on another model's validation
-        scenes.
+        scenes. The view-level draw of a task with a single train scene has a stream of its own, so the views a run
+        loads (``views``, ``max_views_per_scene``) never move another task's held-out scenes.
         """
         rng = np.random.default_rng(self.seed)
         fixed = self._fixed_val_ids(scenes)
         held: dict[str, tuple[set[str] | None, set[int]]] = {}
-        for task in TASKS:  # every task draws, loaded or not: the rng stream does not depend on self.tasks
+        for t, task in enumerate(TASKS):  # every task draws, loaded or not: the stream does not depend on self.tasks
             train = [s for s in scenes if s.task == task and s.split == "train"]
             val_ids, val_idx = fixed, set()
             n_val = min(self.val_scenes, len(train) - 1)
@@ -235,7 +236,7 @@ class FloAffKitchenDataModule(FloAffDataModule):
                 n = len(self._views(train[0]))
                 k = int(round(self.val_view_fraction * n))
                 k = min(max(k, 1 if self.val_view_fraction > 0 and n > 1 else 0), max(n - 1, 0))
-                val_idx = set(rng.permutation(n)[:k].tolist())
+                val_idx = set(np.random.default_rng([self.seed, t]).permutation(n)[:k].tolist())
             held[task] = (val_ids, val_idx)
         out: dict[str, list[SampleRecord]] = {"train": [], "val": [], "test": []}
         self.split_scenes = {"train": [], "val": [], "test": []}
