@@ -5,6 +5,7 @@ import json
 import pytest
 from lightning.pytorch.utilities.exceptions import MisconfigurationException
 
+from floaff_zoo.data import transforms
 from floaff_zoo.data.floaff_kitchen import FloAffKitchenDataModule
 from floaff_zoo.data.readers import READERS, DataError, GeneratedReader, get_reader, register_reader
 from floaff_zoo.sim import fileformat as ff
@@ -277,3 +278,54 @@ def test_the_views_a_run_loads_never_move_another_tasks_validation_scenes(floaff
         assert cd_val(seed=seed, views=["front"]) == cd_val(seed=seed)
         assert cd_val(seed=seed, max_views_per_scene=1) == cd_val(seed=seed)
     assert len(ref) == 1
+
+
+class _Shift(transforms.SampleTransform):
+    """A custom pre-transform whose setting is a tuple (part of the cache key)."""
+
+    def __init__(self, offset: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> None:
+        self.offset = offset
+
+    def __call__(self, sample, rng):
+        import torch
+
+        return {**sample, "scene_xyz": sample["scene_xyz"] + torch.tensor(self.offset)}
+
+
+def test_every_setting_of_a_pre_transform_keys_the_cache(floaff_root):
+    """A tuple, a numpy number or a dict setting changes the cache key; an attribute that cannot be keyed is an
+    error naming it (dropping it would serve samples cached under other settings)."""
+    import numpy as np
+
+    root, _ = floaff_root
+
+    def first_x(t):
+        dm = _dm(root, tasks=["CloseDrawer"], cache=True, pre_transforms=[t])
+        dm.setup("test")
+        return float(dm.datasets["test"][0]["scene_xyz"][0, 0])
+
+    assert first_x(_Shift((5.0, 0.0, 0.0))) == pytest.approx(first_x(_Shift()) + 5.0)
+    assert transforms.ResamplePoints(np.int64(64)).config()["num_points"] == 64
+    bad = _Shift()
+    bad.offset = lambda: None
+    with pytest.raises(TypeError, match=r"_Shift\.offset: a function cannot be part of a sample-cache key"):
+        _dm(root, tasks=["CloseDrawer"], cache=True, pre_transforms=[bad]).setup("test")
+
+
+def test_a_pre_transform_keeps_its_meta_changes_through_the_cache(floaff_root):
+    """YawPerturb turns the base pose in meta.sim and LateralMirror drops meta.sim and flags the sample: as
+    pre-transforms (applied once, then cached) both keep those changes, read fresh or from the cache."""
+    root, _ = floaff_root
+    plain = _dm(root, tasks=["CloseDrawer"])
+    plain.setup("test")
+    pose = plain.datasets["test"][0]["meta"]["sim"]["base_pose_world"]
+    for _ in range(2):  # the second setup reads the cache
+        dm = _dm(root, tasks=["CloseDrawer"], cache=True, pre_transforms=[transforms.YawPerturb(max_deg=30.0)])
+        dm.setup("test")
+        turned = dm.datasets["test"][0]["meta"]
+        assert turned["sim"]["base_pose_world"] != pose and turned["index"] == 0
+        assert turned["sim"]["scene_dir"] == plain.datasets["test"][0]["meta"]["sim"]["scene_dir"]
+        dm = _dm(root, tasks=["CloseDrawer"], cache=True, pre_transforms=[transforms.LateralMirror(p=1.0)])
+        dm.setup("test")
+        mirrored = dm.datasets["test"][0]["meta"]
+        assert mirrored["mirrored"] is True and "sim" not in mirrored

@@ -55,6 +55,8 @@ class SampleCache:
         if hash_mode not in ("stat", "content"):
             raise ValueError(f"cache hash_mode must be 'stat' or 'content', got {hash_mode!r}")
         self.config = {"version": CACHE_VERSION, **config}
+        if config.get("pre_transforms"):  # entries made before kept no meta change of the pre-transforms
+            self.config["pre_transform_meta"] = True
         self.dir = Path(directory) / f"{name}-{_sha(self.config)[:12]}"
         self.hash_mode = hash_mode
 
@@ -107,6 +109,32 @@ class SampleCache:
             raise
 
 
+#: cache-entry key of the meta a pre-transform changed (JSON: {"set": {key: value}, "drop": [key, ...]})
+_META_DELTA = "meta_delta"
+
+
+def _meta_delta(before: dict[str, Any], after: dict[str, Any]) -> dict[str, Any]:
+    """What the pre-transforms changed in a sample's meta ({} when nothing)."""
+    changed = {k: v for k, v in after.items() if k not in before or not _same(before[k], v)}
+    dropped = [k for k in before if k not in after]
+    return {"set": changed, "drop": dropped} if changed or dropped else {}
+
+
+def _same(a: Any, b: Any) -> bool:
+    """Equal meta values (arrays compared as data, not by identity)."""
+    try:
+        return bool(a == b)
+    except (ValueError, RuntimeError):  # arrays with several elements
+        return bool(np.array_equal(np.asarray(a), np.asarray(b)))
+
+
+def _json_default(value: Any) -> Any:
+    """numpy / torch values inside meta as JSON numbers and lists."""
+    if isinstance(value, (np.ndarray, np.generic, torch.Tensor)):
+        return value.tolist()
+    raise TypeError(f"meta value {value!r} ({type(value).__name__}) is not JSON-able")
+
+
 def classify_error(exc: Exception) -> str:
     """Skip kind of a load error: the ``kind`` attribute when the reader set one, else its class."""
     return getattr(exc, "kind", None) or type(exc).__name__
@@ -152,8 +180,13 @@ class RecordDataset(Dataset):
         raw = self.loader(rec)
         raw["meta"] = {**rec.meta, **(raw.get("meta") or {}), "path": rec.key}
         s = validate_sample(raw)
+        before = dict(s.get("meta") or {})
         s = apply_transforms(s, self.pre_transforms, _record_seed(self.seed, rec.key))
-        return {k: s[k].contiguous() for k in (*TENSOR_KEYS, FULL_CLOUD_KEY) if k in s}
+        out: dict[str, Any] = {k: s[k].contiguous() for k in (*TENSOR_KEYS, FULL_CLOUD_KEY) if k in s}
+        delta = _meta_delta(before, s.get("meta") or {})
+        if delta:  # a pre-transform changed the meta (a turned base pose, a mirror flag): kept with the tensors
+            out[_META_DELTA] = json.dumps(delta, sort_keys=True, default=_json_default)
+        return out
 
     def _tensors(self, rec: SampleRecord) -> dict[str, torch.Tensor]:
         if self.cache is None:
@@ -214,7 +247,11 @@ class RecordDataset(Dataset):
         """Sample ``i`` (tensors + meta with ``index`` = position in this split). Raises on bad data."""
         rec = self.records[i]
         s: Sample = dict(self._tensors(rec))
-        s["meta"] = {**rec.meta, "index": i}
+        meta = dict(rec.meta)
+        if _META_DELTA in s:
+            delta = json.loads(s.pop(_META_DELTA))
+            meta = {k: v for k, v in meta.items() if k not in delta["drop"]} | delta["set"]
+        s["meta"] = {**meta, "index": i}
         return s
 
     def __getitem__(self, i: int) -> Sample:

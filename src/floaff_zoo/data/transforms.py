@@ -20,6 +20,7 @@ Method-specific transforms (e.g. a CFAR crop/canonicalisation) plug in the same 
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Sequence
 from typing import Any, Literal
 
@@ -36,13 +37,39 @@ class SampleTransform:
         return sample
 
     def config(self) -> dict[str, Any]:
-        """JSON-able description (class + args): part of the cache key when used as a pre-transform."""
-        args = {k: v for k, v in vars(self).items() if isinstance(v, (int, float, str, bool, type(None), list))}
-        return {"class": f"{type(self).__module__}.{type(self).__qualname__}", **args}
+        """JSON-able description (class + public attributes): part of the cache key when used as a pre-transform.
+
+        Raises:
+            TypeError: an attribute that cannot be keyed (override ``config`` to describe it): dropping it would serve
+                samples cached under other settings.
+        """
+        name = f"{type(self).__module__}.{type(self).__qualname__}"
+        args = {k: _keyable(v, f"{name}.{k}") for k, v in vars(self).items() if not k.startswith("_")}
+        return {"class": name, **args}
 
     def __repr__(self) -> str:
-        args = ", ".join(f"{k}={v!r}" for k, v in self.config().items() if k != "class")
+        args = ", ".join(f"{k}={v!r}" for k, v in vars(self).items() if not k.startswith("_"))
         return f"{type(self).__name__}({args})"
+
+
+def _keyable(value: Any, where: str) -> Any:
+    """``value`` as JSON-able data (tuples as lists, numpy scalars and arrays as Python numbers and lists)."""
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return value
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, (np.ndarray, torch.Tensor)):
+        return value.tolist()
+    if isinstance(value, (list, tuple)):
+        return [_keyable(v, f"{where}[{i}]") for i, v in enumerate(value)]
+    if isinstance(value, dict) and all(isinstance(k, str) for k in value):
+        return {k: _keyable(v, f"{where}.{k}") for k, v in value.items()}
+    if isinstance(value, os.PathLike):
+        return os.fspath(value)
+    raise TypeError(
+        f"{where}: a {type(value).__name__} cannot be part of a sample-cache key; override the transform's config() "
+        "to describe it (or make it a private attribute, _name, when it does not change the samples)"
+    )
 
 
 def fps_indices(xyz: np.ndarray, k: int, start: int = 0) -> np.ndarray:
