@@ -329,3 +329,33 @@ def test_a_pre_transform_keeps_its_meta_changes_through_the_cache(floaff_root):
         dm.setup("test")
         mirrored = dm.datasets["test"][0]["meta"]
         assert mirrored["mirrored"] is True and "sim" not in mirrored
+
+
+@pytest.mark.parametrize(
+    "edit",
+    [
+        lambda r: r["views"][0].pop("file"),
+        lambda r: r["labels"].pop("success"),
+        lambda r: r.update(candidates=[]),
+        lambda r: r.update(split="Train"),
+        lambda r: r.update(task="CloseDrawerr"),
+    ],
+    ids=["view_without_file", "labels_without_success", "candidates_a_list", "split_typo", "task_typo"],
+)
+def test_a_malformed_scene_json_is_a_counted_skip_naming_the_file(floaff_root, tmp_path, edit):
+    """A field missing or of the wrong kind, or an unknown split / task: the scene is skipped as corrupt_scene_json
+    with its file named, never a bare exception or a scene that silently vanishes."""
+    import shutil
+
+    root, exp = floaff_root
+    copy = tmp_path / "data"
+    shutil.copytree(root, copy, ignore=shutil.ignore_patterns(".cache"))
+    sj = sorted((copy / "styles").glob("CloseDrawer-train*/scene.json"))[0]
+    rec = json.loads(sj.read_text())
+    edit(rec)
+    sj.write_text(json.dumps(rec))
+    dm = _dm(copy, tasks=["CloseDrawer"])
+    dm.setup("fit")
+    assert dm.skips.counts["corrupt_scene_json"] == exp["skips"].get("corrupt_scene_json", 0) + 1
+    assert str(sj) in dm.skips.summary()
+    assert all(sj.parent.name not in s for split in dm.split_scenes.values() for s in split)

@@ -247,34 +247,54 @@ class GeneratedReader(FloAffReader):
             except ff.FormatError as exc:
                 self.skips.add("corrupt_scene_json", sj, str(exc).split(": ", 1)[-1])
                 continue
+            except (KeyError, TypeError, ValueError, AttributeError) as exc:  # e.g. candidates or labels not objects
+                self.skips.add("corrupt_scene_json", sj, f"unreadable structure ({type(exc).__name__}: {exc})")
+                continue
             if rec.get("status") != "ok":
                 self.skips.add("scene_not_ok", sj, f"status {rec.get('status')!r}")
                 continue
-            views = []
-            for v in rec["views"]:
-                vf = d / v["file"]
-                if not vf.is_file():
-                    self.skips.add("missing_view", vf, "view file listed in scene.json is missing")
-                    continue
-                views.append(ViewEntry(v["view_id"], v["view"], str(vf), [float(x) for x in v["base_pose_world"]]))
-            spec = rec["spec"]
-            out.append(
-                SceneEntry(
-                    scene_id=str(rec.get("scene_id", d.name)),
-                    benchmark=benchmark,
-                    split=rec["split"],
-                    task=rec["task"],
-                    layout_id=spec.get("layout_id"),
-                    style_id=spec.get("style_id"),
-                    seed=spec.get("seed"),
-                    dir=str(d),
-                    views=views,
-                    sources=[str(sj)],
-                    format_version=int(rec["format_version"]),
-                    labels_digest=ff.labels_digest(rec),
-                )
-            )
+            try:
+                out.append(self._entry(rec, d, benchmark))
+            except (KeyError, TypeError, ValueError, AttributeError) as exc:  # a field of the wrong kind or missing
+                why = f"missing field {exc}" if isinstance(exc, KeyError) else str(exc)
+                self.skips.add("corrupt_scene_json", sj, why)
         return out
+
+    def _entry(self, rec: dict[str, Any], d: Path, benchmark: str) -> SceneEntry:
+        """The scene record of a read ``scene.json`` (its views whose file is missing are skipped and counted).
+
+        Raises:
+            KeyError / TypeError / ValueError: a field is missing or of the wrong kind, or split / task is unknown.
+        """
+        from floaff_zoo.contract import TASKS
+        from floaff_zoo.sim import fileformat as ff
+
+        if rec["split"] not in ("train", "test"):
+            raise ValueError(f"split {rec['split']!r} is not 'train' or 'test'")
+        if rec["task"] not in TASKS:
+            raise ValueError(f"task {rec['task']!r} is not one of {list(TASKS)}")
+        views = []
+        for v in rec["views"]:
+            vf = d / v["file"]
+            if not vf.is_file():
+                self.skips.add("missing_view", vf, "view file listed in scene.json is missing")
+                continue
+            views.append(ViewEntry(v["view_id"], v["view"], str(vf), [float(x) for x in v["base_pose_world"]]))
+        spec = rec["spec"]
+        return SceneEntry(
+            scene_id=str(rec.get("scene_id", d.name)),
+            benchmark=benchmark,
+            split=rec["split"],
+            task=rec["task"],
+            layout_id=spec.get("layout_id"),
+            style_id=spec.get("style_id"),
+            seed=spec.get("seed"),
+            dir=str(d),
+            views=views,
+            sources=[str(d / ff.SCENE_JSON)],
+            format_version=int(rec["format_version"]),
+            labels_digest=ff.labels_digest(rec),
+        )
 
     def load_view(self, scene: SceneEntry, view: ViewEntry) -> Sample:
         from floaff_zoo.sim import fileformat as ff
