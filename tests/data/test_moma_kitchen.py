@@ -120,6 +120,34 @@ def test_extra_robot_keeps_sample(moma_root):
     assert "elephant" in robots
 
 
+def test_robot_table_entries_are_checked_by_name():
+    for bad, match in (
+        ({"elephant": 0.9}, "robot 'elephant' needs a list of numbers, got 0.9"),
+        ({"elephant": [0.6]}, "must all have the same length"),
+    ):
+        with pytest.raises(ValueError, match=match):
+            _dm("unused", extra_robots=bad)
+
+
+def test_a_view_folder_name_that_does_not_parse_does_not_abort_setup(moma_root):
+    """position_3.1.5_...: the folder's position is unknown (only yaw_estimator toward_view needs it)."""
+    import re
+
+    root, exp = moma_root
+    split = root / "data_split" / "kitchen_train.txt"
+    lines = split.read_text().splitlines()
+    rel = next(x.strip() for x in lines if x.strip() and (root / "rgbd" / x.strip()).is_dir())
+    parent, name = rel.split("/")
+    bad = re.sub(r"^position_[^_]+_", "position_3.1.5_", name)
+    assert bad != name
+    (root / "rgbd" / parent / name).rename(root / "rgbd" / parent / bad)
+    split.write_text(split.read_text().replace(name, bad))
+    dm = _dm(root)
+    dm.setup("fit")
+    kept = {r.key for s in ("train", "val") for r in dm.datasets[s].records}
+    assert f"{parent}/{bad}" in kept and dict(dm.skips["train"].counts) == exp["skips"]
+
+
 def test_faithful_pad_mode_and_official_normalize(moma_root):
     root, _ = moma_root
     dm = _dm(

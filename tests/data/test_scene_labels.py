@@ -46,6 +46,9 @@ def test_file_round_trip_and_bad_files(tmp_path):
     (tmp_path / "corrupt.npz").write_bytes(b"not a zip")
     with pytest.raises(ValueError, match="corrupt.npz is not a readable"):
         read_scene_labels(tmp_path / "corrupt.npz")
+    (tmp_path / "truncated.npz").write_bytes(path.read_bytes()[: path.stat().st_size // 2])  # a cut-off copy
+    with pytest.raises(ValueError, match="truncated.npz is not a readable"):
+        read_scene_labels(tmp_path / "truncated.npz")
     for bad, match in (
         ((np.zeros((3, 2)), np.array([0.0, 2.0, 1.0]), 0.1), "scene b has non-finite values or labels outside"),
         ((np.zeros((3, 2)), np.array([0.0, np.nan, 1.0]), 0.1), "scene b has non-finite"),

@@ -200,3 +200,8 @@ def test_plot_writes_png(tmp_path):
     s["scene_feat"][:5, 0] = -1
     fig = plot(s, tmp_path / "a.png", scores=torch.rand(s["floor_xyz"].shape[0]))
     assert (tmp_path / "a.png").stat().st_size > 1000 and fig is not None
+
+
+def test_synthetic_task_names_are_checked():
+    with pytest.raises(ValueError, match=r"unknown tasks \['CloseDrawerr'\]"):
+        SyntheticDataModule(tasks=["CloseDrawerr"])

@@ -72,6 +72,28 @@ VIEW_RE = re.compile(r"^position_(?P<x>-?[\d.eE+-]+?)_(?P<y>-?[\d.eE+-]+?)_(?P<z
 YawEstimator = Literal["toward_origin", "toward_view", "label_centroid"]
 
 
+def _view_xy(name: str) -> list[float] | None:
+    """The (x, y) a view folder's name records, or None when the name does not parse (as for a folder without a
+    position: only ``yaw_estimator: toward_view`` needs it, and it skips such a sample as ``no_view_position``)."""
+    v = VIEW_RE.match(name)
+    try:
+        return [float(v["x"]), float(v["y"])] if v else None
+    except ValueError:  # e.g. "position_3.1.5_..."
+        return None
+
+
+def _check_robot_table(table: dict[str, Any], field: str) -> None:
+    """Every entry a list of numbers, all of one length (name -> [arm reach m, base height m, ...])."""
+    if not table:
+        raise ValueError(f"MoMaKitchenDataModule: {field}: the robot table is empty")
+    for name, desc in table.items():
+        if not isinstance(desc, (list, tuple)) or not all(isinstance(x, (int, float)) for x in desc):
+            raise ValueError(f"MoMaKitchenDataModule: {field}: robot {name!r} needs a list of numbers, got {desc!r}")
+    lengths = {len(d) for d in table.values()}
+    if len(lengths) > 1:
+        raise ValueError(f"MoMaKitchenDataModule: {field}: robot entries must all have the same length, got {table}")
+
+
 class LoadError(DataError):
     """A sample file problem; ``kind`` is the skip-summary category."""
 
@@ -226,8 +248,7 @@ class MoMaKitchenReader:
                 if (pcd / BARRIER_PLY[1]).is_file():
                     barriers.append(str(pcd / BARRIER_PLY[1]))
             m = CONFIG_RE.match(config_dir)
-            v = VIEW_RE.match(Path(rel).name)
-            view_xy = [float(v["x"]), float(v["y"])] if v else None
+            view_xy = _view_xy(Path(rel).name)
             sources = [str(p) for _, p in need] + barriers + [str(info)]
             meta = {
                 "dataset": dataset,
@@ -366,9 +387,7 @@ class MoMaKitchenDataModule(FloAffDataModule):
         self.val_fraction = val_fraction
         table = dict(OFFICIAL_ROBOTS if robots is None else robots)
         table.update(extra_robots or {})
-        bad = {k: v for k, v in table.items() if len(v) != len(next(iter(table.values())))}
-        if not table or bad:
-            raise ValueError(f"robot table entries must all have the same length, got {table}")
+        _check_robot_table(table, "robots" if extra_robots is None else "robots / extra_robots")
         self.reader = MoMaKitchenReader(self.rgbd_root, self.info_root, table, flag_radius, yaw_estimator)
         self.max_samples = max_samples
         self.strict = strict

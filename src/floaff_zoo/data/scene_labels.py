@@ -12,6 +12,7 @@ of the scene's candidate cells), ``<id>/label`` [M] in [0, 1] and ``<id>/cell`` 
 from __future__ import annotations
 
 import json
+import zipfile
 from pathlib import Path
 from typing import Any
 
@@ -49,7 +50,7 @@ def read_scene_labels(path: str | Path) -> tuple[dict[str, tuple[np.ndarray, np.
     try:
         with np.load(path) as z:
             arrays = {k: z[k] for k in z.files}
-    except (OSError, ValueError) as exc:
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:  # a truncated file is a BadZipFile
         raise ValueError(f"scene labels: {path} is not a readable .npz file ({exc})") from exc
     if "setting" not in arrays:
         raise ValueError(f"scene labels: {path} has no 'setting' entry")

@@ -14,8 +14,9 @@ from typing import Literal
 import numpy as np
 from torch.utils.data import Dataset
 
-from floaff_zoo.contract import Sample, validate_sample
+from floaff_zoo.contract import TASKS, Sample, validate_sample
 from floaff_zoo.data.base import FloAffDataModule
+from floaff_zoo.data.readers import check_names
 from floaff_zoo.data.transforms import SampleTransform
 
 ROBOTS = np.array([[0.85, 1.03], [0.7, 0.33], [0.78, 1.03]], dtype=np.float32)
@@ -146,7 +147,7 @@ class SyntheticDataModule(FloAffDataModule):
         self.sizes = {"train": num_train, "val": num_val, "test": num_test}
         self.points_per_sample = points_per_sample
         self.floor_cells = floor_cells
-        self.tasks = list(tasks or ["CloseDrawer"])
+        self.tasks = check_names("tasks", list(tasks or ["CloseDrawer"]), TASKS)
 
     def setup(self, stage: str | None = None) -> None:
         offsets = {"train": 0, "val": 100_000, "test": 200_000}
