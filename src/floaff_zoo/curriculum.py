@@ -33,12 +33,18 @@ tasks, ``from_stages``, ``--set``, ``--trainer.default_root_dir``.
 Resuming: every finished stage writes ``<stage dir>/stage.json`` and the run writes
 ``<root>/lineage.json`` (stage, configs, fit arguments, checkpoint, sha256, metrics, teacher/weights).
 A rerun skips stages whose record is ``done`` with the same fit arguments and an intact checkpoint
-(sha256 checked); a stage that was killed resumes from its newest ``last.ckpt``.
+(sha256 checked). Each run directory a stage's fit writes gets ``curriculum_run.json`` (the digest of the stage's
+fit arguments and ``--config`` file contents); a stage that was killed resumes from the newest ``last.ckpt`` of a
+run with its digest only (else a fresh fit), logging into that run's own directory so its ModelCheckpoint keeps the
+best of the epochs before the kill: the recorded checkpoint is the best of the whole stage, as ``--ckpt_path best``
+finds it.
 """
 
 from __future__ import annotations
 
 import argparse
+import csv
+import hashlib
 import json
 import shlex
 import sys
@@ -53,6 +59,8 @@ __all__ = ["CurriculumError", "build_stage_args", "load_experiment", "main", "re
 
 STAGE_FILE = "stage.json"
 LINEAGE_FILE = "lineage.json"
+RUN_FILE = "curriculum_run.json"  # in each run directory: the stage digest that wrote it
+KEPT_METRICS = "metrics.before_resume.csv"  # a resumed run's earlier metrics.csv rows, during the fit
 _STAGE_KEYS = {"name", "root", "shared", "model", "tasks", "overrides", "from_stages", "configs"}
 _TOP_KEYS = {"extends", "root", "data", "model", "trainer", "overrides", "stages", "description"}
 
@@ -277,6 +285,185 @@ def _metrics(cli: Any) -> dict[str, float]:
     return out
 
 
+# --------------------------------------------------------------------------- resuming a killed stage
+def _config_files(args: list[str]) -> list[str]:
+    """The ``--config`` files of a fit argument list, in order."""
+    return [args[i + 1] for i, a in enumerate(args[:-1]) if a == "--config"]
+
+
+def _digest(args: list[str]) -> str:
+    """sha256 of a stage's fit arguments and of its ``--config`` files' contents: a run may be resumed only by a
+    stage whose digest is the one recorded for that run."""
+    configs = {f: _sha256(f) for f in _config_files(args) if Path(f).is_file()}
+    blob = json.dumps({"args": args, "config_sha256": configs}, sort_keys=True)
+    return hashlib.sha256(blob.encode()).hexdigest()
+
+
+def _run_dir(ckpt: Path) -> Path:
+    """The run directory of a checkpoint: the folder holding its ``checkpoints/``."""
+    return ckpt.parent.parent if ckpt.parent.name == "checkpoints" else ckpt.parent
+
+
+def _run_dirs(sdir: Path) -> set[Path]:
+    """The run directories under a stage folder that hold a checkpoint (absolute)."""
+    return {_run_dir(p).resolve() for p in sdir.rglob("*.ckpt")} if sdir.is_dir() else set()
+
+
+def _running_record(name: str, args: list[str], sdir: Path) -> dict[str, Any]:
+    """The ``running`` stage record written before a fit: its digest, and the run directories that existed then
+    (any other one found later was written by this fit, see :func:`_claim_runs`)."""
+    before = sorted(str(p) for p in _run_dirs(sdir))
+    return {"stage": name, "status": "running", "args": args, "digest": _digest(args), "before": before}
+
+
+def _claim_runs(sdir: Path, record: dict[str, Any] | None) -> None:
+    """Write ``RUN_FILE`` (the stage digest and arguments) into every unmarked run directory that the fit of a
+    ``running`` record created. A record without ``before`` (an older runner's) claims nothing."""
+    if not record or record.get("status") != "running" or "before" not in record or not record.get("digest"):
+        return
+    mark = {"stage": record.get("stage"), "digest": record["digest"], "args": record.get("args")}
+    for run in _run_dirs(sdir) - {Path(p) for p in record["before"]}:
+        if not (run / RUN_FILE).is_file():
+            _write_json(run / RUN_FILE, mark)
+
+
+def _run_digest(run: Path) -> str | None:
+    """The stage digest recorded in a run directory (None: unknown arguments wrote it)."""
+    mark = _read_json(run / RUN_FILE)
+    return mark.get("digest") if mark else None
+
+
+def _resume_point(sdir: Path, digest: str) -> Path | None:
+    """The newest ``last*.ckpt`` of a run written with this stage digest (None: nothing to resume)."""
+    lasts = [p for p in sdir.rglob("last*.ckpt") if _run_digest(_run_dir(p)) == digest]
+    return max(lasts, key=lambda p: p.stat().st_mtime, default=None)
+
+
+def _same_dir_flags(run: Path) -> list[str] | None:
+    """Fit flags that make a resumed fit log and checkpoint into the interrupted run's directory again, so its
+    ModelCheckpoint keeps the best of the epochs before the kill (Lightning drops that state when the checkpoint
+    directory changes). ``[]``: no logger, the directory does not change; None: the logger cannot be pinned."""
+    cfg_file = run / "config.yaml"
+    cfg = yaml.safe_load(cfg_file.read_text()) if cfg_file.is_file() else None
+    if not isinstance(cfg, dict) or not isinstance(cfg.get("trainer"), dict):
+        return None
+    logger = cfg["trainer"].get("logger")
+    if logger is False:
+        return []
+    init = dict(logger.get("init_args") or {}) if isinstance(logger, dict) and logger.get("class_path") else {}
+    if not init.get("save_dir") or Path(init["save_dir"], str(init.get("name") or ""), run.name).resolve() != run:
+        return None
+    return ["--trainer.logger", json.dumps({**logger, "init_args": {**init, "version": run.name}})]
+
+
+def _resume(
+    name: str, sdir: Path, record: dict[str, Any] | None, digest: str, out: Any
+) -> tuple[Path | None, list[str]]:
+    """Where a killed stage resumes: (``last.ckpt``, extra fit flags), or (None, []) for a fresh fit. Only a run
+    written with the same stage digest is resumed, into its own directory when its logger allows."""
+    if not record or record.get("status") != "running":
+        return None, []
+    _claim_runs(sdir, record)
+    last = _resume_point(sdir, digest)
+    if last is None:
+        print(f"[curriculum] stage {name}: no checkpoint of a run with these arguments, starting a fresh fit", file=out)
+        return None, []
+    flags = _same_dir_flags(_run_dir(last).resolve())
+    if flags is None:
+        print(
+            f"[curriculum] stage {name}: cannot resume into {_run_dir(last)} (logger not pinnable); the stage's best "
+            "covers the epochs after the resume only",
+            file=out,
+        )
+    return last, flags or []
+
+
+def _csv_rows(path: Path) -> list[dict[str, str]]:
+    """The rows of a CSV file ([] when absent)."""
+    if not path.is_file():
+        return []
+    with path.open(newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def _write_rows(path: Path, rows: list[dict[str, str]]) -> None:
+    """Write rows (duplicates dropped, columns sorted like Lightning's CSVLogger) atomically."""
+    unique = list({tuple(sorted(r.items())): r for r in rows}.values())
+    keys = sorted({k for r in unique for k in r})
+    tmp = path.with_suffix(".tmp")
+    with tmp.open("w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=keys)
+        writer.writeheader()
+        writer.writerows(unique)
+    tmp.replace(path)
+
+
+def _keep_metrics(run: Path) -> None:
+    """CSVLogger deletes the ``metrics.csv`` of a run directory it logs into again: keep its rows (after those of an
+    earlier resume that was killed) in ``KEPT_METRICS`` until the resumed fit ends."""
+    rows = _csv_rows(run / KEPT_METRICS) + _csv_rows(run / "metrics.csv")
+    if rows:
+        _write_rows(run / KEPT_METRICS, rows)
+
+
+def _restore_metrics(run: Path) -> None:
+    """Put the kept rows back in front of the resumed fit's ``metrics.csv``."""
+    kept = run / KEPT_METRICS
+    if kept.is_file():
+        _write_rows(run / "metrics.csv", _csv_rows(kept) + _csv_rows(run / "metrics.csv"))
+        kept.unlink()
+
+
+def _fit_stage(
+    name: str,
+    stage: dict[str, Any],
+    sdir: Path,
+    args: list[str],
+    record: dict[str, Any] | None,
+    best: dict[str, str],
+    runner: Callable[[list[str]], Any],
+    out: Any,
+) -> tuple[dict[str, Any], Any]:
+    """Fit one stage (resuming its killed run when there is one) and write its ``done`` record; returns
+    (record, cli)."""
+    running = _running_record(name, args, sdir)
+    resume, pin = _resume(name, sdir, record, running["digest"], out)
+    fit_args = args + pin + (["--ckpt_path", str(resume)] if resume else [])
+    print(f"[curriculum] stage {name}: floaff-zoo {shlex.join(fit_args)}", file=out)
+    running["started"] = started = time.time()
+    _write_json(sdir / STAGE_FILE, running)
+    if pin:
+        _keep_metrics(_run_dir(resume))
+    cli = runner(fit_args)
+    if pin:
+        _restore_metrics(_run_dir(resume))
+    _claim_runs(sdir, running)
+    cb = cli.trainer.checkpoint_callback
+    ckpt = (cb.best_model_path or cb.last_model_path) if cb is not None else ""
+    if not ckpt or not Path(ckpt).is_file():
+        raise CurriculumError(f"stage {name}: the fit wrote no checkpoint (enable checkpointing)")
+    score = getattr(cb, "best_model_score", None)
+    record = {
+        "stage": name,
+        "status": "done",
+        "args": args,
+        "digest": running["digest"],
+        "resumed_from": str(resume) if resume else None,
+        "configs": _config_files(args),
+        "tasks": stage.get("tasks"),
+        "from_stages": {k: best.get(ref) for k, ref in (stage.get("from_stages") or {}).items()},
+        "checkpoint": str(ckpt),
+        "sha256": _sha256(ckpt),
+        "monitor": getattr(cb, "monitor", None),
+        "best_score": float(score) if score is not None else None,
+        "metrics": _metrics(cli),
+        "started": started,
+        "finished": time.time(),
+    }
+    _write_json(sdir / STAGE_FILE, record)
+    return record, cli
+
+
 def run_curriculum(
     config: str | Path,
     root: str | Path | None = None,
@@ -335,37 +522,7 @@ def run_curriculum(
         else:
             if record and record.get("status") == "done":
                 print(f"[curriculum] stage {name}: rerunning, {why}", file=out)
-            resume = None
-            if record and record.get("status") == "running" and record.get("args") == args:
-                lasts = sorted(sdir.rglob("last*.ckpt"), key=lambda p: p.stat().st_mtime)
-                resume = str(lasts[-1]) if lasts else None
-            fit_args = args + (["--ckpt_path", resume] if resume else [])
-            print(f"[curriculum] stage {name}: floaff-zoo {shlex.join(fit_args)}", file=out)
-            started = time.time()
-            _write_json(sdir / STAGE_FILE, {"stage": name, "status": "running", "args": args, "started": started})
-            cli = runner(fit_args)
-            cb = cli.trainer.checkpoint_callback
-            ckpt = (cb.best_model_path or cb.last_model_path) if cb is not None else ""
-            if not ckpt or not Path(ckpt).is_file():
-                raise CurriculumError(f"stage {name}: the fit wrote no checkpoint (enable checkpointing)")
-            score = getattr(cb, "best_model_score", None)
-            record = {
-                "stage": name,
-                "status": "done",
-                "args": args,
-                "resumed_from": resume,
-                "configs": [args[i + 1] for i, a in enumerate(args) if a == "--config"],
-                "tasks": stage.get("tasks"),
-                "from_stages": {k: best.get(ref) for k, ref in (stage.get("from_stages") or {}).items()},
-                "checkpoint": str(ckpt),
-                "sha256": _sha256(ckpt),
-                "monitor": getattr(cb, "monitor", None),
-                "best_score": float(score) if score is not None else None,
-                "metrics": _metrics(cli),
-                "started": started,
-                "finished": time.time(),
-            }
-            _write_json(sdir / STAGE_FILE, record)
+            record, cli = _fit_stage(name, stage, sdir, args, record, best, runner, out)
             if on_stage_end is not None:
                 on_stage_end(name, cli)
         best[name] = record["checkpoint"]

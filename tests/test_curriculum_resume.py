@@ -1,0 +1,126 @@
+"""Resuming a killed curriculum stage: only from a run with the same stage arguments, and into that run's own
+directory so the stage's best checkpoint is the best over the epochs before and after the kill."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import pytest
+import torch
+import yaml
+
+from floaff_zoo.cli import run_lightning
+from floaff_zoo.curriculum import run_curriculum
+from floaff_zoo.runs import resolve_ckpt_alias
+
+ROOT = Path(__file__).resolve().parents[1]
+# lr 0.01 on the tiny pair: val_rmse is lowest at epoch 0 and ~0.02 higher from epoch 1 on
+OVERRIDES = {
+    "trainer.max_epochs": 4,
+    "trainer.accelerator": "cpu",
+    "trainer.enable_progress_bar": False,
+    "trainer.enable_model_summary": False,
+    "model.init_args.train.lr": 0.01,
+}
+
+
+@pytest.fixture(autouse=True)
+def _one_thread():
+    old = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(old)
+
+
+def _experiment(tmp_path: Path, max_epochs: int = 4) -> Path:
+    """A one-stage experiment on the tiny synthetic data and the tiny PointNet."""
+    exp = {
+        "root": str(tmp_path / "run"),
+        "data": [str(ROOT / "configs/data/synthetic_tiny.yaml")],
+        "model": [str(ROOT / "configs/models/tiny_pointnet.yaml")],
+        "overrides": {**OVERRIDES, "trainer.max_epochs": max_epochs},
+        "stages": [{"name": "s1"}],
+    }
+    path = tmp_path / "exp.yaml"
+    path.write_text(yaml.safe_dump(exp))
+    return path
+
+
+def _killed_after(epochs: int, seen: list | None = None):
+    """A runner whose fit is killed after ``epochs`` epochs (0: before it starts), before the curriculum records it."""
+
+    def runner(args):
+        if seen is not None:
+            seen.append(args)
+        if epochs:
+            runner.cli = run_lightning(args + ["--trainer.max_epochs", str(epochs)])
+        raise KeyboardInterrupt("simulated kill")
+
+    return runner
+
+
+def _spy(seen: list):
+    def runner(args):
+        seen.append(args)
+        return run_lightning(args)
+
+    return runner
+
+
+def _val_rmse(stage_dir: Path, min_epoch: int = 0) -> list[float]:
+    """Every val_rmse logged under a stage folder (all its runs) from ``min_epoch`` on."""
+    rows = [r for f in stage_dir.rglob("metrics.csv") for r in csv.DictReader(f.open())]
+    return [float(r["val_rmse"]) for r in rows if r.get("val_rmse") and int(r["epoch"]) >= min_epoch]
+
+
+def test_resumed_stage_records_the_best_over_the_whole_stage(tmp_path, capsys):
+    exp = _experiment(tmp_path)
+    killed = _killed_after(2)
+    with pytest.raises(KeyboardInterrupt):
+        run_curriculum(exp, runner=killed)
+    cb = killed.cli.trainer.checkpoint_callback
+    pre_best, pre_path = float(cb.best_model_score), cb.best_model_path
+    seen: list = []
+    (rec,) = run_curriculum(exp, runner=_spy(seen))
+    sdir = tmp_path / "run" / "s1"
+    assert "--ckpt_path" in seen[0] and rec["resumed_from"].endswith("last.ckpt")
+    assert min(_val_rmse(sdir, min_epoch=2)) > pre_best  # the scenario: the stage's best is from before the kill
+    assert rec["checkpoint"] == pre_path and rec["best_score"] == pytest.approx(pre_best)
+    assert resolve_ckpt_alias("best", sdir) == rec["checkpoint"]  # `--ckpt_path best` agrees
+    # one run directory, whose metrics.csv still holds the epochs before the kill
+    (metrics,) = sdir.rglob("metrics.csv")
+    epochs = {int(r["epoch"]) for r in csv.DictReader(metrics.open())}
+    assert epochs == {0, 1, 2, 3} and Path(rec["checkpoint"]).parents[1] == metrics.parent
+
+
+def test_changed_arguments_never_resume_an_older_run(tmp_path, capsys):
+    exp = _experiment(tmp_path, max_epochs=2)
+    (old,) = run_curriculum(exp)
+    sets = ["model.init_args.train.lr=0.003"]  # the recipe changed, and its first rerun was killed at once
+    with pytest.raises(KeyboardInterrupt):
+        run_curriculum(exp, sets=sets, runner=_killed_after(0))
+    capsys.readouterr()
+    seen: list = []
+    (new,) = run_curriculum(exp, sets=sets, runner=_spy(seen))
+    assert "--ckpt_path" not in seen[0] and new["resumed_from"] is None
+    assert "starting a fresh fit" in capsys.readouterr().out
+    assert Path(new["checkpoint"]).parents[1] != Path(old["checkpoint"]).parents[1]
+    state = torch.load(new["checkpoint"], weights_only=True)
+    assert state["hyper_parameters"]["train"]["lr"] == pytest.approx(0.003)
+
+
+def test_killed_run_with_new_arguments_resumes_itself(tmp_path):
+    exp = _experiment(tmp_path, max_epochs=2)
+    (old,) = run_curriculum(exp)
+    sets = ["model.init_args.train.lr=0.003"]
+    with pytest.raises(KeyboardInterrupt):
+        run_curriculum(exp, sets=sets, runner=_killed_after(1))
+    old_run = Path(old["checkpoint"]).parents[1]
+    killed_run = next(p for p in (tmp_path / "run" / "s1").rglob("version_*") if p != old_run)
+    seen: list = []
+    (new,) = run_curriculum(exp, sets=sets, runner=_spy(seen))
+    assert Path(new["resumed_from"]).parents[1] == killed_run == Path(new["checkpoint"]).parents[1]
+    marker = json.loads((killed_run / "curriculum_run.json").read_text())
+    assert marker["digest"] == new["digest"]
