@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import importlib
 import sys
+import traceback
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +28,8 @@ from floaff_zoo.nn import ops
 from floaff_zoo.runs import RunError, resolve_ckpt_alias
 
 TRAINER_COMMANDS = ("fit", "validate", "test", "predict")
+#: commands that evaluate a trained model: ``--ckpt_path best|last`` and strict ``weights`` apply to them
+EVAL_COMMANDS = ("validate", "test", "predict")
 #: non-trainer command -> "module:function" taking argv and returning an exit code
 OTHER_COMMANDS: dict[str, tuple[str, str]] = {
     "generate": ("floaff_zoo.sim.generate:main", "generate a FloAff-Kitchen-style benchmark in MuJoCo"),
@@ -84,6 +87,25 @@ def _upgrade_legacy_model_args(model: Any) -> None:
     model["dict_kwargs"] = upgraded
 
 
+def _weights_failure(exc: BaseException) -> BaseException | None:
+    """The error that loading a model's ``weights`` raised (``ZooModule.load_pretrained``), found in the chain of
+    exceptions jsonargparse wraps it in; None when ``exc`` did not come from there."""
+    code = ZooModule.load_pretrained.__code__
+    seen: set[int] = set()
+    cur: BaseException | None = exc
+    while cur is not None and id(cur) not in seen:
+        seen.add(id(cur))
+        if any(frame.f_code is code for frame, _ in traceback.walk_tb(cur.__traceback__)):
+            return cur
+        cur = cur.__cause__ or cur.__context__
+    return None
+
+
+def _one_line(text: str) -> str:
+    """``text`` on one line (the messages of torch and jsonargparse span several)."""
+    return " ".join(text.split())
+
+
 class FloAffCLI(LightningCLI):
     """LightningCLI with the zoo's defaults and guards."""
 
@@ -98,7 +120,9 @@ class FloAffCLI(LightningCLI):
     def _parse_ckpt_path(self) -> None:
         """Lightning rebuilds the model config from the hyper-parameters of a ``--ckpt_path`` file (so the trained
         architecture is used whatever the config says). That would also silently drop evaluation-time choices
-        given on the command line (e.g. ``--model.init_args.eval_yaw_source gt``): those are applied again."""
+        given on the command line (e.g. ``--model.init_args.eval_yaw_source gt``): those are applied again.
+        ``best``/``last`` are turned into their file first: Lightning reads the hyper-parameters of a file only."""
+        self._resolve_ckpt_alias()
         sub = self.config.get("subcommand")
         before = self.config[sub].get("model") if sub else None
         before = before.clone() if before is not None else None
@@ -123,6 +147,37 @@ class FloAffCLI(LightningCLI):
                 f"{', '.join(kept)} (given on the command line)",
                 file=sys.stderr,
             )
+
+    def _resolve_ckpt_alias(self) -> None:
+        """``--ckpt_path best|last`` of an evaluation command -> the checkpoint file (``runs.resolve_ckpt_alias``).
+
+        ``fit`` keeps Lightning's own ``last`` (resume from the fit's checkpoint callback)."""
+        sub = self.config.get("subcommand")
+        if sub not in EVAL_COMMANDS:
+            return
+        cfg = self.config[sub]
+        alias = cfg.get("ckpt_path")
+        if alias in ("best", "last"):
+            cfg.ckpt_path = resolve_ckpt_alias(alias, self._run_dir(cfg))
+
+    def instantiate_classes(self) -> None:
+        """Instantiate as Lightning does; an error loading ``model.init_args.weights`` (unknown hub name, corrupt
+        or missing file) becomes one ``CLIError`` line instead of jsonargparse's traceback of union types."""
+        try:
+            super().instantiate_classes()
+        except Exception as exc:
+            cause = _weights_failure(exc)
+            if cause is None:
+                raise
+            weights, message = self._configured_weights(), _one_line(str(cause))
+            named = "" if weights in message else f" {weights}"  # hub messages name the file or the name already
+            raise CLIError(f"--model.init_args.weights{named}: {message}") from exc
+
+    def _configured_weights(self) -> str:
+        """The ``weights`` the model config names (for messages)."""
+        model = self.config[self.config.get("subcommand")].get("model") if self.config.get("subcommand") else None
+        init_args = model.get("init_args") if model is not None else None
+        return str(init_args.get("weights") if init_args is not None else None)
 
     def before_instantiate_classes(self) -> None:
         cfg = self.config[self.subcommand]
@@ -171,11 +226,9 @@ class FloAffCLI(LightningCLI):
         return super().instantiate_trainer(callbacks=[*user, *extra], **kwargs)
 
     def _guard_eval(self) -> None:
-        cfg = self.config_init[self.subcommand]
-        ckpt = cfg.get("ckpt_path")
-        if ckpt in ("best", "last"):
-            cfg["ckpt_path"] = resolve_ckpt_alias(ckpt, self._run_dir())
-            ckpt = cfg["ckpt_path"]
+        """Refuse to evaluate a model without trained weights, with a missing ``--ckpt_path`` file, or with
+        ``weights`` that left some of its tensors untrained."""
+        ckpt = self.config_init[self.subcommand].get("ckpt_path")
         if ckpt is None and self.model.trainable and not self.model.hparams.get("weights"):
             raise CLIError(
                 f"`floaff-zoo {self.subcommand}` needs trained weights: pass --ckpt_path <file|best|last> "
@@ -184,15 +237,33 @@ class FloAffCLI(LightningCLI):
             )
         if ckpt is not None and not Path(ckpt).is_file():
             raise CLIError(f"--ckpt_path {ckpt}: no such file")
+        if ckpt is None:
+            self._guard_partial_weights()
 
-    def _run_dir(self) -> Path:
+    def _guard_partial_weights(self) -> None:
+        """``weights`` that do not fit the model load leniently (right for initialising a fit); evaluating such a
+        half-random model would write a meaningless report: refuse, naming the weights and the tensors."""
+        gaps = list(getattr(self.model, "weights_not_loaded", None) or [])
+        if not gaps:
+            return
+        raise CLIError(
+            f"--model.init_args.weights {self.model.hparams.get('weights')}: {len(gaps)} tensor(s) of "
+            f"{type(self.model).__name__} not loaded (shape in the weights vs the model's: "
+            f"{'; '.join(gaps[:5])}{'; ...' if len(gaps) > 5 else ''}); "
+            f"`floaff-zoo {self.subcommand}` needs weights that fit the configured model (same class and "
+            "architecture init args), or pass --ckpt_path"
+        )
+
+    @staticmethod
+    def _run_dir(cfg: Any) -> Path:
         """Where ``best``/``last`` are looked up: the run a ``--config <run>/config.yaml`` came from
-        (the folder next to its ``checkpoints/``), else ``trainer.default_root_dir``."""
-        for path in reversed(self.config[self.subcommand].get("config") or []):
+        (the folder next to its ``checkpoints/``), else ``trainer.default_root_dir`` (``cfg``: the subcommand's
+        parsed config)."""
+        for path in reversed(cfg.get("config") or []):
             folder = Path(str(getattr(path, "absolute", path))).parent
             if (folder / "checkpoints").is_dir():
                 return folder
-        return Path(self.trainer.default_root_dir)
+        return Path(str(cfg.trainer.default_root_dir))
 
     def before_fit(self) -> None:
         if not self.model.trainable:

@@ -205,6 +205,19 @@ def candidate_spacing(floor_xyz: np.ndarray, default: float = 0.05) -> float:
 
 
 # ------------------------------------------------------------------------------------------ predict
+def check_task(net: torch.nn.Module, task: str) -> None:
+    """Raise ValueError when ``net`` conditions on the task (a canonical prior: CFAR with a prior, the
+    canonical-prior model) and ``task`` is not one it knows, naming the argument and the known tasks."""
+    from floaff_zoo.nn.prior import CanonicalLabelGrid
+
+    grid = next((m for m in net.modules() if isinstance(m, CanonicalLabelGrid)), None)
+    if grid is not None and task not in grid.tasks:
+        raise ValueError(
+            f"predict: {type(net).__name__} conditions on the task (its canonical prior has a grid per task): "
+            f"pass task= one of {grid.tasks} (a generated view's meta['task']), got {task!r}"
+        )
+
+
 def predict_from_points(
     model: Any,
     scene_xyz: np.ndarray,
@@ -241,6 +254,7 @@ def predict_from_points(
             canonical prior).
     """
     net = resolve_model(model, model_class, device)
+    check_task(net, task)
     t = np.asarray(target_xyz, dtype=np.float32).reshape(-1)
     if t.size != 3 or not np.isfinite(t).all():
         raise ValueError(f"predict: target_xyz must be 3 finite values, got {target_xyz!r}")

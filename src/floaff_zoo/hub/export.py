@@ -17,6 +17,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import shutil
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
@@ -38,12 +39,15 @@ from floaff_zoo.hub.registry import (
     HubEntry,
     HubError,
     RegistryFormatError,
+    check_name,
     hub_dir,
     is_offline,
     publish,
+    read_index,
     register,
     sha256_file,
     unique_filename,
+    user_index_path,
 )
 from floaff_zoo.runs import RunError, resolve_ckpt_alias
 
@@ -277,6 +281,8 @@ def export_checkpoint(
     Returns:
         (the registered entry, the export directory).
     """
+    check_name(name, "push")  # it becomes a folder and file name: checked before anything is written
+    read_index(user_index_path(directory))  # a malformed user index fails here too
     ckpt_path = find_run_checkpoint(run_or_ckpt)
     run = Path(run_or_ckpt) if Path(run_or_ckpt).is_dir() else None
     try:
@@ -296,26 +302,46 @@ def export_checkpoint(
     metrics = metrics or _best_score(ckpt_path, ckpt, run)
     meta = {**(meta or {}), "metrics": metrics}
 
-    out = hub_dir(directory) / name
-    header = {"name": name, "class_path": cls_path, "init_args": init_args}
-    filename, sha = _write_weights(out, state, header, lambda sha: unique_filename(name, sha, ".safetensors"))
-    for old in out.glob(f"{name}-*.safetensors"):  # an earlier export of the same name
-        if old.name != filename:
-            old.unlink()
+    root = hub_dir(directory)
+    root.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=".push-", dir=root))  # beside the entry: renames stay atomic
     try:
-        entry = HubEntry(
-            name=name,
-            class_path=cls_path,
-            filename=filename,
-            sha256=sha,
-            init_args=init_args,
-            source={"kind": "local", "path": f"{name}/{filename}"},
-            meta=meta,
-        )
-        HubEntry.from_json(entry.to_json(), "push")  # validate the name etc. before writing anything else
+        entry = _stage_export(staging, name, cls_path, init_args, state, meta, ckpt_path)
+        out = root / name
+        _install_export(staging, out, entry, directory)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    return entry, out
+
+
+def _stage_export(
+    staging: Path,
+    name: str,
+    cls_path: str,
+    init_args: dict[str, Any],
+    state: dict[str, torch.Tensor],
+    meta: dict[str, Any],
+    source_ckpt: Path,
+) -> HubEntry:
+    """Write a complete export (weights, ``config.json``, model card) into ``staging`` and check it: a valid
+    entry that rebuilds and loads strictly. Nothing outside ``staging`` is touched, so a refusal leaves an
+    entry already registered under ``name`` as it was."""
+    header = {"name": name, "class_path": cls_path, "init_args": init_args}
+    filename, sha = _write_weights(staging, state, header, lambda sha: unique_filename(name, sha, ".safetensors"))
+    entry = HubEntry(
+        name=name,
+        class_path=cls_path,
+        filename=filename,
+        sha256=sha,
+        init_args=init_args,
+        source={"kind": "local", "path": f"{name}/{filename}"},
+        meta=meta,
+    )
+    try:
+        HubEntry.from_json(entry.to_json(), "push")  # the name etc., as the index will read them
     except RegistryFormatError as exc:
-        (out / filename).unlink(missing_ok=True)
         raise HubError(str(exc)) from exc
+    metrics = meta.get("metrics", {})
     config = {
         "name": name,
         "class_path": cls_path,
@@ -325,11 +351,38 @@ def export_checkpoint(
         "metrics": metrics,
         "meta": meta,
     }
-    (out / CONFIG_NAME).write_text(json.dumps(config, indent=2) + "\n", encoding="utf-8")
-    (out / "README.md").write_text(_model_card(entry, metrics, ckpt_path.name), encoding="utf-8")
-    load_model(out)  # refuse to register an export that does not rebuild and load strictly
-    register(entry, directory)
-    return entry, out
+    (staging / CONFIG_NAME).write_text(json.dumps(config, indent=2) + "\n", encoding="utf-8")
+    (staging / "README.md").write_text(_model_card(entry, metrics, source_ckpt.name), encoding="utf-8")
+    try:
+        load_model(staging)  # refuse to register an export that does not rebuild and load strictly
+    except (HubError, ValueError, TypeError) as exc:
+        why = str(exc).replace(f"{staging}{os.sep}", "")  # the staging folder is gone when this is read
+        raise HubError(f"{source_ckpt}: not pushed as {name!r}, its export does not load back: {why}") from exc
+    return entry
+
+
+def _install_export(staging: Path, out: Path, entry: HubEntry, directory: str | os.PathLike[str] | None) -> None:
+    """Move a checked export from ``staging`` into ``out`` and register it, each step by an atomic rename.
+
+    The new weights file (its name carries its hash) lands beside the old one; the index is switched to it;
+    then ``config.json`` and the model card are replaced and the earlier weights of the name are deleted. At
+    every point the index and ``out/config.json`` name a weights file that exists.
+    """
+    out.mkdir(parents=True, exist_ok=True)
+    weights = out / entry.filename
+    existed = weights.is_file()  # same name = same hash: the same content, pushed again
+    os.replace(staging / entry.filename, weights)
+    try:
+        register(entry, directory)
+    except BaseException:
+        if not existed:
+            weights.unlink(missing_ok=True)
+        raise
+    for extra in (CONFIG_NAME, "README.md"):
+        os.replace(staging / extra, out / extra)
+    for old in out.glob(f"{entry.name}-*.safetensors"):  # an earlier export of the same name
+        if old.name != entry.filename:
+            old.unlink()
 
 
 def upload_export(

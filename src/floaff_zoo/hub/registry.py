@@ -105,6 +105,16 @@ def unique_filename(name: str, sha256: str, ext: str) -> str:
 
 
 # --------------------------------------------------------------------------- entries
+def check_name(name: Any, where: str) -> str:
+    """``name`` if it is a valid entry name (lower-case ``model.dataset.vN``), else RegistryFormatError naming
+    ``where`` (the index file, or the command)."""
+    if not isinstance(name, str) or not _NAME_RE.match(name):
+        raise RegistryFormatError(
+            f"{where}: entry name {name!r} must be lower-case 'model.dataset.vN' (letters, digits, '-', '_', '.')"
+        )
+    return name
+
+
 @dataclass
 class HubEntry:
     """One named checkpoint (see the module docstring for the JSON form)."""
@@ -133,11 +143,7 @@ class HubEntry:
         """Validate and build an entry; ``where`` names the index file for error messages."""
         if not isinstance(raw, dict):
             raise RegistryFormatError(f"{where}: every entry must be an object, got {type(raw).__name__}")
-        name = raw.get("name")
-        if not isinstance(name, str) or not _NAME_RE.match(name):
-            raise RegistryFormatError(
-                f"{where}: entry name {name!r} must be lower-case 'model.dataset.vN' (letters, digits, '-', '_', '.')"
-            )
+        name = check_name(raw.get("name"), where)
         at = f"{where}: entry {name!r}"
         unknown = set(raw) - {"name", "class_path", "init_args", "filename", "sha256", "source", "meta"}
         if unknown:

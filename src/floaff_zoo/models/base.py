@@ -209,6 +209,8 @@ class ZooModule(L.LightningModule):
         self.configure_models()
         self.configure_losses()
         self.configure_metrics()
+        #: model tensors that ``weights`` did not provide (``load_pretrained``); evaluation commands refuse them
+        self.weights_not_loaded: list[str] = []
         if weights:
             self.load_pretrained(weights)
 
@@ -328,11 +330,26 @@ class ZooModule(L.LightningModule):
             checkpoint["hyper_parameters"] = {**hp, "weights": None}
 
     def load_pretrained(self, name_or_path: str) -> None:
-        """Initialise from a checkpoint/hub name; layers whose shapes differ are dropped with a warning."""
+        """Initialise from a checkpoint/hub name; layers whose shapes differ are dropped with a warning.
+
+        The model tensors left at their initial values are listed in ``weights_not_loaded`` (``floaff-zoo
+        test``/``validate``/``predict`` refuse such a model; a fit may start from it).
+        """
         from floaff_zoo.hub import resolve_state_dict
 
         state, _info = resolve_state_dict(name_or_path)
-        load_matching_state(self, state, source=name_or_path)
+        unloaded = load_matching_state(self, state, source=name_or_path)
+        own_files = self._parts_with_own_weights()
+        self.weights_not_loaded = [line for line in unloaded if not line.startswith(own_files)]
+
+    def _parts_with_own_weights(self) -> tuple[str, ...]:
+        """State-dict prefixes of parts loaded from a file of their own (``teacher``, CFAR's ``axisnet``: an init
+        arg naming a file and a submodule of the same name): ``weights`` need not provide them."""
+        return tuple(
+            f"{name}."
+            for name, value in self.hparams.items()
+            if name != "weights" and isinstance(value, str) and isinstance(getattr(self, name, None), torch.nn.Module)
+        )
 
     def save_pretrained(self, directory: str | os.PathLike[str]) -> Path:
         """Write ``config.json`` + ``model.safetensors`` into ``directory``, without CLI or checkpoint.
@@ -496,7 +513,9 @@ def load_matching_state(module: torch.nn.Module, state: dict[str, Tensor], sourc
     """Load ``state`` into ``module``, skipping (and reporting) keys with mismatched shapes.
 
     Returns:
-        the list of skipped keys.
+        the tensors of ``module`` left as they were, one ``"key: why"`` line each: ``(shape in state) vs
+        (module's shape)`` for a skipped key, ``not in the weights`` for a key ``state`` lacks (keys a module's
+        own loading hook fills in, e.g. a legacy buffer, are not listed).
     Raises:
         ValueError: when nothing at all matches (almost surely the wrong checkpoint).
     """
@@ -522,5 +541,6 @@ def load_matching_state(module: torch.nn.Module, state: dict[str, Tensor], sourc
             "use from_pretrained, or configure the part, to load them",
             stacklevel=2,
         )
-    module.load_state_dict(keep, strict=False)
-    return skipped
+    result = module.load_state_dict(keep, strict=False)
+    absent = [f"{k}: not in the weights" for k in result.missing_keys if k not in state]
+    return skipped + absent

@@ -1,0 +1,145 @@
+"""Guards of the trainer commands: ``--ckpt_path best|last`` carries the checkpoint's hyper-parameters, a bad
+``weights`` is one error line, and evaluation refuses weights that leave part of the model untrained."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+from floaff_zoo.cli import CLIError, main, run_lightning
+from floaff_zoo.models.tiny import TinyPointNetModule
+from tests.conftest import ROOT, quiet_trainer_args
+
+DATA = "configs/data/synthetic_tiny.yaml"
+MODEL = "configs/models/tiny_pointnet.yaml"  # width 32
+#: a typo of a shipped hub name (the shipped index is read in every test environment)
+TYPO = "pointnet2-ssg.floaff-demo-layouts.v9"
+
+
+@pytest.fixture(scope="module")
+def width16_run(tmp_path_factory):
+    """A one-epoch fit of the tiny model with width 16 and lr 0.01 (the config says 32 and 0.003)."""
+    out = tmp_path_factory.mktemp("run16")
+    with pytest.MonkeyPatch.context() as mp:
+        mp.chdir(ROOT)
+        cli = run_lightning(
+            [
+                "fit",
+                "--config",
+                DATA,
+                "--config",
+                MODEL,
+                *quiet_trainer_args(out),
+                "--trainer.max_epochs",
+                "1",
+                "--model.init_args.width",
+                "16",
+                "--model.init_args.train.lr",
+                "0.01",
+            ]
+        )
+    return out, Path(cli.trainer.checkpoint_callback.best_model_path)
+
+
+@pytest.mark.parametrize("alias", ["best", "last"])
+def test_ckpt_alias_applies_the_checkpoint_hparams(width16_run, root, monkeypatch, alias):
+    """`--ckpt_path best` used to be resolved after Lightning's hparams step: a shape mismatch traceback, and the
+    config's hparams silently replacing the checkpoint's."""
+    monkeypatch.chdir(root)
+    out, best = width16_run
+    cli = run_lightning(["test", "--config", DATA, "--config", MODEL, *quiet_trainer_args(out), "--ckpt_path", alias])
+    assert cli.model.hparams.width == 16
+    assert cli.model.train_cfg.lr == 0.01  # not a shape: it was replaced by the config's 0.003 silently
+    if alias == "best":
+        assert Path(cli.config_init["test"]["ckpt_path"]).resolve() == best.resolve()
+
+
+def test_ckpt_alias_without_a_run_is_a_run_error(tmp_path, root, monkeypatch):
+    monkeypatch.chdir(root)
+    from floaff_zoo.runs import RunError
+
+    with pytest.raises(RunError, match="no last.ckpt"):
+        main(["test", "--config", DATA, "--config", MODEL, *quiet_trainer_args(tmp_path), "--ckpt_path", "best"])
+
+
+@pytest.mark.parametrize("command", ["fit", "validate", "test", "predict"])
+def test_unknown_hub_name_is_one_line_with_suggestions(tmp_path, root, monkeypatch, command):
+    monkeypatch.chdir(root)
+    args = [command, "--config", DATA, "--config", MODEL, *quiet_trainer_args(tmp_path)]
+    with pytest.raises(CLIError) as info:
+        main([*args, "--model.init_args.weights", TYPO])
+    message = str(info.value)
+    assert "\n" not in message and TYPO in message and "did you mean" in message
+    assert "pointnet2-ssg.floaff-demo-layouts.v2" in message
+
+
+def test_corrupt_weights_file_is_one_line_on_stderr(tmp_path, root):
+    bad = tmp_path / "x.ckpt"
+    bad.write_bytes(b"\x80\x02not a pickle at all" * 10)
+    run = subprocess.run(
+        [sys.executable, "-m", "floaff_zoo", "test", "--config", DATA, "--config", MODEL]
+        + [*quiet_trainer_args(tmp_path), "--model.init_args.weights", str(bad)],
+        capture_output=True,
+        text=True,
+        cwd=root,
+    )
+    assert run.returncode == 2
+    lines = [line for line in run.stderr.splitlines() if line.strip()]
+    assert lines[-1].startswith("floaff-zoo: error: --model.init_args.weights") and str(bad) in lines[-1]
+    assert "Traceback" not in run.stderr
+
+
+@pytest.fixture
+def width16_weights(tmp_path):
+    """Exported weights of a width-16 tiny model (the config builds width 32)."""
+    torch.manual_seed(0)
+    return TinyPointNetModule(width=16).save_pretrained(tmp_path / "w16")
+
+
+@pytest.mark.parametrize("command", ["validate", "test", "predict"])
+def test_evaluation_refuses_weights_that_do_not_fit(width16_weights, tmp_path, root, monkeypatch, command):
+    monkeypatch.chdir(root)
+    args = [command, "--config", DATA, "--config", MODEL, *quiet_trainer_args(tmp_path)]
+    with pytest.warns(UserWarning, match="skipped"), pytest.raises(CLIError) as info:
+        main([*args, "--model.init_args.weights", str(width16_weights)])
+    message = str(info.value)
+    assert str(width16_weights) in message and "not loaded" in message
+    assert "net.head.0.bias: (32,) vs (64,)" in message  # shape in the weights vs the model's
+    assert not list(tmp_path.rglob("report.json"))
+
+
+def test_fit_still_starts_from_weights_that_do_not_fit(width16_weights, tmp_path, root, monkeypatch):
+    monkeypatch.chdir(root)
+    args = ["fit", "--config", DATA, "--config", MODEL, *quiet_trainer_args(tmp_path), "--trainer.fast_dev_run", "1"]
+    with pytest.warns(UserWarning, match="skipped"):
+        cli = run_lightning([*args, "--model.init_args.weights", str(width16_weights)])
+    assert cli.model.weights_not_loaded  # recorded, not refused: initialising a fit is what weights are for
+
+
+def test_evaluation_accepts_weights_that_fit(tmp_path, root, monkeypatch):
+    monkeypatch.chdir(root)
+    weights = TinyPointNetModule(width=32).save_pretrained(tmp_path / "w32")
+    args = ["validate", "--config", DATA, "--config", MODEL, *quiet_trainer_args(tmp_path)]
+    cli = run_lightning([*args, "--model.init_args.weights", str(weights)])
+    assert cli.model.weights_not_loaded == []
+
+
+def test_predict_names_the_task_a_prior_needs():
+    """The README's predict snippet passed no task: a CFAR/prior model failed deep inside with "task '' has no
+    grid"; predict now says which argument to pass and the tasks the model knows."""
+    import numpy as np
+
+    from floaff_zoo.models.prior import CanonicalPriorModule
+    from floaff_zoo.predict import predict_from_points
+
+    model = CanonicalPriorModule(tasks=["CloseDrawer"]).eval()
+    rng = np.random.default_rng(0)
+    xyz = rng.uniform(-1, 2, (200, 3)).astype(np.float32)
+    xyz[:100, 2] = 0
+    feat = np.zeros((200, 1), np.float32)
+    args = (model, xyz, feat, None, [0.85, 1.03], [1.0, 0.0, 0.5])
+    with pytest.raises(ValueError, match=r"pass task= one of \['CloseDrawer'\].*got ''"):
+        predict_from_points(*args, cell=0.2)
+    assert predict_from_points(*args, cell=0.2, task="CloseDrawer").scores.size

@@ -1,0 +1,78 @@
+"""``floaff-zoo hub push`` over a registered name: a refused push leaves the registered entry as it was."""
+
+from pathlib import Path
+
+import pytest
+import torch
+
+from floaff_zoo.cli import main as zoo_main
+from floaff_zoo.hub import HubError, hub_dir, load_model, load_registry
+from floaff_zoo.hub import export as hub_export
+from floaff_zoo.models.tiny import TinyPointNetModule
+
+NAME = "tiny-pointnet.synthetic.v1"
+TINY = "floaff_zoo.models.tiny.TinyPointNetModule"
+
+
+def _ckpt(path: Path, seed: int, width: int = 8, extra_state: dict | None = None) -> Path:
+    """A Lightning-shaped checkpoint of a tiny model (hparams carry ``_class_path``)."""
+    torch.manual_seed(seed)
+    model = TinyPointNetModule(width=width)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    state = {**model.state_dict(), **(extra_state or {})}
+    torch.save({"state_dict": state, "hyper_parameters": {**dict(model.hparams), "_class_path": TINY}}, path)
+    return path
+
+
+def _push(ckpt: Path, name: str = NAME) -> int:
+    return zoo_main(["hub", "push", str(ckpt), "--name", name])
+
+
+def _snapshot(folder: Path) -> dict[str, bytes]:
+    """Every file under ``folder`` (relative path -> bytes)."""
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+@pytest.fixture
+def registered(tmp_path):
+    """``NAME`` pushed once; returns (the hub files after it, the entry)."""
+    assert _push(_ckpt(tmp_path / "first.ckpt", seed=1)) == 0
+    return _snapshot(hub_dir()), load_registry()[NAME]
+
+
+def test_push_that_does_not_load_back_leaves_the_entry(registered, tmp_path, capsys):
+    before, entry = registered
+    bad = _ckpt(tmp_path / "extra.ckpt", seed=2, width=16, extra_state={"net.extra_buffer": torch.ones(2)})
+    assert _push(bad) == 2
+    err = capsys.readouterr().err
+    assert str(bad) in err and "net.extra_buffer" in err and ".push-" not in err
+    assert _snapshot(hub_dir()) == before  # weights, config.json, model card and index untouched; no temp left
+    assert load_registry()[NAME].sha256 == entry.sha256
+    assert load_model(NAME).hparams.width == 8
+
+
+def test_push_refused_by_the_index_leaves_the_entry(registered, tmp_path, monkeypatch):
+    before, _entry = registered
+
+    def refuse(*args, **kwargs):
+        raise HubError("index refused")
+
+    monkeypatch.setattr(hub_export, "register", refuse)
+    assert _push(_ckpt(tmp_path / "second.ckpt", seed=2, width=16)) == 2
+    assert _snapshot(hub_dir()) == before  # the new weights file was taken back
+
+
+def test_invalid_name_writes_nothing(tmp_path):
+    assert _push(_ckpt(tmp_path / "a.ckpt", seed=1), name="Bad Name") == 2
+    assert not hub_dir().exists() or not any(hub_dir().iterdir())
+
+
+def test_push_over_a_name_replaces_it(registered, tmp_path):
+    _before, old = registered
+    assert _push(_ckpt(tmp_path / "second.ckpt", seed=2, width=16)) == 0
+    new = load_registry()[NAME]
+    folder = hub_dir() / NAME
+    assert new.sha256 != old.sha256
+    assert sorted(p.name for p in folder.iterdir()) == sorted(["README.md", "config.json", new.filename])
+    assert load_model(NAME).hparams.width == 16 and load_model(folder).hparams.width == 16
+    assert not [p for p in hub_dir().iterdir() if p.name.startswith(".push-")]
