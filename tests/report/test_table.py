@@ -112,14 +112,16 @@ def test_reads_only_report_json(tmp_path):
 def test_runs_on_different_copies_of_the_data_are_not_mixed(tmp_path, capsys):
     """Reports that record different labels for one scene come from different copies of the data."""
     rep = json.loads((RUNS / "cfar_styles_s0" / "report.json").read_text())
-    for name, digests in (("a", {"s1": "aaaa", "s2": "cccc"}), ("b", {"s1": "bbbb"}), ("old", None)):
+    copies = (("a", {"s1": "aaaa", "s2": "cccc"}), ("a2", {"s1": "aaaa"}), ("b", {"s1": "bbbb"}), ("old", None))
+    for name, digests in copies:
         d = tmp_path / name
         d.mkdir()
-        r = {**rep, "run_dir": name, "data": {**rep["data"], "labels_sha256": digests}}
+        ckpt = {**rep["checkpoint"], "sha256": name * (64 // len(name))}  # another seed's checkpoint
+        r = {**rep, "run_dir": name, "checkpoint": ckpt, "data": {**rep["data"], "labels_sha256": digests}}
         (d / "report.json").write_text(json.dumps(r))
     assert main(["--runs", str(tmp_path / "a"), str(tmp_path / "b")]) == 2
     err = capsys.readouterr().err
     assert "scene s1" in err and "aaaa" in err and "bbbb" in err and "--allow-mixed-data" in err
     assert main(["--runs", str(tmp_path / "a"), str(tmp_path / "b"), "--allow-mixed-data"]) == 0
     # the same labels, disjoint scenes, or a report from before the hash was recorded: one table
-    assert main(["--runs", str(tmp_path / "a"), str(tmp_path / "a"), str(tmp_path / "old")]) == 0
+    assert main(["--runs", str(tmp_path / "a"), str(tmp_path / "a2"), str(tmp_path / "old")]) == 0

@@ -130,6 +130,8 @@ class TestReport(L.Callback):
         self._counts: dict[tuple[str, str], int] = {}
         self._seen: dict[str, set[str]] = {}
         self._n = 0
+        self._keys: set[tuple[int, int]] = set()  # (dataloader, meta['index']) of every sample seen
+        self._unkeyed = 0  # samples seen without meta['index']
         #: paths written by the last test run
         self.written: dict[str, Any] = {}
 
@@ -137,11 +139,16 @@ class TestReport(L.Callback):
     def on_test_epoch_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         self._samples, self._counts, self._n = [], {}, 0
         self._seen = {"dataset": set(), "task": set(), "view": set()}
+        self._keys, self._unkeyed = set(), 0
 
     def on_test_batch_end(self, trainer, pl_module, outputs, batch, batch_idx, dataloader_idx=0) -> None:
         metas = batch["meta"]
         self._n += len(metas)
         for m in metas:
+            if m.get("index") is None:
+                self._unkeyed += 1
+            else:
+                self._keys.add((dataloader_idx, int(m["index"])))
             for key in self._seen:
                 if m.get(key):
                     self._seen[key].add(str(m[key]))
@@ -169,15 +176,34 @@ class TestReport(L.Callback):
 
     # ------------------------------------------------------------------------------ writing
     def run_dir(self, trainer: L.Trainer) -> Path:
+        """Where the report goes (reads ``trainer.log_dir``: a broadcast under DDP, so call it on every rank)."""
         return Path(self.out_dir or trainer.log_dir or trainer.default_root_dir)
 
+    def _pool_ranks(self, trainer: L.Trainer) -> None:
+        """Under DDP, pool what every rank saw (a collective: every rank calls it): the datasets, tasks and views,
+        and the sample count without the repeats ``DistributedSampler`` pads the last batches with (samples with
+        one ``meta['index']`` count once, as in the metrics)."""
+        dist = torch.distributed
+        if trainer.world_size <= 1 or not dist.is_available() or not dist.is_initialized():
+            return
+        parts: list[Any] = [None] * trainer.world_size
+        dist.all_gather_object(parts, (self._seen, self._keys, self._unkeyed))
+        self._seen = {k: set().union(*(seen[k] for seen, _, _ in parts)) for k in self._seen}
+        self._keys = set().union(*(keys for _, keys, _ in parts))
+        self._unkeyed = sum(n for _, _, n in parts)
+        self._n = len(self._keys) + self._unkeyed
+
     def on_test_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        """Write the report on rank 0; every rank first takes part in the collectives (``trainer.log_dir`` is a
+        broadcast under DDP, ``_pool_ranks`` a gather), or DDP would hang or crash."""
+        log_dir = trainer.log_dir
+        run_dir = Path(self.out_dir or log_dir or trainer.default_root_dir)
+        self._pool_ranks(trainer)
         if not trainer.is_global_zero:
             return
-        run_dir = self.run_dir(trainer)
         run_dir.mkdir(parents=True, exist_ok=True)
         rollout = next((c for c in trainer.callbacks if type(c).__name__ == "RolloutSuccessRate"), None)
-        report = self.build_report(trainer, pl_module, run_dir, rollout)
+        report = self.build_report(trainer, pl_module, run_dir, rollout, log_dir)
         episodes = rollout.episodes.get("test", []) if rollout is not None else []
         if self.figures and self._samples:
             by_id = {e["sample_id"]: e for e in episodes}
@@ -202,8 +228,15 @@ class TestReport(L.Callback):
         }
 
     def build_report(
-        self, trainer: L.Trainer, pl_module: L.LightningModule, run_dir: Path, rollout: Any | None
+        self,
+        trainer: L.Trainer,
+        pl_module: L.LightningModule,
+        run_dir: Path,
+        rollout: Any | None,
+        log_dir: str | None = None,
     ) -> dict[str, Any]:
+        """The report dict of a finished test (see the module docstring); ``log_dir`` is ``trainer.log_dir`` (where
+        LightningCLI saved ``config.yaml``), resolved by the caller on every rank."""
         hp = dict(pl_module.hparams) if hasattr(pl_module, "hparams") else {}
         metrics = {k: v for k, v in sorted(trainer.callback_metrics.items()) if k.startswith("test_")}
         test_metrics = getattr(pl_module, "test_metrics", None)
@@ -211,7 +244,7 @@ class TestReport(L.Callback):
         missing = [k for k in configured if k not in metrics]
         if missing:
             warnings.warn(f"TestReport: configured metric(s) {missing} were not logged", stacklevel=2)
-        config = read_config(Path(trainer.log_dir)) if trainer.log_dir else None
+        config = read_config(Path(log_dir)) if log_dir else None
         if config is None and self.out_dir:
             config = read_config(run_dir)
         seed = (config or {}).get("seed_everything")

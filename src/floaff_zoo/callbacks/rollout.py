@@ -25,6 +25,10 @@ epochs, never in the sanity check) ``val_rollout_success``, ``val_oracle_rollout
 ``val_sr_front``, ``val_sr_side``, ``val_rollout_seconds``. The summary and the per-episode
 records are kept on the callback (``summaries[stage]``, ``episodes[stage]``) for ``TestReport``.
 
+Under DDP the episodes of every rank are gathered on rank 0, which rolls them out; a sample counts once (by
+``meta['index']`` and dataloader: ``DistributedSampler`` pads the last batches with repeats, which the map metrics drop
+too), in split order, so SR is the single-process SR; ``max_val_samples`` caps the split, not each rank.
+
 Samples without sim metadata (MoMa-Kitchen, synthetic) are skipped with one warning per stage;
 when no sample has sim metadata nothing is logged and the summary says ``available: False``.
 """
@@ -213,6 +217,24 @@ def summary_to_logs(stage: str, summary: dict[str, Any]) -> dict[str, float]:
 
 
 # ----------------------------------------------------------------------------------------------- callback
+def _sample_key(meta: dict[str, Any] | None, dataloader_idx: int) -> tuple[int, int] | None:
+    """(dataloader, ``meta['index']``): one sample of one split, wherever it was drawn; None without an index."""
+    index = (meta or {}).get("index")
+    return None if index is None else (int(dataloader_idx), int(index))
+
+
+def _first_per_key(items: list[Any], keys: list[tuple[int, int] | None]) -> list[Any]:
+    """``items`` without those whose key an earlier item had (items with a None key are all kept)."""
+    seen: set[tuple[int, int]] = set()
+    out = []
+    for item, key in zip(items, keys):
+        if key is None or key not in seen:
+            out.append(item)
+        if key is not None:
+            seen.add(key)
+    return out
+
+
 def default_service(workers: int = 1, backend: str = "local", cache_decimals: int = ROLLOUT_POSE_DECIMALS) -> Any:
     """The simulator's rollout service (imported lazily: the callback module never needs mujoco)."""
     from floaff_zoo.sim.rollout import RolloutService
@@ -295,7 +317,7 @@ class RolloutSuccessRate(L.Callback):
         self._service: Any = None
         self._scenes: dict[str, Any] = {}
         self._pending: dict[str, list[dict[str, Any]]] = {}
-        self._skipped: dict[str, int] = {}
+        self._skipped: dict[str, list[tuple[int, int] | None]] = {}  # stage -> key of every skipped sample
         self._active: dict[str, bool] = {}
         self._warned: set[str] = set()
         #: stage -> SR summary (see ``summarize_episodes``) + bookkeeping; read by TestReport
@@ -325,9 +347,9 @@ class RolloutSuccessRate(L.Callback):
     def _start(self, stage: str, active: bool) -> None:
         self._active[stage] = active
         self._pending[stage] = []
-        self._skipped[stage] = 0
+        self._skipped[stage] = []
 
-    def _collect(self, stage: str, batch: dict[str, Any], scores: torch.Tensor) -> None:
+    def _collect(self, stage: str, batch: dict[str, Any], scores: torch.Tensor, dataloader_idx: int = 0) -> None:
         """Choose poses for every sim sample of a batch (scores [B, M]); rollouts run at epoch end."""
         pending = self._pending[stage]
         cap = self.max_val_samples if stage == "val" else None
@@ -343,7 +365,7 @@ class RolloutSuccessRate(L.Callback):
         for i, meta in enumerate(batch["meta"]):
             sim = (meta or {}).get("sim")
             if not sim or "base_pose_world" not in sim:
-                self._skipped[stage] += 1
+                self._skipped[stage].append(_sample_key(meta, dataloader_idx))
                 continue
             if cap is not None and len(pending) >= cap:
                 return
@@ -367,6 +389,7 @@ class RolloutSuccessRate(L.Callback):
                 "pose": list(pose),
                 "rank": rank,
                 "_spec": spec,
+                "_key": _sample_key(meta, dataloader_idx),
             }
             if self.oracle:
                 ep["oracle_pose"] = list(
@@ -406,20 +429,43 @@ class RolloutSuccessRate(L.Callback):
             ep.pop("_spec", None)
         return time.perf_counter() - t0
 
+    @staticmethod
+    def _distributed(trainer: L.Trainer) -> bool:
+        """Whether the trainer runs several processes of an initialised process group (DDP)."""
+        dist = torch.distributed
+        return trainer.world_size > 1 and dist.is_available() and dist.is_initialized()
+
     def _gather(self, trainer: L.Trainer, items: list[Any]) -> list[Any]:
-        if trainer.world_size <= 1 or not torch.distributed.is_available() or not torch.distributed.is_initialized():
+        """Every rank's ``items`` concatenated in rank order (a collective under DDP: every rank calls it)."""
+        if not self._distributed(trainer):
             return items
         parts: list[Any] = [None] * trainer.world_size
         torch.distributed.all_gather_object(parts, items)
         return [x for p in parts for x in p]
 
+    def _pool(self, stage: str, episodes: list[dict[str, Any]], gathered: bool) -> list[dict[str, Any]]:
+        """The episodes one process would have: one per sample (the first of those with one ``_sample_key``: the
+        repeats ``DistributedSampler`` pads the last batches with are dropped, as the map metrics drop them), in split
+        order when ``gathered`` from several ranks, and on validation at most ``max_val_samples`` (of the split, not
+        of each rank: each rank collected its first ``max_val_samples``, so the split's first ones are among them)."""
+        episodes = _first_per_key(episodes, [e["_key"] for e in episodes])
+        if gathered:  # rank order -> split order (stable: samples without an index keep their order, last)
+            episodes.sort(key=lambda e: (e["_key"] is None, e["_key"] or (0, 0)))
+        if stage == "val" and self.max_val_samples is not None:
+            episodes = episodes[: self.max_val_samples]
+        for e in episodes:
+            e.pop("_key", None)
+        return episodes
+
     def _finish(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
         if not self._active.get(stage):
             return
         episodes = self._gather(trainer, self._pending.pop(stage, []))
-        skipped = sum(self._gather(trainer, [self._skipped.get(stage, 0)]))
+        skipped_keys = self._gather(trainer, self._skipped.get(stage, []))
+        skipped = len(_first_per_key(skipped_keys, skipped_keys))
         summary: dict[str, Any] | None = None
         if trainer.is_global_zero:
+            episodes = self._pool(stage, episodes, self._distributed(trainer))
             summary = {
                 "available": bool(episodes),
                 "n_evaluated": len(episodes),
@@ -467,7 +513,7 @@ class RolloutSuccessRate(L.Callback):
             return
         scores = outputs.get("scores") if isinstance(outputs, dict) else None
         if scores is not None:  # None: not a floor-map model (AxisNet's test_step gives a yaw)
-            self._collect("test", batch, scores)
+            self._collect("test", batch, scores, dataloader_idx)
 
     def on_test_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         self._finish(trainer, pl_module, "test")
@@ -486,7 +532,7 @@ class RolloutSuccessRate(L.Callback):
             return
         scores = outputs.get("scores") if isinstance(outputs, dict) else None
         if scores is not None:  # validation_step returns the scores it computed: no second forward
-            self._collect("val", batch, scores)
+            self._collect("val", batch, scores, dataloader_idx)
 
     def on_validation_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         self._finish(trainer, pl_module, "val")

@@ -24,6 +24,11 @@ seeds); a row with a single run shows its SR bootstrap std (see ``RolloutSuccess
 ``--group-by`` takes ``model`` (class name), ``label``, ``benchmark`` or any dotted path into
 ``report.json`` (``model.hparams.crop_radius``, ``config.data.init_args.crop_radius``, ``seed``).
 
+A row pools runs of one protocol: reports that differ in the SR protocol (``sr.top_k``; ``sr.free_space`` where
+top_k > 1), ``sim_variant`` or ``metric_reduction``, or two reports of one checkpoint (``checkpoint.sha256``), are
+refused with the row, the setting and the report paths (pass one protocol's reports, e.g. a narrower ``--runs`` glob);
+so is an Oracle row over reports of different SR protocols (or pass ``--no-oracle``).
+
 Runs whose reports give one scene different label hashes (``data.labels_sha256``: copies of a preset generated on
 different CPUs differ in a few rollouts) are not put in one table unless ``--allow-mixed-data`` says so; reports
 written before the hash was recorded are not checked.
@@ -236,7 +241,11 @@ def _oracle_cell(reports: list[dict[str, Any]], getter) -> Cell | None:
     return aggregate([p[0] for p in pairs], [p[1] for p in pairs])
 
 
-def _group_rows(reports: list[dict[str, Any]], group_by: str, numeric: bool) -> list[tuple[str, list[dict]]]:
+def _group_rows(
+    reports: list[dict[str, Any]], group_by: str, numeric: bool, section: str = ""
+) -> list[tuple[str, list[dict]]]:
+    """Reports split into rows by their ``group_by`` value (``numeric``: rows sorted by it); each row is checked
+    by ``check_row`` (one protocol, one report per checkpoint). ``section`` names the rows' section in errors."""
     groups: dict[str, list[dict]] = {}
     keys: dict[str, Any] = {}
     for r in reports:
@@ -252,13 +261,101 @@ def _group_rows(reports: list[dict[str, Any]], group_by: str, numeric: bool) -> 
             names.sort(key=lambda n: float(keys[n]))
         except (TypeError, ValueError) as exc:
             raise TableError(f"--group-by {group_by}: values {sorted(groups)} are not numeric") from exc
+    for n in names:
+        check_row(n, groups[n], section)
     return [(n, groups[n]) for n in names]
 
 
 def _fmt_key(v: Any) -> str:
+    """Row name of a group value: floats with 2 decimals where that is exact (``1.10``, ``1.25``), else the
+    shortest text that reads back as the value (``0.0002``), so distinct values never share a row."""
     if isinstance(v, float):
-        return f"{v:.2f}"
+        s = f"{v:.2f}"
+        return s if float(s) == v else repr(v)
     return str(v)
+
+
+#: the report path ``main`` attaches to each report (named in errors); ``run_dir`` is used when absent
+PATH_KEY = "_report_path"
+#: settings every report of a row must share (dotted names as in errors); SR ones only where SR was measured
+PROTOCOL = ("sr.top_k", "sr.free_space", "sim_variant", "metric_reduction")
+SR_PROTOCOL = PROTOCOL[:2]
+
+
+def _where(report: dict[str, Any]) -> str:
+    """Where a report came from: its report.json path, else the run directory it records."""
+    return str(report.get(PATH_KEY) or report.get("run_dir") or report.get("label") or "?")
+
+
+def protocol(report: dict[str, Any]) -> dict[str, Any]:
+    """The evaluation settings of a report (None = unknown or irrelevant, never compared).
+
+    SR settings count only where SR was measured; ``free_space`` only with ``top_k > 1`` (the top-1 pose needs no
+    footprint check), and reports from before it was recorded used the simulator's footprints (``sim``).
+    """
+    sr = report.get("sr") or {}
+    out = {"sim_variant": report.get("sim_variant"), "metric_reduction": report.get("metric_reduction")}
+    top_k = sr.get("top_k") if sr.get("available") else None
+    out["sr.top_k"] = top_k
+    out["sr.free_space"] = sr.get("free_space", "sim") if top_k is not None and top_k != 1 else None
+    return out
+
+
+def _checkpoint_sha(report: dict[str, Any]) -> str | None:
+    """The sha256 of a report's checkpoint (None without one)."""
+    digest = (report.get("checkpoint") or {}).get("sha256")
+    return str(digest) if digest else None
+
+
+HINT = "tabulate one protocol's reports per row (e.g. a narrower --runs glob)"
+
+
+def check_row(name: str, reports: list[dict[str, Any]], section: str = "") -> None:
+    """Raise TableError unless a row's reports are runs of one protocol (``check_protocol``) and of different
+    checkpoints (``check_checkpoints``): only then is mean ± std over them a spread over seeds."""
+    check_protocol(name, reports, section, PROTOCOL, HINT)
+    check_checkpoints(name, reports, section)
+
+
+def check_oracle(reports: list[dict[str, Any]], section: str = "") -> None:
+    """Raise TableError when the Oracle row of a section would pool Oracle SR of different SR protocols."""
+    with_oracle = [r for r in reports if (r.get("sr") or {}).get("oracle")]
+    check_protocol("Oracle", with_oracle, section, SR_PROTOCOL, HINT + ", or pass --no-oracle")
+
+
+def _row_name(name: str, section: str) -> str:
+    """``row 'CFARModule' (FloAff-Kitchen (Styles))``: a row as errors name it."""
+    return f"row {name!r}" + (f" ({section})" if section else "")
+
+
+def check_protocol(name: str, reports: list[dict[str, Any]], section: str, keys: tuple[str, ...], hint: str) -> None:
+    """Raise TableError naming the setting and the reports when a row's reports differ in one of ``keys``
+    (settings of ``protocol``; unknown values are not compared)."""
+    for key in keys:
+        seen: dict[str, list[str]] = {}
+        for r in reports:
+            v = protocol(r)[key]
+            if v is not None:
+                seen.setdefault(repr(v), []).append(_where(r))
+        if len(seen) > 1:
+            which = "; ".join(f"{key} = {v} in {', '.join(paths)}" for v, paths in seen.items())
+            raise TableError(f"{_row_name(name, section)} mixes reports of different protocols: {which}; {hint}")
+
+
+def check_checkpoints(name: str, reports: list[dict[str, Any]], section: str = "") -> None:
+    """Raise TableError when two reports of a row have the same ``checkpoint.sha256``: one checkpoint tested twice
+    is one run, not two seeds (a row holds one protocol, so they are the same evaluation)."""
+    first: dict[str, dict[str, Any]] = {}
+    for r in reports:
+        sha = _checkpoint_sha(r)
+        if sha is None:
+            continue
+        if sha in first:
+            raise TableError(
+                f"{_row_name(name, section)}: {_where(first[sha])} and {_where(r)} report the same checkpoint "
+                f"(sha256 {sha[:16]}…) under the same protocol, which would count one run twice; {HINT}"
+            )
+        first[sha] = r
 
 
 BENCH_ORDER = ("MoMa-Kitchen", "FloAff-Kitchen (Styles)", "FloAff-Kitchen (Layouts)")
@@ -323,7 +420,7 @@ def build_table(
         sections = []
         for title, reps in _sections(reports):
             sec = Section(title)
-            for name, group in _group_rows(reps, group_by, numeric):
+            for name, group in _group_rows(reps, group_by, numeric, title):
                 cells = [_cell(group, lambda r, k=k: _metric(r, k)) for k, _, _, _ in MAP_COLUMNS]
                 sec.rows.append(Row(name, cells, len(group)))
             sections.append(sec)
@@ -333,8 +430,8 @@ def build_table(
         benches = _sections(reports)
         columns = [Column(f"SR_{v}", 2, False, group=_short(b)) for b, _ in benches for v in VIEWS]
         names: dict[str, None] = {}
-        for _, reps in benches:
-            for name, _ in _group_rows(reps, group_by, False):
+        for bench, reps in benches:
+            for name, _ in _group_rows(reps, group_by, False, bench):
                 names[name] = None
         sec = Section("")
         for name in names:
@@ -346,6 +443,8 @@ def build_table(
                 cells += [_cell(group, lambda r, v=v: _sr(r, "model", view=v)) for v in VIEWS]
             sec.rows.append(Row(name, cells, runs))
         if oracle:
+            for bench, reps in benches:
+                check_oracle(reps, bench)
             cells = [_oracle_cell(reps, lambda r, v=v: _sr(r, "oracle", view=v)) for _, reps in benches for v in VIEWS]
             if any(c is not None for c in cells):
                 sec.rows.append(Row("Oracle", cells, len(reports), oracle=True))
@@ -365,11 +464,12 @@ def build_table(
     sections = []
     for title, reps in _sections(reports):
         sec = Section(title)
-        for name, group in _group_rows(reps, group_by, False):
+        for name, group in _group_rows(reps, group_by, False, title):
             sec.rows.append(
                 Row(name, [_cell(group, lambda r, t=t: _sr(r, "model", task=t)) for t in tasks], len(group))
             )
         if oracle:
+            check_oracle(reps, title)
             cells = [_oracle_cell(reps, lambda r, t=t: _sr(r, "oracle", task=t)) for t in tasks]
             if any(c is not None for c in cells):
                 sec.rows.append(Row("Oracle", cells, len(reps), oracle=True))
@@ -548,7 +648,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         table = build_table(
-            [r for _, r in reports],
+            [{**r, PATH_KEY: str(path)} for path, r in reports],
             args.preset,
             args.group_by,
             oracle=not args.no_oracle,

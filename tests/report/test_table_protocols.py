@@ -1,0 +1,108 @@
+"""`floaff-zoo table` rows hold runs of one protocol and one report per checkpoint; float group keys stay distinct."""
+
+from __future__ import annotations
+
+import copy
+import json
+from pathlib import Path
+
+import pytest
+
+from floaff_zoo.report.table import TableError, _fmt_key, build_table, main, render
+
+FIX = Path(__file__).parent / "fixtures" / "runs"
+BASE = json.loads((FIX / "cfar_styles_s0" / "report.json").read_text())
+
+
+def report(seed: int, top_k: int = 1, free_space: str | None = None, **top: object) -> dict:
+    """A CFAR Styles report of seed ``seed`` (its own checkpoint hash) under an SR protocol; ``top`` overrides
+    top-level fields (``sim_variant``, ``metric_reduction``, ``checkpoint``, ``label``)."""
+    rep = copy.deepcopy(BASE)
+    rep["seed"] = seed
+    rep["checkpoint"] = {"path": f"runs/s{seed}/last.ckpt", "sha256": f"{seed + 1:064x}"}
+    rep["sr"]["top_k"] = top_k
+    if free_space is not None:
+        rep["sr"]["free_space"] = free_space
+    rep.update(top)
+    return rep
+
+
+def write(tmp_path: Path, reports: dict[str, dict]) -> list[str]:
+    """Each report into ``tmp_path/<name>/report.json``; returns the run directories."""
+    dirs = []
+    for name, rep in reports.items():
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "report.json").write_text(json.dumps(rep))
+        dirs.append(str(tmp_path / name))
+    return dirs
+
+
+@pytest.mark.parametrize(
+    ("other", "setting"),
+    [
+        (dict(top_k=10, free_space="cloud"), "sr.top_k"),
+        (dict(sim_variant="hist"), "sim_variant"),
+        (dict(metric_reduction="official_batchwise"), "metric_reduction"),
+    ],
+    ids=["top_k", "sim_variant", "metric_reduction"],
+)
+@pytest.mark.parametrize("preset", ["map", "sr_views", "sr_tasks"])
+def test_a_row_refuses_reports_of_different_protocols(tmp_path, capsys, other, setting, preset):
+    runs = write(tmp_path, {"p1_s0": report(0), "p1_s1": report(1), "p2_s0": report(2, **other)})
+    assert main(["--runs", *runs, "--preset", preset]) == 2
+    err = capsys.readouterr().err
+    assert "row 'CFARModule' (FloAff-Kitchen (Styles))" in err and setting in err, err
+    assert all(f"{name}/report.json" in err for name in ("p1_s0", "p1_s1", "p2_s0")), err
+    assert "--runs" in err
+    # one protocol's reports (a narrower --runs) make the table
+    assert main(["--runs", *runs[:2], "--preset", preset]) == 0
+
+
+def test_free_space_is_compared_only_where_top_k_uses_it():
+    cloud, full = report(0, top_k=10, free_space="cloud"), report(1, top_k=10, free_space="full_cloud")
+    with pytest.raises(TableError, match=r"sr\.free_space = 'cloud' in .*sr\.free_space = 'full_cloud'"):
+        build_table([cloud, full], "sr_views")
+    # reports from before free_space was recorded used the simulator's footprints
+    with pytest.raises(TableError, match=r"sr\.free_space = 'sim'"):
+        build_table([cloud, report(1, top_k=10)], "sr_views")
+    # top-1 needs no footprint check: a missing free_space and 'cloud' are one protocol
+    assert build_table([report(0), report(1, free_space="cloud")], "sr_views").sections[0].rows[0].runs == 2
+
+
+def test_one_checkpoint_counts_once(tmp_path, capsys):
+    same = {"path": "runs/x/last.ckpt", "sha256": "ab" * 32}
+    runs = write(tmp_path, {"test_a": report(0, checkpoint=same), "test_b": report(0, checkpoint=same)})
+    assert main(["--runs", *runs]) == 2
+    err = capsys.readouterr().err
+    assert "same checkpoint" in err and "abababab" in err and "row 'CFARModule'" in err
+    assert "test_a/report.json" in err and "test_b/report.json" in err
+    # the same checkpoint under another protocol is refused for the protocol (the differing setting is named)
+    other = report(0, top_k=10, free_space="cloud", checkpoint=same)
+    with pytest.raises(TableError, match=r"sr\.top_k"):
+        build_table([report(0, checkpoint=same), other], "map")
+    # ... and may be its own row (another label), as may a report with no checkpoint hash
+    rows = build_table([report(0, checkpoint=same), dict(other, label="top-10")], "map", group_by="label")
+    assert [r.runs for r in rows.sections[0].rows] == [1, 1]
+    assert build_table([report(0, checkpoint=None), report(1, checkpoint=None)], "map").sections[0].rows[0].runs == 2
+
+
+def test_rows_of_different_protocols_share_no_oracle_row():
+    top1, top10 = report(0), report(1, top_k=10, free_space="cloud", label="top-10")
+    with pytest.raises(TableError, match=r"row 'Oracle'.*sr\.top_k.*--no-oracle"):
+        build_table([top1, top10], "sr_views", group_by="label")
+    table = build_table([top1, top10], "sr_views", group_by="label", oracle=False)
+    assert [r.name for r in table.sections[0].rows] == ["CFARModule", "top-10"]
+
+
+def test_float_group_keys_stay_distinct():
+    reps = [
+        report(s, model=dict(BASE["model"], hparams={"train": {"lr": lr}}))
+        for s, lr in enumerate((2e-4, 2e-4, 8e-4, 8e-4))
+    ]
+    table = build_table(reps, "ablation", group_by="model.hparams.train.lr")
+    assert [(r.name, r.runs) for r in table.sections[0].rows] == [("0.0002", 2), ("0.0008", 2)]
+    assert "| 0.0002 |" in render(table, "md")
+    # values that printed distinctly keep their text (crop radii of the committed sweep tables)
+    assert [_fmt_key(v) for v in (1.1, 1.25, 1.3, 0.5, 2.0)] == ["1.10", "1.25", "1.30", "0.50", "2.00"]
+    assert _fmt_key(1.125) != _fmt_key(1.12) and _fmt_key(1e-5) != _fmt_key(0.0)
+    assert [_fmt_key(v) for v in (3, "label", None)] == ["3", "label", "None"]
