@@ -15,7 +15,7 @@ from floaff_zoo.cli import run_lightning
 from floaff_zoo.curriculum import run_curriculum
 from floaff_zoo.runs import resolve_ckpt_alias
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 # lr 0.01 on the tiny pair: val_rmse is lowest at epoch 0 and ~0.02 higher from epoch 1 on
 OVERRIDES = {
     "trainer.max_epochs": 4,
@@ -24,14 +24,6 @@ OVERRIDES = {
     "trainer.enable_model_summary": False,
     "model.init_args.train.lr": 0.01,
 }
-
-
-@pytest.fixture(autouse=True)
-def _one_thread():
-    old = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(old)
 
 
 def _experiment(tmp_path: Path, max_epochs: int = 4) -> Path:
