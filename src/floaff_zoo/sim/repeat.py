@@ -11,6 +11,9 @@ Probabilities are cached in ``.npz`` files (:func:`read_probs` / :func:`write_pr
 from __future__ import annotations
 
 import json
+import os
+import tempfile
+import zipfile
 import zlib
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -76,7 +79,7 @@ def read_probs(path: Path, setting: dict, scenes: dict[str, dict]) -> dict[str, 
         with np.load(path) as z:
             made = json.loads(str(z["setting"]))
             probs = {k: z[k] for k in z.files if k != "setting"}
-    except (OSError, ValueError, KeyError) as exc:
+    except (OSError, ValueError, KeyError, zipfile.BadZipFile, EOFError) as exc:  # a cut-off file is a BadZipFile
         raise ValueError(f"{path} is not a fresh-probability cache ({exc}); delete it") from exc
     if made != setting:
         raise ValueError(f"{path} was made with {made}, not {setting}")
@@ -87,9 +90,17 @@ def read_probs(path: Path, setting: dict, scenes: dict[str, dict]) -> dict[str, 
 
 
 def write_probs(path: Path, setting: dict, probs: dict[str, np.ndarray]) -> None:
-    """Cache ``probs`` (scene id -> [M]) made with ``setting`` in ``path`` (.npz)."""
+    """Cache ``probs`` (scene id -> [M]) made with ``setting`` in ``path`` (.npz), atomically: a run killed while
+    writing leaves the previous cache whole (it is rewritten after every scene)."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    np.savez(path, setting=json.dumps(setting), **probs)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            np.savez(f, setting=json.dumps(setting), **probs)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
 
 
 def service_runner(workers: int) -> Runner:
