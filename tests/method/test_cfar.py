@@ -222,6 +222,37 @@ def test_axisnet_is_frozen_embedded_and_used_at_eval(tmp_path, root, monkeypatch
     assert swapped.model.hparams.axisnet_arch["source"] == axis2_ckpt
     for k, v in swapped.model.net.state_dict().items():  # the CFAR weights are still the student's
         assert torch.equal(v, re.net.state_dict()[k]), k
+    # a CFAR trained on the simulator's yaw without any AxisNet is evaluated with one (the deployable path)
+    plain = run_lightning(
+        [
+            "fit",
+            "--config",
+            DATA,
+            "--config",
+            CFAR,
+            *quiet_trainer_args(tmp_path / "plain"),
+            "--trainer.max_epochs",
+            "1",
+        ]
+    )
+    assert plain.model.axisnet is None
+    given = run_lightning(
+        [
+            "test",
+            "--config",
+            DATA,
+            "--config",
+            CFAR,
+            *quiet_trainer_args(tmp_path / "plain"),
+            "--ckpt_path",
+            plain.trainer.checkpoint_callback.best_model_path,
+            "--model.init_args.axisnet",
+            axis2_ckpt,
+        ]
+    )
+    assert given.model.eval_yaw_source == "axisnet"
+    for k, v in given.model.axisnet.state_dict().items():
+        assert torch.equal(v, axis2_state["net." + k]), k
 
 
 def _fit_with_switch(tmp_path, root, monkeypatch, switch: str) -> tuple[list[str], str]:

@@ -170,3 +170,9 @@ def test_shipped_prior_rebuilds_its_axisnet_and_weights_alone_warns():
         bare = CanonicalPriorModule(weights=name)  # initialisation only: no AxisNet configured
     assert bare.axisnet is None and bare.eval_yaw_source == "manhattan"
     assert torch.equal(bare.net.sums, full.net.sums)
+
+
+def test_an_unrotated_prior_is_read_unrotated():
+    """A grid filled with yaw_source none holds target-centred, unrotated labels: by default it is read so."""
+    assert CanonicalPriorModule(yaw_source="none").eval_yaw_source == "none"
+    assert CanonicalPriorModule(yaw_source="none", eval_yaw_source="manhattan").eval_yaw_source == "manhattan"

@@ -331,11 +331,12 @@ class CFARModule(FloAffModule):
         if self.teacher is not None and "state_dict" in checkpoint:
             for k, v in self.teacher.state_dict().items():
                 checkpoint["state_dict"].setdefault(TEACHER_PREFIX + k, v)
-        # another AxisNet was configured than the one stored in the checkpoint (e.g. `floaff-zoo test
-        # --ckpt_path stage2.ckpt --model.init_args.axisnet better_axisnet.ckpt`): keep the configured one
+        # another AxisNet was configured than the one stored in the checkpoint, or the checkpoint has none (e.g.
+        # `floaff-zoo test --ckpt_path stage2.ckpt --model.init_args.axisnet better_axisnet.ckpt`): keep the
+        # configured one
         own = (self.hparams.get("axisnet_arch") or {}).get("sha256")
         stored = ((checkpoint.get("hyper_parameters") or {}).get("axisnet_arch") or {}).get("sha256")
-        if own and stored and own != stored:
+        if own and own != stored:
             keep_configured_axisnet(checkpoint, self.axisnet, self.hparams.get("axisnet_arch"))
 
     # ----------------------------------------------------------------- forward

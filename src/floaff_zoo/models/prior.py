@@ -7,10 +7,10 @@ no network and no gradient: one pass over the training set is enough (more epoch
 unchanged). The task comes from ``meta['task']``, which a robot knows (it is the task it was given).
 
 Yaw: training uses ``yaw_source`` (default ``gt``, the simulator's yaw, as CFAR's training does); test and
-predict use ``eval_yaw_source`` (``floaff_zoo.models.yaw``): by default ``axisnet_manhattan`` when an
-AxisNet is configured and ``manhattan`` (training-free) otherwise. ``gt`` at test time is privileged and
-must be labelled so in tables ("canonical prior, simulator yaw"); ``none`` is the unrotated,
-target-centred average.
+predict use ``eval_yaw_source`` (``floaff_zoo.models.yaw``): by default ``none`` for a grid filled with
+``yaw_source: none``, else ``axisnet_manhattan`` when an AxisNet is configured and ``manhattan``
+(training-free). ``gt`` at test time is privileged and must be labelled so in tables ("canonical prior, simulator
+yaw"); ``none`` is the unrotated, target-centred average.
 """
 
 from __future__ import annotations
@@ -94,6 +94,8 @@ class CanonicalPriorModule(FloAffModule):
         h = self.hparams
         if h["eval_yaw_source"] is not None:
             return h["eval_yaw_source"]
+        if h["yaw_source"] == "none":  # an unrotated grid is read unrotated
+            return "none"
         return "axisnet_manhattan" if (h["axisnet"] or h["axisnet_arch"]) else "manhattan"
 
     def train(self, mode: bool = True) -> "CanonicalPriorModule":
