@@ -462,3 +462,30 @@ def test_tiny_same_seed_same_arrays_for_one_or_two_workers(tiny_run, tmp_path):
     src, _ = tiny_run
     gen.generate(tmp_path, get_preset("tiny"), seed=0, workers=1, quiet=True)
     assert _labels(tmp_path) == _labels(src)
+
+
+def test_resume_refuses_other_settings_and_names_them(mini_run, tmp_path):
+    """A folder made with one grid cell (or seed, image size, ...) is not resumed with another: its finished scenes
+    would be kept and the manifest would record settings they were not made with (slots and top-ups may change)."""
+    src, _ = mini_run
+    out = tmp_path / "copy"
+    shutil.copytree(src, out)
+    manifest = (out / ff.MANIFEST).read_text()
+    for kw, seed, named in (
+        ({"cell": 0.1}, 0, "cell 0.25 -> 0.1"),
+        ({"image_size": 96}, 0, "image_size"),
+        ({}, 1, "seed 0 -> 1"),
+    ):
+        with pytest.raises(ValueError, match=f"{out}: its scenes were generated with other settings.*{named}"):
+            gen.generate(out, get_preset("tiny", **{**MINI, **kw}), seed=seed, workers=0, quiet=True)
+        assert (out / ff.MANIFEST).read_text() == manifest  # refused before anything is written
+    man = gen.generate(out, get_preset("tiny", **MINI), seed=0, workers=0, quiet=True)  # the recorded settings
+    assert man["status"] == "done" and all(s.get("resumed") for s in man["scenes"].values())
+
+
+def test_cli_refuses_views_with_paper_counts_and_an_address_without_ray(tmp_path, capsys):
+    assert gen.main(["--preset", "paper", "--views", "2", "2", "--out", str(tmp_path / "p")]) == 2
+    assert "--views: the 'paper' preset spreads the paper's view counts" in capsys.readouterr().err
+    assert gen.main(["--preset", "tiny", "--address", "10.0.0.1:6379", "--out", str(tmp_path / "t")]) == 2
+    assert "--address names a ray cluster: give it with --backend ray" in capsys.readouterr().err
+    assert not (tmp_path / "p").exists() and not (tmp_path / "t").exists()

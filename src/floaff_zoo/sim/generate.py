@@ -780,6 +780,8 @@ def generate(
             old = ff.read_manifest(outp)
         except ff.FormatError:
             old = None
+    if old is not None:
+        check_resume_settings(old, manifest, outp)
     todo: list[SceneJob] = []
     for job in jobs:
         base = {
@@ -852,6 +854,31 @@ def generate(
     return manifest
 
 
+#: preset fields a rerun into the same folder may change: which slots exist and how many views a scene is topped up
+#: to (a scene's own record says whether it holds enough, see find_done)
+RESUMABLE_FIELDS = frozenset({"name", "benchmarks", "tasks", "n_train", "n_test", "min_views"})
+
+
+def check_resume_settings(old: dict[str, Any], new: dict[str, Any], out: Path) -> None:
+    """Refuse to resume a folder whose manifest records other generation settings (grid cell, views, image size,
+    candidate cap, seed, ...): its finished scenes would be kept and the manifest would describe settings they were
+    not made with. Fields an older manifest lacks are not compared.
+
+    Raises:
+        ValueError: naming the folder and every differing setting.
+    """
+    was, now = old.get("config") or {}, new["config"]
+    diffs = [
+        f"{k} {was[k]!r} -> {now[k]!r}" for k in sorted((set(was) & set(now)) - RESUMABLE_FIELDS) if was[k] != now[k]
+    ]
+    diffs += [f"{k} {old[k]!r} -> {new[k]!r}" for k in ("seed", "save_images") if k in old and old[k] != new[k]]
+    if diffs:
+        raise ValueError(
+            f"{out}: its scenes were generated with other settings ({'; '.join(diffs)}); resuming would mix them: "
+            "generate into another --out, or rerun with the recorded settings (manifest.json 'config')"
+        )
+
+
 # ------------------------------------------------------------------------------------------------ CLI
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
@@ -890,8 +917,15 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _cli_error(message: str) -> int:
+    """Print a usage error of ``floaff-zoo generate`` and return its exit code (2)."""
+    print(f"floaff-zoo generate: error: {message}", file=sys.stderr)
+    return 2
+
+
 def main(argv: list[str] | None = None) -> int:
-    """CLI entry point; returns 0 when every slot is ok or dropped, 1 when some scene failed."""
+    """CLI entry point; returns 0 when every slot is ok or dropped, 1 when some scene failed, 2 for settings that
+    do not fit each other or the output folder."""
     args = build_parser().parse_args(argv)
     preset = get_preset(
         args.preset,
@@ -907,16 +941,23 @@ def main(argv: list[str] | None = None) -> int:
     )
     if args.max_candidates == 0:
         preset = dataclasses.replace(preset, max_candidates=None)
-    man = generate(
-        args.out,
-        preset,
-        seed=args.seed,
-        workers=args.workers,
-        backend=args.backend,
-        address=args.address,
-        save_images=args.save_images,
-        quiet=args.quiet,
-    )
+    if args.views and preset.use_paper_view_counts:
+        return _cli_error(f"--views: the {args.preset!r} preset spreads the paper's view counts over its scenes")
+    if args.address and args.backend != "ray":
+        return _cli_error("--address names a ray cluster: give it with --backend ray")
+    try:
+        man = generate(
+            args.out,
+            preset,
+            seed=args.seed,
+            workers=args.workers,
+            backend=args.backend,
+            address=args.address,
+            save_images=args.save_images,
+            quiet=args.quiet,
+        )
+    except ValueError as exc:  # settings that do not fit the folder or each other
+        return _cli_error(str(exc))
     c = man["counts"]
     print(
         f"[generate] {args.out}: {c['scenes_ok']} scenes ok, {c['scenes_dropped']} dropped, "
