@@ -148,6 +148,12 @@ def test_fit_test_predict_and_reload_outside_cli(tmp_path, root, monkeypatch):
     assert m.hparams.crop_radius == 1.3 and m.train_cfg.loss == "aff" and m.train_cfg.lr == 0.003
 
 
+def _test_with_axisnet(run_root: Path, ckpt: str, axisnet: str):
+    """``floaff-zoo test`` of a tiny CFAR checkpoint with ``--model.init_args.axisnet`` (the LightningCLI)."""
+    args = ["test", "--config", DATA, "--config", CFAR, *quiet_trainer_args(run_root), "--ckpt_path", ckpt]
+    return run_lightning([*args, "--model.init_args.axisnet", axisnet])
+
+
 def test_axisnet_is_frozen_embedded_and_used_at_eval(tmp_path, root, monkeypatch):
     monkeypatch.chdir(root)
     axis = run_lightning(
@@ -202,20 +208,7 @@ def test_axisnet_is_frozen_embedded_and_used_at_eval(tmp_path, root, monkeypatch
         ]
     )
     axis2_ckpt = axis2.trainer.checkpoint_callback.best_model_path
-    swapped = run_lightning(
-        [
-            "test",
-            "--config",
-            DATA,
-            "--config",
-            CFAR,
-            *quiet_trainer_args(tmp_path / "cfar"),
-            "--ckpt_path",
-            student,
-            "--model.init_args.axisnet",
-            axis2_ckpt,
-        ]
-    )
+    swapped = _test_with_axisnet(tmp_path / "cfar", student, axis2_ckpt)
     axis2_state = torch.load(axis2_ckpt, weights_only=True)["state_dict"]
     for k, v in swapped.model.axisnet.state_dict().items():
         assert torch.equal(v, axis2_state["net." + k]), k
@@ -236,20 +229,7 @@ def test_axisnet_is_frozen_embedded_and_used_at_eval(tmp_path, root, monkeypatch
         ]
     )
     assert plain.model.axisnet is None
-    given = run_lightning(
-        [
-            "test",
-            "--config",
-            DATA,
-            "--config",
-            CFAR,
-            *quiet_trainer_args(tmp_path / "plain"),
-            "--ckpt_path",
-            plain.trainer.checkpoint_callback.best_model_path,
-            "--model.init_args.axisnet",
-            axis2_ckpt,
-        ]
-    )
+    given = _test_with_axisnet(tmp_path / "plain", plain.trainer.checkpoint_callback.best_model_path, axis2_ckpt)
     assert given.model.eval_yaw_source == "axisnet"
     for k, v in given.model.axisnet.state_dict().items():
         assert torch.equal(v, axis2_state["net." + k]), k
