@@ -266,7 +266,6 @@ class GeneratedReader(FloAffReader):
         Raises:
             KeyError / TypeError / ValueError: a field is missing or of the wrong kind, or split / task is unknown.
         """
-        from floaff_zoo.contract import TASKS
         from floaff_zoo.sim import fileformat as ff
 
         if rec["split"] not in ("train", "test"):
