@@ -489,3 +489,27 @@ def test_cli_refuses_views_with_paper_counts_and_an_address_without_ray(tmp_path
     assert gen.main(["--preset", "tiny", "--address", "10.0.0.1:6379", "--out", str(tmp_path / "t")]) == 2
     assert "--address names a ray cluster: give it with --backend ray" in capsys.readouterr().err
     assert not (tmp_path / "p").exists() and not (tmp_path / "t").exists()
+
+
+def test_a_scene_a_rerun_cannot_replace_is_retired_not_read(mini_run, tmp_path):
+    """A slot whose scene must be regenerated (here: made by another generator minor version) and whose
+    regeneration fails leaves no stale scene for the readers: the old folder moves to .retired/ and the manifest
+    says so."""
+    sys.path.insert(0, str(Path(__file__).parent))
+    import _crash_job
+
+    src, _ = mini_run
+    out = tmp_path / "copy"
+    shutil.copytree(src, out)
+    victim = sorted(ff.iter_scenes(out), key=lambda s: s["scene_id"])[0]
+    path = Path(victim["dir"]) / ff.SCENE_JSON
+    rec = json.loads(path.read_text())
+    rec["generator_version"] = "2.0.0"
+    path.write_text(json.dumps(rec))
+    man = gen.generate(
+        out, get_preset("tiny", **MINI), seed=0, workers=1, quiet=True, job_fn=_crash_job.error_then_drop
+    )
+    (key,) = [k for k, s in man["scenes"].items() if not s.get("resumed")]
+    assert man["scenes"][key]["status"] == "dropped" and man["scenes"][key]["retired"] == victim["scene_id"]
+    assert victim["scene_id"] not in {s["scene_id"] for s in ff.iter_scenes(out)}
+    assert (out / victim["benchmark"] / ff.RETIRED / victim["scene_id"] / ff.SCENE_JSON).is_file()

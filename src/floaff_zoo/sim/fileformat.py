@@ -53,6 +53,7 @@ __all__ = [
     "read_sample",
     "read_scene",
     "read_view",
+    "retire_scene",
     "scene_dir",
     "scene_is_done",
     "staging_dir",
@@ -64,6 +65,7 @@ SUPPORTED_FORMAT_VERSIONS = (1, 2)
 MANIFEST = "manifest.json"
 SCENE_JSON = "scene.json"
 STAGING = ".staging"
+RETIRED = ".retired"  # scene folders a rerun replaced or could not replace (kept, never read)
 BENCHMARKS = ("styles", "layouts")
 
 # name -> (dtype, shape pattern); "N"/"M"/"H"/"W" are free sizes shared across fields of one view
@@ -157,6 +159,20 @@ def read_json(path: str | Path) -> Any:
 def scene_dir(root: str | Path, benchmark: str, scene_id: str) -> Path:
     """Final directory of one scene."""
     return Path(root) / benchmark / scene_id
+
+
+def retire_scene(root: str | Path, benchmark: str, scene_id: str) -> Path | None:
+    """Move a committed scene folder out of the readers' way into ``<benchmark>/.retired/`` (kept for inspection;
+    a folder retired before under the same id is replaced). Returns the new place, or None when there was none."""
+    src = scene_dir(root, benchmark, scene_id)
+    if not src.is_dir():
+        return None
+    dst = Path(root) / benchmark / RETIRED / scene_id
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    if dst.exists():
+        shutil.rmtree(dst)
+    os.replace(src, dst)
+    return dst
 
 
 def staging_dir(root: str | Path, benchmark: str, scene_id: str) -> Path:

@@ -824,6 +824,9 @@ def generate(
             "wall_s": res.get("wall_s"),
             "resumed": False,
         }
+        prev = (old or {}).get("scenes", {}).get(job.key, {}).get("scene_id")
+        if prev and prev != res.get("scene_id") and ff.retire_scene(outp, job.benchmark, prev) is not None:
+            entry["retired"] = prev  # the slot's earlier scene: not this run's result, so readers must not see it
         if st == "ok":
             rec = ff.read_scene(ff.scene_dir(outp, job.benchmark, res["scene_id"]))
             entry["n_views"] = rec["n_views"]
