@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import importlib
 import sys
-import traceback
 from pathlib import Path
 from typing import Any
 
@@ -23,7 +22,7 @@ from floaff_zoo import quiet, runtime
 from floaff_zoo._version import __version__
 from floaff_zoo.contract import SampleError
 from floaff_zoo.data.base import FloAffDataModule
-from floaff_zoo.models.base import ZooModule
+from floaff_zoo.models.base import WEIGHTS_FAILURE_NOTE, ZooModule
 from floaff_zoo.nn import ops
 from floaff_zoo.runs import RunError, resolve_ckpt_alias
 
@@ -88,14 +87,13 @@ def _upgrade_legacy_model_args(model: Any) -> None:
 
 
 def _weights_failure(exc: BaseException) -> BaseException | None:
-    """The error that loading a model's ``weights`` raised (``ZooModule.load_pretrained``), found in the chain of
-    exceptions jsonargparse wraps it in; None when ``exc`` did not come from there."""
-    code = ZooModule.load_pretrained.__code__
+    """The error that loading a model's ``weights`` raised (marked with ``WEIGHTS_FAILURE_NOTE`` by ``ZooModule``),
+    found in the chain of exceptions jsonargparse wraps it in; None when ``exc`` did not come from there."""
     seen: set[int] = set()
     cur: BaseException | None = exc
     while cur is not None and id(cur) not in seen:
         seen.add(id(cur))
-        if any(frame.f_code is code for frame, _ in traceback.walk_tb(cur.__traceback__)):
+        if WEIGHTS_FAILURE_NOTE in getattr(cur, "__notes__", ()):
             return cur
         cur = cur.__cause__ or cur.__context__
     return None

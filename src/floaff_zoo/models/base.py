@@ -179,6 +179,10 @@ def _checkpoint_hparams(path: Any, weights_only: bool | None) -> dict[str, Any]:
 
 
 # ----------------------------------------------------------------------------- common parent
+#: the note on an error raised while loading a model's ``weights`` init arg (``floaff-zoo`` turns it into one line)
+WEIGHTS_FAILURE_NOTE = "floaff-zoo: raised while loading the model's weights"
+
+
 class ZooModule(L.LightningModule):
     """Parent of every model of the zoo: training recipe, optimiser, weights, steps, export.
 
@@ -212,7 +216,11 @@ class ZooModule(L.LightningModule):
         #: model tensors that ``weights`` did not provide (``load_pretrained``); evaluation commands refuse them
         self.weights_not_loaded: list[str] = []
         if weights:
-            self.load_pretrained(weights)
+            try:
+                self.load_pretrained(weights)
+            except Exception as exc:  # marked, so the CLI can find it inside jsonargparse's wrapping
+                exc.add_note(WEIGHTS_FAILURE_NOTE)
+                raise
 
     @property
     def train_cfg(self) -> TrainConfig:
