@@ -247,9 +247,6 @@ class GeneratedReader(FloAffReader):
             except ff.FormatError as exc:
                 self.skips.add("corrupt_scene_json", sj, str(exc).split(": ", 1)[-1])
                 continue
-            except (KeyError, TypeError, ValueError, AttributeError) as exc:  # e.g. candidates or labels not objects
-                self.skips.add("corrupt_scene_json", sj, f"unreadable structure ({type(exc).__name__}: {exc})")
-                continue
             if rec.get("status") != "ok":
                 self.skips.add("scene_not_ok", sj, f"status {rec.get('status')!r}")
                 continue

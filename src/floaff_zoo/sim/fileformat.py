@@ -295,10 +295,14 @@ def read_scene(scene_path: str | Path) -> dict[str, Any]:
         if k not in rec:
             raise FormatError(f"{p}: missing key {k!r}")
     rec["format_version"] = check_format_version(rec.get("format_version", 1), p)
-    m = len(rec["candidates"]["xy"])
-    for k in ("success", "label"):
-        if len(rec["labels"][k]) != m:
-            raise FormatError(f"{p}: labels.{k} has {len(rec['labels'][k])} entries, candidates.xy has {m}")
+    try:
+        m = len(rec["candidates"]["xy"])
+        sizes = {k: len(rec["labels"][k]) for k in ("success", "label")}
+    except (KeyError, TypeError) as exc:  # e.g. candidates a list, labels without success
+        raise FormatError(f"{p}: candidates.xy, labels.success and labels.label must be lists ({exc!r})") from exc
+    for k, n in sizes.items():
+        if n != m:
+            raise FormatError(f"{p}: labels.{k} has {n} entries, candidates.xy has {m}")
     rec["dir"] = str(p.parent)
     return rec
 
