@@ -175,10 +175,6 @@ class TestReport(L.Callback):
             )
 
     # ------------------------------------------------------------------------------ writing
-    def run_dir(self, trainer: L.Trainer) -> Path:
-        """Where the report goes (reads ``trainer.log_dir``: a broadcast under DDP, so call it on every rank)."""
-        return Path(self.out_dir or trainer.log_dir or trainer.default_root_dir)
-
     def _pool_ranks(self, trainer: L.Trainer) -> None:
         """Under DDP, pool what every rank saw (a collective: every rank calls it): the datasets, tasks and views,
         and the sample count without the repeats ``DistributedSampler`` pads the last batches with (samples with
@@ -197,7 +193,7 @@ class TestReport(L.Callback):
         """Write the report on rank 0; every rank first takes part in the collectives (``trainer.log_dir`` is a
         broadcast under DDP, ``_pool_ranks`` a gather), or DDP would hang or crash."""
         log_dir = trainer.log_dir
-        run_dir = Path(self.out_dir or log_dir or trainer.default_root_dir)
+        run_dir = Path(self.out_dir or log_dir or trainer.default_root_dir)  # where the report goes
         self._pool_ranks(trainer)
         if not trainer.is_global_zero:
             return
