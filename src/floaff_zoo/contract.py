@@ -190,8 +190,12 @@ def resample_indices(n_valid: int, size: int, generator: torch.Generator | None 
 
 
 def _sample_generator(seed: int, index: int) -> torch.Generator:
-    """A generator of its own for sample ``index`` under ``seed`` (distinct pairs give unrelated streams)."""
-    return torch.Generator().manual_seed(hash((int(seed), int(index))) & 0x7FFF_FFFF_FFFF_FFFF)
+    """A generator of its own for sample ``index`` under ``seed`` (distinct pairs give unrelated streams).
+
+    The pair is mixed by an explicit formula (a 64-bit golden-ratio multiply), not Python's ``hash``, so the points
+    of a sample do not depend on the interpreter.
+    """
+    return torch.Generator().manual_seed((int(seed) * 0x9E37_79B9_7F4A_7C15 + int(index)) % (1 << 63))
 
 
 def collate_samples(
