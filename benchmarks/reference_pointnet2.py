@@ -311,8 +311,13 @@ def _ref_layers(mlp, h: Tensor, last_relu: bool) -> Tensor:
     return h
 
 
-def _ref_mlp_forward(self, x: Tensor) -> Tensor:
-    """x [..., C_in] -> [..., C_out] through the channels-first port layout."""
+def _ref_mlp_forward(self, x: Tensor, mask: Tensor | None = None) -> Tensor:
+    """x [..., C_in] -> [..., C_out] through the channels-first port layout; with ``mask`` and batch statistics,
+    the valid rows only (the zoo's semantics: padding stays out of BatchNorm, its rows are 0)."""
+    if mask is not None and not self.rowwise():
+        from floaff_zoo.nn.pointnet2 import on_valid_rows
+
+        return on_valid_rows(lambda rows: _ref_mlp_forward(self, rows), x, mask)
     shape = x.shape[:-1]
     h = x.reshape(1, -1, x.shape[-1]).transpose(1, 2)  # [1, C, R]
     h = _ref_layers(self, h, last_relu=True)

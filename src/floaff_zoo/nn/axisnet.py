@@ -87,10 +87,8 @@ class AxisNet(nn.Module):
         if not torch.is_grad_enabled() and self.point_mlp.rowwise():
             h = self._pool_rowwise(x, mask)
         else:
-            # only valid points go through the MLP, so padding/cropped points never touch BatchNorm statistics
-            h = x.new_zeros(*x.shape[:2], self.point_mlp.out_channels)
-            h = h.masked_scatter(mask[..., None], self.point_mlp(x[mask]))
-            h = masked_max(h, mask, dim=1)
+            # padding/cropped points never touch BatchNorm statistics (SharedMLP runs the valid rows only)
+            h = masked_max(self.point_mlp(x, mask), mask, dim=1)
         return F.normalize(self.out(self.head(h)), dim=-1, eps=1e-6)
 
     def _pool_rowwise(self, x: Tensor, mask: Tensor) -> Tensor:

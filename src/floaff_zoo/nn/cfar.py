@@ -430,7 +430,9 @@ class CFARNet(nn.Module):
             lvl = n - 1 - j
             interp = stable_three_interpolate(flv[lvl][0], flv[lvl + 1][0], cur)
             skip = skips[lvl]
-            cur = fp.mlp(interp if skip is None else torch.cat([skip, interp], dim=-1))
+            # level 0 = the floor points themselves: padding stays out of the MLP's batch statistics
+            h = interp if skip is None else torch.cat([skip, interp], dim=-1)
+            cur = fp.mlp(h, floor_mask if lvl == 0 else None)
         return cur
 
     def forward(
@@ -473,4 +475,4 @@ class CFARNet(nn.Module):
         rob = self.robot_mlp(robot)
         parts = [cur, g[:, None].expand(-1, m, -1), rob[:, None].expand(-1, m, -1), ctx, floor_xyz]
         z = torch.cat(parts + ([floor_feat.to(cur.dtype)] if floor_feat is not None else []), dim=-1)
-        return self.out(self.head(z)).squeeze(-1), g
+        return self.out(self.head(z, floor_mask)).squeeze(-1), g

@@ -22,7 +22,13 @@ from floaff_zoo.nn.ops import (
     three_interpolate,
     three_nn,
 )
-from floaff_zoo.nn.pointnet2 import FeaturePropagation, PointNet2Encoder, SetAbstraction, SharedMLP
+from floaff_zoo.nn.pointnet2 import (
+    FeaturePropagation,
+    PointNet2Encoder,
+    SetAbstraction,
+    SharedMLP,
+    on_valid_rows,
+)
 
 __all__ = [
     "CrossAttention",
@@ -70,7 +76,11 @@ def _mlp(sizes: Sequence[int], dropout: float = 0.0) -> nn.Sequential:
 
 
 class PerPointHead(nn.Module):
-    """SharedMLP(C -> hidden) -> dropout -> Linear(hidden -> 1): logits [B, M]."""
+    """SharedMLP(C -> hidden) -> dropout -> Linear(hidden -> 1): logits [B, M].
+
+    ``forward``'s ``mask`` [B, M] (False = padding) keeps padded points out of the BatchNorm's batch statistics;
+    their logits are then 0 in training.
+    """
 
     def __init__(self, in_channels: int, hidden: int, dropout: float = 0.0) -> None:
         super().__init__()
@@ -78,7 +88,13 @@ class PerPointHead(nn.Module):
         self.drop = nn.Dropout(dropout)
         self.out = nn.Linear(hidden, 1)
 
-    def forward(self, x: Tensor) -> Tensor:
+    def forward(self, x: Tensor, mask: Tensor | None = None) -> Tensor:
+        """x [B, M, C] -> logits [B, M]."""
+        if mask is None or self.mlp.rowwise():
+            return self._logits(x)
+        return on_valid_rows(self._logits, x, mask)
+
+    def _logits(self, x: Tensor) -> Tensor:
         return self.out(self.drop(self.mlp(x))).squeeze(-1)
 
 
@@ -203,8 +219,8 @@ class PointNet2Net(nn.Module):
         if floor_feat is not None:
             skip = torch.cat([skip, floor_feat.to(skip.dtype)], dim=-1)
         sxyz, sfeat, _ = self.scene(scene_xyz, scene_feat, scene_mask, robot, fps)
-        h = self.floor_fp(floor_xyz, sxyz, skip, sfeat)
-        return torch.sigmoid(self.head(h).float())
+        h = self.floor_fp(floor_xyz, sxyz, skip, sfeat, mask_dense=floor_mask)
+        return torch.sigmoid(self.head(h, floor_mask).float())
 
 
 # ============================================================================ NavAff
@@ -307,6 +323,12 @@ class NavAffNet(nn.Module):
         self.head_bn = nn.BatchNorm1d(64)
         self.head_fc2 = nn.Linear(64, 1)
 
+    def _head_logits(self, up: Tensor) -> Tensor:
+        """Per-point features [..., 512] -> logits [...]."""
+        h = self.head_fc1(up)
+        h = F.relu(self.head_bn(h.reshape(-1, 64)).reshape(h.shape))
+        return self.head_fc2(h).squeeze(-1)
+
     def _normalize(self, xyz: Tensor, mask: Tensor) -> Tensor:
         if not self.normalize_global:
             return xyz
@@ -355,10 +377,11 @@ class NavAffNet(nn.Module):
         fused = self.fusion(f[3][1], kv)  # replaces the floor sa3 features (no residual)
         up = self.fp3(f[2][0], f[3][0], f[2][1], fused)
         up = self.fp2(f[1][0], f[2][0], f[1][1], up)
-        up = self.fp1(floor_xyz, f[1][0], torch.cat([floor_xyz, floor_xyz], dim=-1), up)  # f[0][0] = anchors
-        h = self.head_fc1(up)
-        h = F.relu(self.head_bn(h.reshape(-1, 64)).reshape(h.shape))
-        return torch.sigmoid(self.head_fc2(h).squeeze(-1).float())
+        # f[0][0] = anchors; padded floor points stay out of fp1's and the head's batch statistics
+        up = self.fp1(floor_xyz, f[1][0], torch.cat([floor_xyz, floor_xyz], dim=-1), up, mask_dense=floor_mask)
+        batch_stats = self.head_bn.training or self.head_bn.running_mean is None
+        logits = on_valid_rows(self._head_logits, up, floor_mask) if batch_stats else self._head_logits(up)
+        return torch.sigmoid(logits.float())
 
 
 # ============================================================================ VoteNet-style
@@ -451,9 +474,11 @@ class SeedVotingNet(nn.Module, abc.ABC):
 
     @abc.abstractmethod
     def decode(
-        self, seed_xyz: Tensor, seed_feat: Tensor, floor_xyz: Tensor, target_xyz: Tensor
+        self, seed_xyz: Tensor, seed_feat: Tensor, floor_xyz: Tensor, floor_mask: Tensor, target_xyz: Tensor
     ) -> tuple[Tensor, dict[str, Tensor]]:
-        """Seeds [B,S,3]/[B,S,C], floor [B,M,3], target [B,3] -> (floor logits [B,M], vote geometry)."""
+        """Seeds [B,S,3]/[B,S,C], floor [B,M,3]/[B,M], target [B,3] -> (floor logits [B,M], vote geometry).
+
+        Padded floor points (``floor_mask`` False) stay out of the per-point layers' batch statistics."""
 
     def forward(
         self,
@@ -469,7 +494,7 @@ class SeedVotingNet(nn.Module, abc.ABC):
         """Scene [B,N,3]/[B,N,C]/[B,N], floor [B,M,3]/[B,M], robot [B,R], target [B,3] ->
         (scores [B,M] in [0,1], aux {seed_xyz [B,S,3], + the subclass's vote geometry})."""
         seed_xyz, seed_feat, _ = self.backbone(scene_xyz, scene_feat, scene_mask, robot, fps)
-        logits, aux = self.decode(seed_xyz, seed_feat, floor_xyz, target_xyz)
+        logits, aux = self.decode(seed_xyz, seed_feat, floor_xyz, floor_mask, target_xyz)
         return torch.sigmoid(logits.float()), {"seed_xyz": seed_xyz, **aux}
 
 
@@ -507,14 +532,14 @@ class VoteNetNet(SeedVotingNet):
         self.head = PerPointHead(self.floor_fp.out_channels, head_width, dropout)
 
     def decode(
-        self, seed_xyz: Tensor, seed_feat: Tensor, floor_xyz: Tensor, target_xyz: Tensor
+        self, seed_xyz: Tensor, seed_feat: Tensor, floor_xyz: Tensor, floor_mask: Tensor, target_xyz: Tensor
     ) -> tuple[Tensor, dict[str, Tensor]]:
         """-> (floor logits [B,M], {vote_xyz [B,S,3], proposal_xyz [B,P,3]})."""
         vote_xyz, vote_feat = self.vote(seed_xyz, seed_feat)
         pxyz, pfeat = self.aggregate(vote_xyz, vote_feat)
         skip = torch.cat([floor_local_features(floor_xyz, target_xyz), _proposal_distance(floor_xyz, pxyz)], dim=-1)
-        h = self.floor_fp(floor_xyz, pxyz, skip, pfeat)
-        return self.head(h), {"vote_xyz": vote_xyz, "proposal_xyz": pxyz}
+        h = self.floor_fp(floor_xyz, pxyz, skip, pfeat, mask_dense=floor_mask)
+        return self.head(h, floor_mask), {"vote_xyz": vote_xyz, "proposal_xyz": pxyz}
 
 
 # ============================================================================ H3DNet-style
@@ -579,7 +604,7 @@ class H3DNetNet(SeedVotingNet):
         self.head = PerPointHead(fuse_width, head_width, dropout)
 
     def decode(
-        self, seed_xyz: Tensor, seed_feat: Tensor, floor_xyz: Tensor, target_xyz: Tensor
+        self, seed_xyz: Tensor, seed_feat: Tensor, floor_xyz: Tensor, floor_mask: Tensor, target_xyz: Tensor
     ) -> tuple[Tensor, dict[str, Tensor]]:
         """-> (floor logits [B,M], {vote_xyz [B,4,S,3], primitive_xyz [B,4,3]})."""
         parts = [floor_local_features(floor_xyz, target_xyz)]
@@ -599,8 +624,8 @@ class H3DNetNet(SeedVotingNet):
             ]
             votes.append(vxyz)
             prims.append(prim)
-        h = self.fuse(torch.cat(parts, dim=-1))
-        return self.head(h), {"vote_xyz": torch.stack(votes, 1), "primitive_xyz": torch.stack(prims, 1)}
+        h = self.fuse(torch.cat(parts, dim=-1), floor_mask)
+        return self.head(h, floor_mask), {"vote_xyz": torch.stack(votes, 1), "primitive_xyz": torch.stack(prims, 1)}
 
 
 # ============================================================================ N2M-style

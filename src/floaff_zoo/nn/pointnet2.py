@@ -20,7 +20,7 @@ set-abstraction level whose MLP has no batch statistics runs in chunks of ``CHUN
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import torch
 import torch.nn.functional as F
@@ -49,6 +49,7 @@ __all__ = [
     "SetAbstraction",
     "SharedMLP",
     "masked_max",
+    "on_valid_rows",
 ]
 
 
@@ -72,9 +73,16 @@ class SharedMLP(nn.Module):
             c = w
         self.out_channels = c
 
-    def forward(self, x: Tensor) -> Tensor:
-        """x [..., C_in] -> [..., C_out]."""
-        return self._run(x, pre=False)
+    def forward(self, x: Tensor, mask: Tensor | None = None) -> Tensor:
+        """x [..., C_in] -> [..., C_out]; ``mask`` [...] bool (False = padding), optional.
+
+        With a mask and batch statistics in use (a training-mode BatchNorm), only the valid rows run and the
+        padding rows of the output are 0, so padding never enters the batch or running statistics. Without
+        batch statistics every row is independent of the others and all run.
+        """
+        if mask is None or self.rowwise():
+            return self._run(x, pre=False)
+        return on_valid_rows(lambda rows: self._run(rows, pre=False), x, mask)
 
     def pooled(self, x: Tensor, dim: int, mask: Tensor | None = None, first: Tensor | None = None) -> Tensor:
         """``masked_max(self(x), mask, dim)`` with the last ReLU after the max (exact: ReLU is monotonic).
@@ -199,6 +207,21 @@ class SharedMLP(nn.Module):
             if act:
                 h = torch.relu_(h) if inplace and not skip else F.relu(h)
         return h.reshape(*shape, h.shape[-1])
+
+
+def on_valid_rows(fn: Callable[[Tensor], Tensor], x: Tensor, mask: Tensor) -> Tensor:
+    """``fn`` on the valid rows of x [*S, C] only (mask [*S] bool) -> [*S, *O], 0 on the other rows.
+
+    For a per-row ``fn`` whose only coupling across rows is a training-mode BatchNorm, the valid rows get what
+    ``fn`` gives a batch of the valid rows alone: the padding is neither normalised with them nor counted in
+    the statistics.
+    """
+    if bool(mask.all()):
+        return fn(x)
+    rows = fn(x[mask])  # [R, *O]
+    out = rows.new_zeros(*mask.shape, *rows.shape[1:])
+    out[mask] = rows
+    return out
 
 
 #: Linear layers this narrow take ``_NarrowLinear``'s weight gradient
@@ -730,11 +753,16 @@ class FeaturePropagation(nn.Module):
         feat_dense: Tensor | None,
         feat_sparse: Tensor,
         mask_sparse: Tensor | None = None,
+        mask_dense: Tensor | None = None,
     ) -> Tensor:
-        """xyz_dense [B,n,3], xyz_sparse [B,m,3], feat_dense [B,n,C1] | None, feat_sparse [B,m,C2] -> [B,n,C_out]."""
+        """xyz_dense [B,n,3], xyz_sparse [B,m,3], feat_dense [B,n,C1] | None, feat_sparse [B,m,C2] -> [B,n,C_out].
+
+        ``mask_dense`` [B,n] (False = padding) keeps padded dense points out of the MLP's batch statistics
+        (``SharedMLP.forward``); their rows are then 0 in training.
+        """
         interp = three_interpolate(xyz_dense, xyz_sparse, feat_sparse, mask_sparse)
         h = interp if feat_dense is None else torch.cat([feat_dense.to(interp.dtype), interp], dim=-1)
-        return self.mlp(h)
+        return self.mlp(h, mask_dense)
 
 
 class PointNet2Encoder(nn.Module):
@@ -855,5 +883,7 @@ class PointNet2Seg(nn.Module):
         n = len(levels) - 1
         for j, fp in enumerate(self.fps_layers):
             lvl = n - 1 - j
-            cur = fp(levels[lvl][0], levels[lvl + 1][0], skips[lvl], cur)
-        return self.out(self.head(cur)).squeeze(-1)
+            cur = fp(levels[lvl][0], levels[lvl + 1][0], skips[lvl], cur, mask_dense=mask if lvl == 0 else None)
+        if isinstance(self.head, SharedMLP):
+            cur = self.head(cur, mask)
+        return self.out(cur).squeeze(-1)
