@@ -32,8 +32,9 @@ tasks, ``from_stages``, ``--set``, ``--trainer.default_root_dir``.
 
 Resuming: every finished stage writes ``<stage dir>/stage.json`` and the run writes
 ``<root>/lineage.json`` (stage, configs, fit arguments, checkpoint, sha256, metrics, teacher/weights).
-A rerun skips stages whose record is ``done`` with the same fit arguments and an intact checkpoint
-(sha256 checked). Each run directory a stage's fit writes gets ``curriculum_run.json`` (the digest of the stage's
+A rerun skips stages whose record is ``done`` with the same fit arguments, the same ``--config`` file contents
+(the stage digest below; any edit, a comment too, means a fresh fit) and an intact checkpoint (sha256 checked).
+Each run directory a stage's fit writes gets ``curriculum_run.json`` (the digest of the stage's
 fit arguments and ``--config`` file contents); a stage that was killed resumes from the newest ``last.ckpt`` of a
 run with its digest only (else a fresh fit), logging into that run's own directory so its ModelCheckpoint keeps the
 best of the epochs before the kill: the recorded checkpoint is the best of the whole stage, as ``--ckpt_path best``
@@ -267,6 +268,9 @@ def _finished(record: dict[str, Any] | None, args: list[str]) -> tuple[bool, str
         return False, "not finished"
     if record.get("args") != args:
         return False, "its fit arguments changed since it finished"
+    # records written before digests were kept have none: their arguments alone decide, as they did
+    if record.get("digest") and record["digest"] != _digest(args):
+        return False, "a --config file it reads changed since it finished"
     ckpt = record.get("checkpoint")
     if not ckpt or not Path(ckpt).is_file():
         return False, f"its checkpoint {ckpt} is missing"

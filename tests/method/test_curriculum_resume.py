@@ -116,3 +116,24 @@ def test_killed_run_with_new_arguments_resumes_itself(tmp_path):
     assert Path(new["resumed_from"]).parents[1] == killed_run == Path(new["checkpoint"]).parents[1]
     marker = json.loads((killed_run / "curriculum_run.json").read_text())
     assert marker["digest"] == new["digest"]
+
+
+def test_finished_stage_reruns_when_a_config_file_it_reads_changed(tmp_path, capsys):
+    exp = _experiment(tmp_path, max_epochs=1)
+    data = tmp_path / "data.yaml"
+    data.write_text((ROOT / "configs/data/synthetic_tiny.yaml").read_text())
+    spec = yaml.safe_load(exp.read_text())
+    spec["data"] = [str(data)]
+    exp.write_text(yaml.safe_dump(spec))
+    (old,) = run_curriculum(exp)
+
+    def refuse(args):
+        raise AssertionError(f"a finished stage was rerun: {args}")
+
+    run_curriculum(exp, runner=refuse)  # nothing changed: skipped
+    assert "already finished" in capsys.readouterr().out
+    data.write_text(data.read_text() + "\n# edited after the stage finished\n")
+    seen: list = []
+    (new,) = run_curriculum(exp, runner=_spy(seen))
+    assert len(seen) == 1 and "a --config file it reads changed" in capsys.readouterr().out
+    assert new["digest"] != old["digest"] and new["checkpoint"] != old["checkpoint"]
