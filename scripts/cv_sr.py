@@ -1,6 +1,7 @@
 """Pool the folds of a leave-one-layout-out cross-validation into one validation table.
 
     python scripts/cv_sr.py docs/results/v21/cv/layouts [--json out.json]      # a folder of fold JSONs, or files
+    python scripts/cv_sr.py runs/a/cv/layouts/cv?_succ.json@old runs/b/cv/layouts@new   # one model from two runs
 
 Each input is a ``scripts/scene_sr.py --split val --val-layout F --json ...`` output (written per fold and model by
 the ``cv<f>_*`` jobs of ``scripts/reproduce_small.sh``): one model NAME scored on the validation scenes of one fold,
@@ -8,7 +9,8 @@ the models of that fold trained without them. Pooled, every train scene of the b
 so a hypothesis is decided on 19-20 kitchens instead of the 4 of the default split. The script merges the per-scene
 success rates by NAME, checks that every NAME covers the same scenes (a fold missing for one NAME is an error that
 names it: a comparison on different kitchens is not paired), and prints SR per scene, per task and over all views,
-SR per fold, and the paired scene-bootstrap differences of ``scene_sr.py``.
+SR per fold, and the paired scene-bootstrap differences of ``scene_sr.py``. An input written ``PATH@TAG`` reads every
+model NAME of PATH as ``NAME@TAG``, so the same job run twice (e.g. before and after a code change) is compared paired.
 """
 
 from __future__ import annotations
@@ -23,19 +25,30 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from scene_sr import print_scenes, print_summary, summarize  # noqa: E402
 
 
-def fold_files(paths: list[str]) -> list[Path]:
-    """Files and folders (their ``*.json``) -> the fold JSONs, sorted; an empty or missing input exits."""
-    out: list[Path] = []
-    for p in map(Path, paths):
+def fold_files(paths: list[str]) -> list[tuple[Path, str]]:
+    """Files and folders (their ``*.json``), each optionally ``PATH@TAG`` -> [(fold JSON, tag or "")], sorted per input;
+    an empty or missing input exits."""
+    out: list[tuple[Path, str]] = []
+    for item in paths:
+        path, _, tag = item.partition("@") if "@" in item and not Path(item).exists() else (item, "", "")
+        p = Path(path)
         if p.is_dir():
-            out += sorted(p.glob("*.json"))
+            out += [(f, tag) for f in sorted(p.glob("*.json"))]
         elif p.is_file():
-            out.append(p)
+            out.append((p, tag))
         else:
             raise SystemExit(f"cv_sr: {p}: no such file or folder")
     if not out:
         raise SystemExit(f"cv_sr: no fold JSON in {paths}")
     return out
+
+
+def tagged(doc: dict, tag: str) -> dict:
+    """A scene_sr JSON with every model NAME read as ``NAME@tag`` (unchanged without a tag)."""
+    if not tag:
+        return doc
+    scenes = {sid: {**s, "sr": {f"{n}@{tag}": v for n, v in s["sr"].items()}} for sid, s in doc["scenes"].items()}
+    return {**doc, "scenes": scenes}
 
 
 def merge_folds(docs: list[tuple[str, dict]]) -> tuple[dict[str, dict], dict[str, dict[str, float]], str]:
@@ -89,9 +102,9 @@ def main(argv: list[str] | None = None) -> int:
         p.error("--draws must be >= 1")
     files = fold_files(a.inputs)
     docs = []
-    for f in files:
+    for f, tag in files:
         try:
-            docs.append((str(f), json.loads(f.read_text())))
+            docs.append((str(f), tagged(json.loads(f.read_text()), tag)))
         except (OSError, ValueError) as exc:
             raise SystemExit(f"cv_sr: {f}: {exc}") from exc
     scenes, per_fold, bench = merge_folds(docs)
@@ -109,7 +122,8 @@ def main(argv: list[str] | None = None) -> int:
     print_summary(res)
     if a.json:
         Path(a.json).parent.mkdir(parents=True, exist_ok=True)
-        out = {"benchmark": bench, "files": [str(f) for f in files], "draws": a.draws, "seed": a.seed}
+        listed = [f"{f}@{tag}" if tag else str(f) for f, tag in files]
+        out = {"benchmark": bench, "files": listed, "draws": a.draws, "seed": a.seed}
         out |= {"scenes": scenes, "folds": per_fold, **res}
         Path(a.json).write_text(json.dumps(out, indent=1) + "\n")
         print(f"wrote {a.json}")

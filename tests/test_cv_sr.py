@@ -77,3 +77,21 @@ def test_missing_or_empty_inputs_exit(tmp_path):
     (tmp_path / "empty").mkdir()
     with pytest.raises(SystemExit, match="no fold JSON"):
         cv.fold_files([str(tmp_path / "empty")])
+
+
+def test_tagged_inputs_compare_one_model_from_two_runs(tmp_path):
+    before, after = tmp_path / "before", tmp_path / "after"
+    for folder, scale in ((before, 0.5), (after, 1.0)):
+        folder.mkdir()
+        for f, srs in ((0, F0), (1, F1)):
+            doc = fold(f, "succ", {k: (t, v, sr * scale) for k, (t, v, sr) in srs.items()})
+            (folder / f"cv{f}_succ.json").write_text(json.dumps(doc))
+    out = tmp_path / "pooled.json"
+    assert cv.main([f"{after}@new", f"{before}@old", "--draws", "20", "--json", str(out)]) == 0
+    res = json.loads(out.read_text())
+    assert res["models"]["succ@new"]["sr_all"] == pytest.approx(0.7)
+    assert res["models"]["succ@old"]["sr_all"] == pytest.approx(0.35)
+    assert res["differences"]["succ@new - succ@old"]["diff"] == pytest.approx(0.35)
+    assert res["files"][0].endswith("cv0_succ.json@new")
+    with pytest.raises(SystemExit, match="succ scored twice"):  # untagged, the two runs collide
+        cv.main([str(after), str(before), "--draws", "20"])
