@@ -90,9 +90,14 @@ def run_scene_floor_net(
 
 
 def maybe_compile(net: nn.Module, enabled: bool) -> None:
-    """``torch.compile`` the net's forward in place (state-dict keys unchanged); FPS stays outside."""
+    """``torch.compile`` the net's forward in place (state-dict keys unchanged); FPS stays outside.
+
+    Static shapes: the set-abstraction levels call one function at several sizes, which turns on dynamic shapes
+    by default, and with them inductor fails to compile the backward (torch 2.13). A new batch shape compiles
+    again, up to torch's recompile limit; past it that part runs eagerly.
+    """
     if enabled:
-        net.compile()
+        net.compile(dynamic=False)
 
 
 def resolve_sizes(variant: str, **given: Any) -> dict[str, Any]:

@@ -218,10 +218,11 @@ def on_valid_rows(fn: Callable[[Tensor], Tensor], x: Tensor, mask: Tensor) -> Te
     """
     if bool(mask.all()):
         return fn(x)
-    rows = fn(x[mask])  # [R, *O]
-    out = rows.new_zeros(*mask.shape, *rows.shape[1:])
-    out[mask] = rows
-    return out
+    # gather / scatter by index: their backward needs no boolean indexing (which torch.compile cannot lower)
+    flat = mask.reshape(-1).nonzero().squeeze(1)  # [R]
+    rows = fn(x.reshape(-1, x.shape[-1]).index_select(0, flat))  # [R, *O]
+    out = rows.new_zeros(mask.numel(), *rows.shape[1:]).index_copy(0, flat, rows)
+    return out.reshape(*mask.shape, *rows.shape[1:])
 
 
 #: Linear layers this narrow take ``_NarrowLinear``'s weight gradient
