@@ -1,7 +1,7 @@
 """Pool the folds of a leave-one-layout-out cross-validation into one validation table.
 
     python scripts/cv_sr.py docs/results/v21/cv/layouts [--json out.json]      # a folder of fold JSONs, or files
-    python scripts/cv_sr.py runs/a/cv/layouts/cv?_succ.json@old runs/b/cv/layouts@new   # one model from two runs
+    python scripts/cv_sr.py runs/a/cv/layouts@old runs/b/cv/layouts@new   # the same jobs of two runs, paired
 
 Each input is a ``scripts/scene_sr.py --split val --val-layout F --json ...`` output (written per fold and model by
 the ``cv<f>_*`` jobs of ``scripts/reproduce_small.sh``): one model NAME scored on the validation scenes of one fold,
@@ -45,8 +45,8 @@ def fold_files(paths: list[str]) -> list[tuple[Path, str]]:
 
 def tagged(doc: dict, tag: str) -> dict:
     """A scene_sr JSON with every model NAME read as ``NAME@tag`` (unchanged without a tag)."""
-    if not tag:
-        return doc
+    if not tag or not isinstance(doc.get("scenes"), dict):
+        return doc  # nothing to tag (merge_folds names a malformed file)
     scenes = {sid: {**s, "sr": {f"{n}@{tag}": v for n, v in s["sr"].items()}} for sid, s in doc["scenes"].items()}
     return {**doc, "scenes": scenes}
 
@@ -65,6 +65,8 @@ def merge_folds(docs: list[tuple[str, dict]]) -> tuple[dict[str, dict], dict[str
         if d.get("split") != "val" or d.get("val_layout") is None:
             raise SystemExit(f"cv_sr: {f} is not a fold (scene_sr.py --split val --val-layout F)")
         benchmarks.add(d.get("benchmark"))
+        if not isinstance(d.get("scenes"), dict):
+            raise SystemExit(f"cv_sr: {f} has no scenes (not a scene_sr.py JSON)")
         for sid, s in d["scenes"].items():
             row = scenes.setdefault(sid, {"task": s["task"], "views": s["views"], "fold": d["val_layout"], "sr": {}})
             first.setdefault(sid, f)

@@ -49,6 +49,7 @@ def test_folds_merge_by_scene_and_weigh_views():
         (lambda d: d + [("t", fold(1, "x", F1, split="test"))], "t is not a fold"),
         (lambda d: d + [("s", fold(1, "x", F1, bench="styles"))], "mix benchmarks"),
         (lambda d: d + [("v", fold(1, "x", {"L1_cd": ("CloseDrawer", 3, 1.0)}))], "L1_cd has other views"),
+        (lambda d: d + [("n", {"split": "val", "val_layout": 1, "benchmark": "layouts"})], "n has no scenes"),
     ],
 )
 def test_bad_folds_exit_naming_what_is_wrong(docs, match):
