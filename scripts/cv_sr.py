@@ -30,7 +30,8 @@ def fold_files(paths: list[str]) -> list[tuple[Path, str]]:
     an empty or missing input exits."""
     out: list[tuple[Path, str]] = []
     for item in paths:
-        path, _, tag = item.partition("@") if "@" in item and not Path(item).exists() else (item, "", "")
+        # the tag follows the last @ (a folder of the path may hold one); an existing path is never split
+        path, _, tag = item.rpartition("@") if "@" in item and not Path(item).exists() else (item, "", "")
         p = Path(path)
         if p.is_dir():
             out += [(f, tag) for f in sorted(p.glob("*.json"))]

@@ -81,9 +81,9 @@ def test_missing_or_empty_inputs_exit(tmp_path):
 
 
 def test_tagged_inputs_compare_one_model_from_two_runs(tmp_path):
-    before, after = tmp_path / "before", tmp_path / "after"
+    before, after = tmp_path / "before", tmp_path / "run@2" / "after"  # an @ inside the path, the tag after the last
     for folder, scale in ((before, 0.5), (after, 1.0)):
-        folder.mkdir()
+        folder.mkdir(parents=True)
         for f, srs in ((0, F0), (1, F1)):
             doc = fold(f, "succ", {k: (t, v, sr * scale) for k, (t, v, sr) in srs.items()})
             (folder / f"cv{f}_succ.json").write_text(json.dumps(doc))
