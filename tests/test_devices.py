@@ -28,7 +28,7 @@ from tests.conftest import quiet_trainer_args
 
 DATA = "configs/data/synthetic_tiny.yaml"
 MODEL = "configs/models/tiny_pointnet.yaml"
-METRICS = ("val_rmse", "val_logmse", "val_pcc", "val_sim", "val_mae")
+METRICS = ("val_rmse", "val_logmse", "val_pcc", "val_sim", "val_mae", "val_loss")
 
 
 def test_ddp_on_cpu_matches_a_single_process_evaluation(tmp_path, root, monkeypatch):

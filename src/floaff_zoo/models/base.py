@@ -272,11 +272,21 @@ class ZooModule(L.LightningModule):
         if not torch.isfinite(loss):
             raise FloatingPointError(f"{stage} loss is {loss.item()} on samples {sample_names(batch)[:4]}")
         bsz = batch["scene_xyz"].shape[0]
+        # Under DDP an evaluation loss is the batch-size-weighted mean over every rank (without sync each rank kept
+        # its own, and rank 0's share alone reached the report and the checkpoint monitor). It still counts the
+        # at most world_size - 1 repeats DistributedSampler pads with: the loss is a batch mean, not per sample.
+        sync = stage != "train"
         self.log(
-            f"{stage}_loss", loss, batch_size=bsz, prog_bar=stage != "test", on_epoch=True, on_step=stage == "train"
+            f"{stage}_loss",
+            loss,
+            batch_size=bsz,
+            prog_bar=stage != "test",
+            on_epoch=True,
+            on_step=stage == "train",
+            sync_dist=sync,
         )
         for name, value in extra.items():
-            self.log(f"{stage}_{name}", value, batch_size=bsz, on_epoch=True, on_step=False)
+            self.log(f"{stage}_{name}", value, batch_size=bsz, on_epoch=True, on_step=False, sync_dist=sync)
         metrics = getattr(self, f"{stage}_metrics")
         self.update_metrics(metrics, pred.detach(), batch)
         self.log_dict(
