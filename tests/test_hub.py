@@ -141,6 +141,62 @@ def test_push_uses_report_json_metrics(run_dir, tmp_path):
     assert zoo_main(["hub", "push", str(run), "--name", "tiny.report.v3", "--report", str(tmp_path / "no.json")]) == 2
 
 
+def _report_of(path: Path, ckpt: str | None, sha: str | None, class_path: str = TINY, **metrics: float) -> Path:
+    """A report.json shaped like TestReport writes it: the checkpoint it tested, the model class, test metrics."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    checkpoint = None if ckpt is None else {"path": ckpt, "sha256": sha}
+    rep = {"schema": "floaff-zoo/report", "model": {"class_path": class_path}, "checkpoint": checkpoint}
+    path.write_text(json.dumps({**rep, "metrics": metrics or {"test_rmse": 0.3}}))
+    return path
+
+
+def _best_ckpt(run: Path) -> Path:
+    return next(run.rglob("epoch001-*.ckpt"))
+
+
+def test_push_refuses_a_report_of_another_checkpoint_or_class(run_dir, tmp_path, capsys):
+    """A --report of another checkpoint (its sha256) or model class would record that model's test results."""
+    run, _, _ = run_dir
+    best = _best_ckpt(run)
+    sha, other = sha256_file(best), "ab" * 32
+    votenet = "floaff_zoo.models.votenet.VoteNetModule"
+    malformed = tmp_path / "field" / "report.json"
+    malformed.parent.mkdir()
+    malformed.write_text(json.dumps({"checkpoint": "best.ckpt", "metrics": {"test_rmse": 0.3}}))
+    cases = {  # report -> what the error must name besides the report (both sha256s, both classes, the field)
+        _report_of(tmp_path / "sha" / "report.json", "runs/votenet/best.ckpt", other): (other, sha),
+        _report_of(tmp_path / "class" / "report.json", str(best), sha, votenet): (votenet, TINY),
+        malformed: ("'checkpoint' field is a str",),
+    }
+    for i, (report, named) in enumerate(cases.items()):
+        assert _push(run, f"tiny.bad{i}.v1", "--report", str(report)) == 2, report
+        err = capsys.readouterr().err
+        assert all(s in err for s in (str(report), "--report", *named)), err
+        assert f"tiny.bad{i}.v1" not in load_registry()
+
+
+def test_push_records_a_report_only_of_its_own_checkpoint(run_dir, tmp_path):
+    """A report found in the run but of another checkpoint is left out (the best validation score is recorded);
+    reports that cannot be compared are used: no checkpoint, or weights given by hub name or weights file."""
+    run, _, _ = run_dir
+    best = _best_ckpt(run)
+    _report_of(run / "report.json", str(run / "last.ckpt"), "cd" * 32, test_rmse=0.9)
+    with pytest.warns(UserWarning, match="left out of the metrics") as caught:
+        assert _push(run, "tiny.found.v1") == 0
+    assert str(run / "report.json") in str(caught[0].message)
+    assert load_registry()["tiny.found.v1"].meta["metrics"] == pytest.approx({"val_rmse": 0.12})
+    legit = {
+        "own": (str(best), sha256_file(best), "floaff_zoo.models.TinyPointNetModule"),  # a re-export of the class
+        "none": (None, None, TINY),
+        "hub": ("tiny.synthetic.v0", None, TINY),
+        "file": ("exports/tiny/model.safetensors", "ef" * 32, TINY),
+    }
+    for case, (ckpt, sha, cls) in legit.items():
+        report = _report_of(tmp_path / case / "report.json", ckpt, sha, cls, test_rmse=0.25)
+        assert _push(run, f"tiny.{case}.v1", "--report", str(report)) == 0, case
+        assert load_registry()[f"tiny.{case}.v1"].meta["metrics"] == {"test_rmse": 0.25}, case
+
+
 def test_info_and_verify_cli(run_dir, capsys):
     run, _, _ = run_dir
     assert _push(run) == 0

@@ -77,11 +77,54 @@ def test_bad_inputs_are_named_and_skipped(tmp_path, capsys):
     (bad / "report.json").write_text("{not json")
     assert main(["--runs", str(bad), str(tmp_path / "missing")]) == 2
     err = capsys.readouterr().err
-    assert "bad_run" in err and "unreadable" in err and "missing" in err and "no report.json found" in err
+    assert "bad_run" in err and "unreadable" in err and "missing" in err
+    assert "no usable report.json" in err and "1 found and skipped" in err  # not "none found": one was unusable
     with pytest.raises(SystemExit):
         main(["--runs", str(RUNS), "--preset", "nope"])
     assert main(["--runs", str(RUNS), "--group-by", "model.hparams.no_such"]) == 2
     assert "no_such" in capsys.readouterr().err
+
+
+def _set(rep: dict, dotted: str, value: object) -> dict:
+    """``rep`` with the field ``dotted`` (``sr.model.all.mean``) set to ``value``."""
+    *parents, last = dotted.split(".")
+    cur = rep
+    for part in parents:
+        cur = cur[part]
+    cur[last] = value
+    return rep
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "preset"),
+    [
+        ("model", "CFARModule", "map"),
+        ("sr", 3, "map"),
+        ("checkpoint", "last.ckpt", "map"),
+        ("data.labels_sha256", ["aaaa"], "map"),
+        ("metrics.test_rmse", "0.03", "map"),
+        ("sr.model.all.mean", "0.85", "sr_views"),
+        ("sr.model.all.mean", "n/a", "sr_views"),
+        ("sr.available", "false", "sr_views"),
+        ("sr.oracle.tasks.OpenSingleDoor", 0.9, "sr_tasks"),
+    ],
+)
+def test_reports_with_wrong_field_types_are_named_and_skipped(tmp_path, capsys, field, value, preset):
+    """A report of the right schema with a field of the wrong type is skipped with its file and field named and
+    counted, not a traceback (``'str' object has no attribute 'get'``) nor a silently converted value."""
+    good = json.loads((RUNS / "cfar_layouts_s0" / "report.json").read_text())
+    bad = _set(json.loads(json.dumps(good)), field, value)
+    bad["checkpoint"] = bad["checkpoint"] if field == "checkpoint" else {**good["checkpoint"], "sha256": "b" * 64}
+    for name, rep in (("good", good), ("bad", bad)):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "report.json").write_text(json.dumps(rep))
+    assert main(["--runs", str(tmp_path), "--preset", preset]) == 0
+    out, err = capsys.readouterr()
+    assert f"skipped {tmp_path / 'bad' / 'report.json'}: malformed report.json ('{field}' is" in err
+    assert "1 report(s) tabulated, 1 skipped" in err
+    assert out.rstrip().endswith(": 1._")  # the row holds the good run only
+    assert main(["--runs", str(tmp_path / "bad"), "--preset", preset]) == 2
+    assert "no usable report.json" in capsys.readouterr().err
 
 
 def test_sweep_sorts_numerically_and_ablation_groups_by_label(tmp_path):

@@ -19,6 +19,7 @@ import math
 import os
 import shutil
 import tempfile
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -71,9 +72,20 @@ def find_run_checkpoint(run: str | os.PathLike[str]) -> Path:
         raise HubError(f"{p}: no last.ckpt found in the run directory; pass the .ckpt file instead") from exc
 
 
-def _report_metrics(ckpt_path: Path, run: Path | None, report: Path | None = None) -> dict[str, float]:
+#: suffixes of the files whose sha256 a report's ``checkpoint`` can be compared with (weights files, exported
+#: folders and hub names hash other bytes than the .ckpt being pushed)
+CKPT_SUFFIXES = (".ckpt", ".pth", ".pt")
+
+
+def _report_metrics(
+    ckpt_path: Path, run: Path | None, report: Path | None = None, cls: type | None = None
+) -> dict[str, float]:
     """Numbers from a ``report.json`` (its ``metrics`` object, else its top-level numbers): ``report`` when
-    given, else the first one in the run, checkpoint or run-version directory."""
+    given, else the first one in the run, checkpoint or run-version directory.
+
+    A report must be of the pushed checkpoint (``_report_mismatch``): a given one that is not is refused, a found
+    one is left out with a warning (the next candidate, else the best validation score, is used instead).
+    """
     if report is not None and not report.is_file():
         raise HubError(f"{report}: no such report file")
     dirs = [d for d in (run, ckpt_path.parent, ckpt_path.parent.parent) if d is not None and d.is_dir()]
@@ -84,6 +96,15 @@ def _report_metrics(ckpt_path: Path, run: Path | None, report: Path | None = Non
                 raw = json.loads(path.read_text(encoding="utf-8"))
             except (OSError, json.JSONDecodeError) as exc:
                 raise HubError(f"{path}: unreadable report ({exc})") from exc
+            problem = _report_mismatch(raw, ckpt_path, cls)
+            if problem and report is not None:
+                raise HubError(
+                    f"{path}: its metrics cannot be recorded for {ckpt_path}: {problem}; pass the report.json of "
+                    f"`floaff-zoo test ... --ckpt_path {ckpt_path}`, or push without --report"
+                )
+            if problem:
+                warnings.warn(f"{path}: left out of the metrics pushed for {ckpt_path}: {problem}", stacklevel=3)
+                continue
             src = raw.get("metrics", raw) if isinstance(raw, dict) else {}
             if not isinstance(src, dict):
                 src = {}
@@ -93,6 +114,49 @@ def _report_metrics(ckpt_path: Path, run: Path | None, report: Path | None = Non
                 if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(float(v))
             }
     return {}
+
+
+def _report_mismatch(raw: Any, ckpt_path: Path, cls: type | None) -> str | None:
+    """Why a parsed report is not of the checkpoint ``ckpt_path`` of class ``cls``; None when nothing says so.
+
+    Only a positive mismatch counts: a report without a checkpoint (weights tested as trained), or one of weights
+    given by a hub name, an exported folder or a weights file (their sha256 is not the .ckpt's), is not refused.
+    """
+    if not isinstance(raw, dict):
+        return f"it is a JSON {type(raw).__name__}, not a report object"
+    checkpoint, model = raw.get("checkpoint"), raw.get("model")
+    for field, value in (("checkpoint", checkpoint), ("model", model)):
+        if value is not None and not isinstance(value, dict):
+            return f"its {field!r} field is a {type(value).__name__}, not an object or null"
+    checkpoint, model = checkpoint or {}, model or {}
+    recorded, where = checkpoint.get("sha256"), checkpoint.get("path")
+    for field, value in (
+        ("checkpoint.sha256", recorded),
+        ("checkpoint.path", where),
+        ("model.class_path", model.get("class_path")),
+    ):
+        if value is not None and not isinstance(value, str):
+            return f"its {field!r} field is a {type(value).__name__}, not a string or null"
+    problems = []
+    if recorded and (where is None or Path(where).suffix in CKPT_SUFFIXES):
+        actual = sha256_file(ckpt_path)
+        if recorded.lower() != actual:
+            problems.append(f"it tested checkpoint {where or '?'} with sha256 {recorded}, the pushed one has {actual}")
+    class_path = model.get("class_path")
+    if class_path and cls is not None and not _same_class(class_path, cls):
+        problems.append(f"it tested a {class_path}, the pushed checkpoint holds a {cls.__module__}.{cls.__qualname__}")
+    return "; ".join(problems) or None
+
+
+def _same_class(class_path: str, cls: type) -> bool:
+    """Whether ``class_path`` names ``cls`` (a re-export counts; a path that no longer imports is compared by
+    the class name, as the report may predate a move of the module)."""
+    if class_path == f"{cls.__module__}.{cls.__qualname__}":
+        return True
+    try:
+        return import_model_class(class_path, "report") is cls
+    except HubError:
+        return class_path.rsplit(".", 1)[-1] == cls.__name__
 
 
 def _best_score(ckpt_path: Path, ckpt: dict[str, Any], run: Path | None) -> dict[str, float]:
@@ -277,7 +341,8 @@ def export_checkpoint(
         meta: extra metadata (dataset, benchmark, license, description); ``metrics`` is filled in.
         report: a ``report.json`` of ``floaff-zoo test`` on this checkpoint whose metrics (map metrics and
             success rates) are recorded; default: one found in the run directory, else the best
-            validation score.
+            validation score. A report that records another checkpoint (sha256) or model class is
+            refused (a found one is left out with a warning).
     Returns:
         (the registered entry, the export directory).
     """
@@ -296,9 +361,10 @@ def export_checkpoint(
     hp.pop("_instantiator", None)
     if not cls_path:
         raise HubError(f"{ckpt_path}: the checkpoint does not record its model class; pass --class-path")
-    init_args = _portable_init_args(import_model_class(cls_path, str(ckpt_path)), hp, ckpt_path)
+    cls = import_model_class(cls_path, str(ckpt_path))
+    init_args = _portable_init_args(cls, hp, ckpt_path)
     state = _portable_state(ckpt["state_dict"], ckpt_path)
-    metrics = _report_metrics(ckpt_path, run, Path(report) if report is not None else None)
+    metrics = _report_metrics(ckpt_path, run, Path(report) if report is not None else None, cls)
     metrics = metrics or _best_score(ckpt_path, ckpt, run)
     meta = {**(meta or {}), "metrics": metrics}
 

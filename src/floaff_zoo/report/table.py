@@ -6,8 +6,9 @@ Usage::
 
 Each ``--runs`` entry is a run directory, a glob, or a ``report.json`` file; directories are
 searched recursively for ``report.json`` (written by the ``TestReport`` callback). Only
-``report.json`` files are read, never logger files. A directory without one (or an unreadable
-one) is named on stderr and skipped.
+``report.json`` files are read, never logger files. A directory without one, and an unreadable
+report or one with a field of the wrong type (``model`` a string, an SR mean a string), is named on
+stderr and skipped; the skips are counted.
 
 Presets (shaped like the FloAff-Kitchen paper's tables):
 
@@ -42,6 +43,7 @@ import json
 import math
 import statistics
 import sys
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -124,8 +126,77 @@ def load_reports(runs: list[str]) -> tuple[list[tuple[Path, dict[str, Any]]], li
         if not isinstance(rep, dict) or rep.get("schema") != "floaff-zoo/report":
             skipped.append((str(path), "not a floaff-zoo report (schema field missing)"))
             continue
+        wrong = malformed_field(rep)
+        if wrong is not None:
+            skipped.append((str(path), f"malformed report.json ({wrong})"))
+            continue
         loaded.append((path, rep))
     return loaded, skipped
+
+
+#: the kinds of value a report field may hold; null (not recorded) is allowed for every field
+OBJECT, TEXT, NUMBER, INTEGER, FLAG = "an object", "a string", "a number", "an integer", "true or false"
+
+
+def _is_kind(value: Any, kind: str) -> bool:
+    """Whether ``value`` is null or of ``kind`` (JSON ``true``/``false`` is neither a number nor an integer)."""
+    if value is None:
+        return True
+    if kind == OBJECT:
+        return isinstance(value, dict)
+    if kind == TEXT:
+        return isinstance(value, str)
+    if kind == FLAG:
+        return isinstance(value, bool)
+    if isinstance(value, bool):
+        return False
+    return isinstance(value, int) if kind == INTEGER else isinstance(value, (int, float))
+
+
+def _typed_fields(rep: dict[str, Any]) -> Iterator[tuple[str, Any, str]]:
+    """(dotted name, value, kind) of every report field the table reads, each object before the fields in it."""
+
+    def get(obj: Any, key: str) -> Any:  # a field under a malformed parent reads as absent: the parent is named
+        return obj.get(key) if isinstance(obj, dict) else None
+
+    for name in ("model", "data", "metrics", "sr", "checkpoint"):
+        yield name, rep.get(name), OBJECT
+    for name in ("label", "sim_variant", "metric_reduction"):
+        yield name, rep.get(name), TEXT
+    model, data, sr = rep.get("model"), rep.get("data"), rep.get("sr")
+    yield "model.name", get(model, "name"), TEXT
+    yield "model.hparams", get(model, "hparams"), OBJECT
+    yield "data.benchmark", get(data, "benchmark"), TEXT
+    labels = get(data, "labels_sha256")
+    yield "data.labels_sha256", labels, OBJECT
+    for scene, digest in (labels if isinstance(labels, dict) else {}).items():
+        yield f"data.labels_sha256.{scene}", digest, TEXT
+    yield "checkpoint.sha256", get(rep.get("checkpoint"), "sha256"), TEXT
+    for key, _, _, _ in MAP_COLUMNS:
+        yield f"metrics.test_{key}", get(rep.get("metrics"), f"test_{key}"), NUMBER
+    yield "sr.available", get(sr, "available"), FLAG
+    yield "sr.top_k", get(sr, "top_k"), INTEGER
+    yield "sr.free_space", get(sr, "free_space"), TEXT
+    for who in ("model", "oracle"):
+        results = get(sr, who)
+        yield f"sr.{who}", results, OBJECT
+        tasks = get(results, "tasks")
+        yield f"sr.{who}.tasks", tasks, OBJECT
+        cells = [(f"sr.{who}.{view}", get(results, view)) for view in VIEWS]
+        cells += [(f"sr.{who}.tasks.{task}", cell) for task, cell in (tasks if isinstance(tasks, dict) else {}).items()]
+        for name, cell in cells:
+            yield name, cell, OBJECT
+            yield f"{name}.mean", get(cell, "mean"), NUMBER
+            yield f"{name}.std", get(cell, "std"), NUMBER
+
+
+def malformed_field(rep: dict[str, Any]) -> str | None:
+    """The first field the table reads that holds the wrong kind of value (``'sr' is a str, not an object``), or
+    None: a report with a string SR mean or a number for ``model`` would crash or mislead a table."""
+    for name, value, kind in _typed_fields(rep):
+        if not _is_kind(value, kind):
+            return f"{name!r} is {type(value).__name__} {json.dumps(value)[:40]}, not {kind}"
+    return None
 
 
 def lookup(report: dict[str, Any], key: str) -> Any:
@@ -644,7 +715,13 @@ def main(argv: list[str] | None = None) -> int:
     for entry, reason in skipped:
         print(f"floaff-zoo table: skipped {entry}: {reason}", file=sys.stderr)
     if not reports:
-        print(f"floaff-zoo table: error: no report.json found in {args.runs}", file=sys.stderr)
+        # a report.json that was found but could not be used is named above: "none found" would mislead
+        unusable = sum(Path(entry).name == "report.json" and Path(entry).is_file() for entry, _ in skipped)
+        if unusable:
+            why = f"no usable report.json in {args.runs}: {unusable} found and skipped (named above)"
+        else:
+            why = f"no report.json found in {args.runs}"
+        print(f"floaff-zoo table: error: {why}", file=sys.stderr)
         return 2
     try:
         table = build_table(
@@ -664,4 +741,6 @@ def main(argv: list[str] | None = None) -> int:
         print(f"floaff-zoo table: wrote {args.out} ({len(reports)} report(s), {len(skipped)} skipped)", file=sys.stderr)
     else:
         sys.stdout.write(text)
+        if skipped:  # the table is on stdout: the count of what it leaves out goes with the names above
+            print(f"floaff-zoo table: {len(reports)} report(s) tabulated, {len(skipped)} skipped", file=sys.stderr)
     return 0
