@@ -18,3 +18,88 @@ def test_named_models_reads_name_model_specs(tmp_path):
     for bad in ("=a.ckpt", "occ="):
         with pytest.raises(ValueError, match="bad model argument"):
             named_models([bad])
+
+
+# ------------------------------------------------------------------------------------------ bad input to predict
+def _cloud(n_floor: int = 400) -> tuple:
+    """A target blob 0.9 m up at (1.2, 0, 0.9) over a floor patch x in [0.4, 1.1], |y| <= 0.6: (xyz [N, 3],
+    flag [N, 1] with +1 on the blob and -1 on a few obstacle points, target [3])."""
+    import numpy as np
+
+    rng = np.random.default_rng(0)
+    t = np.array([1.2, 0.0, 0.9])
+    blob = t + rng.normal(scale=0.02, size=(40, 3))
+    floor = np.c_[rng.uniform(0.4, 1.1, n_floor), rng.uniform(-0.6, 0.6, n_floor), np.zeros(n_floor)]
+    xyz = np.r_[blob, floor].astype(np.float32)
+    flag = np.r_[np.ones(40), -np.ones(10), np.zeros(n_floor - 10)].astype(np.float32)[:, None]
+    return xyz, flag, t
+
+
+@pytest.fixture(scope="module")
+def tiny_model():
+    import torch
+
+    from floaff_zoo.models.tiny import TinyPointNetModule
+
+    torch.manual_seed(0)
+    return TinyPointNetModule(width=8).eval()
+
+
+def test_predict_refuses_a_scene_feat_whose_channel_0_is_not_the_flag(tiny_model):
+    """Channel 0 is the target flag (-1, 0, +1; contract.py): RGB alone or a flag scaled to 0..255 used to run and
+    return another pose without a word."""
+    import numpy as np
+
+    from floaff_zoo.predict import predict_from_points
+
+    xyz, flag, t = _cloud()
+    args = ([0.85, 1.03], t)
+    assert predict_from_points(tiny_model, xyz, flag, None, *args, num_points=64).scores.size  # -1/0/+1 pass
+    rgb = np.random.default_rng(1).uniform(0, 1, (len(xyz), 3)).astype(np.float32)
+    with pytest.raises(ValueError, match=r"scene_feat channel 0 must be the target flag, -1 .* 0 .* \+1.*RGB"):
+        predict_from_points(tiny_model, xyz, rgb, None, *args, num_points=64)
+    with pytest.raises(ValueError, match=r"scene_feat channel 0 .* 50 of 440 points .*\[-255\.0, 255\.0\]"):
+        predict_from_points(tiny_model, xyz, flag * 255, None, *args, num_points=64)
+
+
+def test_predict_names_bad_scene_shapes(tiny_model):
+    """A [N, 2] cloud gave numpy's bare reshape error and a [3, N] one 'the cloud has no ground point'."""
+    from floaff_zoo.predict import predict_from_points
+
+    xyz, flag, t = _cloud()
+    args = ([0.85, 1.03], t)
+    with pytest.raises(ValueError, match=r"scene_xyz must be \[N, 3\].*\(440, 2\)"):
+        predict_from_points(tiny_model, xyz[:, :2], flag, None, *args)
+    with pytest.raises(ValueError, match=r"scene_xyz must be \[N, 3\].*\(3, 440\).*scene_xyz\.T"):
+        predict_from_points(tiny_model, xyz.T, flag, None, *args)
+    with pytest.raises(ValueError, match=r"scene_feat must be \[N, C\] with N = 440 .*\(439, 1\)"):
+        predict_from_points(tiny_model, xyz, flag[1:], None, *args)
+
+
+def test_predict_refuses_bad_cells_and_huge_rasters(tiny_model):
+    """cell=0 silently became the default cell and a tiny cell built a raster of hundreds of millions of cells."""
+    import numpy as np
+
+    from floaff_zoo.predict import predict, predict_from_points
+
+    xyz, flag, t = _cloud()
+    args = ([0.85, 1.03], t)
+    for bad in (0, -0.1, float("nan")):
+        with pytest.raises(ValueError, match=r"predict: cell must be a finite size > 0 m"):
+            predict_from_points(tiny_model, xyz, flag, None, *args, cell=bad)
+    # default grid: the (1.0, 1.2) m window at 1 mm is 2401 x 2001 cells
+    with pytest.raises(ValueError, match=r"cell=0\.001 m makes the default grid's window .* 2401 x 2001 .*limit"):
+        predict_from_points(tiny_model, xyz, flag, None, *args, cell=1e-3)
+    # given candidates over 1.5 m x 1.5 m at 0.6 mm: 2501 x 2501 raster cells
+    floor = np.array([[0.0, -0.75, 0.0], [1.5, 0.75, 0.0]], np.float32)
+    with pytest.raises(
+        ValueError, match=r"the returned raster of 2501 x 2501 = 6,255,001 cells \(limit 4,000,000\).*coarser cell"
+    ):
+        predict_from_points(tiny_model, xyz, flag, floor, *args, cell=6e-4)
+    # the RGB-D path shares the rule: a camera 1.2 m up looking straight down on the floor
+    depth, mask = np.full((24, 32), 1.2), np.zeros((24, 32), bool)
+    mask[10:12, 14:16] = True
+    pose = np.eye(4)
+    pose[:3, 3] = [0.8, 0.0, 1.2]
+    with pytest.raises(ValueError, match=r"predict: cell must be a finite size > 0 m"):
+        predict(tiny_model, None, depth, (20.0, 20.0, 16.0, 12.0), pose, mask, [0.85, 1.03], cell=0)

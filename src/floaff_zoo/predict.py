@@ -42,6 +42,11 @@ from floaff_zoo.floor import CANDIDATE_WINDOW, FLOOR_Z_MAX, FloorLattice, observ
 Pose = tuple[float, float, float]
 #: m: default floor cell, the grid of the demo/small generation presets the shipped models were trained on
 DEFAULT_FLOOR_CELL = 0.1
+#: the target flag's values (scene_feat channel 0, contract.py): +1 target, -1 obstacle, 0 other
+FLAG_VALUES = (-1.0, 0.0, 1.0)
+#: most cells of the default grid's lattice or of the returned raster (2000 x 2000: 20 m x 20 m at 1 cm); a finer
+#: cell or candidates spread wider are refused instead of allocating gigabytes for one map
+MAX_RASTER_CELLS = 4_000_000
 
 
 @dataclass
@@ -114,6 +119,63 @@ def named_models(specs: list[str]) -> dict[str, list[str]]:
     return out
 
 
+# ------------------------------------------------------------------------------------------ inputs
+def check_cell(cell: float | None) -> float | None:
+    """``cell`` (m) as a float, or None (the default); a ValueError for 0, negative, NaN or Inf sizes."""
+    if cell is None:
+        return None
+    c = float(cell)
+    if not (math.isfinite(c) and c > 0):
+        raise ValueError(
+            f"predict: cell must be a finite size > 0 m (None: {DEFAULT_FLOOR_CELL} m for the default grid, "
+            f"else the candidates' spacing), got {cell!r}"
+        )
+    return c
+
+
+def check_raster_size(shape: tuple[int, int], cell: float, what: str, other_fix: str) -> None:
+    """Refuse a raster/lattice of [H, W] = ``shape`` beyond MAX_RASTER_CELLS cells; ``what`` names it and
+    ``other_fix`` says what else than a coarser cell shrinks it."""
+    n = int(shape[0]) * int(shape[1])
+    if n > MAX_RASTER_CELLS:
+        raise ValueError(
+            f"predict: cell={cell:g} m makes {what} of {shape[0]} x {shape[1]} = {n:,} cells (limit "
+            f"{MAX_RASTER_CELLS:,}); pass a coarser cell (the model's training cell, e.g. {DEFAULT_FLOOR_CELL} m) "
+            f"or {other_fix}"
+        )
+
+
+def check_scene(scene_xyz: Any, scene_feat: Any) -> tuple[np.ndarray, np.ndarray]:
+    """The observation as float32 arrays: scene_xyz [N, 3] and scene_feat [N, C] (a 1-D [N] flag becomes [N, 1]).
+
+    Raises ValueError naming the argument for wrong shapes, and for a channel 0 that is not the target flag
+    (values -1, 0, +1, as the contract and the generated views store it): RGB alone or a flag scaled to 0..255
+    would otherwise run and return another pose.
+    """
+    xyz = np.asarray(scene_xyz, dtype=np.float32)
+    if xyz.ndim != 2 or xyz.shape[1] != 3 or xyz.shape[0] == 0:
+        hint = " (a [3, N] cloud: pass scene_xyz.T)" if xyz.ndim == 2 and xyz.shape[0] == 3 else ""
+        raise ValueError(f"predict: scene_xyz must be [N, 3] points with N >= 1, got shape {xyz.shape}{hint}")
+    feat = np.asarray(scene_feat, dtype=np.float32)
+    if feat.ndim == 1:  # the flag alone
+        feat = feat[:, None]
+    if feat.ndim != 2 or feat.shape[0] != xyz.shape[0] or feat.shape[1] < 1:
+        raise ValueError(
+            f"predict: scene_feat must be [N, C] with N = {xyz.shape[0]} rows like scene_xyz {xyz.shape} and "
+            f"C >= 1 (channel 0 = target flag), got shape {feat.shape}"
+        )
+    bad = ~np.isin(feat[:, 0], FLAG_VALUES)
+    if bad.any():
+        seen = [float(f"{v:.4g}") for v in np.unique(feat[bad, 0])[:3]]
+        rgb = " (3 channels: RGB without the flag?)" if feat.shape[1] == 3 else ""
+        raise ValueError(
+            f"predict: scene_feat channel 0 must be the target flag, -1 (obstacle), 0 (other) or +1 (target); "
+            f"{int(bad.sum())} of {len(feat)} points hold other values (e.g. {seen}){rgb}: put the flag first, "
+            "then RGB in [0, 1]"
+        )
+    return xyz, feat
+
+
 # ------------------------------------------------------------------------------------------ geometry
 def backproject_depth(
     depth: np.ndarray,
@@ -180,6 +242,7 @@ def default_floor_grid(
     t = np.asarray(target_xyz, dtype=np.float64).reshape(3)
     yaw = default_target_yaw(t) if target_yaw is None else float(target_yaw)
     lattice = FloorLattice.target_window(t[:2], yaw, float(cell), float(window[0]), float(window[1]))
+    check_raster_size(lattice.shape, float(cell), f"the default grid's window {window}", "a smaller window")
     seen = observed_cells(np.asarray(scene_xyz, dtype=np.float64).reshape(-1, 3), lattice, z_max, min_points)
     if radius is not None:
         seen &= lattice.within(float(radius))
@@ -246,23 +309,28 @@ def predict_from_points(
         target_xyz [3]; target_yaw: yaw of the target's front normal (None: faces the robot).
         k: number of top poses returned.
         num_points: scene points fed to the model (random subset / repeats, seeded); None = all.
-        cell: cell (m) of the default grid and of the returned raster; None = DEFAULT_FLOOR_CELL for
-            the default grid, else the candidates' own spacing (median nearest-neighbour distance).
+        cell: cell (m, > 0) of the default grid and of the returned raster; None = DEFAULT_FLOOR_CELL for
+            the default grid, else the candidates' own spacing (median nearest-neighbour distance). A grid or
+            raster of more than MAX_RASTER_CELLS cells is refused.
         grid_radius / window: disc cut (m, None = none) and target-frame window (r_x, r_y) m of the
             default grid.
         task: the task asked (``meta['task']``; needed by models that condition on it, e.g. the
             canonical prior).
+    Raises:
+        ValueError: bad shapes, a channel 0 that is not the target flag or a bad cell (checked before the model
+            is loaded), too large a grid or raster (before it runs), each naming the argument.
     """
-    net = resolve_model(model, model_class, device)
-    check_task(net, task)
+    xyz, feat = check_scene(scene_xyz, scene_feat)
+    cell = check_cell(cell)
     t = np.asarray(target_xyz, dtype=np.float32).reshape(-1)
     if t.size != 3 or not np.isfinite(t).all():
         raise ValueError(f"predict: target_xyz must be 3 finite values, got {target_xyz!r}")
+    net = resolve_model(model, model_class, device)
+    check_task(net, task)
     if target_yaw is None:
         target_yaw = default_target_yaw(t)
-    xyz = np.asarray(scene_xyz, dtype=np.float32)
     if floor_xyz is None:
-        cell = cell or DEFAULT_FLOOR_CELL
+        cell = DEFAULT_FLOOR_CELL if cell is None else cell
         floor_xyz = default_floor_grid(t, xyz, target_yaw, cell=cell, window=window, radius=grid_radius)
     floor = np.asarray(floor_xyz, dtype=np.float32)
     if floor.ndim == 2 and floor.shape[1] == 2:
@@ -270,7 +338,7 @@ def predict_from_points(
     sample = validate_sample(
         {
             "scene_xyz": xyz,
-            "scene_feat": np.asarray(scene_feat, dtype=np.float32),
+            "scene_feat": feat,
             "floor_xyz": floor,
             "floor_label": np.zeros(len(floor), np.float32),  # unknown at inference; never read
             "robot": np.asarray(robot, dtype=np.float32),
@@ -279,6 +347,10 @@ def predict_from_points(
             "meta": {"dataset": "predict", "task": task, "view": "", "sample_id": "predict"},
         }
     )
+    # the raster's size is known from the candidates alone: refuse a huge one before running the model
+    raster_cell = cell if cell is not None else candidate_spacing(floor)
+    grid = FloorGrid.from_points(floor, cell=raster_cell)
+    check_raster_size(grid.shape, raster_cell, "the returned raster", "candidates (floor_xyz) that cover less floor")
     gen = torch.Generator().manual_seed(seed)
     batch = collate_samples([sample], num_points=num_points, mode="resample" if num_points else "pad", generator=gen)
     dev = next(net.parameters(), torch.empty(0)).device
@@ -293,7 +365,6 @@ def predict_from_points(
             f"predict: {type(net).__name__} returned {int((~np.isfinite(scores)).sum())} NaN/Inf score(s)"
         )
     poses = best_pose(floor, scores, None, t, k=max(1, k))
-    grid = FloorGrid.from_points(floor, cell=cell or candidate_spacing(floor))
     return Prediction(
         floor_xyz=floor,
         scores=scores,
@@ -335,6 +406,7 @@ def predict(
         target_mask [H, W] bool: the target's pixels (its points get flag +1, others 0);
         the rest as in :func:`predict_from_points`.
     """
+    check_cell(cell)  # before back-projecting: a bad cell fails at once
     d = np.asarray(depth)
     mask = np.asarray(target_mask).astype(bool)
     if mask.shape != d.shape:

@@ -205,3 +205,35 @@ def test_plot_writes_png(tmp_path):
 def test_synthetic_task_names_are_checked():
     with pytest.raises(ValueError, match=r"unknown tasks \['CloseDrawerr'\]"):
         SyntheticDataModule(tasks=["CloseDrawerr"])
+
+
+def test_datamodule_sizes_are_checked_up_front():
+    """A bad size used to fail inside the first batch (``zeros: Dimension size must be non-negative``) or in the
+    DataLoader, naming no field; None still means the batch's largest cloud/floor (and batch_size for eval)."""
+    from lightning.pytorch.utilities.exceptions import MisconfigurationException
+
+    bad_sizes = [("batch_size", 0), ("batch_size", 2.5), ("eval_batch_size", 0), ("num_workers", -1)]
+    bad_sizes += [("num_points", -5), ("num_points", 0), ("num_floor", 0)]
+    for field, bad in bad_sizes:
+        with pytest.raises(ValueError, match=rf"data\.{field} must be an integer >= [01].* got {bad}$") as err:
+            SyntheticDataModule(num_train=2, num_val=1, num_test=1, **{field: bad})
+        assert isinstance(err.value, MisconfigurationException)  # `floaff-zoo` prints those as one line
+    dm = SyntheticDataModule(num_train=2, num_val=1, num_test=1, batch_size=3, num_points=None, num_floor=None)
+    assert dm.eval_batch_size == 3 and dm.num_points is None and dm.num_floor is None
+
+
+def test_fit_with_a_negative_num_points_names_the_field_before_any_batch(tmp_path, root):
+    from floaff_zoo.cli import run_lightning
+    from tests.conftest import quiet_trainer_args
+
+    args = ["fit", "--config", str(root / "configs/data/synthetic_tiny.yaml")]
+    args += ["--config", str(root / "configs/models/tiny_pointnet.yaml"), "--trainer.max_epochs", "1"]
+    args += ["--trainer.logger", "false", "--data.init_args.num_points", "-5", *quiet_trainer_args(tmp_path)]
+    with pytest.raises(Exception) as err:  # noqa: PT011 - jsonargparse wraps the DataModule's error
+        run_lightning(args)
+    chain, exc = [], err.value
+    while exc is not None:
+        chain.append(str(exc))
+        exc = exc.__cause__ or exc.__context__
+    assert any("data.num_points must be an integer >= 1 or null" in m and "got -5" in m for m in chain), chain
+    assert not list(tmp_path.rglob("*.ckpt"))

@@ -200,6 +200,66 @@ def test_failing_job_is_retried_once_then_reported(tmp_path, monkeypatch):
     )
 
 
+def _error_job(job, out, preset_dict, save_images):
+    """A run_job stand-in whose every slot fails at once (multi-line reason, as a traceback's last line may be)."""
+    return {
+        "key": job.key,
+        "status": "error",
+        "scene_id": None,
+        "attempts": [],
+        "reason": "RuntimeError: boom\n at x",
+        "traceback": "tb",
+        "wall_s": 0.0,
+    }
+
+
+@pytest.mark.parametrize(
+    ("flags", "message"),
+    [
+        (["--cell", "0"], "cell must be > 0, got 0.0"),
+        (["--views", "-1", "2"], r"views_per_scene must be >= 0, got \(-1, 2\)"),
+        (["--n-train", "0", "--n-test", "0"], "at least one scene, got 0/0"),
+        (["--image-size", "0"], "image_size must be >= 1, got 0"),
+        (["--max-candidates", "-3"], "max_candidates must be >= 1"),
+    ],
+)
+def test_cli_refuses_bad_settings_in_one_line_before_any_scene(tmp_path, capsys, monkeypatch, flags, message):
+    """These settings gave a raw traceback (get_preset ran outside main's try) or, for --image-size 0, ran every
+    scene's annotation before failing it."""
+    import re
+
+    monkeypatch.setattr(gen, "run_job", _error_job)
+    out = tmp_path / "o"
+    assert gen.main(["--preset", "tiny", "--out", str(out), "--workers", "0", "--quiet", *flags]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("floaff-zoo generate: error: ") and err.count("\n") == 1 and re.search(message, err)
+    assert not out.exists()
+
+
+def test_cli_refuses_an_out_that_is_a_file(tmp_path, capsys, monkeypatch):
+    """--out naming a file gave a raw FileExistsError traceback."""
+    monkeypatch.setattr(gen, "run_job", _error_job)
+    (tmp_path / "f").write_text("x")
+    for out, why in ((tmp_path / "f", "exists and is not a folder"), (tmp_path / "f" / "sub", "cannot create")):
+        assert gen.main(["--preset", "tiny", "--out", str(out), "--workers", "0", "--quiet"]) == 2
+        assert f"floaff-zoo generate: error: --out {out}: {why}" in capsys.readouterr().err
+    assert (tmp_path / "f").read_text() == "x"
+
+
+def test_cli_prints_the_first_failure_reasons(tmp_path, capsys, monkeypatch):
+    """Failed scenes printed only "0 scenes ok ... 4 failed"; the reasons were only in manifest.json."""
+    monkeypatch.setattr(gen, "run_job", _error_job)
+    assert gen.main(["--preset", "tiny", "--out", str(tmp_path), "--workers", "0", "--quiet"]) == 1
+    err = capsys.readouterr().err.splitlines()
+    assert "4 failed" in err[0]
+    assert err[1:] == [
+        "[generate] failed styles/CloseDrawer/test0: RuntimeError: boom at x",
+        "[generate] failed styles/CloseDrawer/train0: RuntimeError: boom at x",
+        "[generate] failed styles/OpenSingleDoor/test0: RuntimeError: boom at x",
+        "[generate] ... and 1 more failed slot(s): see manifest.json",
+    ]
+
+
 def test_dead_worker_process_is_retried_once_then_failed(tmp_path):
     sys.path.insert(0, str(Path(__file__).parent))
     import _crash_job

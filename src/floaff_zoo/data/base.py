@@ -19,6 +19,23 @@ Split = Literal["train", "val", "test", "predict"]
 _SPLIT_OFFSET = {"train": 0, "val": 1, "test": 2, "predict": 3}
 
 
+class DataConfigError(MisconfigurationException, ValueError):
+    """A DataModule argument out of range; the message names ``data.<field>`` and the value.
+
+    A ValueError for Python callers and a MisconfigurationException, which ``floaff-zoo`` prints as one line.
+    """
+
+
+def check_size(field: str, value: Any, minimum: int, none_means: str | None = None) -> None:
+    """Raise DataConfigError unless ``value`` is an int >= ``minimum`` (or None where ``none_means`` says what
+    None does); ``field`` is the DataModule argument's name."""
+    if value is None and none_means is not None:
+        return
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
+        alt = f" or null ({none_means})" if none_means else ""
+        raise DataConfigError(f"data.{field} must be an integer >= {minimum}{alt}, got {value!r}")
+
+
 class TransformedDataset(Dataset):
     """A split's dataset seen through the DataModule's per-sample transforms and hook.
 
@@ -57,11 +74,12 @@ class FloAffDataModule(L.LightningDataModule):
     """Shared machinery: ``setup`` fills ``self.datasets[split]``; loaders collate to fixed sizes.
 
     Args:
-        batch_size: samples per batch (eval loaders use ``eval_batch_size`` when set).
-        eval_batch_size: batch size of val/test/predict loaders (MoMa-Kitchen's official code uses 64).
-        num_workers: DataLoader workers.
-        num_points: scene points per sample after collation (``None`` = largest in the batch).
-        num_floor: floor points per sample after collation (``None`` = largest in the batch).
+        batch_size: samples per batch, >= 1 (eval loaders use ``eval_batch_size`` when set).
+        eval_batch_size: batch size of val/test/predict loaders, >= 1 (``None`` = ``batch_size``; MoMa-Kitchen's
+            official code uses 64).
+        num_workers: DataLoader workers, >= 0.
+        num_points: scene points per sample after collation, >= 1 (``None`` = largest in the batch).
+        num_floor: floor points per sample after collation, >= 1 (``None`` = largest in the batch).
         collate_mode: ``resample`` (fast mode: exactly ``num_points`` valid points) or ``pad``
             (faithful mode: truncate/zero-pad with masks).
         seed: seed of splits, resampling and augmentation.
@@ -90,10 +108,18 @@ class FloAffDataModule(L.LightningDataModule):
         eval_transforms: list[SampleTransform] | None = None,
     ) -> None:
         super().__init__()
+        # checked here: a bad size otherwise fails inside the first batch (torch.zeros, DataLoader) naming no field
+        check_size("batch_size", batch_size, 1)
+        check_size("eval_batch_size", eval_batch_size, 1, "use batch_size")
+        check_size("num_workers", num_workers, 0)
+        check_size("num_points", num_points, 1, "the largest cloud in the batch")
+        check_size("num_floor", num_floor, 1, "the largest floor in the batch")
+        if collate_mode not in ("pad", "resample"):
+            raise DataConfigError(f"data.collate_mode must be 'pad' or 'resample', got {collate_mode!r}")
         self.train_transforms = list(train_transforms or [])
         self.eval_transforms = list(eval_transforms or [])
         self.batch_size = batch_size
-        self.eval_batch_size = eval_batch_size or batch_size
+        self.eval_batch_size = batch_size if eval_batch_size is None else eval_batch_size
         self.num_workers = num_workers
         self.num_points = num_points
         self.num_floor = num_floor

@@ -754,8 +754,7 @@ def generate(
         raise ValueError(f"backend must be 'local' or 'ray', got {backend!r}")
     if workers < 0:
         raise ValueError(f"workers must be >= 0, got {workers}")
-    outp = Path(out)
-    outp.mkdir(parents=True, exist_ok=True)
+    outp = check_out_dir(out)
     jobs = plan_jobs(preset, seed, list(LAYOUTS), list(STYLES))
     for b in preset.benchmarks:  # leftovers of killed runs
         shutil.rmtree(outp / b / ff.STAGING, ignore_errors=True)
@@ -882,6 +881,32 @@ def check_resume_settings(old: dict[str, Any], new: dict[str, Any], out: Path) -
         )
 
 
+def check_out_dir(out: str | Path) -> Path:
+    """Create the output folder ``out`` (or accept an existing one) before any scene is built.
+
+    Raises:
+        ValueError: naming ``out`` when it is a file or cannot be created (a file on its path, no permission).
+    """
+    outp = Path(out)
+    if outp.exists() and not outp.is_dir():
+        raise ValueError(f"--out {outp}: exists and is not a folder; name a new or existing output folder")
+    try:
+        outp.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:  # a file where a parent folder should be, a read-only disk, ...
+        raise ValueError(f"--out {outp}: cannot create the output folder ({exc.strerror or exc})") from exc
+    return outp
+
+
+def failure_lines(manifest: dict[str, Any], limit: int = 3) -> list[str]:
+    """One console line per failed slot, the first ``limit`` in slot order, then a count of the rest: the reasons
+    would otherwise be only in manifest.json."""
+    failed = [(k, s.get("reason")) for k, s in sorted(manifest["scenes"].items()) if s.get("status") == "failed"]
+    lines = [f"[generate] failed {key}: {' '.join(str(why).split())}" for key, why in failed[:limit]]
+    if len(failed) > limit:
+        lines.append(f"[generate] ... and {len(failed) - limit} more failed slot(s): see manifest.json")
+    return lines
+
+
 # ------------------------------------------------------------------------------------------------ CLI
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
@@ -930,18 +955,21 @@ def main(argv: list[str] | None = None) -> int:
     """CLI entry point; returns 0 when every slot is ok or dropped, 1 when some scene failed, 2 for settings that
     do not fit each other or the output folder."""
     args = build_parser().parse_args(argv)
-    preset = get_preset(
-        args.preset,
-        benchmarks=tuple(args.benchmarks) if args.benchmarks else None,
-        tasks=tuple(args.tasks) if args.tasks else None,
-        n_train=args.n_train,
-        n_test=args.n_test,
-        cell=args.cell,
-        max_candidates=args.max_candidates or None,
-        views_per_scene=tuple(args.views) if args.views else None,
-        min_views=args.min_views,
-        image_size=args.image_size,
-    )
+    try:  # the overrides are checked here, before any scene is built
+        preset = get_preset(
+            args.preset,
+            benchmarks=tuple(args.benchmarks) if args.benchmarks else None,
+            tasks=tuple(args.tasks) if args.tasks else None,
+            n_train=args.n_train,
+            n_test=args.n_test,
+            cell=args.cell,
+            max_candidates=args.max_candidates or None,
+            views_per_scene=tuple(args.views) if args.views else None,
+            min_views=args.min_views,
+            image_size=args.image_size,
+        )
+    except ValueError as exc:
+        return _cli_error(f"{exc} (preset {args.preset!r} with the given overrides)")
     if args.max_candidates == 0:
         preset = dataclasses.replace(preset, max_candidates=None)
     if args.views and preset.use_paper_view_counts:
@@ -968,6 +996,8 @@ def main(argv: list[str] | None = None) -> int:
         f"{c['views_front']} front + {c['views_side']} side views; {man['wall_s']:.1f} s",
         file=sys.stderr,
     )
+    for line in failure_lines(man):
+        print(line, file=sys.stderr)
     return 0 if c["scenes_failed"] == 0 else 1
 
 

@@ -108,6 +108,14 @@ class GenPreset:
             raise ValueError(f"views_per_scene must be >= 0, got {self.views_per_scene}")
         if self.min_views < 0:
             raise ValueError(f"min_views must be >= 0, got {self.min_views}")
+        # rendering and rollout sizes: a bad one would otherwise fail each scene only after its annotation
+        for name in ("image_size", "max_points", "picture_size", "max_tries_per_view"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.max_candidates is not None and self.max_candidates < 1:
+            raise ValueError(f"max_candidates must be >= 1 (None = no cap), got {self.max_candidates}")
+        if not self.depth_max > 0:
+            raise ValueError(f"depth_max must be > 0, got {self.depth_max}")
         return self
 
 
