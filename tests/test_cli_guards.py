@@ -10,6 +10,7 @@ import torch
 
 from floaff_zoo.cli import CLIError, main, run_lightning
 from floaff_zoo.models.tiny import TinyPointNetModule
+from floaff_zoo.runs import RunError
 from tests.conftest import ROOT, quiet_trainer_args
 
 DATA = "configs/data/synthetic_tiny.yaml"
@@ -58,8 +59,6 @@ def test_ckpt_alias_applies_the_checkpoint_hparams(width16_run, root, monkeypatc
 
 def test_ckpt_alias_without_a_run_is_a_run_error(tmp_path, root, monkeypatch):
     monkeypatch.chdir(root)
-    from floaff_zoo.runs import RunError
-
     with pytest.raises(RunError, match="no last.ckpt"):
         main(["test", "--config", DATA, "--config", MODEL, *quiet_trainer_args(tmp_path), "--ckpt_path", "best"])
 
@@ -143,3 +142,102 @@ def test_predict_names_the_task_a_prior_needs():
     with pytest.raises(ValueError, match=r"pass task= one of \['CloseDrawer'\].*got ''"):
         predict_from_points(*args, cell=0.2)
     assert predict_from_points(*args, cell=0.2, task="CloseDrawer").scores.size
+
+
+def _console(monkeypatch, capsys, args: list[str]) -> tuple[int, list[str]]:
+    """Run ``floaff-zoo <args>`` as the console does (argv from ``sys.argv``): (exit code, stderr lines)."""
+    from floaff_zoo import cli
+
+    monkeypatch.setattr(sys, "argv", ["floaff-zoo", *args])
+    rc = cli.main()
+    return rc, [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+
+
+@pytest.fixture
+def not_checkpoints(width16_run, tmp_path):
+    """Files that are no Lightning checkpoint: a truncated real one, text, a bare state dict, a tensor."""
+    files = {"truncated": tmp_path / "truncated.ckpt", "text": tmp_path / "text.ckpt"}
+    files["truncated"].write_bytes(width16_run[1].read_bytes()[:5000])
+    files["text"].write_text("hello, not a checkpoint\n")
+    files["state_dict"] = tmp_path / "state_dict.ckpt"
+    torch.save(TinyPointNetModule(width=16).state_dict(), files["state_dict"])
+    files["tensor"] = tmp_path / "tensor.ckpt"
+    torch.save(torch.zeros(3), files["tensor"])
+    return files
+
+
+@pytest.mark.parametrize("command", ["fit", "test"])
+def test_ckpt_path_that_is_no_checkpoint_is_one_line_naming_it(not_checkpoints, tmp_path, root, monkeypatch, command):
+    """Lightning's loaders failed with OSError, KeyError: 101, KeyError 'pytorch-lightning_version' or
+    AttributeError tracebacks that never named the file."""
+    monkeypatch.chdir(root)
+    args = [command, "--config", DATA, "--config", MODEL, *quiet_trainer_args(tmp_path), "--trainer.logger", "false"]
+    for kind, path in not_checkpoints.items():
+        with pytest.raises(CLIError) as info:
+            main([*args, "--ckpt_path", str(path)])
+        message = str(info.value)
+        assert message.startswith(f"--ckpt_path {path}: ") and "\n" not in message, kind
+    assert sorted(tmp_path.rglob("*.ckpt")) == sorted(not_checkpoints.values())  # no fit ran
+
+
+def test_ckpt_path_that_is_no_checkpoint_exits_2_at_the_console(not_checkpoints, tmp_path, root, monkeypatch, capsys):
+    monkeypatch.chdir(root)
+    bad = not_checkpoints["text"]
+    args = ["test", "--config", DATA, "--config", MODEL, *quiet_trainer_args(tmp_path), "--ckpt_path", str(bad)]
+    rc, lines = _console(monkeypatch, capsys, args)
+    assert rc == 2 and lines == [f"floaff-zoo: error: --ckpt_path {bad}: not a readable checkpoint (KeyError: 101)"]
+
+
+def test_ckpt_best_with_a_truncated_last_ckpt_names_it(width16_run, tmp_path, root, monkeypatch):
+    """`--ckpt_path best` reads last.ckpt for the best path: a truncated one was a raw OSError."""
+    monkeypatch.chdir(root)
+    last = tmp_path / "run" / "checkpoints" / "last.ckpt"
+    last.parent.mkdir(parents=True)
+    last.write_bytes(next(width16_run[0].rglob("last.ckpt")).read_bytes()[:5000])
+    args = ["test", "--config", DATA, "--config", MODEL, *quiet_trainer_args(tmp_path / "run"), "--ckpt_path", "best"]
+    with pytest.raises(RunError) as info:
+        main(args)
+    assert str(info.value).startswith(f"--ckpt_path best: {last}: not a readable checkpoint")
+
+
+@pytest.mark.parametrize(
+    ("command", "config", "flags", "expected"),
+    [
+        ("fit", DATA, ["--model.init_args.train.lr", "-1"], "model (TinyPointNetModule): train.lr must be > 0"),
+        (
+            "fit",
+            "configs/data/floaff_tiny.yaml",  # the task names are checked before any data is read
+            ["--data.init_args.tasks", "[CloseDrawr]"],
+            "data (FloAffKitchenDataModule): unknown tasks ['CloseDrawr']",
+        ),
+        (
+            "test",
+            DATA,
+            ["--trainer.callbacks+", "floaff_zoo.callbacks.TestReport", "--trainer.callbacks.figures_per_group", "-1"],
+            "trainer.callbacks: TestReport: figures_per_group must be >= 0",
+        ),
+    ],
+)
+def test_init_arg_rejected_by_a_class_is_one_line_naming_the_part(
+    tmp_path, root, monkeypatch, command, config, flags, expected
+):
+    """A ValueError of a model/data/callback __init__ was buried in a 60-115 line jsonargparse traceback."""
+    monkeypatch.chdir(root)
+    with pytest.raises(CLIError) as info:
+        main([command, "--config", config, "--config", MODEL, *quiet_trainer_args(tmp_path), *flags])
+    assert str(info.value).startswith(expected) and "\n" not in str(info.value)
+
+
+def test_init_error_exits_2_at_the_console_and_a_bug_keeps_its_traceback(tmp_path, root, monkeypatch, capsys):
+    monkeypatch.chdir(root)
+    args = ["fit", "--config", DATA, "--config", MODEL, *quiet_trainer_args(tmp_path)]
+    rc, lines = _console(monkeypatch, capsys, [*args, "--model.init_args.train.lr", "-1"])
+    assert rc == 2 and lines[-1] == "floaff-zoo: error: model (TinyPointNetModule): train.lr must be > 0, got -1.0"
+
+    def bug(self):
+        raise TypeError("a bug, not a configuration error")
+
+    monkeypatch.setattr(TinyPointNetModule, "configure_models", bug)
+    with pytest.raises(Exception, match="a bug") as info:  # noqa: PT011 - jsonargparse's wrapping, unchanged
+        main(args)
+    assert not isinstance(info.value, CLIError)

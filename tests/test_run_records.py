@@ -11,7 +11,7 @@ import pytest
 
 from floaff_zoo import curriculum, demo
 from floaff_zoo.curriculum import CurriculumError, read_lineage, run_curriculum
-from floaff_zoo.runs import FINISHED_FILE, RunError, finished_runs, mark_finished, read_finished
+from floaff_zoo.runs import FINISHED_FILE, RunError, finished_runs, mark_finished, read_finished, resolve_ckpt_alias
 
 EXP = "tests/configs/pfal_tiny.yaml"
 
@@ -105,3 +105,31 @@ def test_corrupt_lineage_is_an_error_naming_it(tmp_path, root, monkeypatch):
     lineage.unlink()
     with pytest.raises(CurriculumError, match="run the curriculum first"):
         read_lineage(tmp_path)
+
+
+@pytest.fixture
+def truncated_run(tmp_path):
+    """A run directory whose last.ckpt was cut short (a full disk, a copy interrupted)."""
+    import torch
+
+    last = tmp_path / "run" / "version_0" / "checkpoints" / "last.ckpt"
+    last.parent.mkdir(parents=True)
+    torch.save({"state_dict": {"w": torch.zeros(4096)}, "callbacks": {}, "pytorch-lightning_version": "2"}, last)
+    last.write_bytes(last.read_bytes()[:5000])
+    return tmp_path / "run", last
+
+
+def test_best_of_a_run_with_a_truncated_last_ckpt_is_a_run_error_naming_it(truncated_run):
+    run, last = truncated_run
+    with pytest.raises(RunError, match=f"--ckpt_path best: {last}: not a readable checkpoint"):
+        resolve_ckpt_alias("best", run)
+    assert resolve_ckpt_alias("last", run) == str(last)  # not read: the CLI checks the file it is given
+
+
+def test_hub_push_of_a_run_with_a_truncated_last_ckpt_exits_2(truncated_run, capsys):
+    from floaff_zoo.cli import main
+
+    assert main(["hub", "push", str(truncated_run[0] / "version_0"), "--name", "tiny.truncated.v1"]) == 2
+    err = capsys.readouterr().err
+    assert "floaff-zoo hub: error:" in err
+    assert "last.ckpt: not a readable checkpoint" in err  # the truncated file named, not "no last.ckpt found"

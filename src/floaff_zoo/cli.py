@@ -9,11 +9,14 @@ modules' ``main`` before LightningCLI sees the arguments.
 from __future__ import annotations
 
 import importlib
+import inspect
 import sys
 from pathlib import Path
+from types import FrameType, TracebackType
 from typing import Any
 
 import lightning as L
+from jsonargparse import Namespace
 from lightning.pytorch.callbacks import ModelCheckpoint, TQDMProgressBar
 from lightning.pytorch.cli import LightningCLI
 from lightning.pytorch.utilities.exceptions import MisconfigurationException
@@ -24,7 +27,7 @@ from floaff_zoo.contract import SampleError
 from floaff_zoo.data.base import FloAffDataModule
 from floaff_zoo.models.base import WEIGHTS_FAILURE_NOTE, ZooModule
 from floaff_zoo.nn import ops
-from floaff_zoo.runs import RunError, resolve_ckpt_alias
+from floaff_zoo.runs import CHECKPOINT_KEYS, RunError, load_checkpoint, resolve_ckpt_alias
 
 TRAINER_COMMANDS = ("fit", "validate", "test", "predict")
 #: commands that evaluate a trained model: ``--ckpt_path best|last`` and strict ``weights`` apply to them
@@ -99,6 +102,44 @@ def _weights_failure(exc: BaseException) -> BaseException | None:
     return None
 
 
+def _frames(tb: TracebackType | None) -> list[FrameType]:
+    """The frames of a traceback, outermost first."""
+    frames = []
+    while tb is not None:
+        frames.append(tb.tb_frame)
+        tb = tb.tb_next
+    return frames
+
+
+def _in_jsonargparse(frame: FrameType) -> bool:
+    """Whether ``frame`` runs jsonargparse's code (which wraps the errors of the classes it instantiates)."""
+    return str(frame.f_globals.get("__name__", "")).startswith("jsonargparse")
+
+
+def _instantiated_part(exc: BaseException) -> str | None:
+    """The config key (``model``, ``data``, ``trainer.callbacks``...) whose class jsonargparse was instantiating
+    when ``exc`` escaped it: jsonargparse names it only in the ``component`` its instantiation loop is at."""
+    for frame in _frames(exc.__traceback__):
+        dest = getattr(frame.f_locals.get("component"), "dest", None) if _in_jsonargparse(frame) else None
+        if isinstance(dest, str):
+            return dest
+    return None
+
+
+def _user_error(exc: BaseException) -> BaseException | None:
+    """The first error in the chain of ``exc`` that was raised outside jsonargparse (by the class being
+    instantiated), past the union-type errors jsonargparse wraps it in."""
+    seen: set[int] = set()
+    cur: BaseException | None = exc
+    while cur is not None and id(cur) not in seen:
+        seen.add(id(cur))
+        frames = _frames(cur.__traceback__)
+        if frames and not _in_jsonargparse(frames[-1]):
+            return cur
+        cur = cur.__cause__ or cur.__context__
+    return None
+
+
 def _one_line(text: str) -> str:
     """``text`` on one line (the messages of torch and jsonargparse span several)."""
     return " ".join(text.split())
@@ -121,6 +162,7 @@ class FloAffCLI(LightningCLI):
         given on the command line (e.g. ``--model.init_args.eval_yaw_source gt``): those are applied again.
         ``best``/``last`` are turned into their file first: Lightning reads the hyper-parameters of a file only."""
         self._resolve_ckpt_alias()
+        self._check_ckpt_file()
         sub = self.config.get("subcommand")
         before = self.config[sub].get("model") if sub else None
         before = before.clone() if before is not None else None
@@ -158,18 +200,56 @@ class FloAffCLI(LightningCLI):
         if alias in ("best", "last"):
             cfg.ckpt_path = resolve_ckpt_alias(alias, self._run_dir(cfg))
 
+    def _check_ckpt_file(self) -> None:
+        """A ``--ckpt_path`` file must be a Lightning checkpoint: Lightning's own loaders fail on a truncated file,
+        a text file or a bare state dict with a traceback that never names it. The check memory-maps the file, so a
+        large one costs little. A path that is no file is left to Lightning (``fit``) and ``_guard_eval``."""
+        sub = self.config.get("subcommand")
+        ckpt = self.config[sub].get("ckpt_path") if sub else None
+        if ckpt is None or not Path(str(ckpt)).is_file():
+            return
+        try:
+            load_checkpoint(str(ckpt), "--ckpt_path ", CHECKPOINT_KEYS)
+        except RunError as exc:
+            raise CLIError(str(exc)) from exc
+
     def instantiate_classes(self) -> None:
         """Instantiate as Lightning does; an error loading ``model.init_args.weights`` (unknown hub name, corrupt
-        or missing file) becomes one ``CLIError`` line instead of jsonargparse's traceback of union types."""
+        or missing file), and a ``ValueError``/``MisconfigurationException`` by which a configured class rejects
+        its init args, become one ``CLIError`` line instead of jsonargparse's traceback of union types. Other
+        errors (a ``TypeError`` of a bug, say) keep their traceback."""
         try:
             super().instantiate_classes()
         except Exception as exc:
-            cause = _weights_failure(exc)
-            if cause is None:
+            error = self._weights_error(exc) or self._init_error(exc)
+            if error is None:
                 raise
-            weights, message = self._configured_weights(), _one_line(str(cause))
-            named = "" if weights in message else f" {weights}"  # hub messages name the file or the name already
-            raise CLIError(f"--model.init_args.weights{named}: {message}") from exc
+            raise error from exc
+
+    def _weights_error(self, exc: BaseException) -> CLIError | None:
+        """The one-line error for a failure to load ``model.init_args.weights`` (None: ``exc`` is another)."""
+        cause = _weights_failure(exc)
+        if cause is None:
+            return None
+        weights, message = self._configured_weights(), _one_line(str(cause))
+        named = "" if weights in message else f" {weights}"  # hub messages name the file or the name already
+        return CLIError(f"--model.init_args.weights{named}: {message}")
+
+    def _init_error(self, exc: BaseException) -> CLIError | None:
+        """The one-line error for a configured class (model, data, a callback...) whose ``__init__`` rejected its
+        init args, naming the config key and the class (None: ``exc`` is another error)."""
+        part, cause = _instantiated_part(exc), _user_error(exc)
+        if part is None or not isinstance(cause, (ValueError, MisconfigurationException)):
+            return None
+        cls = self._configured_class(part)
+        return CLIError(f"{part}{f' ({cls})' if cls else ''}: {_one_line(str(cause))}")
+
+    def _configured_class(self, key: str) -> str | None:
+        """The class name the config gives ``key`` (``model``, ``data``...); None for lists (callbacks)."""
+        sub = self.config.get("subcommand")
+        value = self.config[sub].get(key) if sub else None
+        path = value.get("class_path") if isinstance(value, Namespace) else None
+        return str(path).rsplit(".", 1)[-1] if path else None
 
     def _configured_weights(self) -> str:
         """The ``weights`` the model config names (for messages)."""
@@ -314,7 +394,9 @@ def _print_overview() -> None:
     )
 
 
-def _dispatch(command: str, argv: list[str]) -> int:
+def _dispatch(command: str, argv: list[str], from_python: bool) -> int:
+    """Run a non-trainer command. Those whose ``main`` takes ``raise_errors`` (curriculum, demo) print their
+    errors in one line and return 2 at the console, and raise them to a Python caller, as ``main`` does."""
     target, _ = OTHER_COMMANDS[command]
     mod_name, fn_name = target.split(":")
     try:
@@ -323,7 +405,10 @@ def _dispatch(command: str, argv: list[str]) -> int:
         if exc.name and exc.name.startswith("floaff_zoo"):
             raise CLIError(f"`floaff-zoo {command}` is not available in this build ({exc.name} missing)") from exc
         raise
-    return int(getattr(mod, fn_name)(argv) or 0)
+    fn = getattr(mod, fn_name)
+    if "raise_errors" in inspect.signature(fn).parameters:
+        return int(fn(argv, raise_errors=from_python) or 0)
+    return int(fn(argv) or 0)
 
 
 def run_lightning(args: list[str]) -> FloAffCLI:
@@ -367,7 +452,7 @@ def main(args: list[str] | None = None) -> int:
         return 0
     try:
         if argv[0] in OTHER_COMMANDS:
-            return _dispatch(argv[0], argv[1:])
+            return _dispatch(argv[0], argv[1:], from_python=args is not None)
         if argv[0] not in TRAINER_COMMANDS:
             raise CLIError(f"unknown command {argv[0]!r}; choose from {list(TRAINER_COMMANDS) + list(OTHER_COMMANDS)}")
         run_lightning(argv)

@@ -102,6 +102,8 @@ def load_experiment(path: str | Path, _seen: tuple[Path, ...] = ()) -> dict[str,
         raise CurriculumError(
             f"experiment config {path}: unknown key(s) {sorted(unknown)}; allowed {sorted(_TOP_KEYS)}"
         )
+    if cfg.get("extends") is not None and not isinstance(cfg["extends"], str):
+        raise CurriculumError(f"experiment config {path}: 'extends' must be a file name, got {cfg['extends']!r}")
     if cfg.get("extends"):
         parent = load_experiment(path.parent / cfg["extends"], _seen + (path.resolve(),))
         cfg = _merge(parent, {k: v for k, v in cfg.items() if k != "extends"})
@@ -121,32 +123,65 @@ def _as_list(value: Any, where: str) -> list[str]:
 
 
 def _check(cfg: dict[str, Any], path: Path) -> None:
+    """Check the types of the top-level fields and of every stage (the runner assumes them): errors name the file,
+    the stage and the field."""
+    where = f"experiment config {path}"
+    _check_root(cfg.get("root"), where, optional=False)
+    _check_common(cfg, where)
+    for key in ("data", "trainer"):
+        _as_list(cfg.get(key), f"{where}: '{key}'")
     stages = cfg.get("stages")
     if not isinstance(stages, list) or not stages:
-        raise CurriculumError(f"experiment config {path}: 'stages' must be a non-empty list")
+        raise CurriculumError(f"{where}: 'stages' must be a non-empty list")
     names: list[str] = []
     for i, st in enumerate(stages):
-        where = f"experiment config {path}: stage {i}"
-        if not isinstance(st, dict) or not st.get("name"):
-            raise CurriculumError(f"{where}: every stage needs a 'name'")
-        unknown = set(st) - _STAGE_KEYS
-        if unknown:
-            raise CurriculumError(
-                f"{where} ({st['name']}): unknown key(s) {sorted(unknown)}; allowed {sorted(_STAGE_KEYS)}"
-            )
-        if st["name"] in names:
-            raise CurriculumError(f"{where}: duplicate stage name {st['name']!r}")
-        for key, ref in (st.get("from_stages") or {}).items():
-            if ref not in names:
-                raise CurriculumError(
-                    f"{where} ({st['name']}): from_stages {key}: {ref!r} is not an earlier stage (earlier: {names})"
-                )
-        if st.get("tasks") is not None and not isinstance(st["tasks"], list):
-            raise CurriculumError(f"{where} ({st['name']}): 'tasks' must be a list")
+        _check_stage(st, f"{where}: stage {i}", names)
         names.append(st["name"])
-    for key in ("overrides",):
-        if cfg.get(key) is not None and not isinstance(cfg[key], dict):
-            raise CurriculumError(f"experiment config {path}: '{key}' must be a mapping key -> value")
+
+
+def _check_root(root: Any, where: str, optional: bool) -> None:
+    """``root`` is a directory path (a stage may leave it out: ``<root>/<name>``)."""
+    if not isinstance(root, str) and not (optional and root is None):
+        raise CurriculumError(f"{where}: 'root' must be a directory path, got {root!r}")
+
+
+def _check_common(entry: dict[str, Any], where: str) -> None:
+    """The fields a stage shares with the top level: ``model`` file names, ``overrides`` a mapping of config
+    keys."""
+    _as_list(entry.get("model"), f"{where}: 'model'")
+    _check_mapping(entry.get("overrides"), f"{where}: 'overrides'", "key -> value")
+
+
+def _check_mapping(value: Any, where: str, shape: str) -> None:
+    """``value`` is absent or a mapping with text keys (config keys such as ``trainer.max_epochs``)."""
+    if value is not None and (not isinstance(value, dict) or not all(isinstance(k, str) for k in value)):
+        raise CurriculumError(f"{where} must be a mapping {shape}, got {value!r}")
+
+
+def _check_stage(st: Any, where: str, earlier: list[str]) -> None:
+    """One stage: a unique text ``name``, known keys, and fields of the types the runner uses."""
+    if not isinstance(st, dict) or not st.get("name"):
+        raise CurriculumError(f"{where}: every stage needs a 'name'")
+    if not isinstance(st["name"], str):
+        raise CurriculumError(f"{where}: 'name' must be a text (the stage directory), got {st['name']!r}")
+    where = f"{where} ({st['name']})"
+    unknown = set(st) - _STAGE_KEYS
+    if unknown:
+        raise CurriculumError(f"{where}: unknown key(s) {sorted(unknown)}; allowed {sorted(_STAGE_KEYS)}")
+    if st["name"] in earlier:
+        raise CurriculumError(f"{where}: duplicate stage name {st['name']!r}")
+    _check_root(st.get("root"), where, optional=True)
+    _check_common(st, where)
+    _as_list(st.get("configs"), f"{where}: 'configs'")
+    if not isinstance(st.get("shared", True), bool):
+        raise CurriculumError(f"{where}: 'shared' must be true or false, got {st['shared']!r}")
+    tasks = st.get("tasks")
+    if tasks is not None and (not isinstance(tasks, list) or not all(isinstance(t, str) for t in tasks)):
+        raise CurriculumError(f"{where}: 'tasks' must be a list of task names, got {tasks!r}")
+    _check_mapping(st.get("from_stages"), f"{where}: 'from_stages'", "init-arg key -> earlier stage name")
+    for key, ref in (st.get("from_stages") or {}).items():
+        if ref not in earlier:
+            raise CurriculumError(f"{where}: from_stages {key}: {ref!r} is not an earlier stage (earlier: {earlier})")
 
 
 # --------------------------------------------------------------------------- fit arguments
@@ -535,9 +570,13 @@ def run_curriculum(
     return lineage["stages"]
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str] | None = None, *, raise_errors: bool | None = None) -> int:
     """``floaff-zoo curriculum --config <experiment.yaml> [--root DIR] [--set k=v ...] [--extra-config F ...]
-    [--dry-run]``."""
+    [--dry-run]``.
+
+    A ``CurriculumError`` is printed in one line; then it is raised when ``raise_errors`` (default: when ``argv``
+    is given, i.e. a Python caller), else exit code 2 is returned (the console: ``floaff-zoo`` passes False).
+    """
     parser = argparse.ArgumentParser(
         prog="floaff-zoo curriculum",
         description="Run a PFAL curriculum: one `floaff-zoo fit` per stage, chained by best checkpoints.",
@@ -566,7 +605,7 @@ def main(argv: list[str] | None = None) -> int:
         run_curriculum(ns.config, ns.root, ns.sets, ns.extra, ns.dry_run)
     except CurriculumError as exc:
         print(f"floaff-zoo curriculum: error: {exc}", file=sys.stderr)
-        if argv is not None:
+        if raise_errors or (raise_errors is None and argv is not None):
             raise
         return 2
     return 0

@@ -108,20 +108,23 @@ def _test(run_dir: Path, data: str, ckpt: str | None = None) -> Path:
     return report
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str] | None = None, *, raise_errors: bool | None = None) -> int:
+    """``floaff-zoo demo``. A damaged run record is printed in one line; then it is raised when ``raise_errors``
+    (default: when ``argv`` is given, i.e. a Python caller), else exit code 2 is returned (the console)."""
     from floaff_zoo.curriculum import CurriculumError
     from floaff_zoo.runs import RunError
 
+    raise_errors = argv is not None if raise_errors is None else raise_errors
     try:
-        return _run(argv)
+        return _run(argv, raise_errors)
     except (CurriculumError, RunError) as exc:  # damaged run records: name the file, no traceback
         print(f"floaff-zoo demo: error: {exc}", file=sys.stderr)
-        if argv is not None:
+        if raise_errors:
             raise
         return 2
 
 
-def _run(argv: list[str] | None) -> int:
+def _run(argv: list[str] | None, raise_errors: bool) -> int:
     p = argparse.ArgumentParser(prog="floaff-zoo demo", description=__doc__.split("\n\n")[0])
     p.add_argument(
         "--preset", default="demo", help="generation preset (default: demo; see `floaff-zoo generate --help`)"
@@ -155,7 +158,8 @@ def _run(argv: list[str] | None) -> int:
     sets = ["--set", f"data.init_args.root={args.data}"]
     if args.epochs is not None:
         sets += ["--set", f"trainer.max_epochs={args.epochs}"]
-    rc = curriculum.main(["--config", EXPERIMENT, "--root", str(runs / "cfar_pfal"), *sets])
+    # the curriculum prints its own error line; at the console it returns 2 instead of raising (no second line)
+    rc = curriculum.main(["--config", EXPERIMENT, "--root", str(runs / "cfar_pfal"), *sets], raise_errors=raise_errors)
     if rc:
         return rc
     last_stage = curriculum.read_lineage(runs / "cfar_pfal")["stages"][-1]

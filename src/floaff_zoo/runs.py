@@ -15,10 +15,13 @@ from __future__ import annotations
 import datetime as _dt
 import json
 import os
+import zipfile
 from pathlib import Path
 from typing import Any
 
 FINISHED_FILE = "finished.json"
+#: keys of every checkpoint a Lightning ``Trainer`` writes (``--ckpt_path`` fails without them)
+CHECKPOINT_KEYS = ("state_dict", "pytorch-lightning_version")
 
 
 class RunError(RuntimeError):
@@ -31,15 +34,13 @@ def resolve_ckpt_alias(alias: str, root: str | Path) -> str:
     ``last`` is the newest ``last.ckpt``; ``best`` is the ``best_model_path`` its ModelCheckpoint
     state recorded (falling back to ``last`` when none was monitored).
     """
-    import torch
-
     lasts = sorted(Path(root).rglob("last*.ckpt"), key=lambda p: p.stat().st_mtime)
     if not lasts:
         raise RunError(f"--ckpt_path {alias}: no last.ckpt under {root}; pass a checkpoint file instead")
     last = lasts[-1]
     if alias == "last":
         return str(last)
-    state = torch.load(last, map_location="cpu", weights_only=True)
+    state = load_checkpoint(last, f"--ckpt_path {alias}: ")
     for key, cb in (state.get("callbacks") or {}).items():
         if key.startswith("ModelCheckpoint") and cb.get("best_model_path"):
             best = Path(cb["best_model_path"])
@@ -48,6 +49,36 @@ def resolve_ckpt_alias(alias: str, root: str | Path) -> str:
             if best.is_file():
                 return str(best)
     return str(last)
+
+
+def load_failure_reason(exc: Exception) -> str:
+    """Why ``torch.load`` failed, in one line (checkpoints here, ``weights`` files in ``hub.io``): a weights-only
+    refusal's own reason, not the page of advice around it."""
+    text = str(exc)
+    if "WeightsUnpickler error:" in text:
+        text = text.split("WeightsUnpickler error:", 1)[1].strip().split("\n\n", 1)[0]
+    return f"{type(exc).__name__}: {' '.join(text.split())}"
+
+
+def load_checkpoint(path: str | Path, context: str = "", keys: tuple[str, ...] = ()) -> dict[str, Any]:
+    """The dict of a checkpoint file, read weights-only (no code runs) and memory-mapped when torch allows (its zip
+    format): the tensors stay on disk until used, so checking a large file costs little.
+
+    Raises:
+        RunError: ``{context}{path}: ...`` when the file does not load, is not a dict or lacks one of ``keys``.
+    """
+    import torch
+
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=True, mmap=zipfile.is_zipfile(path))
+    except Exception as exc:  # truncated, not a torch file, or a pickle with code in it
+        raise RunError(f"{context}{path}: not a readable checkpoint ({load_failure_reason(exc)})") from exc
+    if not isinstance(ckpt, dict):
+        raise RunError(f"{context}{path}: expected a checkpoint (a dict), got a {type(ckpt).__name__}")
+    missing = [k for k in keys if k not in ckpt]
+    if missing:
+        raise RunError(f"{context}{path}: not a Lightning checkpoint (no {', '.join(map(repr, missing))})")
+    return ckpt
 
 
 def mark_finished(run_dir: str | Path, checkpoint: str | Path, extra: dict[str, Any] | None = None) -> Path:

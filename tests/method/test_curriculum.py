@@ -2,6 +2,7 @@
 
 import csv
 import json
+import sys
 from pathlib import Path
 
 import pytest
@@ -9,7 +10,7 @@ import torch
 import yaml
 
 from floaff_zoo.cli import run_lightning
-from floaff_zoo.curriculum import CurriculumError, main, run_curriculum
+from floaff_zoo.curriculum import CurriculumError, load_experiment, main, run_curriculum
 from floaff_zoo.hub.registry import sha256_file
 from floaff_zoo.models.cfar import CFARModule
 
@@ -229,3 +230,73 @@ def test_prior_residual_through_pfal_keeps_stage1_prior(tmp_path, root, monkeypa
         )
         prior = fresh.prior.read(fresh.prior.task_index(["CloseDrawer"] * 2), canon.floor_xyz[..., :2])
     assert torch.allclose(scores, prior.clamp(1e-3, 1 - 1e-3), atol=1e-5)
+
+
+@pytest.mark.parametrize(
+    ("stage", "field"),
+    [
+        ({"from_stages": ["first"]}, "'from_stages' must be a mapping"),
+        ({"overrides": ["trainer.max_epochs=1"]}, "'overrides' must be a mapping"),
+        ({"root": 5}, "'root' must be a directory path"),
+        ({"shared": "no"}, "'shared' must be true or false"),
+        ({"tasks": ["CloseDrawer", 3]}, "'tasks' must be a list of task names"),
+        ({"model": {"file": "x.yaml"}}, "'model': expected a list of file names"),
+    ],
+)
+def test_malformed_stage_field_names_file_stage_and_field(tmp_path, stage, field):
+    """Lists for mappings were AttributeErrors, a number for root a TypeError, shared: "no" silently true."""
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(yaml.safe_dump({"stages": [{"name": "first"}, {"name": "second", **stage}]}))
+    with pytest.raises(CurriculumError) as info:
+        load_experiment(bad)
+    assert str(info.value).startswith(f"experiment config {bad}: stage 1 (second): {field}")
+
+
+@pytest.mark.parametrize(
+    ("top", "message"),
+    [
+        ({"stages": [{"name": ["a", "b"]}]}, "stage 0: 'name' must be a text"),
+        ({"root": 5, "stages": [{"name": "a"}]}, "'root' must be a directory path"),
+        ({"extends": ["base.yaml"], "stages": [{"name": "a"}]}, "'extends' must be a file name"),
+    ],
+)
+def test_malformed_top_level_field_names_file_and_field(tmp_path, top, message):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(yaml.safe_dump(top))
+    with pytest.raises(CurriculumError) as info:
+        load_experiment(bad)
+    assert str(info.value).startswith(f"experiment config {bad}: {message}")
+
+
+def test_curriculum_error_is_one_line_and_exit_2_at_the_console(tmp_path, root, monkeypatch, capsys):
+    """`floaff-zoo` passed its argv on as a list, so every curriculum error re-raised: a traceback and exit 1."""
+    from floaff_zoo import cli
+
+    monkeypatch.chdir(root)
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(yaml.safe_dump({"stages": [{"name": "a", "tasks": "CloseDrawer"}]}))
+    monkeypatch.setattr(sys, "argv", ["floaff-zoo", "curriculum", "--config", str(bad), "--dry-run"])
+    assert cli.main() == 2
+    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert err == [
+        f"floaff-zoo curriculum: error: experiment config {bad}: stage 0 (a): 'tasks' must be a list of "
+        "task names, got 'CloseDrawer'"
+    ]
+    with pytest.raises(CurriculumError, match="'tasks'"):  # a Python caller still gets the exception
+        cli.main(["curriculum", "--config", str(bad), "--dry-run"])
+
+
+def test_demo_curriculum_error_is_one_line_and_exit_2_at_the_console(tmp_path, root, monkeypatch, capsys):
+    """The demo's curriculum step: one error line (not the curriculum's and the demo's), exit code 2."""
+    from floaff_zoo import cli, demo
+    from floaff_zoo.sim import generate
+
+    monkeypatch.chdir(root)
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(yaml.safe_dump({"stages": [{"name": "a", "overrides": ["trainer.max_epochs=1"]}]}))
+    monkeypatch.setattr(demo, "EXPERIMENT", str(bad))
+    monkeypatch.setattr(generate, "main", lambda argv: 0)  # the benchmark is not needed to reach the curriculum
+    monkeypatch.setattr(sys, "argv", ["floaff-zoo", "demo", "--data", str(tmp_path / "d"), "--runs", str(tmp_path)])
+    assert cli.main() == 2
+    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert len(err) == 1 and err[0].startswith(f"floaff-zoo curriculum: error: experiment config {bad}: stage 0 (a)")

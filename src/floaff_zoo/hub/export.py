@@ -69,7 +69,8 @@ def find_run_checkpoint(run: str | os.PathLike[str]) -> Path:
     try:
         return Path(resolve_ckpt_alias("best", p))
     except RunError as exc:
-        raise HubError(f"{p}: no last.ckpt found in the run directory; pass the .ckpt file instead") from exc
+        # the lookup is the CLI's ``best``: its message says whether last.ckpt is missing or unreadable, and names it
+        raise HubError(f"{p}: no checkpoint to push ({exc}); pass a .ckpt file instead") from exc
 
 
 #: suffixes of the files whose sha256 a report's ``checkpoint`` can be compared with (weights files, exported

@@ -45,6 +45,7 @@ from floaff_zoo.hub.registry import (
     publish,
     sha256_file,
 )
+from floaff_zoo.runs import load_failure_reason
 
 CONFIG_NAME = "config.json"
 DEFAULT_WEIGHTS_NAME = "model.safetensors"
@@ -65,21 +66,12 @@ def _strip_teacher(state: dict[str, Any]) -> dict[str, Any]:
     return {k: v for k, v in state.items() if not k.startswith(TEACHER_PREFIX)}
 
 
-def _load_failure(exc: Exception) -> str:
-    """``torch.load``'s reason in one line: a weights-only refusal's own reason, not the page of advice around it."""
-    text = str(exc)
-    marker = "WeightsUnpickler error:"
-    if marker in text:
-        text = text.split(marker, 1)[1].strip().split("\n\n", 1)[0]
-    return f"{type(exc).__name__}: {' '.join(text.split())}"
-
-
 def _read_torch(path: Path) -> tuple[dict[str, Any], Info]:
     """State dict and (class_path, init_args) of a Lightning ``.ckpt`` or a plain state-dict file."""
     try:
         obj = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # corrupt file or a pickle with code in it
-        raise ValueError(f"{path}: not a readable weights-only checkpoint ({_load_failure(exc)})") from exc
+        raise ValueError(f"{path}: not a readable weights-only checkpoint ({load_failure_reason(exc)})") from exc
     if not isinstance(obj, dict):
         raise ValueError(f"{path}: expected a checkpoint dict or a state dict, got {type(obj).__name__}")
     if "state_dict" in obj:
