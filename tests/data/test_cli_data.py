@@ -107,3 +107,38 @@ def test_every_data_config_parses(cfg, root, monkeypatch, capsys):
         main(["fit", "--config", cfg, "--config", MODEL, "--print_config"])
     assert ex.value.code in (0, None)
     assert "class_path: floaff_zoo.data." in capsys.readouterr().out
+
+
+def test_a_view_that_breaks_after_setup_is_replaced_counted_and_reported(
+    tmp_path, root, monkeypatch, floaff_root, capsys
+):
+    """A file that breaks between setup and the test loop: the next sample stands in, the report names the broken
+    one and counts every evaluated sample once, and the DataModule prints a summary at the end."""
+    from floaff_zoo.data.cache import RecordDataset
+
+    monkeypatch.chdir(root)
+    base = [
+        "--config", "configs/data/floaff_styles.yaml", "--config", MODEL,
+        "--data.init_args.root", str(floaff_root[0]), "--data.init_args.tasks", "[CloseDrawer]",
+        "--data.init_args.num_points", "256", "--data.init_args.batch_size", "2", "--data.init_args.val_scenes", "0",
+        *quiet_trainer_args(tmp_path / "runs"),
+    ]  # fmt: skip
+    run_lightning(["fit", *base, "--trainer.max_epochs", "1"])
+    real_get = RecordDataset.get
+
+    def get(self, i):  # the test split's first view is unreadable once the loop runs (setup checked it fine)
+        if "test" in self.name and i == 0:  # (in a loader worker, when the config asks for workers)
+            raise OSError(f"{self.records[0].key}: truncated file")
+        return real_get(self, i)
+
+    monkeypatch.setattr(RecordDataset, "get", get)
+    cli = run_lightning(["test", *base, "--ckpt_path", "best"])
+    test_set = cli.datamodule.datasets["test"]
+    n_test, broken = len(test_set), test_set.records[0].key
+    assert n_test > 1
+    (report,) = (tmp_path / "runs").rglob("report.json")
+    data = json.loads(report.read_text())["data"]
+    assert data["samples_replaced"] == [broken]
+    assert data["num_samples"] == n_test - 1  # the stand-in sample counts once
+    assert "1 test sample(s) failed at load time and were replaced by the next sample" in capsys.readouterr().out
+    assert "failed at load time" in (report.parent / "report.md").read_text()

@@ -213,4 +213,5 @@ def test_robust_getitem_after_file_loss(moma_root, capsys):
     (root / "rgbd" / exp["kept"]["test"][0] / "point_cloud_transformed" / "world_pcd_transformed.ply").unlink()
     s = dm.datasets["test"][0]  # replaced by the next sample, not a crash mid-epoch
     assert s["meta"]["sample_id"] == exp["kept"]["test"][1]
+    assert s["meta"]["replaces"] == dm.datasets["test"].records[0].key  # counted downstream by this mark
     assert "failed at load time" in capsys.readouterr().out

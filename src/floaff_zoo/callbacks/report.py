@@ -129,26 +129,27 @@ class TestReport(L.Callback):
         self._samples: list[FigureSample] = []
         self._counts: dict[tuple[str, str], int] = {}
         self._seen: dict[str, set[str]] = {}
-        self._n = 0
         self._keys: set[tuple[int, int]] = set()  # (dataloader, meta['index']) of every sample seen
         self._unkeyed = 0  # samples seen without meta['index']
+        self._replaced: set[str] = set()  # samples that failed at load time and were replaced (meta['replaces'])
         #: paths written by the last test run
         self.written: dict[str, Any] = {}
 
     # ------------------------------------------------------------------------------ collection
     def on_test_epoch_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        self._samples, self._counts, self._n = [], {}, 0
+        self._samples, self._counts = [], {}
         self._seen = {"dataset": set(), "task": set(), "view": set()}
-        self._keys, self._unkeyed = set(), 0
+        self._keys, self._unkeyed, self._replaced = set(), 0, set()
 
     def on_test_batch_end(self, trainer, pl_module, outputs, batch, batch_idx, dataloader_idx=0) -> None:
         metas = batch["meta"]
-        self._n += len(metas)
         for m in metas:
             if m.get("index") is None:
                 self._unkeyed += 1
             else:
                 self._keys.add((dataloader_idx, int(m["index"])))
+            if m.get("replaces"):
+                self._replaced.add(str(m["replaces"]))
             for key in self._seen:
                 if m.get(key):
                     self._seen[key].add(str(m[key]))
@@ -183,11 +184,11 @@ class TestReport(L.Callback):
         if trainer.world_size <= 1 or not dist.is_available() or not dist.is_initialized():
             return
         parts: list[Any] = [None] * trainer.world_size
-        dist.all_gather_object(parts, (self._seen, self._keys, self._unkeyed))
-        self._seen = {k: set().union(*(seen[k] for seen, _, _ in parts)) for k in self._seen}
-        self._keys = set().union(*(keys for _, keys, _ in parts))
-        self._unkeyed = sum(n for _, _, n in parts)
-        self._n = len(self._keys) + self._unkeyed
+        dist.all_gather_object(parts, (self._seen, self._keys, self._unkeyed, self._replaced))
+        self._seen = {k: set().union(*(seen[k] for seen, _, _, _ in parts)) for k in self._seen}
+        self._keys = set().union(*(keys for _, keys, _, _ in parts))
+        self._unkeyed = sum(n for _, _, n, _ in parts)
+        self._replaced = set().union(*(r for _, _, _, r in parts))
 
     def on_test_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         """Write the report on rank 0; every rank first takes part in the collectives (``trainer.log_dir`` is a
@@ -282,7 +283,9 @@ class TestReport(L.Callback):
                 "benchmark": benchmark,
                 "tasks": sorted(self._seen.get("task", ())),
                 "views": sorted(self._seen.get("view", ())),
-                "num_samples": self._n,
+                # distinct samples (one index counts once: DDP's padding repeats, a replacement of a broken file)
+                "num_samples": len(self._keys) + self._unkeyed,
+                "samples_replaced": sorted(self._replaced),
                 # scene id -> labels hash: copies generated on different CPUs differ (floaff-zoo table checks it)
                 "labels_sha256": getattr(dm, "labels_digests", None) or None,
             },
@@ -321,6 +324,13 @@ def render_markdown(report: dict[str, Any]) -> str:
         f"tasks {', '.join(data.get('tasks', [])) or '-'}"
         f" | views {', '.join(data.get('views', [])) or '-'} | {data.get('num_samples')} samples",
         f"- sim_variant: {report.get('sim_variant')}, metric_reduction: {report.get('metric_reduction')}",
+    ]
+    replaced = data.get("samples_replaced") or []
+    if replaced:  # files that broke after setup: the next sample stood in, so these were not evaluated
+        lines.append(
+            f"- **{len(replaced)} sample(s) failed at load time** and were not evaluated: {', '.join(replaced[:5])}"
+        )
+    lines += [
         "",
         "## Floor-affordance map metrics",
         "",

@@ -126,6 +126,8 @@ class FloAffDataModule(L.LightningDataModule):
         self.collate_mode = collate_mode
         self.seed = seed
         self.datasets: dict[str, Dataset] = {}
+        #: split -> keys of the samples that failed at load time after setup and were replaced (``meta['replaces']``)
+        self.load_failures: dict[str, set[str]] = {}
 
     def collate_fn(self, split: str) -> Callable[[Sequence[Sample]], dict[str, Any]]:
         # eval splits resample each sample from its own seeded stream, so metrics repeat across epochs and worker
@@ -172,6 +174,31 @@ class FloAffDataModule(L.LightningDataModule):
             collate_fn=self.collate_fn(split),
             generator=torch.Generator().manual_seed(self.seed) if split == "train" else None,
         )
+
+    def on_after_batch_transfer(self, batch: Any, dataloader_idx: int) -> Any:
+        """Count the samples a dataset replaced because they failed at load time (files changed after setup):
+        in the main process, as loader workers keep their own counters."""
+        metas = batch.get("meta") if isinstance(batch, dict) else None
+        replaced = [str(m["replaces"]) for m in metas or [] if isinstance(m, dict) and m.get("replaces")]
+        if replaced:
+            self.load_failures.setdefault(self._running_split(), set()).update(replaced)
+        return batch
+
+    def _running_split(self) -> str:
+        """The split the trainer is iterating (``train``, ``val``, ``test``, ``predict``)."""
+        stage = getattr(getattr(self.trainer, "state", None), "stage", None)
+        name = str(getattr(stage, "value", stage) or "unknown")  # RunningStage: train, validate, test, ...
+        return {"validate": "val", "sanity_check": "val"}.get(name, name)
+
+    def teardown(self, stage: str) -> None:
+        """Summarise the load-time replacements of the run (the dataset prints only the first three)."""
+        for split, keys in sorted(self.load_failures.items()):
+            shown = ", ".join(sorted(keys)[:5]) + (", ..." if len(keys) > 5 else "")
+            print(
+                f"{type(self).__name__}: {len(keys)} {split} sample(s) failed at load time and were replaced by "
+                f"the next sample (metrics count every sample once): {shown}"
+            )
+        self.load_failures = {}
 
     def train_dataloader(self) -> DataLoader:
         return self._dataloader("train")

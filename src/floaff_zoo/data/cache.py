@@ -257,11 +257,16 @@ class RecordDataset(Dataset):
     def __getitem__(self, i: int) -> Sample:
         if not 0 <= i < len(self.records):
             raise IndexError(i)
-        # Robust mid-epoch: a sample that broke after setup (file deleted/changed) is replaced by the next one.
+        # Robust mid-epoch: a sample that broke after setup (file deleted/changed) is replaced by the next one. The
+        # replacement's meta names the broken record (``replaces``), so the DataModule and the test report count it
+        # in the main process (a worker's own counter never reaches it); metrics count samples once by ``index``.
         for k in range(len(self.records)):
             j = (i + k) % len(self.records)
             try:
-                return self.get(j)
+                s = self.get(j)
+                if k:
+                    s["meta"]["replaces"] = self.records[i].key
+                return s
             except (SampleError, ValueError, OSError, RuntimeError, KeyError) as exc:
                 self.runtime_failures += 1
                 if self.runtime_failures <= 3:
