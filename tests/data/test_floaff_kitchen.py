@@ -339,8 +339,18 @@ def test_a_pre_transform_keeps_its_meta_changes_through_the_cache(floaff_root):
         lambda r: r.update(candidates=[]),
         lambda r: r.update(split="Train"),
         lambda r: r.update(task="CloseDrawerr"),
+        lambda r: r["views"][0].update(base_pose_world=[0.5, float("nan"), 0.0]),  # the SR rollout starts there
+        lambda r: r["views"][0].update(base_pose_world=[0.5, 0.0]),
     ],
-    ids=["view_without_file", "labels_without_success", "candidates_a_list", "split_typo", "task_typo"],
+    ids=[
+        "view_without_file",
+        "labels_without_success",
+        "candidates_a_list",
+        "split_typo",
+        "task_typo",
+        "pose_nan",
+        "pose_short",
+    ],
 )
 def test_a_malformed_scene_json_is_a_counted_skip_naming_the_file(floaff_root, tmp_path, edit):
     """A field missing or of the wrong kind, or an unknown split / task: the scene is skipped as corrupt_scene_json

@@ -25,6 +25,7 @@ from __future__ import annotations
 import abc
 import hashlib
 import importlib
+import math
 import os
 from collections import Counter
 from dataclasses import dataclass, field
@@ -275,7 +276,10 @@ class GeneratedReader(FloAffReader):
             if not vf.is_file():
                 self.skips.add("missing_view", vf, "view file listed in scene.json is missing")
                 continue
-            views.append(ViewEntry(v["view_id"], v["view"], str(vf), [float(x) for x in v["base_pose_world"]]))
+            pose = [float(x) for x in v["base_pose_world"]]
+            if len(pose) != 3 or not all(math.isfinite(x) for x in pose):  # the SR rollout parks the robot from it
+                raise ValueError(f"view {v['view_id']!r}: base_pose_world must be 3 finite numbers, got {pose}")
+            views.append(ViewEntry(v["view_id"], v["view"], str(vf), pose))
         spec = rec["spec"]
         return SceneEntry(
             scene_id=str(rec.get("scene_id", d.name)),
