@@ -34,7 +34,9 @@
 #                                              # pool_succ_occ_recipe_no_{crop,align,sdl,fd}[_s<seed>] its ablations,
 #                                              # pool_succ_occ_recipe_r1.xx[_s<seed>] its crop sweep;
 #                                              # cv<f>_{occ,rank,prior,last,succ,sprior,cov} (and styles_...): leave-one-layout-out folds
-#                                              # f = 0..4 scored on their validation scenes (scripts/cv_sr.py pools them);
+#                                              # f = 0..4 scored on their validation scenes (scripts/cv_sr.py pools them;
+#                                              # CV_SEED=<n> trains them with another seed, default 0: give it its own
+#                                              # RUNS and OUT);
 #                                              # occ_recipe_rs<scale>_s<seed> tests the best configuration with its
 #                                              # learned residual scaled (no training)
 #
@@ -64,6 +66,7 @@ else RUNS=${RUNS:-runs/$PRESET} OUT=${OUT:-docs/results/$PRESET}; fi
 if [ "$PRESET" = dense ]; then BUDGET=(--config configs/trainer/dense_budget.yaml)
 else BUDGET=(--trainer.max_epochs "${EPOCHS:-20}"); fi
 PAR=${PAR:-2}
+CV_SEED=${CV_SEED:-0}  # seed of the leave-one-layout-out fold jobs (cv<f>_*)
 # DATA_ROOT: a copy of the preset's data other than the one its data configs name (e.g. generated with --cell 0.05)
 ROOT_ARGS=() ROOT_SET=()
 if [ -n "${DATA_ROOT:-}" ]; then ROOT_ARGS=(--data.init_args.root "$DATA_ROOT") ROOT_SET=(--set "data.init_args.root=$DATA_ROOT"); fi
@@ -379,7 +382,7 @@ run_job() {
         "$ckpt" --model.init_args.residual_scale "$scale" ;;
     cv[0-4]_occ|cv[0-4]_rank|cv[0-4]_last|cv[0-4]_succ|cv[0-4]_cov|styles_cv[0-4]_occ|styles_cv[0-4]_rank|\
     styles_cv[0-4]_last|styles_cv[0-4]_succ|styles_cv[0-4]_cov)
-      # leave-one-layout-out validation, fold f = the train scenes of layout f held out for every task (seed 0): the
+      # leave-one-layout-out validation, fold f = the train scenes of layout f held out for every task (CV_SEED): the
       # best configuration, or it plus the listwise ranking term (rank) or trained on labels with failed cells set
       # to 0 (succ), or that with the footprint coverage input as well (cov); trained, then scored on the fold's
       # validation scenes (no test). cv<f>_last trains the best configuration again (with last.ckpt the newest
@@ -392,7 +395,7 @@ run_job() {
       fi
       [ "${j#*_}" = cov ] && extra+=(--extra-config configs/experiments/recipe/coverage.yaml)
       if [ "$RETEST" = 0 ]; then
-        "$FZ" curriculum --config "configs/experiments/pfal_${PRESET}_$b.yaml" --root "$RUNS/$b/$j" --set seed_everything=0 \
+        "$FZ" curriculum --config "configs/experiments/pfal_${PRESET}_$b.yaml" --root "$RUNS/$b/$j" --set "seed_everything=$CV_SEED" \
           --set "data.init_args.val_layout=$f" "${ROOT_SET[@]}" --extra-config "$RECIPE" \
           --extra-config configs/experiments/recipe/occupancy.yaml "${extra[@]}"
       fi
