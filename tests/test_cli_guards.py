@@ -241,3 +241,16 @@ def test_init_error_exits_2_at_the_console_and_a_bug_keeps_its_traceback(tmp_pat
     with pytest.raises(Exception, match="a bug") as info:  # noqa: PT011 - jsonargparse's wrapping, unchanged
         main(args)
     assert not isinstance(info.value, CLIError)
+
+
+def test_init_error_stays_one_line_when_jsonargparse_does_not_show_the_part(tmp_path, root, monkeypatch):
+    """The config key is read from jsonargparse's own frames; should a release hide it, the message still comes out
+    in one line, without the key, instead of the traceback of union types."""
+    from floaff_zoo import cli
+
+    monkeypatch.chdir(root)
+    monkeypatch.setattr(cli, "_instantiated_part", lambda exc: None)
+    args = ["fit", "--config", DATA, "--config", MODEL, *quiet_trainer_args(tmp_path)]
+    with pytest.raises(CLIError) as info:
+        main([*args, "--model.init_args.train.lr", "-1"])
+    assert str(info.value) == "train.lr must be > 0, got -1.0"

@@ -118,7 +118,8 @@ def _in_jsonargparse(frame: FrameType) -> bool:
 
 def _instantiated_part(exc: BaseException) -> str | None:
     """The config key (``model``, ``data``, ``trainer.callbacks``...) whose class jsonargparse was instantiating
-    when ``exc`` escaped it: jsonargparse names it only in the ``component`` its instantiation loop is at."""
+    when ``exc`` escaped it: jsonargparse names it only in the ``component`` its instantiation loop is at, a local
+    of its own code (None when that is not found: the error is then printed without the key)."""
     for frame in _frames(exc.__traceback__):
         dest = getattr(frame.f_locals.get("component"), "dest", None) if _in_jsonargparse(frame) else None
         if isinstance(dest, str):
@@ -237,12 +238,15 @@ class FloAffCLI(LightningCLI):
 
     def _init_error(self, exc: BaseException) -> CLIError | None:
         """The one-line error for a configured class (model, data, a callback...) whose ``__init__`` rejected its
-        init args, naming the config key and the class (None: ``exc`` is another error)."""
-        part, cause = _instantiated_part(exc), _user_error(exc)
-        if part is None or not isinstance(cause, (ValueError, MisconfigurationException)):
+        init args, naming the config key and the class where jsonargparse shows them (None: ``exc`` is another
+        error)."""
+        cause = _user_error(exc)
+        if not isinstance(cause, (ValueError, MisconfigurationException)):
             return None
-        cls = self._configured_class(part)
-        return CLIError(f"{part}{f' ({cls})' if cls else ''}: {_one_line(str(cause))}")
+        part = _instantiated_part(exc)
+        cls = self._configured_class(part) if part else None
+        where = f"{part}{f' ({cls})' if cls else ''}: " if part else ""
+        return CLIError(f"{where}{_one_line(str(cause))}")
 
     def _configured_class(self, key: str) -> str | None:
         """The class name the config gives ``key`` (``model``, ``data``...); None for lists (callbacks)."""

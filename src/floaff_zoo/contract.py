@@ -66,6 +66,8 @@ REQUIRED_KEYS: tuple[str, ...] = (
 )
 #: optional key: every stored point of the view (module docstring); transforms that move the frame move it too
 FULL_CLOUD_KEY = "full_xyz"
+#: the values of ``scene_feat`` channel 0, the target flag: -1 obstacle, 0 other, +1 target
+TARGET_FLAG_VALUES = (-1.0, 0.0, 1.0)
 META_KEYS: tuple[str, ...] = (
     "dataset",
     "task",

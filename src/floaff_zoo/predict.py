@@ -36,14 +36,19 @@ import numpy as np
 import torch
 
 from floaff_zoo import runtime
-from floaff_zoo.contract import FloorGrid, SampleError, best_pose, collate_samples, validate_sample
+from floaff_zoo.contract import (
+    TARGET_FLAG_VALUES,
+    FloorGrid,
+    SampleError,
+    best_pose,
+    collate_samples,
+    validate_sample,
+)
 from floaff_zoo.floor import CANDIDATE_WINDOW, FLOOR_Z_MAX, FloorLattice, observed_cells
 
 Pose = tuple[float, float, float]
 #: m: default floor cell, the grid of the demo/small generation presets the shipped models were trained on
 DEFAULT_FLOOR_CELL = 0.1
-#: the target flag's values (scene_feat channel 0, contract.py): +1 target, -1 obstacle, 0 other
-FLAG_VALUES = (-1.0, 0.0, 1.0)
 #: most cells of the default grid's lattice or of the returned raster (2000 x 2000: 20 m x 20 m at 1 cm); a finer
 #: cell or candidates spread wider are refused instead of allocating gigabytes for one map
 MAX_RASTER_CELLS = 4_000_000
@@ -164,7 +169,7 @@ def check_scene(scene_xyz: Any, scene_feat: Any) -> tuple[np.ndarray, np.ndarray
             f"predict: scene_feat must be [N, C] with N = {xyz.shape[0]} rows like scene_xyz {xyz.shape} and "
             f"C >= 1 (channel 0 = target flag), got shape {feat.shape}"
         )
-    bad = ~np.isin(feat[:, 0], FLAG_VALUES)
+    bad = ~np.isin(feat[:, 0], TARGET_FLAG_VALUES)
     if bad.any():
         seen = [float(f"{v:.4g}") for v in np.unique(feat[bad, 0])[:3]]
         rgb = " (3 channels: RGB without the flag?)" if feat.shape[1] == 3 else ""
