@@ -1,6 +1,8 @@
 """Guards of the trainer commands: ``--ckpt_path best|last`` carries the checkpoint's hyper-parameters, a bad
 ``weights`` is one error line, and evaluation refuses weights that leave part of the model untrained."""
 
+import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -61,6 +63,41 @@ def test_ckpt_alias_without_a_run_is_a_run_error(tmp_path, root, monkeypatch):
     monkeypatch.chdir(root)
     with pytest.raises(RunError, match="no last.ckpt"):
         main(["test", "--config", DATA, "--config", MODEL, *quiet_trainer_args(tmp_path), "--ckpt_path", "best"])
+
+
+def _other_model_run(src: Path, root: Path) -> Path:
+    """A newer run of another model class under ``root``: ``src`` with its recorded class changed."""
+    ckpt = torch.load(src, map_location="cpu", weights_only=True)
+    ckpt["hyper_parameters"]["_class_path"] = "floaff_zoo.models.cfar.CFARModule"
+    dest = root / "cfarmodule" / "version_0" / "checkpoints" / "last.ckpt"
+    dest.parent.mkdir(parents=True)
+    torch.save(ckpt, dest)
+    return dest
+
+
+@pytest.mark.parametrize("alias", ["best", "last"])
+def test_ckpt_alias_skips_the_runs_of_other_models(width16_run, tmp_path, root, monkeypatch, alias):
+    """Without a run's own config, ``best``/``last`` search ``trainer.default_root_dir``: they took the newest
+    last.ckpt of any model there, and the model it recorded was evaluated instead of the configured one."""
+    monkeypatch.chdir(root)
+    out, best = width16_run
+    shutil.copytree(out, tmp_path / "runs")
+    mine = next((tmp_path / "runs").rglob("last.ckpt"))
+    other = _other_model_run(mine, tmp_path / "runs")
+    os.utime(mine, (1, 1))  # the other model's run is the newer one
+    cli = run_lightning(["test", "--config", DATA, "--config", MODEL, *quiet_trainer_args(tmp_path / "runs"),
+                         "--ckpt_path", alias])  # fmt: skip
+    chosen = Path(cli.config_init["test"]["ckpt_path"])
+    assert chosen != other and chosen.name == (best.name if alias == "best" else mine.name)
+    assert isinstance(cli.model, TinyPointNetModule) and cli.model.hparams.width == 16
+
+
+def test_ckpt_alias_with_only_other_models_is_a_run_error(width16_run, tmp_path, root, monkeypatch):
+    monkeypatch.chdir(root)
+    other = _other_model_run(next(width16_run[0].rglob("last.ckpt")), tmp_path)
+    with pytest.raises(RunError, match="no last.ckpt of TinyPointNetModule") as info:
+        main(["test", "--config", DATA, "--config", MODEL, *quiet_trainer_args(tmp_path), "--ckpt_path", "best"])
+    assert f"{other} (CFARModule)" in str(info.value)
 
 
 @pytest.mark.parametrize("command", ["fit", "validate", "test", "predict"])

@@ -28,19 +28,36 @@ class RunError(RuntimeError):
     """A run directory lacks what a command needs (user-facing: the CLI prints it without a traceback)."""
 
 
-def resolve_ckpt_alias(alias: str, root: str | Path) -> str:
+def resolve_ckpt_alias(alias: str, root: str | Path, model_class: str | None = None) -> str:
     """Turn ``best``/``last`` into a checkpoint file found under a run directory.
 
     ``last`` is the newest ``last.ckpt``; ``best`` is the ``best_model_path`` its ModelCheckpoint
-    state recorded (falling back to ``last`` when none was monitored).
+    state recorded (falling back to ``last`` when none was monitored). With ``model_class`` (a class name such as
+    ``PointNet2Module``) only checkpoints whose hyper-parameters record that class count: a root that holds the runs
+    of several models (``trainer.default_root_dir``) must not hand one model another model's weights.
     """
-    lasts = sorted(Path(root).rglob("last*.ckpt"), key=lambda p: p.stat().st_mtime)
+    lasts = sorted(Path(root).rglob("last*.ckpt"), key=lambda p: p.stat().st_mtime, reverse=True)
     if not lasts:
         raise RunError(f"--ckpt_path {alias}: no last.ckpt under {root}; pass a checkpoint file instead")
-    last = lasts[-1]
+    last, state = lasts[0], None
+    if model_class is not None:
+        last, others = None, []
+        for path in lasts:  # newest first; each file is memory-mapped, so a look at its hyper-parameters costs little
+            ckpt = load_checkpoint(path, f"--ckpt_path {alias}: ")
+            found = checkpoint_class(ckpt)
+            if found == model_class:
+                last, state = path, ckpt
+                break
+            others.append(f"{path} ({found or 'no class recorded'})")
+        if last is None:
+            raise RunError(
+                f"--ckpt_path {alias}: no last.ckpt of {model_class} under {root} (only {len(others)} of other "
+                f"models, newest {others[0]}); pass a checkpoint file or the run's own --config <run>/config.yaml"
+            )
     if alias == "last":
         return str(last)
-    state = load_checkpoint(last, f"--ckpt_path {alias}: ")
+    if state is None:
+        state = load_checkpoint(last, f"--ckpt_path {alias}: ")
     for key, cb in (state.get("callbacks") or {}).items():
         if key.startswith("ModelCheckpoint") and cb.get("best_model_path"):
             best = Path(cb["best_model_path"])
@@ -49,6 +66,13 @@ def resolve_ckpt_alias(alias: str, root: str | Path) -> str:
             if best.is_file():
                 return str(best)
     return str(last)
+
+
+def checkpoint_class(ckpt: dict[str, Any]) -> str | None:
+    """The class name a Lightning checkpoint's hyper-parameters record (``_class_path``, written when the CLI built
+    the model), or None."""
+    path = (ckpt.get("hyper_parameters") or {}).get("_class_path")
+    return str(path).rsplit(".", 1)[-1] if path else None
 
 
 def load_failure_reason(exc: Exception) -> str:
