@@ -62,6 +62,34 @@ def test_predict_refuses_a_scene_feat_whose_channel_0_is_not_the_flag(tiny_model
         predict_from_points(tiny_model, xyz, flag * 255, None, *args, num_points=64)
 
 
+def test_predict_refuses_rgb_outside_0_1(tiny_model):
+    """The README promises RGB in [0, 1] after the flag: 8-bit colours (or a NaN) ran without a word."""
+    import numpy as np
+
+    from floaff_zoo.predict import predict, predict_from_points
+
+    xyz, flag, t = _cloud()
+    args = ([0.85, 1.03], t)
+    rgb = np.random.default_rng(1).uniform(0, 1, (len(xyz), 3)).astype(np.float32)
+    feat = np.concatenate([flag, rgb], axis=1)
+    assert predict_from_points(tiny_model, xyz, feat, None, *args, num_points=64).scores.size
+    feat8 = feat.copy()
+    feat8[:, 1:] = np.round(rgb * 255)
+    with pytest.raises(ValueError, match=r"channels 1-3 are RGB in \[0, 1\]; \d+ of 440 points .*divide"):
+        predict_from_points(tiny_model, xyz, feat8, None, *args, num_points=64)
+    feat[7, 2] = np.nan
+    with pytest.raises(ValueError, match=r"channels 1-3 .* 1 of 440 points .*nan"):
+        predict_from_points(tiny_model, xyz, feat, None, *args, num_points=64)
+    # the RGB-D entry clipped a float image to [0, 1]: 0..255 floats became a white scene
+    depth, mask = np.full((24, 32), 1.2), np.zeros((24, 32), bool)
+    mask[10:12, 14:16] = True
+    pose = np.eye(4)
+    pose[:3, 3] = [0.8, 0.0, 1.2]
+    image = np.full((24, 32, 3), 200.0)
+    with pytest.raises(ValueError, match=r"a float rgb must hold values in \[0, 1\], got 200 to 200: pass uint8"):
+        predict(tiny_model, image, depth, (20.0, 20.0, 16.0, 12.0), pose, mask, [0.85, 1.03])
+
+
 def test_predict_names_bad_scene_shapes(tiny_model):
     """A [N, 2] cloud gave numpy's bare reshape error and a [3, N] one 'the cloud has no ground point'."""
     from floaff_zoo.predict import predict_from_points

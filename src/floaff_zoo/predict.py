@@ -153,9 +153,10 @@ def check_raster_size(shape: tuple[int, int], cell: float, what: str, other_fix:
 def check_scene(scene_xyz: Any, scene_feat: Any) -> tuple[np.ndarray, np.ndarray]:
     """The observation as float32 arrays: scene_xyz [N, 3] and scene_feat [N, C] (a 1-D [N] flag becomes [N, 1]).
 
-    Raises ValueError naming the argument for wrong shapes, and for a channel 0 that is not the target flag
-    (values -1, 0, +1, as the contract and the generated views store it): RGB alone or a flag scaled to 0..255
-    would otherwise run and return another pose.
+    Raises ValueError naming the argument for wrong shapes, for a channel 0 that is not the target flag
+    (values -1, 0, +1, as the contract and the generated views store it) and for RGB channels (1-3) outside
+    [0, 1] or not finite: RGB alone, a flag scaled to 0..255 or 8-bit colours would otherwise run and return
+    another pose.
     """
     xyz = np.asarray(scene_xyz, dtype=np.float32)
     if xyz.ndim != 2 or xyz.shape[1] != 3 or xyz.shape[0] == 0:
@@ -177,6 +178,14 @@ def check_scene(scene_xyz: Any, scene_feat: Any) -> tuple[np.ndarray, np.ndarray
             f"predict: scene_feat channel 0 must be the target flag, -1 (obstacle), 0 (other) or +1 (target); "
             f"{int(bad.sum())} of {len(feat)} points hold other values (e.g. {seen}){rgb}: put the flag first, "
             "then RGB in [0, 1]"
+        )
+    rgb = feat[:, 1:4]  # the contract's colour channels, when present
+    off = ~(np.isfinite(rgb) & (rgb >= 0.0) & (rgb <= 1.0))
+    if off.any():
+        seen = [float(f"{v:.4g}") for v in np.unique(rgb[off])[:3]]
+        raise ValueError(
+            f"predict: scene_feat channels 1-3 are RGB in [0, 1]; {int(off.any(axis=1).sum())} of {len(feat)} points "
+            f"hold other values (e.g. {seen}): divide 8-bit colours by 255"
         )
     return xyz, feat
 
@@ -424,7 +433,14 @@ def predict(
         if c.shape[:2] != d.shape or c.ndim != 3 or c.shape[2] < 3:
             raise ValueError(f"predict: rgb must be [H, W, 3] like depth {d.shape}, got {c.shape}")
         c = c[..., :3].reshape(-1, 3).astype(np.float32)
-        feats.append(c / 255.0 if np.asarray(rgb).dtype == np.uint8 else np.clip(c, 0.0, 1.0))
+        if np.asarray(rgb).dtype == np.uint8:
+            c = c / 255.0
+        elif not (np.isfinite(c) & (c >= 0.0) & (c <= 1.0)).all():  # clipping made 0..255 floats white
+            raise ValueError(
+                f"predict: a float rgb must hold values in [0, 1], got {float(np.nanmin(c)):.4g} to "
+                f"{float(np.nanmax(c)):.4g}{' and NaN' if np.isnan(c).any() else ''}: pass uint8 or divide by 255"
+            )
+        feats.append(c)
     feat = np.concatenate(feats, axis=1)
     tgt = valid & (flag > 0)
     if not tgt.any():
