@@ -20,6 +20,18 @@ def test_demo_help_and_configs_exist(root, monkeypatch, capsys):
         assert (root / cfg).is_file(), cfg
 
 
+def test_demo_folders_follow_the_preset():
+    """`demo --preset small` generated into data/floaff_demo, where the generator refuses another preset's settings
+    after a `make demo`."""
+    from floaff_zoo.demo import parse_args
+
+    assert (parse_args([]).data, parse_args([]).runs) == ("data/floaff_demo", "runs/demo")
+    small = parse_args(["--preset", "small"])
+    assert (small.data, small.runs) == ("data/floaff_small", "runs/demo_small")
+    given = parse_args(["--preset", "small", "--data", "d", "--runs", "r"])
+    assert (given.data, given.runs) == ("d", "r")
+
+
 def test_demo_curriculum_dry_run_lists_three_stages(root, monkeypatch, capsys):
     monkeypatch.chdir(root)
     from floaff_zoo import curriculum, demo

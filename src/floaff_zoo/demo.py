@@ -124,13 +124,21 @@ def main(argv: list[str] | None = None, *, raise_errors: bool | None = None) -> 
         return 2
 
 
-def _run(argv: list[str] | None, raise_errors: bool) -> int:
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    """The demo's arguments; ``--data`` and ``--runs`` default per preset (data/floaff_<preset>, runs/demo or
+    runs/demo_<preset>): the generator refuses to resume a folder made with another preset's settings."""
     p = argparse.ArgumentParser(prog="floaff-zoo demo", description=__doc__.split("\n\n")[0])
     p.add_argument(
         "--preset", default="demo", help="generation preset (default: demo; see `floaff-zoo generate --help`)"
     )
-    p.add_argument("--data", default="data/floaff_demo", help="where the benchmark is generated / reused")
-    p.add_argument("--runs", default="runs/demo", help="where the runs, reports and pictures go")
+    p.add_argument(
+        "--data", default=None, help="where the benchmark is generated / reused (default: data/floaff_<preset>)"
+    )
+    p.add_argument(
+        "--runs",
+        default=None,
+        help="where the runs, reports and pictures go (default: runs/demo, or runs/demo_<preset> for another preset)",
+    )
     p.add_argument(
         "--epochs",
         type=int,
@@ -140,6 +148,15 @@ def _run(argv: list[str] | None, raise_errors: bool) -> int:
     )
     p.add_argument("--workers", type=int, default=2, help="generation worker processes")
     args = p.parse_args(argv)
+    if args.data is None:
+        args.data = f"data/floaff_{args.preset}"
+    if args.runs is None:
+        args.runs = "runs/demo" if args.preset == "demo" else f"runs/demo_{args.preset}"
+    return args
+
+
+def _run(argv: list[str] | None, raise_errors: bool) -> int:
+    args = parse_args(argv)
     _check_configs()
     t0 = time.time()
     runs = Path(args.runs)
