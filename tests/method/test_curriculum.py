@@ -84,6 +84,9 @@ def test_student_checkpoint_has_no_teacher_and_records_lineage(pfal_run):
         state = torch.load(ckpt, weights_only=True)
         assert not [k for k in state["state_dict"] if k.startswith("teacher.")], ckpt
         assert state["floaff_lineage"]["teacher_sha256"] == sha256_file(s1["checkpoint"])
+        # stage 2 starts from stage 1's checkpoint (weights): its name and hash are recorded too
+        assert state["floaff_lineage"]["weights"] == s1["checkpoint"]
+        assert state["floaff_lineage"]["weights_sha256"] == sha256_file(s1["checkpoint"])
     # reloads without the teacher file being needed for loading
     m = CFARModule.load_from_checkpoint(s2["checkpoint"], weights_only=True)
     assert m.teacher is None

@@ -215,6 +215,8 @@ class ZooModule(L.LightningModule):
         self.configure_metrics()
         #: model tensors that ``weights`` did not provide (``load_pretrained``); evaluation commands refuse them
         self.weights_not_loaded: list[str] = []
+        #: sha256 of the ``weights`` read (``load_pretrained``); a saved model records it under ``floaff_lineage``
+        self.weights_sha256: str | None = None
         if weights:
             try:
                 self.load_pretrained(weights)
@@ -344,7 +346,8 @@ class ZooModule(L.LightningModule):
         # save ``weights: null`` so reloading the checkpoint never needs that source again.
         hp = checkpoint.get("hyper_parameters")
         if hp and hp.get("weights"):
-            checkpoint.setdefault("floaff_lineage", {})["weights"] = hp["weights"]
+            lineage = checkpoint.setdefault("floaff_lineage", {})
+            lineage.update({"weights": hp["weights"], "weights_sha256": self.weights_sha256})
             checkpoint["hyper_parameters"] = {**hp, "weights": None}
 
     def load_pretrained(self, name_or_path: str) -> None:
@@ -354,8 +357,12 @@ class ZooModule(L.LightningModule):
         test``/``validate``/``predict`` refuse such a model; a fit may start from it).
         """
         from floaff_zoo.hub import resolve_state_dict
+        from floaff_zoo.hub.registry import sha256_file
 
-        state, _info = resolve_state_dict(name_or_path)
+        state, info = resolve_state_dict(name_or_path)
+        # what a saved model records as its initial weights (``floaff_lineage``): a hub entry's or export's own
+        # hash, else the file's
+        self.weights_sha256 = info["sha256"] or sha256_file(info["source"])
         unloaded = load_matching_state(self, state, source=name_or_path)
         own_files = self._parts_with_own_weights()
         self.weights_not_loaded = [line for line in unloaded if not line.startswith(own_files)]

@@ -113,7 +113,8 @@ class CFARModule(FloAffModule):
     Args:
         crop_radius: crop radius r (m): 1.3 Styles, 1.2 Layouts (paper).
         use_crop: False = w/o-Crop ablation (whole scene, still centred/rotated).
-        use_align: False = w/o-Align ablation (no rotation; overrides ``yaw_source``).
+        use_align: False = w/o-Align ablation (no rotation; overrides ``yaw_source``; training still adds the
+            ``yaw_jitter_deg`` augmentation).
         use_sdl: False = w/o-SDL ablation (``loss: aff`` becomes plain MSE).
         use_fd: False = w/o-FD ablation (no distillation even with a teacher; still initialise from
             ``weights``).
@@ -321,6 +322,7 @@ class CFARModule(FloAffModule):
                 "teacher": self.teacher_info["name"] if self.teacher_info else self.hparams["teacher"],
                 "teacher_sha256": self.teacher_info["sha256"] if self.teacher_info else None,
                 "weights": self.hparams["weights"],
+                "weights_sha256": self.weights_sha256,
                 "axisnet": arch.get("source"),
                 "axisnet_sha256": arch.get("sha256"),
             }

@@ -3,7 +3,8 @@
 The canonical frame is CFAR's (target at the origin, its front normal along -y, ``floaff_zoo.nn.cfar``).
 :class:`CanonicalLabelGrid` keeps, for every task, the sum and the count of the training labels that fell
 into each cell of a square grid centred on the target; the prior at a point is the (optionally Gaussian
-smoothed) mean of its cell. Cells that no training label reached read as ``fill``.
+smoothed) mean of its cell. Cells that no training label reached read as ``fill``; with smoothing, only cells
+beyond the kernel's reach (three sigmas) of every label do.
 
 Cells are centred on multiples of ``cell`` (``centred``, the default). The generated label grids are
 target-aligned lattices with the target at a lattice point, so their cells sit at multiples of their spacing
