@@ -53,9 +53,6 @@ FOOTPRINT_LENGTH = 0.63
 FOOTPRINT_WIDTH = 0.50
 FOOTPRINT_FRONT = 0.17 * FOOTPRINT_LENGTH
 FOOTPRINT_BACK = 0.83 * FOOTPRINT_LENGTH
-#: nominal arm reach from the base origin, used as a robot descriptor [reach m, base height m]
-ARM_REACH = 0.855
-BASE_HEIGHT = 0.70
 
 
 @functools.lru_cache(maxsize=1)

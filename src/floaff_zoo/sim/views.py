@@ -6,7 +6,7 @@ Target frame (x^o, y^o): origin at the target's floor projection c, the target's
     V_front = {|x^o| < r_f^x, y^o < -r_f^y}        V_side = {|x^o| > r_s^x, |y^o| < r_s^y}
 
 both capped at ``max_dist`` from c. A view pose is collision-free (``scene.footprint_free`` and ``robot_collides``),
-heads toward the target, and must see at least ``min_target_pixels`` target pixels.
+heads toward the target, and its stored (subsampled) cloud must hold at least ``min_target_pixels`` target points.
 
 Robot base frame: origin at the base pose (x, y) on the floor, x forward (yaw), y left, z up, floor at z = 0.
 Every view of a scene shares the scene's per-cell floor labels; since format v2 each view stores the label-grid cells
