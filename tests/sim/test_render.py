@@ -103,3 +103,23 @@ def test_hide_geoms_for_one_frame(scene):
     assert not np.any(res.geom_id == top)
     assert int(m.geom_group[top]) == group  # restored
     assert np.any(r.render(d, "cam").geom_id == top)
+
+
+def test_rendering_then_importing_lightning_keeps_the_process_alive():
+    """Mesa's software GL loads the system libLLVM; Triton's LLVM loaded after it segfaulted the process on
+    `import lightning` (torch._dynamo imports Triton), e.g. a generated view and then a fit in one Python session."""
+    import subprocess
+    import sys
+
+    pytest.importorskip("triton")
+    code = (
+        "import mujoco\n"
+        "from floaff_zoo.sim import render\n"
+        "xml = \"<mujoco><worldbody><geom type='box' size='1 1 .1'/></worldbody></mujoco>\"\n"
+        "m = mujoco.MjModel.from_xml_string(xml)\n"
+        "render.Renderer(m, 16, 16)\n"
+        "import lightning\n"
+        "print('alive')\n"
+    )
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0 and run.stdout.strip() == "alive", (run.returncode, run.stderr[-500:])

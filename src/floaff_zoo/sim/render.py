@@ -12,7 +12,9 @@ depth is metric along the viewing axis; background pixels return the far plane a
 from __future__ import annotations
 
 import atexit
+import importlib.util
 import os
+import sys
 import weakref
 
 os.environ.setdefault("MUJOCO_GL", "egl")
@@ -79,9 +81,23 @@ def _candidate_backends() -> list[str]:
     return list(_BACKENDS)
 
 
+def _load_triton_first() -> None:
+    """Import Triton, where it is installed, before the first GL context. Mesa's software drivers (EGL without a GPU,
+    OSMesa) load the system's libLLVM into the process, and Triton's own LLVM, loaded after it, crashes the process
+    with a segfault in ``import triton``, which ``torch._dynamo`` (so Lightning) runs when first imported: rendering
+    and then training in one process died. Loaded the other way round, both work."""
+    if "triton" in sys.modules or importlib.util.find_spec("triton") is None:
+        return
+    try:
+        import triton  # noqa: F401
+    except Exception:  # noqa: BLE001 - a broken Triton install is for whoever uses it to report, not the renderer
+        pass
+
+
 def _make_context(width: int, height: int):
     """Create and make current a headless GL context; remembers the back end that worked."""
     global _chosen_backend
+    _load_triton_first()
     order = [_chosen_backend] if _chosen_backend else _candidate_backends()
     errors: list[str] = []
     for name in order:
