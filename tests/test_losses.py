@@ -117,14 +117,22 @@ def test_masked_points_do_not_matter_and_grads_finite(name, rank):
     assert (x.grad[~t(m)] == 0).all()
 
 
-def test_empty_batch_is_zero_not_nan():
-    p = torch.rand(2, 5, requires_grad=True)
+@pytest.mark.parametrize("padding", [0.5, float("nan"), float("inf")])
+def test_empty_batch_is_zero_not_nan(padding):
+    """NaN or inf in the padding of a batch without valid points made the fallback 0 * sum(pred) a NaN."""
+    p = torch.rand(2, 5)
+    p[0, 1] = padding
+    p.requires_grad_(True)
     m = torch.zeros(2, 5, dtype=torch.bool)
-    for name in ("mse", "aff", "navaff"):
-        loss = build_loss(name)(p, torch.rand(2, 5), m)
-        assert float(loss) == 0.0
+    for name, rank in (("mse", 0.0), ("aff", 0.0), ("navaff", 0.0), ("aff", 0.5)):
+        loss = build_loss(name, rank_weight=rank)(p, torch.rand(2, 5), m)
+        assert float(loss) == 0.0, (name, rank)
         loss.backward()
         assert torch.isfinite(p.grad).all()
+    # the ranking term's own fallback (valid points, but no positive label to rank first)
+    valid = torch.ones(2, 5, dtype=torch.bool)
+    valid[0, 1] = False
+    assert float(listwise_rank_loss(p, torch.zeros(2, 5), valid)) == 0.0
 
 
 def test_sdl_zero_for_perfect_prediction():

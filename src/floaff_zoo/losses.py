@@ -61,7 +61,8 @@ def _prepare(name: str, pred: Tensor, target: Tensor, mask: Tensor | None) -> tu
 
 
 def _masked_mean(values: Tensor, mask: Tensor, ref: Tensor) -> Tensor:
-    """Mean of ``values`` [B, M] over ``mask``; ``0 * ref.sum()`` when nothing is valid (keeps the graph)."""
+    """Mean of ``values`` [B, M] over ``mask``; ``0 * ref.sum()`` when nothing is valid (keeps the graph; ``ref`` is
+    the masked prediction, so NaN in padded entries cannot make that 0 a NaN)."""
     n = mask.sum()
     if int(n) == 0:
         return ref.sum() * 0.0
@@ -71,7 +72,7 @@ def _masked_mean(values: Tensor, mask: Tensor, ref: Tensor) -> Tensor:
 def masked_mse(pred: Tensor, target: Tensor, mask: Tensor | None) -> Tensor:
     """Mean (pred - target)^2 over all valid points of the batch. [B, M] x3 -> scalar."""
     p, g, m = _prepare("masked_mse", pred, target, mask)
-    return _masked_mean((p - g) ** 2, m, pred)
+    return _masked_mean((p - g) ** 2, m, p)
 
 
 def soft_dice_loss(pred: Tensor, target: Tensor, mask: Tensor | None, eps: float = 1.0) -> Tensor:
@@ -88,7 +89,7 @@ def soft_dice_loss(pred: Tensor, target: Tensor, mask: Tensor | None, eps: float
     per_sample = 1.0 - (2.0 * inter + eps) / (denom + eps)  # [B]
     has_points = m.any(1)
     if not bool(has_points.any()):
-        return pred.sum() * 0.0
+        return p.sum() * 0.0  # the masked prediction: a NaN in padding would make 0 * NaN
     return per_sample[has_points].mean()
 
 
@@ -108,7 +109,7 @@ def navaff_weighted_mse(
     p, g, m = _prepare("navaff_weighted_mse", pred, target, mask)
     fire = torch.rand(p.shape, generator=generator, device=p.device) < 0.5
     w = torch.where((g == 0) & fire, 0.7, 1.0).to(p.dtype)
-    return _masked_mean(w * (p - g) ** 2, m, pred)
+    return _masked_mean(w * (p - g) ** 2, m, p)
 
 
 def listwise_rank_loss(pred: Tensor, target: Tensor, mask: Tensor | None, temperature: float = 1.0) -> Tensor:
@@ -127,7 +128,7 @@ def listwise_rank_loss(pred: Tensor, target: Tensor, mask: Tensor | None, temper
     total = w.sum(1)  # [B]
     keep = total > 0
     if not bool(keep.any()):
-        return pred.sum() * 0.0
+        return p.sum() * 0.0  # the masked prediction: a NaN in padding would make 0 * NaN
     q = w / total.clamp_min(1e-12).unsqueeze(1)
     # q log q is 0 where q is 0; where() keeps log(0) out of the value
     kl = torch.where(q > 0, q * (torch.log(q.clamp_min(1e-30)) - log_soft), 0.0).sum(1)  # [B]

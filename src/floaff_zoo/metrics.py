@@ -22,7 +22,7 @@ logmse     mean (log1p(g) - log1p(p))^2 (natural log, no sqrt)   mean over eleme
 pcc        Pearson r (``scipy.stats.pearsonr`` semantics)         mean over *defined* elements
 sim        ``hist``: sum min(p/(sum p+1e-12), g/(sum g+1e-12))   mean over elements
            ``cosine``: sum pg / ((|p|+1e-12)(|g|+1e-12))
-ciou       sum min(p, g) / sum max(p, g) (0 when the union is 0)  mean over elements
+ciou       sum min(p, g) / sum max(p, g) (0 when sum max <= 0)    mean over elements
 =========  ====================================================  ================================
 
 Documented conventions:
@@ -36,7 +36,8 @@ Documented conventions:
   is defined, PCC is 0.0 (never NaN). The official code instead adds 0 for < 2 points and lets NaN leak
   for constant maps.
 * Zero maps follow the official epsilons: cosine SIM of a zero-norm p or g is 0 (``1e-12`` added to each
-  norm), histogram SIM of an all-zero p or g is 0, cIoU with an empty union (both all-zero) is 0.
+  norm), histogram SIM of an all-zero p or g is 0, cIoU with an empty union (both all-zero) is 0. cIoU is meant for
+  non-negative maps (scores and labels in [0, 1]); where sum max(p, g) <= 0 it is 0 as well.
 * Values must be finite and > -1 on valid points (log1p); anything else raises ``ValueError``.
 * Samples with the same ``index`` count once (first one seen): ``DistributedSampler`` pads the last
   rank-batches by repeating samples. Under DDP always pass ``index``; without it samples are numbered in
