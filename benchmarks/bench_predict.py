@@ -1,7 +1,7 @@
 """Single-sample predict latency as shipped, in interleaved rounds with the reference-style port.
 
 Each round calls every model once (B = 1, 4,096 points, 1,024 floor points; the shipped configs' models in
-eval mode under ``inference_mode``, the call ``floaff_zoo.predict`` makes), in an order that rotates from
+eval mode under ``no_grad``, as ``floaff_zoo.predict`` calls them), in an order that rotates from
 round to round. The figure is the median over rounds, with the 10th and 90th percentiles: the shared
 machine moves single calls by up to 2x, and interleaving spreads that over every model alike. The
 reference-style PointNet++ port (``benchmarks/reference_pointnet2.py``, the layer-study SSG of
@@ -54,7 +54,7 @@ def callers(
         model = bm.build(name).eval().to(device)
 
         def call(model=model):
-            with torch.inference_mode():
+            with torch.no_grad():  # as floaff_zoo.predict runs the model
                 model(single)
             sync()
 
@@ -69,7 +69,7 @@ def callers(
     xyz, feat = xyz.to(device), feat.to(device)
 
     def ref_call():
-        with torch.inference_mode():
+        with torch.no_grad():
             ref(xyz, feat)
         sync()
 

@@ -1,7 +1,7 @@
 """Run every benchmark script and collect their printed figures into docs/performance.md.
 
     python benchmarks/run_all.py            # quick modes (about 10-20 minutes on 2 idle cores)
-    python benchmarks/run_all.py --full     # the scripts' default (longer) settings
+    python benchmarks/run_all.py --full     # longer settings: more rounds or steps, the small preset
 
 Each script prints its own figures and ratios against a reference measured in the same run
 (absolute numbers move with machine load; ratios carry over). This runner only executes them one
@@ -54,7 +54,7 @@ SUITE: list[tuple[str, str, list[str], list[str]]] = [
         ["--rounds", "1", "--iters", "2"],
         [],
     ),
-    ("Time to train: a real `fit` per model of the reproduction recipe", "bench_train_time.py", [], ["--steps", "8"]),
+    ("Time to train: a real `fit` per model of the reproduction recipe", "bench_train_time.py", ["--steps", "8"], []),
 ]
 
 
@@ -92,7 +92,7 @@ def _merge_sections(old: str, new: list[str]) -> list[str]:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--full", action="store_true", help="the scripts' default (longer) settings")
+    ap.add_argument("--full", action="store_true", help="longer settings (more rounds or steps, the small preset)")
     ap.add_argument("--out", default=str(ROOT / "docs" / "performance.md"))
     ap.add_argument(
         "--only",
@@ -106,7 +106,9 @@ def main(argv: list[str] | None = None) -> int:
         "# Performance\n",
         f"Written by `python benchmarks/run_all.py{' --full' if args.full else ''}` on {time.strftime('%Y-%m-%d')}.",
         f"Machine: {_machine()}.",
-        "Figures are printed by each script with its in-run reference; compare ratios, not absolute values.\n",
+        "Figures are printed by each script with the references it measures in the same run (the simulator: bare "
+        "MuJoCo stepping; the time to train: the first accelerator, so times alone on a CPU-only run); the simulator "
+        "also compares with robosuite's published rollout time. Compare ratios, not absolute values.\n",
     ]
     failed = 0
     for title, script, quick, full in SUITE:
