@@ -111,6 +111,24 @@ def test_strict_names_file_and_problem(moma_root):
         _dm(root, strict=True).setup("fit")
 
 
+@pytest.mark.parametrize("ascii_ply", [False, True])
+def test_a_truncated_ply_is_refused_naming_it(tmp_path, ascii_ply):
+    """open3d reads a PLY cut short with its header's point count, the rest from uninitialised memory: strict mode
+    let such a sample through, and a skip depended on what that memory held."""
+    from tests.data.moma_kitchen.data import _write_ascii_ply, _write_ply
+
+    whole = tmp_path / "whole.ply"
+    xyz = np.random.default_rng(0).uniform(-1, 1, (144, 3))
+    (_write_ascii_ply if ascii_ply else _write_ply)(whole, xyz)
+    assert np.allclose(read_ply(whole), xyz)
+    raw = whole.read_bytes()
+    cut = tmp_path / "cut.ply"
+    cut.write_bytes(raw[: raw.index(b"end_header") + 11 + (10 * 24 if not ascii_ply else 400)])
+    with pytest.raises(DataError, match=rf"{cut}: truncated PLY \(its header declares 144 vertices") as info:
+        read_ply(cut)
+    assert info.value.kind == "corrupt_ply"
+
+
 def test_extra_robot_keeps_sample(moma_root):
     root, exp = moma_root
     dm = _dm(root, extra_robots={"elephant": [0.6, 0.5]})

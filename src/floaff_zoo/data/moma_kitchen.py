@@ -101,10 +101,68 @@ class LoadError(DataError):
         super().__init__(message, kind)
 
 
+#: bytes of each PLY scalar type (the PLY format's names and their sized aliases)
+_PLY_SIZES = {
+    **dict.fromkeys(("char", "uchar", "int8", "uint8"), 1),
+    **dict.fromkeys(("short", "ushort", "int16", "uint16"), 2),
+    **dict.fromkeys(("int", "uint", "int32", "uint32", "float", "float32"), 4),
+    **dict.fromkeys(("double", "float64"), 8),
+}
+
+
+def check_ply_complete(path: str | Path, kind: str = "corrupt_ply") -> None:
+    """LoadError when the file is shorter than its header's vertex block: open3d reads a truncated PLY with the
+    header's point count and fills the missing points from uninitialised memory, without an error.
+
+    Binary files: the bytes after the header must hold ``vertices x record size`` (elements declared before the
+    vertices, and vertex list properties, make the size unknowable: not checked). ASCII files: at least as many
+    non-empty lines as vertices. A header this function cannot parse is left to open3d.
+    """
+    try:
+        with open(path, "rb") as f:
+            raw = f.read()
+    except OSError as exc:
+        raise LoadError(kind, f"{path}: unreadable PLY ({exc})") from exc
+    end = raw.find(b"end_header")
+    if not raw.startswith(b"ply") or end < 0:
+        return
+    body = raw[raw.index(b"\n", end) + 1 :] if b"\n" in raw[end:] else b""
+    fmt, count, record, seen_other = "", None, 0, False
+    for line in raw[:end].decode("ascii", "replace").splitlines():
+        words = line.split()
+        if words[:1] == ["format"] and len(words) > 1:
+            fmt = words[1]
+        elif words[:1] == ["element"] and len(words) == 3:
+            if words[1] == "vertex" and not seen_other and words[2].isdigit():
+                count = int(words[2])
+            elif count is None:
+                seen_other = True
+            else:
+                break  # the vertex block is complete before the next element
+        elif words[:1] == ["property"] and count is not None:
+            if len(words) != 3 or words[1] not in _PLY_SIZES:
+                return  # a list property: records of varying size
+            record += _PLY_SIZES[words[1]]
+    if not count:
+        return
+    if fmt.startswith("binary") and record and len(body) < count * record:
+        raise LoadError(
+            kind,
+            f"{path}: truncated PLY (its header declares {count} vertices of {record} bytes, "
+            f"{count * record} bytes; the file holds {len(body)} after the header)",
+        )
+    if fmt == "ascii":
+        lines = sum(1 for row in body.splitlines() if row.strip())
+        if lines < count:
+            raise LoadError(kind, f"{path}: truncated PLY (its header declares {count} vertices, {lines} lines follow)")
+
+
 def read_ply(path: str | Path, kind: str = "corrupt_ply") -> np.ndarray:
-    """xyz [n, 3] float64 of a PLY point cloud (open3d); LoadError naming the file when unreadable/empty."""
+    """xyz [n, 3] float64 of a PLY point cloud (open3d); LoadError naming the file when unreadable, truncated
+    (``check_ply_complete``) or empty."""
     import open3d as o3d  # heavy import kept out of module import
 
+    check_ply_complete(path, kind)
     o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)
     try:
         pcd = o3d.io.read_point_cloud(str(path), format="ply")
