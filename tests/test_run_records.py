@@ -91,6 +91,35 @@ def test_corrupt_stage_record_is_an_error_naming_it(tmp_path, root, monkeypatch)
         run_curriculum(EXP, root=tmp_path, runner=_never)
 
 
+@pytest.mark.parametrize(("field", "value"), [("checkpoint", 123), ("before", 5), ("args", ["fit", 3])])
+def test_a_stage_record_field_of_the_wrong_kind_is_named(tmp_path, root, monkeypatch, field, value):
+    """A stage.json that parses but holds e.g. a number for its checkpoint crashed with a TypeError traceback."""
+    monkeypatch.chdir(root)
+    cfg = curriculum.load_experiment(EXP)
+    stage_file = curriculum.stage_dir(cfg, cfg["stages"][0], tmp_path) / curriculum.STAGE_FILE
+    stage_file.parent.mkdir(parents=True)
+    stage_file.write_text(json.dumps({"stage": "stage1_pnp", "status": "running", field: value}))
+    with pytest.raises(CurriculumError, match=rf"{stage_file}: field '{field}' is .*, not a"):
+        run_curriculum(EXP, root=tmp_path, runner=_never)
+
+
+def test_an_unfinished_lineage_is_refused_and_a_dry_run_ignores_a_damaged_one(tmp_path, root, monkeypatch, capsys):
+    """A rerun killed in a later stage left a lineage of the earlier stages alone, and its last stage read as the
+    curriculum's; a dry run (which only prints) failed on a damaged lineage."""
+    monkeypatch.chdir(root)
+    lineage = tmp_path / curriculum.LINEAGE_FILE
+    stage = {"stage": "stage1_pnp", "checkpoint": "x.ckpt"}
+    lineage.write_text(json.dumps({"complete": False, "stages": [stage]}))
+    with pytest.raises(CurriculumError, match=rf"{lineage}: the curriculum did not finish \(stages done: stage1_pnp\)"):
+        read_lineage(tmp_path)
+    assert read_lineage(tmp_path, finished=False)["stages"] == [stage]
+    lineage.write_text(json.dumps({"stages": [stage]}))  # an older runner's record: no mark, accepted
+    assert read_lineage(tmp_path)["stages"] == [stage]
+    lineage.write_text("[1, 2")
+    assert len(run_curriculum(EXP, root=tmp_path, dry_run=True, runner=_never)) == 0
+    assert capsys.readouterr().out.count("# stage") == len(curriculum.load_experiment(EXP)["stages"])
+
+
 def test_corrupt_lineage_is_an_error_naming_it(tmp_path, root, monkeypatch):
     monkeypatch.chdir(root)
     lineage = tmp_path / curriculum.LINEAGE_FILE

@@ -260,27 +260,50 @@ def _sha256(path: str | Path) -> str:
     return sha256_file(Path(path))
 
 
-def _read_json(path: Path) -> dict[str, Any] | None:
+#: the kind of each field a stage record (``stage.json``) or a run mark (``curriculum_run.json``) may hold; null is
+#: allowed for every field (records of older runners lack some)
+_RECORD_FIELDS: dict[str, tuple[type, ...]] = {
+    "stage": (str,),
+    "status": (str,),
+    "args": (list,),
+    "digest": (str,),
+    "checkpoint": (str,),
+    "sha256": (str,),
+    "before": (list,),
+}
+
+
+def _read_json(path: Path, fields: dict[str, tuple[type, ...]] | None = None) -> dict[str, Any] | None:
     """A record this runner wrote (None when absent). Records are written atomically, so a file that does
-    not parse was damaged by something else: an error naming it, never a silent fresh start."""
+    not parse was damaged by something else: an error naming it, never a silent fresh start. ``fields``: the
+    kinds the record's fields must have (a wrong one is named, not met later as a TypeError)."""
     if not path.is_file():
         return None
     try:
         record = json.loads(path.read_text())
     except (OSError, json.JSONDecodeError) as exc:
-        raise CurriculumError(
-            f"{path}: corrupt curriculum record ({exc}); fix or delete it to rerun the stage"
-        ) from exc
+        raise CurriculumError(f"{path}: corrupt curriculum record ({exc}); fix or delete it") from exc
     if not isinstance(record, dict):
         raise CurriculumError(f"{path}: expected a JSON object, got {type(record).__name__}; fix or delete it")
+    for key, kinds in (fields or {}).items():
+        value = record.get(key)
+        bad = value is not None and not isinstance(value, kinds)
+        if not bad and isinstance(value, list):
+            bad = not all(isinstance(v, str) for v in value)
+        if bad:
+            want = " or ".join("a list of strings" if k is list else f"a {k.__name__}" for k in kinds)
+            raise CurriculumError(f"{path}: field {key!r} is {json.dumps(value)[:40]}, not {want}; fix or delete it")
     return record
 
 
-def read_lineage(root: str | Path) -> dict[str, Any]:
-    """``<root>/lineage.json`` of a finished curriculum run.
+def read_lineage(root: str | Path, finished: bool = True) -> dict[str, Any]:
+    """``<root>/lineage.json`` of a curriculum run; with ``finished`` (default) only of one whose every stage
+    finished (the runner rewrites the file after each stage, so a run killed in a later stage leaves the earlier
+    stages alone there, marked ``"complete": false``; files of older runners carry no mark and are accepted).
 
     Raises:
-        CurriculumError: the file is missing, corrupt or has no ``stages`` list (names the file).
+        CurriculumError: the file is missing, corrupt, has no ``stages`` list, or (``finished``) is the record
+        of an unfinished run (names the file).
     """
     path = Path(root) / LINEAGE_FILE
     lineage = _read_json(path)
@@ -288,6 +311,12 @@ def read_lineage(root: str | Path) -> dict[str, Any]:
         raise CurriculumError(f"{path}: no lineage record; run the curriculum first")
     if not isinstance(lineage.get("stages"), list) or not lineage["stages"]:
         raise CurriculumError(f"{path}: 'stages' must be a non-empty list of stage records")
+    if finished and lineage.get("complete") is False:
+        done = [s.get("stage") for s in lineage["stages"] if isinstance(s, dict)]
+        raise CurriculumError(
+            f"{path}: the curriculum did not finish (stages done: {', '.join(map(str, done))}); run it again to "
+            "finish it"
+        )
     return lineage
 
 
@@ -368,7 +397,7 @@ def _claim_runs(sdir: Path, record: dict[str, Any] | None) -> None:
 
 def _run_digest(run: Path) -> str | None:
     """The stage digest recorded in a run directory (None: unknown arguments wrote it)."""
-    mark = _read_json(run / RUN_FILE)
+    mark = _read_json(run / RUN_FILE, _RECORD_FIELDS)
     return mark.get("digest") if mark else None
 
 
@@ -537,12 +566,14 @@ def run_curriculum(
 
         runner = run_lightning
     lineage_path = root / LINEAGE_FILE
-    _read_json(lineage_path)  # a damaged lineage of an earlier run is reported, not silently replaced
+    if not dry_run:  # a damaged lineage of an earlier run is reported, not silently replaced
+        _read_json(lineage_path)
     lineage = {
         "experiment": str(config),
         "root": str(root),
         "extra_configs": extra,
         "sets": list(sets or []),
+        "complete": False,  # true once the last stage is in: a run killed before that leaves false
         "stages": [],
     }
     best: dict[str, str] = {}
@@ -554,7 +585,7 @@ def run_curriculum(
             print(f"# stage {name}\nfloaff-zoo {shlex.join(args)}", file=out)
             best[name] = f"<best checkpoint of {name}>"
             continue
-        record = _read_json(sdir / STAGE_FILE)
+        record = _read_json(sdir / STAGE_FILE, _RECORD_FIELDS)
         done, why = _finished(record, args)
         if done:
             print(f"[curriculum] stage {name}: already finished ({record['checkpoint']}), skipping", file=out)
@@ -566,6 +597,7 @@ def run_curriculum(
                 on_stage_end(name, cli)
         best[name] = record["checkpoint"]
         lineage["stages"].append(record)
+        lineage["complete"] = len(lineage["stages"]) == len(cfg["stages"])
         _write_json(lineage_path, lineage)
     return lineage["stages"]
 
@@ -582,7 +614,11 @@ def main(argv: list[str] | None = None, *, raise_errors: bool | None = None) -> 
         description="Run a PFAL curriculum: one `floaff-zoo fit` per stage, chained by best checkpoints.",
     )
     parser.add_argument("--config", required=True, help="experiment YAML (e.g. configs/experiments/pfal_layouts.yaml)")
-    parser.add_argument("--root", default=None, help="run directory (default: the experiment's 'root')")
+    parser.add_argument(
+        "--root",
+        default=None,
+        help="run directory (default: the experiment's 'root', with '__<stems of the --extra-config files>' appended)",
+    )
     parser.add_argument(
         "--set",
         dest="sets",

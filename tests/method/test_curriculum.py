@@ -91,6 +91,7 @@ def test_student_checkpoint_has_no_teacher_and_records_lineage(pfal_run):
     m = CFARModule.load_from_checkpoint(s2["checkpoint"], weights_only=True)
     assert m.teacher is None
     lineage = json.loads((run_root / "lineage.json").read_text())
+    assert lineage["complete"] is True  # every stage in: read_lineage accepts it
     assert [s["stage"] for s in lineage["stages"]] == ["stage1_pnp", "stage2_drawer"]
     for s in lineage["stages"]:
         assert s["sha256"] == sha256_file(s["checkpoint"]) and "val_rmse" in s["metrics"]
