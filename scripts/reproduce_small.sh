@@ -114,10 +114,12 @@ copy_report() {
 latest_run() { dirname "$(find "$1" -name last.ckpt -printf '%T@ %h\n' | sort -n | tail -n 1 | cut -d' ' -f2)"; }
 RETEST=${RETEST:-0}
 
-# stage_ckpt RUN_ROOT INDEX: the best checkpoint of a curriculum's stage (0 = the first, -1 = the last)
+# stage_ckpt RUN_ROOT INDEX: the best checkpoint of a curriculum's stage (0 = the first, -1 = the last; the last only
+# of a curriculum whose every stage finished: lineage.json's "complete")
 stage_ckpt() {
-  python3 -c "import json,sys; print(json.load(open(sys.argv[1]))['stages'][int(sys.argv[2])]['checkpoint'])" \
-    "$1/lineage.json" "$2"
+  python3 -c "import json,sys; l=json.load(open(sys.argv[1])); i=int(sys.argv[2])
+if i < 0 and l.get('complete') is False: sys.exit(sys.argv[1] + ': the curriculum did not finish')
+print(l['stages'][i]['checkpoint'])" "$1/lineage.json" "$2"
 }
 
 # wait_axisnet RUN_ROOT JOB: the AxisNet checkpoint (stage 0) of the curriculum under RUN_ROOT, waiting up to 30 minutes
