@@ -192,10 +192,14 @@ def test_top_k_with_cloud_free_space_avoids_an_observed_obstacle():
         s["scene_feat"] = torch.cat([s["scene_feat"], torch.ones(4, s["scene_feat"].shape[1])])
         s["scene_mask"] = torch.cat([s["scene_mask"], torch.ones(4, dtype=torch.bool)])
     for top_k in (1, 8):
-        cb = RolloutSuccessRate(service=FakeService, progress=False, top_k=top_k, free_space="cloud", oracle=False)
+        cb = RolloutSuccessRate(service=FakeService, progress=False, top_k=top_k, free_space="cloud", oracle=True)
         _trainer(cb).test(LabelModule(), dataloaders=loader(samples), verbose=False)
         eps = cb.episodes["test"]
         assert cb.summaries["test"]["free_space"] == "cloud"
+        for e, s in zip(eps, samples):  # the Oracle stands on the label's argmax whatever the check says
+            seed = s["meta"]["index"]
+            argmax = best_pose(s["floor_xyz"], s["floor_label"], s["floor_mask"], s["target_xyz"], seed=seed)[0]
+            assert np.allclose(e["oracle_pose"], pose_to_world(argmax, s["meta"]["sim"]["base_pose_world"]))
         if top_k == 1:
             assert all(e["rank"] == 0 for e in eps)
             continue

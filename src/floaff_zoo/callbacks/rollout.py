@@ -11,7 +11,8 @@ For every evaluated sample that carries ``meta['sim']`` (FloAff-Kitchen-style da
 2. maps the pose from the view's robot base frame to the world with ``meta['sim']['base_pose_world']``;
 3. runs the task's rollout in the rebuilt scene (``floaff_zoo.sim.rollout.RolloutService``: a
    worker pool or Ray, cached by (scene, task, pose rounded to ``cache_decimals``));
-4. does the same with the ground-truth labels (``oracle``): the paper's "Oracle" row.
+4. rolls out the ground-truth argmax (``oracle``): the paper's "Oracle" row (the label's argmax whatever
+   ``top_k`` and ``free_space``; until 2026-12-06 the Oracle went through the same top-k check as the model).
 
 SR is reported for the front view, the side view, all views and per task, each as
 ``mean ± std`` where **std is the bootstrap standard deviation of the mean over the evaluated
@@ -128,9 +129,9 @@ def check_clouds(batch: dict[str, Any], free_space: str) -> tuple[np.ndarray, np
 def cloud_free(
     xyz: np.ndarray, base_pose_world: Sequence[float], margin: float = 0.0
 ) -> Callable[[float, float, float], bool]:
-    """``is_free(x, y, yaw)`` for world poses from a view's own cloud xyz [N, 3] (robot base frame): no obstacle
-    points in the base footprint (``floor.footprint_blocked``) grown by ``margin`` (m) on every side; what
-    ``free_space="cloud"`` uses."""
+    """``is_free(x, y, yaw)`` for world poses from a view's own cloud xyz [N, 3] (robot base frame): fewer than two
+    obstacle points (``floor.footprint_blocked``'s ``min_points``: one stray point is noise) in the base footprint
+    grown by ``margin`` (m) on every side; what ``free_space="cloud"`` uses."""
     footprint = grown_footprint(margin)
     world = base_to_world(xyz, base_pose_world)
     return lambda x, y, yaw: not footprint_blocked(world, (x, y, yaw), footprint)
@@ -391,10 +392,9 @@ class RolloutSuccessRate(L.Callback):
                 "_spec": spec,
                 "_key": _sample_key(meta, dataloader_idx),
             }
-            if self.oracle:
-                ep["oracle_pose"] = list(
-                    choose_pose(floor[i], label[i], mask[i], target[i], base, self.top_k, free, tie_seed)[0]
-                )
+            if self.oracle:  # the label's argmax, as the paper's Oracle: no footprint check moves it
+                argmax = choose_pose(floor[i], label[i], mask[i], target[i], base, 1, None, tie_seed)[0]
+                ep["oracle_pose"] = list(argmax)
             pending.append(ep)
 
     def _run(self, episodes: list[dict[str, Any]]) -> float:
