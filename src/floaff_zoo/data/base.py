@@ -82,7 +82,8 @@ class FloAffDataModule(L.LightningDataModule):
         num_floor: floor points per sample after collation, >= 1 (``None`` = largest in the batch).
         collate_mode: ``resample`` (fast mode: exactly ``num_points`` valid points) or ``pad``
             (faithful mode: truncate/zero-pad with masks).
-        seed: seed of splits, resampling and augmentation.
+        seed: seed of the splits, the train shuffle and the evaluation splits' resampling and transforms (train
+            resampling and augmentation draw from torch's global generator: ``seed_everything`` fixes them).
         train_transforms: per-sample transforms of the train split, in order (e.g.
             ``YawPerturb``, ``Jitter``; any :class:`~floaff_zoo.data.transforms.SampleTransform`
             subclass by ``class_path``).

@@ -18,6 +18,7 @@ published FloAff-Kitchen release once its format is known.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any, Literal
@@ -252,6 +253,14 @@ class FloAffKitchenDataModule(FloAffDataModule):
                     split = "val" if s.scene_id in val_ids else "train"
                     out[split] += self._records(s, self._views(s))
                     self.split_scenes[split].append(s.scene_id)
+                if train and all(s.scene_id in val_ids for s in train):
+                    # the seeded draw keeps one scene per task in train; a pinned hold-out can take them all
+                    by = "val_scene_ids" if self.val_layout is None else f"val_layout {self.val_layout}"
+                    warnings.warn(
+                        f"FloAffKitchenDataModule: every train scene of {task} is held out for validation ({by}): "
+                        "a fit trains no sample of that task",
+                        stacklevel=2,
+                    )
             elif len(train) == 1:
                 s = train[0]
                 vs = self._views(s)
