@@ -199,8 +199,7 @@ class FloAffCLI(LightningCLI):
         cfg = self.config[sub]
         alias = cfg.get("ckpt_path")
         if alias in ("best", "last"):
-            model_class = str(getattr(cfg.model, "class_path", "") or "").rsplit(".", 1)[-1] or None
-            cfg.ckpt_path = resolve_ckpt_alias(alias, self._run_dir(cfg), model_class)
+            cfg.ckpt_path = resolve_ckpt_alias(alias, self._run_dir(cfg), self._configured_class("model"))
 
     def _check_ckpt_file(self) -> None:
         """A ``--ckpt_path`` file must be a Lightning checkpoint: Lightning's own loaders fail on a truncated file,

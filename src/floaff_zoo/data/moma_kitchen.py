@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import re
 from pathlib import Path
 from typing import Any, Literal
@@ -101,6 +102,8 @@ class LoadError(DataError):
         super().__init__(message, kind)
 
 
+#: bytes read to find a PLY header's end (headers are a few hundred bytes)
+_PLY_HEADER_MAX = 65536
 #: bytes of each PLY scalar type (the PLY format's names and their sized aliases)
 _PLY_SIZES = {
     **dict.fromkeys(("char", "uchar", "int8", "uint8"), 1),
@@ -114,21 +117,44 @@ def check_ply_complete(path: str | Path, kind: str = "corrupt_ply") -> None:
     """LoadError when the file is shorter than its header's vertex block: open3d reads a truncated PLY with the
     header's point count and fills the missing points from uninitialised memory, without an error.
 
-    Binary files: the bytes after the header must hold ``vertices x record size`` (elements declared before the
-    vertices, and vertex list properties, make the size unknowable: not checked). ASCII files: at least as many
-    non-empty lines as vertices. A header this function cannot parse is left to open3d.
+    Binary files: the file's size after the header must hold ``vertices x record size`` (only the header is read;
+    elements declared before the vertices, and vertex list properties, make the size unknowable: not checked).
+    ASCII files: at least as many non-empty lines as vertices. A header this function cannot parse is left to open3d.
     """
     try:
         with open(path, "rb") as f:
-            raw = f.read()
+            head = f.read(_PLY_HEADER_MAX)
+            end = head.find(b"end_header")
+            if not head.startswith(b"ply") or end < 0 or b"\n" not in head[end:]:
+                return
+            start = head.index(b"\n", end) + 1  # the first byte of the data
+            fmt, count, record = _ply_vertex_block(head[:end].decode("ascii", "replace"))
+            if not count:
+                return
+            if fmt.startswith("binary"):
+                size = os.fstat(f.fileno()).st_size - start
+                if record and size < count * record:
+                    raise LoadError(
+                        kind,
+                        f"{path}: truncated PLY (its header declares {count} vertices of {record} bytes, "
+                        f"{count * record} bytes; the file holds {size} after the header)",
+                    )
+            elif fmt == "ascii":
+                f.seek(start)
+                lines = sum(1 for row in f if row.strip())
+                if lines < count:
+                    raise LoadError(
+                        kind, f"{path}: truncated PLY (its header declares {count} vertices, {lines} lines follow)"
+                    )
     except OSError as exc:
         raise LoadError(kind, f"{path}: unreadable PLY ({exc})") from exc
-    end = raw.find(b"end_header")
-    if not raw.startswith(b"ply") or end < 0:
-        return
-    body = raw[raw.index(b"\n", end) + 1 :] if b"\n" in raw[end:] else b""
+
+
+def _ply_vertex_block(header: str) -> tuple[str, int | None, int]:
+    """(format, vertex count, bytes per vertex record) of a PLY header; count None when the vertex block's place
+    or size cannot be known (another element first, a list property)."""
     fmt, count, record, seen_other = "", None, 0, False
-    for line in raw[:end].decode("ascii", "replace").splitlines():
+    for line in header.splitlines():
         words = line.split()
         if words[:1] == ["format"] and len(words) > 1:
             fmt = words[1]
@@ -141,20 +167,9 @@ def check_ply_complete(path: str | Path, kind: str = "corrupt_ply") -> None:
                 break  # the vertex block is complete before the next element
         elif words[:1] == ["property"] and count is not None:
             if len(words) != 3 or words[1] not in _PLY_SIZES:
-                return  # a list property: records of varying size
+                return fmt, None, 0  # a list property: records of varying size
             record += _PLY_SIZES[words[1]]
-    if not count:
-        return
-    if fmt.startswith("binary") and record and len(body) < count * record:
-        raise LoadError(
-            kind,
-            f"{path}: truncated PLY (its header declares {count} vertices of {record} bytes, "
-            f"{count * record} bytes; the file holds {len(body)} after the header)",
-        )
-    if fmt == "ascii":
-        lines = sum(1 for row in body.splitlines() if row.strip())
-        if lines < count:
-            raise LoadError(kind, f"{path}: truncated PLY (its header declares {count} vertices, {lines} lines follow)")
+    return fmt, count, record
 
 
 def read_ply(path: str | Path, kind: str = "corrupt_ply") -> np.ndarray:

@@ -14,6 +14,7 @@ memory, unregistered: ``config.json`` + ``model.safetensors``.
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import os
@@ -91,13 +92,14 @@ def _report_metrics(
         raise HubError(f"{report}: no such report file")
     dirs = [d for d in (run, ckpt_path.parent, ckpt_path.parent.parent) if d is not None and d.is_dir()]
     candidates = [report] if report is not None else [d / "report.json" for d in dirs]
+    ckpt_sha = functools.cache(lambda: sha256_file(ckpt_path))  # hashed once, and only if a report records one
     for path in candidates:
         if path.is_file():
             try:
                 raw = json.loads(path.read_text(encoding="utf-8"))
             except (OSError, json.JSONDecodeError) as exc:
                 raise HubError(f"{path}: unreadable report ({exc})") from exc
-            problem = _report_mismatch(raw, ckpt_path, cls)
+            problem = _report_mismatch(raw, ckpt_path, cls, ckpt_sha)
             if problem and report is not None:
                 raise HubError(
                     f"{path}: its metrics cannot be recorded for {ckpt_path}: {problem}; pass the report.json of "
@@ -117,8 +119,11 @@ def _report_metrics(
     return {}
 
 
-def _report_mismatch(raw: Any, ckpt_path: Path, cls: type | None) -> str | None:
+def _report_mismatch(
+    raw: Any, ckpt_path: Path, cls: type | None, ckpt_sha: Callable[[], str] | None = None
+) -> str | None:
     """Why a parsed report is not of the checkpoint ``ckpt_path`` of class ``cls``; None when nothing says so.
+    ``ckpt_sha``: the checkpoint's sha256 (a memoised call, so several candidate reports hash the file once).
 
     Only a positive mismatch counts: a report without a checkpoint (weights tested as trained), or one of weights
     given by a hub name, an exported folder or a weights file (their sha256 is not the .ckpt's), is not refused.
@@ -140,7 +145,7 @@ def _report_mismatch(raw: Any, ckpt_path: Path, cls: type | None) -> str | None:
             return f"its {field!r} field is a {type(value).__name__}, not a string or null"
     problems = []
     if recorded and (where is None or Path(where).suffix in CKPT_SUFFIXES):
-        actual = sha256_file(ckpt_path)
+        actual = ckpt_sha() if ckpt_sha is not None else sha256_file(ckpt_path)
         if recorded.lower() != actual:
             problems.append(f"it tested checkpoint {where or '?'} with sha256 {recorded}, the pushed one has {actual}")
     class_path = model.get("class_path")
