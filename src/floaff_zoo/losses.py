@@ -99,16 +99,20 @@ def affordance_loss(pred: Tensor, target: Tensor, mask: Tensor | None, beta: flo
 
 
 def navaff_weighted_mse(
-    pred: Tensor, target: Tensor, mask: Tensor | None, generator: torch.Generator | None = None
+    pred: Tensor, target: Tensor, mask: Tensor | None, generator: torch.Generator | None = None, expected: bool = False
 ) -> Tensor:
     """NavAff's randomised weighted MSE: mean(w (p - g)^2) over valid points. [B, M] x3 -> scalar.
 
     w = 0.7 where target == 0 and a fresh Bernoulli(0.5) fires (redrawn every call), else 1.
-    ``generator`` (on pred's device) makes the draw reproducible.
+    ``generator`` (on pred's device) makes the draw reproducible; ``expected`` uses the draw's expectation
+    (0.85 where target == 0) and draws nothing (the evaluation loss).
     """
     p, g, m = _prepare("navaff_weighted_mse", pred, target, mask)
-    fire = torch.rand(p.shape, generator=generator, device=p.device) < 0.5
-    w = torch.where((g == 0) & fire, 0.7, 1.0).to(p.dtype)
+    if expected:  # the draw's expectation: 0.85 on zero-label points, no RNG
+        w = torch.where(g == 0, 0.85, 1.0).to(p.dtype)
+    else:
+        fire = torch.rand(p.shape, generator=generator, device=p.device) < 0.5
+        w = torch.where((g == 0) & fire, 0.7, 1.0).to(p.dtype)
     return _masked_mean(w * (p - g) ** 2, m, p)
 
 
@@ -140,11 +144,13 @@ def build_loss(
     beta: float = 1.0,
     rank_weight: float = 0.0,
     rank_temperature: float = 1.0,
+    deterministic: bool = False,
 ) -> LossFn:
     """Loss callable ``(pred [B, M], target [B, M], mask [B, M]) -> scalar`` by name.
 
     ``mse`` = masked MSE, ``aff`` = MSE + beta * soft Dice (paper), ``navaff`` = NavAff's weighted MSE; with
-    ``rank_weight > 0`` plus ``rank_weight * listwise_rank_loss(..., rank_temperature)``.
+    ``rank_weight > 0`` plus ``rank_weight * listwise_rank_loss(..., rank_temperature)``. ``deterministic``:
+    no random draw (NavAff's weights at their expectation), for validation and test.
     """
     if not (math.isfinite(rank_weight) and rank_weight >= 0):
         raise ValueError(f"build_loss: rank_weight must be a finite number >= 0, got {rank_weight}")
@@ -158,7 +164,7 @@ def build_loss(
     elif name == "navaff":
 
         def base(pred: Tensor, target: Tensor, mask: Tensor) -> Tensor:
-            return navaff_weighted_mse(pred, target, mask)
+            return navaff_weighted_mse(pred, target, mask, expected=deterministic)
 
     else:
         raise ValueError(f"build_loss: unknown loss {name!r}; expected one of 'mse', 'aff', 'navaff'")

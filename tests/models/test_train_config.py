@@ -252,3 +252,53 @@ def test_test_step_returns_the_prediction(batch):
     out = axis.test_step(batch, 0)
     assert set(out) == {"loss", "yaw"} and out["yaw"].shape == (2,)
     assert not hasattr(floor, "last_test_scores")
+
+
+def test_cosine_schedule_anneals_over_max_steps_with_a_step_budget():
+    """configs/trainer/dense_budget.yaml trains to max_steps with max_epochs -1: the cosine schedule decays over the
+    steps. It took T_max = 1 epoch, so the learning rate fell to eta_min after the first epoch and rose again after
+    the second."""
+    loader = torch.utils.data.DataLoader(
+        [make_synthetic_sample(i, num_points=64, floor_cells=4) for i in range(4)],
+        batch_size=2,
+        collate_fn=collate_samples,
+    )  # 2 steps per epoch
+    lrs: list[float] = []
+
+    class Record(lightning.Callback):
+        def on_train_batch_start(self, trainer, *_):
+            lrs.append(trainer.optimizers[0].param_groups[0]["lr"])
+
+    trainer = lightning.Trainer(
+        max_epochs=-1,
+        max_steps=8,
+        accelerator="cpu",
+        logger=False,
+        enable_checkpointing=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        callbacks=[Record()],
+    )
+    trainer.fit(TinyPointNetModule(), loader)
+    assert len(lrs) == 8
+    assert all(b < a for a, b in zip(lrs, lrs[1:])), lrs  # no restart, no plateau at eta_min
+    assert lrs[0] == pytest.approx(1e-3) and lrs[-1] > 1e-5, lrs
+
+
+def test_navaff_evaluation_loss_repeats_and_draws_nothing():
+    """NavAff's training loss draws Bernoulli weights; its val/test loss uses their expectation: the same value on
+    every call, and torch's global generator (the training augmentation's) untouched."""
+    torch.manual_seed(0)
+    batch = collate_samples([make_synthetic_sample(i, num_points=256, floor_cells=6) for i in range(2)])
+    batch["floor_label"] = torch.where(batch["floor_label"] < 0.3, 0.0, batch["floor_label"])
+    assert ((batch["floor_label"] == 0) & batch["floor_mask"]).any()
+    model = NavAffModule(npoints=[32, 16, 8], nsamples=[[4, 8, 8], [4, 8], [4, 8]]).eval()
+    with torch.no_grad():
+        state = torch.get_rng_state()
+        losses = {float(model.model_step(batch)[0]) for _ in range(4)}
+        assert torch.equal(state, torch.get_rng_state())
+        assert len(losses) == 1, losses
+        model.train()  # training keeps the paper's random weights
+        state = torch.get_rng_state()
+        model.model_step(batch)
+        assert not torch.equal(state, torch.get_rng_state())

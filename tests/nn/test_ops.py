@@ -360,3 +360,17 @@ def test_build_guard_clears_the_baton_of_a_killed_compile(tmp_path):
     with pytest.warns(UserWarning, match="stale build lock"):
         with _fps_ext.build_guard(folder):
             assert not (folder / "lock").exists()
+
+
+@pytest.mark.skipif(ops.point_kernel(torch.device("cpu")) is None, reason="no C++ point kernel")
+def test_three_nn_distances_carry_no_gradient_on_either_path(monkeypatch):
+    """VoteNet and H3DNet give three_nn learned vote positions: the C++ kernel's distances carry no gradient, and
+    the torch path (CUDA, compile, FLOAFF_ZOO_CPU_PATHS=portable) gave them one, so the models trained differently."""
+    torch.manual_seed(0)
+    floor, votes, feat = torch.rand(1, 5, 3), torch.rand(1, 4, 3, requires_grad=True), torch.rand(1, 4, 2)
+    out = {}
+    for path in ("fast", "portable"):
+        monkeypatch.setenv(ops.CPU_PATHS_ENV, path)
+        out[path] = (ops.three_nn(floor, votes)[0], ops.three_interpolate(floor, votes, feat))
+    assert [t.requires_grad for t in out["portable"]] == [t.requires_grad for t in out["fast"]] == [False, False]
+    torch.testing.assert_close(out["portable"][0], out["fast"][0])

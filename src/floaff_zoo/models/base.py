@@ -51,8 +51,9 @@ class TrainConfig:
         optimizer: ``adam`` or ``adamw``.
         lr: learning rate (> 0).
         weight_decay: weight decay (>= 0).
-        scheduler: ``cosine`` (T_max = max_epochs, eta_min 1e-6), ``plateau`` on the model's monitor,
-            or ``none``.
+        scheduler: ``cosine`` (eta_min 1e-6; per epoch with T_max = max_epochs, or per step with T_max =
+            max_steps when the trainer has a step budget and max_epochs -1), ``plateau`` on the model's
+            monitor, or ``none``.
     """
 
     optimizer: Literal["adam", "adamw"] = "adam"
@@ -327,7 +328,13 @@ class ZooModule(L.LightningModule):
             case "none":
                 return opt
             case "cosine":
-                t_max = max(1, int(self.trainer.max_epochs or 1)) if self._trainer is not None else 1
+                tr = self._trainer
+                epochs = int(tr.max_epochs or 0) if tr is not None else 0
+                steps = int(tr.max_steps or -1) if tr is not None else -1
+                if epochs < 1 and steps > 0:  # a step budget (max_epochs -1): anneal per step over max_steps
+                    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=steps, eta_min=1e-6)
+                    return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
+                t_max = max(1, epochs)
                 sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=t_max, eta_min=1e-6)
                 return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "epoch"}}
             case "plateau":
@@ -476,9 +483,19 @@ class FloAffModule(ZooModule):
         super().__init__(train=train, weights=weights)
 
     def configure_losses(self) -> None:
-        """Set ``self.criterion(pred [B,M], target [B,M], mask [B,M]) -> scalar``."""
+        """Set the training and evaluation losses (``set_criteria``) from ``train.loss``."""
+        self.set_criteria(self.train_cfg.loss)  # type: ignore[attr-defined]
+
+    def set_criteria(self, name: str) -> None:
+        """``self.criterion`` and ``self.eval_criterion``: (pred [B,M], target [B,M], mask [B,M]) -> scalar.
+
+        The evaluation loss draws nothing at random (NavAff's Bernoulli weights become their expectation), so
+        ``val_loss`` / ``test_loss`` repeat and validation does not move torch's global generator, which the
+        training augmentation draws from.
+        """
         t: FloAffTrainConfig = self.train_cfg  # type: ignore[assignment]
-        self.criterion = build_loss(t.loss, t.sdl_beta, t.rank_weight, t.rank_temperature)
+        self.criterion = build_loss(name, t.sdl_beta, t.rank_weight, t.rank_temperature)  # type: ignore[arg-type]
+        self.eval_criterion = build_loss(name, t.sdl_beta, t.rank_weight, t.rank_temperature, deterministic=True)  # type: ignore[arg-type]
 
     def configure_metrics(self) -> None:
         """One MetricCollection per stage (train keeps the cheap ones)."""
@@ -494,7 +511,8 @@ class FloAffModule(ZooModule):
 
     def affordance_loss(self, scores: Tensor, batch: Batch) -> Tensor:
         """Masked affordance loss of ``scores`` [B, M] against ``batch['floor_label']``."""
-        return self.criterion(scores, batch["floor_label"], batch["floor_mask"])
+        criterion = self.criterion if self.training else self.eval_criterion
+        return criterion(scores, batch["floor_label"], batch["floor_mask"])
 
     def model_step(self, batch: Batch) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
         """Forward + loss. Returns (loss, scores [B, M], extra scalars to log)."""

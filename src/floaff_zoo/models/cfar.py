@@ -66,7 +66,6 @@ from torch import Tensor, nn
 from floaff_zoo.contract import TASKS, Batch
 from floaff_zoo.hub.io import resolve_state_dict
 from floaff_zoo.hub.registry import sha256_file
-from floaff_zoo.losses import build_loss
 from floaff_zoo.models.base import FloAffModule, FloAffTrainConfig, sample_names
 from floaff_zoo.models.yaw import (
     YawSource,
@@ -240,7 +239,7 @@ class CFARModule(FloAffModule):
     def configure_losses(self) -> None:
         t = self.train_cfg
         name = "mse" if not self.hparams["use_sdl"] and t.loss == "aff" else t.loss  # w/o-SDL ablation
-        self.criterion = build_loss(name, t.sdl_beta, t.rank_weight, t.rank_temperature)
+        self.set_criteria(name)
 
     # ----------------------------------------------------------------- yaw sources
     @property

@@ -379,14 +379,16 @@ def three_nn(unknown: Tensor, known: Tensor, known_mask: Tensor | None = None) -
 
     Returns:
         (sq_dist [B, n, 3], idx [B, n, 3]); with fewer than 3 valid known points the missing
-        slots get distance ``inf`` (zero interpolation weight) and index 0.
+        slots get distance ``inf`` (zero interpolation weight) and index 0. The distances carry no gradient on
+        any path (the C++ kernel has none), so a model whose known points are learned (VoteNet's votes) trains
+        the same on CPU, CUDA and the portable path.
     """
     kernel = point_kernel(unknown.device)
     if kernel is not None:
         if known_mask is None:
             known_mask = torch.ones(known.shape[:2], dtype=torch.bool, device=known.device)
         return tuple(kernel.three_nn_direct(*_direct_parts(unknown, known), known_mask.bool().contiguous()))
-    sqr = square_distance(unknown, known)
+    sqr = square_distance(unknown.detach(), known.detach())  # no gradient, as in the C++ kernel
     if known_mask is not None:
         sqr = sqr.masked_fill(~known_mask[:, None, :].bool(), float("inf"))
     k = min(3, known.shape[1])
