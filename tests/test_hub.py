@@ -491,3 +491,46 @@ def test_push_upload_pins_the_commit(run_dir, monkeypatch):
     entry = load_registry()[NAME]
     assert entry.source == {"kind": "hf", "repo": "org/tiny", "revision": "b" * 40, "path_in_repo": entry.filename}
     assert uploads == [sorted(["README.md", "config.json", entry.filename])]
+
+
+def test_a_failed_download_is_one_hub_error_naming_the_file_and_the_folder(tmp_path, monkeypatch, capsys):
+    """No network, a refused connection, a 404: the loader says which file to put where (a bare URLError named
+    neither), and `hub pull` prints one line (exit 2), not a traceback."""
+    import urllib.error
+
+    e = _url_entry("tiny.nonet.v1", _safetensors(_model(0), tmp_path / "m.safetensors"), "https://example.org/m")
+    register(e)
+
+    def no_network(url, timeout=60.0):
+        raise urllib.error.URLError("[Errno 111] Connection refused")
+
+    monkeypatch.setattr(hub_io, "_open_url", no_network)
+    monkeypatch.setenv("FLOAFF_ZOO_OFFLINE", "0")
+    with pytest.raises(WeightsNotFoundError) as err:
+        hub_io.fetch("tiny.nonet.v1")
+    assert e.filename in str(err.value) and str(hub_dir()) in str(err.value) and "Connection refused" in str(err.value)
+    assert zoo_main(["hub", "pull", "tiny.nonet.v1"]) == 2
+    assert "Connection refused" in capsys.readouterr().err
+    assert not list(hub_dir().glob("*.part"))
+
+
+def test_predict_keeps_the_hub_error_of_a_registered_name_whose_file_is_missing(tmp_path):
+    """predict called a registered name whose weights are not here 'neither a checkpoint file nor a known hub name'."""
+    from floaff_zoo.predict import resolve_model
+
+    e = _url_entry("tiny.missing.v1", _safetensors(_model(0), tmp_path / "m.safetensors"), "https://example.org/m")
+    register(e)  # offline (conftest): a known name, its file not here
+    with pytest.raises(WeightsNotFoundError) as err:
+        resolve_model("tiny.missing.v1")
+    assert "not a known hub name" not in str(err.value) and e.filename in str(err.value)
+
+
+@pytest.mark.parametrize("cmd", ["info", "pull", "verify"])
+def test_hub_commands_given_a_path_say_they_take_a_name(tmp_path, capsys, cmd):
+    """They answered that an exported folder 'is not a checkpoint file, an exported directory, nor a registered
+    hub name'."""
+    folder = tmp_path / "exported"
+    _model(0).save_pretrained(folder)
+    assert zoo_main(["hub", cmd, str(folder)]) == 2
+    err = capsys.readouterr().err
+    assert "takes a registered name" in err and "not a checkpoint file, an exported directory" not in err

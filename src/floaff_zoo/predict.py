@@ -87,10 +87,12 @@ def resolve_model(model: Any, model_class: type | str | None = None, device: str
     """
     runtime.keep_freed_memory()
     if isinstance(model, (str, Path)):
-        from floaff_zoo.hub import load_model
+        from floaff_zoo.hub import HubError, load_model
 
         try:
             model = load_model(str(model), map_location=device)
+        except HubError:
+            raise  # a registered name whose file is missing / corrupt: the hub's message says what to do
         except FileNotFoundError as exc:
             raise FileNotFoundError(
                 f"predict: model {str(model)!r} is neither a checkpoint file nor a known hub name ({exc})"

@@ -157,6 +157,12 @@ def cmd_verify(args: argparse.Namespace) -> int:
     return 1 if bad or (args.name and missing) else 0
 
 
+def _looks_like_path(name: str) -> bool:
+    from floaff_zoo.hub.io import looks_like_path  # imports torch: only for the commands that take a name
+
+    return looks_like_path(name)
+
+
 COMMANDS = {"list": cmd_list, "info": cmd_info, "pull": cmd_pull, "push": cmd_push, "verify": cmd_verify}
 
 
@@ -164,7 +170,13 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point for ``floaff-zoo hub ...``; returns the exit code (2 on a hub error)."""
     args = _parser().parse_args(sys.argv[1:] if argv is None else argv)
     try:
+        name = getattr(args, "name", None)
+        if args.cmd in ("info", "pull", "verify") and name and _looks_like_path(name):
+            raise HubError(
+                f"hub {args.cmd} takes a registered name (`floaff-zoo hub list`), not a path: {name!r}; a file or an "
+                "exported folder loads with floaff_zoo.hub.load_model or a model class's from_pretrained"
+            )
         return COMMANDS[args.cmd](args)
-    except (HubError, FileNotFoundError, ValueError, TypeError) as exc:
+    except (HubError, OSError, ValueError, TypeError) as exc:  # OSError: a file or folder that cannot be read / written
         print(f"floaff-zoo hub: error: {exc}", file=sys.stderr)
         return 2

@@ -255,9 +255,17 @@ def fetch(
     offline = is_offline() or hf_offline
     if allow_download and not offline and kind in ("url", "hf"):
         dest = root / entry.filename
-        if kind == "url":
-            return _download_url(entry.source["url"], dest, entry.sha256)
-        return _download_hf(entry.source, dest, entry.sha256, default_path=entry.filename)
+        try:
+            if kind == "url":
+                return _download_url(entry.source["url"], dest, entry.sha256)
+            return _download_hf(entry.source, dest, entry.sha256, default_path=entry.filename)
+        except HubError:
+            raise
+        except OSError as exc:  # urllib's URLError/HTTPError, timeouts, requests' errors: no network, 404, ...
+            raise WeightsNotFoundError(
+                f"weights {entry.name!r} are not available locally and their download failed ({exc}): put the file "
+                f"{entry.filename} (sha256 {entry.sha256}) into the folder {root}, or set FLOAFF_ZOO_OFFLINE=1"
+            ) from exc
     if kind == "local":
         why = "its source is a local file that is not present"
     elif offline:
