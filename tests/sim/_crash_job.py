@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import time
 from pathlib import Path
 
 from floaff_zoo.sim import fileformat as ff
@@ -37,3 +38,17 @@ def error_then_drop(job, out, preset_dict, save_images):
         "reason": "no positive",
         "wall_s": 0.0,
     }
+
+
+def interrupted(job, out, preset_dict, save_images):
+    """The run is stopped (Ctrl-C) in the middle of this slot."""
+    raise KeyboardInterrupt
+
+
+def slow_marker(job, out, preset_dict, save_images):
+    """Write pid_<pid>, take 8 s, then mark the slot done (after_<slot>): a worker still running after its driver
+    died would write the mark."""
+    Path(out, f"pid_{os.getpid()}").write_text(str(os.getpid()))
+    time.sleep(8)
+    Path(out, f"after_{job.key.replace('/', '_')}").touch()
+    return {"key": job.key, "status": "dropped", "scene_id": None, "attempts": [], "reason": "x", "wall_s": 0.0}

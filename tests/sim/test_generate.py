@@ -216,7 +216,8 @@ def _error_job(job, out, preset_dict, save_images):
 @pytest.mark.parametrize(
     ("flags", "message"),
     [
-        (["--cell", "0"], "cell must be > 0, got 0.0"),
+        (["--cell", "0"], "cell must be a finite number > 0, got 0.0"),
+        (["--cell", "inf"], "cell must be a finite number > 0, got inf"),
         (["--views", "-1", "2"], r"views_per_scene must be >= 0, got \(-1, 2\)"),
         (["--n-train", "0", "--n-test", "0"], "at least one scene, got 0/0"),
         (["--image-size", "0"], "image_size must be >= 1, got 0"),
@@ -573,3 +574,86 @@ def test_a_scene_a_rerun_cannot_replace_is_retired_not_read(mini_run, tmp_path):
     assert man["scenes"][key]["status"] == "dropped" and man["scenes"][key]["retired"] == victim["scene_id"]
     assert victim["scene_id"] not in {s["scene_id"] for s in ff.iter_scenes(out)}
     assert (out / victim["benchmark"] / ff.RETIRED / victim["scene_id"] / ff.SCENE_JSON).is_file()
+
+
+def test_an_interrupted_rerun_does_not_leave_a_stale_scene_readable(mini_run, tmp_path):
+    """A rerun that must regenerate a slot rewrote the manifest without the slot's scene id before any job ran; when
+    it was interrupted, the next rerun no longer knew the old scene and left it for the readers. The slot's scenes
+    are now found by its seeds' folders."""
+    sys.path.insert(0, str(Path(__file__).parent))
+    import _crash_job
+
+    src, _ = mini_run
+    out = tmp_path / "copy"
+    shutil.copytree(src, out)
+    victim = sorted(ff.iter_scenes(out), key=lambda s: s["scene_id"])[0]
+    path = Path(victim["dir"]) / ff.SCENE_JSON
+    path.write_text(json.dumps({**json.loads(path.read_text()), "generator_version": "2.0.0"}))
+    with pytest.raises(KeyboardInterrupt):
+        gen.generate(out, get_preset("tiny", **MINI), seed=0, workers=0, quiet=True, job_fn=_crash_job.interrupted)
+    man = gen.generate(
+        out, get_preset("tiny", **MINI), seed=0, workers=0, quiet=True, job_fn=_crash_job.error_then_drop
+    )
+    assert victim["scene_id"] not in {s["scene_id"] for s in ff.iter_scenes(out)}
+    assert victim["scene_id"] in [s.get("retired") for s in man["scenes"].values()]
+
+
+@pytest.mark.parametrize("damage", ["missing", "corrupt"])
+def test_a_rerun_into_scenes_without_a_readable_manifest_is_refused(mini_run, tmp_path, damage):
+    """Without a readable manifest the settings went unchecked: a rerun with another grid cell kept the old scenes
+    and wrote a manifest recording settings they were not made with."""
+    src, _ = mini_run
+    out = tmp_path / "copy"
+    shutil.copytree(src, out)
+    if damage == "missing":
+        (out / ff.MANIFEST).unlink()
+    else:
+        (out / ff.MANIFEST).write_text("{not json")
+    with pytest.raises(ValueError, match=f"{out}: holds 2 generated scene.*manifest.json is {damage}"):
+        gen.generate(out, get_preset("tiny", **{**MINI, "cell": 0.5}), seed=0, workers=0, quiet=True)
+
+
+def test_a_rerun_with_fewer_slots_keeps_the_others_in_the_manifest(mini_run, tmp_path):
+    """A rerun with --n-test 0 (or fewer tasks) dropped the other slots from the manifest while their scenes stayed
+    and were read: the manifest now lists every scene the readers see, the left-out ones marked in_plan false."""
+    src, _ = mini_run
+    out = tmp_path / "copy"
+    shutil.copytree(src, out)
+    man = gen.generate(out, get_preset("tiny", **{**MINI, "n_test": 0}), seed=0, workers=0, quiet=True)
+    listed = {s["scene_id"] for s in man["scenes"].values() if s["status"] == "ok"}
+    assert listed == {s["scene_id"] for s in ff.iter_scenes(out)} and len(listed) == 2
+    assert [s["split"] for s in man["scenes"].values() if s.get("in_plan") is False] == ["test"]
+    assert man["counts"]["scenes_ok"] == 2
+
+
+def test_workers_exit_when_the_driver_is_killed(tmp_path):
+    """Pool workers outlived a killed `generate`: they finished their queued scenes into --out (beside the rerun the
+    docs tell the user to start) and then waited forever."""
+    import os
+    import signal
+    import subprocess
+    import time
+
+    out = tmp_path / "o"
+    here = str(Path(__file__).parent)
+    code = (
+        f"import sys; sys.path.insert(0, {here!r}); import _crash_job; from floaff_zoo.sim import generate as g; "
+        "from floaff_zoo.sim.presets import get_preset; "
+        f"g.generate({str(out)!r}, get_preset('tiny'), seed=0, workers=1, quiet=True, job_fn=_crash_job.slow_marker)"
+    )
+    driver = subprocess.Popen([sys.executable, "-c", code])
+    deadline = time.monotonic() + 120
+    while not list(out.glob("pid_*")) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    driver.send_signal(signal.SIGKILL)
+    driver.wait()
+    (marker,) = out.glob("pid_*")
+    pid = int(marker.read_text())
+    deadline = time.monotonic() + 5  # the worker checks on its parent every 0.5 s
+    while time.monotonic() < deadline and Path(f"/proc/{pid}").exists():
+        time.sleep(0.1)
+    alive = Path(f"/proc/{pid}").exists() and Path(f"/proc/{pid}/stat").read_text().split()[2] != "Z"
+    if alive:
+        os.kill(pid, signal.SIGKILL)  # clean up before failing
+    assert not alive, "the generate worker outlived its killed driver"
+    assert not list(out.glob("after_*"))

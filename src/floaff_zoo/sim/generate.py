@@ -30,6 +30,7 @@ import multiprocessing as mp
 import os
 import shutil
 import sys
+import threading
 import time
 import traceback
 from collections.abc import Callable, Iterator
@@ -156,6 +157,35 @@ def find_done(out: Path, job: SceneJob, min_views: int = 0) -> str | None:
             if topped_up:
                 return sid
     return None
+
+
+def slot_scenes(out: Path, job: SceneJob) -> list[str]:
+    """scene_ids of the committed scenes of this slot, found by its seeds' folders (any format or generator version).
+
+    What a rerun that regenerates the slot must move out of the readers' way; found without the previous manifest,
+    which an interrupted rerun leaves without the slot's scene_id.
+    """
+    ids = []
+    for s in job.seeds:
+        sid = _scene_id(_spec(job, s))
+        try:
+            rec = ff.read_json(ff.scene_dir(out, job.benchmark, sid) / ff.SCENE_JSON)
+        except ff.FormatError:
+            continue
+        if isinstance(rec, dict) and rec.get("slot") == job.key:
+            ids.append(sid)
+    return ids
+
+
+def committed_scene_dirs(out: Path) -> list[Path]:
+    """Every folder under ``out`` that the readers would take for a scene (a scene.json inside), any benchmark."""
+    return sorted(
+        d
+        for b in ALL_BENCHMARKS
+        if (out / b).is_dir()
+        for d in (out / b).iterdir()
+        if d.is_dir() and not d.name.startswith(".") and (d / ff.SCENE_JSON).is_file()
+    )
 
 
 def _inside_polys(xy: np.ndarray, polys: list[np.ndarray], margin: float = 0.0) -> np.ndarray:
@@ -536,6 +566,16 @@ def _worker_init() -> None:
     for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ[k] = "1"
     os.environ.setdefault("MUJOCO_GL", "egl")
+    # a worker outlives a killed driver otherwise: it would finish its queued scenes into --out beside the rerun
+    threading.Thread(target=_exit_with_parent, args=(os.getppid(),), daemon=True, name="exit-with-parent").start()
+
+
+def _exit_with_parent(parent: int, every_s: float = 0.5) -> None:
+    """Exit this process once its parent ``parent`` is gone (the process is re-parented); a scene being written
+    stays in .staging/, which the next run deletes."""
+    while os.getppid() == parent:
+        time.sleep(every_s)
+    os._exit(1)
 
 
 class _Progress:
@@ -781,6 +821,13 @@ def generate(
             old = None
     if old is not None:
         check_resume_settings(old, manifest, outp)
+    elif found := committed_scene_dirs(outp):
+        why = "corrupt" if (outp / ff.MANIFEST).is_file() else "missing"
+        raise ValueError(
+            f"{outp}: holds {len(found)} generated scene(s) (e.g. {found[0]}) but its manifest.json is {why}, so the "
+            "settings they were made with cannot be checked against this run's: generate into another --out, or "
+            "restore manifest.json"
+        )
     todo: list[SceneJob] = []
     for job in jobs:
         base = {
@@ -808,6 +855,12 @@ def generate(
         else:
             manifest["scenes"][job.key] = {**base, "status": "pending"}
             todo.append(job)
+    # slots of an earlier run that this run leaves out (fewer tasks, scenes or benchmarks): their scenes stay and
+    # are read, so the manifest keeps describing them
+    for key, s in sorted((old or {}).get("scenes", {}).items()):
+        sid = s.get("scene_id")
+        if key not in manifest["scenes"] and sid and ff.scene_is_done(outp, s["benchmark"], sid):
+            manifest["scenes"][key] = {**s, "in_plan": False}
     _summarise(manifest)
     ff.atomic_write_json(outp / ff.MANIFEST, manifest)
     prog = _Progress(len(todo), quiet)
@@ -823,9 +876,13 @@ def generate(
             "wall_s": res.get("wall_s"),
             "resumed": False,
         }
+        # the slot's earlier scenes are not this run's result, so readers must not see them
         prev = (old or {}).get("scenes", {}).get(job.key, {}).get("scene_id")
-        if prev and prev != res.get("scene_id") and ff.retire_scene(outp, job.benchmark, prev) is not None:
-            entry["retired"] = prev  # the slot's earlier scene: not this run's result, so readers must not see it
+        stale = ({prev} if prev else set()) | set(slot_scenes(outp, job))
+        stale.discard(res.get("scene_id"))
+        retired = [sid for sid in sorted(stale) if ff.retire_scene(outp, job.benchmark, sid) is not None]
+        if retired:
+            entry["retired"] = retired[0] if len(retired) == 1 else retired
         if st == "ok":
             rec = ff.read_scene(ff.scene_dir(outp, job.benchmark, res["scene_id"]))
             entry["n_views"] = rec["n_views"]

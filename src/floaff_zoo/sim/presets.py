@@ -7,6 +7,7 @@ train side, test front, test side); they are spread over the scenes of a split (
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, fields, replace
 from typing import Any
 
@@ -100,8 +101,8 @@ class GenPreset:
             raise ValueError(f"unknown benchmark(s) {bad}; choose from {list(ALL_BENCHMARKS)}")
         if self.n_train < 0 or self.n_test < 0 or self.n_train + self.n_test == 0:
             raise ValueError(f"need n_train >= 0, n_test >= 0 and at least one scene, got {self.n_train}/{self.n_test}")
-        if not self.cell > 0:
-            raise ValueError(f"cell must be > 0, got {self.cell}")
+        if not (math.isfinite(self.cell) and self.cell > 0):
+            raise ValueError(f"cell must be a finite number > 0, got {self.cell}")
         if self.max_seed_attempts < 1:
             raise ValueError("max_seed_attempts must be >= 1")
         if min(self.views_per_scene) < 0:
@@ -114,8 +115,8 @@ class GenPreset:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
         if self.max_candidates is not None and self.max_candidates < 1:
             raise ValueError(f"max_candidates must be >= 1 (None = no cap), got {self.max_candidates}")
-        if not self.depth_max > 0:
-            raise ValueError(f"depth_max must be > 0, got {self.depth_max}")
+        if not (math.isfinite(self.depth_max) and self.depth_max > 0):
+            raise ValueError(f"depth_max must be a finite number > 0, got {self.depth_max}")
         return self
 
 
