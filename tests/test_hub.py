@@ -20,6 +20,7 @@ from floaff_zoo.hub import (
     UnknownWeightsError,
     WeightsNotFoundError,
     hub_dir,
+    load_model,
     load_registry,
     register,
     resolve_state_dict,
@@ -534,3 +535,33 @@ def test_hub_commands_given_a_path_say_they_take_a_name(tmp_path, capsys, cmd):
     assert zoo_main(["hub", cmd, str(folder)]) == 2
     err = capsys.readouterr().err
     assert "takes a registered name" in err and "not a checkpoint file, an exported directory" not in err
+
+
+def test_the_weights_file_of_an_exported_folder_named_directly_is_checked_too(tmp_path):
+    """The folder's config.json records the weights' sha256 and loading the folder checks it; naming the weights
+    file itself loaded an altered file without a word."""
+    from safetensors.torch import load_file, save_file
+
+    folder = tmp_path / "exported"
+    _model(0).save_pretrained(folder)
+    cfg = json.loads((folder / "config.json").read_text())
+    weights = folder / cfg.get("weights", "model.safetensors")
+    assert cfg.get("sha256")
+    assert load_model(str(weights)) is not None  # intact: loads
+    state = load_file(str(weights))
+    key = next(iter(state))
+    state[key] = torch.zeros_like(state[key])
+    save_file(state, str(weights))  # still a valid safetensors file, other numbers
+    with pytest.raises(ChecksumError, match="config.json"):
+        load_model(str(weights))
+    with pytest.raises(ChecksumError):
+        load_model(str(folder))
+
+
+def test_an_exported_config_with_a_malformed_sha256_is_named(tmp_path):
+    folder = tmp_path / "exported"
+    _model(0).save_pretrained(folder)
+    cfg = json.loads((folder / "config.json").read_text())
+    (folder / "config.json").write_text(json.dumps({**cfg, "sha256": 12}))
+    with pytest.raises(ValueError, match=r"config.json: 'sha256' must be 64 hex digits, got 12"):
+        load_model(str(folder))

@@ -130,6 +130,11 @@ def read_config(directory: Path) -> dict[str, Any]:
     weights = cfg.get("weights", DEFAULT_WEIGHTS_NAME)
     if not isinstance(weights, str) or "/" in weights or "\\" in weights:
         raise ValueError(f"{cfg_path}: 'weights' must be a file name inside the directory, got {weights!r}")
+    sha = cfg.get("sha256")
+    if sha is not None and not (
+        isinstance(sha, str) and len(sha) == 64 and all(c in "0123456789abcdefABCDEF" for c in sha)
+    ):
+        raise ValueError(f"{cfg_path}: 'sha256' must be 64 hex digits, got {sha!r}")
     return cfg
 
 
@@ -303,12 +308,15 @@ def resolve_state_dict(
     name, sha, meta = None, None, {}
     if path.is_file():
         kind, weights_path = "file", path
+        # the weights file of an exported folder, named directly: its config's hash is checked as for the folder
+        cfg = read_config(path.parent) if (path.parent / CONFIG_NAME).is_file() else {}
+        exported = bool(cfg) and cfg.get("weights", DEFAULT_WEIGHTS_NAME) == path.name
+        if exported and cfg.get("sha256"):
+            sha = cfg["sha256"]
+            _verify(path, sha, f"{path.parent / CONFIG_NAME}")
         state, info = read_weights(path)
-        sibling = path.parent / CONFIG_NAME
-        if info["class_path"] is None and sibling.is_file():
-            cfg = read_config(path.parent)
-            if cfg.get("weights", DEFAULT_WEIGHTS_NAME) == path.name:
-                info = {"class_path": cfg.get("class_path"), "init_args": dict(cfg.get("init_args") or {})}
+        if exported and info["class_path"] is None:
+            info = {"class_path": cfg.get("class_path"), "init_args": dict(cfg.get("init_args") or {})}
     elif path.is_dir():
         kind = "dir"
         cfg = read_config(path)
