@@ -1,9 +1,11 @@
 """The CLI through its real entry points, on the synthetic tiny data."""
 
+import json
 import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
@@ -45,6 +47,20 @@ def test_fit_test_predict_round_trip(tmp_path, root, monkeypatch):
     preds = cli_p.trainer.predict_loop.predictions
     assert preds and preds[0]["scores"].shape[0] == 2
     assert ((preds[0]["scores"] >= 0) & (preds[0]["scores"] <= 1)).all()
+    # what predict computed is in the run's folder (Lightning kept it in memory only): every sample, in order
+    run_dir = Path(cli_p.trainer.log_dir)
+    saved = np.load(run_dir / "predictions.npz")
+    index = json.loads((run_dir / "predictions.json").read_text())
+    n = sum(len(p["scores"]) for p in preds)
+    assert saved["scores"].shape[0] == n == index["n"] == len(index["meta"])
+    assert index["arrays"]["scores"] == list(saved["scores"].shape)
+    mask = saved["floor_mask"]
+    first = preds[0]["scores"].numpy()
+    np.testing.assert_array_equal(
+        saved["scores"][: len(first), : first.shape[1]][mask[: len(first), : first.shape[1]]],
+        first[preds[0]["floor_mask"].numpy()],
+    )
+    assert np.isnan(saved["scores"][~mask]).all() and index["meta"][0] == preds[0]["meta"][0]
     # a newer run in the same root: `--config <first run>/config.yaml --ckpt_path best` still picks the first run's
     run_lightning(["fit", *base, "--trainer.max_epochs", "1", "--model.init_args.width", "16"])
     first_cfg = Path(ckpt).parents[1] / "config.yaml"

@@ -304,6 +304,11 @@ class FloAffCLI(LightningCLI):
 
             if not any(isinstance(c, TestReport) for c in user):
                 extra.append(TestReport())  # every `floaff-zoo test` writes report.json/report.md
+        if self.subcommand == "predict":
+            from floaff_zoo.callbacks import PredictionWriter
+
+            if not any(isinstance(c, PredictionWriter) for c in user):
+                extra.append(PredictionWriter())  # predictions.npz/.json (Lightning would drop the records)
         # Lightning merges {**trainer_config, **kwargs}: pass the configured callbacks along too.
         return super().instantiate_trainer(callbacks=[*user, *extra], **kwargs)
 

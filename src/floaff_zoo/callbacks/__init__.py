@@ -1,7 +1,8 @@
-"""Lightning callbacks of the zoo: simulator success rate, the test report and the fit's checkpoints."""
+"""Lightning callbacks of the zoo: simulator success rate, test report, predictions and the fit's checkpoints."""
 
 from floaff_zoo.callbacks.checkpoint import LatestCheckpoint
+from floaff_zoo.callbacks.predictions import PredictionWriter
 from floaff_zoo.callbacks.report import TestReport
 from floaff_zoo.callbacks.rollout import RolloutSuccessRate
 
-__all__ = ["LatestCheckpoint", "RolloutSuccessRate", "TestReport"]
+__all__ = ["LatestCheckpoint", "PredictionWriter", "RolloutSuccessRate", "TestReport"]

@@ -1,0 +1,95 @@
+"""What ``floaff-zoo predict`` computes, written into the run's folder.
+
+``predictions.npz`` holds one array per tensor the model's ``predict_step`` returns, the batches concatenated
+in the loader's order: ``[N, ...]`` (N samples); a per-point array ``[N, M, ...]`` is padded to the largest view
+(NaN for floats, False for masks, 0 for integers, so ``floor_mask`` says which entries are real). A floor-map
+model writes ``scores``, ``floor_xyz``, ``floor_mask`` and ``target_xyz`` (robot base frame), CFAR also the yaw,
+crop radius and canonical-to-robot transform it used, AxisNet its ``yaw``. ``predictions.json`` holds the samples'
+``meta`` (scene, view, task, ...) in the same order and each array's shape. Read it back with
+``np.load(path)`` (no pickle).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import lightning as L
+import numpy as np
+import torch
+from lightning.pytorch.callbacks import BasePredictionWriter
+
+from floaff_zoo.callbacks.report import _jsonable
+
+
+def _pad_value(dtype: np.dtype) -> Any:
+    if np.issubdtype(dtype, np.floating):
+        return np.nan
+    return False if dtype == np.bool_ else 0
+
+
+def stack_batches(parts: list[np.ndarray], key: str) -> np.ndarray:
+    """Concatenate batch arrays [B_i, M_i, ...] along the batch, padding every later axis to its largest size.
+
+    Raises:
+        ValueError: the batches disagree in rank or dtype (naming ``key``).
+    """
+    if len({p.ndim for p in parts}) > 1 or len({p.dtype for p in parts}) > 1:
+        seen = [(p.shape, str(p.dtype)) for p in parts]
+        raise ValueError(f"predict: {key!r} changes rank or dtype between batches: {seen}")
+    shape = np.max([p.shape for p in parts], axis=0)
+    out = []
+    for p in parts:
+        pad = [(0, 0)] + [(0, int(n) - s) for n, s in zip(shape[1:], p.shape[1:])]
+        out.append(np.pad(p, pad, constant_values=_pad_value(p.dtype)) if any(b for _, b in pad) else p)
+    return np.concatenate(out, axis=0)
+
+
+def gather_predictions(records: list[dict[str, Any]]) -> tuple[dict[str, np.ndarray], list[dict[str, Any]]]:
+    """Batch records of ``predict_step`` -> (arrays {key: [N, ...]}, meta [N]); a key missing from a batch is an
+    error."""
+    keys = [k for k, v in records[0].items() if torch.is_tensor(v)]
+    arrays: dict[str, np.ndarray] = {}
+    for k in keys:
+        missing = [i for i, r in enumerate(records) if not torch.is_tensor(r.get(k))]
+        if missing:
+            raise ValueError(f"predict: batch {missing[0]} has no tensor {k!r} (batch 0 has)")
+        arrays[k] = stack_batches([r[k].detach().cpu().numpy() for r in records], k)
+    meta: list[dict[str, Any]] = []
+    for r in records:
+        meta.extend(r.get("meta") or [{}] * (len(r[keys[0]]) if keys else 0))
+    return arrays, meta
+
+
+class PredictionWriter(BasePredictionWriter):
+    """Write ``<run>/predictions.npz`` and ``predictions.json`` at the end of ``floaff-zoo predict`` (module
+    docstring); under several processes each rank writes its own pair, ``predictions_rank<r>``.
+
+    Args:
+        out_dir: where to write; default the run's log dir (``trainer.log_dir``) or ``default_root_dir``.
+    """
+
+    def __init__(self, out_dir: str | None = None) -> None:
+        super().__init__(write_interval="epoch")
+        self.out_dir = out_dir
+        self.written: dict[str, str] = {}
+
+    def write_on_epoch_end(
+        self, trainer: L.Trainer, pl_module: L.LightningModule, predictions: Any, batch_indices: Any
+    ) -> None:
+        # one list per dataloader when there are several
+        several = bool(predictions) and isinstance(predictions[0], list)
+        batches = [r for p in predictions for r in p] if several else predictions
+        if not batches:
+            return
+        arrays, meta = gather_predictions(list(batches))
+        run_dir = Path(self.out_dir or trainer.log_dir or trainer.default_root_dir)
+        run_dir.mkdir(parents=True, exist_ok=True)
+        stem = "predictions" if trainer.world_size == 1 else f"predictions_rank{trainer.global_rank}"
+        npz, js = run_dir / f"{stem}.npz", run_dir / f"{stem}.json"
+        np.savez_compressed(npz, **arrays)
+        shapes = {k: list(v.shape) for k, v in arrays.items()}
+        js.write_text(json.dumps({"n": len(meta), "arrays": shapes, "meta": _jsonable(meta)}, indent=1))
+        self.written = {"npz": str(npz), "json": str(js)}
+        print(f"floaff-zoo predict: {len(meta)} samples -> {npz} (+ {js.name})", flush=True)
