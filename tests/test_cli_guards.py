@@ -253,6 +253,33 @@ def test_ckpt_best_with_a_truncated_last_ckpt_names_it(width16_run, tmp_path, ro
             ["--trainer.callbacks+", "floaff_zoo.callbacks.TestReport", "--trainer.callbacks.figures_per_group", "-1"],
             "trainer.callbacks: TestReport: figures_per_group must be >= 0",
         ),
+        # the rollout callback's sizes failed at the end of the test epoch (workers), or silently merged distinct
+        # poses into one cached episode (cache_decimals < 0) or collected no validation episode
+        *[
+            (
+                "fit",
+                DATA,
+                [
+                    *("--trainer.max_steps", "1"),  # should the check go, the fit stays short
+                    *("--trainer.callbacks+", "floaff_zoo.callbacks.RolloutSuccessRate", f"--trainer.callbacks.{k}", v),
+                ],
+                f"trainer.callbacks: RolloutSuccessRate: {k} must be >= ",
+            )
+            for k, v in (("workers", "0"), ("cache_decimals", "-1"), ("max_val_samples", "0"))
+        ],
+        # a width of 0 built a model that ignores its input and trained it; a negative one named no argument
+        (
+            "fit",
+            DATA,
+            ["--model.init_args.width", "0", "--trainer.max_steps", "1"],
+            "model (TinyPointNetModule): TinyPointNetModule: layer net.",
+        ),
+        (
+            "fit",
+            DATA,
+            ["--model.init_args.width", "-3"],
+            "model (TinyPointNetModule): TinyPointNetModule: a size argument is negative",
+        ),
     ],
 )
 def test_init_arg_rejected_by_a_class_is_one_line_naming_the_part(
@@ -291,3 +318,84 @@ def test_init_error_stays_one_line_when_jsonargparse_does_not_show_the_part(tmp_
     with pytest.raises(CLIError) as info:
         main([*args, "--model.init_args.train.lr", "-1"])
     assert str(info.value) == "train.lr must be > 0, got -1.0"
+
+
+@pytest.mark.parametrize(
+    ("flags", "expected"),
+    [
+        (["--model.init_args.npoints", "[64,0,8]"], "npoints: every level needs >= 1 centre, got 0"),
+        (["--model.init_args.nsamples", "[[0],[8],[8]]"], "nsamples: every ball needs >= 1 neighbour, got [0]"),
+    ],
+)
+def test_pointnet2_sizes_are_checked_before_the_first_batch(tmp_path, root, monkeypatch, flags, expected):
+    """A set-abstraction size below 1 failed at the first batch with a traceback naming no argument."""
+    monkeypatch.chdir(root)
+    model = "tests/configs/models/pointnet2_ssg_tiny.yaml"
+    with pytest.raises(CLIError) as info:
+        args = ["fit", "--config", DATA, "--config", model, "--trainer.max_steps=1", *quiet_trainer_args(tmp_path)]
+        main([*args, *flags])
+    assert str(info.value).startswith("model (PointNet2Module): ") and expected in str(info.value)
+
+
+def test_a_data_config_without_class_path_is_named(tmp_path, root, monkeypatch):
+    """It built the abstract base, which then said that no 'val' split was set up."""
+    monkeypatch.chdir(root)
+    cfg = tmp_path / "data.yaml"
+    cfg.write_text("data:\n  init_args:\n    batch_size: 4\n")
+    with pytest.raises(CLIError, match=r"no class_path: FloAffDataModule is the base class"):
+        main(["fit", "--config", str(cfg), "--config", MODEL, *quiet_trainer_args(tmp_path)])
+
+
+def test_fit_with_a_missing_ckpt_path_is_one_line_before_any_run_folder(tmp_path, root, monkeypatch):
+    """Lightning failed with a traceback after the run folder was made."""
+    monkeypatch.chdir(root)
+    missing = tmp_path / "nope.ckpt"
+    with pytest.raises(CLIError, match=f"--ckpt_path {missing}: no such file"):
+        main(
+            [
+                "fit",
+                "--config",
+                DATA,
+                "--config",
+                MODEL,
+                *quiet_trainer_args(tmp_path),
+                "--trainer.max_steps",
+                "1",
+                "--ckpt_path",
+                str(missing),
+            ]
+        )
+    assert not list(tmp_path.rglob("version_*"))
+
+
+def test_a_mistyped_fps_backend_fails_before_the_first_batch(tmp_path, root, monkeypatch, capsys):
+    monkeypatch.chdir(root)
+    monkeypatch.setenv("FLOAFF_ZOO_FPS_BACKEND", "torh")
+    rc, lines = _console(monkeypatch, capsys, ["fit", "--config", DATA, "--config", MODEL])
+    assert rc == 2 and lines == ["floaff-zoo: error: FLOAFF_ZOO_FPS_BACKEND='torh': choose auto, cpp or torch"]
+
+
+def test_outputs_that_cannot_be_written_are_one_line(tmp_path, root, monkeypatch, capsys):
+    """table --out and curriculum --root under a file gave a raw OSError traceback."""
+    from floaff_zoo import curriculum
+    from floaff_zoo.report.table import main as table_main
+
+    monkeypatch.chdir(root)
+    blocker = tmp_path / "a_file"
+    blocker.write_text("")
+    runs = root / "tests/report/fixtures/runs"
+    assert table_main(["--runs", str(runs), "--out", str(blocker / "t.md")]) == 2
+    assert f"--out {blocker / 't.md'}: cannot write" in capsys.readouterr().err
+    with pytest.raises(curriculum.CurriculumError, match=f"--root {blocker / 'x'}: cannot create the run folder"):
+        curriculum.main(["--config", "tests/configs/pfal_tiny.yaml", "--root", str(blocker / "x")])
+
+
+def test_demo_refuses_epochs_below_one_before_generating(tmp_path):
+    """--epochs 0 generated the whole benchmark and then blamed checkpointing; -1 trained without end."""
+    from floaff_zoo import demo
+
+    for epochs in ("0", "-1"):
+        with pytest.raises(SystemExit) as info:
+            demo.parse_args(["--epochs", epochs, "--data", str(tmp_path / "d")])
+        assert info.value.code == 2
+    assert not (tmp_path / "d").exists()

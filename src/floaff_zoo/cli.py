@@ -26,7 +26,7 @@ from floaff_zoo._version import __version__
 from floaff_zoo.contract import SampleError
 from floaff_zoo.data.base import FloAffDataModule
 from floaff_zoo.models.base import WEIGHTS_FAILURE_NOTE, ZooModule
-from floaff_zoo.nn import ops
+from floaff_zoo.nn import _fps_ext, ops
 from floaff_zoo.runs import CHECKPOINT_KEYS, RunError, load_checkpoint, resolve_ckpt_alias
 
 TRAINER_COMMANDS = ("fit", "validate", "test", "predict")
@@ -204,9 +204,13 @@ class FloAffCLI(LightningCLI):
     def _check_ckpt_file(self) -> None:
         """A ``--ckpt_path`` file must be a Lightning checkpoint: Lightning's own loaders fail on a truncated file,
         a text file or a bare state dict with a traceback that never names it. The check memory-maps the file, so a
-        large one costs little. A path that is no file is left to Lightning (``fit``) and ``_guard_eval``."""
+        large one costs little. A path that is no file is refused here for ``fit`` (before a run folder is made;
+        Lightning's own keywords ``last``/``hpc``/``registry`` pass) and by ``_guard_eval`` otherwise."""
         sub = self.config.get("subcommand")
         ckpt = self.config[sub].get("ckpt_path") if sub else None
+        keyword = ckpt in ("last", "hpc", "registry")
+        if sub == "fit" and ckpt is not None and not keyword and not Path(str(ckpt)).is_file():
+            raise CLIError(f"--ckpt_path {ckpt}: no such file")
         if ckpt is None or not Path(str(ckpt)).is_file():
             return
         try:
@@ -450,6 +454,7 @@ def main(args: list[str] | None = None) -> int:
     try:
         runtime.keep_freed_memory()  # large activations reuse freed memory instead of fresh pages (runtime.py)
         ops.portable_requested()  # a mistyped FLOAFF_ZOO_CPU_PATHS fails here, not at the first batch
+        _fps_ext.backend_requested()  # the same for FLOAFF_ZOO_FPS_BACKEND
     except ValueError as exc:
         print(f"floaff-zoo: error: {exc}", file=sys.stderr)
         return 2

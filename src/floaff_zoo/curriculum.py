@@ -509,7 +509,12 @@ def _fit_stage(
     cb = cli.trainer.checkpoint_callback
     ckpt = (cb.best_model_path or cb.last_model_path) if cb is not None else ""
     if not ckpt or not Path(ckpt).is_file():
-        raise CurriculumError(f"stage {name}: the fit wrote no checkpoint (enable checkpointing)")
+        why = (
+            "it trained no step (trainer.max_epochs / max_steps 0?)"
+            if cli.trainer.global_step == 0
+            else "enable checkpointing"
+        )
+        raise CurriculumError(f"stage {name}: the fit wrote no checkpoint ({why})")
     score = getattr(cb, "best_model_score", None)
     record = {
         "stage": name,
@@ -568,6 +573,10 @@ def run_curriculum(
     lineage_path = root / LINEAGE_FILE
     if not dry_run:  # a damaged lineage of an earlier run is reported, not silently replaced
         _read_json(lineage_path)
+        try:  # an unwritable --root fails here in one line, not as a traceback in the first stage
+            root.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise CurriculumError(f"--root {root}: cannot create the run folder ({exc})") from exc
     lineage = {
         "experiment": str(config),
         "root": str(root),

@@ -148,6 +148,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     )
     p.add_argument("--workers", type=int, default=2, help="generation worker processes")
     args = p.parse_args(argv)
+    if args.epochs is not None and args.epochs < 1:  # 0 trains nothing; -1 is Lightning's "never stop"
+        p.error(f"--epochs must be >= 1, got {args.epochs}")
+    if args.workers < 0:
+        p.error(f"--workers must be >= 0, got {args.workers}")
     if args.data is None:
         args.data = f"data/floaff_{args.preset}"
     if args.runs is None:

@@ -64,3 +64,16 @@ def test_montage_names_the_missing_case_and_report(tmp_path, capsys):
     with pytest.raises(SystemExit):
         zoo_main(["montage", "--runs", str(tmp_path / "nope"), "--cases", "a_b_0", "--out", str(tmp_path / "x.png")])
     assert "nope: no report.json" in capsys.readouterr().err
+
+
+def test_montage_out_names_the_file_it_writes(tmp_path, capsys):
+    """--out without a suffix wrote <out>.png and printed <out>; a folder wrote <folder>.png beside it; an unknown
+    suffix gave matplotlib's traceback."""
+    a = _run(tmp_path, "CFAR+PFAL", 0.1)
+    args = ["montage", "--runs", str(a), "--cases", "CloseDrawer_front_0", "--out"]
+    assert zoo_main([*args, str(tmp_path / "fig")]) == 0
+    assert capsys.readouterr().out.strip() == str(tmp_path / "fig.png") and (tmp_path / "fig.png").is_file()
+    for out, message in ((tmp_path, "is a folder"), (tmp_path / "fig.jpgx", "cannot write '.jpgx' pictures")):
+        with pytest.raises(SystemExit) as ex:
+            zoo_main([*args, str(out)])
+        assert ex.value.code == 2 and message in capsys.readouterr().err

@@ -219,6 +219,7 @@ def _error_job(job, out, preset_dict, save_images):
         (["--cell", "0"], "cell must be a finite number > 0, got 0.0"),
         (["--cell", "inf"], "cell must be a finite number > 0, got inf"),
         (["--views", "-1", "2"], r"views_per_scene must be >= 0, got \(-1, 2\)"),
+        (["--views", "0", "0"], r"views_per_scene: at least one front or side view per scene"),
         (["--n-train", "0", "--n-test", "0"], "at least one scene, got 0/0"),
         (["--image-size", "0"], "image_size must be >= 1, got 0"),
         (["--max-candidates", "-3"], "max_candidates must be >= 1"),

@@ -302,6 +302,13 @@ class RolloutSuccessRate(L.Callback):
             raise ValueError(f"RolloutSuccessRate: free_space must be one of {list(FREE_SPACE)}, got {free_space!r}")
         if every_n_val_epochs < 0:
             raise ValueError(f"RolloutSuccessRate: every_n_val_epochs must be >= 0, got {every_n_val_epochs}")
+        # checked here, not when the first rollout runs at the end of a test or validation epoch
+        if workers < 1:
+            raise ValueError(f"RolloutSuccessRate: workers must be >= 1, got {workers}")
+        if cache_decimals < 0:  # a negative rounding merges distinct poses into one cached episode
+            raise ValueError(f"RolloutSuccessRate: cache_decimals must be >= 0, got {cache_decimals}")
+        if max_val_samples is not None and max_val_samples < 1:
+            raise ValueError(f"RolloutSuccessRate: max_val_samples must be >= 1 or None (all), got {max_val_samples}")
         self.on_test = on_test
         self.every_n_val_epochs = every_n_val_epochs
         self.max_val_samples = max_val_samples

@@ -109,6 +109,11 @@ class FloAffDataModule(L.LightningDataModule):
         eval_transforms: list[SampleTransform] | None = None,
     ) -> None:
         super().__init__()
+        if type(self) is FloAffDataModule:  # a data config without class_path builds the base, which reads nothing
+            raise DataConfigError(
+                "data: no class_path: FloAffDataModule is the base class and has no data; set data.class_path "
+                "(e.g. floaff_zoo.data.floaff_kitchen.FloAffKitchenDataModule, or a configs/data/*.yaml first)"
+            )
         # checked here: a bad size otherwise fails inside the first batch (torch.zeros, DataLoader) naming no field
         check_size("batch_size", batch_size, 1)
         check_size("eval_batch_size", eval_batch_size, 1, "use batch_size")

@@ -42,6 +42,27 @@ from floaff_zoo.losses import build_loss
 from floaff_zoo.metrics import affordance_metrics
 
 
+def check_layer_sizes(module: torch.nn.Module) -> None:
+    """Refuse a network with a layer of width 0 (a width or mlps argument set to 0): it builds and trains, but
+    the layer ignores its input, so the model would learn a constant.
+
+    Raises:
+        ValueError: naming the first such layer.
+    """
+    for name, m in module.named_modules():
+        sizes = {
+            torch.nn.Linear: ("in_features", "out_features"),
+            torch.nn.Conv1d: ("in_channels", "out_channels"),
+            torch.nn.BatchNorm1d: ("num_features",),
+        }.get(type(m), ())
+        zero = [k for k in sizes if getattr(m, k) < 1]
+        if zero:
+            raise ValueError(
+                f"{type(module).__name__}: layer {name} ({type(m).__name__}) has {zero[0]} 0; every width, channel "
+                "count and mlps entry must be >= 1"
+            )
+
+
 # ----------------------------------------------------------------------------- training recipe
 @dataclass(frozen=True)
 class TrainConfig:
@@ -211,7 +232,16 @@ class ZooModule(L.LightningModule):
         self.save_hyperparameters()  # the init args of the whole class chain (or the CLI's config)
         # ... with the train group as a plain dict: checkpoints stay weights_only-loadable, hub configs JSON
         self.save_hyperparameters({**self.hparams, "train": dataclasses.asdict(train)})
-        self.configure_models()
+        try:
+            self.configure_models()
+        except RuntimeError as exc:  # torch's own words name no argument
+            if "negative dimension" not in str(exc):
+                raise
+            raise ValueError(
+                f"{type(self).__name__}: a size argument is negative ({exc}); every width, channel count and mlps "
+                "entry must be >= 1"
+            ) from exc
+        check_layer_sizes(self)
         self.configure_losses()
         self.configure_metrics()
         #: model tensors that ``weights`` did not provide (``load_pretrained``); evaluation commands refuse them

@@ -20,6 +20,7 @@ set-abstraction level whose MLP has no batch statistics runs in chunks of ``CHUN
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 
 import torch
@@ -638,6 +639,13 @@ class SetAbstraction(nn.Module):
         super().__init__()
         if not group_all and not (len(radii) == len(nsamples) == len(mlps)):
             raise ValueError(f"radii {radii}, nsamples {nsamples}, mlps {mlps}: one entry per scale needed")
+        if not group_all:  # checked here, not at the first batch
+            if npoint < 1:
+                raise ValueError(f"npoints: every level needs >= 1 centre, got {npoint}")
+            if any(k < 1 for k in nsamples):
+                raise ValueError(f"nsamples: every ball needs >= 1 neighbour, got {list(nsamples)}")
+            if not all(math.isfinite(r) and r > 0 for r in radii):
+                raise ValueError(f"radii: every ball radius must be a finite number > 0, got {list(radii)}")
         self.npoint = int(npoint)
         self.radii = [float(r) for r in radii]
         self.nsamples = [int(k) for k in nsamples]

@@ -67,7 +67,9 @@ def montage(
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.backend_bases import FigureCanvasBase
 
+    out = montage_path(out, FigureCanvasBase.get_supported_filetypes())
     reports = [_load_report(r) for r in runs]
     if labels is not None and len(labels) != len(runs):
         raise MontageError(f"--labels: {len(labels)} given for {len(runs)} runs")
@@ -89,10 +91,26 @@ def montage(
             if j == 0:
                 ax.set_ylabel(cases[i], fontsize=8)
     fig.tight_layout()
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        fig.savefig(out, dpi=110)
+    except OSError as exc:
+        raise MontageError(f"--out {out}: cannot write ({exc})") from exc
+    finally:
+        plt.close(fig)
+    return out
+
+
+def montage_path(out: str | Path, formats: dict[str, str]) -> Path:
+    """The file ``montage`` writes for ``--out``: ``.png`` added when it has no suffix (matplotlib would add it
+    without saying so); a folder or a suffix matplotlib cannot write (``formats``) is a MontageError."""
     out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
+    if out.is_dir():
+        raise MontageError(f"--out {out}: is a folder; name the picture to write, e.g. {out / 'montage.png'}")
+    if not out.suffix:
+        return out.with_suffix(".png")
+    if out.suffix[1:].lower() not in formats:
+        raise MontageError(f"--out {out}: cannot write {out.suffix!r} pictures; use one of {sorted(formats)}")
     return out
 
 

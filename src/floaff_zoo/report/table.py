@@ -736,8 +736,12 @@ def main(argv: list[str] | None = None) -> int:
         print(f"floaff-zoo table: error: {exc}", file=sys.stderr)
         return 2
     if args.out:
-        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.out).write_text(text)
+        try:
+            Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+            Path(args.out).write_text(text)
+        except OSError as exc:
+            print(f"floaff-zoo table: error: --out {args.out}: cannot write ({exc})", file=sys.stderr)
+            return 2
         print(f"floaff-zoo table: wrote {args.out} ({len(reports)} report(s), {len(skipped)} skipped)", file=sys.stderr)
     else:
         sys.stdout.write(text)

@@ -109,6 +109,9 @@ class GenPreset:
             raise ValueError(f"views_per_scene must be >= 0, got {self.views_per_scene}")
         if self.min_views < 0:
             raise ValueError(f"min_views must be >= 0, got {self.min_views}")
+        if not self.use_paper_view_counts and sum(self.views_per_scene) == 0 and self.min_views == 0:
+            # every scene would be built and rolled out, and no DataModule could read a view of it
+            raise ValueError("views_per_scene: at least one front or side view per scene, got (0, 0)")
         # rendering and rollout sizes: a bad one would otherwise fail each scene only after its annotation
         for name in ("image_size", "max_points", "picture_size", "max_tries_per_view"):
             if getattr(self, name) < 1:
