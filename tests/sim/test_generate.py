@@ -608,9 +608,11 @@ def test_a_rerun_into_scenes_without_a_readable_manifest_is_refused(mini_run, tm
     shutil.copytree(src, out)
     if damage == "missing":
         (out / ff.MANIFEST).unlink()
+        why = "missing"
     else:
         (out / ff.MANIFEST).write_text("{not json")
-    with pytest.raises(ValueError, match=f"{out}: holds 2 generated scene.*manifest.json is {damage}"):
+        why = "unreadable .*corrupt JSON"
+    with pytest.raises(ValueError, match=f"{out}: holds 2 generated scene.*manifest.json is {why}"):
         gen.generate(out, get_preset("tiny", **{**MINI, "cell": 0.5}), seed=0, workers=0, quiet=True)
 
 

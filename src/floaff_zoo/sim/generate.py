@@ -813,16 +813,15 @@ def generate(
         "wall_s": None,
         "status": "running",
     }
-    old = None
+    old, why = None, "missing"
     if (outp / ff.MANIFEST).is_file():
         try:
             old = ff.read_manifest(outp)
-        except ff.FormatError:
-            old = None
+        except ff.FormatError as exc:
+            why = f"unreadable ({exc})"
     if old is not None:
         check_resume_settings(old, manifest, outp)
     elif found := committed_scene_dirs(outp):
-        why = "corrupt" if (outp / ff.MANIFEST).is_file() else "missing"
         raise ValueError(
             f"{outp}: holds {len(found)} generated scene(s) (e.g. {found[0]}) but its manifest.json is {why}, so the "
             "settings they were made with cannot be checked against this run's: generate into another --out, or "
