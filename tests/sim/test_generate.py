@@ -553,6 +553,18 @@ def test_cli_refuses_views_with_paper_counts_and_an_address_without_ray(tmp_path
     assert not (tmp_path / "p").exists() and not (tmp_path / "t").exists()
 
 
+def _copy_with_an_old_scene(mini_run, tmp_path) -> tuple[Path, dict]:
+    """A copy of the mini run whose first scene says another generator minor version made it (a rerun must
+    regenerate its slot): (the copy, that scene's record)."""
+    src, _ = mini_run
+    out = tmp_path / "copy"
+    shutil.copytree(src, out)
+    victim = sorted(ff.iter_scenes(out), key=lambda s: s["scene_id"])[0]
+    path = Path(victim["dir"]) / ff.SCENE_JSON
+    path.write_text(json.dumps({**json.loads(path.read_text()), "generator_version": "2.0.0"}))
+    return out, victim
+
+
 def test_a_scene_a_rerun_cannot_replace_is_retired_not_read(mini_run, tmp_path):
     """A slot whose scene must be regenerated (here: made by another generator minor version) and whose
     regeneration fails leaves no stale scene for the readers: the old folder moves to .retired/ and the manifest
@@ -560,14 +572,7 @@ def test_a_scene_a_rerun_cannot_replace_is_retired_not_read(mini_run, tmp_path):
     sys.path.insert(0, str(Path(__file__).parent))
     import _crash_job
 
-    src, _ = mini_run
-    out = tmp_path / "copy"
-    shutil.copytree(src, out)
-    victim = sorted(ff.iter_scenes(out), key=lambda s: s["scene_id"])[0]
-    path = Path(victim["dir"]) / ff.SCENE_JSON
-    rec = json.loads(path.read_text())
-    rec["generator_version"] = "2.0.0"
-    path.write_text(json.dumps(rec))
+    out, victim = _copy_with_an_old_scene(mini_run, tmp_path)
     man = gen.generate(
         out, get_preset("tiny", **MINI), seed=0, workers=1, quiet=True, job_fn=_crash_job.error_then_drop
     )
@@ -584,12 +589,7 @@ def test_an_interrupted_rerun_does_not_leave_a_stale_scene_readable(mini_run, tm
     sys.path.insert(0, str(Path(__file__).parent))
     import _crash_job
 
-    src, _ = mini_run
-    out = tmp_path / "copy"
-    shutil.copytree(src, out)
-    victim = sorted(ff.iter_scenes(out), key=lambda s: s["scene_id"])[0]
-    path = Path(victim["dir"]) / ff.SCENE_JSON
-    path.write_text(json.dumps({**json.loads(path.read_text()), "generator_version": "2.0.0"}))
+    out, victim = _copy_with_an_old_scene(mini_run, tmp_path)
     with pytest.raises(KeyboardInterrupt):
         gen.generate(out, get_preset("tiny", **MINI), seed=0, workers=0, quiet=True, job_fn=_crash_job.interrupted)
     man = gen.generate(
