@@ -350,21 +350,9 @@ def test_fit_with_a_missing_ckpt_path_is_one_line_before_any_run_folder(tmp_path
     """Lightning failed with a traceback after the run folder was made."""
     monkeypatch.chdir(root)
     missing = tmp_path / "nope.ckpt"
+    args = ["fit", "--config", DATA, "--config", MODEL, "--trainer.max_steps=1", *quiet_trainer_args(tmp_path)]
     with pytest.raises(CLIError, match=f"--ckpt_path {missing}: no such file"):
-        main(
-            [
-                "fit",
-                "--config",
-                DATA,
-                "--config",
-                MODEL,
-                *quiet_trainer_args(tmp_path),
-                "--trainer.max_steps",
-                "1",
-                "--ckpt_path",
-                str(missing),
-            ]
-        )
+        main([*args, "--ckpt_path", str(missing)])
     assert not list(tmp_path.rglob("version_*"))
 
 

@@ -24,6 +24,7 @@ from __future__ import annotations
 import importlib
 import json
 import os
+import re
 import shutil
 import sys
 import tempfile
@@ -131,9 +132,7 @@ def read_config(directory: Path) -> dict[str, Any]:
     if not isinstance(weights, str) or "/" in weights or "\\" in weights:
         raise ValueError(f"{cfg_path}: 'weights' must be a file name inside the directory, got {weights!r}")
     sha = cfg.get("sha256")
-    if sha is not None and not (
-        isinstance(sha, str) and len(sha) == 64 and all(c in "0123456789abcdefABCDEF" for c in sha)
-    ):
+    if sha is not None and not (isinstance(sha, str) and re.fullmatch(r"[0-9a-fA-F]{64}", sha)):
         raise ValueError(f"{cfg_path}: 'sha256' must be 64 hex digits, got {sha!r}")
     return cfg
 

@@ -41,6 +41,13 @@ from floaff_zoo.contract import Batch, SampleError, check_batch
 from floaff_zoo.losses import build_loss
 from floaff_zoo.metrics import affordance_metrics
 
+#: the size attributes of the layers ``check_layer_sizes`` reads
+_LAYER_SIZES: dict[type, tuple[str, ...]] = {
+    torch.nn.Linear: ("in_features", "out_features"),
+    torch.nn.Conv1d: ("in_channels", "out_channels"),
+    torch.nn.BatchNorm1d: ("num_features",),
+}
+
 
 def check_layer_sizes(module: torch.nn.Module) -> None:
     """Refuse a network with a layer of width 0 (a width or mlps argument set to 0): it builds and trains, but
@@ -50,12 +57,7 @@ def check_layer_sizes(module: torch.nn.Module) -> None:
         ValueError: naming the first such layer.
     """
     for name, m in module.named_modules():
-        sizes = {
-            torch.nn.Linear: ("in_features", "out_features"),
-            torch.nn.Conv1d: ("in_channels", "out_channels"),
-            torch.nn.BatchNorm1d: ("num_features",),
-        }.get(type(m), ())
-        zero = [k for k in sizes if getattr(m, k) < 1]
+        zero = [k for k in _LAYER_SIZES.get(type(m), ()) if getattr(m, k) < 1]
         if zero:
             raise ValueError(
                 f"{type(module).__name__}: layer {name} ({type(m).__name__}) has {zero[0]} 0; every width, channel "
