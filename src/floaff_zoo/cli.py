@@ -8,6 +8,7 @@ modules' ``main`` before LightningCLI sees the arguments.
 
 from __future__ import annotations
 
+import argparse
 import importlib
 import inspect
 import sys
@@ -422,6 +423,48 @@ def _dispatch(command: str, argv: list[str], from_python: bool) -> int:
     if "raise_errors" in inspect.signature(fn).parameters:
         return int(fn(argv, raise_errors=from_python) or 0)
     return int(fn(argv) or 0)
+
+
+class _ParseOnlyCLI(FloAffCLI):
+    """Parses a trainer command as :func:`run_lightning` does; loads, seeds, instantiates and runs nothing."""
+
+    def _parse_ckpt_path(self) -> None:
+        pass  # a curriculum's later checkpoints do not exist yet
+
+    def _set_seed(self) -> None:
+        pass
+
+    def before_instantiate_classes(self) -> None:
+        pass
+
+    def instantiate_classes(self) -> None:
+        pass
+
+    def after_instantiate_classes(self) -> None:
+        pass
+
+    def _run_subcommand(self, subcommand: str) -> None:
+        pass
+
+
+def check_trainer_args(args: list[str]) -> None:
+    """Parse a trainer command (``["fit", "--config", ...]``) without running it: an unknown key, a value of the
+    wrong type or a missing config file raises a one-line ``CLIError`` (``floaff-zoo curriculum`` checks every
+    stage this way before the first one trains). Values a class rejects in its ``__init__`` are not checked."""
+    _import_registries()
+    try:
+        _ParseOnlyCLI(
+            ZooModule,
+            FloAffDataModule,
+            subclass_mode_model=True,
+            subclass_mode_data=True,
+            seed_everything_default=0,
+            parser_kwargs={"exit_on_error": False},
+            auto_configure_optimizers=False,
+            args=args,
+        )
+    except argparse.ArgumentError as exc:
+        raise CLIError(_one_line(str(exc))) from exc
 
 
 def run_lightning(args: list[str]) -> FloAffCLI:

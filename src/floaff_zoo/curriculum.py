@@ -537,6 +537,19 @@ def _fit_stage(
     return record, cli
 
 
+def _check_stages(cfg: dict[str, Any], root: Path, extra: list[str], flags: list[str]) -> None:
+    """Parse every stage's ``fit`` arguments before the first stage trains, so a typo in a later stage's overrides
+    (or an ``--extra-config`` key no model accepts) fails in seconds, not after the earlier stages trained; the
+    checkpoints of earlier stages are placeholders here."""
+    from floaff_zoo.cli import CLIError, check_trainer_args
+
+    for stage in cfg["stages"]:
+        try:
+            check_trainer_args(build_stage_args(cfg, stage, root, {}, extra, flags))
+        except CLIError as exc:
+            raise CurriculumError(f"stage {stage['name']}: its fit arguments do not parse: {exc}") from exc
+
+
 def run_curriculum(
     config: str | Path,
     root: str | Path | None = None,
@@ -566,10 +579,13 @@ def run_curriculum(
         root = cfg["root"] + ("__" + "+".join(Path(f).stem for f in extra) if extra else "")
     root = Path(root)
     flags = parse_sets(sets)
+    default_runner = runner is None
     if runner is None:
         from floaff_zoo.cli import run_lightning
 
         runner = run_lightning
+    if not dry_run and default_runner:
+        _check_stages(cfg, root, extra, flags)
     lineage_path = root / LINEAGE_FILE
     if not dry_run:  # a damaged lineage of an earlier run is reported, not silently replaced
         _read_json(lineage_path)

@@ -304,3 +304,23 @@ def test_demo_curriculum_error_is_one_line_and_exit_2_at_the_console(tmp_path, r
     assert cli.main() == 2
     err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
     assert len(err) == 1 and err[0].startswith(f"floaff-zoo curriculum: error: experiment config {bad}: stage 0 (a)")
+
+
+def test_typo_in_a_later_stage_fails_before_the_first_stage_trains(tmp_path, root, monkeypatch):
+    """A stage's fit arguments were first parsed when that stage started: a mistyped key in stage 2's overrides
+    failed only after stage 1 had trained (minutes to hours on the dense protocol)."""
+    monkeypatch.chdir(root)
+    exp = yaml.safe_load((root / EXP).read_text())
+    exp["stages"][1]["overrides"] = {"model.init_args.distil_weight": 0.5}  # distill_weight
+    bad = tmp_path / "pfal_typo.yaml"
+    bad.write_text(yaml.safe_dump(exp))
+    run_root = tmp_path / "run"
+    with pytest.raises(CurriculumError, match=r"stage stage2_drawer: its fit arguments do not parse: .*distil_weight"):
+        main(["--config", str(bad), "--root", str(run_root)] + [f"--set={s}" for s in SETS])
+    assert not (run_root / "stage1_pnp").exists()  # nothing trained, nothing written
+    # a typo in an --extra-config file names the stage it first reaches
+    extra = tmp_path / "extra.yaml"
+    extra.write_text("model:\n  init_args:\n    crop_radus: 1.0\n")
+    with pytest.raises(CurriculumError, match=r"stage stage1_pnp: its fit arguments do not parse: .*crop_radus"):
+        main(["--config", EXP, "--root", str(run_root), "--extra-config", str(extra)])
+    assert not run_root.exists()
