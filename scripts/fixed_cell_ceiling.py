@@ -51,7 +51,7 @@ def read_views(root: Path, benchmark: str) -> tuple[Views, dict[tuple[str, str],
         counts[key].append(int(success.sum()))
         for view in scene["views"]:
             path = Path(scene["dir"]) / view["file"]
-            arrays = ff.read_view(path, scene["format_version"])
+            arrays = ff.read_view(path, scene["format_version"], len(success))
             if "floor_index" not in arrays:  # format 1 stores the same candidate set in every view
                 raise SystemExit(f"fixed_cell_ceiling: {path} has no floor_index (format 2 data needed)")
             idx = arrays["floor_index"]

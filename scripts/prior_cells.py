@@ -48,7 +48,7 @@ def read_views(root: Path, benchmark: str) -> list[View]:
         success = np.asarray(scene["labels"]["success"]) > 0
         can = candidates_in_target_frame(scene)
         for view in scene["views"]:
-            arrays = ff.read_view(Path(scene["dir"]) / view["file"], scene["format_version"])
+            arrays = ff.read_view(Path(scene["dir"]) / view["file"], scene["format_version"], len(success))
             if "floor_index" not in arrays:
                 raise SystemExit(f"prior_cells: {scene['dir']}/{view['file']} has no floor_index (format 2 needed)")
             idx = arrays["floor_index"]

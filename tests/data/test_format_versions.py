@@ -70,3 +70,20 @@ def test_unknown_format_version_is_skipped_and_named(tmp_path):
     scenes = GeneratedReader(tmp_path, skips).scenes("styles")
     assert rec["scene_id"] not in {s.scene_id for s in scenes}
     assert skips.counts["corrupt_scene_json"] == 1 and "format_version 99" in skips.summary()
+
+
+def test_floor_index_beyond_the_candidate_grid_is_named(tmp_path):
+    """floor_index was checked for negative entries only: an entry past the scene's candidate grid reached the
+    scripts that index the grid with it (scripts/fixed_cell_ceiling.py, prior_cells.py) as a bare IndexError."""
+    make_floaff_dataset(tmp_path, problems=False, version=2)
+    rec = next(ff.iter_scenes(tmp_path, benchmark="styles"))
+    path = tmp_path / "styles" / rec["scene_id"] / rec["views"][0]["file"]
+    arr = dict(np.load(path))
+    n = len(rec["candidates"]["xy"])
+    ff.read_view(path, 2, n)  # the fixture's own view indexes the grid
+    arr["floor_index"] = arr["floor_index"].copy()
+    arr["floor_index"][-1] = n
+    ff.atomic_save_npz(path, arr)
+    with pytest.raises(ff.FormatError, match=rf"front_0000.npz: field .floor_index. reaches cell {n}, .* {n} cells"):
+        ff.read_sample(rec, rec["views"][0])
+    ff.read_view(path, 2)  # without the grid's size nothing to check it against

@@ -236,11 +236,15 @@ def check_format_version(version: Any, path: str | Path) -> int:
 
 
 def validate_view(
-    arrays: dict[str, np.ndarray], path: str | Path = "<view>", format_version: int | None = None
+    arrays: dict[str, np.ndarray],
+    path: str | Path = "<view>",
+    format_version: int | None = None,
+    n_cells: int | None = None,
 ) -> None:
     """Check one view's arrays against VIEW_FIELDS (dtypes, shapes, shared N/M, finite, labels in [0,1]).
 
-    format_version >= 2 also requires V2_VIEW_FIELDS; None checks them only when present.
+    format_version >= 2 also requires V2_VIEW_FIELDS; None checks them only when present. n_cells: the size of the
+    scene's candidate grid, which every ``floor_index`` entry must index (None: not checked).
     """
     path = Path(path)
     sizes: dict[str, int] = {}
@@ -255,6 +259,10 @@ def validate_view(
     idx = np.asarray(arrays.get("floor_index", np.zeros(0, np.int32)))
     if idx.size and idx.min() < 0:
         raise FormatError(f"{path}: field 'floor_index' has negative entries")
+    if idx.size and n_cells is not None and idx.max() >= n_cells:
+        raise FormatError(
+            f"{path}: field 'floor_index' reaches cell {idx.max()}, but the scene's candidate grid has {n_cells} cells"
+        )
     lab = np.asarray(arrays["floor_label"])
     if lab.size and (lab.min() < 0.0 or lab.max() > 1.0):
         raise FormatError(f"{path}: field 'floor_label' outside [0, 1] (min {lab.min()}, max {lab.max()})")
@@ -263,8 +271,9 @@ def validate_view(
         raise FormatError(f"{path}: field 'scene_feat' channel 0 (target flag) must be -1, 0 or +1")
 
 
-def read_view(path: str | Path, format_version: int | None = None) -> dict[str, np.ndarray]:
-    """Load and validate one ``views/<view_id>.npz`` (see validate_view); FormatError naming the file/field."""
+def read_view(path: str | Path, format_version: int | None = None, n_cells: int | None = None) -> dict[str, np.ndarray]:
+    """Load and validate one ``views/<view_id>.npz`` (see validate_view; n_cells: the scene's candidate count, so
+    ``floor_index`` is checked against it); FormatError naming the file/field."""
     path = Path(path)
     try:
         with np.load(path, allow_pickle=False) as z:
@@ -273,7 +282,7 @@ def read_view(path: str | Path, format_version: int | None = None) -> dict[str, 
         raise FormatError(f"{path}: file not found") from exc
     except Exception as exc:  # noqa: BLE001 - zipfile.BadZipFile, EOFError, ValueError (pickled data), ...
         raise FormatError(f"{path}: corrupt npz ({type(exc).__name__}: {exc})") from exc
-    validate_view(arrays, path, format_version)
+    validate_view(arrays, path, format_version, n_cells)
     return arrays
 
 
@@ -359,7 +368,8 @@ def read_sample(scene: dict[str, Any], view: dict[str, Any], root: str | Path | 
     2); all true for format 1 files (their smoothed labels are taken as given).
     """
     version = check_format_version(scene.get("format_version", 1), Path(scene["dir"]) / SCENE_JSON)
-    arr = read_view(Path(scene["dir"]) / view["file"], version)
+    cells = scene["candidates"]["xy"] if "candidates" in scene else None  # the DataModule's records carry none
+    arr = read_view(Path(scene["dir"]) / view["file"], version, len(cells) if cells is not None else None)
     spec = scene["spec"]
     sim = {
         "layout_id": spec.get("layout_id"),
