@@ -9,6 +9,7 @@ from pathlib import Path
 
 import pytest
 import torch
+from lightning.pytorch.utilities.exceptions import MisconfigurationException
 
 from floaff_zoo.cli import CLIError, main, run_lightning
 from floaff_zoo.models.tiny import TinyPointNetModule
@@ -354,6 +355,21 @@ def test_fit_with_a_missing_ckpt_path_is_one_line_before_any_run_folder(tmp_path
     with pytest.raises(CLIError, match=f"--ckpt_path {missing}: no such file"):
         main([*args, "--ckpt_path", str(missing)])
     assert not list(tmp_path.rglob("version_*"))
+
+
+@pytest.mark.parametrize("precision", ["64-true", "bf16-true"])
+def test_a_precision_that_converts_the_weights_is_one_line_before_the_first_step(
+    tmp_path, root, monkeypatch, precision
+):
+    """Lightning converted the weights to float64 / bfloat16 and the first step failed with a dtype traceback deep
+    in a linear layer (the point ops take float32 inputs)."""
+    monkeypatch.chdir(root)
+    args = ["fit", "--config", DATA, "--config", MODEL, "--trainer.max_steps=1", *quiet_trainer_args(tmp_path)]
+    with pytest.raises(MisconfigurationException, match=rf"trainer.precision '{precision}': TinyPointNetModule runs"):
+        main([*args, "--trainer.precision", precision])
+    assert not list(tmp_path.rglob("*.ckpt"))
+    main([*args, "--trainer.precision", "bf16-mixed"])  # autocast keeps float32 weights: it runs
+    assert list(tmp_path.rglob("*.ckpt"))
 
 
 def test_a_mistyped_fps_backend_fails_before_the_first_batch(tmp_path, root, monkeypatch, capsys):

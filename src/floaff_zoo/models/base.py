@@ -207,6 +207,10 @@ def _checkpoint_hparams(path: Any, weights_only: bool | None) -> dict[str, Any]:
 WEIGHTS_FAILURE_NOTE = "floaff-zoo: raised while loading the model's weights"
 
 
+#: the trainer precisions every model runs at (Lightning's names): float32 weights, optionally autocast activations
+SUPPORTED_PRECISIONS = ("32-true", "16-mixed", "bf16-mixed")
+
+
 class ZooModule(L.LightningModule):
     """Parent of every model of the zoo: training recipe, optimiser, weights, steps, export.
 
@@ -341,6 +345,16 @@ class ZooModule(L.LightningModule):
 
     def test_step(self, batch: Batch, batch_idx: int) -> dict[str, Tensor]:
         return self._shared_step(batch, "test")
+
+    def setup(self, stage: str) -> None:
+        """Refuse a trainer precision the networks cannot run at, before Lightning converts the weights."""
+        precision = str(self.trainer.precision) if self._trainer is not None else "32-true"
+        if precision not in SUPPORTED_PRECISIONS:
+            raise MisconfigurationException(
+                f"trainer.precision {precision!r}: {type(self).__name__} runs at {list(SUPPORTED_PRECISIONS)} (its "
+                "point ops take float32 inputs, so precisions that convert the weights themselves meet float32 "
+                "activations)"
+            )
 
     def on_fit_start(self) -> None:
         if not self.trainable:

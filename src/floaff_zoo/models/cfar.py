@@ -267,6 +267,7 @@ class CFARModule(FloAffModule):
 
     # ----------------------------------------------------------------- teacher
     def setup(self, stage: str) -> None:
+        super().setup(stage)
         if stage == "fit" and self.hparams["teacher"] and self.teacher is None:
             self.load_teacher(self.hparams["teacher"])
 
