@@ -451,37 +451,32 @@ def check_trainer_args(args: list[str]) -> None:
     """Parse a trainer command (``["fit", "--config", ...]``) without running it: an unknown key, a value of the
     wrong type or a missing config file raises a one-line ``CLIError`` (``floaff-zoo curriculum`` checks every
     stage this way before the first one trains). Values a class rejects in its ``__init__`` are not checked."""
-    _import_registries()
     try:
-        _ParseOnlyCLI(
-            ZooModule,
-            FloAffDataModule,
-            subclass_mode_model=True,
-            subclass_mode_data=True,
-            seed_everything_default=0,
-            parser_kwargs={"exit_on_error": False},
-            auto_configure_optimizers=False,
-            args=args,
-        )
+        _build_cli(_ParseOnlyCLI, args, {"exit_on_error": False})
     except argparse.ArgumentError as exc:
         raise CLIError(_one_line(str(exc))) from exc
 
 
 def run_lightning(args: list[str]) -> FloAffCLI:
     """Run a trainer command; returns the CLI object (tests read ``cli.trainer``/``cli.model``)."""
+    return _build_cli(FloAffCLI, args, {"version": __version__})
+
+
+def _build_cli(cls: type[FloAffCLI], args: list[str], parser_kwargs: dict[str, Any]) -> FloAffCLI:
+    """``cls`` over the zoo's model and data bases with the zoo's defaults, on ``args``."""
     import warnings
 
     _import_registries()
     # `floaff-zoo demo`/`curriculum` call this with args while sys.argv holds their own command.
     warnings.filterwarnings("ignore", message=".*LightningCLI's args parameter is intended.*")
-    return FloAffCLI(
+    return cls(
         ZooModule,
         FloAffDataModule,
         subclass_mode_model=True,
         subclass_mode_data=True,
         seed_everything_default=0,
         save_config_kwargs={"overwrite": True},
-        parser_kwargs={"version": __version__},
+        parser_kwargs=parser_kwargs,
         auto_configure_optimizers=False,
         args=args,
     )
