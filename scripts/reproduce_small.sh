@@ -33,7 +33,7 @@
 #                                              # n2m, cfar_pfal: the paper's path) the other learned models on it,
 #                                              # pool_succ_occ_recipe_no_{crop,align,sdl,fd}[_s<seed>] its ablations,
 #                                              # pool_succ_occ_recipe_r1.xx[_s<seed>] its crop sweep;
-#                                              # cv<f>_{occ,rank,prior,last,succ,sprior,cov} (and styles_...): leave-one-layout-out folds
+#                                              # cv<f>_{occ,rank,prior,last,succ,sprior,cov,cos} (and styles_...): leave-one-layout-out folds
 #                                              # f = 0..4 scored on their validation scenes (scripts/cv_sr.py pools them;
 #                                              # CV_SEED=<n> trains them with another seed, default 0: give it its own
 #                                              # RUNS and OUT);
@@ -382,20 +382,22 @@ run_job() {
       ckpt=$(stage_ckpt "$RUNS/$b/occ_recipe_s$seed" -1)
       test_run "$(dirname "$(dirname "$ckpt")")" "zoo recipe, footprint occupancy input, residual x$scale" "$b" "$j" \
         "$ckpt" --model.init_args.residual_scale "$scale" ;;
-    cv[0-4]_occ|cv[0-4]_rank|cv[0-4]_last|cv[0-4]_succ|cv[0-4]_cov|styles_cv[0-4]_occ|styles_cv[0-4]_rank|\
-    styles_cv[0-4]_last|styles_cv[0-4]_succ|styles_cv[0-4]_cov)
+    cv[0-4]_occ|cv[0-4]_rank|cv[0-4]_last|cv[0-4]_succ|cv[0-4]_cov|cv[0-4]_cos|styles_cv[0-4]_occ|styles_cv[0-4]_rank|\
+    styles_cv[0-4]_last|styles_cv[0-4]_succ|styles_cv[0-4]_cov|styles_cv[0-4]_cos)
       # leave-one-layout-out validation, fold f = the train scenes of layout f held out for every task (CV_SEED): the
       # best configuration, or it plus the listwise ranking term (rank) or trained on labels with failed cells set
-      # to 0 (succ), or that with the footprint coverage input as well (cov); trained, then scored on the fold's
+      # to 0 (succ), or that with the footprint coverage input as well (cov) or a per-step cosine schedule in every
+      # CFAR stage (cos); trained, then scored on the fold's
       # validation scenes (no test). cv<f>_last trains the best configuration again (with last.ckpt the newest
       # state) and scores its chosen checkpoint (occ2) and its last one (last2)
       local b j f extra=() ck; split_job
       f=${j:2:1}
       [ "${j#*_}" = rank ] && extra=(--extra-config configs/experiments/recipe/rank.yaml)
-      if [ "${j#*_}" = succ ] || [ "${j#*_}" = cov ]; then
+      if [ "${j#*_}" = succ ] || [ "${j#*_}" = cov ] || [ "${j#*_}" = cos ]; then
         success_labels "$b"; extra=(--extra-config "configs/experiments/recipe/success_labels_$b.yaml")
       fi
       [ "${j#*_}" = cov ] && extra+=(--extra-config configs/experiments/recipe/coverage.yaml)
+      [ "${j#*_}" = cos ] && extra+=(--extra-config configs/experiments/recipe/cosine.yaml)
       if [ "$RETEST" = 0 ]; then
         "$FZ" curriculum --config "configs/experiments/pfal_${PRESET}_$b.yaml" --root "$RUNS/$b/$j" --set "seed_everything=$CV_SEED" \
           --set "data.init_args.val_layout=$f" "${ROOT_SET[@]}" --extra-config "$RECIPE" \
