@@ -117,6 +117,22 @@ def test_masked_points_do_not_matter_and_grads_finite(name, rank):
     assert (x.grad[~t(m)] == 0).all()
 
 
+@pytest.mark.parametrize("dtype", [torch.bfloat16, torch.float16])
+@pytest.mark.parametrize("name,rank", [("mse", 0.0), ("aff", 0.0), ("aff", 0.5)])
+def test_half_precision_scores_are_computed_in_float32(dtype, name, rank):
+    """Under bf16/16-mixed autocast a model hands half-precision scores to the loss: a score that rounded to 1.0 gave
+    the ranking term infinite log-odds (NaN loss, training stopped), and the labels were rounded to half precision."""
+    p, g, m = data(seed=2)
+    p[0, :3] = 1.0  # a confident cell: a half-precision sigmoid reaches 1.0 at logit ~5.5 (bf16) / ~8.3 (fp16)
+    fn = build_loss(name, rank_weight=rank)
+    x = t(p).to(dtype).requires_grad_(True)
+    loss = fn(x, t(g).float(), t(m))
+    loss.backward()
+    assert loss.dtype == torch.float32 and torch.isfinite(loss) and torch.isfinite(x.grad).all()
+    # the same scores in float32 give the same value: only the scores' own rounding is left
+    assert float(loss) == pytest.approx(float(fn(t(p).to(dtype).float(), t(g).float(), t(m))), rel=1e-6)
+
+
 @pytest.mark.parametrize("padding", [0.5, float("nan"), float("inf")])
 def test_empty_batch_is_zero_not_nan(padding):
     """NaN or inf in the padding of a batch without valid points made the fallback 0 * sum(pred) a NaN."""

@@ -46,7 +46,8 @@ MASKED_LOGIT = -1e4
 
 
 def _prepare(name: str, pred: Tensor, target: Tensor, mask: Tensor | None) -> tuple[Tensor, Tensor, Tensor]:
-    """Check shapes; return (pred, target) with padded entries zeroed and the bool mask, all [B, M]."""
+    """Check shapes; return (pred, target) with padded entries zeroed and the bool mask, all [B, M] (half-precision
+    scores promoted to float32)."""
     if pred.ndim != 2 or pred.shape != target.shape:
         raise ValueError(
             f"{name}: pred and target must both be [B, M]; got {tuple(pred.shape)} and {tuple(target.shape)}"
@@ -55,6 +56,10 @@ def _prepare(name: str, pred: Tensor, target: Tensor, mask: Tensor | None) -> tu
         mask = torch.ones_like(pred, dtype=torch.bool)
     if mask.dtype != torch.bool or mask.shape != pred.shape:
         raise ValueError(f"{name}: mask must be bool {tuple(pred.shape)}; got {mask.dtype} {tuple(mask.shape)}")
+    if pred.dtype in (torch.float16, torch.bfloat16):
+        # autocast hands over half-precision scores: a score that rounds to 1.0 has infinite log-odds (the clamp's
+        # 1 - 1e-6 is 1.0 there), and half-precision labels lose their third digit
+        pred = pred.float()
     target = target.to(pred.dtype)
     # where() (not multiplication) so NaN/garbage in padded entries cannot reach the value or the gradient.
     return torch.where(mask, pred, 0.0), torch.where(mask, target, 0.0), mask
