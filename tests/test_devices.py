@@ -51,6 +51,61 @@ def test_ddp_on_cpu_matches_a_single_process_evaluation(tmp_path, root, monkeypa
         assert got[k] == pytest.approx(ddp[k], rel=1e-5, abs=1e-6), (k, got[k], ddp[k])
 
 
+def _metric_batch() -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """11 samples of 30 floor points, some padded, one all-padded: preds, target, mask [11, 30], index [11]."""
+    gen = torch.Generator().manual_seed(0)
+    pred, target = torch.rand(11, 30, generator=gen), torch.rand(11, 30, generator=gen)
+    mask = torch.rand(11, 30, generator=gen) > 0.3
+    mask[4] = False
+    return pred, target, mask, torch.arange(11)
+
+
+def _metric_collections() -> dict[str, torch.nn.Module]:
+    from floaff_zoo.metrics import affordance_metrics
+
+    return {
+        "per_sample": affordance_metrics(),
+        "official_batchwise": affordance_metrics("hist", "official_batchwise", chunk_size=4),
+    }
+
+
+def _one_rank_updates(rank: int, port: int, out: str) -> None:
+    """Worker of a 2-process gloo group in which only rank 0 updates the metrics; rank 0 saves what both compute."""
+    os.environ.update(MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port))
+    torch.distributed.init_process_group("gloo", rank=rank, world_size=2)
+    try:
+        results = {}
+        for name, metrics in _metric_collections().items():
+            if rank == 0:
+                metrics.update(*_metric_batch())
+            results[name] = {k: float(v) for k, v in metrics.compute().items()}
+        torch.save(results, f"{out}.{rank}")
+    finally:
+        torch.distributed.destroy_process_group()
+
+
+def test_metrics_sync_when_a_process_saw_no_batch(tmp_path):
+    """A process that never updated gathered a 1-D stand-in for its [S, width] rows and the collective aborted."""
+    import socket
+    import warnings
+
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    out = str(tmp_path / "metrics.pt")
+    torch.multiprocessing.spawn(_one_rank_updates, args=(port, out), nprocs=2, join=True)
+    single = {}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for name, metrics in _metric_collections().items():
+            metrics.update(*_metric_batch())
+            single[name] = {k: float(v) for k, v in metrics.compute().items()}
+    for rank in (0, 1):
+        got = torch.load(f"{out}.{rank}")
+        for name, values in single.items():
+            assert got[name] == pytest.approx(values, rel=1e-6, abs=1e-9), (rank, name)
+
+
 #: every model's tiny config (the CFAR one in its PFAL-free form); each fits and validates on CUDA where there is
 #: one, and on the portable path (what CUDA runs) everywhere
 CUDA_MODELS = sorted(

@@ -161,6 +161,12 @@ def test_degenerate_maps_no_nan():
     out = {k: float(v) for k, v in m.compute().items()}
     assert all(v == 0.0 for v in out.values())
     assert m["rmse"].num_empty == 2 and m["rmse"].num_elements == 0
+    # A batch without a single floor point (M = 0) is all-masked too (the reductions over M raised IndexError).
+    for reduction in ("per_sample", "official_batchwise"):
+        m = affordance_metrics("hist", reduction, 2)
+        m.update(torch.zeros(3, 0), torch.zeros(3, 0), torch.zeros(3, 0, dtype=torch.bool))
+        assert all(float(v) == 0.0 for v in m.compute().values())
+        assert m["rmse"].num_empty == (3 if reduction == "per_sample" else 2) and m["rmse"].num_elements == 0
     # Single valid point: PCC undefined, other metrics fine.
     pcc = FloorPCC()
     pcc.update(torch.tensor([[0.3, 0.0]]), torch.tensor([[0.6, 0.0]]), torch.tensor([[True, False]]))

@@ -57,12 +57,13 @@ With in-order single-process evaluation at most about one chunk of points is hel
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Any, Literal
 
 import torch
 from torch import Tensor
 from torchmetrics import Metric, MetricCollection
 from torchmetrics.utilities.data import dim_zero_cat
+from torchmetrics.utilities.distributed import gather_all_tensors
 
 __all__ = [
     "FloorCIoU",
@@ -225,6 +226,16 @@ def _cat_or_empty(state: list[Tensor] | Tensor, width: int, dtype: torch.dtype, 
     return dim_zero_cat(state).reshape(-1, width)
 
 
+#: row width and dtype of each ``cat`` state of the map metrics (``rows`` always; the others for histogram SIM over
+#: multi-sample chunks)
+_CAT_STATES: dict[str, tuple[int, torch.dtype]] = {
+    "rows": (len(_COLS), torch.float64),
+    "pend_rows": (2, torch.float64),
+    "pend_pts": (2, torch.float32),
+    "hist_done": (2, torch.float64),
+}
+
+
 class _FloorMetric(Metric):
     """Shared state and element bookkeeping of the FloAff map metrics (see the module docstring)."""
 
@@ -255,10 +266,26 @@ class _FloorMetric(Metric):
             self.add_state("pend_pts", default=[], dist_reduce_fx="cat")
             self.add_state("hist_done", default=[], dist_reduce_fx="cat")
 
+    def _cat(self, name: str) -> Tensor:
+        """The ``cat`` state ``name`` as one [S, width] tensor."""
+        width, dtype = _CAT_STATES[name]
+        return _cat_or_empty(getattr(self, name), width, dtype, self.device)
+
+    def _sync_dist(self, dist_sync_fn: Any = gather_all_tensors, process_group: Any = None) -> None:
+        # A process that saw no batch holds empty lists, for which torchmetrics gathers a 1-D stand-in whose size
+        # does not match the other processes' [S, width] rows (the collective aborts): give it empty rows instead.
+        for name, (width, dtype) in _CAT_STATES.items():
+            state = getattr(self, name, None)
+            if isinstance(state, list) and not state:
+                state.append(torch.zeros((0, width), dtype=dtype, device=self.device))
+        super()._sync_dist(dist_sync_fn, process_group)
+
     def update(self, preds: Tensor, target: Tensor, mask: Tensor | None = None, index: Tensor | None = None) -> None:
         """Accumulate a batch: preds/target [B, M], mask bool [B, M] (None = all valid), index [B] split positions."""
         p, g, mask = _check_inputs(type(self).__name__, preds, target, mask, index)
         b = p.shape[0]
+        if p.shape[1] == 0:  # no floor point in the batch: one padded column keeps the per-sample reductions defined
+            p, g, mask = p.new_zeros((b, 1)), g.new_zeros((b, 1)), mask.new_zeros((b, 1))
         if index is None:
             index = torch.arange(b, device=p.device) + self.seen
         index = index.to(p.device).long()
@@ -295,7 +322,7 @@ class _FloorMetric(Metric):
 
     def _elements(self) -> dict[str, Tensor]:
         """Per-element statistics of everything seen (deduplicated by sample index); sets num_empty/num_elements."""
-        rows = _cat_or_empty(self.rows, len(_COLS), torch.float64, self.device)
+        rows = self._cat("rows")
         rows = rows[_first_occurrence(rows[:, _C["index"]])]
         table = _element_table(rows, self._elem)
         table["valid"] = table["n"] > 0
@@ -307,10 +334,10 @@ class _FloorMetric(Metric):
         """Histogram SIM per element [E], aligned with ``table['id']``."""
         if not self._keep_points:
             return table["simh_sample"]  # per_sample (or chunk_size 1 never buffers): one sample per element
-        done = _cat_or_empty(self.hist_done, 2, torch.float64, self.device)
+        done = self._cat("hist_done")
         done = done[_first_occurrence(done[:, 0])]
-        rows = _cat_or_empty(self.pend_rows, 2, torch.float64, self.device)
-        pts = _cat_or_empty(self.pend_pts, 2, torch.float32, self.device)
+        rows = self._cat("pend_rows")
+        pts = self._cat("pend_pts")
         cid = torch.div(rows[:, 0], self.chunk_size, rounding_mode="floor")
         keep = _first_occurrence(rows[:, 0]) & ~torch.isin(cid, done[:, 0])
         pt_keep = torch.repeat_interleave(keep, rows[:, 1].long())
