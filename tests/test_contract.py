@@ -91,6 +91,18 @@ def test_best_pose_tie_break_and_heading():
     assert math.isclose(yaw, math.atan2(-0.5, 2.5))
 
 
+def test_best_pose_tie_break_does_not_depend_on_the_batch_padding():
+    """The permutation was drawn over the padded length, so a tied map chose another cell when a larger view shared
+    its batch (SR changed with eval_batch_size and between DDP and one process)."""
+    floor = torch.tensor([[1.0, 0.0, 0.0], [2.0, 0.0, 0.0], [3.0, 0.0, 0.0]])
+    padded = torch.cat([floor, torch.zeros(5, 3)])
+    mask = torch.arange(8) < 3
+    target = torch.zeros(3)
+    for s in range(20):
+        alone = best_pose(floor, torch.ones(3), None, target, k=3, seed=s)
+        assert best_pose(padded, torch.ones(8), mask, target, k=3, seed=s) == alone
+
+
 def test_best_pose_random_tie_break_is_seeded_and_uniform():
     floor = torch.stack([torch.arange(10.0), torch.zeros(10), torch.zeros(10)], 1)
     target = torch.tensor([20.0, 0, 0])

@@ -376,9 +376,9 @@ def best_pose(
     """Top-``k`` SE(2) base poses (x, y, yaw facing the target) from per-point scores.
 
     Scores equal to 6 decimals are ties. ``tie_break="random"`` (default) orders tied candidates
-    by a permutation drawn from ``seed``, so a constant or all-zero map picks a uniformly random
-    candidate (its success rate is then the base rate) and the same call always gives the same
-    pose; ``"nearest"`` prefers the candidate closest to the target, then the lower index.
+    by a permutation of the valid points drawn from ``seed``, so a constant or all-zero map picks a uniformly
+    random candidate (its success rate is then the base rate) and the same view always gives the same pose, however
+    much padding its batch adds; ``"nearest"`` prefers the candidate closest to the target, then the lower index.
 
     Args:
         floor_xyz: [M, 3]; scores: [M]; mask: [M] bool or None; target_xyz: [3].
@@ -394,7 +394,9 @@ def best_pose(
     t = np.asarray(torch.as_tensor(target_xyz).detach().cpu(), dtype=np.float64).reshape(3)
     idx = np.nonzero(valid)[0]
     if tie_break == "random":
-        secondary = np.random.default_rng(seed).permutation(sc.shape[0])[idx]
+        # over the valid points only: a batch pads a view's floor to its largest view, and a permutation of the
+        # padded length would make the pick depend on which views share the batch
+        secondary = np.random.default_rng(seed).permutation(idx.size)
     elif tie_break == "nearest":
         secondary = np.hypot(xyz[idx, 0] - t[0], xyz[idx, 1] - t[1])
     else:
