@@ -164,9 +164,10 @@ def footprint_blocked(
         pose: (x, y, yaw) of the base origin, heading ``yaw``.
         footprint: (length, width, front) of the base rectangle (``FOOTPRINT``).
         z_range: heights (m) of points that block the base: above the floor, below the tucked robot's top.
-        min_points: points inside the rectangle needed to call it blocked (a stray point is noise).
+        min_points: distinct points inside the rectangle needed to call it blocked (a stray point is noise; a
+            cloud padded to its sample size by repeating points must not make one point two).
     Returns:
-        True when at least ``min_points`` points with z in ``z_range`` lie inside the footprint. Unseen
+        True when at least ``min_points`` distinct points with z in ``z_range`` lie inside the footprint. Unseen
         (occluded) space counts as free: the cloud can only rule a pose out.
     """
     p = np.asarray(xyz, dtype=np.float64)
@@ -175,7 +176,8 @@ def footprint_blocked(
     if min_points < 1:
         raise ValueError(f"footprint_blocked: min_points must be >= 1, got {min_points}")
     p = p[np.isfinite(p).all(axis=1) & (p[:, 2] > z_range[0]) & (p[:, 2] <= z_range[1])]
-    return len(_in_footprint(p, pose, footprint)) >= min_points
+    inside = _in_footprint(p, pose, footprint)
+    return len(inside) >= min_points and len(np.unique(inside, axis=0)) >= min_points
 
 
 def _in_footprint(p: np.ndarray, pose: tuple[float, float, float], footprint: tuple[float, float, float]) -> np.ndarray:

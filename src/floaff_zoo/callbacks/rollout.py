@@ -130,8 +130,8 @@ def cloud_free(
     xyz: np.ndarray, base_pose_world: Sequence[float], margin: float = 0.0
 ) -> Callable[[float, float, float], bool]:
     """``is_free(x, y, yaw)`` for world poses from a view's own cloud xyz [N, 3] (robot base frame): fewer than two
-    obstacle points (``floor.footprint_blocked``'s ``min_points``: one stray point is noise) in the base footprint
-    grown by ``margin`` (m) on every side; what ``free_space="cloud"`` uses."""
+    distinct obstacle points (``floor.footprint_blocked``'s ``min_points``: one stray point is noise) in the base
+    footprint grown by ``margin`` (m) on every side; what ``free_space="cloud"`` uses."""
     footprint = grown_footprint(margin)
     world = base_to_world(xyz, base_pose_world)
     return lambda x, y, yaw: not footprint_blocked(world, (x, y, yaw), footprint)
