@@ -167,6 +167,11 @@ def test_unknown_names_list_valid_ones(floaff_root):
         _dm(root, reader="nope")
     with pytest.raises(MisconfigurationException, match="does not exist"):
         _dm(root / "missing").setup("fit")
+    # the preset it suggests has the benchmark and the tasks asked for (it said `tiny`, Styles and two tasks only)
+    with pytest.raises(MisconfigurationException, match="generate --preset demo --out"):
+        _dm(root / "missing", benchmark="layouts", tasks=["PnPCounterToCab"]).setup("fit")
+    with pytest.raises(MisconfigurationException, match="generate --preset tiny --out"):
+        _dm(root / "missing", benchmark="styles", tasks=["CloseDrawer"]).setup("fit")
 
 
 def test_strict_raises_naming_file(floaff_root):

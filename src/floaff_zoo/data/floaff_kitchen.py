@@ -298,6 +298,13 @@ class FloAffKitchenDataModule(FloAffDataModule):
             )
         return set(self.val_scene_ids)
 
+    def _smallest_preset(self) -> str:
+        """The first generator preset (tiny, demo, small, ...) with this benchmark and every task asked for."""
+        from floaff_zoo.sim.presets import PRESETS
+
+        fits = [n for n, p in PRESETS.items() if self.benchmark in p.benchmarks and set(self.tasks) <= set(p.tasks)]
+        return fits[0] if fits else "small"
+
     # ------------------------------------------------------------------ setup
     def setup(self, stage: str | None = None) -> None:
         if self.datasets:
@@ -305,7 +312,8 @@ class FloAffKitchenDataModule(FloAffDataModule):
         if not self.root.is_dir():
             raise MisconfigurationException(
                 f"FloAffKitchenDataModule: root {self.root} does not exist (generate data with "
-                f"`floaff-zoo generate --preset tiny --out {self.root}` or set data.init_args.root)"
+                f"`floaff-zoo generate --preset {self._smallest_preset()} --out {self.root}` or set "
+                "data.init_args.root)"
             )
         skips = SkipLog(f"floaff_kitchen {self.benchmark}", self.strict)
         reader = self.reader_cls(self.root, skips)
