@@ -102,6 +102,18 @@ def test_a_hanging_worker_times_out_naming_the_episode():
     assert svc._pool is None  # the stuck workers were killed, not left behind
 
 
+def test_pool_chunks_stay_short_however_many_jobs():
+    """A chunk held len(jobs) / (4 x workers) jobs, and timeout_s counts finished chunks: a large enough evaluation
+    of healthy rollouts (a few thousand jobs per worker) reported a hanging worker."""
+    from floaff_zoo.sim.rollout import MAX_CHUNK_JOBS, _chunks
+
+    for n, workers in ((5, 2), (100, 2), (30_000, 2), (30_000, 8)):
+        chunks = _chunks(n, workers)
+        assert [i for c in chunks for i in c] == list(range(n))  # every job once, in order (sorted by scene)
+        assert max(map(len, chunks)) <= MAX_CHUNK_JOBS
+    assert len(_chunks(100, 2)) == 9  # small evaluations keep about four chunks per worker
+
+
 _SIMULATED: list[tuple[float, float, float]] = []
 
 

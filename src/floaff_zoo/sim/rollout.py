@@ -175,6 +175,17 @@ def _run_chunk(job_fn: Callable[[Job], RolloutResult], jobs: list[Job]) -> list[
     return [job_fn(j) for j in jobs]
 
 
+#: the most jobs one pool task runs: ``timeout_s`` measures progress in finished tasks, so a task must stay short
+#: whatever the number of jobs (32 rollouts of 0.1-0.4 s each, against the default 900 s)
+MAX_CHUNK_JOBS = 32
+
+
+def _chunks(n: int, workers: int) -> list[list[int]]:
+    """Job indices 0..n-1 in consecutive chunks: about four per worker, at most ``MAX_CHUNK_JOBS`` jobs each."""
+    size = max(1, min(MAX_CHUNK_JOBS, n // (4 * workers)))
+    return [list(range(i, min(i + size, n))) for i in range(0, n, size)]
+
+
 def _describe(job: Job) -> str:
     """``L0_S1_s2_CloseDrawer at (x, y, yaw)``: how errors name an episode."""
     d = job[0]
@@ -278,15 +289,15 @@ class RolloutService:
     def _run_pool(self, payload: list[Job]) -> list[RolloutResult]:
         """All jobs on the process pool, in order; see the class doc for dead workers and the timeout.
 
-        Jobs go out in chunks of consecutive jobs (sorted by scene, so each worker builds few scenes). A dead
+        Jobs go out in chunks of consecutive jobs (sorted by scene, so each worker builds few scenes; at most
+        ``MAX_CHUNK_JOBS`` each, so ``timeout_s`` never has to cover a chunk that grows with the job count). A dead
         worker breaks the whole pool, so every unfinished job is lost with it, guilty or not: lost jobs go
         round again one per task on a fresh pool, and a job lost more than ``max_retries`` times finally runs
         alone, where a dead worker can only be its own doing.
         """
         results: list[RolloutResult | None] = [None] * len(payload)
         lost = [0] * len(payload)
-        size = max(1, len(payload) // (4 * self.workers))
-        queue = [list(range(i, min(i + size, len(payload)))) for i in range(0, len(payload), size)]
+        queue = _chunks(len(payload), self.workers)
         alone: list[int] = []
         while queue:
             again = self._run_round(payload, queue, results)
