@@ -70,7 +70,7 @@ def _metric_collections() -> dict[str, torch.nn.Module]:
 
 
 def _one_rank_updates(rank: int, port: int, out: str) -> None:
-    """Worker of a 2-process gloo group in which only rank 0 updates the metrics; rank 0 saves what both compute."""
+    """Worker of a 2-process gloo group in which only rank 0 updates the metrics; each rank saves what it computes."""
     os.environ.update(MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port))
     torch.distributed.init_process_group("gloo", rank=rank, world_size=2)
     try:
