@@ -77,6 +77,9 @@ def test_footprint_blocked_sees_obstacles_inside_the_base_rectangle():
     assert not footprint_blocked(box[:1], (0.0, 0.0, 0.0))  # one stray point is noise
     # ... also when a short cloud was padded to its sample size by repeating it (TargetCrop + resample collate)
     assert not footprint_blocked(np.repeat(box[:1], 3, axis=0), (0.0, 0.0, 0.0))
+    assert footprint_blocked(
+        box[:1] + [[0.0, 0.0, 0.0], [0.0, 0.0, 0.1]], (0.0, 0.0, 0.0)
+    )  # two points, one above the other
     assert not footprint_blocked(box + [0.0, 0.0, 1.0], (0.0, 0.0, 0.0))  # above the robot (z > 1.2 m)
     assert not footprint_blocked(box * [1, 1, 0], (0.0, 0.0, 0.0))  # floor points never block
     assert not footprint_blocked(box + [front + 0.05, 0.0, 0.0], (0.0, 0.0, 0.0))  # in front of the base

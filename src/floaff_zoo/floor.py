@@ -176,19 +176,29 @@ def footprint_blocked(
     if min_points < 1:
         raise ValueError(f"footprint_blocked: min_points must be >= 1, got {min_points}")
     p = p[np.isfinite(p).all(axis=1) & (p[:, 2] > z_range[0]) & (p[:, 2] <= z_range[1])]
-    inside = _in_footprint(p, pose, footprint)
-    return len(inside) >= min_points and len(np.unique(inside, axis=0)) >= min_points
+    inside = _footprint_frame(p, pose, footprint)[0]
+    # distinct 3-D points: points stacked at one (x, y) are several obstacles, one point repeated is one
+    return int(inside.sum()) >= min_points and len(np.unique(p[inside], axis=0)) >= min_points
+
+
+def _footprint_frame(
+    p: np.ndarray, pose: tuple[float, float, float], footprint: tuple[float, float, float]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(inside [N] bool, along [N], across [N]) for the points p [N, 3] and the base footprint parked at ``pose``:
+    which points lie inside it, and each point's offset (m) along the heading and across it from the base origin."""
+    length, width, front = footprint
+    x, y, yaw = (float(v) for v in pose)
+    c, s = math.cos(yaw), math.sin(yaw)
+    dx, dy = p[:, 0] - x, p[:, 1] - y
+    along, across = c * dx + s * dy, -s * dx + c * dy
+    return (along <= front) & (along >= front - length) & (np.abs(across) <= width / 2), along, across
 
 
 def _in_footprint(p: np.ndarray, pose: tuple[float, float, float], footprint: tuple[float, float, float]) -> np.ndarray:
     """[K, 2] (along the heading from the footprint's back edge, across from its left edge) m of the points of
     p [N, 3] inside the base footprint parked at ``pose``."""
     length, width, front = footprint
-    x, y, yaw = (float(v) for v in pose)
-    c, s = math.cos(yaw), math.sin(yaw)
-    dx, dy = p[:, 0] - x, p[:, 1] - y
-    along, across = c * dx + s * dy, -s * dx + c * dy
-    inside = (along <= front) & (along >= front - length) & (np.abs(across) <= width / 2)
+    inside, along, across = _footprint_frame(p, pose, footprint)
     return np.stack([along[inside] - (front - length), across[inside] + width / 2], axis=1)
 
 

@@ -174,6 +174,12 @@ def test_bad_sim_metadata_is_named():
         _trainer(cb).test(ConstantModule(), dataloaders=loader(samples), verbose=False)
 
 
+def _obstacle(x: float, y: float, n: int = 4) -> np.ndarray:
+    """n obstacle points [n, 3] float32 stacked 1 cm apart at (x, y) from 0.5 m up: distinct points, since the
+    footprint check counts one point repeated as one."""
+    return np.array([[x, y, 0.5 + 0.01 * k] for k in range(n)], np.float32)
+
+
 def test_top_k_with_cloud_free_space_avoids_an_observed_obstacle():
     """free_space='cloud': the best pose whose footprint holds furniture points of the view's own cloud is passed
     over for the next free one, with no simulator in the loop."""
@@ -187,7 +193,7 @@ def test_top_k_with_cloud_free_space_avoids_an_observed_obstacle():
         x, y, yaw = best_pose(
             s["floor_xyz"], s["floor_label"], s["floor_mask"], s["target_xyz"], seed=s["meta"]["index"]
         )[0]
-        back = np.array([[x - 0.2 * math.cos(yaw), y - 0.2 * math.sin(yaw), 0.5]] * 4, np.float32)  # behind the origin
+        back = _obstacle(x - 0.2 * math.cos(yaw), y - 0.2 * math.sin(yaw))  # behind the origin
         s["scene_xyz"] = torch.cat([s["scene_xyz"], torch.from_numpy(back)])
         s["scene_feat"] = torch.cat([s["scene_feat"], torch.ones(4, s["scene_feat"].shape[1])])
         s["scene_mask"] = torch.cat([s["scene_mask"], torch.ones(4, dtype=torch.bool)])
@@ -221,7 +227,7 @@ def test_cloud_free_margin_grows_the_footprint_on_every_side():
     length, width, front = FOOTPRINT
     pose = (0.0, 0.0, 0.0)  # world = base frame: the view's robot stands at the origin facing +x
     for x, y in ((front + 0.05, 0.0), (front - length - 0.05, 0.0), (0.0, width / 2 + 0.05), (0.0, -width / 2 - 0.05)):
-        cloud = np.array([[x, y, 0.5]] * 2)
+        cloud = _obstacle(x, y, n=2)
         assert cloud_free(cloud, pose)(*pose)
         assert not cloud_free(cloud, pose, margin=0.1)(*pose), (x, y)
 
@@ -237,7 +243,7 @@ def _stored_obstacle(samples: list[dict]) -> list[dict]:
         x, y, yaw = best_pose(
             s["floor_xyz"], s["floor_label"], s["floor_mask"], s["target_xyz"], seed=s["meta"]["index"]
         )[0]
-        back = np.array([[x - 0.2 * math.cos(yaw), y - 0.2 * math.sin(yaw), 0.5]] * 4, np.float32)
+        back = _obstacle(x - 0.2 * math.cos(yaw), y - 0.2 * math.sin(yaw))
         s["full_xyz"] = torch.cat([s["scene_xyz"], torch.from_numpy(back)])
     return samples
 
