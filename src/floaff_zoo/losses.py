@@ -3,7 +3,7 @@
 Masked (padding) points never change a loss or its gradient; a batch or sample without valid points
 gives 0 (with a graph attached), never NaN.
 
-* ``masked_mse``: the paper's eq. (mse), mean over all valid points of the batch.
+* ``masked_mse``: the paper's eq. (mse), but the mean over all valid points of the batch (docs/method.md, "The loss").
 * ``soft_dice_loss``: the paper's eq. (sdl) per sample, averaged over samples that have valid points.
   The paper only calls epsilon "a small constant"; the default ``eps = 1.0`` is the usual Dice smoothing
   term (Milletari et al. / common V-Net implementations). It keeps the loss bounded and ~0 for a sample
@@ -75,7 +75,8 @@ def _masked_mean(values: Tensor, mask: Tensor, ref: Tensor) -> Tensor:
 
 
 def masked_mse(pred: Tensor, target: Tensor, mask: Tensor | None) -> Tensor:
-    """Mean (pred - target)^2 over all valid points of the batch. [B, M] x3 -> scalar."""
+    """Mean (pred - target)^2 over all valid points of the batch (pooled: a map with more valid points weighs more;
+    the paper averages per map, then over maps: docs/method.md, "The loss"). [B, M] x3 -> scalar."""
     p, g, m = _prepare("masked_mse", pred, target, mask)
     return _masked_mean((p - g) ** 2, m, p)
 

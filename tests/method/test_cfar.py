@@ -215,6 +215,15 @@ def test_axisnet_is_frozen_embedded_and_used_at_eval(tmp_path, root, monkeypatch
     assert swapped.model.hparams.axisnet_arch["source"] == axis2_ckpt
     for k, v in swapped.model.net.state_dict().items():  # the CFAR weights are still the student's
         assert torch.equal(v, re.net.state_dict()[k]), k
+    # the same through `weights` (a later PFAL stage initialised from this one with another AxisNet): the student's
+    # stored AxisNet silently replaced the configured one, which its lineage still named
+    init_args = yaml.safe_load(Path(CFAR).read_text())["model"]["init_args"]
+    stage2 = CFARModule(**init_args, axisnet=axis2_ckpt, weights=student)
+    for k, v in stage2.axisnet.state_dict().items():
+        assert torch.equal(v, axis2_state["net." + k]), k
+    assert stage2.weights_not_loaded == []
+    for k, v in stage2.net.state_dict().items():
+        assert torch.equal(v, re.net.state_dict()[k]), k
     # a CFAR trained on the simulator's yaw without any AxisNet is evaluated with one (the deployable path)
     plain = run_lightning(
         [

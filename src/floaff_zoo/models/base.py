@@ -416,8 +416,11 @@ class ZooModule(L.LightningModule):
         # what a saved model records as its initial weights (``floaff_lineage``): a hub entry's or export's own
         # hash, else the file's
         self.weights_sha256 = info["sha256"] or sha256_file(info["source"])
-        unloaded = load_matching_state(self, state, source=name_or_path)
+        # a part configured from a file of its own (CFAR's AxisNet) keeps that file's weights: the copy ``weights``
+        # carries is another stage's, which the recorded lineage would not name
         own_files = self._parts_with_own_weights()
+        state = {k: v for k, v in state.items() if not k.startswith(own_files)}
+        unloaded = load_matching_state(self, state, source=name_or_path)
         self.weights_not_loaded = [line for line in unloaded if not line.startswith(own_files)]
 
     def _parts_with_own_weights(self) -> tuple[str, ...]:
