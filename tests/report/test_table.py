@@ -127,6 +127,52 @@ def test_reports_with_wrong_field_types_are_named_and_skipped(tmp_path, capsys, 
     assert "no usable report.json" in capsys.readouterr().err
 
 
+def _write_runs(root: Path, reports: dict[str, dict]) -> None:
+    for name, rep in reports.items():
+        (root / name).mkdir()
+        (root / name / "report.json").write_text(json.dumps(rep))
+
+
+def test_odd_but_accepted_report_fields_do_not_crash_the_table(tmp_path, capsys):
+    """Fields the validator accepts (an SR cell without mean, "tasks": null) and a file that is not UTF-8 ended in a
+    traceback (KeyError, TypeError, UnicodeDecodeError) instead of a table or a named skip."""
+    good = json.loads((RUNS / "cfar_layouts_s0" / "report.json").read_text())
+    no_mean = _set(json.loads(json.dumps(good)), "sr.model.front", {"std": 0.01, "n": 10})
+    no_tasks = _set(json.loads(json.dumps(good)), "sr.model.tasks", None)
+    for i, rep in enumerate((no_mean, no_tasks)):
+        rep["checkpoint"] = {**good["checkpoint"], "sha256": f"{i + 1}" * 64}
+    _write_runs(tmp_path, {"good": good, "no_mean": no_mean, "no_tasks": no_tasks})
+    (tmp_path / "latin1").mkdir()
+    (tmp_path / "latin1" / "report.json").write_bytes(b'{"schema": "floaff-zoo/report", "label": "\xff\xfe"}\xff')
+    for preset in ("sr_views", "sr_tasks"):
+        assert main(["--runs", str(tmp_path), "--preset", preset]) == 0
+        err = capsys.readouterr().err
+        assert f"skipped {tmp_path / 'latin1' / 'report.json'}: unreadable report.json" in err
+
+
+def test_a_non_finite_value_takes_its_own_std_with_it(tmp_path):
+    """aggregate() dropped a NaN run's value but kept its bootstrap std, which the remaining run then showed."""
+    from floaff_zoo.report.table import aggregate
+
+    cell = aggregate([float("nan"), 0.458], [0.999, 0.013])
+    assert cell.n == 1 and cell.mean == 0.458 and cell.std == 0.013
+    assert aggregate([0.4, None], [0.01]).std == 0.01  # a shorter std list reads as missing stds
+
+
+def test_equal_group_values_of_different_types_share_a_row(tmp_path):
+    """crop_radius 1 (an int) and 1.0 (a float) made two rows, "1" and "1.00"."""
+    src = json.loads((RUNS / "cfar_styles_s0" / "report.json").read_text())
+    reports = {}
+    for i, crop in enumerate((1, 1.0)):
+        hp = dict(src["model"]["hparams"], crop_radius=crop)
+        reports[f"r{i}"] = dict(
+            src, model=dict(src["model"], hparams=hp), checkpoint={**src["checkpoint"], "sha256": f"{i}" * 64}
+        )
+    _write_runs(tmp_path, reports)
+    sweep = render(build_table([r for _, r in load_reports([str(tmp_path)])[0]], "sweep"), "md")
+    assert [ln.split("|")[1].strip() for ln in sweep.splitlines() if ln.startswith("| 1")] == ["1.00"]
+
+
 def test_sweep_sorts_numerically_and_ablation_groups_by_label(tmp_path):
     src = json.loads((RUNS / "cfar_styles_s0" / "report.json").read_text())
     for i, (crop, label) in enumerate([(1.3, "Ours (Full)"), (1.1, "w/o SDL"), (1.25, "w/o Crop")]):

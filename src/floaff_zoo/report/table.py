@@ -120,7 +120,7 @@ def load_reports(runs: list[str]) -> tuple[list[tuple[Path, dict[str, Any]]], li
     for path in sorted(found):
         try:
             rep = json.loads(path.read_text())
-        except (OSError, json.JSONDecodeError) as exc:
+        except (OSError, ValueError) as exc:  # ValueError: bad JSON or bytes that are not UTF-8
             skipped.append((str(path), f"unreadable report.json ({exc})"))
             continue
         if not isinstance(rep, dict) or rep.get("schema") != "floaff-zoo/report":
@@ -270,13 +270,15 @@ class Table:
 
 
 def aggregate(values: list[float], inner_std: list[float | None]) -> Cell | None:
-    """Mean ± std over runs (ddof=1); a single run keeps its own std (SR bootstrap) if any."""
-    vals = [float(v) for v in values if v is not None and math.isfinite(float(v))]
+    """Mean ± std over runs (ddof=1); a single run keeps its own std (SR bootstrap) if any. Values that are missing
+    or not finite are left out together with their own std."""
+    stds = list(inner_std) + [None] * (len(values) - len(inner_std))
+    kept = [(float(v), s) for v, s in zip(values, stds) if v is not None and math.isfinite(float(v))]
+    vals = [v for v, _ in kept]
     if not vals:
         return None
     if len(vals) == 1:
-        s = inner_std[0] if inner_std and inner_std[0] is not None else None
-        return Cell(vals[0], s, 1)
+        return Cell(vals[0], kept[0][1], 1)
     return Cell(statistics.fmean(vals), statistics.stdev(vals), len(vals))
 
 
@@ -293,7 +295,7 @@ def _sr(
         return None, None
     t = sr.get(who) or {}
     cell = (t.get("tasks") or {}).get(task) if task else t.get(view)
-    return (cell["mean"], cell.get("std")) if cell else (None, None)
+    return (cell.get("mean"), cell.get("std")) if isinstance(cell, dict) else (None, None)
 
 
 def _cell(reports: list[dict[str, Any]], getter) -> Cell | None:
@@ -340,6 +342,8 @@ def _group_rows(
 def _fmt_key(v: Any) -> str:
     """Row name of a group value: floats with 2 decimals where that is exact (``1.10``, ``1.25``), else the
     shortest text that reads back as the value (``0.0002``), so distinct values never share a row."""
+    if isinstance(v, int) and not isinstance(v, bool):
+        v = float(v)  # crop_radius 1 and 1.0 are one row
     if isinstance(v, float):
         s = f"{v:.2f}"
         return s if float(s) == v else repr(v)
@@ -522,10 +526,12 @@ def build_table(
         return Table(preset, "Method", columns, [sec], note)
     # sr_tasks
     tasks = [
-        t for t in TASK_SHORT if any(t in ((r.get("sr") or {}).get("model") or {}).get("tasks", {}) for r in reports)
+        t
+        for t in TASK_SHORT
+        if any(t in (((r.get("sr") or {}).get("model") or {}).get("tasks") or {}) for r in reports)
     ]
     tasks += sorted(
-        {t for r in reports for t in ((r.get("sr") or {}).get("model") or {}).get("tasks", {})} - set(tasks)
+        {t for r in reports for t in (((r.get("sr") or {}).get("model") or {}).get("tasks") or {})} - set(tasks)
     )
     if not tasks:
         raise TableError(
