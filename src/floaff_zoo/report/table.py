@@ -321,10 +321,15 @@ def _group_rows(
     by ``check_row`` (one protocol, one report per checkpoint). ``section`` names the rows' section in errors."""
     groups: dict[str, list[dict]] = {}
     keys: dict[str, Any] = {}
-    for r in reports:
-        v = lookup(r, group_by)
+    values = [lookup(r, group_by) for r in reports]
+    for r, v in zip(reports, values):
         if v is None:
             raise TableError(f"--group-by {group_by}: report {r.get('run_dir', '?')} has no such field")
+    # where some runs give a float, an int is the same number (crop_radius 1 and 1.0 are one row)
+    floats = any(isinstance(v, float) for v in values)
+    for r, v in zip(reports, values):
+        if floats and isinstance(v, int) and not isinstance(v, bool):
+            v = float(v)
         name = _fmt_key(v)
         groups.setdefault(name, []).append(r)
         keys[name] = v
@@ -342,8 +347,6 @@ def _group_rows(
 def _fmt_key(v: Any) -> str:
     """Row name of a group value: floats with 2 decimals where that is exact (``1.10``, ``1.25``), else the
     shortest text that reads back as the value (``0.0002``), so distinct values never share a row."""
-    if isinstance(v, int) and not isinstance(v, bool):
-        v = float(v)  # crop_radius 1 and 1.0 are one row
     if isinstance(v, float):
         s = f"{v:.2f}"
         return s if float(s) == v else repr(v)
