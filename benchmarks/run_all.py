@@ -101,10 +101,20 @@ def main(argv: list[str] | None = None) -> int:
         help="script names to run (default: all); their sections replace those of an existing --out",
     )
     args = ap.parse_args(argv)
+    scripts = [script for _, script, _, _ in SUITE]
+    if args.only is not None:  # a typo would run nothing and still rewrite the report's header
+        args.only = [s if s.endswith(".py") else f"{s}.py" for s in args.only]
+        unknown = [s for s in args.only if s not in scripts]
+        if not args.only or unknown:
+            what = f"unknown script(s) {unknown}" if unknown else "no script named"
+            ap.error(f"--only: {what}; choose from {scripts}")
     env = dict(os.environ, MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"))
+    only = f" --only {' '.join(args.only)}" if args.only else ""
+    earlier = " (the other sections are from earlier runs, each says how it ran)" if only else ""
     sections = [
         "# Performance\n",
-        f"Written by `python benchmarks/run_all.py{' --full' if args.full else ''}` on {time.strftime('%Y-%m-%d')}.",
+        f"Written by `python benchmarks/run_all.py{' --full' if args.full else ''}{only}` on "
+        f"{time.strftime('%Y-%m-%d')}{earlier}.",
         f"Machine: {_machine()}.",
         "Figures are printed by each script with the references it measures in the same run (the simulator: bare "
         "MuJoCo stepping; the time to train: the first accelerator, so times alone on a CPU-only run); the simulator "
