@@ -156,6 +156,8 @@ def main() -> None:
     p.add_argument("--epochs", type=int, default=3)
     p.add_argument("--steps", type=int, default=3)
     args = p.parse_args()
+    if args.epochs < 1 or args.steps < 1:
+        p.error("--epochs and --steps must be >= 1")
     torch.set_num_threads(int(os.environ.get("OMP_NUM_THREADS", torch.get_num_threads())))
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(args.root) if args.root else Path(tmp) / "moma"

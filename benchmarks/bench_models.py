@@ -303,6 +303,12 @@ def main(argv: list[str] | None = None) -> int:
     )
     p.add_argument("--sweep-models", nargs="*", default=["pointnet2_ssg", "cfar"], choices=MODELS)
     a = p.parse_args(argv)
+    if not a.models:
+        p.error(f"--models: name at least one of {MODELS}")
+    if a.iters is not None and a.iters < 1:
+        p.error("--iters must be >= 1")
+    if a.warmup < 1:  # ours always has an untimed first step: the reference needs one too to be timed fairly
+        p.error("--warmup must be >= 1")
     if a.threads:
         torch.set_num_threads(a.threads)
     iters = a.iters or (2 if a.quick else 5)

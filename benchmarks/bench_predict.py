@@ -104,6 +104,11 @@ def main(argv: list[str] | None = None) -> int:
     a = p.parse_args(argv)
     if a.rounds < 1:
         p.error("--rounds must be >= 1")
+    if not a.models:
+        p.error(f"--models: name at least one of {bm.MODELS}")
+    if a.warmup < 0:
+        p.error("--warmup must be >= 0")
+    a.models = list(dict.fromkeys(a.models))  # a name given twice is timed once
     device = bm.parse_device(p, a.device)
     kept = runtime.keep_freed_memory() if a.malloc == "keep" else False
     calls = callers(a.models, a.points, a.floor_cells, device)

@@ -149,6 +149,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--accelerators", nargs="+", default=["cpu"], choices=["cpu", "gpu"],
                    help="run every job on each; the last column compares with the first")  # fmt: skip
     a = p.parse_args(argv)
+    if a.steps < 1 or a.warmup < 1:  # the step timer starts at the end of the last warm-up step
+        p.error("--steps and --warmup must be >= 1")
     if "gpu" in a.accelerators and not torch.cuda.is_available():
         p.error("--accelerators gpu: torch sees no CUDA device here")
     env = {**os.environ, "OMP_NUM_THREADS": str(a.threads), "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}

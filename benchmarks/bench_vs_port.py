@@ -86,6 +86,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--threads", type=int, default=None)
     p.add_argument("--child", nargs=2, metavar=("MODEL", "OPS"), help=argparse.SUPPRESS)
     a = p.parse_args(argv)
+    if a.rounds < 1 or a.iters < 1 or a.warmup < 0 or not a.models:
+        p.error("--rounds and --iters must be >= 1, --warmup >= 0 and --models must name a model")
     if a.child:
         print(json.dumps(child(a.child[0], a.child[1], a.iters, a.warmup, a.threads)))
         return 0

@@ -83,6 +83,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--warmup", type=int, default=3)
     p.add_argument("--rows", type=int, default=14, help="ops listed per model")
     a = p.parse_args(argv)
+    if a.steps < 1 or a.warmup < 0:
+        p.error("--steps must be >= 1 and --warmup >= 0")
     device = bm.parse_device(p, a.device)
     print(f"torch {torch.__version__}, threads {torch.get_num_threads()}, device {device}, FPS {fps_backend(device)}")
     with warnings.catch_warnings():  # training_step logs; outside a Trainer Lightning warns on every call

@@ -44,3 +44,22 @@ def test_calls_on_the_cpu_device_run_the_model():
     calls = bp.callers(["pointnet2_ssg"], points=256, floor_cells=4, device=torch.device("cpu"))
     assert set(calls) == {"pointnet2_ssg", bp.REFERENCE}
     calls["pointnet2_ssg"]()  # a real forward on the moved batch
+
+
+@pytest.mark.parametrize(
+    ("script", "args"),
+    [
+        ("bench_predict", ["--models"]),
+        ("bench_models", ["--iters", "-1"]),
+        ("bench_models", ["--warmup", "0"]),
+        ("bench_vs_port", ["--rounds", "0"]),
+        ("bench_train_time", ["--steps", "0"]),
+        ("profile_step", ["--steps", "0"]),
+    ],
+)
+def test_benchmark_counts_below_one_are_refused_up_front(script, args, capsys):
+    """They ended in ZeroDivisionError / StatisticsError / KeyError (bench_train_time only after a whole fit), or
+    timed the reference's cold first step against ours warmed (bench_models --warmup 0)."""
+    with pytest.raises(SystemExit) as exc:
+        load_benchmark(script).main(args)
+    assert exc.value.code == 2 and "error: --" in capsys.readouterr().err
