@@ -75,17 +75,33 @@ def make_batch(b: int, n: int, floor_cells: int):
     return collate_samples([make_synthetic_sample(i, num_points=n, floor_cells=floor_cells) for i in range(b)])
 
 
-def build(name: str, **overrides):
-    """The shipped config's model; overrides the class does not take (e.g. ``bf16`` for CFAR) are dropped."""
-    import inspect
-
-    if name in WITH_AXISNET:
-        return build_with_axisnet(WITH_AXISNET[name], **overrides)
+def _config(name: str) -> tuple[type, dict]:
+    """(model class, init_args) of the shipped config ``configs/models/<name>.yaml``."""
     cfg = yaml.safe_load((ROOT / "configs" / "models" / f"{name}.yaml").read_text())["model"]
     mod_name, cls_name = cfg["class_path"].rsplit(".", 1)
-    cls = getattr(importlib.import_module(mod_name), cls_name)
-    accepted = inspect.signature(cls.__init__).parameters
-    return cls(**{**(cfg.get("init_args") or {}), **{k: v for k, v in overrides.items() if k in accepted}})
+    return getattr(importlib.import_module(mod_name), cls_name), cfg.get("init_args") or {}
+
+
+def _accepted(cls: type) -> set[str]:
+    import inspect
+
+    return set(inspect.signature(cls.__init__).parameters)
+
+
+def build(name: str, **overrides):
+    """The shipped config's model; overrides the class does not take (e.g. ``bf16`` for CFAR) are dropped."""
+    if name in WITH_AXISNET:
+        return build_with_axisnet(WITH_AXISNET[name], **overrides)
+    cls, init_args = _config(name)
+    accepted = _accepted(cls)
+    return cls(**{**init_args, **{k: v for k, v in overrides.items() if k in accepted}})
+
+
+def runs_in_mode(name: str, mode: str) -> bool:
+    """Whether ``name``'s model class takes the options ``mode`` asks for (``bf16``, ``compile``); a row of a model
+    that does not runs eager fp32 and says so."""
+    accepted = _accepted(_config(WITH_AXISNET.get(name, name))[0])
+    return all(opt in accepted for opt in ("bf16", "compile") if opt in mode)
 
 
 def build_with_axisnet(name: str, **overrides):
@@ -329,9 +345,10 @@ def main(argv: list[str] | None = None) -> int:
             train = (
                 f"train {r['train_sps']:6.2f} samples/s ({fmt(r['train'])})" if "train_sps" in r else "training-free"
             )
+            eager = "" if runs_in_mode(name, a.model_mode) else f" [no {a.model_mode} option: eager fp32]"
             print(
                 f"{name:<14} {r['params'] / 1e6:7.3f} M params  {train}; predict {r['predict_ms']:7.1f} ms "
-                f"(median of {len(r['predict'])}, min {r['predict_min_ms']:.1f})",
+                f"(median of {len(r['predict'])}, min {r['predict_min_ms']:.1f}){eager}",
                 flush=True,
             )
     if a.vs_reference:

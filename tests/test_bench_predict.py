@@ -63,3 +63,12 @@ def test_benchmark_counts_below_one_are_refused_up_front(script, args, capsys):
     with pytest.raises(SystemExit) as exc:
         load_benchmark(script).main(args)
     assert exc.value.code == 2 and "error: --" in capsys.readouterr().err
+
+
+def test_bench_models_says_which_models_cannot_run_in_the_mode():
+    """--model-mode bf16|compile dropped the option for CFAR and C2F-Exp (they take neither) and printed their fp32
+    rows under the mode's heading."""
+    bm = load_benchmark("bench_models")
+    assert not bm.runs_in_mode("cfar", "bf16") and not bm.runs_in_mode("cfar_axisnet", "compile")
+    assert not bm.runs_in_mode("c2f_exp", "compile_bf16")
+    assert bm.runs_in_mode("pointnet2_ssg", "compile_bf16") and bm.runs_in_mode("cfar", "eager")
