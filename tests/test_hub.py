@@ -558,6 +558,16 @@ def test_the_weights_file_of_an_exported_folder_named_directly_is_checked_too(tm
         load_model(str(folder))
 
 
+def test_a_checkpoint_beside_an_unrelated_config_json_loads(tmp_path):
+    """Any weights file read the config.json of its folder, so a .pt or .ckpt saved beside some other (or broken)
+    config.json failed to load with that file's error; only an export's safetensors file is checked against it."""
+    state = _model(0).state_dict()
+    torch.save(state, tmp_path / "weights.pt")
+    (tmp_path / "config.json").write_text("{not json")
+    loaded, _ = hub_io.resolve_state_dict(str(tmp_path / "weights.pt"))
+    assert loaded.keys() == state.keys()
+
+
 def test_an_exported_config_with_a_malformed_sha256_is_named(tmp_path):
     folder = tmp_path / "exported"
     _model(0).save_pretrained(folder)

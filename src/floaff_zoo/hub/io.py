@@ -308,7 +308,9 @@ def resolve_state_dict(
     if path.is_file():
         kind, weights_path = "file", path
         # the weights file of an exported folder, named directly: its config's hash is checked as for the folder
-        cfg = read_config(path.parent) if (path.parent / CONFIG_NAME).is_file() else {}
+        # (exports write safetensors: a checkpoint beside some other config.json does not read it)
+        exported_kind = path.suffix == ".safetensors" and (path.parent / CONFIG_NAME).is_file()
+        cfg = read_config(path.parent) if exported_kind else {}
         exported = bool(cfg) and cfg.get("weights", DEFAULT_WEIGHTS_NAME) == path.name
         if exported and cfg.get("sha256"):
             sha = cfg["sha256"]
