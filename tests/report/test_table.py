@@ -214,3 +214,17 @@ def test_runs_on_different_copies_of_the_data_are_not_mixed(tmp_path, capsys):
     assert main(["--runs", str(tmp_path / "a"), str(tmp_path / "b"), "--allow-mixed-data"]) == 0
     # the same labels, disjoint scenes, or a report from before the hash was recorded: one table
     assert main(["--runs", str(tmp_path / "a"), str(tmp_path / "a2"), str(tmp_path / "old")]) == 0
+
+
+def test_a_cell_from_fewer_runs_than_its_row_says_so(tmp_path):
+    """A two-run row where one run has no SR showed the other run's bootstrap std as if it were a spread over both
+    seeds; only the CSV's n column told them apart."""
+    src = json.loads((RUNS / "cfar_styles_s0" / "report.json").read_text())
+    no_sr = dict(src, sr={"available": False}, checkpoint={**src["checkpoint"], "sha256": "1" * 64})
+    _write_runs(tmp_path, {"with_sr": src, "without_sr": no_sr})
+    reports = [r for _, r in load_reports([str(tmp_path)])[0]]
+    md = render(build_table(reports, "sr_views", oracle=False), "md")
+    assert "| CFARModule | 0.84 ± 0.02 (n=1/2) | 0.83 ± 0.02 (n=1/2) | 0.83 ± 0.01 (n=1/2) |" in md
+    assert "(n=1/2)" in render(build_table(reports, "sr_views", oracle=False), "latex")
+    # both runs carry map metrics: those cells are over both and carry no mark
+    assert "(n=" not in render(build_table(reports, "map"), "md").split("\n\n")[0]

@@ -21,7 +21,8 @@ Presets (shaped like the FloAff-Kitchen paper's tables):
 
 Cells are the mean over the runs of a row ± their sample standard deviation (ddof=1, i.e. over
 seeds); a row with a single run shows its SR bootstrap std (see ``RolloutSuccessRate``) and no
-± for map metrics. The best mean of each column within a section is bold (the Oracle row never).
+± for map metrics. A cell made from fewer runs than its row holds (a run without SR, a NaN metric)
+is marked ``(n=1/2)``. The best mean of each column within a section is bold (the Oracle row never).
 ``--group-by`` takes ``model`` (class name), ``label``, ``benchmark`` or any dotted path into
 ``report.json`` (``model.hparams.crop_radius``, ``config.data.init_args.crop_radius``, ``seed``).
 
@@ -235,6 +236,7 @@ class Cell:
     mean: float
     std: float | None
     n: int
+    of: int = 0  # runs of the cell's row in its section; a cell with n < of is marked (n=1/2) when rendered
 
 
 @dataclass
@@ -299,9 +301,14 @@ def _sr(
 
 
 def _cell(reports: list[dict[str, Any]], getter) -> Cell | None:
+    """The cell of a row's ``reports`` (one section): mean ± std of ``getter``'s (value, std) over the runs that
+    have a value, recording how many runs the row holds there (``of``)."""
     pairs = [getter(r) for r in reports]
     pairs = [p for p in pairs if p[0] is not None]
-    return aggregate([p[0] for p in pairs], [p[1] for p in pairs])
+    cell = aggregate([p[0] for p in pairs], [p[1] for p in pairs])
+    if cell is not None:
+        cell.of = len(reports)
+    return cell
 
 
 def _oracle_cell(reports: list[dict[str, Any]], getter) -> Cell | None:
@@ -491,7 +498,8 @@ def build_table(
     numeric = preset == "sweep"
     note = (
         "mean ± std over the runs of each row (sample std over seeds); a single run shows its SR bootstrap std "
-        "and no ± for map metrics; best mean per column in bold"
+        "and no ± for map metrics; a cell from fewer runs than its row holds says how many (n=1/2); "
+        "best mean per column in bold"
     )
     if preset in ("map", "ablation", "sweep"):
         columns = [Column(n, d, lo, arrow=True) for _, n, d, lo in MAP_COLUMNS]
@@ -571,6 +579,8 @@ def _text(cell: Cell | None, col: Column, pm: str) -> str:
     s = f"{cell.mean:.{col.decimals}f}"
     if cell.std is not None:
         s += f"{pm}{cell.std:.{col.decimals}f}"
+    if cell.n < cell.of:  # a single run's ± is its bootstrap std, not a spread over the row's seeds: say so
+        s += f" (n={cell.n}/{cell.of})"
     return s
 
 
