@@ -20,7 +20,7 @@ import numpy as np
 import torch
 from lightning.pytorch.callbacks import BasePredictionWriter
 
-from floaff_zoo.callbacks.report import _jsonable
+from floaff_zoo.callbacks.report import jsonable
 
 
 def _pad_value(dtype: np.dtype) -> Any:
@@ -90,6 +90,6 @@ class PredictionWriter(BasePredictionWriter):
         npz, js = run_dir / f"{stem}.npz", run_dir / f"{stem}.json"
         np.savez_compressed(npz, **arrays)
         shapes = {k: list(v.shape) for k, v in arrays.items()}
-        js.write_text(json.dumps({"n": len(meta), "arrays": shapes, "meta": _jsonable(meta)}, indent=1))
+        js.write_text(json.dumps({"n": len(meta), "arrays": shapes, "meta": jsonable(meta)}, indent=1))
         self.written = {"npz": str(npz), "json": str(js)}
         print(f"floaff-zoo predict: {len(meta)} samples -> {npz} (+ {js.name})", flush=True)

@@ -61,19 +61,19 @@ def package_versions() -> dict[str, str | None]:
     return out
 
 
-def _jsonable(x: Any) -> Any:
+def jsonable(x: Any) -> Any:
     """Convert tensors/numpy/paths inside ``x`` to JSON types (NaN/Inf -> None)."""
     if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
+        return {str(k): jsonable(v) for k, v in x.items()}
     if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
+        return [jsonable(v) for v in x]
     if torch.is_tensor(x):
         x = x.detach().cpu()
-        return _jsonable(x.item() if x.numel() == 1 else x.tolist())
+        return jsonable(x.item() if x.numel() == 1 else x.tolist())
     if isinstance(x, np.generic):
-        return _jsonable(x.item())
+        return jsonable(x.item())
     if isinstance(x, np.ndarray):
-        return _jsonable(x.tolist())
+        return jsonable(x.tolist())
     if isinstance(x, float):
         return x if math.isfinite(x) else None
     if isinstance(x, (str, int, bool)) or x is None:
@@ -93,7 +93,7 @@ def read_config(run_dir: Path) -> dict[str, Any] | None:
     except yaml.YAMLError as exc:
         warnings.warn(f"TestReport: {path} is not valid YAML ({exc}); config left out of the report", stacklevel=2)
         return None
-    return _jsonable(cfg) if isinstance(cfg, dict) else None
+    return jsonable(cfg) if isinstance(cfg, dict) else None
 
 
 class TestReport(L.Callback):
@@ -213,8 +213,8 @@ class TestReport(L.Callback):
             paths = write_figures(self._samples, run_dir / "figures")
             report["figures"] = [p.relative_to(run_dir).as_posix() for p in paths]
         if self.write_episodes and episodes:
-            (run_dir / "sr_episodes.json").write_text(json.dumps(_jsonable(episodes), indent=1))
-        report = _jsonable(report)
+            (run_dir / "sr_episodes.json").write_text(json.dumps(jsonable(episodes), indent=1))
+        report = jsonable(report)
         (run_dir / "report.json").write_text(json.dumps(report, indent=2, sort_keys=False))
         (run_dir / "report.md").write_text(render_markdown(report))
         self.written = {
