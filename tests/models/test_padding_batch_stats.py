@@ -98,3 +98,41 @@ def test_on_valid_rows_all_valid_is_the_plain_call():
     out = on_valid_rows(fn, x, torch.ones(3, 4, dtype=torch.bool))
     assert calls == [torch.Size([3, 4, 2])]
     torch.testing.assert_close(out, x.sum(-1))
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_a_batch_with_one_floor_point_trains(name):
+    """One view with one floor point reaches the per-floor-point BatchNorm as a single row: NavAff's head
+    (a plain ``nn.BatchNorm1d``) raised "Expected more than 1 value per channel when training"."""
+    torch.manual_seed(0)
+    batch = collate_samples([make_synthetic_sample(0, num_points=256, floor_cells=1)])
+    assert int(batch["floor_mask"].sum()) == 1
+    model = _train_without_dropout(_model(name))
+    scores = model(batch)
+    assert scores.shape == (1, 1) and torch.isfinite(scores).all()
+    scores.sum().backward()
+    for key, value in _running_stats(model).items():
+        assert torch.isfinite(value).all(), key
+
+
+def test_one_row_batch_norm_matches_the_fused_kernel_and_keeps_finite_statistics():
+    """The non-fused train-mode path (GPU, autocast) took torch's kernel, which refuses one row (and would store
+    a NaN running variance); it now gives what the fused CPU kernel gives."""
+    from floaff_zoo.nn.pointnet2 import _batch_norm_absorbing_bias, _batch_norm_relu, _fused_bn_relu_ok
+
+    torch.manual_seed(0)
+    z, bias = torch.randn(1, 5), torch.randn(5)
+    fused, plain = nn.BatchNorm1d(5), nn.BatchNorm1d(5)
+    with torch.no_grad():
+        for bn in (fused, plain):
+            bn.weight.uniform_(0.5, 1.5)
+            bn.bias.uniform_(-1.0, 1.0)
+        plain.load_state_dict(fused.state_dict())
+    out = torch.relu(_batch_norm_absorbing_bias(z, bias, plain))
+    torch.testing.assert_close(out, torch.relu(plain.bias.detach()).expand(1, 5))
+    assert torch.isfinite(plain.running_var).all() and int(plain.num_batches_tracked) == 1
+    if _fused_bn_relu_ok(z):
+        # the fused kernel divides a rounding residual by sqrt(eps): equal to about 1e-4
+        torch.testing.assert_close(_batch_norm_relu(z.clone(), bias, fused), out, atol=1e-4, rtol=0)
+        for key in ("running_mean", "running_var"):
+            torch.testing.assert_close(getattr(fused, key), getattr(plain, key), msg=key)

@@ -28,6 +28,7 @@ from floaff_zoo.nn.pointnet2 import (
     SetAbstraction,
     SharedMLP,
     on_valid_rows,
+    one_row_batch_norm,
 )
 
 __all__ = [
@@ -326,7 +327,12 @@ class NavAffNet(nn.Module):
     def _head_logits(self, up: Tensor) -> Tensor:
         """Per-point features [..., 512] -> logits [...]."""
         h = self.head_fc1(up)
-        h = F.relu(self.head_bn(h.reshape(-1, 64)).reshape(h.shape))
+        flat = h.reshape(-1, 64)
+        if self.head_bn.training and flat.shape[0] == 1:  # one view with one floor point: BatchNorm1d refuses it
+            flat = one_row_batch_norm(flat, torch.zeros_like(self.head_bn.bias), self.head_bn)
+        else:
+            flat = self.head_bn(flat)
+        h = F.relu(flat.reshape(h.shape))
         return self.head_fc2(h).squeeze(-1)
 
     def _normalize(self, xyz: Tensor, mask: Tensor) -> Tensor:

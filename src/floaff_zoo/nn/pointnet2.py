@@ -419,6 +419,8 @@ def _batch_norm_absorbing_bias(z: Tensor, bias: Tensor, norm: nn.BatchNorm1d) ->
     running mean, which is corrected here. Saves a pass over the layer's output and the bias-gradient
     reduction, per hidden layer.
     """
+    if z.shape[0] == 1:
+        return one_row_batch_norm(z, bias, norm)
     track = norm.track_running_stats
     m = norm.momentum
     if track:
@@ -429,6 +431,23 @@ def _batch_norm_absorbing_bias(z: Tensor, bias: Tensor, norm: nn.BatchNorm1d) ->
             norm.running_mean.add_(bias.to(norm.running_mean.dtype), alpha=m / (1.0 - m))
     stats = (norm.running_mean, norm.running_var) if track else (None, None)
     return F.batch_norm(z, *stats, norm.weight, norm.bias + 0.0 * bias, True, m, norm.eps)
+
+
+def one_row_batch_norm(z: Tensor, bias: Tensor, norm: nn.BatchNorm1d) -> Tensor:
+    """``norm(z + bias)`` in train mode for a batch of one row, z [1, C], which ``nn.BatchNorm1d`` refuses.
+
+    A batch of one view with one floor point reaches the per-floor-point layers as one row. Its batch mean is
+    the row itself, so the output is BatchNorm's shift and the batch variance is 0; the running statistics take
+    that mean and variance, as the fused CPU kernel (``_BatchNormReLU``) does, where torch's kernel would store
+    a NaN variance. The zero-valued terms keep every parameter in the graph (DDP expects a gradient for each).
+    """
+    if norm.track_running_stats:
+        norm.num_batches_tracked.add_(1)
+        m = norm.momentum if norm.momentum is not None else 1.0 / float(norm.num_batches_tracked)
+        with torch.no_grad():
+            norm.running_mean.mul_(1.0 - m).add_((z[0] + bias).to(norm.running_mean.dtype), alpha=m)
+            norm.running_var.mul_(1.0 - m)
+    return norm.bias + 0.0 * (z + bias) * norm.weight
 
 
 class _NarrowLinear(torch.autograd.Function):
