@@ -45,3 +45,10 @@ def hanging_job(job) -> RolloutResult:
     if job[0]["seed"] == BAD_SEED:
         time.sleep(3600)
     return fake_job(job)
+
+
+def raising_job(job) -> RolloutResult:
+    """Raises a Python exception (a scene that cannot be built) on the scene with seed BAD_SEED."""
+    if job[0]["seed"] == BAD_SEED:
+        raise ValueError("no cabinet wall in this layout")
+    return fake_job(job)

@@ -18,7 +18,7 @@ import pytest
 import torch
 
 from tests.conftest import quiet_trainer_args
-from tests.report._fake_world import ConstantModule
+from tests.report._fake_world import ConstantModule, FakeService
 
 N_SAMPLES = 5  # odd: DistributedSampler repeats sample 0 on rank 1
 VAL_CAP = 3  # max_val_samples: the first 3 samples of the split (each rank collects its first 3)
@@ -104,6 +104,46 @@ def test_sr_and_report_under_ddp_match_one_process(tmp_path, root):
         assert ddp[name] == single[name], name  # counts, SR means and bootstrap stds, report facts
 
 
+class _RaisingService(FakeService):
+    """A rollout service whose rollouts raise (a scene that cannot be built)."""
+
+    def run(self, jobs, progress=False):
+        raise ValueError("no cabinet wall in this layout")
+
+
+def fail_on_rank_zero(out: Path) -> None:
+    """Test with a rollout service that raises: only rank 0 rolls out, while rank 1 waits for its summary."""
+    import lightning as L
+
+    from floaff_zoo.callbacks.rollout import RolloutSuccessRate
+    from tests.report._fake_world import loader, make_samples
+
+    trainer = L.Trainer(
+        accelerator="cpu",
+        devices=2,
+        strategy="ddp",
+        logger=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        enable_checkpointing=False,
+        callbacks=[RolloutSuccessRate(service=_RaisingService, progress=False)],
+        default_root_dir=str(out),
+    )
+    trainer.test(FirstSampleRight(), dataloaders=loader(make_samples(N_SAMPLES), batch_size=2), verbose=False)
+
+
+def test_a_rollout_failure_on_rank_zero_ends_every_rank(tmp_path, root):
+    """Rank 0 raised out of the rollouts while rank 1 waited in the summary's broadcast: rank 1 then ended with
+    gloo's "remote worker crashing" error, which does not say what failed."""
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
+    cmd = [sys.executable, "-m", "tests.report.test_ddp_reports", "2", str(tmp_path / "ddp"), "fail"]
+    done = subprocess.run(cmd, cwd=root, env=env, capture_output=True, text=True, timeout=240)
+    assert done.returncode != 0
+    assert "GLOBAL_RANK: 1" in done.stdout + done.stderr
+    assert "ValueError: no cabinet wall in this layout" in done.stderr
+    assert "the test rollouts failed on rank 0: ValueError: no cabinet wall" in done.stderr
+
+
 @pytest.mark.slow
 def test_floaff_zoo_test_under_ddp_writes_the_report(tmp_path, root, monkeypatch):
     """`floaff-zoo test` with 2 processes: every rank resolves the log dir (a broadcast), rank 0 writes the report
@@ -140,6 +180,9 @@ def test_floaff_zoo_test_under_ddp_writes_the_report(tmp_path, root, monkeypatch
 if __name__ == "__main__":  # the DDP script: python -m tests.report.test_ddp_reports DEVICES OUT
     torch.set_num_threads(1)
     out_dir = Path(sys.argv[2])
+    if sys.argv[3:] == ["fail"]:
+        fail_on_rank_zero(out_dir)
+        sys.exit(0)
     found = run_cases(int(sys.argv[1]), out_dir)
     if found:  # rank 0
         (out_dir / "result.json").write_text(json.dumps(found))

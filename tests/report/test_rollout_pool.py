@@ -15,7 +15,7 @@ import pytest
 
 from floaff_zoo.callbacks.rollout import RolloutSuccessRate
 from floaff_zoo.sim.kitchen import SceneSpec
-from floaff_zoo.sim.rollout import RolloutPoolError, RolloutService
+from floaff_zoo.sim.rollout import RolloutJobError, RolloutPoolError, RolloutService
 from tests.report import _fake_jobs
 from tests.report._fake_world import ConstantModule, LabelModule, loader, make_samples
 
@@ -100,6 +100,22 @@ def test_a_hanging_worker_times_out_naming_the_episode():
         svc.close()
     assert time.monotonic() - t0 < 60
     assert svc._pool is None  # the stuck workers were killed, not left behind
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_a_job_that_raises_is_named(workers):
+    """An exception raised inside a rollout came back bare from a pool worker (which of the jobs raised it was
+    nowhere) and, with one worker, straight from the job function."""
+    svc = RolloutService(workers=workers, job_fn=_fake_jobs.raising_job)
+    try:
+        with pytest.raises(
+            RolloutJobError,
+            match=r"rollout L0_S0_s3_CloseDrawer at \(0\.3, 0\.5, 0\.0\) raised ValueError: no cabinet wall",
+        ):
+            svc.run(_jobs(8))
+        assert svc._pool is None  # the other chunks were stopped, not left running
+    finally:
+        svc.close()
 
 
 def test_pool_chunks_stay_short_however_many_jobs():

@@ -471,6 +471,7 @@ class RolloutSuccessRate(L.Callback):
         skipped_keys = self._gather(trainer, self._skipped.get(stage, []))
         skipped = len(_first_per_key(skipped_keys, skipped_keys))
         summary: dict[str, Any] | None = None
+        failure: Exception | None = None
         if trainer.is_global_zero:
             episodes = self._pool(stage, episodes, self._distributed(trainer))
             summary = {
@@ -489,11 +490,20 @@ class RolloutSuccessRate(L.Callback):
                     "(MoMa-Kitchen/synthetic data cannot be rolled out); SR is n/a for them"
                 )
             if episodes:
-                summary["seconds"] = self._run(episodes)
-                summary.update(summarize_episodes(episodes, self.n_bootstrap))
+                try:
+                    summary["seconds"] = self._run(episodes)
+                    summary.update(summarize_episodes(episodes, self.n_bootstrap))
+                except Exception as exc:  # the other ranks wait in the broadcast below: tell them, then raise
+                    if not self._distributed(trainer):
+                        raise
+                    failure, summary = exc, {"failed": f"{type(exc).__name__}: {exc}"}
             else:
                 summary["reason"] = "no sample carries meta['sim'] (no simulator scene to roll out)"
         summary = trainer.strategy.broadcast(summary, src=0)
+        if "failed" in summary:
+            if failure is not None:
+                raise failure
+            raise RuntimeError(f"RolloutSuccessRate: the {stage} rollouts failed on rank 0: {summary['failed']}")
         self.summaries[stage] = summary
         self.episodes[stage] = episodes if trainer.is_global_zero else []
         if summary["available"]:

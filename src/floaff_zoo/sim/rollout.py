@@ -171,8 +171,21 @@ def _run_job(job: Job) -> RolloutResult:
     return rollout(scene, job[1], None, job[2])
 
 
+class RolloutJobError(RuntimeError):
+    """A rollout raised an exception (a scene that cannot be built, a simulator error); names the episode."""
+
+
+def _run_one(job_fn: Callable[[Job], RolloutResult], job: Job) -> RolloutResult:
+    """``job_fn(job)``; an exception it raises comes back as a RolloutJobError naming the episode (a pool's
+    worker would otherwise hand back the bare exception, with no word of which of thousands of jobs raised it)."""
+    try:
+        return job_fn(job)
+    except Exception as exc:
+        raise RolloutJobError(f"rollout {_describe(job)} raised {type(exc).__name__}: {exc}") from exc
+
+
 def _run_chunk(job_fn: Callable[[Job], RolloutResult], jobs: list[Job]) -> list[RolloutResult]:
-    return [job_fn(j) for j in jobs]
+    return [_run_one(job_fn, j) for j in jobs]
 
 
 #: the most jobs one pool task runs: ``timeout_s`` measures progress in finished tasks, so a task must stay short
@@ -202,7 +215,9 @@ class RolloutService:
     The local pool survives its workers: when a worker process dies (killed, out of memory, a crash in
     MuJoCo) the unfinished jobs are run again on a fresh pool, ``max_retries`` times, then once more each
     alone; a job whose worker still dies, or a pool in which no job (chunk) finishes for ``timeout_s``
-    seconds, raises :class:`RolloutPoolError` naming the episode. It never waits forever.
+    seconds, raises :class:`RolloutPoolError` naming the episode; a pool never waits forever. With one worker
+    (or one job) the jobs run in this process, with no timeout: a rollout ends at its task's horizon. A job that
+    raises an exception ends the run with a :class:`RolloutJobError` naming the episode, on every backend.
     job_fn: the function a worker runs per job (module level, importable by spawned workers; tests use a
     fake one).
     """
@@ -256,7 +271,7 @@ class RolloutService:
         if self.workers == 1 or len(payload) <= 1:
             results = []
             for i, p in enumerate(payload):
-                results.append(self.job_fn(p))
+                results.append(_run_one(self.job_fn, p))
                 if progress and (i + 1) % 10 == 0:
                     print(
                         f"[RolloutService] {i + 1}/{len(payload)} rollouts, {time.perf_counter() - t0:.1f}s", flush=True
@@ -337,6 +352,9 @@ class RolloutService:
                         results[i] = r
                 except cf.process.BrokenProcessPool:  # a worker died: the pool takes no more work
                     lost += idx
+                except RolloutJobError:  # the other chunks' results would be thrown away: stop them now
+                    self._kill_pool()
+                    raise
         if lost:
             self._kill_pool()
         return sorted(lost)
@@ -364,8 +382,8 @@ class RolloutService:
             self._ray_started = True
         # one BLAS/OpenMP thread per worker, as in _worker_init (set before the worker process imports numpy)
         env = {"env_vars": {k: "1" for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}}
-        remote = ray.remote(num_cpus=1, runtime_env=env)(self.job_fn)
-        return ray.get([remote.remote(p) for p in payload])
+        remote = ray.remote(num_cpus=1, runtime_env=env)(_run_one)
+        return ray.get([remote.remote(self.job_fn, p) for p in payload])
 
     def close(self) -> None:
         if self._pool is not None:
