@@ -38,6 +38,10 @@ class C2FExpModule(FloAffModule):
 
     The floor map for the metrics is the final w at every floor point, zeroed off the sampling band
     and on occupied cells, divided by its max ([0, 1]).
+
+    ``feat_channels`` and ``robot_dim`` are the zoo's shared input schema: the data is checked against them as
+    for every model, but the planner reads neither the scene features nor the robot descriptor (C2F-Exp's
+    geometry uses the cloud's xyz and the target only).
     """
 
     trainable: ClassVar[bool] = False
