@@ -106,3 +106,16 @@ def test_float_group_keys_stay_distinct():
     assert [_fmt_key(v) for v in (1.1, 1.25, 1.3, 0.5, 2.0)] == ["1.10", "1.25", "1.30", "0.50", "2.00"]
     assert _fmt_key(1.125) != _fmt_key(1.12) and _fmt_key(1e-5) != _fmt_key(0.0)
     assert [_fmt_key(v) for v in (3, "label", None)] == ["3", "label", "None"]
+
+
+def test_rows_of_different_sr_protocols_are_named_under_the_table(tmp_path, capsys):
+    """Without an Oracle row, rows of different SR protocols shared a column with nothing saying so."""
+    top1, top10 = report(0), report(1, top_k=10, free_space="cloud", label="top-10")
+    for preset in ("sr_views", "sr_tasks"):
+        table = build_table([top1, top10], preset, group_by="label", oracle=False)
+        assert table.mixed == "rows differ in sr.top_k: 1 (CFARModule), 10 (top-10)"
+        assert "; rows differ in sr.top_k: 1 (CFARModule), 10 (top-10). Runs per row" in render(table, "md")
+    runs = write(tmp_path, {"a": top1, "b": top10})
+    assert main(["--runs", *runs, "--preset", "sr_views", "--group-by", "label", "--no-oracle", "--format", "csv"]) == 0
+    assert "note: the rows differ in sr.top_k: 1 (CFARModule), 10 (top-10)" in capsys.readouterr().err
+    assert build_table([top1, report(1)], "sr_views", oracle=False).mixed == ""  # one protocol: no note

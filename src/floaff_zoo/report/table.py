@@ -29,7 +29,9 @@ is marked ``(n=1/2)``. The best mean of each column within a section is bold (th
 A row pools runs of one protocol: reports that differ in the SR protocol (``sr.top_k``; ``sr.free_space`` where
 top_k > 1), ``sim_variant`` or ``metric_reduction``, or two reports of one checkpoint (``checkpoint.sha256``), are
 refused with the row, the setting and the report paths (pass one protocol's reports, e.g. a narrower ``--runs`` glob);
-so is an Oracle row over reports of different SR protocols (or pass ``--no-oracle``).
+so is an Oracle row over reports of different SR protocols (or pass ``--no-oracle``). Rows of different SR protocols
+(without an Oracle row) are allowed, since a top-k ablation compares them on purpose; the Markdown note and stderr name
+the setting and the rows of each value.
 
 Runs whose reports give one scene different label hashes (``data.labels_sha256``: copies of a preset generated on
 different CPUs differ in a few rollouts) are not put in one table unless ``--allow-mixed-data`` says so; reports
@@ -269,6 +271,7 @@ class Table:
     columns: list[Column]
     sections: list[Section]
     note: str = ""
+    mixed: str = ""  # how the rows' SR protocols differ (``mixed_protocols``), named under the table and on stderr
 
 
 def aggregate(values: list[float], inner_std: list[float | None]) -> Cell | None:
@@ -408,6 +411,23 @@ def check_oracle(reports: list[dict[str, Any]], section: str = "") -> None:
     check_protocol("Oracle", with_oracle, section, SR_PROTOCOL, HINT + ", or pass --no-oracle")
 
 
+def mixed_protocols(rows: list[tuple[str, list[dict[str, Any]]]], keys: tuple[str, ...]) -> str:
+    """``"rows differ in sr.top_k: 1 (A, B), 10 (C)"`` when the rows' reports differ in a setting of ``keys``
+    (each row is one protocol, ``check_row``), else ``""``: an SR table without an Oracle row may compare rows of
+    different protocols (a top-k ablation does on purpose), and its note then says so."""
+    parts = []
+    for key in keys:
+        seen: dict[str, list[str]] = {}
+        for name, reports in rows:
+            values = {repr(v) for v in (protocol(r)[key] for r in reports) if v is not None}
+            for v in values:
+                if name not in seen.setdefault(v, []):
+                    seen[v].append(name)
+        if len(seen) > 1:
+            parts.append(f"{key}: " + ", ".join(f"{v} ({', '.join(names)})" for v, names in seen.items()))
+    return f"rows differ in {'; '.join(parts)}" if parts else ""
+
+
 def _row_name(name: str, section: str) -> str:
     """``row 'CFARModule' (FloAff-Kitchen (Styles))``: a row as errors name it."""
     return f"row {name!r}" + (f" ({section})" if section else "")
@@ -534,7 +554,8 @@ def build_table(
             cells = [_oracle_cell(reps, lambda r, v=v: _sr(r, "oracle", view=v)) for _, reps in benches for v in VIEWS]
             if any(c is not None for c in cells):
                 sec.rows.append(Row("Oracle", cells, len(reports), oracle=True))
-        return Table(preset, "Method", columns, [sec], note)
+        rows = [(n, [r for r in reports if _fmt_key(lookup(r, group_by)) == n]) for n in names]
+        return Table(preset, "Method", columns, [sec], note, mixed_protocols(rows, SR_PROTOCOL))
     # sr_tasks
     tasks = [
         t
@@ -550,9 +571,11 @@ def build_table(
         )
     columns = [Column(TASK_SHORT.get(t, t), 2, False) for t in tasks]
     sections = []
+    all_rows: list[tuple[str, list[dict[str, Any]]]] = []
     for title, reps in _sections(reports):
         sec = Section(title)
         for name, group in _group_rows(reps, group_by, False, title):
+            all_rows.append((name, group))
             sec.rows.append(
                 Row(name, [_cell(group, lambda r, t=t: _sr(r, "model", task=t)) for t in tasks], len(group))
             )
@@ -562,7 +585,7 @@ def build_table(
             if any(c is not None for c in cells):
                 sec.rows.append(Row("Oracle", cells, len(reps), oracle=True))
         sections.append(sec)
-    return Table(preset, "Method", columns, sections, note)
+    return Table(preset, "Method", columns, sections, note, mixed_protocols(all_rows, SR_PROTOCOL))
 
 
 # ------------------------------------------------------------------------------------------ rendering
@@ -619,7 +642,8 @@ def render_markdown(table: Table) -> str:
         for r in sec.rows
         if not r.oracle
     )
-    lines += ["", f"_{table.note}. Runs per row: {runs}._"]
+    mixed = f"; {table.mixed}" if table.mixed else ""
+    lines += ["", f"_{table.note}{mixed}. Runs per row: {runs}._"]
     return "\n".join(lines) + "\n"
 
 
@@ -751,6 +775,8 @@ def main(argv: list[str] | None = None) -> int:
             mixed_data=args.allow_mixed_data,
         )
         text = render(table, args.format)
+        if table.mixed:  # LaTeX and CSV carry no note: the reader of the terminal is told
+            print(f"floaff-zoo table: note: the {table.mixed}", file=sys.stderr)
     except TableError as exc:
         print(f"floaff-zoo table: error: {exc}", file=sys.stderr)
         return 2
