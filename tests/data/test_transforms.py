@@ -237,3 +237,16 @@ def test_fit_with_a_negative_num_points_names_the_field_before_any_batch(tmp_pat
         exc = exc.__cause__ or exc.__context__
     assert any("data.num_points must be an integer >= 1 or null" in m and "got -5" in m for m in chain), chain
     assert not list(tmp_path.rglob("*.ckpt"))
+
+
+def test_predict_reads_the_inputs_that_test_scored():
+    """predict reads the test split but drew its resampling and eval transforms from another seed stream, so
+    ``floaff-zoo predict`` wrote maps of other inputs than the ones ``test`` had scored."""
+    dm = SyntheticDataModule(
+        num_train=2, num_val=2, num_test=4, points_per_sample=512, num_points=128, eval_transforms=[YawPerturb(5.0)]
+    )
+    dm.setup("test")
+    dm.setup("predict")
+    test, predict = next(iter(dm.test_dataloader())), next(iter(dm.predict_dataloader()))
+    for key in ("scene_xyz", "target_yaw", "floor_xyz"):
+        assert torch.equal(test[key], predict[key]), key

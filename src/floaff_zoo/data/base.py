@@ -16,7 +16,9 @@ from floaff_zoo.contract import Sample, collate_samples, validate_sample
 from floaff_zoo.data.transforms import SampleTransform, apply_transforms
 
 Split = Literal["train", "val", "test", "predict"]
-_SPLIT_OFFSET = {"train": 0, "val": 1, "test": 2, "predict": 3}
+#: seed stream of each split's eval transforms and resampling; predict reads the test split in every DataModule of the
+#: zoo, so it shares test's stream: ``floaff-zoo predict`` writes the maps of the very inputs ``test`` scored
+_SPLIT_OFFSET = {"train": 0, "val": 1, "test": 2, "predict": 2}
 
 
 class DataConfigError(MisconfigurationException, ValueError):
@@ -138,7 +140,7 @@ class FloAffDataModule(L.LightningDataModule):
     def collate_fn(self, split: str) -> Callable[[Sequence[Sample]], dict[str, Any]]:
         # eval splits resample each sample from its own seeded stream, so metrics repeat across epochs and worker
         # counts; train draws fresh points
-        offsets = {"val": 1, "test": 2, "predict": 3}
+        offsets = {split: _SPLIT_OFFSET[split] for split in ("val", "test", "predict")}
         return partial(
             collate_samples,
             num_points=self.num_points,
