@@ -35,6 +35,29 @@ def test_success_reruns_to_success_and_is_deterministic(scene_factory):
     assert r2.sim_seconds == r.sim_seconds and r2.state == r.state
 
 
+@pytest.mark.parametrize("field", ["qpos", "qvel"])
+def test_a_diverged_simulation_is_unstable_not_a_success(scene_factory, field, tmp_path, monkeypatch):
+    """A NaN in qpos or qvel makes mj_step warn (BADQPOS / BADQVEL) and reset the state to qpos0, where the drawer
+    stands closed: the rollout checked only BADQACC and scored the reset state a CloseDrawer success."""
+    from floaff_zoo.sim.controllers import default_policy
+
+    monkeypatch.chdir(tmp_path)  # MuJoCo writes its warnings to MUJOCO_LOG.TXT in the working directory
+    sc = scene_factory("CloseDrawer")
+    pose, _ = _find_success(sc)
+    policy = default_policy("CloseDrawer")
+    act = policy.act
+
+    def diverging(scene, t):
+        if abs(t - 0.5) < 1e-6:  # half a second in, one arm joint's state becomes NaN
+            adr = scene.robot.arm_qadr[3] if field == "qpos" else scene.robot.arm_dadr[3]
+            getattr(scene.data, field)[adr] = np.nan
+        return act(scene, t)
+
+    policy.act = diverging
+    r = rollout(sc, pose, policy)
+    assert not r.success and r.reason == "unstable"
+
+
 def test_far_pose_fails(scene_factory):
     for task in ("CloseDrawer", "OpenSingleDoor"):
         sc = scene_factory(task)

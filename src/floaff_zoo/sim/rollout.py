@@ -121,7 +121,7 @@ def rollout(
                 break
             mujoco.mj_step(m, d, nsub)
             t += nsub * m.opt.timestep
-            if d.warning[mujoco.mjtWarning.mjWARN_BADQACC].number > 0:
+            if _diverged(d):
                 reason = "unstable"
                 break
             if task.success(scene):
@@ -138,6 +138,16 @@ def rollout(
         wall_seconds=time.perf_counter() - t0,
         state=task.state(scene),
     )
+
+
+#: MuJoCo's warnings of a diverged simulation: on a bad qpos or qvel ``mj_step`` also resets the state to qpos0,
+#: where drawers and doors stand closed, so the close tasks' success check would pass on the reset state
+_DIVERGED = (mujoco.mjtWarning.mjWARN_BADQACC, mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL)
+
+
+def _diverged(d: mujoco.MjData) -> bool:
+    """Whether the simulation diverged since the rollout's reset (any of ``_DIVERGED`` raised)."""
+    return any(d.warning[w].number > 0 for w in _DIVERGED)
 
 
 def _settled(scene: SimScene) -> bool:
