@@ -379,3 +379,26 @@ def test_a_malformed_scene_json_is_a_counted_skip_naming_the_file(floaff_root, t
     assert dm.skips.counts["corrupt_scene_json"] == exp["skips"].get("corrupt_scene_json", 0) + 1
     assert str(sj) in dm.skips.summary()
     assert all(sj.parent.name not in s for split in dm.split_scenes.values() for s in split)
+
+
+def test_strict_raises_for_a_file_that_breaks_after_setup(tmp_path):
+    """strict=True promises an error on the first missing or corrupt file; a file that broke after setup (or any
+    file, with validate=False) was quietly replaced by the next sample."""
+    from tests.data.floaff_fixture import make_floaff_dataset
+
+    root = tmp_path / "fx"
+    make_floaff_dataset(root, problems=False)
+    sid = sorted(p.name for p in (root / "styles").iterdir() if p.name.startswith("CloseDrawer-train"))[0]
+    (root / "styles" / sid / "views" / "front_0000.npz").write_bytes(b"PK\x03\x04 truncated")
+    for strict in (True, False):
+        dm = FloAffKitchenDataModule(
+            root=str(root), benchmark="styles", strict=strict, validate=False, cache=False, val_scenes=0
+        )
+        dm.setup("fit")
+        ds = dm.datasets["train"]
+        i = next(k for k, r in enumerate(ds.records) if r.key.endswith(f"{sid}/front_0000"))
+        if strict:
+            with pytest.raises(DataError, match=rf"{sid}/front_0000 failed at load time .*strict=True"):
+                ds[i]
+        else:
+            assert ds[i]["meta"]["replaces"].endswith(f"{sid}/front_0000")

@@ -31,7 +31,7 @@ import torch
 from torch.utils.data import Dataset
 
 from floaff_zoo.contract import FULL_CLOUD_KEY, TENSOR_KEYS, Sample, SampleError, validate_sample
-from floaff_zoo.data.readers import SampleRecord, SkipLog, source_signature
+from floaff_zoo.data.readers import DataError, SampleRecord, SkipLog, source_signature
 from floaff_zoo.data.transforms import SampleTransform, apply_transforms
 
 CACHE_VERSION = 1
@@ -155,6 +155,8 @@ class RecordDataset(Dataset):
         pre_transforms: deterministic transforms applied once before caching (seeded per record).
         seed: seed of the pre-transforms.
         name: dataset name for messages.
+        strict: a sample that fails to load after setup raises (naming its record) instead of being replaced by
+            the next one, as the DataModule's ``strict`` promises for every missing or corrupt file.
     """
 
     def __init__(
@@ -165,8 +167,10 @@ class RecordDataset(Dataset):
         pre_transforms: Sequence[SampleTransform] | None = None,
         seed: int = 0,
         name: str = "dataset",
+        strict: bool = False,
     ) -> None:
         self.records = list(records)
+        self.strict = strict
         self.loader = loader
         self.cache = cache
         self.pre_transforms = list(pre_transforms or [])
@@ -268,6 +272,11 @@ class RecordDataset(Dataset):
                     s["meta"]["replaces"] = self.records[i].key
                 return s
             except (SampleError, ValueError, OSError, RuntimeError, KeyError) as exc:
+                if self.strict:
+                    raise DataError(
+                        f"{self.name}: sample {self.records[j].key} failed at load time ({exc}) (strict=True; set "
+                        "strict: false to replace such samples by the next one and count them)"
+                    ) from exc
                 self.runtime_failures += 1
                 if self.runtime_failures <= 3:
                     print(f"{self.name}: sample {self.records[j].key} failed at load time ({exc}); using the next one")

@@ -331,7 +331,9 @@ class FloAffKitchenDataModule(FloAffDataModule):
             full = self.full_cloud and split != "train"
             cache = self._cache(reader, full) if self.use_cache else None
             loader = _ViewLoader(reader, full)
-            ds = RecordDataset(recs, loader, cache, self.pre_transforms, self.seed, f"floaff_{self.benchmark}/{split}")
+            ds = RecordDataset(
+                recs, loader, cache, self.pre_transforms, self.seed, f"floaff_{self.benchmark}/{split}", self.strict
+            )
             if self.validate:
                 ds.build(skips, self.num_workers)
             self.datasets[split] = ds

@@ -498,7 +498,9 @@ class MoMaKitchenDataModule(FloAffDataModule):
         if self.use_cache:
             cfg = {**self.reader.config(), "pre_transforms": transforms_config(self.pre_transforms), "seed": self.seed}
             cache = SampleCache(self.cache_dir, "moma_kitchen", cfg, self.cache_hash)
-        ds = RecordDataset(records, self.reader.load, cache, self.pre_transforms, self.seed, f"moma_kitchen/{name}")
+        ds = RecordDataset(
+            records, self.reader.load, cache, self.pre_transforms, self.seed, f"moma_kitchen/{name}", self.strict
+        )
         if self.validate:
             ds.build(skips, self.num_workers)
         return ds
