@@ -250,3 +250,52 @@ def test_main_asks_the_datamodule_for_the_stored_cloud(monkeypatch, tmp_path):
         with pytest.raises(SystemExit, match="spy: stop before loading data"):
             ssr.main(["--root", str(tmp_path), *flags, "m=some.ckpt"])
         assert seen["full_cloud"] is expected
+
+
+def test_label_cell_takes_the_nearest_cell_within_half_a_diagonal():
+    cand = np.array([[0.0, 0.0], [0.1, 0.0], [0.0, 0.1], [0.1, 0.1]])
+    assert ssr.label_cell(cand, (0.1, 0.1, 0.0), 0.1, "s", off_grid=False) == 3
+    assert ssr.label_cell(cand, (0.14, 0.04, 0.0), 0.1, "s", off_grid=True) == 1  # another lattice's cell
+    assert ssr.label_cell(cand, (0.16, 0.16, 0.0), 0.1, "s", off_grid=True) is None  # outside the label window
+    with pytest.raises(ValueError, match="off the scene's candidate grid"):
+        ssr.label_cell(cand, (0.14, 0.04, 0.0), 0.1, "s", off_grid=False)
+
+
+def test_deployment_queries_are_the_robots_grid_and_choices_take_the_nearest_label(sim_scenes):
+    """``--deploy-queries``: the models are asked about ``predict``'s default grid of each view (every stored point),
+    and a choice is scored by the label cell under it. A scorer that knows the labels of the cells under the queries
+    must then succeed exactly in the views whose grid covers a successful label cell."""
+    from floaff_zoo.frames import base_to_world
+    from floaff_zoo.predict import default_floor_grid
+    from floaff_zoo.sim.kitchen import SceneSpec
+    from tests.report._fake_world import loader
+
+    scenes, samples = sim_scenes
+    stored = [{**s, "full_xyz": s["scene_xyz"].clone()} for s in samples]
+    outside = 0  # views whose grid reaches outside the label window: without them the off_grid check says nothing
+    for batch in loader(stored, 4):
+        cell = float(next(iter(scenes.values()))["candidates"]["cell"])
+        dep = ssr.deployment_queries(batch, cell)
+        known = np.zeros(dep["floor_mask"].shape)  # 1: over a successful label cell, 0: a failed one, -1: none
+        expect = []
+        for i, meta in enumerate(batch["meta"]):
+            grid = default_floor_grid(batch["target_xyz"][i].numpy(), batch["full_xyz"][i].numpy(), None, cell)
+            n = int(dep["floor_mask"][i].sum())
+            assert n == len(grid) and torch.equal(dep["floor_xyz"][i, :n], torch.from_numpy(grid))
+            scene = scenes[SceneSpec.from_dict(meta["sim"]).scene_id]
+            cand = np.asarray(scene["candidates"]["xy"], float)
+            success = np.asarray(scene["labels"]["success"]) > 0
+            world = base_to_world(grid, meta["sim"]["base_pose_world"])
+            for j, xy in enumerate(world):
+                c = ssr.label_cell(cand, xy, cell, "s", off_grid=True)
+                known[i, j] = -1.0 if c is None else float(success[c])
+            expect.append(bool((known[i, :n] == 1).any()))
+        rows = ssr.view_outcomes(dep, {"m": [known]}, scenes, off_grid=True)
+        assert [r[2]["m"][0] for r in rows] == expect
+        unknown = -known  # prefers the cells outside the label window: their choices fail as off_grid
+        off = ssr.view_outcomes(dep, {"m": [unknown]}, scenes, off_grid=True)
+        assert all(r[3]["m"][0] == ssr.OFF_GRID and not r[2]["m"][0] for r, k in zip(off, known) if (k == -1).any())
+        outside += sum(bool((k == -1).any()) for k in known)
+    assert outside > 0
+    with pytest.raises(ValueError, match="full_cloud: true"):
+        ssr.deployment_queries(next(iter(loader(samples, 4))), 0.1)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import glob
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 import yaml
@@ -334,3 +335,35 @@ def test_cli_round_trip(name, tmp_path):
     assert ckpts, "fit wrote no checkpoint"
     assert main(["test", *cfg, "--ckpt_path", ckpts[-1], *_cli_common(tmp_path)]) == 0
     assert main(["predict", *cfg, "--ckpt_path", ckpts[-1], *_cli_common(tmp_path)]) == 0
+
+
+def test_prediction_hides_padding_and_names_the_chosen_pose(batch):
+    """predict_step passed the scores of the batch's padded floor points (xyz 0, 0, 0) through unchanged, so an
+    argmax over ``predictions.npz`` could stand the robot at its own origin; it now writes NaN there and the pose
+    the success-rate callback would choose (``best_pose``)."""
+    from floaff_zoo.contract import best_pose
+    from floaff_zoo.models.base import FloAffModule
+
+    mask = batch["floor_mask"]
+    scores = torch.where(mask, torch.full(mask.shape, 0.5), torch.ones(mask.shape))  # padding scores highest
+    scores[1, 5] = 0.9
+    out = FloAffModule.prediction(batch, scores)
+    assert torch.isnan(out["scores"][~mask]).all() and torch.isnan(out["floor_xyz"][~mask]).all()
+    torch.testing.assert_close(out["scores"][mask], scores[mask])
+    expected = best_pose(batch["floor_xyz"][1], scores[1], mask[1], batch["target_xyz"][1], seed=1)[0]
+    torch.testing.assert_close(out["best_pose"][1], torch.tensor(expected, dtype=torch.float32))
+    assert out["best_pose"].shape == (2, 3) and torch.isfinite(out["best_pose"]).all()
+
+
+@pytest.mark.parametrize("name", ["n2m", "c2f_exp"])
+def test_proposed_poses_reach_the_predictions_file(name, batch):
+    """N2M's and C2F-Exp's proposed poses were a list, which the prediction writer dropped without a word."""
+    from floaff_zoo.callbacks.predictions import gather_predictions
+
+    model = tiny_model(name).eval()
+    with torch.no_grad():
+        record = model.predict_step(batch, 0)
+    arrays, _ = gather_predictions([record, record])
+    assert arrays["poses"].shape == (4, 3) and np.isfinite(arrays["poses"]).all()
+    with pytest.warns(UserWarning, match=r"\['notes'\] are not tensors"):
+        gather_predictions([{**record, "notes": ["a", "b"]}])

@@ -2,9 +2,12 @@
 
 ``predictions.npz`` holds one array per tensor the model's ``predict_step`` returns, the batches concatenated
 in the loader's order: ``[N, ...]`` (N samples); a per-point array ``[N, M, ...]`` is padded to the largest view
-(NaN for floats, False for masks, 0 for integers, so ``floor_mask`` says which entries are real). A floor-map
-model writes ``scores``, ``floor_xyz``, ``floor_mask`` and ``target_xyz`` (robot base frame), CFAR also the yaw,
-crop radius and canonical-to-robot transform it used, AxisNet its ``yaw``. ``predictions.json`` holds the samples'
+(NaN for floats, False for masks, 0 for integers, so ``floor_mask`` says which entries are real; a floor-map
+model's ``scores`` and ``floor_xyz`` are NaN on every padded point, its batch's padding included). A floor-map
+model writes ``scores``, ``floor_xyz``, ``floor_mask``, ``target_xyz`` and ``best_pose`` ([N, 3] x, y, yaw: the
+top-scored floor point facing the target, where the success-rate callback stands at top-1) in the robot base frame;
+CFAR also the yaw, crop radius and canonical-to-robot transform it used, N2M and C2F-Exp their own proposed
+``poses`` [N, 3], AxisNet its ``yaw``. ``predictions.json`` holds the samples'
 ``meta`` (scene, view, task, ...) in the same order and each array's shape. Read it back with
 ``np.load(path)`` (no pickle).
 """
@@ -12,6 +15,7 @@ crop radius and canonical-to-robot transform it used, AxisNet its ``yaw``. ``pre
 from __future__ import annotations
 
 import json
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -50,6 +54,9 @@ def gather_predictions(records: list[dict[str, Any]]) -> tuple[dict[str, np.ndar
     """Batch records of ``predict_step`` -> (arrays {key: [N, ...]}, meta [N]); a key missing from a batch is an
     error."""
     keys = [k for k, v in records[0].items() if torch.is_tensor(v)]
+    dropped = [k for k in records[0] if k != "meta" and k not in keys]
+    if dropped:  # a model's extra output that is no tensor (a list of poses) would vanish without a word
+        warnings.warn(f"predict: {dropped} are not tensors and are not written to the predictions file", stacklevel=2)
     arrays: dict[str, np.ndarray] = {}
     for k in keys:
         missing = [i for i, r in enumerate(records) if not torch.is_tensor(r.get(k))]

@@ -37,7 +37,7 @@ from lightning.pytorch.utilities.exceptions import MisconfigurationException
 from torch import Tensor
 from torchmetrics import MetricCollection
 
-from floaff_zoo.contract import Batch, SampleError, check_batch
+from floaff_zoo.contract import Batch, SampleError, best_pose, check_batch
 from floaff_zoo.losses import build_loss
 from floaff_zoo.metrics import affordance_metrics
 
@@ -588,13 +588,29 @@ class FloAffModule(ZooModule):
 
     @staticmethod
     def prediction(batch: Batch, scores: Tensor, **extra: Tensor) -> dict[str, Any]:
-        """A ``predict_step`` record (CPU): scores [B, M], the floor points and target they belong to, meta, and
-        any ``extra`` tensors (e.g. the yaw used)."""
+        """A ``predict_step`` record (CPU): scores [B, M] and the floor points [B, M, 3] they belong to, both NaN
+        where ``floor_mask`` [B, M] is False (the batch's padding, whose scores would otherwise win an argmax at the
+        robot's own origin), the target [B, 3], ``best_pose`` [B, 3] (the top-scored floor point, facing the target,
+        robot base frame: the pose the success-rate callback stands on at top-1, ties broken by the sample's
+        ``index``), meta, and any ``extra`` tensors (e.g. the yaw used)."""
+        mask = batch["floor_mask"].cpu()
+        scores = scores.detach().cpu().float()
+        floor = batch["floor_xyz"].cpu()
+        target = batch["target_xyz"].cpu()
+        nan = float("nan")
+        scored = mask & torch.isfinite(scores)  # a view with no finite score gets a NaN pose, not an error mid-run
+        poses = [
+            best_pose(floor[i], scores[i], scored[i], target[i], seed=int(meta.get("index", i)))[0]
+            if bool(scored[i].any())
+            else (nan, nan, nan)
+            for i, meta in enumerate(batch["meta"])
+        ]
         out = {
-            "scores": scores.detach().cpu(),
-            "floor_xyz": batch["floor_xyz"].cpu(),
-            "floor_mask": batch["floor_mask"].cpu(),
-            "target_xyz": batch["target_xyz"].cpu(),
+            "scores": scores.masked_fill(~mask, nan),
+            "floor_xyz": floor.masked_fill(~mask[..., None], nan),
+            "floor_mask": mask,
+            "target_xyz": target,
+            "best_pose": torch.tensor(poses, dtype=torch.float32).reshape(len(poses), 3),
             "meta": batch["meta"],
         }
         out.update({k: v.detach().cpu() for k, v in extra.items()})

@@ -114,4 +114,6 @@ class C2FExpModule(FloAffModule):
         fxyz, fmask = floor_inputs(batch)
         states = self._searches(batch)
         scores = torch.stack([self.net.score_floor(s, fxyz[i].cpu(), fmask[i].cpu()) for i, s in enumerate(states)])
-        return {**self.prediction(batch, scores), "poses": [self.net.final_pose(s) for s in states]}
+        # a tensor: the prediction writer keeps tensors only (a list of tuples was dropped from predictions.npz)
+        poses = torch.tensor([self.net.final_pose(s) for s in states], dtype=torch.float32).reshape(len(states), 3)
+        return {**self.prediction(batch, scores), "poses": poses}

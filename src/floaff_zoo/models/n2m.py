@@ -196,5 +196,6 @@ class N2MModule(FloAffModule):
         out = super().predict_step(batch, batch_idx, dataloader_idx)
         b = batch["scene_xyz"].shape[0]
         sub = lambda i: {k: (v[i : i + 1] if torch.is_tensor(v) else [v[i]]) for k, v in batch.items()}  # noqa: E731
-        out["poses"] = [self.propose_pose(sub(i)) for i in range(b)]
+        # a tensor: the prediction writer keeps tensors only (a list of tuples was dropped from predictions.npz)
+        out["poses"] = torch.tensor([self.propose_pose(sub(i)) for i in range(b)], dtype=torch.float32).reshape(b, 3)
         return out
