@@ -38,6 +38,19 @@ may still put them just outside it); ``--full-cloud`` checks it in every point t
 sub-squares or more (``floor.footprint_coverage``; a rejected hypothesis, not offered by the callback: docs/results.md,
 "Preferring footprints the view shows").
 
+``--deploy-queries`` asks every model about the floor cells a robot would build itself (``floaff-zoo predict``'s
+default grid: the observed cells of a 0.1 m lattice aligned with the heading from the robot to the target, in the
+same window, read from every point the view's file stores) instead of the benchmark's floor points, which are cells of
+the annotation's lattice, aligned with the simulator's target frame: their arrangement gives that frame away to a
+model whose floor encoder reads the query set. Each chosen cell is then scored by the annotated outcome of the
+nearest label cell within half a cell's diagonal; a choice farther from every label cell (outside the annotation's
+window) counts as a failure, reason ``off_grid``. The nearest-cell outcome is an approximation (the base stands up to
+7 cm from where the annotation rolled out), the same for every model: a query-independent model's change measures it.
+
+``--target-from-mask`` (with ``--deploy-queries``) also gives every model the target point ``floaff_zoo.predict``
+estimates from an RGB-D view without a known target: the centroid of the points that carry the target flag, instead
+of the task's target point (the centre of the fixture's front face), and builds the robot's grid around it.
+
 Labels only, no simulator; one to two minutes per model and benchmark on one core.
 """
 
@@ -46,8 +59,10 @@ from __future__ import annotations
 import argparse
 import copy
 import json
+import math
 import sys
 from collections import defaultdict
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -64,6 +79,8 @@ from floaff_zoo.predict import named_models  # noqa: E402
 Row = tuple[str, str, dict[str, list[bool]], dict[str, list[str]]]
 #: the annotation's reasons kept apart in the breakdown; every other one is a failed rollout
 REASONS = ("success", "filtered_collision", "filtered_reach", "ik_unreachable")
+#: ``--deploy-queries``: a chosen cell with no label cell within half a cell's diagonal (outside the label window)
+OFF_GRID = "off_grid"
 
 
 def parse_models(specs: list[str]) -> dict[str, list[str]]:
@@ -111,6 +128,60 @@ def ensemble_scores(scores: dict[str, list[np.ndarray]]) -> dict[str, list[np.nd
     return {**scores, **{f"{name}+ens": [np.mean(np.stack(scores[name]), axis=0)] for name in ensembled(scores)}}
 
 
+def deployment_queries(batch: dict, cell: float) -> dict:
+    """The batch with its floor points replaced by the cells a robot builds (``predict.default_floor_grid`` over
+    every stored point of the view, ``full_xyz``; no target yaw: the lattice faces the robot): floor_xyz [B, M', 3],
+    floor_mask [B, M'], floor_label 0 (unknown; models do not read it).
+
+    Raises:
+        ValueError: the batch has no stored cloud, or a view shows no floor cell around its target.
+    """
+    from floaff_zoo.contract import SampleError
+    from floaff_zoo.predict import default_floor_grid
+
+    cloud, cloud_mask = check_clouds(batch, "full_cloud")
+    grids = []
+    for i, meta in enumerate(batch["meta"]):
+        try:
+            grids.append(default_floor_grid(batch["target_xyz"][i].numpy(), cloud[i][cloud_mask[i]], None, cell))
+        except SampleError as exc:
+            raise ValueError(f"view {meta.get('sample_id', i)}: {exc}") from exc
+    m = max(len(g) for g in grids)
+    floor = torch.zeros(len(grids), m, 3)
+    mask = torch.zeros(len(grids), m, dtype=torch.bool)
+    for i, g in enumerate(grids):
+        floor[i, : len(g)] = torch.from_numpy(g)
+        mask[i, : len(g)] = True
+    return {**batch, "floor_xyz": floor, "floor_mask": mask, "floor_label": torch.zeros(len(grids), m)}
+
+
+def mask_centroid_targets(batch: dict) -> dict:
+    """The batch with target_xyz [B, 3] replaced by the centroid of each view's points flagged as the target
+    (``scene_feat`` channel 0 > 0), what ``predict`` uses when it is given no target point.
+
+    Raises:
+        ValueError: a view has no flagged point.
+    """
+    flag = (batch["scene_feat"][..., 0] > 0) & batch["scene_mask"]
+    counts = flag.sum(dim=1)
+    if (counts == 0).any():
+        i = int((counts == 0).nonzero()[0])
+        raise ValueError(f"view {batch['meta'][i].get('sample_id', i)}: no point carries the target flag")
+    centroid = (batch["scene_xyz"] * flag[..., None]).sum(dim=1) / counts[:, None]
+    return {**batch, "target_xyz": centroid.to(batch["target_xyz"].dtype)}
+
+
+def label_cell(cand: np.ndarray, xy: Sequence[float], cell: float, where: str, off_grid: bool) -> int | None:
+    """Index of the label cell under a world point xy [2] (cand [M, 2]): within half a cell, or with ``off_grid``
+    within half a cell's diagonal (a lattice of another orientation), else None; without ``off_grid`` a point off
+    the grid is an error."""
+    if not off_grid:
+        return int(nearest_cells(cand, np.array([xy[:2]]), cell, where)[0])
+    d = np.linalg.norm(cand - np.asarray(xy[:2], float), axis=1)
+    c = int(d.argmin())
+    return c if d[c] <= 0.5 * math.sqrt(2.0) * cell + 1e-6 else None
+
+
 def view_outcomes(
     batch: dict,
     scores: dict[str, list[np.ndarray]],
@@ -119,6 +190,7 @@ def view_outcomes(
     margin: float = 0.0,
     full_cloud: bool = False,
     min_observed: float = 0.0,
+    off_grid: bool = False,
 ) -> list[Row]:
     """Annotated outcome of each run's chosen cell, per view of a batch (scores: name -> per run [B, M]).
 
@@ -126,7 +198,8 @@ def view_outcomes(
     ``RolloutSuccessRate(top_k=k, free_space="cloud")`` chooses, the footprint grown by ``margin`` (m) on every side;
     ``full_cloud``: in every point the view's file stores (the batch's ``full_xyz``: ``check_clouds``), not the
     batch's sample; ``min_observed`` > 0: free cells whose footprint that cloud shows on at least this share come
-    first (``cloud_observed``).
+    first (``cloud_observed``); ``off_grid``: the batch's floor points are not label cells (``deployment_queries``),
+    a choice is scored by the nearest label cell, and one outside the annotation's window fails (``OFF_GRID``).
     """
     from floaff_zoo.sim.kitchen import SceneSpec
 
@@ -156,9 +229,12 @@ def view_outcomes(
             out[name], why[name] = [], []
             for s in runs:
                 pose, _ = choose_pose(floor[i], s[i], mask[i], target[i], base, top_k, free, tie, prefer)
-                c = nearest_cells(cand, np.array([pose[:2]]), cell, sid)[0]
-                out[name].append(bool(success[c]))
-                why[name].append(failure_kind(reasons[c]) if reasons is not None else "unknown")
+                c = label_cell(cand, pose, cell, sid, off_grid)
+                out[name].append(c is not None and bool(success[c]))
+                if c is None:
+                    why[name].append(OFF_GRID)
+                else:
+                    why[name].append(failure_kind(reasons[c]) if reasons is not None else "unknown")
         rows.append((meta["task"], sid, out, why))
     return rows
 
@@ -307,6 +383,16 @@ def main(argv: list[str] | None = None) -> int:
         help="with --top-k: prefer free cells whose footprint the checked cloud shows on this share of it (0 = off)",
     )
     p.add_argument("--ensemble", action="store_true", help="also score NAME+ens: the mean map of NAME's runs")
+    p.add_argument(
+        "--deploy-queries",
+        action="store_true",
+        help="ask the models about the floor cells a robot builds (predict's default grid), not the label cells",
+    )
+    p.add_argument(
+        "--target-from-mask",
+        action="store_true",
+        help="with --deploy-queries: the target point is the centroid of the flagged points, as predict estimates it",
+    )
     p.add_argument("--json", default=None)
     a = p.parse_args(argv)
     if a.draws < 1:
@@ -323,6 +409,8 @@ def main(argv: list[str] | None = None) -> int:
         p.error(f"--min-observed must be in [0, 1], got {a.min_observed}")
     if a.min_observed > 0 and a.top_k == 1:
         p.error("--min-observed orders the cells that --top-k checks: give --top-k > 1")
+    if a.target_from_mask and not a.deploy_queries:
+        p.error("--target-from-mask moves the target the robot's grid is built around: give --deploy-queries")
     if a.full_cloud and a.top_k == 1:
         p.error("--full-cloud chooses the cloud that --top-k checks: give --top-k > 1")
     scales = parse_scales(a.residual_scales)
@@ -336,17 +424,26 @@ def main(argv: list[str] | None = None) -> int:
         nets = with_residual_scales({n: [resolve_model(m).eval() for m in ms] for n, ms in groups.items()}, scales)
     except (OSError, ValueError, LookupError) as exc:
         raise SystemExit(f"scene_sr: {exc}") from exc
-    dm, scenes = split_data(
-        "scene_sr", a.root, a.benchmark, a.split, a.num_points, a.full_cloud, val_layout=a.val_layout
-    )
+    stored = a.full_cloud or a.deploy_queries  # the deployment grid reads every stored point, as predict does
+    dm, scenes = split_data("scene_sr", a.root, a.benchmark, a.split, a.num_points, stored, val_layout=a.val_layout)
+    cells = {float(s["candidates"]["cell"]) for s in scenes.values()}
     rows: list[Row] = []
     with torch.no_grad():
         for batch in dm.test_dataloader() if a.split == "test" else dm.val_dataloader():
+            if a.deploy_queries:
+                try:
+                    if a.target_from_mask:
+                        batch = mask_centroid_targets(batch)
+                    batch = deployment_queries(batch, min(cells))
+                except ValueError as exc:
+                    raise SystemExit(f"scene_sr: {exc}") from exc
             scores = {n: [net(batch).numpy() for net in runs] for n, runs in nets.items()}
             if a.ensemble:
                 scores = ensemble_scores(scores)
             try:
-                rows += view_outcomes(batch, scores, scenes, a.top_k, a.footprint_margin, a.full_cloud, a.min_observed)
+                rows += view_outcomes(
+                    batch, scores, scenes, a.top_k, a.footprint_margin, a.full_cloud, a.min_observed, a.deploy_queries
+                )
             except (KeyError, ValueError) as exc:  # a view whose scene is not under the root, a point off its grid
                 raise SystemExit(f"scene_sr: {exc.args[0]}") from exc
     n_runs = {n: len(r) for n, r in nets.items()}
@@ -364,7 +461,7 @@ def main(argv: list[str] | None = None) -> int:
     print()
     print_summary(res)
     shares = reason_shares(rows, names)
-    kinds = [*REASONS, "rollout"] + (["unknown"] if any("unknown" in t["all"] for t in shares.values()) else [])
+    kinds = [*REASONS, "rollout"] + [k for k in ("unknown", OFF_GRID) if any(k in t["all"] for t in shares.values())]
     print()
     print("Share of views by the annotation's verdict on the chosen cell:")
     print("| name | task | " + " | ".join(kinds) + " |")
@@ -387,6 +484,8 @@ def main(argv: list[str] | None = None) -> int:
             "footprint_margin": a.footprint_margin,
             "full_cloud": a.full_cloud,
             "min_observed": a.min_observed,
+            "deploy_queries": a.deploy_queries,
+            "target_from_mask": a.target_from_mask,
             "draws": a.draws,
             "scenes": table,
             **res,

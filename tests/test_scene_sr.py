@@ -299,3 +299,20 @@ def test_deployment_queries_are_the_robots_grid_and_choices_take_the_nearest_lab
     assert outside > 0
     with pytest.raises(ValueError, match="full_cloud: true"):
         ssr.deployment_queries(next(iter(loader(samples, 4))), 0.1)
+
+
+def test_mask_centroid_targets_is_the_mean_of_the_flagged_points(tmp_path, capsys):
+    from floaff_zoo.contract import collate_samples
+    from floaff_zoo.data.synthetic import make_synthetic_sample
+
+    batch = collate_samples([make_synthetic_sample(0, num_points=256), make_synthetic_sample(1, num_points=200)])
+    out = ssr.mask_centroid_targets(batch)
+    for i in range(2):
+        flagged = batch["scene_mask"][i] & (batch["scene_feat"][i, :, 0] > 0)
+        torch.testing.assert_close(out["target_xyz"][i], batch["scene_xyz"][i][flagged].mean(dim=0))
+    blind = {**batch, "scene_feat": torch.zeros_like(batch["scene_feat"])}
+    with pytest.raises(ValueError, match="no point carries the target flag"):
+        ssr.mask_centroid_targets(blind)
+    with pytest.raises(SystemExit):
+        ssr.main(["--root", str(tmp_path), "--target-from-mask", "a=x.ckpt"])
+    assert "give --deploy-queries" in capsys.readouterr().err
