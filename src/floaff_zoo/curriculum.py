@@ -270,6 +270,8 @@ _RECORD_FIELDS: dict[str, tuple[type, ...]] = {
     "checkpoint": (str,),
     "sha256": (str,),
     "before": (list,),
+    "inputs": (dict,),
+    "fit_ended": (bool,),
 }
 
 
@@ -335,12 +337,28 @@ def _finished(record: dict[str, Any] | None, args: list[str]) -> tuple[bool, str
     # records written before digests were kept have none: their arguments alone decide, as they did
     if record.get("digest") and record["digest"] != _digest(args):
         return False, "a --config file it reads changed since it finished"
+    # records written before input files were kept have none: their arguments and --config files decide, as they did
+    if record.get("inputs") is not None:
+        now = _input_files(args)
+        changed = sorted(f for f in set(now) | set(record["inputs"]) if now.get(f) != record["inputs"].get(f))
+        if changed:
+            return False, f"a file its arguments name changed since it finished ({changed[0]})"
     ckpt = record.get("checkpoint")
     if not ckpt or not Path(ckpt).is_file():
         return False, f"its checkpoint {ckpt} is missing"
     if record.get("sha256") and _sha256(ckpt) != record["sha256"]:
         return False, f"its checkpoint {ckpt} changed (sha256 mismatch)"
     return True, ""
+
+
+#: arguments naming files of these kinds are inputs whose content a finished stage depends on (an earlier stage's
+#: checkpoint as teacher or weights, a label file): a stage re-fit into the same path leaves the arguments unchanged
+INPUT_SUFFIXES = (".ckpt", ".safetensors", ".pt", ".pth", ".npz")
+
+
+def _input_files(args: list[str]) -> dict[str, str]:
+    """{path: sha256} of every existing file of an ``INPUT_SUFFIXES`` kind that a fit argument names."""
+    return {a: _sha256(a) for a in args if a.endswith(INPUT_SUFFIXES) and Path(a).is_file()}
 
 
 def _metrics(cli: Any) -> dict[str, float]:
@@ -396,13 +414,26 @@ def _claim_runs(sdir: Path, record: dict[str, Any] | None) -> None:
 
 
 def _run_digest(run: Path) -> str | None:
-    """The stage digest recorded in a run directory (None: unknown arguments wrote it)."""
+    """The stage digest recorded in a run directory (None: unknown arguments wrote it, or its fit finished: a
+    finished run is never resumed, see :func:`_mark_finished`)."""
     mark = _read_json(run / RUN_FILE, _RECORD_FIELDS)
-    return mark.get("digest") if mark else None
+    return mark.get("digest") if mark and not mark.get("fit_ended") else None
+
+
+def _mark_finished(run: Path, record: dict[str, Any]) -> None:
+    """Mark a run directory whose fit ended as finished. A stage re-fit because its checkpoint went missing or
+    changed, and killed before its first checkpoint, would otherwise resume this run: Lightning trains nothing past
+    its last epoch and the stage records whatever file then sits at the old best path."""
+    mark = _read_json(run / RUN_FILE, _RECORD_FIELDS) or {
+        "stage": record.get("stage"),
+        "digest": record.get("digest"),
+        "args": record.get("args"),
+    }
+    _write_json(run / RUN_FILE, {**mark, "fit_ended": True})
 
 
 def _resume_point(sdir: Path, digest: str) -> Path | None:
-    """The newest ``last*.ckpt`` of a run written with this stage digest (None: nothing to resume)."""
+    """The newest ``last*.ckpt`` of an unfinished run written with this stage digest (None: nothing to resume)."""
     lasts = [p for p in sdir.rglob("last*.ckpt") if _run_digest(_run_dir(p)) == digest]
     return max(lasts, key=lambda p: p.stat().st_mtime, default=None)
 
@@ -515,12 +546,15 @@ def _fit_stage(
             else "enable checkpointing"
         )
         raise CurriculumError(f"stage {name}: the fit wrote no checkpoint ({why})")
+    for run in {_run_dir(Path(p)) for p in (ckpt, cb.last_model_path) if p}:
+        _mark_finished(run, running)
     score = getattr(cb, "best_model_score", None)
     record = {
         "stage": name,
         "status": "done",
         "args": args,
         "digest": running["digest"],
+        "inputs": _input_files(args),
         "resumed_from": str(resume) if resume else None,
         "configs": _config_files(args),
         "tasks": stage.get("tasks"),

@@ -111,6 +111,8 @@ def test_rerun_skips_finished_and_resumes_killed_stage(pfal_run, capsys):
     stage_file = run_root / "stage2_drawer" / "stage.json"
     rec = json.loads(stage_file.read_text())
     stage_file.write_text(json.dumps({"stage": rec["stage"], "status": "running", "args": rec["args"]}))
+    mark_file = Path(rec["checkpoint"]).parents[1] / "curriculum_run.json"  # a killed fit never marks its run ended
+    mark_file.write_text(json.dumps({k: v for k, v in json.loads(mark_file.read_text()).items() if k != "fit_ended"}))
     seen = []
 
     def spy(args):

@@ -137,3 +137,49 @@ def test_finished_stage_reruns_when_a_config_file_it_reads_changed(tmp_path, cap
     (new,) = run_curriculum(exp, runner=_spy(seen))
     assert len(seen) == 1 and "a --config file it reads changed" in capsys.readouterr().out
     assert new["digest"] != old["digest"] and new["checkpoint"] != old["checkpoint"]
+
+
+def test_a_finished_run_is_never_resumed(tmp_path, capsys):
+    """A finished stage whose checkpoint was replaced is re-fit; when that re-fit was killed before its first
+    checkpoint, the next run resumed the OLD finished run: Lightning trained nothing and the stage recorded whatever
+    file then sat at the old best path (here another fit's checkpoint) as done."""
+    exp = _experiment(tmp_path, max_epochs=2)
+    (old,) = run_curriculum(exp)
+    other = run_lightning(
+        ["fit", "--config", str(ROOT / "configs/data/synthetic_tiny.yaml"), "--config",
+         str(ROOT / "configs/models/tiny_pointnet.yaml"), "--trainer.max_epochs", "1", "--trainer.accelerator", "cpu",
+         "--trainer.enable_progress_bar", "false", "--trainer.default_root_dir", str(tmp_path / "other"),
+         "--model.init_args.train.lr", "0.5"]
+    )  # fmt: skip
+    Path(old["checkpoint"]).write_bytes(Path(other.trainer.checkpoint_callback.best_model_path).read_bytes())
+    with pytest.raises(KeyboardInterrupt):
+        run_curriculum(exp, runner=_killed_after(0))
+    capsys.readouterr()
+    seen: list = []
+    (new,) = run_curriculum(exp, runner=_spy(seen))
+    assert "--ckpt_path" not in seen[0] and new["resumed_from"] is None
+    assert Path(new["checkpoint"]).parents[1] != Path(old["checkpoint"]).parents[1]
+    state = torch.load(new["checkpoint"], weights_only=True)
+    assert state["hyper_parameters"]["train"]["lr"] == pytest.approx(0.01)  # the stage's own fit, not the swap
+
+
+def test_a_later_stage_reruns_when_its_teacher_was_refit_into_the_same_path(tmp_path, capsys):
+    """Stage 2 names stage 1's checkpoint by path. Without validation that path is .../version_0/.../last.ckpt:
+    stage 1 re-fit into a fresh folder writes a new checkpoint at the same path, and stage 2 (its arguments
+    unchanged) was skipped as finished, trained from a teacher that no longer exists."""
+    import shutil
+
+    exp = _experiment(tmp_path, max_epochs=1)
+    spec = yaml.safe_load(exp.read_text())
+    spec["stages"] = [{"name": "s1"}, {"name": "s2", "from_stages": {"model.init_args.weights": "s1"}}]
+    spec["overrides"]["trainer.limit_val_batches"] = 0  # no validation: each stage's checkpoint is its last.ckpt
+    exp.write_text(yaml.safe_dump(spec))
+    s1, s2 = run_curriculum(exp)
+    spec["stages"][0]["overrides"] = {"model.init_args.train.lr": 0.003}  # stage 1 only: stage 2's arguments stay
+    exp.write_text(yaml.safe_dump(spec))
+    shutil.rmtree(tmp_path / "run" / "s1")  # stage 1 is re-fit with another recipe into the same folder
+    seen: list = []
+    new1, new2 = run_curriculum(exp, runner=_spy(seen))
+    assert new1["checkpoint"] == s1["checkpoint"] and new1["sha256"] != s1["sha256"]  # same path, new weights
+    assert len(seen) == 2 and "a file its arguments name changed" in capsys.readouterr().out
+    assert new2["inputs"] == {new1["checkpoint"]: new1["sha256"]}
