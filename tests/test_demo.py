@@ -50,3 +50,14 @@ def test_demo_end_to_end(root, monkeypatch, tmp_path):
     for rep in reports:
         data = json.loads(rep.read_text())
         assert data["sr"]["available"] and data["sr"]["oracle"]["all"]["mean"] >= 0.9
+
+
+def test_demo_outside_the_repository_is_one_line(tmp_path, monkeypatch, capsys):
+    """Run from another folder, the demo ended in a traceback (FileNotFoundError) instead of a one-line error."""
+    from floaff_zoo.demo import main as demo_main
+
+    monkeypatch.chdir(tmp_path)
+    assert demo_main([], raise_errors=False) == 2
+    err = capsys.readouterr().err
+    assert "demo configs not found" in err and "run the demo from the repository root" in err
+    assert "Traceback" not in err

@@ -34,9 +34,13 @@ def _step(i: int, n: int, text: str) -> None:
 
 
 def _check_configs() -> None:
+    """Raise RunError (one line on the console, no traceback) when the demo's configs are not below the working
+    directory."""
+    from floaff_zoo.runs import RunError
+
     missing = [p for p in (EXPERIMENT, DATA_CONFIG, BASELINE_CONFIG, EVAL_CONFIG) if not Path(p).is_file()]
     if missing:
-        raise FileNotFoundError(f"demo configs not found: {missing}; run the demo from the repository root")
+        raise RunError(f"demo configs not found: {missing}; run the demo from the repository root")
 
 
 def _fit_baseline(data: str, root: Path, epochs: int) -> Path:

@@ -207,8 +207,10 @@ def backproject_depth(
     k = np.asarray(intrinsics, dtype=np.float64).reshape(-1)
     if k.size == 9:  # a 3x3 K matrix
         k = np.array([k[0], k[4], k[2], k[5]])
-    if k.size != 4 or k[0] <= 0 or k[1] <= 0:
-        raise ValueError(f"predict: intrinsics must be (fx, fy, cx, cy) with fx, fy > 0 or a 3x3 K, got {intrinsics!r}")
+    if k.size != 4 or not np.isfinite(k).all() or k[0] <= 0 or k[1] <= 0:
+        raise ValueError(
+            f"predict: intrinsics must be finite (fx, fy, cx, cy) with fx, fy > 0 or a 3x3 K, got {intrinsics!r}"
+        )
     pose = np.asarray(camera_pose, dtype=np.float64)
     if pose.shape != (4, 4) or not np.isfinite(pose).all():
         raise ValueError(f"predict: camera_pose must be a finite 4x4 camera-to-base matrix, got shape {pose.shape}")
@@ -325,6 +327,7 @@ def predict_from_points(
         target_xyz [3]; target_yaw: yaw of the target's front normal (None: faces the robot).
         k: number of top poses returned.
         num_points: scene points fed to the model (random subset / repeats, seeded); None = all.
+        seed: seeds that subset and the tie-break among equal scores (``contract.best_pose``).
         cell: cell (m, > 0) of the default grid and of the returned raster; None = DEFAULT_FLOOR_CELL for
             the default grid, else the candidates' own spacing (median nearest-neighbour distance). A grid or
             raster of more than MAX_RASTER_CELLS cells is refused.
@@ -380,7 +383,7 @@ def predict_from_points(
         raise FloatingPointError(
             f"predict: {type(net).__name__} returned {int((~np.isfinite(scores)).sum())} NaN/Inf score(s)"
         )
-    poses = best_pose(floor, scores, None, t, k=max(1, k))
+    poses = best_pose(floor, scores, None, t, k=max(1, k), seed=seed)  # seed: the tie-break, as documented
     return Prediction(
         floor_xyz=floor,
         scores=scores,
@@ -414,12 +417,18 @@ def predict(
     seed: int = 0,
     window: tuple[float, float] = CANDIDATE_WINDOW,
     task: str = "",
+    target_xyz: np.ndarray | list[float] | None = None,
 ) -> Prediction:
     """Floor affordance from one RGB-D view (see the module docstring for frames and defaults).
 
     Args:
         rgb [H, W, 3] uint8 or float in [0, 1] (None: no colour channels); depth [H, W] metres;
         target_mask [H, W] bool: the target's pixels (its points get flag +1, others 0);
+        target_xyz [3] (base frame): the task's target point as the models learnt it, the centre of the fixture's
+            front face on the generated benchmark (the handle side of a door or drawer, the opening of a cabinet).
+            None: the centroid of the mask's points, which lies behind that face (0.07-0.28 m off in the plane,
+            median per task, on the dense preset's test views; docs/method.md, "The target point and the floor
+            queries", with what it costs); pass it whenever the robot knows it better.
         the rest as in :func:`predict_from_points`.
     """
     check_cell(cell)  # before back-projecting: a bad cell fails at once
@@ -447,7 +456,8 @@ def predict(
     tgt = valid & (flag > 0)
     if not tgt.any():
         raise SampleError("predict: target_mask marks no pixel with valid depth; cannot locate the target")
-    target_xyz = xyz[tgt].mean(axis=0)
+    if target_xyz is None:
+        target_xyz = xyz[tgt].mean(axis=0)
     return predict_from_points(
         model,
         xyz[valid],

@@ -182,3 +182,30 @@ def test_package_level_call():
     mask[20:24, 30:34] = True
     out = floaff_zoo.predict(ConstantModule(), None, depth, k, pose, mask, [0.85, 1.03], max_depth=20.0)
     assert isinstance(out, Prediction) and callable(floaff_zoo.predict.predict_from_points)
+
+
+def test_seed_breaks_ties_and_a_known_target_replaces_the_mask_centroid():
+    """predict's ``seed`` did not reach the tie-break (every seed chose the same of equal cells), and an RGB-D call
+    could only use the centroid of the mask's points as the target, not the target point the models learnt."""
+    xyz, feat, t = _scene()
+    floor = np.array([[0.2 + 0.1 * i, 0.3 * (i % 3) - 0.3, 0.0] for i in range(8)], np.float32)
+    picks = {
+        predict_from_points(ConstantModule(), xyz, feat, floor, [0.85, 1.03], t, seed=s).best_pose for s in range(6)
+    }
+    assert len(picks) > 1
+    depth, k, pose = _floor_depth()
+    mask = np.zeros(depth.shape, bool)
+    mask[20:24, 30:34] = True
+    known = np.array([2.5, 0.2, 0.0], np.float32)
+    out = predict(ConstantModule(), None, depth, k, pose, mask, [0.85, 1.03], target_xyz=known, max_depth=20.0)
+    np.testing.assert_allclose(out.target_xyz, known)
+    assert out.best_pose[2] == pytest.approx(math.atan2(known[1] - out.best_pose[1], known[0] - out.best_pose[0]))
+    with pytest.raises(ValueError, match="intrinsics must be finite"):
+        predict(ConstantModule(), None, depth, (float("nan"), 50.0, 32.0, 24.0), pose, mask, [0.85, 1.03])
+
+
+def test_world_yaw_is_in_the_half_open_interval():
+    from floaff_zoo.frames import pose_to_world
+
+    assert pose_to_world((0.0, 0.0, -math.pi / 2), (0.0, 0.0, -math.pi / 2))[2] == pytest.approx(math.pi)
+    assert pose_to_world((0.0, 0.0, math.pi / 2), (0.0, 0.0, math.pi / 2))[2] == pytest.approx(math.pi)
