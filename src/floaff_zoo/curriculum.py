@@ -47,6 +47,7 @@ import argparse
 import csv
 import hashlib
 import json
+import os
 import shlex
 import sys
 import time
@@ -80,17 +81,30 @@ def _merge(base: Any, over: Any) -> Any:
     return over
 
 
-def load_experiment(path: str | Path, _seen: tuple[Path, ...] = ()) -> dict[str, Any]:
-    """Read an experiment YAML (following ``extends``) and check its structure.
+def load_experiment(path: str | Path) -> dict[str, Any]:
+    """Read an experiment YAML (following ``extends``) and check its structure. Without a ``root`` in any file of
+    the chain, the runs go to ``runs/<this file's stem>``: an experiment that extends another without naming its
+    own root does not write into the other's run folder.
 
     Raises:
         CurriculumError: naming the file and the problem.
     """
     path = Path(path)
+    cfg = _load_chain(path, ())
+    cfg.setdefault("root", f"runs/{path.stem}")
+    _check(cfg, path)
+    return cfg
+
+
+def _load_chain(path: Path, seen: tuple[Path, ...], by: Path | None = None) -> dict[str, Any]:
+    """One experiment file merged over the files it ``extends`` (``by``: the file that extends this one, named
+    when this one is missing); each file's own keys are checked here, the merged whole by ``_check``."""
     if not path.is_file():
+        if by is not None:
+            raise CurriculumError(f"experiment config {by}: 'extends' {path.name}: no such file ({path})")
         raise CurriculumError(f"experiment config {path}: no such file")
-    if path.resolve() in _seen:
-        raise CurriculumError(f"experiment config {path}: 'extends' cycle {[str(p) for p in _seen]}")
+    if path.resolve() in seen:
+        raise CurriculumError(f"experiment config {path}: 'extends' cycle {[str(p) for p in seen]}")
     try:
         cfg = yaml.safe_load(path.read_text()) or {}
     except yaml.YAMLError as exc:
@@ -105,10 +119,8 @@ def load_experiment(path: str | Path, _seen: tuple[Path, ...] = ()) -> dict[str,
     if cfg.get("extends") is not None and not isinstance(cfg["extends"], str):
         raise CurriculumError(f"experiment config {path}: 'extends' must be a file name, got {cfg['extends']!r}")
     if cfg.get("extends"):
-        parent = load_experiment(path.parent / cfg["extends"], _seen + (path.resolve(),))
+        parent = _load_chain(path.parent / cfg["extends"], seen + (path.resolve(),), path)
         cfg = _merge(parent, {k: v for k, v in cfg.items() if k != "extends"})
-    cfg.setdefault("root", f"runs/{path.stem}")
-    _check(cfg, path)
     return cfg
 
 
@@ -137,6 +149,14 @@ def _check(cfg: dict[str, Any], path: Path) -> None:
     for i, st in enumerate(stages):
         _check_stage(st, f"{where}: stage {i}", names)
         names.append(st["name"])
+    # each stage keeps its record in its folder: two stages in one folder overwrite each other's and always rerun
+    dirs = [(st["name"], stage_dir(cfg, st, Path(cfg["root"])).resolve()) for st in stages]
+    for i, (a, da) in enumerate(dirs):
+        for b, db in dirs[i + 1 :]:
+            if da == db or da.is_relative_to(db) or db.is_relative_to(da):
+                raise CurriculumError(
+                    f"{where}: stages {a!r} and {b!r} share a folder ({da} and {db}); give each its own"
+                )
 
 
 def _check_root(root: Any, where: str, optional: bool) -> None:
@@ -324,7 +344,7 @@ def read_lineage(root: str | Path, finished: bool = True) -> dict[str, Any]:
 
 def _write_json(path: Path, data: dict[str, Any]) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp")
+    tmp = path.with_suffix(f".{os.getpid()}.tmp")  # per process: two runners writing one record never share it
     tmp.write_text(json.dumps(data, indent=2, sort_keys=False))
     tmp.replace(path)  # atomic: a kill never leaves half a record
 
@@ -622,11 +642,14 @@ def run_curriculum(
         _check_stages(cfg, root, extra, flags)
     lineage_path = root / LINEAGE_FILE
     if not dry_run:  # a damaged lineage of an earlier run is reported, not silently replaced
-        _read_json(lineage_path)
+        earlier = _read_json(lineage_path)
         try:  # an unwritable --root fails here in one line, not as a traceback in the first stage
             root.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise CurriculumError(f"--root {root}: cannot create the run folder ({exc})") from exc
+        if earlier is not None and earlier.get("complete"):
+            # until this run has checked every stage, the earlier lineage may name checkpoints being re-fit
+            _write_json(lineage_path, {**earlier, "complete": False})
     lineage = {
         "experiment": str(config),
         "root": str(root),

@@ -183,3 +183,39 @@ def test_a_later_stage_reruns_when_its_teacher_was_refit_into_the_same_path(tmp_
     assert new1["checkpoint"] == s1["checkpoint"] and new1["sha256"] != s1["sha256"]  # same path, new weights
     assert len(seen) == 2 and "a file its arguments name changed" in capsys.readouterr().out
     assert new2["inputs"] == {new1["checkpoint"]: new1["sha256"]}
+
+
+def test_experiment_checks_extends_roots_and_shared_folders(tmp_path):
+    """An experiment extending another without a root wrote into the other's run folder; a missing 'extends' file
+    was named without the file that extends it; two stages in one folder overwrote each other's records."""
+    from floaff_zoo.curriculum import CurriculumError, load_experiment
+
+    parent = tmp_path / "parent.yaml"
+    spec = yaml.safe_load(_experiment(tmp_path).read_text())
+    del spec["root"]
+    parent.write_text(yaml.safe_dump(spec))
+    child = tmp_path / "child.yaml"
+    child.write_text(yaml.safe_dump({"extends": "parent.yaml", "overrides": {"trainer.max_epochs": 1}}))
+    assert load_experiment(child)["root"] == "runs/child" and load_experiment(parent)["root"] == "runs/parent"
+    orphan = tmp_path / "orphan.yaml"
+    orphan.write_text(yaml.safe_dump({"extends": "nonexist.yaml"}))
+    with pytest.raises(CurriculumError, match=r"orphan\.yaml: 'extends' nonexist\.yaml: no such file"):
+        load_experiment(orphan)
+    spec["stages"] = [{"name": "a", "root": str(tmp_path / "same")}, {"name": "b", "root": str(tmp_path / "same")}]
+    parent.write_text(yaml.safe_dump(spec))
+    with pytest.raises(CurriculumError, match="stages 'a' and 'b' share a folder"):
+        load_experiment(parent)
+
+
+def test_a_rerun_marks_the_earlier_lineage_incomplete_until_it_is_checked(tmp_path):
+    """While a rerun re-fits an earlier stage, read_lineage accepted the previous run's lineage as complete."""
+    from floaff_zoo.curriculum import CurriculumError, read_lineage
+
+    exp = _experiment(tmp_path, max_epochs=1)
+    run_curriculum(exp)
+    assert read_lineage(tmp_path / "run")["complete"] is True
+    with pytest.raises(KeyboardInterrupt):
+        run_curriculum(exp, sets=["model.init_args.train.lr=0.003"], runner=_killed_after(0))
+    with pytest.raises(CurriculumError):
+        read_lineage(tmp_path / "run")
+    assert read_lineage(tmp_path / "run", finished=False)["complete"] is False
