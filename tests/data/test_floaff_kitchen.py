@@ -402,3 +402,52 @@ def test_strict_raises_for_a_file_that_breaks_after_setup(tmp_path):
                 ds[i]
         else:
             assert ds[i]["meta"]["replaces"].endswith(f"{sid}/front_0000")
+
+
+def test_a_copied_scene_folder_is_skipped_not_read_twice(tmp_path, capsys):
+    """A copy of a scene folder (X.bak) was read again under the same scene id: its views counted twice in
+    training and in the test metrics, under the same sample ids."""
+    import shutil
+
+    from tests.data.floaff_fixture import make_floaff_dataset
+
+    root = tmp_path / "fx"
+    make_floaff_dataset(root, problems=False)
+    sid = sorted(p.name for p in (root / "styles").iterdir() if p.name.startswith("CloseDrawer-test"))[0]
+    shutil.copytree(root / "styles" / sid, root / "styles" / f"{sid}.bak")
+    dm = FloAffKitchenDataModule(root=str(root), benchmark="styles", cache=False, val_scenes=0)
+    dm.setup("test")
+    ids = [r.meta["sample_id"] for r in dm.datasets["test"].records]
+    assert len(ids) == len(set(ids)) > 0
+    out = capsys.readouterr().out
+    assert "duplicate_scene" in out and f"{sid}.bak" in out
+
+
+def test_a_transient_read_error_is_not_remembered(tmp_path, monkeypatch):
+    """One I/O error while reading a view (EIO) wrote a skip marker into the cache, keyed by the file's size and
+    mtime: the readable file stayed out of every later run until it changed, reported as a "corrupt npz"."""
+    import numpy as np
+
+    import floaff_zoo.sim.fileformat as ff
+    from tests.data.floaff_fixture import make_floaff_dataset
+
+    root = tmp_path / "fx"
+    make_floaff_dataset(root, problems=False)
+    real, calls = np.load, []
+
+    def flaky(path, *args, **kwargs):
+        calls.append(path)
+        if len(calls) == 1:
+            raise OSError(5, "Input/output error")
+        return real(path, *args, **kwargs)
+
+    def train_size() -> int:
+        dm = FloAffKitchenDataModule(root=str(root), benchmark="styles", val_scenes=0, cache_dir=str(tmp_path / "c"))
+        dm.setup("fit")
+        return len(dm.datasets["train"])
+
+    monkeypatch.setattr(ff.np, "load", flaky)
+    first = train_size()
+    monkeypatch.setattr(ff.np, "load", real)
+    assert train_size() == first + 1  # the view is back once the disk reads it
+    assert not list((tmp_path / "c").rglob("*.skip"))

@@ -144,6 +144,18 @@ def _record_seed(seed: int, key: str) -> np.random.Generator:
     return np.random.default_rng([seed, int(hashlib.sha256(key.encode()).hexdigest()[:15], 16)])
 
 
+def _transient(exc: BaseException) -> bool:
+    """Whether a load error may pass: an I/O error of the disk or file system (not a missing file), raised or
+    wrapped by a reader. Its record is skipped this time but not marked in the cache, so the next setup reads it
+    again (a marker stands until the source file changes)."""
+    seen: BaseException | None = exc
+    while seen is not None:  # readers wrap errors (FormatError from OSError, then a reader's own error)
+        if isinstance(seen, OSError) and not isinstance(seen, FileNotFoundError):
+            return True
+        seen = seen.__cause__
+    return False
+
+
 class RecordDataset(Dataset):
     """Samples from reader records, through the cache; ``build`` validates them all at setup.
 
@@ -218,7 +230,7 @@ class RecordDataset(Dataset):
             return None
         except (SampleError, ValueError, OSError, RuntimeError, KeyError, IndexError) as exc:
             kind, problem = classify_error(exc), str(exc)
-            if path is not None:
+            if path is not None and not _transient(exc):
                 self.cache.mark_skipped(path, kind, problem)
             return kind, problem
 

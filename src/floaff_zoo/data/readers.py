@@ -252,10 +252,16 @@ class GeneratedReader(FloAffReader):
                 self.skips.add("scene_not_ok", sj, f"status {rec.get('status')!r}")
                 continue
             try:
-                out.append(self._entry(rec, d, benchmark))
+                entry = self._entry(rec, d, benchmark)
             except (KeyError, TypeError, ValueError, AttributeError) as exc:  # a field of the wrong kind or missing
                 why = f"missing field {exc}" if isinstance(exc, KeyError) else str(exc)
                 self.skips.add("corrupt_scene_json", sj, why)
+                continue
+            first = next((e for e in out if e.scene_id == entry.scene_id), None)
+            if first is not None:  # a copied folder (X.bak) would count its views twice under one sample id
+                self.skips.add("duplicate_scene", sj, f"scene {entry.scene_id} is already read from {first.dir}")
+                continue
+            out.append(entry)
         return out
 
     def _entry(self, rec: dict[str, Any], d: Path, benchmark: str) -> SceneEntry:

@@ -280,6 +280,8 @@ def read_view(path: str | Path, format_version: int | None = None, n_cells: int 
             arrays = {k: z[k] for k in z.files}
     except FileNotFoundError as exc:
         raise FormatError(f"{path}: file not found") from exc
+    except OSError as exc:  # the disk or the file system failed, maybe for the moment: not the file's content
+        raise FormatError(f"{path}: unreadable ({type(exc).__name__}: {exc})") from exc
     except Exception as exc:  # noqa: BLE001 - zipfile.BadZipFile, EOFError, ValueError (pickled data), ...
         raise FormatError(f"{path}: corrupt npz ({type(exc).__name__}: {exc})") from exc
     validate_view(arrays, path, format_version, n_cells)
