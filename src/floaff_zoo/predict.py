@@ -61,6 +61,9 @@ class Prediction:
     floor_xyz [M, 3] candidates; scores [M] in [0, 1]; grid/raster: the map rasterised on a
     FloorGrid (raster [H, W], NaN where no candidate); best_pose (x, y, yaw facing the target);
     top_poses: the ``k`` best poses, best first (ties: contract.best_pose's seeded random tie-break).
+    The raster is a preview on an axis-aligned grid of the candidates' cell: candidates of a lattice turned by the
+    target's yaw can share a raster cell (their scores averaged) and leave others empty, so choose poses from
+    ``scores`` / ``best_pose``, not from the raster.
     """
 
     floor_xyz: np.ndarray
@@ -140,6 +143,28 @@ def check_cell(cell: float | None) -> float | None:
     return c
 
 
+def check_window(target_yaw: float | None, window: Any, grid_radius: float | None) -> None:
+    """ValueError naming the argument for a non-finite ``target_yaw``, a ``window`` that is not two finite sizes
+    > 0 m, or a ``grid_radius`` that is not a finite size > 0 m (None: none); checked before the model is loaded."""
+    if target_yaw is not None and not math.isfinite(float(target_yaw)):
+        raise ValueError(f"predict: target_yaw must be a finite angle (rad) or None, got {target_yaw!r}")
+    w = np.asarray(window, dtype=np.float64).reshape(-1)
+    if w.size != 2 or not (np.isfinite(w).all() and (w > 0).all()):
+        raise ValueError(
+            f"predict: window must be two finite half-sizes > 0 m (along the front, its normal), got {window!r}"
+        )
+    if grid_radius is not None and not (math.isfinite(float(grid_radius)) and float(grid_radius) > 0):
+        raise ValueError(f"predict: grid_radius must be a finite radius > 0 m or None, got {grid_radius!r}")
+
+
+def check_device(device: str) -> None:
+    """ValueError naming ``device`` when torch cannot use it (``cuda`` on a CPU-only build or without a GPU)."""
+    try:
+        torch.empty(0, device=device)
+    except (RuntimeError, AssertionError) as exc:  # torch raises AssertionError on a build without CUDA
+        raise ValueError(f"predict: device {device!r} is not available here ({exc})") from exc
+
+
 def check_raster_size(shape: tuple[int, int], cell: float, what: str, other_fix: str) -> None:
     """Refuse a raster/lattice of [H, W] = ``shape`` beyond MAX_RASTER_CELLS cells; ``what`` names it and
     ``other_fix`` says what else than a coarser cell shrinks it."""
@@ -164,6 +189,12 @@ def check_scene(scene_xyz: Any, scene_feat: Any) -> tuple[np.ndarray, np.ndarray
     if xyz.ndim != 2 or xyz.shape[1] != 3 or xyz.shape[0] == 0:
         hint = " (a [3, N] cloud: pass scene_xyz.T)" if xyz.ndim == 2 and xyz.shape[0] == 3 else ""
         raise ValueError(f"predict: scene_xyz must be [N, 3] points with N >= 1, got shape {xyz.shape}{hint}")
+    nonfinite = ~np.isfinite(xyz).all(axis=1)
+    if nonfinite.any():  # e.g. a depth sensor's invalid pixels kept in the cloud
+        raise ValueError(
+            f"predict: scene_xyz holds {int(nonfinite.sum())} of {len(xyz)} points with NaN/Inf coordinates; drop "
+            "them (and their scene_feat rows) first"
+        )
     feat = np.asarray(scene_feat, dtype=np.float32)
     if feat.ndim == 1:  # the flag alone
         feat = feat[:, None]
@@ -341,6 +372,8 @@ def predict_from_points(
     """
     xyz, feat = check_scene(scene_xyz, scene_feat)
     cell = check_cell(cell)
+    check_window(target_yaw, window, grid_radius)
+    check_device(device)
     t = np.asarray(target_xyz, dtype=np.float32).reshape(-1)
     if t.size != 3 or not np.isfinite(t).all():
         raise ValueError(f"predict: target_xyz must be 3 finite values, got {target_xyz!r}")

@@ -209,3 +209,23 @@ def test_world_yaw_is_in_the_half_open_interval():
 
     assert pose_to_world((0.0, 0.0, -math.pi / 2), (0.0, 0.0, -math.pi / 2))[2] == pytest.approx(math.pi)
     assert pose_to_world((0.0, 0.0, math.pi / 2), (0.0, 0.0, math.pi / 2))[2] == pytest.approx(math.pi)
+
+
+def test_bad_arguments_are_named_before_the_model_loads():
+    """A NaN target_yaw, a negative window or radius, NaN points and an unavailable device failed later with
+    messages naming something else (FloorLattice, the floor, the sample contract) or a bare AssertionError."""
+    xyz, feat, t = _scene()
+    robot = [0.85, 1.03]
+    cases = [
+        ({"target_yaw": float("nan")}, "target_yaw must be a finite angle"),
+        ({"window": (1.0, -1.2)}, "window must be two finite half-sizes"),
+        ({"grid_radius": 0.0}, "grid_radius must be a finite radius"),
+        ({"device": "cuda:99"}, "device 'cuda:99' is not available"),
+    ]
+    for kwargs, message in cases:
+        with pytest.raises(ValueError, match=message):
+            predict_from_points("no-such-model-is-loaded", xyz, feat, None, robot, t, **kwargs)
+    bad = xyz.copy()
+    bad[:3] = np.nan
+    with pytest.raises(ValueError, match="3 of .* points with NaN/Inf coordinates"):
+        predict_from_points("no-such-model-is-loaded", bad, feat, None, robot, t)
