@@ -1,0 +1,43 @@
+"""scripts/protocol_change.py: SR changes between two scene_sr outputs, with paired scene-bootstrap intervals."""
+
+import importlib.util
+import json
+from pathlib import Path
+
+import pytest
+
+_PATH = Path(__file__).resolve().parents[1] / "scripts" / "protocol_change.py"
+_SPEC = importlib.util.spec_from_file_location("protocol_change", _PATH)
+pc = importlib.util.module_from_spec(_SPEC)
+_SPEC.loader.exec_module(pc)
+
+
+def _scenes(sr: dict[str, list[float]]) -> dict:
+    """Four scenes (two tasks, 100 / 300 views) with the given SR per name and scene."""
+    tasks, views = ["A", "A", "B", "B"], [100, 300, 100, 300]
+    return {f"s{i}": {"task": tasks[i], "views": views[i], "sr": {n: v[i] for n, v in sr.items()}} for i in range(4)}
+
+
+def test_changes_are_view_weighted_and_paired(tmp_path, capsys):
+    a = _scenes({"set": [1.0, 0.5, 0.5, 0.0], "point": [0.5, 0.5, 0.5, 0.5]})
+    b = _scenes({"set": [0.5, 0.5, 0.5, 0.0], "point": [0.4, 0.4, 0.4, 0.4]})
+    res = pc.changes(a, b, draws=200, seed=0)
+    assert res["models"]["set"]["change"] == pytest.approx(-0.5 * 100 / 800)
+    point = res["models"]["point"]
+    assert point["change"] == pytest.approx(-0.1) and point["p05"] == pytest.approx(point["p95"])  # a constant shift
+    assert res["differences"]["set - point"]["diff"] == pytest.approx(-0.0625 + 0.1)
+    for name, data in (("a.json", a), ("b.json", b)):
+        (tmp_path / name).write_text(json.dumps({"scenes": data}))
+    assert pc.main([str(tmp_path / "a.json"), str(tmp_path / "b.json"), "--draws", "50"]) == 0
+    assert "| point | 0.500 | 0.400 | -0.100 |" in capsys.readouterr().out
+
+
+def test_files_of_other_scenes_or_no_shared_name_are_refused(tmp_path):
+    a = _scenes({"m": [1.0, 1.0, 1.0, 1.0]})
+    with pytest.raises(SystemExit, match="different scenes"):
+        pc.changes(a, {k: v for k, v in a.items() if k != "s0"}, 10, 0)
+    with pytest.raises(SystemExit, match="share no model"):
+        pc.changes(a, _scenes({"other": [1.0, 1.0, 1.0, 1.0]}), 10, 0)
+    (tmp_path / "bad.json").write_text("{}")
+    with pytest.raises(SystemExit, match="bad.json is not a scene_sr.py --json output"):
+        pc.load(str(tmp_path / "bad.json"))
