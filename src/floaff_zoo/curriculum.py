@@ -588,7 +588,28 @@ def _fit_stage(
         "finished": time.time(),
     }
     _write_json(sdir / STAGE_FILE, record)
+    _write_json(sdir / _digest_file(record["digest"]), record)
     return record, cli
+
+
+def _digest_file(digest: str) -> str:
+    """The name of a finished stage's record kept by its digest, beside ``STAGE_FILE`` (see :func:`_reusable`)."""
+    return f"stage.{digest[:16]}.json"
+
+
+def _reusable(sdir: Path, args: list[str], record: dict[str, Any] | None) -> tuple[dict[str, Any] | None, str]:
+    """The finished record of a stage with these fit arguments: ``STAGE_FILE``'s, or else one kept by its digest.
+
+    A stage folder shared by experiments (``root:``, e.g. one AxisNet for several curricula) holds one
+    ``STAGE_FILE``, the last fit's; a fit made with other arguments (another experiment's ``--set``) replaced it, and
+    the earlier fit, still on disk, would be re-fit. Returns (record, "") when one is finished, else (None, why)."""
+    done, why = _finished(record, args)
+    if done:
+        return record, ""
+    kept = _read_json(sdir / _digest_file(_digest(args)), _RECORD_FIELDS)
+    if kept is not None and _finished(kept, args)[0]:
+        return kept, ""
+    return None, why
 
 
 def _check_stages(cfg: dict[str, Any], root: Path, extra: list[str], flags: list[str]) -> None:
@@ -668,8 +689,11 @@ def run_curriculum(
             best[name] = f"<best checkpoint of {name}>"
             continue
         record = _read_json(sdir / STAGE_FILE, _RECORD_FIELDS)
-        done, why = _finished(record, args)
-        if done:
+        finished, why = _reusable(sdir, args, record)
+        if finished is not None:
+            if finished is not record:  # an earlier fit with these arguments: it becomes the folder's record again
+                _write_json(sdir / STAGE_FILE, finished)
+            record = finished
             print(f"[curriculum] stage {name}: already finished ({record['checkpoint']}), skipping", file=out)
         else:
             if record and record.get("status") == "done":

@@ -219,3 +219,22 @@ def test_a_rerun_marks_the_earlier_lineage_incomplete_until_it_is_checked(tmp_pa
     with pytest.raises(CurriculumError):
         read_lineage(tmp_path / "run")
     assert read_lineage(tmp_path / "run", finished=False)["complete"] is False
+
+
+def test_a_shared_stage_folder_keeps_every_finished_fit(tmp_path, capsys):
+    """Two experiments sharing a stage folder (one AxisNet for several curricula): a fit of the other experiment
+    replaced the folder's record, so the first experiment re-fit its finished stage, and every stage after it."""
+    exp = _experiment(tmp_path, max_epochs=1)
+    spec = yaml.safe_load(exp.read_text())
+    spec["stages"] = [{"name": "pre", "root": str(tmp_path / "shared")}, {"name": "s1"}]
+    exp.write_text(yaml.safe_dump(spec))
+    first = run_curriculum(exp)
+    run_curriculum(exp, root=tmp_path / "other", sets=["seed_everything=1"])  # refits the shared stage
+    capsys.readouterr()
+
+    def refuse(args):
+        raise AssertionError(f"a finished stage was rerun: {args}")
+
+    again = run_curriculum(exp, runner=refuse)
+    assert [r["checkpoint"] for r in again] == [r["checkpoint"] for r in first]
+    assert capsys.readouterr().out.count("already finished") == 2
