@@ -155,20 +155,16 @@ def deployment_queries(batch: dict, cell: float) -> dict:
     return {**batch, "floor_xyz": floor, "floor_mask": mask, "floor_label": torch.zeros(len(grids), m)}
 
 
-def mask_centroid_targets(batch: dict) -> dict:
-    """The batch with target_xyz [B, 3] replaced by the centroid of each view's points flagged as the target
-    (``scene_feat`` channel 0 > 0), what ``predict`` uses when it is given no target point.
-
-    Raises:
-        ValueError: a view has no flagged point.
-    """
+def mask_centroid_targets(batch: dict) -> tuple[dict, int]:
+    """(the batch with target_xyz [B, 3] replaced by the centroid of each view's points flagged as the target
+    (``scene_feat`` channel 0 > 0), what ``predict`` uses when it is given no target point; the number of views
+    whose sample holds no flagged point and keep the task's target point: the stored cloud, which ``predict``
+    would read whole, has flagged points in every view, but the batch carries their flags for its sample only)."""
     flag = (batch["scene_feat"][..., 0] > 0) & batch["scene_mask"]
     counts = flag.sum(dim=1)
-    if (counts == 0).any():
-        i = int((counts == 0).nonzero()[0])
-        raise ValueError(f"view {batch['meta'][i].get('sample_id', i)}: no point carries the target flag")
-    centroid = (batch["scene_xyz"] * flag[..., None]).sum(dim=1) / counts[:, None]
-    return {**batch, "target_xyz": centroid.to(batch["target_xyz"].dtype)}
+    centroid = (batch["scene_xyz"] * flag[..., None]).sum(dim=1) / counts.clamp_min(1)[:, None]
+    target = torch.where((counts > 0)[:, None], centroid.to(batch["target_xyz"].dtype), batch["target_xyz"])
+    return {**batch, "target_xyz": target}, int((counts == 0).sum())
 
 
 def label_cell(cand: np.ndarray, xy: Sequence[float], cell: float, where: str, off_grid: bool) -> int | None:
@@ -428,12 +424,14 @@ def main(argv: list[str] | None = None) -> int:
     dm, scenes = split_data("scene_sr", a.root, a.benchmark, a.split, a.num_points, stored, val_layout=a.val_layout)
     cells = {float(s["candidates"]["cell"]) for s in scenes.values()}
     rows: list[Row] = []
+    kept_targets = 0  # --target-from-mask: views whose sample shows no target point (they keep the task's)
     with torch.no_grad():
         for batch in dm.test_dataloader() if a.split == "test" else dm.val_dataloader():
             if a.deploy_queries:
                 try:
                     if a.target_from_mask:
-                        batch = mask_centroid_targets(batch)
+                        batch, kept = mask_centroid_targets(batch)
+                        kept_targets += kept
                     batch = deployment_queries(batch, min(cells))
                 except ValueError as exc:
                     raise SystemExit(f"scene_sr: {exc}") from exc
@@ -457,6 +455,8 @@ def main(argv: list[str] | None = None) -> int:
         f"{a.benchmark} {a.split}: {len(rows)} views in {len(table)} scenes; runs per name: "
         + ", ".join(f"{n} {k}" for n, k in n_runs.items())
     )
+    if a.target_from_mask:
+        print(f"--target-from-mask: {kept_targets} view(s) with no flagged point in the sample kept the task's target")
     print_scenes(table, names)
     print()
     print_summary(res)
@@ -486,6 +486,7 @@ def main(argv: list[str] | None = None) -> int:
             "min_observed": a.min_observed,
             "deploy_queries": a.deploy_queries,
             "target_from_mask": a.target_from_mask,
+            "views_keeping_the_target": kept_targets if a.target_from_mask else None,
             "draws": a.draws,
             "scenes": table,
             **res,

@@ -306,13 +306,15 @@ def test_mask_centroid_targets_is_the_mean_of_the_flagged_points(tmp_path, capsy
     from floaff_zoo.data.synthetic import make_synthetic_sample
 
     batch = collate_samples([make_synthetic_sample(0, num_points=256), make_synthetic_sample(1, num_points=200)])
-    out = ssr.mask_centroid_targets(batch)
+    out, kept = ssr.mask_centroid_targets(batch)
+    assert kept == 0
     for i in range(2):
         flagged = batch["scene_mask"][i] & (batch["scene_feat"][i, :, 0] > 0)
         torch.testing.assert_close(out["target_xyz"][i], batch["scene_xyz"][i][flagged].mean(dim=0))
-    blind = {**batch, "scene_feat": torch.zeros_like(batch["scene_feat"])}
-    with pytest.raises(ValueError, match="no point carries the target flag"):
-        ssr.mask_centroid_targets(blind)
+    feat = batch["scene_feat"].clone()
+    feat[1, :, 0] = 0.0  # the second view's sample shows no target point: it keeps the task's target, counted
+    out, kept = ssr.mask_centroid_targets({**batch, "scene_feat": feat})
+    assert kept == 1 and torch.equal(out["target_xyz"][1], batch["target_xyz"][1])
     with pytest.raises(SystemExit):
         ssr.main(["--root", str(tmp_path), "--target-from-mask", "a=x.ckpt"])
     assert "give --deploy-queries" in capsys.readouterr().err
