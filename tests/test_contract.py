@@ -134,3 +134,21 @@ def test_full_cloud_is_checked_and_padded_never_resampled():
         with pytest.raises(SampleError, match=msg) as err:
             validate_sample(_sample(full_xyz=bad))
         assert "s1" in str(err.value)
+
+
+def test_pad_truncation_warns_once(monkeypatch):
+    """collate_mode 'pad' with num_points below a cloud's size kept its first points without a word: on a cloud in
+    image-row order (the generated views) that drops the near rows, the target among them."""
+    import warnings
+
+    import floaff_zoo.contract as contract
+    from floaff_zoo.data.synthetic import make_synthetic_sample
+
+    monkeypatch.setattr(contract, "_TRUNCATION_WARNED", False)
+    samples = [make_synthetic_sample(0, num_points=256), make_synthetic_sample(1, num_points=256)]
+    with pytest.warns(UserWarning, match="keeps the first 100 of 256 valid points"):
+        contract.collate_samples(samples, num_points=100, mode="pad")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        contract.collate_samples(samples, num_points=100, mode="pad")  # once per process
+        contract.collate_samples(samples, num_points=256, mode="pad")  # no truncation, no warning

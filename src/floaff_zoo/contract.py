@@ -36,6 +36,7 @@ dicts. Padded entries are zeros with their mask ``False``; models and metrics mu
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
@@ -200,6 +201,23 @@ def _sample_generator(seed: int, index: int) -> torch.Generator:
     return torch.Generator().manual_seed((int(seed) * 0x9E37_79B9_7F4A_7C15 + int(index)) % (1 << 63))
 
 
+_TRUNCATION_WARNED = False
+
+
+def _warn_truncation(n: int, n_max: int) -> None:
+    """Warn once per process that ``pad`` cut a cloud to its first points: a stored cloud in image-row order (the
+    generated views') then loses whole rows of the image, e.g. the near field with the target, not a random part."""
+    global _TRUNCATION_WARNED
+    if not _TRUNCATION_WARNED:
+        _TRUNCATION_WARNED = True
+        warnings.warn(
+            f"collate_mode 'pad' keeps the first {n_max} of {n} valid points (MoMa-Kitchen's truncation); a cloud "
+            "stored in image-row order loses whole image rows that way: use collate_mode 'resample' (a seeded "
+            "random subset) or num_points >= the cloud size",
+            stacklevel=3,
+        )
+
+
 def collate_samples(
     samples: Sequence[Sample],
     num_points: int | None = None,
@@ -257,6 +275,8 @@ def collate_samples(
             gen = generator if seed is None else _sample_generator(seed, batch["meta"][i].get("index", i))
             valid = valid[resample_indices(valid.numel(), n_max, gen)]
         else:
+            if valid.numel() > n_max:
+                _warn_truncation(valid.numel(), n_max)
             valid = valid[:n_max]
         k = valid.numel()
         batch["scene_xyz"][i, :k] = s["scene_xyz"][valid]
