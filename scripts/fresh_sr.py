@@ -9,7 +9,8 @@ made the labels. A robot parks a few centimetres off and meets a door opened a l
 measures that: for every feasible candidate cell of every test scene it runs ``--episodes`` rollouts, each with a
 fresh task seed (not the annotation's) and the pose perturbed by N(0, sigma_xy) per axis and N(0, sigma_yaw), and
 takes the success fraction as the cell's *fresh success probability*. Cells the generator filtered as infeasible
-(collision, out of reach: never rolled out) keep probability 0.
+(collision, out of reach: never rolled out) keep probability 0; cells its IK pre-filter refused under the
+annotation's draw are rolled out, since a fresh draw may leave the arm a solution (``floaff_zoo.sim.repeat``).
 
 Every view then stands where each scorer puts it, and its fresh SR is the probability of that cell:
 

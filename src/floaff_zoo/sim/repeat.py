@@ -3,7 +3,13 @@
 The generated labels roll every feasible cell out once, with the annotation's task seed (the same initial door or
 drawer opening) at the exact cell pose. :func:`fresh_probability` rolls each feasible cell out ``episodes`` more
 times, each with a fresh task seed and the pose perturbed by N(0, sigma_xy) per axis and N(0, sigma_yaw), and
-returns the success fraction: the cell's *fresh success probability*. Cells the generator filtered keep 0.
+returns the success fraction: the cell's *fresh success probability*. Cells the generator's collision and reach
+filters refused (``candidates.valid`` false) keep 0: ``pose_filter`` refuses them in every episode. Cells its IK
+pre-filter refused (``valid`` true, status ``FILTERED``) are rolled out: the arm's key points depend on the task's
+draw (how far a door or drawer is open), which a fresh episode makes again, and the rollout fails there
+(``ik_unreachable``) whenever the new draw still has no solution. ``probability_label`` still sets those cells to
+0 (it zeroes every ``FILTERED`` cell, as the generated labels do), so ``scripts/fresh_labels.py``'s labels keep
+them at 0 whatever their fresh probability.
 ``scripts/fresh_sr.py`` scores chosen poses with it; ``scripts/fresh_labels.py`` turns it into training labels.
 Probabilities are cached in ``.npz`` files (:func:`read_probs` / :func:`write_probs`) tagged with their setting.
 """
@@ -55,7 +61,8 @@ def fresh_probability(
 
     ``run(task_seed, jobs)`` rolls ``(spec, pose)`` jobs out with that task seed. Episode k uses task seed
     ``seeds[k]`` (default ``FRESH_SEED0 + k``) and parking noise drawn from (``seed``, the scene id, k).
-    Cells the generator filtered (``candidates.valid`` false) are 0 without a rollout.
+    Cells the collision and reach filters refused (``candidates.valid`` false) are 0 without a rollout; cells the IK
+    pre-filter refused are rolled out (module docstring).
     """
     from floaff_zoo.sim.kitchen import SceneSpec
 
