@@ -129,3 +129,11 @@ def test_probability_label_smooths_rates_like_the_binary_map():
     bad[2] = np.nan
     with pytest.raises(ValueError, match="1 not finite"):
         probability_label(bad, status, shape)
+
+
+def test_a_reach_other_than_the_tasks_is_refused(scene_factory):
+    """A preset's r_arm labelled cells by another reach than the evaluation's pose filter (and than pool workers',
+    which filter by the task's): labels and rollouts from a chosen pose disagreed."""
+    sc = scene_factory("CloseDrawer")
+    with pytest.raises(ValueError, match=r"r_arm=1\.9 differs from the CloseDrawer task's reach"):
+        annotate_scene(sc, cell=0.2, r_arm=1.9)

@@ -133,11 +133,22 @@ def annotate_scene(
 
     max_candidates: roll out at most this many filtered candidates (evenly spaced subset, the rest
     are labelled failures with reason "skipped_budget"; for tests/CI).
+    r_arm: the reach filter's radius; None (the only value accepted besides the task's own) takes the task's.
+
+    Raises:
+        ValueError: an ``r_arm`` other than the task's: the evaluation refuses poses by the task's reach
+            (``rollout.pose_filter``), and so do pool workers, so the labels would disagree with the rollouts.
     """
     t0 = time.perf_counter()
     task = scene.task
     r_x, r_y = task.candidate_region()
-    r_arm = task.r_arm if r_arm is None else float(r_arm)
+    if r_arm is not None and float(r_arm) != task.r_arm:
+        raise ValueError(
+            f"annotate_scene: r_arm={r_arm} differs from the {scene.spec.task} task's reach {task.r_arm} m, by which "
+            "the evaluation refuses poses (rollout.pose_filter): such labels would disagree with the rollouts from "
+            "a chosen pose; change the task's r_arm instead"
+        )
+    r_arm = task.r_arm
     xy, shape, _ = candidate_grid(scene, cell, r_x, r_y)
     xy = np.round(xy, 6)  # the exact poses simulated, identical in every worker
     M = len(xy)

@@ -44,6 +44,8 @@ class GenPreset:
         ``candidates.on_floor`` and draw only those in topdown.png (format 1 views stored exactly these cells; format 2
         views store the cells their own cloud observes as ground, see docs/data_format.md).
     max_seed_attempts: a slot whose scene has no positive candidate is retried with the next derived seed.
+    r_arm: the reach filter's radius; only None (each task's own reach) is accepted by ``annotate_scene``, since the
+        evaluation refuses poses by the task's reach.
     View geometry (front_rx ... max_dist) and rendering (image_size, depth_max, max_points) mirror ViewConfig.
     """
 
