@@ -458,7 +458,8 @@ def predict(
         rgb [H, W, 3] uint8 or float in [0, 1] (None: no colour channels); depth [H, W] metres;
         target_mask [H, W] bool: the target's pixels (its points get flag +1, others 0);
         target_xyz [3] (base frame): the task's target point as the models learnt it, the centre of the fixture's
-            front face on the generated benchmark (the handle side of a door or drawer, the opening of a cabinet).
+            front face on the generated benchmark (the middle of a drawer's or a door's front, the front of the
+            cabinet a pick-and-place fills).
             None: the centroid of the mask's points, which lies behind that face (0.07-0.28 m off in the plane,
             median per task, on the dense preset's test views; docs/method.md, "The target point and the floor
             queries", with what it costs); pass it whenever the robot knows it better.
