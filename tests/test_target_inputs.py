@@ -1,0 +1,33 @@
+"""scripts/target_inputs.py: the floor queries' lattice angle and the target point's estimates."""
+
+import importlib.util
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+_PATH = Path(__file__).resolve().parents[1] / "scripts" / "target_inputs.py"
+_SPEC = importlib.util.spec_from_file_location("target_inputs", _PATH)
+ti = importlib.util.module_from_spec(_SPEC)
+_SPEC.loader.exec_module(ti)
+
+
+@pytest.mark.parametrize("deg", [0.0, 17.0, 63.0, 100.0, -30.0])
+def test_lattice_angle_is_the_grid_orientation_modulo_90(deg):
+    a = math.radians(deg)
+    g = np.stack(np.meshgrid(np.arange(5) * 0.1, np.arange(4) * 0.1), -1).reshape(-1, 2)
+    rot = np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
+    got = ti.lattice_angle(g @ rot.T + np.array([1.3, -0.4]))
+    assert ti.angle_error_deg(got, a) == pytest.approx(0.0, abs=1e-6)
+    assert ti.lattice_angle(g[:2]) is None
+
+
+def test_target_estimates_centroid_and_nearest_band():
+    xyz = np.array([[1.0, 0.0, 0.5], [1.02, 0.0, 0.7], [1.5, 0.0, 0.5], [3.0, 0.0, 0.0]])
+    flag = np.array([1.0, 1.0, 1.0, 0.0])
+    est = ti.target_estimates(xyz, flag)
+    np.testing.assert_allclose(est["centroid"], xyz[:3].mean(axis=0))
+    np.testing.assert_allclose(est["nearest_0.03"], xyz[:2].mean(axis=0))  # within 3 cm of the nearest point
+    assert ti.target_estimates(xyz, np.zeros(4)) is None
+    assert ti.angle_error_deg(math.radians(89.0), 0.0) == pytest.approx(1.0)
