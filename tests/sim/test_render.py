@@ -123,3 +123,16 @@ def test_rendering_then_importing_lightning_keeps_the_process_alive():
     )
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert run.returncode == 0 and run.stdout.strip() == "alive", (run.returncode, run.stderr[-500:])
+
+
+def test_closing_one_renderer_leaves_another_working(scene):
+    """close() freed its GL objects in whichever context was current (another open Renderer's), whose renders then
+    came back empty without an error."""
+    m, d, r = scene
+    before = r.render(d, "cam").depth
+    other = render.Renderer(m, 64, 64)
+    other.render(d, "cam")
+    r.render(d, "cam")  # the module's renderer is current when the other one closes
+    other.close()
+    after = r.render(d, "cam").depth
+    np.testing.assert_allclose(after, before, atol=1e-6)

@@ -333,6 +333,9 @@ class Renderer:
             return
         self._closed = True
         try:
+            # the GL objects belong to this renderer's context: freed in another current context (another open
+            # Renderer's) they would destroy that renderer's buffers, which then render empty clouds without an error
+            self._gl.make_current()
             self._mjr.free()
         finally:
             try:
