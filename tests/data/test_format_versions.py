@@ -87,3 +87,24 @@ def test_floor_index_beyond_the_candidate_grid_is_named(tmp_path):
     with pytest.raises(ff.FormatError, match=rf"front_0000.npz: field .floor_index. reaches cell {n}, .* {n} cells"):
         ff.read_sample(rec, rec["views"][0])
     ff.read_view(path, 2)  # without the grid's size nothing to check it against
+
+
+def test_malformed_records_are_named(tmp_path):
+    """A repeated floor cell, a view record without its file name, a boolean format version and a scene.json
+    that is a directory passed the reader or ended in a bare KeyError / IsADirectoryError."""
+    make_floaff_dataset(tmp_path, problems=False, version=2)
+    rec = next(ff.iter_scenes(tmp_path, benchmark="styles"))
+    path = tmp_path / "styles" / rec["scene_id"] / rec["views"][0]["file"]
+    arr = dict(np.load(path))
+    arr["floor_index"] = np.zeros_like(arr["floor_index"])
+    ff.atomic_save_npz(path, arr)
+    with pytest.raises(ff.FormatError, match="floor_index' is not strictly increasing"):
+        ff.read_sample(rec, rec["views"][0])
+    with pytest.raises(ff.FormatError, match="a view record needs a 'file' name"):
+        ff.read_sample(rec, {"view": "front", "view_id": "front_0000"})
+    with pytest.raises(ff.FormatError, match="format_version True is not supported"):
+        ff.check_format_version(True, "scene.json")
+    (tmp_path / "odd").mkdir()
+    (tmp_path / "odd" / ff.SCENE_JSON).mkdir()
+    with pytest.raises(ff.FormatError, match="scene.json: unreadable"):
+        ff.read_json(tmp_path / "odd" / ff.SCENE_JSON)

@@ -153,6 +153,8 @@ def read_json(path: str | Path) -> Any:
         raise FormatError(f"{path}: file not found") from exc
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise FormatError(f"{path}: corrupt JSON ({exc})") from exc
+    except OSError as exc:  # a directory in its place, no permission, a failing disk
+        raise FormatError(f"{path}: unreadable ({type(exc).__name__}: {exc})") from exc
 
 
 # ------------------------------------------------------------------------------------------------ scene dirs
@@ -227,7 +229,7 @@ def _check_shape(path: Path, name: str, arr: np.ndarray, dtype: str, pattern: tu
 
 def check_format_version(version: Any, path: str | Path) -> int:
     """The format version as an int; FormatError naming the file when this reader does not know it."""
-    if version not in SUPPORTED_FORMAT_VERSIONS:
+    if isinstance(version, bool) or version not in SUPPORTED_FORMAT_VERSIONS:  # true == 1 in Python
         raise FormatError(
             f"{path}: format_version {version!r} is not supported by this reader "
             f"(supported: {list(SUPPORTED_FORMAT_VERSIONS)}); update floaff-zoo"
@@ -259,6 +261,8 @@ def validate_view(
     idx = np.asarray(arrays.get("floor_index", np.zeros(0, np.int32)))
     if idx.size and idx.min() < 0:
         raise FormatError(f"{path}: field 'floor_index' has negative entries")
+    if idx.size > 1 and np.any(np.diff(idx) <= 0):  # the format's grid order, each cell once
+        raise FormatError(f"{path}: field 'floor_index' is not strictly increasing (grid order, each cell once)")
     if idx.size and n_cells is not None and idx.max() >= n_cells:
         raise FormatError(
             f"{path}: field 'floor_index' reaches cell {idx.max()}, but the scene's candidate grid has {n_cells} cells"
@@ -371,6 +375,8 @@ def read_sample(scene: dict[str, Any], view: dict[str, Any], root: str | Path | 
     """
     version = check_format_version(scene.get("format_version", 1), Path(scene["dir"]) / SCENE_JSON)
     cells = scene["candidates"]["xy"] if "candidates" in scene else None  # the DataModule's records carry none
+    if not isinstance(view, dict) or not isinstance(view.get("file"), str):
+        raise FormatError(f"{Path(scene['dir']) / SCENE_JSON}: a view record needs a 'file' name, got {view!r:.80}")
     arr = read_view(Path(scene["dir"]) / view["file"], version, len(cells) if cells is not None else None)
     spec = scene["spec"]
     sim = {
