@@ -137,6 +137,8 @@ def atomic_save_npz(path: str | Path, arrays: dict[str, np.ndarray]) -> None:
     try:
         with os.fdopen(fd, "wb") as f:
             np.savez_compressed(f, **arrays)
+            f.flush()
+            os.fsync(f.fileno())  # as atomic_write_bytes: after a power loss a committed scene holds whole views
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
