@@ -147,3 +147,14 @@ def test_robot_dim_mismatch_is_clear(tmp_path, root, monkeypatch):
                 *quiet_trainer_args(tmp_path),
             ]
         )
+
+
+def test_a_batch_limit_of_1_is_one_batch(tmp_path, root, monkeypatch):
+    """Lightning types limit_*_batches float-first, so `--trainer.limit_train_batches 1` was read as 1.0, a
+    fraction: every batch ran. An integer literal now means that many batches; 1.0 still means all of them."""
+    monkeypatch.chdir(root)
+    base = ["fit", "--config", DATA, "--config", MODEL, *quiet_trainer_args(tmp_path), "--trainer.max_epochs", "1"]
+    one = run_lightning([*base, "--trainer.limit_train_batches", "1", "--trainer.limit_val_batches=1"])
+    assert one.trainer.global_step == 1 and one.trainer.num_val_batches == [1]
+    every = run_lightning([*base, "--trainer.limit_train_batches", "1.0"])
+    assert every.trainer.global_step == every.trainer.num_training_batches > 1

@@ -155,7 +155,8 @@ class FloAffCLI(LightningCLI):
 
     def parse_arguments(self, parser: Any, args: Any) -> None:
         raw = args if isinstance(args, list) else (sys.argv[1:] if args is None else [])
-        self._explicit_model_args = explicit_model_args([str(a) for a in raw])
+        self._raw_args = [str(a) for a in raw]  # what the user typed (``_integer_limits``)
+        self._explicit_model_args = explicit_model_args(self._raw_args)
         super().parse_arguments(parser, args)
 
     def _parse_ckpt_path(self) -> None:
@@ -266,6 +267,19 @@ class FloAffCLI(LightningCLI):
         init_args = model.get("init_args") if model is not None else None
         return str(init_args.get("weights") if init_args is not None else None)
 
+    def _integer_limits(self, trainer: Any) -> None:
+        """``--trainer.limit_<stage>_batches 1`` means one batch. Lightning types these ``float | int``, float first,
+        so the parser reads ``1`` as 1.0, which Lightning takes as a fraction: every batch. Values typed as an
+        integer literal are set back to ints here, after the parser's last type check (``1.0`` keeps meaning every
+        batch)."""
+        args = list(getattr(self, "_raw_args", []))
+        for stage in ("train", "val", "test", "predict"):
+            flag = f"--trainer.limit_{stage}_batches"
+            typed = [args[i + 1] for i, a in enumerate(args[:-1]) if a == flag]
+            typed += [a.split("=", 1)[1] for a in args if a.startswith(flag + "=")]
+            if typed and typed[-1].strip().isdigit():
+                setattr(trainer, f"limit_{stage}_batches", int(typed[-1]))
+
     def before_instantiate_classes(self) -> None:
         cfg = self.config[self.subcommand]
         trainer = cfg.trainer
@@ -279,6 +293,7 @@ class FloAffCLI(LightningCLI):
 
     def instantiate_trainer(self, **kwargs: Any) -> L.Trainer:
         cfg = self.config_init[self.subcommand]["trainer"]
+        self._integer_limits(cfg)
         extra = list(kwargs.pop("callbacks", None) or [])
         user = list(cfg.get("callbacks") or [])
         if cfg.get("enable_progress_bar", True) is not False and not any(isinstance(c, TQDMProgressBar) for c in user):
