@@ -108,3 +108,27 @@ def test_malformed_records_are_named(tmp_path):
     (tmp_path / "odd" / ff.SCENE_JSON).mkdir()
     with pytest.raises(ff.FormatError, match="scene.json: unreadable"):
         ff.read_json(tmp_path / "odd" / ff.SCENE_JSON)
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "message"),
+    [
+        (("labels", "cell_label"), [0.5] * 5, "labels.cell_label has 5 entries"),
+        (("candidates", "status"), 7, "candidates.status must be lists"),
+        (("labels", "label"), "nan", "labels.label holds NaN or Inf values"),
+    ],
+)
+def test_format_2_scene_records_are_checked(tmp_path, field, value, message):
+    """read_scene accepted a format-2 scene.json whose per-cell labels or status had another length than its grid
+    (its views index them), or NaN labels."""
+    make_floaff_dataset(tmp_path, problems=False, version=2)
+    rec = next(ff.iter_scenes(tmp_path, benchmark="styles"))
+    sj = tmp_path / "styles" / rec["scene_id"] / ff.SCENE_JSON
+    data = json.loads(sj.read_text())
+    if value == "nan":
+        data["labels"]["label"][0] = float("nan")
+    else:
+        data[field[0]][field[1]] = value
+    sj.write_text(json.dumps(data))
+    with pytest.raises(ff.FormatError, match=message):
+        ff.read_scene(sj)

@@ -312,14 +312,29 @@ def read_scene(scene_path: str | Path) -> dict[str, Any]:
         if k not in rec:
             raise FormatError(f"{p}: missing key {k!r}")
     rec["format_version"] = check_format_version(rec.get("format_version", 1), p)
+    # the generator's format 2 also keeps the per-cell label rule's inputs and result (docs/data_format.md): where a
+    # file has them they must cover the grid like the labels
+    keys = [("labels", "success"), ("labels", "label")]
+    extra = [("labels", "cell_label"), ("labels", "known"), ("candidates", "status")]
+    keys += [(a, b) for a, b in extra if isinstance(rec.get(a), dict) and b in rec[a]]
     try:
         m = len(rec["candidates"]["xy"])
-        sizes = {k: len(rec["labels"][k]) for k in ("success", "label")}
+        sizes = {f"{a}.{b}": len(rec[a][b]) for a, b in keys}
     except (KeyError, TypeError) as exc:  # e.g. candidates a list, labels without success
-        raise FormatError(f"{p}: candidates.xy, labels.success and labels.label must be lists ({exc!r})") from exc
+        names = ", ".join(f"{a}.{b}" for a, b in keys)
+        raise FormatError(f"{p}: candidates.xy, {names} must be lists ({exc!r})") from exc
     for k, n in sizes.items():
         if n != m:
-            raise FormatError(f"{p}: labels.{k} has {n} entries, candidates.xy has {m}")
+            raise FormatError(f"{p}: {k} has {n} entries, candidates.xy has {m}")
+    for k in ("label", "cell_label"):
+        if k not in rec["labels"]:
+            continue
+        try:
+            finite = np.isfinite(np.asarray(rec["labels"][k], dtype=np.float64)).all()
+        except (TypeError, ValueError) as exc:
+            raise FormatError(f"{p}: labels.{k} must hold numbers ({exc})") from exc
+        if not finite:
+            raise FormatError(f"{p}: labels.{k} holds NaN or Inf values")
     rec["dir"] = str(p.parent)
     return rec
 
