@@ -7,7 +7,8 @@ depth image with the pinhole model into the robot base frame, flags the target p
 Conventions:
 
 * ``intrinsics`` = (fx, fy, cx, cy) in pixels (pixel centres at +0.5); ``depth`` [H, W] metres
-  along the optical axis (<= 0, NaN/Inf or >= ``max_depth`` = invalid, e.g. the far plane).
+  along the optical axis (<= 0, NaN/Inf or >= ``max_depth`` = invalid, e.g. the far plane; default
+  :data:`MAX_DEPTH`, the generator's cut, 4 m).
 * ``camera_pose`` = 4x4 camera-to-base transform. ``convention="opengl"`` (default, MuJoCo):
   the camera looks along its -z, x right, y up; ``"opencv"``: looks along +z, x right, y down.
 * The base frame is the contract's: x forward, y left, z up, floor at z = 0.
@@ -49,6 +50,9 @@ from floaff_zoo.floor import CANDIDATE_WINDOW, FLOOR_Z_MAX, FloorLattice, observ
 Pose = tuple[float, float, float]
 #: m: default floor cell, the grid of the demo/small generation presets the shipped models were trained on
 DEFAULT_FLOOR_CELL = 0.1
+#: depth (m) beyond which pixels are dropped: the generator's ``depth_max`` (every preset), so a model is given no
+#: farther points than it was trained on
+MAX_DEPTH = 4.0
 #: most cells of the default grid's lattice or of the returned raster (2000 x 2000: 20 m x 20 m at 1 cm); a finer
 #: cell or candidates spread wider are refused instead of allocating gigabytes for one map
 MAX_RASTER_CELLS = 4_000_000
@@ -229,7 +233,7 @@ def backproject_depth(
     intrinsics: tuple[float, float, float, float] | np.ndarray,
     camera_pose: np.ndarray,
     convention: Literal["opengl", "opencv"] = "opengl",
-    max_depth: float = 5.0,
+    max_depth: float = MAX_DEPTH,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Depth [H, W] -> base-frame points [H*W, 3] (row-major pixels) and valid [H*W] bool."""
     d = np.asarray(depth, dtype=np.float64)
@@ -440,7 +444,7 @@ def predict(
     floor_xyz: np.ndarray | None = None,
     target_yaw: float | None = None,
     convention: Literal["opengl", "opencv"] = "opengl",
-    max_depth: float = 5.0,
+    max_depth: float = MAX_DEPTH,
     k: int = 5,
     num_points: int | None = 4096,
     cell: float | None = None,

@@ -229,3 +229,16 @@ def test_bad_arguments_are_named_before_the_model_loads():
     bad[:3] = np.nan
     with pytest.raises(ValueError, match="3 of .* points with NaN/Inf coordinates"):
         predict_from_points("no-such-model-is-loaded", bad, feat, None, robot, t)
+
+
+def test_the_default_depth_cut_is_the_generators():
+    """predict kept pixels up to 5 m while every generation preset drops depth beyond 4 m: a deployed model was given
+    points farther than any it was trained on."""
+    from floaff_zoo.predict import MAX_DEPTH
+    from floaff_zoo.sim.presets import PRESETS
+
+    assert {p.depth_max for p in PRESETS.values()} == {MAX_DEPTH}
+    depth, k, pose = _floor_depth()
+    far = np.full_like(depth, 4.5)
+    _, valid = backproject_depth(far, k, pose)
+    assert not valid.any()
