@@ -45,7 +45,7 @@ from floaff_zoo.contract import (
     collate_samples,
     validate_sample,
 )
-from floaff_zoo.floor import CANDIDATE_WINDOW, FLOOR_Z_MAX, FloorLattice, observed_cells
+from floaff_zoo.floor import CANDIDATE_WINDOW, FLOOR_Z_MAX, FloorLattice, footprint_blocked, observed_cells
 
 Pose = tuple[float, float, float]
 #: m: default floor cell, the grid of the demo/small generation presets the shipped models were trained on
@@ -63,7 +63,8 @@ class Prediction:
     """Output of :func:`predict` / :func:`predict_from_points` (robot base frame).
 
     floor_xyz [M, 3] candidates; scores [M] in [0, 1]; grid/raster: the map rasterised on a
-    FloorGrid (raster [H, W], NaN where no candidate); best_pose (x, y, yaw facing the target);
+    FloorGrid (raster [H, W], NaN where no candidate); best_pose (x, y, yaw facing the target; with ``free_k`` > 1
+    the best of the top ``free_k`` whose footprint the cloud shows free);
     top_poses: the ``k`` best poses, best first (ties: contract.best_pose's seeded random tie-break).
     The raster is a preview on an axis-aligned grid of the candidates' cell: candidates of a lattice turned by the
     target's yaw can share a raster cell (their scores averaged) and leave others empty, so choose poses from
@@ -351,6 +352,7 @@ def predict_from_points(
     seed: int = 0,
     window: tuple[float, float] = CANDIDATE_WINDOW,
     task: str = "",
+    free_k: int = 1,
 ) -> Prediction:
     """Score candidate floor points for one observation (robot base frame).
 
@@ -370,12 +372,18 @@ def predict_from_points(
             default grid.
         task: the task asked (``meta['task']``; needed by models that condition on it, e.g. the
             canonical prior).
+        free_k: > 1: ``best_pose`` is the best of the top ``free_k`` poses whose base footprint the given cloud
+            shows free (fewer than two distinct obstacle points in it, ``floor.footprint_blocked``), the top pose
+            when none is; what ``floaff-zoo test`` stands on with ``top_k`` and ``free_space: full_cloud`` (the
+            benchmark's protocol, ``configs/trainer/eval_sr_top10_full.yaml``, uses 10). 1: the top-scored pose.
     Raises:
         ValueError: bad shapes, a channel 0 that is not the target flag or a bad cell (checked before the model
             is loaded), too large a grid or raster (before it runs), each naming the argument.
     """
     xyz, feat = check_scene(scene_xyz, scene_feat)
     cell = check_cell(cell)
+    if isinstance(free_k, bool) or not isinstance(free_k, int) or free_k < 1:
+        raise ValueError(f"predict: free_k must be an int >= 1 (1: no footprint check), got {free_k!r}")
     check_window(target_yaw, window, grid_radius)
     check_device(device)
     t = np.asarray(target_xyz, dtype=np.float32).reshape(-1)
@@ -421,12 +429,16 @@ def predict_from_points(
             f"predict: {type(net).__name__} returned {int((~np.isfinite(scores)).sum())} NaN/Inf score(s)"
         )
     poses = best_pose(floor, scores, None, t, k=max(1, k), seed=seed)  # seed: the tie-break, as documented
+    chosen = poses[0]
+    if free_k > 1:
+        ranked = best_pose(floor, scores, None, t, k=free_k, seed=seed)
+        chosen = next((p for p in ranked if not footprint_blocked(xyz, p)), ranked[0])
     return Prediction(
         floor_xyz=floor,
         scores=scores,
         grid=grid,
         raster=grid.rasterize(floor, scores),
-        best_pose=poses[0],
+        best_pose=chosen,
         top_poses=poses,
         target_xyz=t,
         target_yaw=float(target_yaw),
@@ -455,6 +467,7 @@ def predict(
     window: tuple[float, float] = CANDIDATE_WINDOW,
     task: str = "",
     target_xyz: np.ndarray | list[float] | None = None,
+    free_k: int = 1,
 ) -> Prediction:
     """Floor affordance from one RGB-D view (see the module docstring for frames and defaults).
 
@@ -513,6 +526,7 @@ def predict(
         seed=seed,
         window=window,
         task=task,
+        free_k=free_k,
     )
 
 

@@ -242,3 +242,27 @@ def test_the_default_depth_cut_is_the_generators():
     far = np.full_like(depth, 4.5)
     _, valid = backproject_depth(far, k, pose)
     assert not valid.any()
+
+
+def test_free_k_stands_on_the_best_pose_whose_footprint_is_free():
+    """predict returned the raw argmax while `floaff-zoo test` (the benchmark's protocol) stands on the best of the
+    top 10 poses whose footprint the view's cloud shows free: a robot builder could not get the evaluated choice."""
+    from floaff_zoo.floor import footprint_blocked
+
+    xyz, feat, t = _scene()
+    floor = np.array([[1.0, -0.5, 0.0], [0.9, 0.6, 0.0], [0.7, 0.0, 0.0]], np.float32)
+
+    class Ranked(ConstantModule):
+        def forward(self, batch):  # the first candidate scores best, then the second, then the third
+            return torch.tensor([[0.9, 0.8, 0.7]]) + 0.0 * self.net.weight.sum()
+
+    box = np.c_[np.random.default_rng(1).uniform(-0.15, 0.15, (50, 2)) + [1.0, -0.5], np.full(50, 0.3)]
+    cloud = np.r_[xyz, box].astype(np.float32)  # furniture where the first candidate's base would stand
+    flags = np.r_[feat, np.zeros((50, 1), np.float32)]
+    raw = predict_from_points(Ranked(), cloud, flags, floor, [0.85, 1.03], t, num_points=None)
+    assert footprint_blocked(cloud, raw.best_pose) and raw.best_pose[:2] == pytest.approx((1.0, -0.5))
+    free = predict_from_points(Ranked(), cloud, flags, floor, [0.85, 1.03], t, num_points=None, free_k=3)
+    assert not footprint_blocked(cloud, free.best_pose) and free.best_pose[:2] == pytest.approx((0.9, 0.6))
+    assert free.top_poses == raw.top_poses  # the ranking itself does not change
+    with pytest.raises(ValueError, match="free_k must be an int >= 1"):
+        predict_from_points(Ranked(), cloud, flags, floor, [0.85, 1.03], t, free_k=0)
