@@ -176,3 +176,25 @@ def test_an_unrotated_prior_is_read_unrotated():
     """A grid filled with yaw_source none holds target-centred, unrotated labels: by default it is read so."""
     assert CanonicalPriorModule(yaw_source="none").eval_yaw_source == "none"
     assert CanonicalPriorModule(yaw_source="none", eval_yaw_source="manhattan").eval_yaw_source == "manhattan"
+
+
+def test_a_grid_loaded_under_another_task_order_reads_each_task_from_its_own_layer():
+    """The grid saved its layers but not which task each held: loaded with the tasks in another order (a ``tasks``
+    argument given with a checkpoint) every task read another task's average."""
+    from floaff_zoo.nn.prior import CanonicalLabelGrid
+
+    tasks = ["PnPCounterToCab", "OpenSingleDoor", "CloseDrawer", "CloseDoubleDoor"]
+    saved = CanonicalLabelGrid(tasks, cell=0.5, extent=1.0)
+    for i in range(len(tasks)):
+        saved.sums[i].fill_(float(i + 1))
+        saved.counts[i].fill_(1.0)
+    state = saved.state_dict()
+    other = CanonicalLabelGrid(list(reversed(tasks)), cell=0.5, extent=1.0)
+    other.load_state_dict(state)
+    for name in tasks:
+        assert float(other.sums[other.tasks.index(name)].mean()) == float(tasks.index(name) + 1), name
+    with pytest.raises(RuntimeError, match=r"the saved grid holds tasks .* configured for \['CloseDrawer'"):
+        CanonicalLabelGrid(["CloseDrawer", "OpenSingleDoor", "PnPCounterToCab", "CloseDoubleDoot"], 0.5, 1.0
+                           ).load_state_dict(state)  # fmt: skip
+    legacy = {k: v for k, v in state.items() if k != "task_names"}  # saved before the grid named its tasks
+    assert CanonicalLabelGrid(tasks, cell=0.5, extent=1.0).load_state_dict(legacy, strict=True).missing_keys == []

@@ -26,6 +26,16 @@ from torch import Tensor, nn
 __all__ = ["CanonicalLabelGrid"]
 
 
+def _encode_names(names: Sequence[str]) -> Tensor:
+    """Task names -> a uint8 tensor (their UTF-8 text, one per line): a buffer, saved with the state."""
+    return torch.tensor(list("\n".join(names).encode()), dtype=torch.uint8)
+
+
+def _decode_names(codes: Tensor) -> list[str]:
+    """The task names ``_encode_names`` wrote."""
+    return bytes(codes.to(torch.uint8).tolist()).decode().split("\n")
+
+
 class CanonicalLabelGrid(nn.Module):
     """Sums and counts of labels per task on a ``size x size`` grid of ``cell`` metres (buffers, saved).
 
@@ -57,8 +67,9 @@ class CanonicalLabelGrid(nn.Module):
         self.smooth_sigma_cells, self.fill = float(smooth_sigma_cells), float(fill)
         self.register_buffer("sums", torch.zeros(len(self.tasks), self.size, self.size, dtype=torch.float64))
         self.register_buffer("counts", torch.zeros(len(self.tasks), self.size, self.size, dtype=torch.float64))
-        # saved with the sums: the binning they were accumulated with
+        # saved with the sums: the binning they were accumulated with, and which task each layer holds
         self.register_buffer("centred", torch.tensor(bool(centred)))
+        self.register_buffer("task_names", _encode_names(self.tasks))
         self._lower = self._lower_edge(bool(centred))
         self._maps: tuple[tuple, Tensor] | None = None  # (buffer versions, mean maps): read() runs every batch
 
@@ -83,6 +94,10 @@ class CanonicalLabelGrid(nn.Module):
     ) -> None:
         key = prefix + "centred"
         recorded = key in state_dict
+        names_key = prefix + "task_names"
+        named = names_key in state_dict
+        if named:
+            self._align_tasks(state_dict, prefix, error_msgs)
         super()._load_from_state_dict(
             state_dict, prefix, local_metadata, strict, missing_keys, unexpected_keys, error_msgs
         )
@@ -90,7 +105,27 @@ class CanonicalLabelGrid(nn.Module):
             if key in missing_keys:
                 missing_keys.remove(key)
             self.centred.fill_(False)
+        if not named and names_key in missing_keys:  # saved before the grid named its tasks: read in today's order
+            missing_keys.remove(names_key)
         self._lower = self._lower_edge(bool(self.centred))
+
+    def _align_tasks(self, state_dict: dict[str, Any], prefix: str, error_msgs: list[str]) -> None:
+        """Put a saved grid's task layers in this grid's task order (``state_dict`` is the loader's own copy); an
+        error when the saved grid holds other tasks. Without this a grid loaded under another task list (another
+        order, a ``tasks`` argument given with a checkpoint) read each task from another task's layer."""
+        saved = _decode_names(state_dict[prefix + "task_names"])
+        if saved == self.tasks:
+            return
+        if sorted(saved) != sorted(self.tasks):
+            error_msgs.append(
+                f"CanonicalLabelGrid: the saved grid holds tasks {saved}, this model is configured for {self.tasks}"
+            )
+            return
+        order = torch.as_tensor([saved.index(t) for t in self.tasks], dtype=torch.long)
+        for name in ("sums", "counts"):
+            if prefix + name in state_dict:
+                state_dict[prefix + name] = state_dict[prefix + name].index_select(0, order)
+        state_dict[prefix + "task_names"] = _encode_names(self.tasks)
 
     def _lower_edge(self, centred: bool) -> float:
         """Coordinate (m) of the grid's lower cell edge on both axes (kept as a float: no device sync per read)."""
