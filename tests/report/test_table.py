@@ -228,3 +228,20 @@ def test_a_cell_from_fewer_runs_than_its_row_says_so(tmp_path):
     assert "(n=1/2)" in render(build_table(reports, "sr_views", oracle=False), "latex")
     # both runs carry map metrics: those cells are over both and carry no mark
     assert "(n=" not in render(build_table(reports, "map"), "md").split("\n\n")[0]
+
+
+def test_rows_that_read_the_simulators_yaw_are_marked(tmp_path):
+    """Nothing marked a row whose runs read the simulator's target yaw at test time (a model configured with
+    eval_yaw_source: gt, C2F-Exp with yaw_source: gt), which a robot does not have."""
+    src = json.loads((RUNS / "cfar_styles_s0" / "report.json").read_text())
+    gt = dict(src, model=dict(src["model"], hparams=dict(src["model"]["hparams"], eval_yaw_source="gt")))
+    c2f = dict(src, model={"name": "C2FExpModule", "hparams": {"yaw_source": "gt"}}, checkpoint=None)
+    c2f_fair = dict(c2f, model={"name": "C2FExpModule", "hparams": {"yaw_source": "manhattan"}}, label="fair")
+    names = [r.name for r in build_table([gt, c2f], "sr_views").sections[0].rows if not r.oracle]
+    assert sorted(names) == ["C2FExpModule (simulator yaw)", "CFARModule (simulator yaw)"]
+    for preset in ("map", "sr_tasks"):
+        rows = [r for r in build_table([gt], preset).sections[0].rows if not r.oracle]
+        assert rows and all(r.name.endswith("(simulator yaw)") for r in rows)
+    labelled = dict(gt, label="CFAR, simulator yaw")
+    assert build_table([labelled, c2f_fair], "map", group_by="label").sections[0].rows[0].name == "CFAR, simulator yaw"
+    assert build_table([c2f_fair], "map").sections[0].rows[0].name == "C2FExpModule"

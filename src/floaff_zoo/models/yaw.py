@@ -47,7 +47,8 @@ __all__ = [
 ]
 
 YawSource = Literal["gt", "axisnet", "axisnet_manhattan", "manhattan", "heading", "none"]
-#: sources that read a simulator field: allowed in training, flagged at test time
+#: sources that read a simulator field: allowed in training; at test time ``floaff-zoo table`` marks the rows of
+#: runs that used one "(simulator yaw)"
 PRIVILEGED_YAW = frozenset({"gt"})
 #: sources that need an AxisNet
 AXISNET_YAW = frozenset({"axisnet", "axisnet_manhattan"})

@@ -33,6 +33,9 @@ so is an Oracle row over reports of different SR protocols (or pass ``--no-oracl
 (without an Oracle row) are allowed, since a top-k ablation compares them on purpose; the Markdown note and stderr name
 the setting and the rows of each value.
 
+A row whose runs read the simulator's target yaw at test time (``eval_yaw_source: gt``; C2F-Exp's ``yaw_source:
+gt``), which a robot does not have, is named with `` (simulator yaw)`` unless its name says so already.
+
 Runs whose reports give one scene different label hashes (``data.labels_sha256``: copies of a preset generated on
 different CPUs differ in a few rollouts) are not put in one table unless ``--allow-mixed-data`` says so; reports
 written before the hash was recorded are not checked.
@@ -428,6 +431,30 @@ def mixed_protocols(rows: list[tuple[str, list[dict[str, Any]]]], keys: tuple[st
     return f"rows differ in {'; '.join(parts)}" if parts else ""
 
 
+#: the report field that names the yaw a model read at test time, per model class (others: ``eval_yaw_source``)
+_EVAL_YAW_FIELD = {"C2FExpModule": "yaw_source"}
+#: the marker of a row whose runs read the simulator's yaw at test time
+SIMULATOR_YAW = "simulator yaw"
+
+
+def privileged_yaw(report: dict[str, Any]) -> bool:
+    """Whether a report's model read the simulator's target yaw at test time (``floaff_zoo.models.yaw``'s
+    ``PRIVILEGED_YAW`` sources), which a robot does not have."""
+    from floaff_zoo.models.yaw import PRIVILEGED_YAW
+
+    model = report.get("model") or {}
+    hparams = model.get("hparams") or {}
+    return hparams.get(_EVAL_YAW_FIELD.get(str(model.get("name")), "eval_yaw_source")) in PRIVILEGED_YAW
+
+
+def _marked(name: str, reports: list[dict[str, Any]]) -> str:
+    """A row's name, with `` (simulator yaw)`` when one of its runs read the simulator's yaw at test time and the
+    name does not say so already: such a row is no fair comparison and must not pass for one."""
+    if SIMULATOR_YAW in name.lower() or not any(privileged_yaw(r) for r in reports):
+        return name
+    return f"{name} ({SIMULATOR_YAW})"
+
+
 def _row_name(name: str, section: str) -> str:
     """``row 'CFARModule' (FloAff-Kitchen (Styles))``: a row as errors name it."""
     return f"row {name!r}" + (f" ({section})" if section else "")
@@ -528,7 +555,7 @@ def build_table(
             sec = Section(title)
             for name, group in _group_rows(reps, group_by, numeric, title):
                 cells = [_cell(group, lambda r, k=k: _metric(r, k)) for k, _, _, _ in MAP_COLUMNS]
-                sec.rows.append(Row(name, cells, len(group)))
+                sec.rows.append(Row(_marked(name, group), cells, len(group)))
             sections.append(sec)
         header = {"map": "Method", "ablation": "Ablation", "sweep": group_by.rsplit(".", 1)[-1]}[preset]
         return Table(preset, header, columns, sections, note)
@@ -547,7 +574,8 @@ def build_table(
                 group = [r for r in reps if _fmt_key(lookup(r, group_by)) == name]
                 runs += len(group)
                 cells += [_cell(group, lambda r, v=v: _sr(r, "model", view=v)) for v in VIEWS]
-            sec.rows.append(Row(name, cells, runs))
+            row_reports = [r for r in reports if _fmt_key(lookup(r, group_by)) == name]
+            sec.rows.append(Row(_marked(name, row_reports), cells, runs))
         if oracle:
             for bench, reps in benches:
                 check_oracle(reps, bench)
@@ -577,7 +605,11 @@ def build_table(
         for name, group in _group_rows(reps, group_by, False, title):
             all_rows.append((name, group))
             sec.rows.append(
-                Row(name, [_cell(group, lambda r, t=t: _sr(r, "model", task=t)) for t in tasks], len(group))
+                Row(
+                    _marked(name, group),
+                    [_cell(group, lambda r, t=t: _sr(r, "model", task=t)) for t in tasks],
+                    len(group),
+                )
             )
         if oracle:
             check_oracle(reps, title)
