@@ -198,3 +198,25 @@ def test_a_grid_loaded_under_another_task_order_reads_each_task_from_its_own_lay
                            ).load_state_dict(state)  # fmt: skip
     legacy = {k: v for k, v in state.items() if k != "task_names"}  # saved before the grid named its tasks
     assert CanonicalLabelGrid(tasks, cell=0.5, extent=1.0).load_state_dict(legacy, strict=True).missing_keys == []
+
+
+def test_a_checkpoints_axisnet_is_kept_when_the_configured_one_was_only_rebuilt():
+    """A configured AxisNet rebuilt from an architecture record without a sha256 (its weights still to come from the
+    checkpoint) replaced the checkpoint's trained AxisNet with its own random weights."""
+    from floaff_zoo.models.yaw import build_axisnet, keep_configured_axisnet
+
+    arch = {"crop_radius": 1.2, "widths": [8, 8, 8], "head": [8], "sha256": None}
+    trained, _ = build_axisnet(arch, "test")
+    rebuilt, _ = build_axisnet(arch, "test")
+    with torch.no_grad():
+        for p in trained.parameters():
+            p.add_(1.0)
+    checkpoint = {"state_dict": {f"axisnet.{k}": v.clone() for k, v in trained.state_dict().items()}}
+    checkpoint["hyper_parameters"] = {"axisnet_arch": dict(arch)}
+    keep_configured_axisnet(checkpoint, rebuilt, arch)
+    for k, v in trained.state_dict().items():
+        assert torch.equal(checkpoint["state_dict"][f"axisnet.{k}"], v), k
+    # one loaded from a file of its own (a sha256) still replaces the checkpoint's
+    keep_configured_axisnet(checkpoint, rebuilt, dict(arch, sha256="ab" * 32))
+    for k, v in rebuilt.state_dict().items():
+        assert torch.equal(checkpoint["state_dict"][f"axisnet.{k}"], v), k

@@ -139,7 +139,10 @@ def keep_configured_axisnet(
     hp = checkpoint.setdefault("hyper_parameters", {})
     stored = (hp.get("axisnet_arch") or {}).get("sha256")
     has_keys = any(k.startswith(prefix) for k in checkpoint["state_dict"])
-    if has_keys and stored and stored == arch.get("sha256"):
+    own = arch.get("sha256")
+    # a configured AxisNet without a sha256 was rebuilt from an architecture record, its weights still to come from
+    # the checkpoint: only one loaded from a file of its own (a sha256) replaces the checkpoint's
+    if has_keys and (not own or stored == own):
         return
     for k in [k for k in checkpoint["state_dict"] if k.startswith(prefix)]:
         del checkpoint["state_dict"][k]
