@@ -61,6 +61,20 @@ def package_versions() -> dict[str, str | None]:
     return out
 
 
+def checkpoint_record(trainer: L.Trainer, pl_module: L.LightningModule) -> dict[str, Any] | None:
+    """{path, sha256} of what a test evaluates: the ``ckpt_path`` file, else the model's ``weights`` (their sha256
+    as the model loaded them, which also covers a hub name or an exported folder); None for neither."""
+    ckpt = trainer.ckpt_path
+    if ckpt and Path(ckpt).is_file():
+        return {"path": str(Path(ckpt).resolve()), "sha256": sha256_file(ckpt)}
+    hp = dict(pl_module.hparams) if hasattr(pl_module, "hparams") else {}
+    if not hp.get("weights"):
+        return None
+    w = str(hp["weights"])
+    digest = getattr(pl_module, "weights_sha256", None) or (sha256_file(w) if Path(w).is_file() else None)
+    return {"path": w, "sha256": digest}
+
+
 def jsonable(x: Any) -> Any:
     """Convert tensors/numpy/paths inside ``x`` to JSON types (NaN/Inf -> None)."""
     if isinstance(x, dict):
@@ -134,8 +148,26 @@ class TestReport(L.Callback):
         self._replaced: set[str] = set()  # samples that failed at load time and were replaced (meta['replaces'])
         #: paths written by the last test run
         self.written: dict[str, Any] = {}
+        #: what was tested, taken when the test starts (``checkpoint_record``): the file may change or go by the end
+        self._checkpoint: dict[str, Any] | None = None
+        self._weights_known = False  # _checkpoint was taken for this run
+        #: the run's saved config, read when the test starts (a later run in the folder may rewrite config.yaml)
+        self._config: dict[str, Any] | None = None
+        self._config_known = False
 
     # ------------------------------------------------------------------------------ collection
+    def on_test_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        """Take the tested checkpoint's path and sha256 and the run's config.yaml now, right after Lightning loaded
+        the checkpoint and LightningCLI saved the config: a fit still running rewrites ``last.ckpt`` and deletes an
+        older best, and a later run in the folder rewrites config.yaml, so what the test's end finds can be another
+        run's. (``trainer.log_dir`` is a broadcast under DDP: every rank calls it here.)"""
+        self._checkpoint, self._weights_known = checkpoint_record(trainer, pl_module), True
+        log_dir = trainer.log_dir
+        self._config = read_config(Path(log_dir)) if log_dir else None
+        if self._config is None and self.out_dir:
+            self._config = read_config(Path(self.out_dir))
+        self._config_known = True
+
     def on_test_epoch_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         self._samples, self._counts = [], {}
         self._seen = {"dataset": set(), "task": set(), "view": set()}
@@ -214,6 +246,8 @@ class TestReport(L.Callback):
             report["figures"] = [p.relative_to(run_dir).as_posix() for p in paths]
         if self.write_episodes and episodes:
             (run_dir / "sr_episodes.json").write_text(json.dumps(jsonable(episodes), indent=1))
+        elif (run_dir / "sr_episodes.json").is_file():  # an earlier run's episodes would sit beside this report
+            (run_dir / "sr_episodes.json").unlink()
         report = jsonable(report)
         (run_dir / "report.json").write_text(json.dumps(report, indent=2, sort_keys=False))
         (run_dir / "report.md").write_text(render_markdown(report))
@@ -223,6 +257,11 @@ class TestReport(L.Callback):
             "report_md": str(run_dir / "report.md"),
             "figures": report.get("figures", []),
         }
+
+    def teardown(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
+        if stage == "test":  # the next run takes its own
+            self._checkpoint, self._weights_known = None, False
+            self._config, self._config_known = None, False
 
     def build_report(
         self,
@@ -241,19 +280,16 @@ class TestReport(L.Callback):
         missing = [k for k in configured if k not in metrics]
         if missing:
             warnings.warn(f"TestReport: configured metric(s) {missing} were not logged", stacklevel=2)
-        config = read_config(Path(log_dir)) if log_dir else None
-        if config is None and self.out_dir:
-            config = read_config(run_dir)
+        if self._config_known:
+            config = self._config
+        else:  # called outside a test run (tests build reports directly)
+            config = read_config(Path(log_dir)) if log_dir else None
+            if config is None and self.out_dir:
+                config = read_config(run_dir)
         seed = (config or {}).get("seed_everything")
         if seed is None and os.environ.get("PL_GLOBAL_SEED") is not None:
             seed = int(os.environ["PL_GLOBAL_SEED"])
-        ckpt = trainer.ckpt_path
-        checkpoint = None
-        if ckpt and Path(ckpt).is_file():
-            checkpoint = {"path": str(Path(ckpt).resolve()), "sha256": sha256_file(ckpt)}
-        elif hp.get("weights"):
-            w = str(hp["weights"])
-            checkpoint = {"path": w, "sha256": sha256_file(w) if Path(w).is_file() else None}
+        checkpoint = self._checkpoint if self._weights_known else checkpoint_record(trainer, pl_module)
         dm = trainer.datamodule
         datasets = sorted(self._seen.get("dataset", ()))
         benchmark = getattr(dm, "benchmark", None) or (datasets[0] if len(datasets) == 1 else "+".join(datasets))

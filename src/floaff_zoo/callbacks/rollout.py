@@ -356,6 +356,9 @@ class RolloutSuccessRate(L.Callback):
         self._active[stage] = active
         self._pending[stage] = []
         self._skipped[stage] = []
+        # an inactive run must not leave the previous run's results to be read as its own (the test report does)
+        self.summaries.pop(stage, None)
+        self.episodes.pop(stage, None)
 
     def _collect(self, stage: str, batch: dict[str, Any], scores: torch.Tensor, dataloader_idx: int = 0) -> None:
         """Choose poses for every sim sample of a batch (scores [B, M]); rollouts run at epoch end."""

@@ -1,0 +1,81 @@
+"""The test report names what was tested: the checkpoint as loaded, the weights by their hash, and this run's SR."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import lightning as L
+
+from floaff_zoo.callbacks.report import TestReport
+from floaff_zoo.callbacks.rollout import RolloutSuccessRate
+from floaff_zoo.hub.registry import sha256_file
+from tests.report._fake_world import ConstantModule, FakeService, LabelModule, loader, make_samples
+
+
+def _trainer(callbacks: list) -> L.Trainer:
+    return L.Trainer(
+        accelerator="cpu",
+        logger=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        enable_checkpointing=False,
+        callbacks=callbacks,
+    )
+
+
+class _Overwrite(L.Callback):
+    """Replaces the checkpoint file while the test runs (a fit still running rewrites last.ckpt)."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+
+    def on_test_epoch_end(self, trainer, pl_module) -> None:
+        self.path.write_bytes(b"another fit's checkpoint")
+
+
+def test_the_checkpoint_is_named_as_it_was_loaded(tmp_path):
+    """The report hashed the checkpoint when the test ended: a file rewritten meanwhile was recorded by bytes that
+    were never tested (or as null when it had gone)."""
+    samples = make_samples(4)
+    first = _trainer([])
+    first.test(ConstantModule(), dataloaders=loader(samples), verbose=False)
+    ckpt = tmp_path / "m.ckpt"
+    first.save_checkpoint(ckpt)
+    loaded = sha256_file(ckpt)
+    report = TestReport(out_dir=str(tmp_path / "r"), figures=False)
+    _trainer([report, _Overwrite(ckpt)]).test(
+        ConstantModule(), dataloaders=loader(samples), ckpt_path=str(ckpt), verbose=False
+    )
+    rep = json.loads((tmp_path / "r" / "report.json").read_text())
+    assert rep["checkpoint"] == {"path": str(ckpt.resolve()), "sha256": loaded}
+    assert sha256_file(ckpt) != loaded
+
+
+def test_a_run_without_rollouts_reports_no_earlier_sr(tmp_path):
+    """A second test whose rollouts were off reported the first test's SR (the callback kept its summary) and left
+    the first run's sr_episodes.json beside the new report."""
+    samples = make_samples(4)
+    rollout = RolloutSuccessRate(service=FakeService, progress=False)
+    report = TestReport(out_dir=str(tmp_path), figures=False)
+    trainer = _trainer([rollout, report])
+    trainer.test(LabelModule(), dataloaders=loader(samples), verbose=False)
+    assert json.loads((tmp_path / "report.json").read_text())["sr"]["available"] is True
+    assert (tmp_path / "sr_episodes.json").is_file()
+    rollout.on_test = False
+    trainer.test(ConstantModule(), dataloaders=loader(samples), verbose=False)
+    rep = json.loads((tmp_path / "report.json").read_text())
+    assert rep["sr"]["available"] is False and not (tmp_path / "sr_episodes.json").exists()
+
+
+def test_weights_given_by_hub_name_or_folder_are_named_by_their_hash():
+    """Weights given by hub name or exported folder were recorded with sha256 null (only a file was hashed), so a
+    table took two tests of one set of weights for two seeds."""
+    from types import SimpleNamespace
+
+    from floaff_zoo.callbacks.report import checkpoint_record
+
+    module = SimpleNamespace(hparams={"weights": "cfar-pfal.floaff-dense-layouts.v11"}, weights_sha256="ab" * 32)
+    record = checkpoint_record(SimpleNamespace(ckpt_path=None), module)
+    assert record == {"path": "cfar-pfal.floaff-dense-layouts.v11", "sha256": "ab" * 32}
+    assert checkpoint_record(SimpleNamespace(ckpt_path=None), SimpleNamespace(hparams={})) is None
