@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import lightning as L
 import numpy as np
 import torch
 
@@ -112,3 +113,15 @@ class LabelModule(ConstantModule):
 
     def forward(self, batch):
         return batch["floor_label"].clone() + 0.0 * self.net.weight.sum()
+
+
+def quiet_trainer(callbacks: list) -> L.Trainer:
+    """A CPU trainer without logger, progress bar, summary or checkpoints, with ``callbacks``."""
+    return L.Trainer(
+        accelerator="cpu",
+        logger=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        enable_checkpointing=False,
+        callbacks=callbacks,
+    )

@@ -10,18 +10,7 @@ import lightning as L
 from floaff_zoo.callbacks.report import TestReport
 from floaff_zoo.callbacks.rollout import RolloutSuccessRate
 from floaff_zoo.hub.registry import sha256_file
-from tests.report._fake_world import ConstantModule, FakeService, LabelModule, loader, make_samples
-
-
-def _trainer(callbacks: list) -> L.Trainer:
-    return L.Trainer(
-        accelerator="cpu",
-        logger=False,
-        enable_progress_bar=False,
-        enable_model_summary=False,
-        enable_checkpointing=False,
-        callbacks=callbacks,
-    )
+from tests.report._fake_world import ConstantModule, FakeService, LabelModule, loader, make_samples, quiet_trainer
 
 
 class _Overwrite(L.Callback):
@@ -38,13 +27,13 @@ def test_the_checkpoint_is_named_as_it_was_loaded(tmp_path):
     """The report hashed the checkpoint when the test ended: a file rewritten meanwhile was recorded by bytes that
     were never tested (or as null when it had gone)."""
     samples = make_samples(4)
-    first = _trainer([])
+    first = quiet_trainer([])
     first.test(ConstantModule(), dataloaders=loader(samples), verbose=False)
     ckpt = tmp_path / "m.ckpt"
     first.save_checkpoint(ckpt)
     loaded = sha256_file(ckpt)
     report = TestReport(out_dir=str(tmp_path / "r"), figures=False)
-    _trainer([report, _Overwrite(ckpt)]).test(
+    quiet_trainer([report, _Overwrite(ckpt)]).test(
         ConstantModule(), dataloaders=loader(samples), ckpt_path=str(ckpt), verbose=False
     )
     rep = json.loads((tmp_path / "r" / "report.json").read_text())
@@ -58,7 +47,7 @@ def test_a_run_without_rollouts_reports_no_earlier_sr(tmp_path):
     samples = make_samples(4)
     rollout = RolloutSuccessRate(service=FakeService, progress=False)
     report = TestReport(out_dir=str(tmp_path), figures=False)
-    trainer = _trainer([rollout, report])
+    trainer = quiet_trainer([rollout, report])
     trainer.test(LabelModule(), dataloaders=loader(samples), verbose=False)
     assert json.loads((tmp_path / "report.json").read_text())["sr"]["available"] is True
     assert (tmp_path / "sr_episodes.json").is_file()

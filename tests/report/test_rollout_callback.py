@@ -18,18 +18,11 @@ from floaff_zoo.callbacks.rollout import (
     summarize_episodes,
 )
 from tests.report._fake_jobs import BASE_RATE
-from tests.report._fake_world import ConstantModule, FakeService, LabelModule, loader, make_samples
+from tests.report._fake_world import ConstantModule, FakeService, LabelModule, loader, make_samples, quiet_trainer
 
 
 def _trainer(cb):
-    return L.Trainer(
-        accelerator="cpu",
-        logger=False,
-        enable_progress_bar=False,
-        enable_model_summary=False,
-        enable_checkpointing=False,
-        callbacks=[cb],
-    )
+    return quiet_trainer([cb])
 
 
 def test_base_to_world_round_trip():

@@ -2,7 +2,6 @@
 
 import json
 
-import lightning as L
 import numpy as np
 import pytest
 
@@ -10,7 +9,7 @@ from floaff_zoo.callbacks import RolloutSuccessRate, TestReport
 from floaff_zoo.contract import validate_sample
 from floaff_zoo.sim import fileformat as ff
 from floaff_zoo.sim import generate as gen
-from tests.report._fake_world import ConstantModule, LabelModule, loader
+from tests.report._fake_world import ConstantModule, LabelModule, loader, quiet_trainer
 
 
 @pytest.fixture(scope="module")
@@ -41,15 +40,7 @@ def sim_samples(tmp_path_factory):
 
 
 def _test(module, samples, callbacks):
-    trainer = L.Trainer(
-        accelerator="cpu",
-        logger=False,
-        enable_progress_bar=False,
-        enable_model_summary=False,
-        enable_checkpointing=False,
-        callbacks=callbacks,
-    )
-    return trainer.test(module, dataloaders=loader(samples, 4), verbose=False)[0]
+    return quiet_trainer(callbacks).test(module, dataloaders=loader(samples, 4), verbose=False)[0]
 
 
 def test_oracle_succeeds_and_constant_map_is_no_better_than_chance(sim_samples, tmp_path):
