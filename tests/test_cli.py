@@ -158,3 +158,20 @@ def test_a_batch_limit_of_1_is_one_batch(tmp_path, root, monkeypatch):
     assert one.trainer.global_step == 1 and one.trainer.num_val_batches == [1]
     every = run_lightning([*base, "--trainer.limit_train_batches", "1.0"])
     assert every.trainer.global_step == every.trainer.num_training_batches > 1
+    cfg = tmp_path / "one_batch.yaml"
+    cfg.write_text("trainer:\n  limit_train_batches: 1\n")  # a config file's int means one batch too
+    assert run_lightning([*base, "--config", str(cfg)]).trainer.global_step == 1
+
+
+def test_integer_limits_follow_the_parsers_order(tmp_path):
+    """The last of the command line and the --config files decides; a YAML int counts as an integer."""
+    from floaff_zoo.cli import integer_limits
+
+    cfg = tmp_path / "limits.yaml"
+    cfg.write_text("trainer:\n  limit_val_batches: 1\n  limit_test_batches: 0.5\n  limit_train_batches: 1.0\n")
+    assert integer_limits(["--trainer.limit_val_batches=2", "--config", str(cfg)]) == {"val": 1}
+    args = ["--config", str(cfg), "--trainer.limit_val_batches", "1.0", "--trainer.limit_test_batches=3"]
+    assert integer_limits(args) == {"test": 3}
+    assert integer_limits(["--config", str(tmp_path / "missing.yaml"), "--trainer.limit_predict_batches", "1"]) == {
+        "predict": 1
+    }

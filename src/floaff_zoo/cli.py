@@ -17,6 +17,7 @@ from types import FrameType, TracebackType
 from typing import Any
 
 import lightning as L
+import yaml
 from jsonargparse import Namespace
 from lightning.pytorch.callbacks import ModelCheckpoint, TQDMProgressBar
 from lightning.pytorch.cli import LightningCLI
@@ -147,6 +148,41 @@ def _one_line(text: str) -> str:
     return " ".join(text.split())
 
 
+_LIMIT_STAGES = ("train", "val", "test", "predict")
+
+
+def integer_limits(args: list[str]) -> dict[str, int]:
+    """stage -> its ``limit_<stage>_batches`` where the value given last (the command line and ``--config`` files in
+    order, as the parser applies them) is an integer: a literal such as ``1``, or an int in the file's YAML."""
+    given: dict[str, Any] = {}
+    for i, arg in enumerate(args):
+        if arg == "--config" and i + 1 < len(args):
+            trainer = _yaml_mapping(args[i + 1]).get("trainer")
+            for stage in _LIMIT_STAGES:
+                if isinstance(trainer, dict) and f"limit_{stage}_batches" in trainer:
+                    given[stage] = trainer[f"limit_{stage}_batches"]
+            continue
+        for stage in _LIMIT_STAGES:
+            flag = f"--trainer.limit_{stage}_batches"
+            if arg == flag and i + 1 < len(args):
+                text = args[i + 1]
+            elif arg.startswith(flag + "="):
+                text = arg.partition("=")[2]
+            else:
+                continue
+            given[stage] = int(text) if text.strip().isdigit() else text
+    return {s: v for s, v in given.items() if isinstance(v, int) and not isinstance(v, bool)}
+
+
+def _yaml_mapping(path: str) -> dict[str, Any]:
+    """A config file's top-level mapping ({} when it is not one: the parser reports such files itself)."""
+    try:
+        data = yaml.safe_load(Path(path).read_text())
+    except (OSError, yaml.YAMLError, UnicodeDecodeError):
+        return {}
+    return data if isinstance(data, dict) else {}
+
+
 class FloAffCLI(LightningCLI):
     """LightningCLI with the zoo's defaults and guards."""
 
@@ -268,17 +304,12 @@ class FloAffCLI(LightningCLI):
         return str(init_args.get("weights") if init_args is not None else None)
 
     def _integer_limits(self, trainer: Any) -> None:
-        """``--trainer.limit_<stage>_batches 1`` means one batch. Lightning types these ``float | int``, float first,
-        so the parser reads ``1`` as 1.0, which Lightning takes as a fraction: every batch. Values typed as an
-        integer literal are set back to ints here, after the parser's last type check (``1.0`` keeps meaning every
-        batch)."""
-        args = list(getattr(self, "_raw_args", []))
-        for stage in ("train", "val", "test", "predict"):
-            flag = f"--trainer.limit_{stage}_batches"
-            typed = [args[i + 1] for i, a in enumerate(args[:-1]) if a == flag]
-            typed += [a.split("=", 1)[1] for a in args if a.startswith(flag + "=")]
-            if typed and typed[-1].strip().isdigit():
-                setattr(trainer, f"limit_{stage}_batches", int(typed[-1]))
+        """``limit_<stage>_batches: 1`` means one batch. Lightning types these ``float | int``, float first, so the
+        parser reads ``1`` as 1.0, which Lightning takes as a fraction: every batch. A limit last given as an integer
+        (``--trainer.limit_val_batches 1`` or a ``--config`` file's ``trainer: {limit_val_batches: 1}``) is set back
+        to an int here, after the parser's last type check; ``1.0`` keeps meaning every batch."""
+        for stage, value in integer_limits(getattr(self, "_raw_args", [])).items():
+            setattr(trainer, f"limit_{stage}_batches", value)
 
     def before_instantiate_classes(self) -> None:
         cfg = self.config[self.subcommand]
