@@ -39,3 +39,14 @@ def pose_to_world(pose: Pose, base_pose_world: Sequence[float]) -> Pose:
     if yaw <= -math.pi:  # atan2 gives -pi for a sine of -0.0: the interval is (-pi, pi]
         yaw += 2.0 * math.pi
     return float(xy[0]), float(xy[1]), float(yaw)
+
+
+def pose_to_base(pose: Pose, base_pose_world: Sequence[float]) -> Pose:
+    """A world SE(2) pose (x, y, yaw) -> the base frame: the inverse of :func:`pose_to_world`."""
+    x0, y0, b = (float(v) for v in base_pose_world)
+    dx, dy = float(pose[0]) - x0, float(pose[1]) - y0
+    c, s = math.cos(b), math.sin(b)
+    yaw = math.atan2(math.sin(pose[2] - b), math.cos(pose[2] - b))
+    if yaw <= -math.pi:
+        yaw += 2.0 * math.pi
+    return c * dx + s * dy, -s * dx + c * dy, float(yaw)

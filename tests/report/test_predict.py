@@ -266,3 +266,29 @@ def test_free_k_stands_on_the_best_pose_whose_footprint_is_free():
     assert free.top_poses == raw.top_poses  # the ranking itself does not change
     with pytest.raises(ValueError, match="free_k must be an int >= 1"):
         predict_from_points(Ranked(), cloud, flags, floor, [0.85, 1.03], t, free_k=0)
+
+
+@pytest.mark.parametrize("base", [(0.0, 0.0, 0.0), (1.3, -0.4, 2.9), (-2.0, 0.5, -1.2)])
+def test_pose_to_base_inverts_pose_to_world(base):
+    from floaff_zoo.frames import pose_to_base, pose_to_world
+
+    for pose in [(0.5, -0.2, 0.3), (1.5, 0.5, -3.0), (0.0, 0.0, math.pi)]:
+        back = pose_to_base(pose_to_world(pose, base), base)
+        assert back[:2] == pytest.approx(pose[:2], abs=1e-9)
+        assert math.cos(back[2] - pose[2]) == pytest.approx(1.0)
+
+
+def test_a_figure_without_its_kitchen_marks_the_rolled_out_pose():
+    """A sim sample whose scene could not be rebuilt was drawn in the base frame with the argmax marked, under the
+    title of the rolled-out pose's outcome (another pose with a top-k footprint check)."""
+    from floaff_zoo.frames import pose_to_world
+    from floaff_zoo.report.figures import FigureSample, drawn_pose
+
+    base = (2.0, -1.0, 0.7)
+    floor = np.array([[1.0, 0.0, 0.0], [1.5, 0.5, 0.0]])
+    rolled = pose_to_world((1.5, 0.5, 0.2), base)  # not the argmax (the first cell scores higher)
+    s = FigureSample(floor, np.zeros(2), np.array([0.9, 0.1]), np.array([2.0, 0.3, 0.5]), 0.0,
+                     meta={"sim": {"base_pose_world": list(base)}}, chosen=rolled)  # fmt: skip
+    assert drawn_pose(s, s.chosen, s.scores, None)[:2] == pytest.approx((1.5, 0.5))  # plain scatter: base frame
+    assert drawn_pose(s, s.chosen, s.scores, base) == rolled  # over the kitchen: the world pose as given
+    assert drawn_pose(s, None, s.scores, None)[:2] == pytest.approx((1.0, 0.0))  # nothing rolled out: the argmax

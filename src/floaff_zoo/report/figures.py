@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from floaff_zoo.contract import best_pose
-from floaff_zoo.frames import base_to_world, pose_to_world
+from floaff_zoo.frames import base_to_world, pose_to_base, pose_to_world
 
 
 @dataclass
@@ -71,6 +71,18 @@ def _outcome(ok: bool | None) -> str:
     return "" if ok is None else (" (success)" if ok else " (fail)")
 
 
+def drawn_pose(s: FigureSample, given: Any, values: np.ndarray, base: Sequence[float] | None) -> tuple:
+    """The pose a panel marks, in the panel's frame: the world when ``base`` (the view's base pose) is given (a
+    figure over the kitchen), else the base frame. ``given`` (the rolled-out pose, a world pose for sim samples) is
+    turned back into the base frame for a sim sample drawn without its kitchen; without one, the top-scored cell of
+    ``values`` [M]."""
+    world_base = ((s.meta or {}).get("sim") or {}).get("base_pose_world")
+    if given is not None:
+        return tuple(given) if base is not None or world_base is None else pose_to_base(given, world_base)
+    p = best_pose(s.floor_xyz, values, None, s.target_xyz, 1)[0]
+    return pose_to_world(p, base) if base is not None else p
+
+
 def draw_sample(
     fig_sample: FigureSample,
     path: str | Path,
@@ -86,14 +98,7 @@ def draw_sample(
     sim = (s.meta or {}).get("sim") if outline is not None else None
     base = sim["base_pose_world"] if sim is not None else None
 
-    def frame_pose(given, values):
-        # given poses are in the drawing frame (world for sim samples); computed ones start in the base frame
-        if given is not None and (base is not None or not (s.meta or {}).get("sim")):
-            return tuple(given)
-        p = best_pose(s.floor_xyz, values, None, s.target_xyz, 1)[0]
-        return pose_to_world(p, base) if base is not None else p
-
-    gt_pose, pr_pose = frame_pose(s.oracle, s.label), frame_pose(s.chosen, s.scores)
+    gt_pose, pr_pose = drawn_pose(s, s.oracle, s.label, base), drawn_pose(s, s.chosen, s.scores, base)
     fig, axes = plt.subplots(1, 2, figsize=(8.6, 4.0), dpi=100)
     try:
         title = f"{s.meta.get('task', '')} | {s.meta.get('view', '') or '-'} | {s.meta.get('sample_id', '')}"
