@@ -94,6 +94,8 @@ def main(argv: list[str] | None = None) -> int:
                     offsets[name][task].append(float(np.hypot(*(guess - view["target_xyz"])[:2])))
     except (OSError, ValueError, KeyError) as exc:
         raise SystemExit(f"target_inputs: {exc}") from exc
+    if not angle and not offsets:
+        raise SystemExit(f"target_inputs: no {a.benchmark} {a.split} view under {a.root}")
     res = {
         "benchmark": a.benchmark,
         "split": a.split,

@@ -31,3 +31,8 @@ def test_target_estimates_centroid_and_nearest_band():
     np.testing.assert_allclose(est["nearest_0.03"], xyz[:2].mean(axis=0))  # within 3 cm of the nearest point
     assert ti.target_estimates(xyz, np.zeros(4)) is None
     assert ti.angle_error_deg(math.radians(89.0), 0.0) == pytest.approx(1.0)
+
+
+def test_a_root_without_views_is_named(tmp_path):
+    with pytest.raises(SystemExit, match="no layouts test view under"):
+        ti.main(["--root", str(tmp_path), "--benchmark", "layouts"])

@@ -115,13 +115,17 @@ class LabelModule(ConstantModule):
         return batch["floor_label"].clone() + 0.0 * self.net.weight.sum()
 
 
-def quiet_trainer(callbacks: list) -> L.Trainer:
-    """A CPU trainer without logger, progress bar, summary or checkpoints, with ``callbacks``."""
+def quiet_trainer(callbacks: list, devices: int = 1, root: str | None = None) -> L.Trainer:
+    """A CPU trainer without logger, progress bar, summary or checkpoints, with ``callbacks``; ``devices`` > 1 runs
+    DDP processes (gloo), ``root`` is its default_root_dir."""
     return L.Trainer(
         accelerator="cpu",
+        devices=devices,
+        strategy="ddp" if devices > 1 else "auto",
         logger=False,
         enable_progress_bar=False,
         enable_model_summary=False,
         enable_checkpointing=False,
         callbacks=callbacks,
+        default_root_dir=root,
     )

@@ -48,25 +48,14 @@ def run_cases(devices: int, out: Path) -> dict[str, dict]:
     """Test ``FirstSampleRight`` on every case with the SR callback (fake simulator) and TestReport, then validate it
     with SR capped at ``VAL_CAP`` samples; on rank 0 the SR summary (less its wall time), the rolled-out sample ids and
     the report's data/sr facts per case."""
-    import lightning as L
 
     from floaff_zoo.callbacks.report import TestReport
     from floaff_zoo.callbacks.rollout import RolloutSuccessRate
-    from tests.report._fake_world import FakeService, loader
+    from tests.report._fake_world import FakeService, loader, quiet_trainer
 
     rollout = RolloutSuccessRate(service=FakeService, progress=False)
     report = TestReport(figures=False)
-    trainer = L.Trainer(
-        accelerator="cpu",
-        devices=devices,
-        strategy="ddp" if devices > 1 else "auto",
-        logger=False,
-        enable_progress_bar=False,
-        enable_model_summary=False,
-        enable_checkpointing=False,
-        callbacks=[rollout, report],
-        default_root_dir=str(out),
-    )
+    trainer = quiet_trainer([rollout, report], devices=devices, root=str(out))
     results: dict[str, dict] = {}
     for name, samples in cases().items():
         report.out_dir = str(out / name)
@@ -113,22 +102,10 @@ class _RaisingService(FakeService):
 
 def fail_on_rank_zero(out: Path) -> None:
     """Test with a rollout service that raises: only rank 0 rolls out, while rank 1 waits for its summary."""
-    import lightning as L
-
     from floaff_zoo.callbacks.rollout import RolloutSuccessRate
-    from tests.report._fake_world import loader, make_samples
+    from tests.report._fake_world import loader, make_samples, quiet_trainer
 
-    trainer = L.Trainer(
-        accelerator="cpu",
-        devices=2,
-        strategy="ddp",
-        logger=False,
-        enable_progress_bar=False,
-        enable_model_summary=False,
-        enable_checkpointing=False,
-        callbacks=[RolloutSuccessRate(service=_RaisingService, progress=False)],
-        default_root_dir=str(out),
-    )
+    trainer = quiet_trainer([RolloutSuccessRate(service=_RaisingService, progress=False)], devices=2, root=str(out))
     trainer.test(FirstSampleRight(), dataloaders=loader(make_samples(N_SAMPLES), batch_size=2), verbose=False)
 
 

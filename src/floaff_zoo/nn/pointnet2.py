@@ -445,8 +445,8 @@ def one_row_batch_norm(z: Tensor, bias: Tensor, norm: nn.BatchNorm1d) -> Tensor:
         norm.num_batches_tracked.add_(1)
         m = norm.momentum if norm.momentum is not None else 1.0 / float(norm.num_batches_tracked)
         with torch.no_grad():
-            norm.running_mean.mul_(1.0 - m).add_((z[0] + bias).to(norm.running_mean.dtype), alpha=m)
-            norm.running_var.mul_(1.0 - m)
+            row = z[0].detach().to(norm.running_mean.dtype)
+            _update_running_stats((norm.running_mean, norm.running_var), row, torch.zeros_like(row), bias, 1, m)
     return norm.bias + 0.0 * (z + bias) * norm.weight
 
 
