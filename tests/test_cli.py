@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+import yaml
 
 from floaff_zoo.cli import CLIError, main, run_lightning
 from tests.conftest import quiet_trainer_args
@@ -156,6 +157,12 @@ def test_a_batch_limit_of_1_is_one_batch(tmp_path, root, monkeypatch):
     base = ["fit", "--config", DATA, "--config", MODEL, *quiet_trainer_args(tmp_path), "--trainer.max_epochs", "1"]
     one = run_lightning([*base, "--trainer.limit_train_batches", "1", "--trainer.limit_val_batches=1"])
     assert one.trainer.global_step == 1 and one.trainer.num_val_batches == [1]
+    saved = Path(one.trainer.log_dir) / "config.yaml"  # the run's own config keeps the integer (it said 1.0)
+    limits = yaml.safe_load(saved.read_text())["trainer"]
+    assert (limits["limit_train_batches"], limits["limit_val_batches"]) == (1, 1)
+    assert type(limits["limit_train_batches"]) is int and limits["limit_test_batches"] is None
+    again = ["fit", "--config", str(saved), "--trainer.default_root_dir", str(tmp_path / "again")]
+    assert run_lightning(again).trainer.global_step == 1
     every = run_lightning([*base, "--trainer.limit_train_batches", "1.0"])
     assert every.trainer.global_step == every.trainer.num_training_batches > 1
     cfg = tmp_path / "one_batch.yaml"

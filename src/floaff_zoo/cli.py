@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import inspect
+import os
 import sys
 from pathlib import Path
 from types import FrameType, TracebackType
@@ -20,7 +21,7 @@ import lightning as L
 import yaml
 from jsonargparse import Namespace
 from lightning.pytorch.callbacks import ModelCheckpoint, TQDMProgressBar
-from lightning.pytorch.cli import LightningCLI
+from lightning.pytorch.cli import LightningCLI, SaveConfigCallback
 from lightning.pytorch.utilities.exceptions import MisconfigurationException
 
 from floaff_zoo import quiet, runtime
@@ -181,6 +182,29 @@ def _yaml_mapping(path: str) -> dict[str, Any]:
     except (OSError, yaml.YAMLError, UnicodeDecodeError):
         return {}
     return data if isinstance(data, dict) else {}
+
+
+class SaveConfig(SaveConfigCallback):
+    """Lightning's config.yaml of a run, with the batch limits given as integers written as integers: the parser
+    stores ``1`` as ``1.0`` (see ``FloAffCLI._integer_limits``), and rerunning a config that says ``1.0`` would run
+    every batch."""
+
+    integer_limits: dict[str, int] = {}
+
+    def save_config(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
+        """Called on rank 0 right after the file is written."""
+        path = Path(trainer.log_dir or "") / self.config_filename
+        if not self.integer_limits or not self.save_to_log_dir or not path.is_file():
+            return
+        data = yaml.safe_load(path.read_text())
+        trainer_cfg = data.get("trainer") if isinstance(data, dict) else None
+        if not isinstance(trainer_cfg, dict):
+            return
+        for stage_name, value in self.integer_limits.items():
+            trainer_cfg[f"limit_{stage_name}_batches"] = value
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        tmp.write_text(yaml.safe_dump(data, sort_keys=False))
+        tmp.replace(path)
 
 
 class FloAffCLI(LightningCLI):
@@ -361,7 +385,11 @@ class FloAffCLI(LightningCLI):
             if not any(isinstance(c, PredictionWriter) for c in user):
                 extra.append(PredictionWriter())  # predictions.npz/.json (Lightning would drop the records)
         # Lightning merges {**trainer_config, **kwargs}: pass the configured callbacks along too.
-        return super().instantiate_trainer(callbacks=[*user, *extra], **kwargs)
+        trainer = super().instantiate_trainer(callbacks=[*user, *extra], **kwargs)
+        for callback in trainer.callbacks:
+            if isinstance(callback, SaveConfig):
+                callback.integer_limits = integer_limits(getattr(self, "_raw_args", []))
+        return trainer
 
     def _guard_eval(self) -> None:
         """Refuse to evaluate a model without trained weights, with a missing ``--ckpt_path`` file, or with
@@ -521,6 +549,7 @@ def _build_cli(cls: type[FloAffCLI], args: list[str], parser_kwargs: dict[str, A
         subclass_mode_model=True,
         subclass_mode_data=True,
         seed_everything_default=0,
+        save_config_callback=SaveConfig,
         save_config_kwargs={"overwrite": True},
         parser_kwargs=parser_kwargs,
         auto_configure_optimizers=False,
