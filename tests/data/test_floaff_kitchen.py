@@ -1,6 +1,7 @@
 """FloAffKitchenDataModule on a fixture in the generator's format (tests/data/floaff_fixture.py)."""
 
 import json
+import shutil
 
 import pytest
 from lightning.pytorch.utilities.exceptions import MisconfigurationException
@@ -217,6 +218,21 @@ def test_cache_and_workers(floaff_root):
     dm2 = _dm(root, cache=True, tasks=["CloseDrawer"])
     dm2.setup("fit")
     assert dict(dm2.skips.counts) == {k: v for k, v in exp["skips"].items()}
+
+
+def test_training_seeds_share_the_cache_unless_a_pre_transform_draws_from_it(floaff_root):
+    """Without pre-transforms the seed changes nothing that is cached, so a second training seed reads the first
+    one's entries instead of parsing every view again; with one, each seed keeps its own entries."""
+    root, _ = floaff_root
+
+    def cache_dirs(**kw):
+        for seed in (0, 1):
+            _dm(root, tasks=["CloseDrawer"], cache=True, seed=seed, **kw).setup("test")
+        return sorted(p.name for p in (root / ".cache").iterdir() if p.is_dir())
+
+    assert len(cache_dirs()) == 1
+    shutil.rmtree(root / ".cache")
+    assert len(cache_dirs(pre_transforms=[_Shift()])) == 2
 
 
 def test_full_cloud_carries_every_stored_point_past_crop_cache_and_resampling(floaff_root):

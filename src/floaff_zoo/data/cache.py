@@ -5,7 +5,8 @@ decompression) happens once: the validated tensors, after the deterministic ``pr
 are written to ``<cache_dir>/<dataset>-<config hash>/<sample hash>.pt``.
 
 * ``<config hash>`` = SHA-256 of the reader's settings (e.g. flag radius, robot table, yaw
-  estimator) and the ``pre_transforms`` config: changing any of them uses a fresh directory.
+  estimator) and the ``pre_transforms`` config (with the seed they draw from, when there are any): changing any
+  of them uses a fresh directory. Without pre-transforms every training seed shares one directory.
 * ``<sample hash>`` = SHA-256 of the record key and its source files' signature: (path, size,
   mtime_ns) by default (``hash_mode="stat"``), or the file bytes (``hash_mode="content"``, slower:
   reads every source file at setup). An edited source file therefore misses the cache.
@@ -57,6 +58,8 @@ class SampleCache:
         self.config = {"version": CACHE_VERSION, **config}
         if config.get("pre_transforms"):  # entries made before kept no meta change of the pre-transforms
             self.config["pre_transform_meta"] = True
+        else:  # the seed reaches the cached tensors through the pre-transforms only: every seed shares the parse
+            self.config.pop("seed", None)
         self.dir = Path(directory) / f"{name}-{_sha(self.config)[:12]}"
         self.hash_mode = hash_mode
 
