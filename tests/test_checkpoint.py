@@ -5,11 +5,12 @@ from __future__ import annotations
 from pathlib import Path
 
 import lightning as L
+import pytest
 import torch
 from lightning.pytorch.demos.boring_classes import BoringModel
 
 from floaff_zoo.callbacks.checkpoint import LatestCheckpoint
-from floaff_zoo.runs import resolve_ckpt_alias
+from floaff_zoo.runs import RunError, resolve_ckpt_alias
 
 
 class GetsWorse(BoringModel):
@@ -49,6 +50,16 @@ def test_last_is_the_final_state_and_best_the_first(tmp_path):
     state = torch.load(tmp_path / "ck" / "last.ckpt", map_location="cpu", weights_only=True)
     assert any(k.startswith("ModelCheckpoint{") for k in state["callbacks"])
     assert _step(resolve_ckpt_alias("best", tmp_path / "ck")) == 2
+    assert _step(resolve_ckpt_alias("last", tmp_path / "ck")) == 7
+
+
+def test_best_is_never_the_last_epochs_weights_in_disguise(tmp_path):
+    """A run whose best checkpoint was deleted handed out last.ckpt as "best" (test, predict and hub push)."""
+    cb = LatestCheckpoint(dirpath=tmp_path / "ck", monitor="worse", mode="min", save_last=True)
+    _fit(tmp_path, cb)
+    Path(cb.best_model_path).unlink()
+    with pytest.raises(RunError, match=r"records the best checkpoint .*epoch.*which is gone.*pass a checkpoint file"):
+        resolve_ckpt_alias("best", tmp_path / "ck")
     assert _step(resolve_ckpt_alias("last", tmp_path / "ck")) == 7
 
 

@@ -24,8 +24,8 @@ def _ckpt(path: Path, seed: int, width: int = 8, extra_state: dict | None = None
     return path
 
 
-def _push(ckpt: Path, name: str = NAME) -> int:
-    return zoo_main(["hub", "push", str(ckpt), "--name", name])
+def _push(ckpt: Path, name: str = NAME, *extra: str) -> int:
+    return zoo_main(["hub", "push", str(ckpt), "--name", name, *extra])
 
 
 def _snapshot(folder: Path) -> dict[str, bytes]:
@@ -43,7 +43,7 @@ def registered(tmp_path):
 def test_push_that_does_not_load_back_leaves_the_entry(registered, tmp_path, capsys):
     before, entry = registered
     bad = _ckpt(tmp_path / "extra.ckpt", seed=2, width=16, extra_state={"net.extra_buffer": torch.ones(2)})
-    assert _push(bad) == 2
+    assert _push(bad, NAME, "--replace") == 2
     err = capsys.readouterr().err
     assert str(bad) in err and "net.extra_buffer" in err and ".push-" not in err
     assert _snapshot(hub_dir()) == before  # weights, config.json, model card and index untouched; no temp left
@@ -58,7 +58,7 @@ def test_push_refused_by_the_index_leaves_the_entry(registered, tmp_path, monkey
         raise HubError("index refused")
 
     monkeypatch.setattr(hub_export, "register", refuse)
-    assert _push(_ckpt(tmp_path / "second.ckpt", seed=2, width=16)) == 2
+    assert _push(_ckpt(tmp_path / "second.ckpt", seed=2, width=16), NAME, "--replace") == 2
     assert _snapshot(hub_dir()) == before  # the new weights file was taken back
 
 
@@ -67,9 +67,24 @@ def test_invalid_name_writes_nothing(tmp_path):
     assert not hub_dir().exists() or not any(hub_dir().iterdir())
 
 
+def test_a_taken_name_is_pushed_over_only_with_replace(registered, tmp_path, capsys):
+    """A push under a registered name deleted its earlier weights, and one under a shipped name hid the shipped
+    checkpoint from every load by that name, without a word: both are refused unless --replace."""
+    before, _old = registered
+    second = _ckpt(tmp_path / "second.ckpt", seed=2, width=16)
+    assert _push(second) == 2
+    assert "is registered already" in capsys.readouterr().err and _snapshot(hub_dir()) == before
+    shipped = "cfar-pfal.floaff-small-layouts.v2"
+    assert _push(second, shipped) == 2
+    assert "shipped with the package" in capsys.readouterr().err and _snapshot(hub_dir()) == before
+    retired = "cfar-pfal.floaff-dense-layouts.v1"
+    assert _push(second, retired) == 2 and _snapshot(hub_dir()) == before
+    assert _push(second, shipped, "--replace") == 0 and load_model(shipped).hparams.width == 16
+
+
 def test_push_over_a_name_replaces_it(registered, tmp_path):
     _before, old = registered
-    assert _push(_ckpt(tmp_path / "second.ckpt", seed=2, width=16)) == 0
+    assert _push(_ckpt(tmp_path / "second.ckpt", seed=2, width=16), NAME, "--replace") == 0
     new = load_registry()[NAME]
     folder = hub_dir() / NAME
     assert new.sha256 != old.sha256

@@ -31,10 +31,10 @@ class RunError(RuntimeError):
 def resolve_ckpt_alias(alias: str, root: str | Path, model_class: str | None = None) -> str:
     """Turn ``best``/``last`` into a checkpoint file found under a run directory.
 
-    ``last`` is the newest ``last.ckpt``; ``best`` is the ``best_model_path`` its ModelCheckpoint
-    state recorded (falling back to ``last`` when none was monitored). With ``model_class`` (a class name such as
-    ``PointNet2Module``) only checkpoints whose hyper-parameters record that class count: a root that holds the runs
-    of several models (``trainer.default_root_dir``) must not hand one model another model's weights.
+    ``last`` is the newest ``last.ckpt``; ``best`` is the ``best_model_path`` its ModelCheckpoint state recorded
+    (``last`` when none was monitored; an error when the recorded file is gone). With ``model_class`` (a class name
+    such as ``PointNet2Module``) only checkpoints whose hyper-parameters record that class count: a root that holds
+    the runs of several models (``trainer.default_root_dir``) must not hand one model another model's weights.
     """
     lasts = sorted(Path(root).rglob("last*.ckpt"), key=lambda p: p.stat().st_mtime, reverse=True)
     if not lasts:
@@ -58,13 +58,21 @@ def resolve_ckpt_alias(alias: str, root: str | Path, model_class: str | None = N
         return str(last)
     if state is None:
         state = load_checkpoint(last, f"--ckpt_path {alias}: ")
-    for key, cb in (state.get("callbacks") or {}).items():
-        if key.startswith("ModelCheckpoint") and cb.get("best_model_path"):
-            best = Path(cb["best_model_path"])
-            if not best.is_file():  # run dir moved: look next to last.ckpt
-                best = last.parent / best.name
-            if best.is_file():
-                return str(best)
+    recorded = [
+        Path(cb["best_model_path"])
+        for key, cb in (state.get("callbacks") or {}).items()
+        if key.startswith("ModelCheckpoint") and cb.get("best_model_path")
+    ]
+    for best in recorded:
+        if not best.is_file():  # run dir moved: look next to last.ckpt
+            best = last.parent / best.name
+        if best.is_file():
+            return str(best)
+    if recorded:  # last.ckpt holds other weights than the best: never hand them out under the name "best"
+        raise RunError(
+            f"--ckpt_path {alias}: {last} records the best checkpoint {recorded[0]}, which is gone (nor is it next "
+            f"to {last.name}); pass a checkpoint file instead (e.g. {last} for the last epoch's weights)"
+        )
     return str(last)
 
 

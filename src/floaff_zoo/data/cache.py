@@ -20,8 +20,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
-import tempfile
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
@@ -31,6 +29,7 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
+from floaff_zoo.atomic import atomic_write
 from floaff_zoo.contract import FULL_CLOUD_KEY, TENSOR_KEYS, Sample, SampleError, validate_sample
 from floaff_zoo.data.readers import DataError, SampleRecord, SkipLog, source_signature
 from floaff_zoo.data.transforms import SampleTransform, apply_transforms
@@ -101,15 +100,7 @@ class SampleCache:
         path.parent.mkdir(parents=True, exist_ok=True)
         if not (path.parent / "config.json").is_file():
             (path.parent / "config.json").write_text(json.dumps(self.config, indent=1, sort_keys=True, default=str))
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".tmp", dir=path.parent)
-        try:
-            with os.fdopen(fd, "wb") as f:
-                write(f)
-            os.replace(tmp, path)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
+        atomic_write(path, write)
 
 
 #: cache-entry key of the meta a pre-transform changed (JSON: {"set": {key: value}, "drop": [key, ...]})

@@ -50,6 +50,11 @@ def _parser() -> argparse.ArgumentParser:
         help="report.json of `floaff-zoo test` on this checkpoint: its metrics go into the index "
         "(default: a report.json in the run directory, else the best validation score)",
     )
+    push.add_argument(
+        "--replace",
+        action="store_true",
+        help="push over a name that is taken: a registered one (its weights are deleted) or a shipped one (hidden)",
+    )
     push.add_argument("--upload", action="store_true", help="also upload to Hugging Face (needs network)")
     push.add_argument("--repo", default=None, help="Hugging Face repo org/name for --upload")
     push.add_argument("--private", action="store_true", help="create the Hugging Face repo as private")
@@ -128,7 +133,13 @@ def cmd_push(args: argparse.Namespace) -> int:
 
     meta["zoo_version"] = __version__
     entry, out = export_checkpoint(
-        args.run, args.name, args.hub_dir, class_path=args.class_path, meta=meta, report=args.report
+        args.run,
+        args.name,
+        args.hub_dir,
+        class_path=args.class_path,
+        meta=meta,
+        report=args.report,
+        replace=args.replace,
     )
     print(f"exported {entry.name} -> {out / entry.filename} (sha256 {entry.sha256})")
     print(f"registered in {user_index_path(args.hub_dir)}")

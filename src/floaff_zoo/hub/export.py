@@ -27,6 +27,7 @@ from typing import Any
 
 import torch
 
+from floaff_zoo.atomic import publish
 from floaff_zoo.hub.io import (
     CONFIG_NAME,
     DEFAULT_WEIGHTS_NAME,
@@ -38,14 +39,15 @@ from floaff_zoo.hub.io import (
 )
 from floaff_zoo.hub.registry import (
     NON_PORTABLE_ARGS,
+    SHIPPED_INDEX,
     HubEntry,
     HubError,
     RegistryFormatError,
     check_name,
     hub_dir,
     is_offline,
-    publish,
     read_index,
+    read_retired,
     register,
     sha256_file,
     unique_filename,
@@ -336,6 +338,7 @@ def export_checkpoint(
     class_path: str | None = None,
     meta: dict[str, Any] | None = None,
     report: str | os.PathLike[str] | None = None,
+    replace: bool = False,
 ) -> tuple[HubEntry, Path]:
     """Export a run's best checkpoint into ``<hub dir>/<name>/`` and register it in the user index.
 
@@ -349,11 +352,14 @@ def export_checkpoint(
             success rates) are recorded; default: one found in the run directory, else the best
             validation score. A report that records another checkpoint (sha256) or model class is
             refused (a found one is left out with a warning).
+        replace: push over a name that is taken (see ``check_name_free``).
     Returns:
         (the registered entry, the export directory).
     """
     check_name(name, "push")  # it becomes a folder and file name: checked before anything is written
     read_index(user_index_path(directory))  # a malformed user index fails here too
+    if not replace:
+        check_name_free(name, directory)
     ckpt_path = find_run_checkpoint(run_or_ckpt)
     run = Path(run_or_ckpt) if Path(run_or_ckpt).is_dir() else None
     try:
@@ -384,6 +390,24 @@ def export_checkpoint(
     finally:
         shutil.rmtree(staging, ignore_errors=True)
     return entry, out
+
+
+def check_name_free(name: str, directory: str | os.PathLike[str] | None = None) -> None:
+    """Refuse a push under a name that is taken: one registered in the user index (its weights would be deleted),
+    or a checkpoint shipped with the package, current or retired (every load by that name would get the pushed
+    weights instead). ``--replace`` pushes anyway."""
+    index = user_index_path(directory)
+    if any(e.name == name for e in read_index(index)):
+        raise HubError(
+            f"{name!r} is registered already ({index}): a push would replace it and delete its weights; push a new "
+            "version (vN+1) or pass --replace"
+        )
+    shipped = {e.name for e in read_index(SHIPPED_INDEX)} | set(read_retired()[1])
+    if name in shipped:
+        raise HubError(
+            f"{name!r} names a checkpoint shipped with the package ({SHIPPED_INDEX.parent}): a push would hide it from "
+            "every load by that name; push another name or pass --replace"
+        )
 
 
 def _stage_export(

@@ -33,6 +33,7 @@ from typing import IO, Any
 
 import torch
 
+from floaff_zoo.atomic import publish
 from floaff_zoo.hub.registry import (
     NON_PORTABLE_ARGS,
     WEIGHT_EXTS,
@@ -43,7 +44,6 @@ from floaff_zoo.hub.registry import (
     get_entry,
     hub_dir,
     is_offline,
-    publish,
     sha256_file,
 )
 from floaff_zoo.runs import load_failure_reason

@@ -30,10 +30,11 @@ import hashlib
 import json
 import os
 import re
-import tempfile
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
+
+from floaff_zoo.atomic import atomic_write
 
 INDEX_VERSION = 1
 SHIPPED_INDEX = Path(__file__).with_name("index.json")
@@ -234,31 +235,11 @@ def read_index(path: Path) -> list[HubEntry]:
     return entries
 
 
-def publish(tmp: str | os.PathLike[str], dest: Path) -> None:
-    """Rename a finished temp file onto ``dest`` with the mode a plain ``open`` would have given it.
-
-    ``mkstemp`` makes owner-only files: an index or weights file with that mode in a shared hub directory, or
-    packaged into a wheel, cannot be read by anyone else.
-    """
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o666 & ~umask)
-    os.replace(tmp, dest)
-
-
 def write_index(path: Path, entries: list[HubEntry]) -> None:
     """Write an index atomically (temp file + rename) so a crash never leaves half a JSON file."""
     path.parent.mkdir(parents=True, exist_ok=True)
     payload = {"version": INDEX_VERSION, "entries": [e.to_json() for e in sorted(entries, key=lambda e: e.name)]}
-    fd, tmp = tempfile.mkstemp(prefix=".index-", suffix=".json", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            json.dump(payload, f, indent=2, sort_keys=False)
-            f.write("\n")
-        publish(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    atomic_write(path, lambda f: f.write((json.dumps(payload, indent=2, sort_keys=False) + "\n").encode()))
 
 
 def user_index_path(directory: str | os.PathLike[str] | None = None) -> Path:

@@ -25,12 +25,13 @@ import hashlib
 import json
 import os
 import shutil
-import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from floaff_zoo.atomic import atomic_write
 
 __all__ = [
     "FORMAT_VERSION",
@@ -97,19 +98,7 @@ class FormatError(ValueError):
 # ------------------------------------------------------------------------------------------------ atomic writes
 def atomic_write_bytes(path: str | Path, data: bytes) -> None:
     """Write bytes to path via a temp file in the same directory + os.replace (never a partial file)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    atomic_write(path, lambda f: f.write(data), durable=True)
 
 
 def _json_default(o: Any) -> Any:
@@ -132,18 +121,8 @@ def atomic_save_npz(path: str | Path, arrays: dict[str, np.ndarray]) -> None:
     path = Path(path)
     if path.suffix != ".npz":
         raise ValueError(f"{path}: view files must end in .npz")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".npz", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.savez_compressed(f, **arrays)
-            f.flush()
-            os.fsync(f.fileno())  # as atomic_write_bytes: after a power loss a committed scene holds whole views
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    # durable as atomic_write_bytes: after a power loss a committed scene holds whole views
+    atomic_write(path, lambda f: np.savez_compressed(f, **arrays), durable=True)
 
 
 def read_json(path: str | Path) -> Any:

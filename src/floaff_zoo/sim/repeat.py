@@ -17,8 +17,6 @@ Probabilities are cached in ``.npz`` files (:func:`read_probs` / :func:`write_pr
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 import zipfile
 import zlib
 from collections.abc import Callable, Sequence
@@ -26,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from floaff_zoo.atomic import atomic_write
 from floaff_zoo.frames import ROLLOUT_POSE_DECIMALS
 
 __all__ = [
@@ -99,15 +98,7 @@ def read_probs(path: Path, setting: dict, scenes: dict[str, dict]) -> dict[str, 
 def write_probs(path: Path, setting: dict, probs: dict[str, np.ndarray]) -> None:
     """Cache ``probs`` (scene id -> [M]) made with ``setting`` in ``path`` (.npz), atomically: a run killed while
     writing leaves the previous cache whole (it is rewritten after every scene)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.savez(f, setting=json.dumps(setting), **probs)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    atomic_write(path, lambda f: np.savez(f, setting=json.dumps(setting), **probs))
 
 
 def service_runner(workers: int) -> Runner:

@@ -1,0 +1,43 @@
+"""Whole-file writes: readable by others as a plain open would make them, and never half written."""
+
+import os
+import stat
+
+import numpy as np
+import pytest
+
+from floaff_zoo.atomic import atomic_write
+from floaff_zoo.sim import fileformat as ff
+
+
+@pytest.fixture
+def umask_022():
+    old = os.umask(0o022)
+    yield
+    os.umask(old)
+
+
+def _mode(path) -> int:
+    return stat.S_IMODE(os.stat(path).st_mode)
+
+
+def test_generated_files_get_the_mode_of_the_umask(tmp_path, umask_022):
+    """mkstemp makes owner-only files: a dataset generated into a shared folder was unreadable by anyone else."""
+    ff.atomic_write_json(tmp_path / "scene.json", {"a": 1})
+    ff.atomic_save_npz(tmp_path / "views" / "front_0000.npz", {"x": np.zeros(3)})
+    assert _mode(tmp_path / "scene.json") == 0o644
+    assert _mode(tmp_path / "views" / "front_0000.npz") == 0o644
+    np.testing.assert_array_equal(np.load(tmp_path / "views" / "front_0000.npz")["x"], np.zeros(3))
+
+
+def test_a_failed_write_keeps_the_old_file_and_leaves_no_temp(tmp_path):
+    path = tmp_path / "index.json"
+    path.write_bytes(b"old")
+
+    def half(f):
+        f.write(b"new but")
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        atomic_write(path, half)
+    assert path.read_bytes() == b"old" and os.listdir(tmp_path) == ["index.json"]
