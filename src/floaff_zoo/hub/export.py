@@ -27,7 +27,7 @@ from typing import Any
 
 import torch
 
-from floaff_zoo.atomic import publish
+from floaff_zoo.atomic import atomic_write, publish
 from floaff_zoo.hub.io import (
     CONFIG_NAME,
     DEFAULT_WEIGHTS_NAME,
@@ -202,6 +202,9 @@ def _portable_state(state: dict[str, Any], where: Path, allow_empty: bool = Fals
         if not isinstance(v, torch.Tensor):
             raise HubError(f"{where}: state entry {k!r} is a {type(v).__name__}, not a tensor; cannot export")
         out[k] = v.detach().to("cpu").contiguous().clone()
+    broken = [k for k, v in out.items() if v.is_floating_point() and not bool(torch.isfinite(v).all())]
+    if broken:  # a diverged run: refused, not shipped under a name with a hash that vouches for it
+        raise HubError(f"{where}: {len(broken)} weight tensor(s) hold NaN or inf, e.g. {broken[:3]}; not exported")
     if not out and not allow_empty:
         raise HubError(f"{where}: the checkpoint holds no (student) weights")
     return out
@@ -248,7 +251,9 @@ def _write_weights(
     from safetensors.torch import save_file
 
     out.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkstemp(prefix=".export-", suffix=".safetensors", dir=out)[1])
+    fd, name = tempfile.mkstemp(prefix=".export-", suffix=".safetensors", dir=out)
+    os.close(fd)  # safetensors writes by path
+    tmp = Path(name)
     try:
         save_file(state, str(tmp), metadata={SAFETENSORS_META_KEY: json.dumps(header)})
         sha = sha256_file(tmp)
@@ -273,7 +278,8 @@ def save_model_dir(model: torch.nn.Module, directory: str | os.PathLike[str]) ->
     state = _portable_state(model.state_dict(), out, allow_empty=True)
     filename, sha = _write_weights(out, state, {"class_path": class_path, "init_args": init_args}, DEFAULT_WEIGHTS_NAME)
     config = {"class_path": class_path, "init_args": init_args, "weights": filename, "sha256": sha}
-    (out / CONFIG_NAME).write_text(json.dumps(config, indent=2) + "\n", encoding="utf-8")
+    # whole or not at all: a save over an earlier one that was killed here left a half config.json
+    atomic_write(out / CONFIG_NAME, lambda f: f.write((json.dumps(config, indent=2) + "\n").encode()))
     return out
 
 
@@ -361,7 +367,9 @@ def export_checkpoint(
     if not replace:
         check_name_free(name, directory)
     ckpt_path = find_run_checkpoint(run_or_ckpt)
-    run = Path(run_or_ckpt) if Path(run_or_ckpt).is_dir() else None
+    run_or_ckpt = Path(run_or_ckpt).expanduser()
+    report = Path(report).expanduser() if report is not None else None
+    run = run_or_ckpt if run_or_ckpt.is_dir() else None
     try:
         ckpt = torch.load(ckpt_path, map_location="cpu", weights_only=True)
     except Exception as exc:
@@ -376,7 +384,7 @@ def export_checkpoint(
     cls = import_model_class(cls_path, str(ckpt_path))
     init_args = _portable_init_args(cls, hp, ckpt_path)
     state = _portable_state(ckpt["state_dict"], ckpt_path)
-    metrics = _report_metrics(ckpt_path, run, Path(report) if report is not None else None, cls)
+    metrics = _report_metrics(ckpt_path, run, report, cls)
     metrics = metrics or _best_score(ckpt_path, ckpt, run)
     meta = {**(meta or {}), "metrics": metrics}
 

@@ -77,7 +77,10 @@ def _read_torch(path: Path) -> tuple[dict[str, Any], Info]:
         raise ValueError(f"{path}: expected a checkpoint dict or a state dict, got {type(obj).__name__}")
     if "state_dict" in obj:
         state = obj["state_dict"]
-        hp = dict(obj.get("hyper_parameters") or {})
+        hp = obj.get("hyper_parameters") or {}
+        if not isinstance(state, dict) or not isinstance(hp, dict):
+            raise ValueError(f"{path}: 'state_dict' and 'hyper_parameters' must be dicts")
+        hp = dict(hp)
     elif obj and all(isinstance(v, torch.Tensor) for v in obj.values()):
         state, hp = obj, {}
     else:
@@ -102,9 +105,15 @@ def _read_safetensors(path: Path) -> tuple[dict[str, Any], Info]:
     if SAFETENSORS_META_KEY in header:
         try:
             cfg = json.loads(header[SAFETENSORS_META_KEY])
-            info = {"class_path": cfg.get("class_path"), "init_args": dict(cfg.get("init_args") or {})}
-        except (json.JSONDecodeError, AttributeError, TypeError) as exc:
+        except json.JSONDecodeError as exc:
             raise ValueError(f"{path}: malformed '{SAFETENSORS_META_KEY}' metadata in the header ({exc})") from exc
+        init_args = cfg.get("init_args") or {} if isinstance(cfg, dict) else None
+        if not isinstance(init_args, dict) or not isinstance(cfg.get("class_path") or "", str):
+            raise ValueError(
+                f"{path}: malformed '{SAFETENSORS_META_KEY}' metadata in the header (expected an object with a "
+                "string 'class_path' and an object 'init_args')"
+            )
+        info = {"class_path": cfg.get("class_path"), "init_args": dict(init_args)}
     return state, info
 
 
@@ -126,8 +135,12 @@ def read_config(directory: Path) -> dict[str, Any]:
         cfg = json.loads(cfg_path.read_text(encoding="utf-8"))
     except (OSError, json.JSONDecodeError) as exc:
         raise ValueError(f"{cfg_path}: unreadable JSON ({exc})") from exc
-    if not isinstance(cfg, dict) or not isinstance(cfg.get("init_args", {}), dict):
-        raise ValueError(f"{cfg_path}: expected an object with 'class_path' and 'init_args'")
+    if (
+        not isinstance(cfg, dict)
+        or not isinstance(cfg.get("init_args", {}), dict)
+        or not isinstance(cfg.get("class_path") or "", str)
+    ):
+        raise ValueError(f"{cfg_path}: expected an object with a string 'class_path' and an object 'init_args'")
     weights = cfg.get("weights", DEFAULT_WEIGHTS_NAME)
     if not isinstance(weights, str) or "/" in weights or "\\" in weights:
         raise ValueError(f"{cfg_path}: 'weights' must be a file name inside the directory, got {weights!r}")
@@ -421,6 +434,16 @@ def load_model(
         model = cls(**init_args)
     except TypeError as exc:
         raise TypeError(f"{where}: its init_args do not fit {cls.__name__} ({exc})") from exc
+    own = model.state_dict()
+    resized = [
+        f"{k} {tuple(v.shape)} (model {tuple(own[k].shape)})"
+        for k, v in state.items()
+        if k in own and isinstance(v, torch.Tensor) and v.shape != own[k].shape
+    ]
+    if resized:  # load_state_dict would raise a RuntimeError that names no file
+        raise ValueError(
+            f"{where}: weights do not match {cls.__name__}({init_args}): {len(resized)} of another shape, {resized[:3]}"
+        )
     missing, unexpected = model.load_state_dict(state, strict=False)
     if missing or unexpected:
         raise ValueError(

@@ -1,0 +1,84 @@
+"""Hub files a user may hand the loaders or the exporter: every bad one is refused with its file named."""
+
+import json
+import os
+from pathlib import Path
+
+import pytest
+import torch
+
+from floaff_zoo.cli import main as zoo_main
+from floaff_zoo.hub import HubError, load_model, load_registry
+from floaff_zoo.hub.export import export_checkpoint
+from floaff_zoo.models.tiny import TinyPointNetModule
+
+TINY = "floaff_zoo.models.tiny.TinyPointNetModule"
+
+
+def _ckpt(path: Path, width: int = 8, nan: bool = False, best: tuple[Path, float] | None = None) -> Path:
+    torch.manual_seed(0)
+    model = TinyPointNetModule(width=width)
+    state = model.state_dict()
+    if nan:
+        state = {k: torch.full_like(v, float("nan")) if v.is_floating_point() else v for k, v in state.items()}
+    callbacks = {}
+    if best is not None:
+        key = "ModelCheckpoint{'monitor': 'val_rmse', 'mode': 'min'}"
+        score = torch.tensor(best[1])
+        callbacks[key] = {"monitor": "val_rmse", "best_model_score": score, "best_model_path": str(best[0])}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    hp = {**dict(model.hparams), "_class_path": TINY}
+    torch.save({"state_dict": state, "hyper_parameters": hp, "callbacks": callbacks}, path)
+    return path
+
+
+def test_weights_of_another_shape_name_the_file(tmp_path):
+    """load_state_dict raised a bare RuntimeError (no file named) and `hub push` died with a traceback."""
+    sd = tmp_path / "sd.pt"
+    torch.save(TinyPointNetModule(width=8).state_dict(), sd)
+    with pytest.raises(ValueError, match=rf"{sd}: weights do not match TinyPointNetModule.*of another shape"):
+        TinyPointNetModule.from_pretrained(str(sd))
+    exported = tmp_path / "export"
+    TinyPointNetModule(width=8).save_pretrained(str(exported))
+    cfg = json.loads((exported / "config.json").read_text())
+    cfg["init_args"]["width"] = 16
+    (exported / "config.json").write_text(json.dumps(cfg))
+    with pytest.raises(ValueError, match="of another shape"):
+        load_model(exported)
+
+
+def test_a_config_of_wrong_types_names_its_file(tmp_path):
+    exported = tmp_path / "export"
+    TinyPointNetModule(width=8).save_pretrained(str(exported))
+    cfg = json.loads((exported / "config.json").read_text())
+    (exported / "config.json").write_text(json.dumps({**cfg, "class_path": 5}))
+    with pytest.raises(ValueError, match=r"config\.json: expected an object with a string 'class_path'"):
+        load_model(exported)
+    bad = tmp_path / "list.pt"
+    torch.save({"state_dict": [1, 2]}, bad)
+    with pytest.raises(ValueError, match=rf"{bad}: 'state_dict' and 'hyper_parameters' must be dicts"):
+        load_model(bad)
+
+
+def test_diverged_weights_are_not_pushed(tmp_path, capsys):
+    ckpt = _ckpt(tmp_path / "nan.ckpt", nan=True)
+    assert zoo_main(["hub", "push", str(ckpt), "--name", "tiny.nan.v1"]) == 2
+    assert "hold NaN or inf" in capsys.readouterr().err and "tiny.nan.v1" not in load_registry()
+
+
+def test_save_pretrained_leaves_no_open_file(tmp_path):
+    before = len(os.listdir("/proc/self/fd"))
+    for i in range(5):
+        TinyPointNetModule(width=8).save_pretrained(str(tmp_path / f"m{i}"))
+    assert len(os.listdir("/proc/self/fd")) == before
+
+
+def test_a_home_relative_run_keeps_its_metrics(tmp_path, monkeypatch):
+    """A run given as ~/run was found, but not read as a run: its best validation score was not recorded."""
+    monkeypatch.setenv("HOME", str(tmp_path))
+    ckdir = tmp_path / "run" / "version_0" / "checkpoints"
+    _ckpt(ckdir / "last.ckpt", best=(_ckpt(ckdir / "epoch001.ckpt"), 0.125))
+    entry, _ = export_checkpoint("~/run", "tiny.home.v1")
+    assert entry.meta["metrics"] == pytest.approx({"val_rmse": 0.125})
+    with pytest.raises(HubError, match="registered already"):
+        export_checkpoint("~/run", "tiny.home.v1")
