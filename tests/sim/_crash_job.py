@@ -52,3 +52,12 @@ def slow_marker(job, out, preset_dict, save_images):
     time.sleep(8)
     Path(out, f"after_{job.key.replace('/', '_')}").touch()
     return {"key": job.key, "status": "dropped", "scene_id": None, "attempts": [], "reason": "x", "wall_s": 0.0}
+
+
+def crash_first_slot(job, out, preset_dict, save_images):
+    """Kill the worker process on slot train0 only; every other slot is dropped after 2 s (in flight meanwhile)."""
+    Path(out, f"tries_{job.key.replace('/', '_')}_{os.getpid()}").touch()
+    if job.key.endswith("/train0"):
+        os._exit(3)
+    time.sleep(2)
+    return {"key": job.key, "status": "dropped", "scene_id": None, "attempts": [], "reason": "x", "wall_s": 0.0}

@@ -43,7 +43,7 @@ def _fit_prior(samples: list[dict], cell: float):
     model = CanonicalPriorModule(
         tasks=["CloseDrawer"],
         cell=cell / 2,
-        extent=3.0 + cell / 4,
+        extent=3.0,
         smooth_sigma_cells=0.0,
         yaw_source="gt",
         eval_yaw_source="gt",

@@ -26,6 +26,7 @@ import argparse
 import concurrent.futures as cf
 import dataclasses
 import hashlib
+import itertools
 import multiprocessing as mp
 import os
 import shutil
@@ -100,7 +101,8 @@ def plan_jobs(
     seen_s, held_s = _split_ids(style_ids, "style")
     jobs: list[SceneJob] = []
     for bench in preset.benchmarks:
-        for ti, task in enumerate(preset.tasks):
+        for task in preset.tasks:
+            ti = ALL_TASKS.index(task)  # not the position in --tasks: adding or reordering tasks keeps every kitchen
             for split, n in (("train", preset.n_train), ("test", preset.n_test)):
                 for i in range(n):
                     if split == "train":
@@ -148,6 +150,8 @@ def find_done(out: Path, job: SceneJob, min_views: int = 0) -> str | None:
             rec = ff.read_json(ff.scene_dir(out, job.benchmark, sid) / ff.SCENE_JSON)
             if rec.get("slot") != job.key or rec.get("format_version", 1) != ff.FORMAT_VERSION:
                 continue
+            if rec.get("views_requested", [job.n_front, job.n_side]) != [job.n_front, job.n_side]:
+                continue  # the paper preset's counts per scene follow --n-train / --n-test
             if _minor(str(rec.get("generator_version", ""))) != _minor(GENERATOR_VERSION):
                 continue
             if "min_views" in rec:
@@ -160,20 +164,22 @@ def find_done(out: Path, job: SceneJob, min_views: int = 0) -> str | None:
 
 
 def slot_scenes(out: Path, job: SceneJob) -> list[str]:
-    """scene_ids of the committed scenes of this slot, found by its seeds' folders (any format or generator version).
+    """scene_ids of the committed scenes of this slot (any format or generator version, any kitchen: a scene drawn
+    when the slot had another layout or style, by an older generator, is found too), by the slot in their scene.json.
 
     What a rerun that regenerates the slot must move out of the readers' way; found without the previous manifest,
     which an interrupted rerun leaves without the slot's scene_id.
     """
     ids = []
-    for s in job.seeds:
-        sid = _scene_id(_spec(job, s))
+    for d in committed_scene_dirs(out):
+        if d.parent.name != job.benchmark:
+            continue
         try:
-            rec = ff.read_json(ff.scene_dir(out, job.benchmark, sid) / ff.SCENE_JSON)
+            rec = ff.read_json(d / ff.SCENE_JSON)
         except ff.FormatError:
             continue
         if isinstance(rec, dict) and rec.get("slot") == job.key:
-            ids.append(sid)
+            ids.append(d.name)
     return ids
 
 
@@ -473,6 +479,7 @@ def _write_scene(
         "views": views,
         "n_views": {"front": sum(v["view"] == "front" for v in views), "side": sum(v["view"] == "side" for v in views)},
         "min_views": int(preset.min_views),
+        "views_requested": [int(job.n_front), int(job.n_side)],
         "views_rejected": rejected,
         "pictures": ["topdown.png"] + [f"{k}.png" for k in ("front", "side") if k in first_rgb],
         "status": "ok",
@@ -489,7 +496,7 @@ def run_job(job: SceneJob, out: str, preset_dict: dict[str, Any], save_images: b
     retries once). Records the attempts (seed, scene_id, outcome) and timings.
     """
     from floaff_zoo.sim.annotate import annotate_scene
-    from floaff_zoo.sim.kitchen import build_scene
+    from floaff_zoo.sim.kitchen import build_scene, release_scene
 
     preset = GenPreset.from_dict(preset_dict)
     outp = Path(out)
@@ -501,6 +508,9 @@ def run_job(job: SceneJob, out: str, preset_dict: dict[str, Any], save_images: b
             sid = _scene_id(spec)
             ta = time.perf_counter()
             scene = build_scene(spec)
+            # no other slot or attempt draws this kitchen, and this attempt keeps its scene: without the release the
+            # per-process cache of compiled kitchens grew by ~70 MB per attempt for a worker's whole run
+            release_scene(spec)
             tb = time.perf_counter()
             ann = annotate_scene(
                 scene,
@@ -608,16 +618,16 @@ class _Progress:
 
 
 def _run_local(jobs, out, preset_dict, save_images, workers, on_result, job_fn=None) -> None:
-    """Run jobs; workers == 0 runs in this process (no crash isolation), else a spawn process pool.
+    """Run jobs; workers == 0 runs in this process (no crash isolation), else in spawned worker processes.
 
-    A Python exception in a job comes back as status "error"; a dead worker process (BrokenProcessPool) fails every
-    job in flight, which is then resubmitted to a fresh pool. Each job gets at most 2 tries.
+    A Python exception in a job comes back as status "error". A dead worker process (a segfault, the OOM killer)
+    breaks its whole pool, so every job in flight there fails with it and none of them can be blamed: they are run
+    again each in a process of its own, where a crash is the job's. Each job gets at most 2 tries of its own.
     """
     job_fn = job_fn or run_job
     tries = {j.key: 0 for j in jobs}
-    pending = list(jobs)
     if workers == 0:
-        for job in pending:
+        for job in jobs:
             for _ in range(2):
                 tries[job.key] += 1
                 res = job_fn(job, out, preset_dict, save_images)
@@ -625,34 +635,72 @@ def _run_local(jobs, out, preset_dict, save_images, workers, on_result, job_fn=N
                     break
             on_result(job, res, tries[job.key])
         return
-    ctx = mp.get_context("spawn")
-    while pending:
-        retry: list[SceneJob] = []
-        with cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init) as pool:
-            futs = {}
-            for job in pending:
-                tries[job.key] += 1
-                futs[pool.submit(job_fn, job, out, preset_dict, save_images)] = job
-            broken = False
-            for fut in cf.as_completed(futs):
-                job = futs[fut]
-                try:
-                    res = fut.result()
-                except Exception as exc:  # noqa: BLE001 - BrokenProcessPool & co: the worker died
-                    broken = broken or isinstance(exc, cf.process.BrokenProcessPool)
-                    res = {
-                        "key": job.key,
-                        "status": "error",
-                        "scene_id": None,
-                        "attempts": [],
-                        "reason": f"worker died: {type(exc).__name__}: {exc}",
-                        "wall_s": None,
-                    }
-                if res["status"] == "error" and tries[job.key] < 2:
-                    retry.append(job)
-                    continue
+    queue = [(job, False) for job in jobs]  # (job, alone: in a process of its own)
+    while queue:
+        shared = [job for job, alone in queue if not alone]
+        alone = [job for job, alone in queue if alone]
+        queue = []
+        for job in shared + alone:
+            tries[job.key] += 1
+        args = (workers, job_fn, out, preset_dict, save_images)
+        # as each job finishes (the manifest records it at once, for a resume)
+        outcomes = itertools.chain(_in_shared_pool(shared, *args), _each_alone(alone, *args))
+        for job, res, was_alone in outcomes:
+            if res.get("pool_broken") and not was_alone:
+                tries[job.key] -= 1  # maybe another job killed the worker: not this job's try
+                queue.append((job, True))
+            elif res["status"] == "error" and tries[job.key] < 2:
+                queue.append((job, was_alone))
+            else:
+                res.pop("pool_broken", None)
                 on_result(job, res, tries[job.key])
-        pending = retry
+
+
+def _died(job: SceneJob, exc: BaseException) -> dict[str, Any]:
+    """The status record of a job whose worker process died."""
+    return {
+        "key": job.key,
+        "status": "error",
+        "scene_id": None,
+        "attempts": [],
+        "reason": f"worker died: {type(exc).__name__}: {exc}",
+        "wall_s": None,
+        "pool_broken": isinstance(exc, cf.process.BrokenProcessPool),
+    }
+
+
+def _in_shared_pool(jobs, workers, job_fn, out, preset_dict, save_images) -> Iterator[tuple[SceneJob, dict, bool]]:
+    """(job, status record, False) of each of ``jobs`` run in one pool of ``workers`` processes, as they finish."""
+    if not jobs:
+        return
+    ctx = mp.get_context("spawn")
+    with cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init) as pool:
+        futs = {pool.submit(job_fn, job, out, preset_dict, save_images): job for job in jobs}
+        for fut in cf.as_completed(futs):
+            try:
+                res = fut.result()
+            except Exception as exc:  # noqa: BLE001 - BrokenProcessPool & co: the worker died
+                res = _died(futs[fut], exc)
+            yield futs[fut], res, False
+
+
+def _each_alone(jobs, workers, job_fn, out, preset_dict, save_images) -> Iterator[tuple[SceneJob, dict, bool]]:
+    """(job, status record, True) of each of ``jobs`` run in a worker process of its own, ``workers`` at a time."""
+    if not jobs:
+        return
+    ctx = mp.get_context("spawn")
+
+    def one(job: SceneJob) -> dict[str, Any]:
+        with cf.ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=_worker_init) as pool:
+            try:
+                return pool.submit(job_fn, job, out, preset_dict, save_images).result()
+            except Exception as exc:  # noqa: BLE001 - the worker died: this job's doing
+                return _died(job, exc)
+
+    with cf.ThreadPoolExecutor(max_workers=workers) as threads:
+        futs = {threads.submit(one, job): job for job in jobs}
+        for fut in cf.as_completed(futs):
+            yield futs[fut], fut.result(), True
 
 
 def _run_ray(jobs, out, preset_dict, save_images, workers, address, on_result) -> None:

@@ -1033,6 +1033,12 @@ def compile_scene(spec: SceneSpec) -> tuple[mujoco.MjModel, dict, list[_Rect], d
         return hit
 
 
+def release_scene(spec: SceneSpec) -> None:
+    """Drop the compiled model of ``spec``'s kitchen from the per-process cache (its built scenes keep theirs)."""
+    with _LOCK:
+        _CACHE.pop((int(spec.layout_id), int(spec.style_id), int(spec.seed)), None)
+
+
 def build_scene(spec: SceneSpec) -> SimScene:
     """Build (or fetch the cached compiled model of) a scene; returns a fresh SimScene in the task's reset state."""
     if not isinstance(spec, SceneSpec):

@@ -101,6 +101,15 @@ class GenPreset:
         bad = [b for b in self.benchmarks if b not in ALL_BENCHMARKS]
         if bad:
             raise ValueError(f"unknown benchmark(s) {bad}; choose from {list(ALL_BENCHMARKS)}")
+        for name in ("tasks", "benchmarks"):  # a repeated one would fill its slots twice, racing for one folder
+            values = getattr(self, name)
+            twice = sorted({v for v in values if values.count(v) > 1})
+            if twice:
+                raise ValueError(f"{name}: {twice} given more than once")
+        if self.r_arm is not None:
+            raise ValueError(
+                f"r_arm must be None (each task's own reach; the evaluation refuses by it), got {self.r_arm}"
+            )
         if self.n_train < 0 or self.n_test < 0 or self.n_train + self.n_test == 0:
             raise ValueError(f"need n_train >= 0, n_test >= 0 and at least one scene, got {self.n_train}/{self.n_test}")
         if not (math.isfinite(self.cell) and self.cell > 0):
