@@ -151,6 +151,18 @@ def test_empty_batch_is_zero_not_nan(padding):
     assert float(listwise_rank_loss(p, torch.zeros(2, 5), valid)) == 0.0
 
 
+@pytest.mark.parametrize("temperature", [1.0, 1e-3, 1e-4, 1e-6])
+def test_padding_never_takes_the_ranking_mass(temperature):
+    """Below T ~1e-3 the valid log-odds (>= logit(1e-6) / T) fell under the fixed padding value, so padded points
+    took the softmax mass: the same view scored differently with padding."""
+    p = torch.tensor([[0.01, 0.05, 0.02]])  # all below 0.5: log-odds < 0, far below at small T
+    g = torch.tensor([[0.0, 1.0, 0.5]])
+    padded_p, padded_g = torch.cat([p, torch.full((1, 5), 0.5)], 1), torch.cat([g, torch.zeros(1, 5)], 1)
+    mask = torch.cat([torch.ones(1, 3, dtype=torch.bool), torch.zeros(1, 5, dtype=torch.bool)], 1)
+    alone = listwise_rank_loss(p, g, None, temperature)
+    assert float(listwise_rank_loss(padded_p, padded_g, mask, temperature)) == pytest.approx(float(alone), rel=1e-5)
+
+
 def test_sdl_zero_for_perfect_prediction():
     g = torch.tensor([[0.0, 0.3, 1.0, 0.7], [1.0, 0.0, 0.0, 0.2]])
     m = torch.tensor([[True, True, True, False], [True, True, True, True]])

@@ -41,7 +41,8 @@ LossFn = Callable[[Tensor, Tensor, Tensor], Tensor]
 
 #: scores are clamped to [eps, 1 - eps] before their log-odds (a sigmoid output never reaches 0 or 1 in float32 use)
 LOGIT_EPS = 1e-6
-#: log-odds given to padded points: exp(-1e4) is 0 in any float type, and unlike -inf it keeps gradients finite
+#: log-odds given to padded points, below the lowest a valid point can have (logit(LOGIT_EPS) / T): exp(-1e4) is 0
+#: in any float type, and unlike -inf it keeps gradients finite
 MASKED_LOGIT = -1e4
 
 
@@ -133,7 +134,9 @@ def listwise_rank_loss(pred: Tensor, target: Tensor, mask: Tensor | None, temper
         raise ValueError(f"listwise_rank_loss: temperature must be a finite number > 0, got {temperature}")
     p, g, m = _prepare("listwise_rank_loss", pred, target, mask)
     z = torch.logit(p.clamp(LOGIT_EPS, 1.0 - LOGIT_EPS)) / temperature
-    log_soft = torch.log_softmax(torch.where(m, z, MASKED_LOGIT), dim=1)  # [B, M]
+    # padding sits 1e4 below the lowest valid log-odds at any temperature (a fixed -1e4 outranked them below T ~1e-3)
+    floor = math.log(LOGIT_EPS / (1.0 - LOGIT_EPS)) / temperature + MASKED_LOGIT
+    log_soft = torch.log_softmax(torch.where(m, z, floor), dim=1)  # [B, M]
     w = torch.where(m, g.clamp_min(0.0), 0.0)
     total = w.sum(1)  # [B]
     keep = total > 0

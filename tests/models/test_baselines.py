@@ -149,6 +149,24 @@ def test_n2m_nll_decreases(batch):
     assert final < first - 0.5, (first, final)
 
 
+def test_n2m_learns_nothing_from_a_view_without_success(batch):
+    """A view whose labels are all 0 had its first stored floor point taken as the success the GMM must explain."""
+    model = tiny_model("n2m").eval()
+    failed = {**batch, "floor_label": batch["floor_label"].clone()}
+    failed["floor_label"][1] = 0.0
+    with torch.no_grad():
+        gmm = model.gmm(failed)
+        turned = {**failed, "floor_xyz": failed["floor_xyz"].clone()}
+        n = int(failed["floor_mask"][1].sum())
+        turned["floor_xyz"][1, :n] = failed["floor_xyz"][1, :n].flip(0)  # the same view, stored in another order
+        only_first = {k: (v[:1] if torch.is_tensor(v) else v[:1]) for k, v in failed.items()}
+        assert float(model.nll(gmm, failed)) == pytest.approx(float(model.nll(gmm, turned)))
+        assert float(model.nll(gmm, failed)) == pytest.approx(float(model.nll(model.gmm(only_first), only_first)))
+    nothing = {**failed, "floor_label": torch.zeros_like(failed["floor_label"])}
+    loss = model.nll(model.gmm(nothing), nothing)
+    assert float(loss) == 0.0 and loss.requires_grad
+
+
 def test_n2m_propose_pose_collision_free(batch):
     torch.manual_seed(0)
     model = tiny_model("n2m").eval()

@@ -10,6 +10,7 @@ import lightning
 import pytest
 import torch
 import yaml
+from lightning.pytorch.utilities.exceptions import MisconfigurationException
 
 from floaff_zoo.contract import collate_samples
 from floaff_zoo.data.synthetic import make_synthetic_sample
@@ -283,6 +284,10 @@ def test_cosine_schedule_anneals_over_max_steps_with_a_step_budget():
     assert len(lrs) == 8
     assert all(b < a for a, b in zip(lrs, lrs[1:])), lrs  # no restart, no plateau at eta_min
     assert lrs[0] == pytest.approx(1e-3) and lrs[-1] > 1e-5, lrs
+    # with no budget at all (a time limit only) the schedule had T_max 1 epoch: lr, 1e-6, lr, 1e-6, ...
+    open_ended = lightning.Trainer(max_epochs=-1, max_time="00:00:00:30", accelerator="cpu", logger=False)
+    with pytest.raises(MisconfigurationException, match="'cosine' anneals over trainer.max_epochs or trainer"):
+        open_ended.fit(TinyPointNetModule(), loader)
 
 
 def test_navaff_evaluation_loss_repeats_and_draws_nothing():

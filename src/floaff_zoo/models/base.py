@@ -75,8 +75,8 @@ class TrainConfig:
         lr: learning rate (> 0).
         weight_decay: weight decay (>= 0).
         scheduler: ``cosine`` (eta_min 1e-6; per epoch with T_max = max_epochs, or per step with T_max =
-            max_steps when the trainer has a step budget and max_epochs -1), ``plateau`` on the model's
-            monitor, or ``none``.
+            max_steps when the trainer has a step budget and max_epochs -1; refused with neither), ``plateau`` on
+            the model's monitor, or ``none``.
     """
 
     optimizer: Literal["adam", "adamw"] = "adam"
@@ -380,7 +380,13 @@ class ZooModule(L.LightningModule):
                 if epochs < 1 and steps > 0:  # a step budget (max_epochs -1): anneal per step over max_steps
                     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=steps, eta_min=1e-6)
                     return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
-                t_max = max(1, epochs)
+                if epochs < 1:  # T_max 1 would swing the rate between lr and eta_min every epoch
+                    raise MisconfigurationException(
+                        f"{type(self).__name__}: train.scheduler 'cosine' anneals over trainer.max_epochs or "
+                        "trainer.max_steps, and this trainer sets neither (max_epochs -1, or max_time alone): set one, "
+                        "or use train.scheduler 'none' or 'plateau'"
+                    )
+                t_max = epochs
                 sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=t_max, eta_min=1e-6)
                 return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "epoch"}}
             case "plateau":

@@ -24,7 +24,8 @@ def floor_poses(floor_xyz: Tensor, target_xyz: Tensor) -> Tensor:
 def positive_poses(batch: Batch, threshold: float) -> tuple[Tensor, Tensor]:
     """Successful poses drawn from the labels: floor points with label >= ``threshold``.
 
-    A sample with no such point contributes its best-labelled point.
+    A sample with no such point contributes its best-labelled point, if its label is > 0; a sample whose labels are
+    all 0 contributes none (its first stored point would stand for a success).
 
     Returns:
         (poses [B,M,3], weights [B,M] float with 1 for positives, 0 elsewhere).
@@ -32,8 +33,9 @@ def positive_poses(batch: Batch, threshold: float) -> tuple[Tensor, Tensor]:
     label = batch["floor_label"].float()
     mask = batch["floor_mask"].bool()
     pos = (label >= threshold) & mask
-    best = label.masked_fill(~mask, -1.0).argmax(dim=1, keepdim=True)
-    fallback = torch.zeros_like(pos).scatter_(1, best, True)
+    masked = label.masked_fill(~mask, -1.0)
+    best = masked.argmax(dim=1, keepdim=True)
+    fallback = torch.zeros_like(pos).scatter_(1, best, True) & (masked.amax(dim=1, keepdim=True) > 0)
     pos = torch.where(pos.any(dim=1, keepdim=True), pos, fallback)
     return floor_poses(batch["floor_xyz"].float(), batch["target_xyz"].float()), pos.float()
 
@@ -138,10 +140,13 @@ class N2MModule(FloAffModule):
         return self.density_map(self.gmm(batch), batch)
 
     def nll(self, gmm: tuple[Tensor, Tensor, Tensor], batch: Batch) -> Tensor:
-        """Mean over samples of the weighted NLL of the positive poses (+ optional entropy terms)."""
+        """Mean over the samples with a positive pose of their weighted NLL (+ optional entropy terms); 0 with a graph
+        when no sample has one."""
         poses, w = positive_poses(batch, self.hparams["positive_threshold"])
         logp = gmm_log_prob(poses, *gmm)
-        nll = -((logp * w).sum(1) / w.sum(1)).mean()
+        keep = w.sum(1) > 0
+        per_sample = -(torch.where(w > 0, logp, 0.0) * w).sum(1) / w.sum(1).clamp_min(1.0)
+        nll = per_sample[keep].mean() if bool(keep.any()) else gmm[0].sum() * 0.0
         means, cov, logw = gmm
         h = self.hparams
         if h["lambda_weights"]:
