@@ -220,3 +220,17 @@ def test_a_checkpoints_axisnet_is_kept_when_the_configured_one_was_only_rebuilt(
     keep_configured_axisnet(checkpoint, rebuilt, dict(arch, sha256="ab" * 32))
     for k, v in rebuilt.state_dict().items():
         assert torch.equal(checkpoint["state_dict"][f"axisnet.{k}"], v), k
+
+
+def test_a_fit_on_several_processes_is_refused_naming_the_option():
+    """Each process would sum its own shard of the labels; DDP itself refused the module with a message about
+    gradients that names no option."""
+    import lightning
+    from lightning.pytorch.utilities.exceptions import MisconfigurationException
+
+    trainer = lightning.Trainer(accelerator="cpu", devices=2, strategy="ddp_spawn", logger=False)
+    model = CanonicalPriorModule(tasks=["CloseDrawer"])
+    model.trainer = trainer
+    with pytest.raises(MisconfigurationException, match="--trainer.devices 1"):
+        model.setup("fit")
+    model.setup("test")  # testing on several processes is fine

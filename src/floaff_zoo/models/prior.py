@@ -98,6 +98,18 @@ class CanonicalPriorModule(FloAffModule):
             return "none"
         return "axisnet_manhattan" if (h["axisnet"] or h["axisnet_arch"]) else "manhattan"
 
+    def setup(self, stage: str) -> None:
+        """Refuse a fit on several processes: each would sum only its own shard of the labels (and DDP refuses a
+        module without a gradient with a message that names no option)."""
+        super().setup(stage)
+        world = self.trainer.world_size if self._trainer is not None else 1
+        if stage == "fit" and world > 1:
+            raise MisconfigurationException(
+                f"CanonicalPriorModule: fitted on one process only (its label sums are not gathered across "
+                f"processes), got {world}: run `fit` with --trainer.devices 1 (and no multi-node); testing on "
+                "several is fine"
+            )
+
     def train(self, mode: bool = True) -> "CanonicalPriorModule":
         super().train(mode)
         if self.axisnet is not None:
