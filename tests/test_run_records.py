@@ -54,6 +54,9 @@ def test_finished_marker_round_trip_and_corrupt_marker_is_named(tmp_path):
     (run / FINISHED_FILE).write_text("{not json")
     with pytest.raises(RunError, match=str(run / FINISHED_FILE)):
         read_finished(run)
+    (run / FINISHED_FILE).write_bytes(b"\xff\xfe{}")  # not UTF-8: a bare UnicodeDecodeError before
+    with pytest.raises(RunError, match=str(run / FINISHED_FILE)):
+        read_finished(run)
 
 
 def test_demo_refits_a_killed_baseline_and_reuses_a_finished_one(tmp_path, monkeypatch, capsys):

@@ -138,7 +138,7 @@ def read_finished(run_dir: str | Path) -> dict[str, Any] | None:
         return None
     try:
         record = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError) as exc:
+    except (OSError, ValueError) as exc:  # ValueError: bad JSON, or bytes that are not UTF-8
         raise RunError(f"{path}: unreadable finished-run marker ({exc}); delete it to fit the run again") from exc
     if not isinstance(record, dict) or not isinstance(record.get("checkpoint"), str):
         raise RunError(f"{path}: expected an object with a 'checkpoint' path; delete it to fit the run again")

@@ -71,6 +71,15 @@ def test_latex_and_csv(capsys):
     assert float(cfar[3]) == pytest.approx(0.029) and float(cfar[4]) == pytest.approx(0.001)
 
 
+def test_latex_row_names_are_text():
+    """A label with LaTeX's special characters was printed verbatim: `$` opened math mode, `~` a space."""
+    from floaff_zoo.report.table import _tex
+
+    assert _tex("r~1.2, top-$k$ {10} a_b 5% #1 x^2 &\\") == (
+        "r\\textasciitilde{}1.2, top-\\$k\\$ \\{10\\} a\\_b 5\\% \\#1 x\\textasciicircum{}2 \\&\\textbackslash{}"
+    )
+
+
 def test_bad_inputs_are_named_and_skipped(tmp_path, capsys):
     bad = tmp_path / "bad_run"
     bad.mkdir()
@@ -107,6 +116,8 @@ def _set(rep: dict, dotted: str, value: object) -> dict:
         ("sr.model.all.mean", "n/a", "sr_views"),
         ("sr.available", "false", "sr_views"),
         ("sr.oracle.tasks.OpenSingleDoor", 0.9, "sr_tasks"),
+        ("model.hparams.eval_yaw_source", ["gt"], "sr_views"),
+        ("data.num_samples", "400", "map"),
     ],
 )
 def test_reports_with_wrong_field_types_are_named_and_skipped(tmp_path, capsys, field, value, preset):

@@ -86,6 +86,33 @@ def test_one_checkpoint_counts_once(tmp_path, capsys):
     assert build_table([report(0, checkpoint=None), report(1, checkpoint=None)], "map").sections[0].rows[0].runs == 2
 
 
+def test_one_training_free_evaluation_counts_once():
+    """A model without a checkpoint (C2F-Exp) tested twice was pooled as two seeds with a std of 0."""
+    runs = [report(0, checkpoint=None), report(0, checkpoint=None)]
+    with pytest.raises(
+        TableError,
+        match=r"same CFARModule without a checkpoint, with the same hyper-parameters and seed 0.*one run twice",
+    ):
+        build_table(runs, "sr_views")
+    assert build_table([report(0, checkpoint=None), report(1, checkpoint=None)], "map").sections[0].rows[0].runs == 2
+
+
+def test_a_row_holds_one_test_set():
+    """A run tested on a task or view subset, or on fewer samples, was pooled as a seed of the full evaluation."""
+    subset = report(1)
+    subset["data"] = {**BASE["data"], "views": ["front"], "num_samples": 20}
+    with pytest.raises(TableError, match=r"data\.views = \['front'\]"):
+        build_table([report(0), subset], "map")
+
+
+def test_an_int_and_a_float_group_value_are_one_row_in_every_preset():
+    """sr_views grouped crop_radius 1 and 1.0 into one row but filled it from the 1.0 reports only."""
+    reps = [report(s, model=dict(BASE["model"], hparams={"crop_radius": r})) for s, r in enumerate((1, 1.0))]
+    for preset in ("map", "sr_views", "sr_tasks"):
+        table = build_table(reps, preset, group_by="model.hparams.crop_radius", oracle=False)
+        assert [(r.name, r.runs) for r in table.sections[0].rows] == [("1.00", 2)], preset
+
+
 def test_rows_of_different_protocols_share_no_oracle_row():
     top1, top10 = report(0), report(1, top_k=10, free_space="cloud", label="top-10")
     with pytest.raises(TableError, match=r"row 'Oracle'.*sr\.top_k.*--no-oracle"):

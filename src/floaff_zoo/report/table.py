@@ -172,6 +172,9 @@ def _typed_fields(rep: dict[str, Any]) -> Iterator[tuple[str, Any, str]]:
     model, data, sr = rep.get("model"), rep.get("data"), rep.get("sr")
     yield "model.name", get(model, "name"), TEXT
     yield "model.hparams", get(model, "hparams"), OBJECT
+    for source in ("eval_yaw_source", "yaw_source"):  # read for the (simulator yaw) marker
+        yield f"model.hparams.{source}", get(get(model, "hparams"), source), TEXT
+    yield "data.num_samples", get(data, "num_samples"), INTEGER
     yield "data.benchmark", get(data, "benchmark"), TEXT
     labels = get(data, "labels_sha256")
     yield "data.labels_sha256", labels, OBJECT
@@ -328,10 +331,11 @@ def _oracle_cell(reports: list[dict[str, Any]], getter) -> Cell | None:
 
 
 def _group_rows(
-    reports: list[dict[str, Any]], group_by: str, numeric: bool, section: str = ""
+    reports: list[dict[str, Any]], group_by: str, numeric: bool, section: str = "", floats: bool | None = None
 ) -> list[tuple[str, list[dict]]]:
     """Reports split into rows by their ``group_by`` value (``numeric``: rows sorted by it); each row is checked
-    by ``check_row`` (one protocol, one report per checkpoint). ``section`` names the rows' section in errors."""
+    by ``check_row`` (one protocol, one report per checkpoint). ``section`` names the rows' section in errors.
+    ``floats``: read int values as floats (default: when one of ``reports`` gives a float)."""
     groups: dict[str, list[dict]] = {}
     keys: dict[str, Any] = {}
     values = [lookup(r, group_by) for r in reports]
@@ -339,7 +343,8 @@ def _group_rows(
         if v is None:
             raise TableError(f"--group-by {group_by}: report {r.get('run_dir', '?')} has no such field")
     # where some runs give a float, an int is the same number (crop_radius 1 and 1.0 are one row)
-    floats = any(isinstance(v, float) for v in values)
+    if floats is None:
+        floats = any(isinstance(v, float) for v in values)
     for r, v in zip(reports, values):
         if floats and isinstance(v, int) and not isinstance(v, bool):
             v = float(v)
@@ -368,8 +373,17 @@ def _fmt_key(v: Any) -> str:
 
 #: the report path ``main`` attaches to each report (named in errors); ``run_dir`` is used when absent
 PATH_KEY = "_report_path"
-#: settings every report of a row must share (dotted names as in errors); SR ones only where SR was measured
-PROTOCOL = ("sr.top_k", "sr.free_space", "sim_variant", "metric_reduction")
+#: settings every report of a row must share (dotted names as in errors); SR ones only where SR was measured; the
+#: test set (a run tested on a task or view subset, or with limit_test_batches, is no seed of the full evaluation)
+PROTOCOL = (
+    "sr.top_k",
+    "sr.free_space",
+    "sim_variant",
+    "metric_reduction",
+    "data.tasks",
+    "data.views",
+    "data.num_samples",
+)
 SR_PROTOCOL = PROTOCOL[:2]
 
 
@@ -389,6 +403,9 @@ def protocol(report: dict[str, Any]) -> dict[str, Any]:
     top_k = sr.get("top_k") if sr.get("available") else None
     out["sr.top_k"] = top_k
     out["sr.free_space"] = sr.get("free_space", "sim") if top_k is not None and top_k != 1 else None
+    data = report.get("data") or {}
+    for key in ("tasks", "views", "num_samples"):
+        out[f"data.{key}"] = data.get(key)
     return out
 
 
@@ -474,20 +491,31 @@ def check_protocol(name: str, reports: list[dict[str, Any]], section: str, keys:
             raise TableError(f"{_row_name(name, section)} mixes reports of different protocols: {which}; {hint}")
 
 
+def _run_identity(report: dict[str, Any]) -> tuple[str, str]:
+    """What makes a run one run, and how errors name it: its checkpoint's sha256, or for a model without one
+    (training-free: C2F-Exp, a prior given by weights) its class, hyper-parameters and seed."""
+    sha = _checkpoint_sha(report)
+    if sha is not None:
+        return sha, f"checkpoint (sha256 {sha[:16]}…)"
+    model = report.get("model") or {}
+    what = [model.get("class_path") or model.get("name"), model.get("hparams"), report.get("seed")]
+    shown = f"{str(what[0]).rsplit('.', 1)[-1]} without a checkpoint, with the same hyper-parameters and seed {what[2]}"
+    return json.dumps(what, sort_keys=True, default=str), shown
+
+
 def check_checkpoints(name: str, reports: list[dict[str, Any]], section: str = "") -> None:
-    """Raise TableError when two reports of a row have the same ``checkpoint.sha256``: one checkpoint tested twice
-    is one run, not two seeds (a row holds one protocol, so they are the same evaluation)."""
+    """Raise TableError when two reports of a row are one run (``_run_identity``: the same checkpoint, or the same
+    training-free model and seed): one run tested twice is not two seeds (a row holds one protocol, so they are the
+    same evaluation)."""
     first: dict[str, dict[str, Any]] = {}
     for r in reports:
-        sha = _checkpoint_sha(r)
-        if sha is None:
-            continue
-        if sha in first:
+        key, shown = _run_identity(r)
+        if key in first:
             raise TableError(
-                f"{_row_name(name, section)}: {_where(first[sha])} and {_where(r)} report the same checkpoint "
-                f"(sha256 {sha[:16]}…) under the same protocol, which would count one run twice; {HINT}"
+                f"{_row_name(name, section)}: {_where(first[key])} and {_where(r)} report the same {shown} under "
+                f"the same protocol, which would count one run twice; {HINT}"
             )
-        first[sha] = r
+        first[key] = r
 
 
 BENCH_ORDER = ("MoMa-Kitchen", "FloAff-Kitchen (Styles)", "FloAff-Kitchen (Layouts)")
@@ -562,27 +590,27 @@ def build_table(
     if preset == "sr_views":
         benches = _sections(reports)
         columns = [Column(f"SR_{v}", 2, False, group=_short(b)) for b, _ in benches for v in VIEWS]
-        names: dict[str, None] = {}
-        for bench, reps in benches:
-            for name, _ in _group_rows(reps, group_by, False, bench):
-                names[name] = None
+        # one row name per value over every benchmark (an int read as a float when any report gives a float)
+        floats = any(isinstance(lookup(r, group_by), float) for r in reports)
+        by_bench = [dict(_group_rows(reps, group_by, False, bench, floats)) for bench, reps in benches]
+        names = list(dict.fromkeys(n for groups in by_bench for n in groups))
         sec = Section("")
+        rows: list[tuple[str, list[dict[str, Any]]]] = []
         for name in names:
             cells: list[Cell | None] = []
-            runs = 0
-            for _, reps in benches:
-                group = [r for r in reps if _fmt_key(lookup(r, group_by)) == name]
-                runs += len(group)
+            row_reports = []
+            for groups in by_bench:
+                group = groups.get(name, [])
+                row_reports += group
                 cells += [_cell(group, lambda r, v=v: _sr(r, "model", view=v)) for v in VIEWS]
-            row_reports = [r for r in reports if _fmt_key(lookup(r, group_by)) == name]
-            sec.rows.append(Row(_marked(name, row_reports), cells, runs))
+            rows.append((name, row_reports))
+            sec.rows.append(Row(_marked(name, row_reports), cells, len(row_reports)))
         if oracle:
             for bench, reps in benches:
                 check_oracle(reps, bench)
             cells = [_oracle_cell(reps, lambda r, v=v: _sr(r, "oracle", view=v)) for _, reps in benches for v in VIEWS]
             if any(c is not None for c in cells):
                 sec.rows.append(Row("Oracle", cells, len(reports), oracle=True))
-        rows = [(n, [r for r in reports if _fmt_key(lookup(r, group_by)) == n]) for n in names]
         return Table(preset, "Method", columns, [sec], note, mixed_protocols(rows, SR_PROTOCOL))
     # sr_tasks
     tasks = [
@@ -679,14 +707,24 @@ def render_markdown(table: Table) -> str:
     return "\n".join(lines) + "\n"
 
 
+#: LaTeX's special characters as text (a row label such as ``r~1.2, top-$k$`` printed verbatim changed the rendering
+#: or broke the compile)
+_TEX = {
+    "\\": "\\textbackslash{}",
+    "&": "\\&",
+    "%": "\\%",
+    "_": "\\_",
+    "#": "\\#",
+    "$": "\\$",
+    "{": "\\{",
+    "}": "\\}",
+    "~": "\\textasciitilde{}",
+    "^": "\\textasciicircum{}",
+}
+
+
 def _tex(s: str) -> str:
-    return (
-        s.replace("\\", "\\textbackslash{}")
-        .replace("&", "\\&")
-        .replace("%", "\\%")
-        .replace("_", "\\_")
-        .replace("#", "\\#")
-    )
+    return "".join(_TEX.get(c, c) for c in s)
 
 
 def render_latex(table: Table) -> str:
