@@ -10,6 +10,7 @@ Prints a small report; nothing is kept unless --out is given.
 from __future__ import annotations
 
 import argparse
+import datetime as _dt
 import os
 import shutil
 import sys
@@ -159,7 +160,8 @@ def main(argv: list[str] | None = None) -> int:
 
 def manifest_walls(root: Path) -> list[str]:
     """One line per finished benchmark under ``root``: preset, scenes, views, workers and the wall time its
-    ``floaff-zoo generate`` run recorded (a resumed run records only its own part)."""
+    ``floaff-zoo generate`` run recorded (a resumed run records only its own part). These are read from the
+    manifest, not measured in this run: each line says so and when the manifest's run ended."""
     import json
 
     lines = []
@@ -174,11 +176,13 @@ def manifest_walls(root: Path) -> list[str]:
         c, cfg = man["counts"], man["config"]
         resumed = sum(1 for sc in man["scenes"].values() if sc.get("resumed"))
         made = sum(1 for sc in man["scenes"].values() if not sc.get("resumed"))  # incl. dropped slots
+        ended = _dt.datetime.fromtimestamp(path.stat().st_mtime, _dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+        rate = f"{man['wall_s'] / made:.1f} s/slot" if made else "s/slot n/a: every slot was resumed"
         lines.append(
-            f"[preset {man['preset']}] {path.parent.name}: {'+'.join(cfg['benchmarks'])}, {c['scenes_ok']} scenes ok, "
-            f"{c['scenes_dropped']} dropped, {c['views_total']} views, max {cfg['max_candidates']} rollouts/scene: "
-            f"{man['wall_s']:.0f} s wall with {man['workers']} worker(s) for the {made} scene slot(s) this run filled "
-            f"({man['wall_s'] / max(1, made):.1f} s/slot)"
+            f"[preset {man['preset']}, from {path} written {ended}, not timed here] {path.parent.name}: "
+            f"{'+'.join(cfg['benchmarks'])}, {c['scenes_ok']} scenes ok, {c['scenes_dropped']} dropped, "
+            f"{c['views_total']} views, max {cfg['max_candidates']} rollouts/scene: {man['wall_s']:.0f} s wall with "
+            f"{man['workers']} worker(s) for the {made} scene slot(s) that run filled ({rate})"
             + (f"; {resumed} scene(s) came from an earlier run" if resumed else "")
         )
     return lines

@@ -3,11 +3,12 @@
 Each round calls every model once (B = 1, 4,096 points, 1,024 floor points; the shipped configs' models in
 eval mode under ``no_grad``, as ``floaff_zoo.predict`` calls them), in an order that rotates from
 round to round. The figure is the median over rounds, with the 10th and 90th percentiles: the shared
-machine moves single calls by up to 2x, and interleaving spreads that over every model alike. The
-reference-style PointNet++ port (``benchmarks/reference_pointnet2.py``, the layer-study SSG of
-``bench_models.py``) is timed in rounds of its own, half before and half after (one of its calls evicts
-the caches and slows the next call of any model by ~10 %). The allocator is set as
-``floaff_zoo.predict.resolve_model`` sets it (``--malloc system`` leaves glibc's default).
+machine moves single calls by up to 2x, and interleaving spreads that over every model alike. The reference
+is each model itself, same weights and same input, on the reference-style port's ops
+(``benchmarks/reference_pointnet2.py``'s ``reference_ops``: naive FPS, sort ball query and 3-NN), timed in
+rounds of its own, half before and half after (one port call evicts the caches and slows the next call of
+any model by ~10 %). The allocator is set as ``floaff_zoo.predict.resolve_model`` sets it (``--malloc
+system`` leaves glibc's default).
 
     python benchmarks/bench_predict.py                       # 60 rounds, PointNet++ and CFAR
     python benchmarks/bench_predict.py --rounds 20 --models pointnet2_ssg votenet cfar_axisnet
@@ -17,6 +18,9 @@ the caches and slows the next call of any model by ~10 %). The allocator is set 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import copy
+import functools
 import statistics
 import sys
 import time
@@ -32,7 +36,6 @@ from floaff_zoo import runtime  # noqa: E402
 from floaff_zoo.nn.ops import fps_backend  # noqa: E402
 
 DEFAULT_MODELS = ["pointnet2_ssg", "cfar", "cfar_axisnet"]
-REFERENCE = "reference port"
 
 
 def percentile(xs: list[float], q: float) -> float:
@@ -43,38 +46,26 @@ def percentile(xs: list[float], q: float) -> float:
 
 def callers(
     names: list[str], points: int, floor_cells: int, device: torch.device | None = None
-) -> dict[str, Callable[[], None]]:
-    """name -> a zero-argument predict call on ``device``; the reference port under ``REFERENCE``."""
+) -> tuple[dict[str, Callable[[], None]], dict[str, Callable[[], None]]]:
+    """(name -> a zero-argument predict call on ``device``, name -> the same model and input on the port's ops)."""
     device = device or torch.device("cpu")
     single = {k: v.to(device) if torch.is_tensor(v) else v for k, v in bm.make_batch(1, points, floor_cells).items()}
     sync = bm.synced(device)
+    ref_mod = bm.load_reference()
     calls: dict[str, Callable[[], None]] = {}
+    ports: dict[str, Callable[[], None]] = {}
     for name in names:
         torch.manual_seed(0)
         model = bm.build(name).eval().to(device)
 
-        def call(model=model):
-            with torch.no_grad():  # as floaff_zoo.predict runs the model
+        def call(model=model, ops=contextlib.nullcontext):
+            with torch.no_grad(), ops():  # as floaff_zoo.predict runs the model
                 model(single)
             sync()
 
         calls[name] = call
-    ref_mod = bm.load_reference()
-    torch.manual_seed(0)
-    ref = ref_mod.RefPointNet2Seg(**bm.SEG).eval().to(device)
-    g = torch.Generator().manual_seed(0)
-    xyz = torch.rand(1, points, 3, generator=g)
-    xyz[..., 2] *= 0.3
-    feat = torch.randn(1, points, 1, generator=g)
-    xyz, feat = xyz.to(device), feat.to(device)
-
-    def ref_call():
-        with torch.no_grad():
-            ref(xyz, feat)
-        sync()
-
-    calls[REFERENCE] = ref_call
-    return calls
+        ports[name] = functools.partial(call, copy.deepcopy(model), ref_mod.reference_ops)
+    return calls, ports
 
 
 def run_rounds(calls: dict[str, Callable[[], None]], rounds: int, warmup: int) -> dict[str, list[float]]:
@@ -111,26 +102,28 @@ def main(argv: list[str] | None = None) -> int:
     a.models = list(dict.fromkeys(a.models))  # a name given twice is timed once
     device = bm.parse_device(p, a.device)
     kept = runtime.keep_freed_memory() if a.malloc == "keep" else False
-    calls = callers(a.models, a.points, a.floor_cells, device)
-    ref_call = {REFERENCE: calls.pop(REFERENCE)}
-    ref_rounds = max(1, a.rounds // 6)  # the port is ~10x slower: fewer calls give as steady a median
-    before = run_rounds(ref_call, ref_rounds, 1)[REFERENCE]
+    calls, ports = callers(a.models, a.points, a.floor_cells, device)
+    ref_rounds = max(1, a.rounds // 6)  # the port is ~5-10x slower: fewer calls give as steady a median
+    before = run_rounds(ports, ref_rounds, 1)
     times = run_rounds(calls, a.rounds, a.warmup)
-    times[REFERENCE] = before + run_rounds(ref_call, ref_rounds, 0)[REFERENCE]
+    after = run_rounds(ports, ref_rounds, 0)
+    port_times = {n: before[n] + after[n] for n in ports}
     print(
         f"== predict B=1 x {a.points} points ({a.floor_cells**2} floor points), {a.rounds} interleaved rounds, "
         f"malloc {a.malloc} (kept: {kept}), torch {torch.__version__}, threads {torch.get_num_threads()}, "
         f"device {device}{' (' + torch.cuda.get_device_name(device) + ')' if device.type == 'cuda' else ''}, "
         f"FPS {fps_backend(device)}"
     )
-    print(f"{'model':<16}{'median':>10}{'p10':>9}{'p90':>9}{'min':>9}   reference median / model median")
-    ref = statistics.median(times[REFERENCE])
+    print(
+        f"{'model':<16}{'median':>10}{'p10':>9}{'p90':>9}{'min':>9}   {'port ops':>9}"
+        "   port ops median / model median (same model and input)"
+    )
     for name, ts in times.items():
         ms = [1e3 * t for t in ts]
-        ratio = ref / statistics.median(ts)
+        port = statistics.median(port_times[name])
         print(
             f"{name:<16}{statistics.median(ms):7.1f} ms{percentile(ms, 0.1):6.1f} ms{percentile(ms, 0.9):6.1f} ms"
-            f"{min(ms):6.1f} ms   x{ratio:5.2f}"
+            f"{min(ms):6.1f} ms{1e3 * port:7.1f} ms   x{port / statistics.median(ts):5.2f}"
         )
     if "pointnet2_ssg" in times:  # the issue's "CFAR no slower than PointNet++", per round
         for x in (m for m in a.models if m.startswith("cfar")):

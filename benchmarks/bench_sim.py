@@ -40,13 +40,13 @@ def physics_seconds(spec: SceneSpec, sim_seconds: float) -> float:
     return time.perf_counter() - t0
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--cell", type=float, default=0.1)
+    ap.add_argument("--cell", type=float, default=None, help="grid cell (m); default 0.1, or 0.2 with --quick")
     ap.add_argument("--layout", type=int, default=0)
     ap.add_argument("--style", type=int, default=0)
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--agree", type=int, default=20)
+    ap.add_argument("--agree", type=int, default=None, help="agreement checks per task; default 20, 5 with --quick")
     ap.add_argument("--quick", action="store_true", help="coarse grid (cell 0.2) and 5 agreement checks")
     ap.add_argument(
         "--growth-cells",
@@ -55,9 +55,16 @@ def main() -> None:
         default=[0.3, 0.2, 0.14, 0.1],
         help="grid cells (m) of the growth-with-candidates measurement on CloseDrawer (none: skip)",
     )
-    args = ap.parse_args()
-    if args.quick:
-        args.cell, args.agree = 0.2, 5
+    args = ap.parse_args(argv)
+    # --quick sets only what is not given (it overwrote an explicit --cell / --agree)
+    args.cell = args.cell if args.cell is not None else (0.2 if args.quick else 0.1)
+    args.agree = args.agree if args.agree is not None else (5 if args.quick else 20)
+    if not args.cell > 0:
+        ap.error(f"--cell must be > 0, got {args.cell}")
+    if args.agree < 0:
+        ap.error(f"--agree must be >= 0, got {args.agree}")
+    if any(not c > 0 for c in args.growth_cells):
+        ap.error(f"--growth-cells must be > 0, got {args.growth_cells}")
     t0 = time.perf_counter()
     build_scene(SceneSpec(args.layout, args.style, args.seed, TASKS[0]))
     print(f"build_scene (first, incl. robot model) {time.perf_counter() - t0:.2f}s")

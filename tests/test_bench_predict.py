@@ -41,8 +41,8 @@ def test_a_bad_or_absent_device_is_refused_by_name(capsys):
 
 def test_calls_on_the_cpu_device_run_the_model():
     bp = _load()
-    calls = bp.callers(["pointnet2_ssg"], points=256, floor_cells=4, device=torch.device("cpu"))
-    assert set(calls) == {"pointnet2_ssg", bp.REFERENCE}
+    calls, ports = bp.callers(["pointnet2_ssg"], points=256, floor_cells=4, device=torch.device("cpu"))
+    assert set(calls) == set(ports) == {"pointnet2_ssg"}
     calls["pointnet2_ssg"]()  # a real forward on the moved batch
 
 
@@ -55,6 +55,8 @@ def test_calls_on_the_cpu_device_run_the_model():
         ("bench_vs_port", ["--rounds", "0"]),
         ("bench_train_time", ["--steps", "0"]),
         ("profile_step", ["--steps", "0"]),
+        ("bench_sim", ["--agree", "-1"]),  # sliced [:-1]: checked all but one, no error
+        ("bench_sim", ["--cell", "0"]),
     ],
 )
 def test_benchmark_counts_below_one_are_refused_up_front(script, args, capsys):
@@ -72,3 +74,46 @@ def test_bench_models_says_which_models_cannot_run_in_the_mode():
     assert not bm.runs_in_mode("cfar", "bf16") and not bm.runs_in_mode("cfar_axisnet", "compile")
     assert not bm.runs_in_mode("c2f_exp", "compile_bf16")
     assert bm.runs_in_mode("pointnet2_ssg", "compile_bf16") and bm.runs_in_mode("cfar", "eager")
+
+
+def test_each_model_is_timed_against_itself_on_the_ports_ops(monkeypatch):
+    """The ratio compared every model with the layer-study net on a random cloud (another network, another input):
+    the reference is now the same model, same weights and input, on the port's ops."""
+    bp = _load()
+    ref_mod = bp.bm.load_reference()
+    used: list[bool] = []
+    real = ref_mod.reference_ops
+
+    def spy():
+        used.append(True)
+        return real()
+
+    monkeypatch.setattr(ref_mod, "reference_ops", spy)
+    monkeypatch.setattr(bp.bm, "load_reference", lambda: ref_mod)
+    calls, ports = bp.callers(["pointnet2_ssg"], points=256, floor_cells=4)
+    assert list(calls) == list(ports) == ["pointnet2_ssg"]
+    calls["pointnet2_ssg"]()
+    assert used == []
+    ports["pointnet2_ssg"]()
+    assert used == [True]
+
+
+def test_generation_figures_read_from_a_manifest_say_so(tmp_path):
+    """They printed like figures of the run (dated by run_all), with a per-slot rate over zero slots."""
+    import json
+
+    bg = load_benchmark("bench_generate")
+    man = {
+        "status": "done",
+        "wall_s": 3.0,
+        "preset": "demo",
+        "workers": 2,
+        "counts": {"scenes_ok": 2, "scenes_dropped": 0, "views_total": 24},
+        "config": {"benchmarks": ["layouts"], "max_candidates": 60},
+        "scenes": {"a": {"resumed": True}, "b": {"resumed": True}},
+    }
+    (tmp_path / "floaff_demo").mkdir()
+    (tmp_path / "floaff_demo" / "manifest.json").write_text(json.dumps(man))
+    (line,) = bg.manifest_walls(tmp_path)
+    assert "not timed here" in line and str(tmp_path / "floaff_demo" / "manifest.json") in line
+    assert "s/slot n/a: every slot was resumed" in line and "0.0 s/slot" not in line
