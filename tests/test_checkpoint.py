@@ -63,6 +63,17 @@ def test_best_is_never_the_last_epochs_weights_in_disguise(tmp_path):
     assert _step(resolve_ckpt_alias("last", tmp_path / "ck")) == 7
 
 
+def test_a_moved_run_reads_its_own_best_file(tmp_path):
+    """The recorded absolute path came first: after a run moved, a file there (another run's) was handed out."""
+    cb = LatestCheckpoint(dirpath=tmp_path / "ck", monitor="worse", mode="min", save_last=True)
+    _fit(tmp_path, cb)
+    moved = tmp_path / "moved"
+    (tmp_path / "ck").rename(moved)
+    Path(cb.best_model_path).parent.mkdir()
+    torch.save({"global_step": 99}, cb.best_model_path)  # another run's file at the old path
+    assert _step(resolve_ckpt_alias("best", moved)) == 2
+
+
 def test_plain_model_checkpoint_keeps_the_best_as_last(tmp_path):
     """Why the subclass exists: Lightning's own last.ckpt stops at the last improvement (the test above: 7)."""
     _fit(

@@ -91,3 +91,33 @@ def test_push_over_a_name_replaces_it(registered, tmp_path):
     assert sorted(p.name for p in folder.iterdir()) == sorted(["README.md", "config.json", new.filename])
     assert load_model(NAME).hparams.width == 16 and load_model(folder).hparams.width == 16
     assert not [p for p in hub_dir().iterdir() if p.name.startswith(".push-")]
+
+
+def _register_many(directory: str, prefix: str, n: int) -> None:
+    from floaff_zoo.hub.registry import HubEntry, register
+
+    for i in range(n):
+        name = f"tiny.{prefix}{i}.v1"
+        entry = HubEntry(name, TINY, f"{name}-{'0' * 8}.safetensors", "0" * 64, {}, {"kind": "local"}, {})
+        register(entry, directory)
+
+
+def test_pushes_at_once_keep_every_entry(tmp_path):
+    """Each register read the index, added its entry and wrote it back: of two processes' 60 pushes each, some
+    vanished from the index."""
+    import multiprocessing as mp
+
+    ctx = mp.get_context("fork")
+    procs = [ctx.Process(target=_register_many, args=(str(tmp_path), p, 60)) for p in "ab"]
+    for p in procs:
+        p.start()
+    for p in procs:
+        p.join(120)
+    assert [p.exitcode for p in procs] == [0, 0]
+    assert len(load_registry(tmp_path)) - len(load_registry(tmp_path / "empty")) == 120
+
+
+def test_a_name_that_ends_like_a_weights_file_is_refused(tmp_path, capsys):
+    """`tiny.syn.pt` was pushed, then `hub info tiny.syn.pt` took it for a path."""
+    assert _push(_ckpt(tmp_path / "a.ckpt", seed=1), "tiny.syn.pt") == 2
+    assert "ends like a weights file" in capsys.readouterr().err and "tiny.syn.pt" not in load_registry()

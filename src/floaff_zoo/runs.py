@@ -64,10 +64,10 @@ def resolve_ckpt_alias(alias: str, root: str | Path, model_class: str | None = N
         if key.startswith("ModelCheckpoint") and cb.get("best_model_path")
     ]
     for best in recorded:
-        if not best.is_file():  # run dir moved: look next to last.ckpt
-            best = last.parent / best.name
-        if best.is_file():
-            return str(best)
+        # the run's own folder first: a moved run's old absolute path may hold another run's file by now
+        for candidate in (last.parent / best.name, best):
+            if candidate.is_file():
+                return str(candidate)
     if recorded:  # last.ckpt holds other weights than the best: never hand them out under the name "best"
         raise RunError(
             f"--ckpt_path {alias}: {last} records the best checkpoint {recorded[0]}, which is gone (nor is it next "

@@ -25,14 +25,21 @@ index, written by ``floaff-zoo hub push``) is merged over it by name. The hub di
 
 from __future__ import annotations
 
+import contextlib
 import difflib
 import hashlib
 import json
 import os
 import re
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
+
+try:  # POSIX: serialises index writers (elsewhere pushes must not overlap)
+    import fcntl
+except ImportError:  # pragma: no cover - Windows
+    fcntl = None  # type: ignore[assignment]
 
 from floaff_zoo.atomic import atomic_write
 
@@ -113,6 +120,8 @@ def check_name(name: Any, where: str) -> str:
         raise RegistryFormatError(
             f"{where}: entry name {name!r} must be lower-case 'model.dataset.vN' (letters, digits, '-', '_', '.')"
         )
+    if name.endswith(WEIGHT_EXTS):  # read as a file path by every command that takes a name or a path
+        raise RegistryFormatError(f"{where}: entry name {name!r} ends like a weights file ({', '.join(WEIGHT_EXTS)})")
     return name
 
 
@@ -291,14 +300,30 @@ def get_entry(name: str, directory: str | os.PathLike[str] | None = None) -> Hub
     )
 
 
+@contextlib.contextmanager
+def _index_lock(index: Path) -> Iterator[None]:
+    """Hold an exclusive lock on ``index``'s folder: pushes running at once each read the index, add their entry
+    and write it back, so without it the last writer dropped the others' entries."""
+    index.parent.mkdir(parents=True, exist_ok=True)
+    with open(index.parent / ".index.lock", "a") as f:
+        if fcntl is not None:
+            fcntl.flock(f, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            if fcntl is not None:
+                fcntl.flock(f, fcntl.LOCK_UN)
+
+
 def register(entry: HubEntry, directory: str | os.PathLike[str] | None = None, overwrite: bool = True) -> Path:
     """Add/replace ``entry`` in the user index of ``directory``; returns the index path."""
     HubEntry.from_json(entry.to_json(), "new entry")  # same validation as on read
     path = user_index_path(directory)
-    entries = {e.name: e for e in read_index(path)}
-    if entry.name in entries and not overwrite:
-        raise HubError(f"{path}: an entry named {entry.name!r} exists already")
-    entries[entry.name] = entry
-    write_index(path, list(entries.values()))
+    with _index_lock(path):
+        entries = {e.name: e for e in read_index(path)}
+        if entry.name in entries and not overwrite:
+            raise HubError(f"{path}: an entry named {entry.name!r} exists already")
+        entries[entry.name] = entry
+        write_index(path, list(entries.values()))
     entry.index_path = path
     return path
