@@ -380,13 +380,13 @@ class ZooModule(L.LightningModule):
                 if epochs < 1 and steps > 0:  # a step budget (max_epochs -1): anneal per step over max_steps
                     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=steps, eta_min=1e-6)
                     return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
-                if epochs < 1:  # T_max 1 would swing the rate between lr and eta_min every epoch
+                if epochs < 1 and tr is not None:  # T_max 1 would swing the rate between lr and eta_min every epoch
                     raise MisconfigurationException(
                         f"{type(self).__name__}: train.scheduler 'cosine' anneals over trainer.max_epochs or "
                         "trainer.max_steps, and this trainer sets neither (max_epochs -1, or max_time alone): set one, "
                         "or use train.scheduler 'none' or 'plateau'"
                     )
-                t_max = epochs
+                t_max = max(1, epochs)  # (no trainer: a call outside fit)
                 sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=t_max, eta_min=1e-6)
                 return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "epoch"}}
             case "plateau":
