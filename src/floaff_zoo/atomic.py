@@ -1,18 +1,49 @@
-"""Whole-file writes: a temp file in the destination's folder, renamed over it once complete.
+"""Files shared between processes: whole-file writes and folder locks.
 
 Every file the package writes for others to read (generated scenes and views, cache entries, hub indexes and
-weights, rollout caches) goes through here, so a killed writer never leaves half a file, and the file gets the mode
-a plain ``open`` would have given it (``mkstemp`` makes owner-only files, which nobody else sharing a data or hub
-folder could read).
+weights, rollout caches) is written to a temp file in the destination's folder and renamed over it once complete,
+so a killed writer never leaves half a file, and the file gets the mode a plain ``open`` would have given it
+(``mkstemp`` makes owner-only files, which nobody else sharing a data or hub folder could read). A folder that
+several processes update (a hub index, a generated benchmark) is locked while one of them does.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import BinaryIO
+
+try:  # POSIX advisory locks (elsewhere the lock is a no-op: writers must not overlap)
+    import fcntl
+except ImportError:  # pragma: no cover - Windows
+    fcntl = None  # type: ignore[assignment]
+
+
+class LockedError(RuntimeError):
+    """Another process holds the lock (``folder_lock(..., wait=False)``)."""
+
+
+@contextlib.contextmanager
+def folder_lock(lock_file: str | os.PathLike[str], wait: bool = True) -> Iterator[None]:
+    """Hold an exclusive lock on ``lock_file`` (created if missing; released when the process dies).
+
+    ``wait``: block until the lock is free, else raise ``LockedError`` at once."""
+    path = Path(lock_file)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "a") as f:
+        if fcntl is not None:
+            try:
+                fcntl.flock(f, fcntl.LOCK_EX | (0 if wait else fcntl.LOCK_NB))
+            except BlockingIOError as exc:
+                raise LockedError(f"{path} is locked by another process") from exc
+        try:
+            yield
+        finally:
+            if fcntl is not None:
+                fcntl.flock(f, fcntl.LOCK_UN)
 
 
 def publish(tmp: str | os.PathLike[str], dest: str | os.PathLike[str]) -> None:

@@ -738,3 +738,13 @@ def test_workers_exit_when_the_driver_is_killed(tmp_path):
         os.kill(pid, signal.SIGKILL)  # clean up before failing
     assert not alive, "the generate worker outlived its killed driver"
     assert not list(out.glob("after_*"))
+
+
+def test_two_runs_into_one_folder_are_refused(tmp_path):
+    """A second run deleted the first one's half-built scenes (.staging) at its start and raced it for the slots."""
+    from floaff_zoo.atomic import folder_lock
+
+    with folder_lock(tmp_path / gen.GENERATE_LOCK):  # as a running generate holds it
+        with pytest.raises(ValueError, match="another `floaff-zoo generate` is writing into this folder"):
+            gen.generate(tmp_path, get_preset("tiny", **MINI), seed=0, workers=0, quiet=True)
+    assert not (tmp_path / ff.MANIFEST).exists()

@@ -25,23 +25,16 @@ index, written by ``floaff-zoo hub push``) is merged over it by name. The hub di
 
 from __future__ import annotations
 
-import contextlib
 import difflib
 import hashlib
 import json
 import os
 import re
-from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-try:  # POSIX: serialises index writers (elsewhere pushes must not overlap)
-    import fcntl
-except ImportError:  # pragma: no cover - Windows
-    fcntl = None  # type: ignore[assignment]
-
-from floaff_zoo.atomic import atomic_write
+from floaff_zoo.atomic import atomic_write, folder_lock
 
 INDEX_VERSION = 1
 SHIPPED_INDEX = Path(__file__).with_name("index.json")
@@ -300,26 +293,13 @@ def get_entry(name: str, directory: str | os.PathLike[str] | None = None) -> Hub
     )
 
 
-@contextlib.contextmanager
-def _index_lock(index: Path) -> Iterator[None]:
-    """Hold an exclusive lock on ``index``'s folder: pushes running at once each read the index, add their entry
-    and write it back, so without it the last writer dropped the others' entries."""
-    index.parent.mkdir(parents=True, exist_ok=True)
-    with open(index.parent / ".index.lock", "a") as f:
-        if fcntl is not None:
-            fcntl.flock(f, fcntl.LOCK_EX)
-        try:
-            yield
-        finally:
-            if fcntl is not None:
-                fcntl.flock(f, fcntl.LOCK_UN)
-
-
 def register(entry: HubEntry, directory: str | os.PathLike[str] | None = None, overwrite: bool = True) -> Path:
     """Add/replace ``entry`` in the user index of ``directory``; returns the index path."""
     HubEntry.from_json(entry.to_json(), "new entry")  # same validation as on read
     path = user_index_path(directory)
-    with _index_lock(path):
+    # pushes at once each read the index, add their entry and write it back: without the lock the last writer
+    # dropped the others' entries
+    with folder_lock(path.parent / ".index.lock"):
         entries = {e.name: e for e in read_index(path)}
         if entry.name in entries and not overwrite:
             raise HubError(f"{path}: an entry named {entry.name!r} exists already")

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import concurrent.futures as cf
+import contextlib
 import dataclasses
 import hashlib
 import itertools
@@ -41,6 +42,7 @@ from typing import Any
 
 import numpy as np
 
+from floaff_zoo.atomic import LockedError, folder_lock
 from floaff_zoo.sim import fileformat as ff
 from floaff_zoo.sim.presets import ALL_BENCHMARKS, ALL_TASKS, PRESETS, GenPreset, get_preset, view_counts
 
@@ -835,14 +837,36 @@ def generate(
     job_fn: the per-slot function with run_job's signature (default run_job; replaced only by tests that simulate
     crashing workers; it must be importable by name for process workers).
     """
-    from floaff_zoo.sim.kitchen import LAYOUTS, STYLES
-
     preset = preset.validate()
     if backend not in ("local", "ray"):
         raise ValueError(f"backend must be 'local' or 'ray', got {backend!r}")
     if workers < 0:
         raise ValueError(f"workers must be >= 0, got {workers}")
     outp = check_out_dir(out)
+    with contextlib.ExitStack() as stack:
+        try:
+            stack.enter_context(folder_lock(outp / GENERATE_LOCK, wait=False))
+        except LockedError as exc:  # its start would delete the other run's half-built scenes (.staging)
+            raise ValueError(
+                f"--out {outp}: another `floaff-zoo generate` is writing into this folder; wait for it to end"
+            ) from exc
+        return _generate(outp, preset, seed, workers, backend, address, save_images, quiet, job_fn)
+
+
+def _generate(
+    outp: Path,
+    preset: GenPreset,
+    seed: int,
+    workers: int,
+    backend: str,
+    address: str | None,
+    save_images: bool,
+    quiet: bool,
+    job_fn: Callable[..., dict[str, Any]] | None,
+) -> dict[str, Any]:
+    """``generate`` into the checked folder ``outp``, under its lock."""
+    from floaff_zoo.sim.kitchen import LAYOUTS, STYLES
+
     jobs = plan_jobs(preset, seed, list(LAYOUTS), list(STYLES))
     for b in preset.benchmarks:  # leftovers of killed runs
         shutil.rmtree(outp / b / ff.STAGING, ignore_errors=True)
@@ -983,6 +1007,10 @@ def check_resume_settings(old: dict[str, Any], new: dict[str, Any], out: Path) -
             f"{out}: its scenes were generated with other settings ({'; '.join(diffs)}); resuming would mix them: "
             "generate into another --out, or rerun with the recorded settings (manifest.json 'config')"
         )
+
+
+#: the lock a run holds on its output folder (two runs into one folder would delete each other's staging)
+GENERATE_LOCK = ".generate.lock"
 
 
 def check_out_dir(out: str | Path) -> Path:
