@@ -82,3 +82,14 @@ def test_a_home_relative_run_keeps_its_metrics(tmp_path, monkeypatch):
     assert entry.meta["metrics"] == pytest.approx({"val_rmse": 0.125})
     with pytest.raises(HubError, match="registered already"):
         export_checkpoint("~/run", "tiny.home.v1")
+
+
+def test_a_folder_of_a_registered_name_in_the_working_folder_does_not_hide_it(tmp_path, monkeypatch):
+    """An unrelated folder named like a hub entry made every load by that name fail ("not an exported model
+    directory"); an exported folder of that name is still what a load by that name reads."""
+    monkeypatch.chdir(tmp_path)
+    name = "cfar-pfal.floaff-small-layouts.v2"
+    (tmp_path / name).mkdir()
+    assert type(load_model(name)).__name__ == "CFARModule"
+    TinyPointNetModule(width=8).save_pretrained(str(tmp_path / name))
+    assert type(load_model(name)).__name__ == "TinyPointNetModule"

@@ -318,7 +318,10 @@ def resolve_state_dict(
     target = str(name_or_path)
     path = Path(target).expanduser()
     name, sha, meta = None, None, {}
-    if path.is_file():
+    # a registered name is the hub's entry even when the working folder holds a file or folder of that name, unless
+    # that folder is an export (it shadowed the entry with "not an exported model directory")
+    hub_name = not looks_like_path(target) and not (path / CONFIG_NAME).is_file() and _is_registered(target, hub_dir)
+    if not hub_name and path.is_file():
         kind, weights_path = "file", path
         # the weights file of an exported folder, named directly: its config's hash is checked as for the folder
         # (exports write safetensors: a checkpoint beside some other config.json does not read it)
@@ -331,7 +334,7 @@ def resolve_state_dict(
         state, info = read_weights(path)
         if exported and info["class_path"] is None:
             info = {"class_path": cfg.get("class_path"), "init_args": dict(cfg.get("init_args") or {})}
-    elif path.is_dir():
+    elif not hub_name and path.is_dir():
         kind = "dir"
         cfg = read_config(path)
         weights_path = path / cfg.get("weights", DEFAULT_WEIGHTS_NAME)
