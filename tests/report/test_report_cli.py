@@ -56,6 +56,12 @@ def test_test_writes_report_with_every_metric(fitted, monkeypatch):
     assert rep["seed"] == 0 and rep["config"]["model"]["init_args"]["width"] == 32
     assert rep["data"]["dataset"] == "synthetic" and rep["data"]["num_samples"] == 4
     assert rep["sim_variant"] == "cosine" and rep["metric_reduction"] == "per_sample"
+    # how many maps PCC averaged (a constant map has no Pearson r and is left out of its mean)
+    assert rep["map_elements"] == {
+        "maps": 4,
+        "empty": 0,
+        "pcc_undefined": cli.model.test_metrics["pcc"].num_undefined,
+    }
     assert rep["versions"]["torch"] and rep["versions"]["lightning"]
     md = (run_dir / "report.md").read_text()
     assert "SR: n/a" in md and "| RMSE |" in md
@@ -86,3 +92,18 @@ def test_report_without_callbacks_in_config_is_opt_in(fitted, monkeypatch, tmp_p
     assert rep["label"] == "w/o SDL" and rep["figures"] == []
     assert "no RolloutSuccessRate" in rep["sr"]["reason"]
     assert torch.isfinite(torch.tensor(rep["metrics"]["test_rmse"]))
+
+
+def test_the_report_says_over_how_many_maps_pcc_is_a_mean():
+    """Constant maps (C2F-Exp's all-zero ones, say) are left out of PCC's mean: the report said nothing of it."""
+    from floaff_zoo.callbacks.report import render_markdown
+
+    rep = {
+        "label": "x",
+        "model": {"class_path": "m.M"},
+        "metrics": {"test_pcc": 0.5},
+        "map_elements": {"maps": 10, "empty": 1, "pcc_undefined": 6},
+    }
+    assert "PCC over 3 of 10 maps: 6 constant (Pearson r undefined), 1 without a floor point." in render_markdown(rep)
+    rep["map_elements"] = {"maps": 10, "empty": 0, "pcc_undefined": 0}
+    assert "PCC over" not in render_markdown(rep)

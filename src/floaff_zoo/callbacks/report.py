@@ -3,7 +3,8 @@
 The run directory is ``out_dir`` when given, else ``trainer.log_dir`` (the logger's version dir,
 where LightningCLI saves ``config.yaml``), else ``trainer.default_root_dir``.
 
-``report.json`` (schema ``floaff-zoo/report`` version 1) holds: every ``test_*`` metric, the SR
+``report.json`` (schema ``floaff-zoo/report`` version 1) holds: every ``test_*`` metric (with ``map_elements``:
+how many maps they averaged, how many were empty and how many PCC left out as constant), the SR
 table from a ``RolloutSuccessRate`` callback in the same trainer (or ``available: false`` with the
 reason: "SR n/a"), the resolved CLI config (``<log_dir>/config.yaml``), the model class and its
 hparams, the seed, the checkpoint path and sha256, dataset/benchmark/tasks/views, sim_variant and
@@ -329,6 +330,7 @@ class TestReport(L.Callback):
             "metric_reduction": (hp.get("train") or {}).get("metric_reduction"),
             "configured_metrics": configured,
             "metrics": metrics,
+            "map_elements": map_elements(pl_module),
             "sr": sr,
             "config": config,
             "versions": package_versions(),
@@ -343,6 +345,18 @@ def _fmt(v: Any, decimals: int) -> str:
 
 def _sr_cell(cell: dict | None) -> str:
     return "n/a" if not cell else f"{cell['mean']:.2f} ± {cell['std']:.2f} (n={cell['n']})"
+
+
+def map_elements(pl_module: L.LightningModule) -> dict[str, int] | None:
+    """How many maps (elements) the test's map metrics averaged: ``maps``, ``empty`` (no valid floor point)
+    and ``pcc_undefined`` (a constant map or label, left out of PCC's mean), read from the metrics' last compute;
+    None for a module without them."""
+    metrics = getattr(pl_module, "test_metrics", None)
+    pcc = metrics["pcc"] if metrics is not None and "pcc" in metrics.keys(keep_base=True) else None
+    if pcc is None or not hasattr(pcc, "num_undefined"):
+        return None
+    maps = int(pcc.num_elements) + int(pcc.num_empty)  # num_elements: the maps with a valid floor point
+    return {"maps": maps, "empty": int(pcc.num_empty), "pcc_undefined": int(pcc.num_undefined)}
 
 
 def render_markdown(report: dict[str, Any]) -> str:
@@ -374,6 +388,13 @@ def render_markdown(report: dict[str, Any]) -> str:
     shown = [(k, name, d) for k, name, d in MAP_METRICS if f"test_{k}" in m]
     lines += ["| " + " | ".join(n for _, n, _ in shown) + " |", "|" + "---|" * len(shown)]
     lines.append("| " + " | ".join(_fmt(m.get(f"test_{k}"), d) for k, _, d in shown) + " |")
+    counts = report.get("map_elements") or {}
+    if counts.get("pcc_undefined") or counts.get("empty"):  # PCC is a mean over fewer maps than the others
+        lines += [
+            "",
+            f"PCC over {counts['maps'] - counts['empty'] - counts['pcc_undefined']} of {counts['maps']} "
+            f"maps: {counts['pcc_undefined']} constant (Pearson r undefined), {counts['empty']} without a floor point.",
+        ]
     others = {k: v for k, v in m.items() if not any(k == f"test_{x}" for x, _, _ in shown) and "_sr_" not in k}
     if others:
         lines += ["", "Other logged values: " + ", ".join(f"`{k}` = {_fmt(v, 4)}" for k, v in others.items())]
