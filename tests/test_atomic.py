@@ -41,3 +41,13 @@ def test_a_failed_write_keeps_the_old_file_and_leaves_no_temp(tmp_path):
     with pytest.raises(KeyboardInterrupt):
         atomic_write(path, half)
     assert path.read_bytes() == b"old" and os.listdir(tmp_path) == ["index.json"]
+
+
+def test_the_umask_is_read_without_changing_it(umask_022, monkeypatch):
+    """Reading it by os.umask(0) set it to 0 for a moment: a file another thread made then was world-writable."""
+    from floaff_zoo import atomic
+
+    calls: list[int] = []
+    real = os.umask
+    monkeypatch.setattr(os, "umask", lambda m: calls.append(m) or real(m))
+    assert atomic._umask() == 0o022 and calls == []

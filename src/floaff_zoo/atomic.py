@@ -46,11 +46,24 @@ def folder_lock(lock_file: str | os.PathLike[str], wait: bool = True) -> Iterato
                 fcntl.flock(f, fcntl.LOCK_UN)
 
 
-def publish(tmp: str | os.PathLike[str], dest: str | os.PathLike[str]) -> None:
-    """Rename the finished temp file ``tmp`` onto ``dest``, with the mode the umask gives a new file."""
+def _umask() -> int:
+    """The process's umask, read without changing it where Linux shows it (``os.umask`` sets it to 0 for a moment,
+    which a file another thread creates meanwhile would get)."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as f:
+            for line in f:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
     umask = os.umask(0)
     os.umask(umask)
-    os.chmod(tmp, 0o666 & ~umask)
+    return umask
+
+
+def publish(tmp: str | os.PathLike[str], dest: str | os.PathLike[str]) -> None:
+    """Rename the finished temp file ``tmp`` onto ``dest``, with the mode the umask gives a new file."""
+    os.chmod(tmp, 0o666 & ~_umask())
     os.replace(tmp, dest)
 
 

@@ -241,7 +241,8 @@ def write_index(path: Path, entries: list[HubEntry]) -> None:
     """Write an index atomically (temp file + rename) so a crash never leaves half a JSON file."""
     path.parent.mkdir(parents=True, exist_ok=True)
     payload = {"version": INDEX_VERSION, "entries": [e.to_json() for e in sorted(entries, key=lambda e: e.name)]}
-    atomic_write(path, lambda f: f.write((json.dumps(payload, indent=2, sort_keys=False) + "\n").encode()))
+    text = json.dumps(payload, indent=2, sort_keys=False) + "\n"
+    atomic_write(path, lambda f: f.write(text.encode()), durable=True)  # after a power loss: old or new, never empty
 
 
 def user_index_path(directory: str | os.PathLike[str] | None = None) -> Path:
