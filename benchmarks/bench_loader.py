@@ -143,7 +143,7 @@ def train_step_rate(batches: list, steps: int) -> tuple[float, str]:
     return n / (time.perf_counter() - t), what
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--dataset", choices=["moma", "floaff"], default="moma")
     p.add_argument("--root", default=None, help="dataset root (default: write MoMa-sized samples to a temp dir)")
@@ -155,9 +155,14 @@ def main() -> None:
     p.add_argument("--workers", type=int, default=0)
     p.add_argument("--epochs", type=int, default=3)
     p.add_argument("--steps", type=int, default=3)
-    args = p.parse_args()
+    args = p.parse_args(argv)
     if args.epochs < 1 or args.steps < 1:
         p.error("--epochs and --steps must be >= 1")
+    for flag in ("samples", "num_points", "batch_size", "max_samples"):
+        if (value := getattr(args, flag)) is not None and value < 1:
+            p.error(f"--{flag.replace('_', '-')} must be >= 1, got {value}")
+    if args.workers < 0:
+        p.error(f"--workers must be >= 0, got {args.workers}")
     torch.set_num_threads(int(os.environ.get("OMP_NUM_THREADS", torch.get_num_threads())))
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(args.root) if args.root else Path(tmp) / "moma"

@@ -52,6 +52,15 @@ def load_reference():
     return mod
 
 
+def require_positive(parser: argparse.ArgumentParser, args: argparse.Namespace, *names: str) -> None:
+    """``parser.error`` naming the first of the size flags ``names`` (dest names) given a value < 1 (None: unset);
+    they ended in tracebacks (an empty batch, set_num_threads(0)) instead."""
+    for name in names:
+        value = getattr(args, name)
+        if value is not None and value < 1:
+            parser.error(f"--{name.replace('_', '-')} must be >= 1, got {value}")
+
+
 def parse_device(parser: argparse.ArgumentParser, value: str) -> torch.device:
     """``--device value`` as a torch device; a name torch does not know, or CUDA without a device, ends ``parser``."""
     try:
@@ -325,6 +334,7 @@ def main(argv: list[str] | None = None) -> int:
         p.error("--iters must be >= 1")
     if a.warmup < 1:  # ours always has an untimed first step: the reference needs one too to be timed fairly
         p.error("--warmup must be >= 1")
+    require_positive(p, a, "batch", "points", "floor_cells", "threads")
     if a.threads:
         torch.set_num_threads(a.threads)
     iters = a.iters or (2 if a.quick else 5)

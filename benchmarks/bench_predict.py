@@ -99,6 +99,7 @@ def main(argv: list[str] | None = None) -> int:
         p.error(f"--models: name at least one of {bm.MODELS}")
     if a.warmup < 0:
         p.error("--warmup must be >= 0")
+    bm.require_positive(p, a, "points", "floor_cells")
     a.models = list(dict.fromkeys(a.models))  # a name given twice is timed once
     device = bm.parse_device(p, a.device)
     kept = runtime.keep_freed_memory() if a.malloc == "keep" else False

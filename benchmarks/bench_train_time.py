@@ -151,6 +151,10 @@ def main(argv: list[str] | None = None) -> int:
     a = p.parse_args(argv)
     if a.steps < 1 or a.warmup < 1:  # the step timer starts at the end of the last warm-up step
         p.error("--steps and --warmup must be >= 1")
+    if not a.jobs:  # an empty table and exit 0
+        p.error(f"--jobs: name at least one of {list(JOBS)}")
+    if a.threads < 1 or a.recipe_samples < 1:
+        p.error("--threads and --recipe-samples must be >= 1")
     if "gpu" in a.accelerators and not torch.cuda.is_available():
         p.error("--accelerators gpu: torch sees no CUDA device here")
     env = {**os.environ, "OMP_NUM_THREADS": str(a.threads), "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}

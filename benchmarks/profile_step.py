@@ -85,6 +85,7 @@ def main(argv: list[str] | None = None) -> int:
     a = p.parse_args(argv)
     if a.steps < 1 or a.warmup < 0:
         p.error("--steps must be >= 1 and --warmup >= 0")
+    bm.require_positive(p, a, "batch", "points", "rows")
     device = bm.parse_device(p, a.device)
     print(f"torch {torch.__version__}, threads {torch.get_num_threads()}, device {device}, FPS {fps_backend(device)}")
     with warnings.catch_warnings():  # training_step logs; outside a Trainer Lightning warns on every call

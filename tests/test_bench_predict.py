@@ -57,6 +57,13 @@ def test_calls_on_the_cpu_device_run_the_model():
         ("profile_step", ["--steps", "0"]),
         ("bench_sim", ["--agree", "-1"]),  # sliced [:-1]: checked all but one, no error
         ("bench_sim", ["--cell", "0"]),
+        ("bench_models", ["--batch", "0"]),  # SampleError: cannot collate an empty batch
+        ("bench_models", ["--threads", "0"]),
+        ("bench_predict", ["--points", "0"]),
+        ("profile_step", ["--batch", "0"]),
+        ("bench_loader", ["--samples", "0"]),
+        ("bench_loader", ["--workers", "-1"]),
+        ("bench_train_time", ["--jobs"]),  # an empty table, exit 0
     ],
 )
 def test_benchmark_counts_below_one_are_refused_up_front(script, args, capsys):
