@@ -292,3 +292,21 @@ def test_a_figure_without_its_kitchen_marks_the_rolled_out_pose():
     assert drawn_pose(s, s.chosen, s.scores, None)[:2] == pytest.approx((1.5, 0.5))  # plain scatter: base frame
     assert drawn_pose(s, s.chosen, s.scores, base) == rolled  # over the kitchen: the world pose as given
     assert drawn_pose(s, None, s.scores, None)[:2] == pytest.approx((1.0, 0.0))  # nothing rolled out: the argmax
+
+
+def test_a_figure_breaks_ties_as_predict_does():
+    """Without a rolled-out pose the figure marked the first of equal scores (seed 0) for every sample, not the
+    pose predict and the SR callback choose (their tie-break is seeded by the sample's index)."""
+    from floaff_zoo.contract import best_pose
+    from floaff_zoo.report.figures import FigureSample, drawn_pose
+
+    rng = np.random.default_rng(0)
+    floor = np.c_[rng.uniform(-1, 1, (50, 2)), np.zeros(50)]
+    target, flat = np.array([2.0, 0.0, 0.5]), np.full(50, 0.5)
+    marked = set()
+    for index in (3, 7):
+        s = FigureSample(floor, flat, flat, target, 0.0, meta={"index": index})
+        chosen = best_pose(floor, flat, None, target, 1, seed=index)[0]
+        assert drawn_pose(s, None, s.scores, None) == pytest.approx(chosen)
+        marked.add(tuple(np.round(chosen[:2], 6)))
+    assert len(marked) == 2

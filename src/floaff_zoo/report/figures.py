@@ -79,7 +79,8 @@ def drawn_pose(s: FigureSample, given: Any, values: np.ndarray, base: Sequence[f
     world_base = ((s.meta or {}).get("sim") or {}).get("base_pose_world")
     if given is not None:
         return tuple(given) if base is not None or world_base is None else pose_to_base(given, world_base)
-    p = best_pose(s.floor_xyz, values, None, s.target_xyz, 1)[0]
+    # ties broken as predict and the SR callback break them (seeded by the sample's index)
+    p = best_pose(s.floor_xyz, values, None, s.target_xyz, 1, seed=int((s.meta or {}).get("index", 0)))[0]
     return pose_to_world(p, base) if base is not None else p
 
 
