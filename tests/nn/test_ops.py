@@ -226,6 +226,25 @@ def test_ball_query_and_three_nn_kernels_match_the_torch_path(monkeypatch):
     assert mask.gather(1, fast[2].flatten(1)).all()
 
 
+def test_three_nn_breaks_ties_alike_on_every_path(monkeypatch):
+    """On a regular floor grid distances tie exactly: the torch path (CUDA, portable) took other neighbours than the
+    C++ kernel for ~9 % of the grid (topk orders ties arbitrarily), so interpolated features differed."""
+    xs = torch.arange(-20, 21, dtype=torch.float32) * 0.05
+    grid = torch.stack(torch.meshgrid(xs, xs, indexing="ij"), -1).reshape(1, -1, 2)
+    grid = torch.cat([grid, torch.zeros(1, grid.shape[1], 1)], -1)  # [1, 1681, 3]
+    centres = ops.index_points(grid, ops.farthest_point_sample(grid, None, 128))
+    known_feat = torch.randn(1, 128, 4, generator=torch.Generator().manual_seed(0))
+    fast = ops.three_nn(grid, centres)
+    fast_feat = ops.three_interpolate(grid, centres, known_feat)
+    monkeypatch.setattr(ops, "point_kernel", lambda device: None)  # the torch path
+    slow = ops.three_nn(grid, centres)
+    assert torch.equal(fast[1], slow[1]) and torch.equal(fast[0], slow[0])
+    assert torch.equal(fast_feat, ops.three_interpolate(grid, centres, known_feat))
+    # the lowest index wins among equal distances: an unknown point at the origin, six known points at distance 1
+    ring = torch.tensor([[[1.0, 0, 0], [0, 1, 0], [-1, 0, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]]])
+    assert ops.three_nn(torch.zeros(1, 1, 3), ring)[1].tolist() == [[[0, 1, 2]]]
+
+
 def test_weighted_gather3_kernel_equals_gather_then_sum(monkeypatch):
     """The fused C++ gather + weighted sum of 3-NN interpolation sums in torch's order (bit for bit), keeps
     gradients on the torch path, and names bad indices."""

@@ -25,8 +25,9 @@ __all__ = [
     "occupied_cells",
 ]
 
-#: ``footprint_occupancy`` channels: log(1 + obstacle points in the footprint), and the count reaching the rollout
-#: callback's ``free_space: cloud`` threshold (``floor.footprint_blocked``'s ``min_points``)
+#: ``footprint_occupancy`` channels: log(1 + obstacle points in the footprint), and that count, rescaled to
+#: ``OCCUPANCY_REF_POINTS`` valid points, reaching ``OCCUPANCY_MIN_POINTS`` (the number ``floor.footprint_blocked``
+#: uses, applied to the rescaled count: a density-normalised flag, not the rollout callback's test)
 OCCUPANCY_CHANNELS = 2
 OCCUPANCY_MIN_POINTS = 2
 #: occupancy counts are expressed for a cloud of this many valid points (density-independent feature)
@@ -104,8 +105,11 @@ def footprint_counts(
 ) -> Tensor:
     """Obstacle points of each view's cloud inside the base footprint parked on each floor point, facing the target.
 
-    The batched torch form of ``floaff_zoo.floor.footprint_blocked`` (same rectangle, same heights):
-    ``footprint_blocked(cloud, pose) == (count >= min_points)`` for the pose ``best_pose`` gives a floor point.
+    The batched torch form of ``floaff_zoo.floor.footprint_blocked`` (same rectangle, same heights), with one
+    difference: a point repeated in the cloud (as the ``resample`` collate and ``ResamplePoints`` repeat the points
+    of a short cloud) counts each time, where ``footprint_blocked`` counts distinct points. On a cloud of distinct
+    points ``footprint_blocked(cloud, pose) == (count >= min_points)`` for the pose ``best_pose`` gives a floor
+    point. (Trained models read these counts: counting distinct points would change their inputs.)
 
     Args:
         xyz: [B, N, 3] clouds (floor at z = 0); mask: [B, N] bool valid points;
@@ -190,7 +194,9 @@ def footprint_occupancy(xyz: Tensor, mask: Tensor, floor_xyz: Tensor, target_xyz
     Args:
         xyz: [B, N, 3] clouds; mask: [B, N] valid points; floor_xyz: [B, M, 3]; target_xyz: [B, 3].
     Returns:
-        [B, M, OCCUPANCY_CHANNELS]: log(1 + count), and count >= ``OCCUPANCY_MIN_POINTS`` as 0/1.
+        [B, M, OCCUPANCY_CHANNELS]: log(1 + count), and count >= ``OCCUPANCY_MIN_POINTS`` as 0/1, both of the
+        rescaled count (so the flag is not ``footprint_blocked``: a 4,096-point cloud needs 8 points in the
+        footprint to set it, where the rollout callback's check needs 2).
     """
     counts = footprint_counts(xyz, mask, floor_xyz[..., :2], target_xyz[..., :2])
     valid = mask.sum(dim=1, keepdim=True).clamp(min=1).to(counts.dtype)  # [B, 1]
