@@ -343,3 +343,9 @@ def test_residual_scale_shrinks_the_learned_residual_towards_the_prior(root):
         CFARModule(**args, prior_residual=True, residual_scale=-1.0)
     with pytest.raises(MisconfigurationException, match="residual_scale.*prior_residual"):
         CFARModule(**args, residual_scale=0.5)  # no prior to shrink towards: not silently ignored
+
+
+def test_a_mistyped_teacher_batchnorm_mode_is_refused(root):
+    """Anything but 'batch' ran the frozen teacher on its running statistics, without a word."""
+    with pytest.raises(MisconfigurationException, match="distill_bn must be 'batch' or 'running', got 'batchnorm'"):
+        CFARModule(**tiny_args(root), distill_bn="batchnorm")

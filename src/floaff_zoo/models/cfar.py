@@ -193,6 +193,10 @@ class CFARModule(FloAffModule):
             raise MisconfigurationException(
                 f"CFARModule: residual_scale must be a finite number >= 0, got {h['residual_scale']}"
             )
+        if h["distill_bn"] not in ("batch", "running"):  # a typo ran the teacher on its running statistics
+            raise MisconfigurationException(
+                f"CFARModule: distill_bn must be 'batch' or 'running', got {h['distill_bn']!r}"
+            )
         if h["residual_scale"] != 1.0 and not h["prior_residual"]:  # it would be ignored: say so instead
             raise MisconfigurationException(
                 "CFARModule: residual_scale scales the prior residual; set prior_residual: true"

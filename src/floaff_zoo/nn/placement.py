@@ -208,8 +208,3 @@ def heading_to(xy: Tensor, target_xy: Tensor) -> Tensor:
     """Yaw (rad) that faces ``target_xy`` from each ``xy``: [..., 2] -> [...]."""
     d = target_xy - xy
     return torch.atan2(d[..., 1], d[..., 0])
-
-
-def wrap_angle(a: Tensor) -> Tensor:
-    """Wrap angles to (-pi, pi]."""
-    return torch.remainder(a + math.pi, 2 * math.pi) - math.pi
