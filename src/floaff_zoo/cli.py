@@ -190,10 +190,18 @@ class SaveConfig(SaveConfigCallback):
     every batch."""
 
     integer_limits: dict[str, int] = {}
+    _log_dir: str | None = None
+
+    def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
+        # trainer.log_dir is a broadcast under DDP: read here on every rank, never in save_config (rank 0 only,
+        # where a collective would wait for the other ranks forever)
+        if self.save_to_log_dir and not self.already_saved:
+            self._log_dir = trainer.log_dir
+        super().setup(trainer, pl_module, stage)
 
     def save_config(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
         """Called on rank 0 right after the file is written."""
-        path = Path(trainer.log_dir or "") / self.config_filename
+        path = Path(self._log_dir or "") / self.config_filename
         if not self.integer_limits or not self.save_to_log_dir or not path.is_file():
             return
         data = yaml.safe_load(path.read_text())
