@@ -27,6 +27,16 @@ def test_ranking_and_rule():
     assert fcc.rule_sr([B, C, A], test) == pytest.approx(4 / 5)
 
 
+def test_a_single_cell_fails_where_the_view_does_not_observe_it():
+    """The 'fixed cell' columns were a ranking with fallback to the next observed cell: two views seeing different
+    successful cells scored 1.0, where one fixed cell scores 0.5."""
+    views = [{A: True}, {B: True}]
+    assert fcc.rule_sr(fcc.cell_ranking(views), views) == 1.0  # the ranking falls back to the observed cell
+    assert fcc.best_single_cell(views) == A  # one success each: the lowest cell wins the tie
+    assert fcc.single_cell_sr(fcc.best_single_cell(views), views) == 0.5
+    assert fcc.single_cell_sr(B, [{A: True, B: True}, {A: True}, {B: False}]) == pytest.approx(1 / 3)
+
+
 def test_canonical_cells_follow_the_target_frame():
     yaw, cell, target = 0.5, 0.1, np.array([1.0, 2.0, 0.9])
     grid = [(i, j) for i in range(-2, 3) for j in range(0, 4)]

@@ -95,3 +95,13 @@ def test_ego_camera_and_groups(scene_factory):
     assert mujoco.mj_name2id(sc.model, mujoco.mjtObj.mjOBJ_CAMERA, "floaff_ego") >= 0
     assert (sc.model.geom_group[sc.scene_geom_ids] >= 1).all()
     assert not sc.model.light_castshadow.any()
+
+
+def test_no_lazy_name_is_also_a_submodule():
+    """`from floaff_zoo.sim import rollout` gave the function or the module depending on what was imported before."""
+    import pkgutil
+
+    import floaff_zoo.sim as sim
+
+    submodules = {m.name for m in pkgutil.iter_modules(sim.__path__)}
+    assert not submodules & set(sim._LAZY)

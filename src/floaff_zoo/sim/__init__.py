@@ -1,7 +1,9 @@
 """floaff_zoo.sim: procedural MuJoCo kitchens, scripted rollouts and floor-affordance annotation.
 
 Pure numpy + mujoco (+ robosuite's robot model API); never imports torch or lightning.
-Submodules are imported lazily so ``import floaff_zoo.sim`` stays cheap.
+Submodules are imported lazily so ``import floaff_zoo.sim`` stays cheap. ``floaff_zoo.sim.rollout`` is the submodule
+(its function is ``floaff_zoo.sim.rollout.rollout``): a lazy name equal to a submodule's would read as the function
+or the module depending on what was imported before.
 """
 
 from __future__ import annotations
@@ -19,7 +21,6 @@ _LAZY = {
     "TASK_REGISTRY": "tasks",
     "candidate_region": "tasks",
     "RolloutResult": "rollout",
-    "rollout": "rollout",
     "RolloutService": "rollout",
     "heading_to_target": "rollout",
     "Annotation": "annotate",

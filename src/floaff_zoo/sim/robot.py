@@ -40,8 +40,10 @@ HAND_BODY = "gripper0_right_gripper"
 BASE_BODY = "mobilebase0_base"
 EGO_CAMERA = "floaff_ego"
 
-#: arm rest pose used for collision filtering and as the rollout start: folded low and close to
-#: the torso so that it stays out of the ego camera and inside the base footprint.
+#: arm rest pose used for collision filtering and as the rollout start: folded low and close to the torso so that
+#: it stays out of the ego camera. It is not inside the base footprint: the hand reaches ~0.25 m past the footprint's
+#: front at 1.1-1.2 m height (the footprint checks ignore it; the pose filter's robot-collision test uses the real
+#: geoms).
 TUCK_ARM = np.array([0.0, -0.75, 0.0, -2.85, 0.0, 2.15, math.pi / 4])
 TUCK_TORSO = 0.10
 #: joint stiffness / damping of the arm position actuators (N m / rad, N m s / rad)
