@@ -23,6 +23,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from scene_sr import print_scenes, print_summary, summarize  # noqa: E402
+from sr_json import checked_scenes  # noqa: E402
 
 
 def fold_files(paths: list[str]) -> list[tuple[Path, str]]:
@@ -63,12 +64,10 @@ def merge_folds(docs: list[tuple[str, dict]]) -> tuple[dict[str, dict], dict[str
     first: dict[str, str] = {}  # scene id -> the file that first scored it
     benchmarks = set()
     for f, d in docs:
-        if d.get("split") != "val" or d.get("val_layout") is None:
+        if not isinstance(d, dict) or d.get("split") != "val" or d.get("val_layout") is None:
             raise SystemExit(f"cv_sr: {f} is not a fold (scene_sr.py --split val --val-layout F)")
         benchmarks.add(d.get("benchmark"))
-        if not isinstance(d.get("scenes"), dict):
-            raise SystemExit(f"cv_sr: {f} has no scenes (not a scene_sr.py JSON)")
-        for sid, s in d["scenes"].items():
+        for sid, s in checked_scenes(d, f, "cv_sr").items():
             row = scenes.setdefault(sid, {"task": s["task"], "views": s["views"], "fold": d["val_layout"], "sr": {}})
             first.setdefault(sid, f)
             if row["views"] != s["views"] or row["fold"] != d["val_layout"]:
@@ -134,4 +133,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from script_cli import run
+
+    raise SystemExit(run(main, "cv_sr"))

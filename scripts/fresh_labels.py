@@ -26,6 +26,7 @@ rolled out (the annotated outcome alone, seconds):
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -109,4 +110,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from script_cli import run
+
+    raise SystemExit(run(main, "fresh_labels"))

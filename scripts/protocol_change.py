@@ -21,18 +21,17 @@ from pathlib import Path
 
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from sr_json import checked_scenes  # noqa: E402
+
 
 def load(path: str) -> dict:
     """A scene_sr JSON: {scene id: {task, views, sr: {name: SR}}} under ``scenes``; exits naming a bad file."""
     try:
         data = json.loads(Path(path).read_text())
-        scenes = data["scenes"]
-        for sid, s in scenes.items():
-            if not (isinstance(s["views"], int) and isinstance(s["sr"], dict) and isinstance(s["task"], str)):
-                raise TypeError(f"scene {sid}: 'views', 'sr' or 'task' of the wrong kind")
-    except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
+    except (OSError, ValueError) as exc:
         raise SystemExit(f"protocol_change: {path} is not a scene_sr.py --json output ({exc})") from exc
-    return scenes
+    return checked_scenes(data, path, "protocol_change")
 
 
 def matched(a: dict, b: dict) -> tuple[list[str], list[str]]:
@@ -105,4 +104,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from script_cli import run
+
+    raise SystemExit(run(main, "protocol_change"))

@@ -41,3 +41,17 @@ def test_files_of_other_scenes_or_no_shared_name_are_refused(tmp_path):
     (tmp_path / "bad.json").write_text("{}")
     with pytest.raises(SystemExit, match="bad.json is not a scene_sr.py --json output"):
         pc.load(str(tmp_path / "bad.json"))
+
+
+@pytest.mark.parametrize(
+    ("doc", "match"),
+    [
+        ({"scenes": {}}, "no scenes"),  # a StopIteration traceback before
+        ({"scenes": {"s0": {"task": "A", "views": 0, "sr": {"m": 1.0}}}}, r"s0 needs .*views >= 1"),  # printed nan
+        ({"scenes": {"s0": {"task": "A", "views": 3, "sr": {"m": "0.5"}}}}, r"SR values in \[0, 1\]"),
+    ],
+)
+def test_a_malformed_scene_table_is_named(tmp_path, doc, match):
+    (tmp_path / "x.json").write_text(json.dumps(doc))
+    with pytest.raises(SystemExit, match=match):
+        pc.load(str(tmp_path / "x.json"))

@@ -1,0 +1,35 @@
+"""How the research scripts end on bad input: one line naming the file or the argument, exit code 2."""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable
+
+#: the package's errors for bad input (a missing or corrupt file, an unknown name, data a module refuses), by module:
+#: looked up only in modules already imported, so a light script does not import torch to catch them
+_USER_ERRORS = (
+    ("floaff_zoo.sim.fileformat", "FormatError"),
+    ("lightning.fabric.utilities.exceptions", "MisconfigurationException"),
+    ("floaff_zoo.hub.registry", "HubError"),
+    ("floaff_zoo.runs", "RunError"),
+    ("floaff_zoo.data.readers", "DataError"),
+    ("floaff_zoo.contract", "SampleError"),
+)
+
+
+def user_error_types() -> tuple[type[BaseException], ...]:
+    """OSError and the package's bad-input errors of the modules imported so far."""
+    found = [getattr(sys.modules[m], name, None) for m, name in _USER_ERRORS if m in sys.modules]
+    return (OSError, *(t for t in found if isinstance(t, type)))
+
+
+def run(main: Callable[[], int | None], prog: str) -> int:
+    """``main()``'s exit code; a bad-input error becomes ``<prog>: error: <one line>`` on stderr and exit code 2 (a
+    bug's traceback is kept)."""
+    try:
+        return int(main() or 0)
+    except Exception as exc:  # noqa: BLE001 - narrowed to the bad-input types below
+        if not isinstance(exc, user_error_types()):
+            raise
+        print(f"{prog}: error: {' '.join(str(exc).split())}", file=sys.stderr)
+        return 2

@@ -1,0 +1,37 @@
+"""scripts/script_cli.py: the research scripts end on bad input with one line and exit code 2, on a bug with its
+traceback."""
+
+import importlib.util
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+_SPEC = importlib.util.spec_from_file_location("script_cli", ROOT / "scripts" / "script_cli.py")
+sc = importlib.util.module_from_spec(_SPEC)
+_SPEC.loader.exec_module(sc)
+
+
+def test_bad_input_is_one_line_and_a_bug_keeps_its_traceback(capsys):
+    def missing():
+        raise FileNotFoundError("/nowhere/x.json: no such file")
+
+    assert sc.run(missing, "demo_script") == 2
+    assert capsys.readouterr().err == "demo_script: error: /nowhere/x.json: no such file\n"
+    with pytest.raises(KeyError):
+        sc.run(lambda: {}["task"], "demo_script")
+    assert sc.run(lambda: 0, "demo_script") == 0
+
+
+def test_a_script_names_a_missing_data_root(tmp_path):
+    """fixed_cell_ceiling (and five others) ended in a FormatError / MisconfigurationException traceback."""
+    out = subprocess.run(
+        [sys.executable, str(ROOT / "scripts" / "fixed_cell_ceiling.py"), "--root", str(tmp_path / "none")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert out.returncode == 2
+    assert out.stderr.strip() == f"fixed_cell_ceiling: error: {tmp_path / 'none'}: dataset root not found"
