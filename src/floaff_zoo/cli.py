@@ -11,7 +11,6 @@ from __future__ import annotations
 import argparse
 import importlib
 import inspect
-import os
 import sys
 from pathlib import Path
 from types import FrameType, TracebackType
@@ -26,6 +25,7 @@ from lightning.pytorch.utilities.exceptions import MisconfigurationException
 
 from floaff_zoo import quiet, runtime
 from floaff_zoo._version import __version__
+from floaff_zoo.atomic import atomic_write
 from floaff_zoo.contract import SampleError
 from floaff_zoo.data.base import FloAffDataModule
 from floaff_zoo.models.base import WEIGHTS_FAILURE_NOTE, ZooModule
@@ -210,9 +210,8 @@ class SaveConfig(SaveConfigCallback):
             return
         for stage_name, value in self.integer_limits.items():
             trainer_cfg[f"limit_{stage_name}_batches"] = value
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-        tmp.write_text(yaml.safe_dump(data, sort_keys=False))
-        tmp.replace(path)
+        text = yaml.safe_dump(data, sort_keys=False)
+        atomic_write(path, lambda f: f.write(text.encode()))
 
 
 class FloAffCLI(LightningCLI):
