@@ -403,3 +403,67 @@ def test_demo_refuses_epochs_below_one_before_generating(tmp_path):
             demo.parse_args(["--epochs", epochs, "--data", str(tmp_path / "d")])
         assert info.value.code == 2
     assert not (tmp_path / "d").exists()
+
+
+def _fit(tmp_path, *extra: str) -> list[str]:
+    return [
+        "fit",
+        "--config",
+        DATA,
+        "--config",
+        MODEL,
+        "--trainer.max_epochs",
+        "1",
+        *quiet_trainer_args(tmp_path),
+        *extra,
+    ]
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        (b"\xff\xfe", r"bad\.yaml: unreadable \('utf-8' codec"),  # a UnicodeDecodeError traceback
+        (b"", r"bad\.yaml: empty file"),  # "Unexpected config: "
+        (b"- a\n", r"bad\.yaml: expected a mapping of settings .* got a list"),
+        (b"a:\n\tb: 1\n", r"bad\.yaml: not valid YAML"),  # a position in "<unicode string>", no file
+        (b"trainer: null\n", r"trainer: expected a mapping of trainer settings, got None"),  # an AttributeError
+        (b"model:\n  init_args:\n    train: 3\n", r"model\.init_args\.train: expected a mapping"),  # a TypeError
+    ],
+)
+def test_a_bad_config_file_is_named_in_one_line(tmp_path, root, monkeypatch, content, message):
+    monkeypatch.chdir(root)
+    bad = tmp_path / "bad.yaml"
+    bad.write_bytes(content)
+    with pytest.raises(CLIError, match=message):
+        main(_fit(tmp_path, "--config", str(bad)))
+
+
+def test_no_flag_is_read_from_a_prefix_of_it(tmp_path, root, monkeypatch, capsys):
+    """argparse took --trainer.limit_train_batch 1 for --trainer.limit_train_batches, read as the fraction 1.0
+    (only the exact flag is read as a batch count): every batch ran."""
+    monkeypatch.chdir(root)
+    with pytest.raises(SystemExit):
+        main(_fit(tmp_path, "--trainer.limit_train_batch", "1"))
+    assert "unrecognized arguments: --trainer.limit_train_batch 1" in capsys.readouterr().err
+
+
+def test_a_seed_out_of_range_and_an_infinite_rate_are_named(tmp_path, root, monkeypatch):
+    monkeypatch.chdir(root)
+    with pytest.raises(CLIError, match=r"seed_everything: -1 is not a seed"):
+        main(_fit(tmp_path, "--seed_everything", "-1"))
+    with pytest.raises(CLIError, match=r"model \(TinyPointNetModule\): train\.lr must be finite, got inf"):
+        main(_fit(tmp_path, "--model.init_args.train.lr", ".inf"))
+
+
+def test_a_diverged_fit_ends_in_one_line(tmp_path, root, monkeypatch, capsys):
+    """A loss that is no longer finite stopped the fit with a 97-line traceback around the message."""
+    monkeypatch.chdir(root)
+    out = subprocess.run(
+        [sys.executable, "-m", "floaff_zoo", *_fit(tmp_path, "--model.init_args.train.lr", "1e30")],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env={**os.environ, "MUJOCO_GL": "egl"},
+    )
+    assert out.returncode == 2 and "Traceback" not in out.stderr
+    assert out.stderr.strip().splitlines()[-1].startswith("floaff-zoo: error: train loss is nan on samples")

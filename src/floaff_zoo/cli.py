@@ -175,6 +175,31 @@ def integer_limits(args: list[str]) -> dict[str, int]:
     return {s: v for s, v in given.items() if isinstance(v, int) and not isinstance(v, bool)}
 
 
+def config_files(args: list[str]) -> list[str]:
+    """The ``--config`` values of ``args`` that name existing files (a value that is no file is YAML text, or a
+    missing file jsonargparse names itself)."""
+    values = [args[i + 1] for i, a in enumerate(args[:-1]) if a == "--config"]
+    values += [a.partition("=")[2] for a in args if a.startswith("--config=")]
+    return [v for v in values if Path(v).is_file()]
+
+
+def check_config_file(path: str) -> None:
+    """Raise CLIError naming ``path`` unless it is UTF-8 YAML holding a mapping: with several ``--config`` files
+    the parser's own messages ("Unexpected config", a position in "<unicode string>", a UnicodeDecodeError
+    traceback) do not say which file."""
+    try:
+        data = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError) as exc:
+        raise CLIError(f"--config {path}: unreadable ({_one_line(str(exc))})") from exc
+    except yaml.YAMLError as exc:
+        raise CLIError(f"--config {path}: not valid YAML ({_one_line(str(exc))})") from exc
+    if data is None:
+        raise CLIError(f"--config {path}: empty file")
+    if not isinstance(data, dict):
+        kind = type(data).__name__
+        raise CLIError(f"--config {path}: expected a mapping of settings (e.g. 'trainer:'), got a {kind}")
+
+
 def _yaml_mapping(path: str) -> dict[str, Any]:
     """A config file's top-level mapping ({} when it is not one: the parser reports such files itself)."""
     try:
@@ -223,8 +248,17 @@ class FloAffCLI(LightningCLI):
     def parse_arguments(self, parser: Any, args: Any) -> None:
         raw = args if isinstance(args, list) else (sys.argv[1:] if args is None else [])
         self._raw_args = [str(a) for a in raw]  # what the user typed (``_integer_limits``)
+        for path in config_files(self._raw_args):
+            check_config_file(path)
         self._explicit_model_args = explicit_model_args(self._raw_args)
         super().parse_arguments(parser, args)
+
+    def _set_seed(self) -> None:
+        """Lightning's seeding, with a seed outside numpy's range named instead of its ValueError traceback."""
+        seed = self._get(self.config, "seed_everything")
+        if isinstance(seed, int) and not isinstance(seed, bool) and not 0 <= seed <= 2**32 - 1:
+            raise CLIError(f"seed_everything: {seed} is not a seed (0 to {2**32 - 1}, true for a random one)")
+        super()._set_seed()
 
     def _parse_ckpt_path(self) -> None:
         """Lightning rebuilds the model config from the hyper-parameters of a ``--ckpt_path`` file (so the trained
@@ -345,6 +379,11 @@ class FloAffCLI(LightningCLI):
     def before_instantiate_classes(self) -> None:
         cfg = self.config[self.subcommand]
         trainer = cfg.trainer
+        if not isinstance(trainer, Namespace):  # `trainer: null` in a config: an AttributeError below
+            raise CLIError(f"trainer: expected a mapping of trainer settings, got {trainer!r}")
+        train = cfg.model.get("init_args", Namespace()).get("train") if isinstance(cfg.model, Namespace) else None
+        if train is not None and not isinstance(train, (Namespace, dict)):  # a TypeError deep in jsonargparse
+            raise CLIError(f"model.init_args.train: expected a mapping of training settings, got {train!r}")
         if trainer.logger in (None, True):
             model_cfg = cfg.model
             name = str(getattr(model_cfg, "class_path", "model")).rsplit(".", 1)[-1].lower()
@@ -550,6 +589,8 @@ def _build_cli(cls: type[FloAffCLI], args: list[str], parser_kwargs: dict[str, A
     _import_registries()
     # `floaff-zoo demo`/`curriculum` call this with args while sys.argv holds their own command.
     warnings.filterwarnings("ignore", message=".*LightningCLI's args parameter is intended.*")
+    # no prefixes of a flag: --trainer.limit_train_batch 1 ran as a fraction (integer_limits reads exact flags only)
+    parser_kwargs = {**parser_kwargs, "allow_abbrev": False}
     return cls(
         ZooModule,
         FloAffDataModule,
@@ -591,7 +632,8 @@ def main(args: list[str] | None = None) -> int:
             raise CLIError(f"unknown command {argv[0]!r}; choose from {list(TRAINER_COMMANDS) + list(OTHER_COMMANDS)}")
         run_lightning(argv)
         return 0
-    except (CLIError, RunError, SampleError, MisconfigurationException) as exc:
+    except (CLIError, RunError, SampleError, MisconfigurationException, FloatingPointError) as exc:
+        # FloatingPointError: a loss that is no longer finite (a diverged run) stops the fit with the samples named
         print(f"floaff-zoo: error: {exc}", file=sys.stderr)
         if args is not None:  # called from Python (tests, curriculum): let callers see the exception
             raise

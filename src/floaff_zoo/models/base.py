@@ -94,6 +94,9 @@ class TrainConfig:
             raise ValueError(f"train.lr must be > 0, got {self.lr}")
         if not self.weight_decay >= 0:
             raise ValueError(f"train.weight_decay must be >= 0, got {self.weight_decay}")
+        for name in ("lr", "weight_decay"):  # inf passed the bounds, and every step's loss was then NaN
+            if not math.isfinite(getattr(self, name)):
+                raise ValueError(f"train.{name} must be finite, got {getattr(self, name)}")
 
 
 @dataclass(frozen=True)
@@ -123,6 +126,8 @@ class FloAffTrainConfig(TrainConfig):
         super().__post_init__()
         if not self.sdl_beta >= 0:
             raise ValueError(f"train.sdl_beta must be >= 0, got {self.sdl_beta}")
+        if not math.isfinite(self.sdl_beta):
+            raise ValueError(f"train.sdl_beta must be finite, got {self.sdl_beta}")
         if not (math.isfinite(self.rank_weight) and self.rank_weight >= 0):
             raise ValueError(f"train.rank_weight must be a finite number >= 0, got {self.rank_weight}")
         if not (math.isfinite(self.rank_temperature) and self.rank_temperature > 0):
