@@ -467,3 +467,47 @@ def test_a_diverged_fit_ends_in_one_line(tmp_path, root, monkeypatch, capsys):
     )
     assert out.returncode == 2 and "Traceback" not in out.stderr
     assert out.stderr.strip().splitlines()[-1].startswith("floaff-zoo: error: train loss is nan on samples")
+
+
+@pytest.mark.parametrize(
+    ("make", "kwargs", "message"),
+    [
+        ("YawPerturb", {"max_deg": float("nan")}, "max_deg"),
+        ("Jitter", {"sigma": float("nan")}, "sigma"),
+        ("Jitter", {"sigma": 0.01, "clip": -1.0}, "clip"),
+        ("SyntheticDataModule", {"floor_cells": -1}, "floor_cells"),
+        ("SyntheticDataModule", {"num_train": -1}, "num_train"),
+        ("RolloutSuccessRate", {"n_bootstrap": -1}, "n_bootstrap"),
+    ],
+)
+def test_bad_sizes_and_non_finite_settings_are_named_up_front(make, kwargs, message):
+    """NaN / inf augmentation ranges failed in numpy mid-epoch or turned every point NaN; negative synthetic sizes
+    failed in numpy at the sanity check; a negative bootstrap count read as std 0."""
+    from floaff_zoo.callbacks import RolloutSuccessRate
+    from floaff_zoo.data.synthetic import SyntheticDataModule
+    from floaff_zoo.data.transforms import Jitter, YawPerturb
+
+    classes = {c.__name__: c for c in (YawPerturb, Jitter, SyntheticDataModule, RolloutSuccessRate)}
+    with pytest.raises(ValueError, match=message):
+        classes[make](**kwargs)
+
+
+def test_generate_refuses_an_empty_out_and_the_demo_a_preset_it_cannot_run(tmp_path, monkeypatch, capsys):
+    from floaff_zoo import demo
+    from floaff_zoo.sim import generate
+
+    monkeypatch.chdir(tmp_path)
+    assert generate.main(["--preset", "tiny", "--out", "", "--workers", "0"]) == 2
+    assert "--out is empty" in capsys.readouterr().err and not list(tmp_path.iterdir())
+    with pytest.raises(SystemExit):
+        demo.parse_args(["--preset", "tiny"])  # found only after generating the data and starting the curriculum
+    assert "needs the Layouts benchmark with all four tasks" in capsys.readouterr().err
+
+
+def test_montage_names_an_unreadable_figure(tmp_path):
+    from floaff_zoo.report.montage import MontageError, _read_image
+
+    bad = tmp_path / "CloseDrawer_front_1.png"
+    bad.write_text("garbage")
+    with pytest.raises(MontageError, match=r"CloseDrawer_front_1\.png: not a readable image"):
+        _read_image(bad)

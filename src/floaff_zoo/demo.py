@@ -156,6 +156,13 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         p.error(f"--epochs must be >= 1, got {args.epochs}")
     if args.workers < 0:
         p.error(f"--workers must be >= 0, got {args.workers}")
+    from floaff_zoo.sim.presets import ALL_TASKS, PRESETS
+
+    preset = PRESETS.get(args.preset)
+    if preset is None:
+        p.error(f"--preset {args.preset!r}: choose from {sorted(PRESETS)}")
+    if "layouts" not in preset.benchmarks or set(preset.tasks) != set(ALL_TASKS):  # found only after generating
+        p.error(f"--preset {args.preset}: the demo's experiment needs the Layouts benchmark with all four tasks")
     if args.data is None:
         args.data = f"data/floaff_{args.preset}"
     if args.runs is None:

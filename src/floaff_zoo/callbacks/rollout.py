@@ -309,6 +309,8 @@ class RolloutSuccessRate(L.Callback):
             raise ValueError(f"RolloutSuccessRate: cache_decimals must be >= 0, got {cache_decimals}")
         if max_val_samples is not None and max_val_samples < 1:
             raise ValueError(f"RolloutSuccessRate: max_val_samples must be >= 1 or None (all), got {max_val_samples}")
+        if n_bootstrap < 0:  # read as "no std" (0.0) without a word
+            raise ValueError(f"RolloutSuccessRate: n_bootstrap must be >= 0 (0/1: no std), got {n_bootstrap}")
         self.on_test = on_test
         self.every_n_val_epochs = every_n_val_epochs
         self.max_val_samples = max_val_samples

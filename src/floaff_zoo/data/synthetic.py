@@ -144,6 +144,15 @@ class SyntheticDataModule(FloAffDataModule):
             train_transforms,
             eval_transforms,
         )
+        for name, value, least in (
+            ("num_train", num_train, 0),
+            ("num_val", num_val, 0),
+            ("num_test", num_test, 0),
+            ("points_per_sample", points_per_sample, 1),
+            ("floor_cells", floor_cells, 1),
+        ):  # numpy's messages at the sanity check named no field
+            if value < least:
+                raise ValueError(f"SyntheticDataModule: {name} must be >= {least}, got {value}")
         self.sizes = {"train": num_train, "val": num_val, "test": num_test}
         self.points_per_sample = points_per_sample
         self.floor_cells = floor_cells

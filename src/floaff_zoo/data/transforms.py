@@ -194,6 +194,8 @@ class YawPerturb(SampleTransform):
     """
 
     def __init__(self, max_deg: float = 5.0) -> None:
+        if not (math.isfinite(max_deg) and max_deg >= 0):  # NaN / inf failed in numpy mid-epoch
+            raise ValueError(f"YawPerturb: max_deg must be a finite number >= 0, got {max_deg}")
         self.max_deg = max_deg
 
     def __call__(self, sample: Sample, rng: np.random.Generator) -> Sample:
@@ -209,8 +211,10 @@ class Jitter(SampleTransform):
     """
 
     def __init__(self, sigma: float = 0.005, clip: float | None = None) -> None:
-        if sigma < 0:
-            raise ValueError(f"Jitter: sigma must be >= 0, got {sigma}")
+        if not (math.isfinite(sigma) and sigma >= 0):  # NaN made every point NaN, silently
+            raise ValueError(f"Jitter: sigma must be a finite number >= 0, got {sigma}")
+        if clip is not None and not clip > 0:  # clamp(c, -c) with c < 0 moved every point by -c
+            raise ValueError(f"Jitter: clip must be > 0 or None, got {clip}")
         self.sigma = sigma
         self.clip = clip
 

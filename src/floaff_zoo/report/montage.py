@@ -22,6 +22,16 @@ from typing import Any
 __all__ = ["MontageError", "find_figure", "main", "montage"]
 
 
+def _read_image(path: Path):
+    """The pixels of a figure file; MontageError naming it when it is no readable image."""
+    import matplotlib.pyplot as plt
+
+    try:
+        return plt.imread(path)
+    except (OSError, SyntaxError, ValueError) as exc:  # PIL's "not a PNG file" is a SyntaxError
+        raise MontageError(f"{path}: not a readable image ({exc})") from exc
+
+
 class MontageError(ValueError):
     """A missing report or figure (printed without a traceback)."""
 
@@ -76,7 +86,7 @@ def montage(
     titles = labels or [
         str(rep.get("label") or rep.get("model", {}).get("name") or p.parent.name) for p, rep in reports
     ]
-    images = [[plt.imread(find_figure(p, rep, case)) for p, rep in reports] for case in cases]
+    images = [[_read_image(find_figure(p, rep, case)) for p, rep in reports] for case in cases]
     h, w = images[0][0].shape[:2]
     size = (width * len(runs), width * h / w * len(cases))  # every panel keeps the figures' aspect ratio
     fig, axes = plt.subplots(len(cases), len(runs), figsize=size, squeeze=False)

@@ -719,7 +719,10 @@ def _run_ray(jobs, out, preset_dict, save_images, workers, address, on_result) -
     started = False
     if not ray.is_initialized():
         if address:
-            ray.init(address=address, ignore_reinit_error=True, log_to_driver=False)
+            try:
+                ray.init(address=address, ignore_reinit_error=True, log_to_driver=False)
+            except (ConnectionError, RuntimeError) as exc:  # an unreachable cluster: a 71-line traceback
+                raise ValueError(f"--address {address}: cannot connect to a ray cluster ({exc})") from exc
         else:
             ray.init(num_cpus=max(1, workers), ignore_reinit_error=True, log_to_driver=False, include_dashboard=False)
         started = True
@@ -1019,6 +1022,8 @@ def check_out_dir(out: str | Path) -> Path:
     Raises:
         ValueError: naming ``out`` when it is a file or cannot be created (a file on its path, no permission).
     """
+    if not str(out).strip():  # an unset shell variable: the dataset went into the working folder
+        raise ValueError("--out is empty; name the output folder")
     outp = Path(out)
     if outp.exists() and not outp.is_dir():
         raise ValueError(f"--out {outp}: exists and is not a folder; name a new or existing output folder")
