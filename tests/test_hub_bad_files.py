@@ -93,3 +93,12 @@ def test_a_folder_of_a_registered_name_in_the_working_folder_does_not_hide_it(tm
     assert type(load_model(name)).__name__ == "CFARModule"
     TinyPointNetModule(width=8).save_pretrained(str(tmp_path / name))
     assert type(load_model(name)).__name__ == "TinyPointNetModule"
+
+
+def test_a_class_path_other_than_the_recorded_one_is_refused(tmp_path):
+    """--class-path was ignored without a word when the checkpoint records its class."""
+    ckpt = _ckpt(tmp_path / "a.ckpt")
+    with pytest.raises(HubError, match=r"--class-path floaff_zoo\.models\.Nope differs from the class the checkpoint"):
+        export_checkpoint(ckpt, "tiny.cls.v1", class_path="floaff_zoo.models.Nope")
+    entry, _ = export_checkpoint(ckpt, "tiny.cls.v1", class_path=TINY)  # the same class: fine
+    assert entry.class_path == TINY

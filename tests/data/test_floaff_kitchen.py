@@ -467,3 +467,12 @@ def test_a_transient_read_error_is_not_remembered(tmp_path, monkeypatch):
     monkeypatch.setattr(ff.np, "load", real)
     assert train_size() == first + 1  # the view is back once the disk reads it
     assert not list((tmp_path / "c").rglob("*.skip"))
+
+
+def test_a_root_that_is_a_file_is_named_as_such(tmp_path):
+    """It was reported as missing, with the advice to generate data into it."""
+    from lightning.pytorch.utilities.exceptions import MisconfigurationException
+
+    (tmp_path / "data.zip").write_bytes(b"x")
+    with pytest.raises(MisconfigurationException, match=r"data\.zip is a file, not a data folder"):
+        _dm(tmp_path / "data.zip").setup("fit")

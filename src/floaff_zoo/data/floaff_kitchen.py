@@ -309,6 +309,8 @@ class FloAffKitchenDataModule(FloAffDataModule):
     def setup(self, stage: str | None = None) -> None:
         if self.datasets:
             return
+        if self.root.exists() and not self.root.is_dir():  # "does not exist, generate into it" misled
+            raise MisconfigurationException(f"FloAffKitchenDataModule: root {self.root} is a file, not a data folder")
         if not self.root.is_dir():
             raise MisconfigurationException(
                 f"FloAffKitchenDataModule: root {self.root} does not exist (generate data with "

@@ -513,7 +513,8 @@ class MoMaKitchenDataModule(FloAffDataModule):
             (self.split_dir, "split_dir"),
         ):
             if not p.is_dir():
-                raise MisconfigurationException(f"MoMaKitchenDataModule: {what} {p} does not exist")
+                why = "is a file, not a folder" if p.exists() else "does not exist"
+                raise MisconfigurationException(f"MoMaKitchenDataModule: {what} {p} {why}")
         want = {"fit": ["train", "val"], "validate": ["val"], "test": ["test"], "predict": ["test"]}.get(
             stage or "", ["train", "val", "test"]
         )

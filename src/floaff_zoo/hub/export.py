@@ -377,7 +377,12 @@ def export_checkpoint(
     if not isinstance(ckpt, dict) or "state_dict" not in ckpt:
         raise HubError(f"{ckpt_path}: not a Lightning checkpoint (no 'state_dict')")
     hp = dict(ckpt.get("hyper_parameters") or {})
-    cls_path = hp.pop("_class_path", None) or class_path
+    recorded = hp.pop("_class_path", None)
+    if recorded and class_path and class_path != recorded:  # it was ignored without a word
+        raise HubError(
+            f"{ckpt_path}: --class-path {class_path} differs from the class the checkpoint records ({recorded})"
+        )
+    cls_path = recorded or class_path
     hp.pop("_instantiator", None)
     if not cls_path:
         raise HubError(f"{ckpt_path}: the checkpoint does not record its model class; pass --class-path")
