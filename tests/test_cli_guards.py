@@ -511,3 +511,14 @@ def test_montage_names_an_unreadable_figure(tmp_path):
     bad.write_text("garbage")
     with pytest.raises(MontageError, match=r"CloseDrawer_front_1\.png: not a readable image"):
         _read_image(bad)
+
+
+def test_a_hub_dir_that_is_a_file_and_a_bad_clip_value_are_named(tmp_path, root, monkeypatch, capsys):
+    from floaff_zoo.hub.cli import main as hub_main
+
+    (tmp_path / "hubfile").write_text("x")
+    assert hub_main(["list", "--hub-dir", str(tmp_path / "hubfile")]) == 2  # "[Errno 17] File exists" before
+    assert "hubfile: is a file, not a hub folder" in capsys.readouterr().err
+    monkeypatch.chdir(root)
+    with pytest.raises(CLIError, match=r"trainer\.gradient_clip_val: must be a finite number >= 0"):
+        main(_fit(tmp_path, "--trainer.gradient_clip_val", ".nan"))  # Lightning said "use only one of them"

@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import inspect
+import math
 import sys
 from pathlib import Path
 from types import FrameType, TracebackType
@@ -381,6 +382,9 @@ class FloAffCLI(LightningCLI):
         trainer = cfg.trainer
         if not isinstance(trainer, Namespace):  # `trainer: null` in a config: an AttributeError below
             raise CLIError(f"trainer: expected a mapping of trainer settings, got {trainer!r}")
+        clip = trainer.get("gradient_clip_val")
+        if clip is not None and not (math.isfinite(float(clip)) and clip >= 0):  # Lightning's message misleads
+            raise CLIError(f"trainer.gradient_clip_val: must be a finite number >= 0 or null, got {clip}")
         train = cfg.model.get("init_args", Namespace()).get("train") if isinstance(cfg.model, Namespace) else None
         if train is not None and not isinstance(train, (Namespace, dict)):  # a TypeError deep in jsonargparse
             raise CLIError(f"model.init_args.train: expected a mapping of training settings, got {train!r}")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 from typing import Any
 
 from floaff_zoo.hub.registry import (
@@ -181,6 +182,9 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point for ``floaff-zoo hub ...``; returns the exit code (2 on a hub error)."""
     args = _parser().parse_args(sys.argv[1:] if argv is None else argv)
     try:
+        hub = Path(args.hub_dir).expanduser() if args.hub_dir is not None else None
+        if hub is not None and hub.exists() and not hub.is_dir():  # it ended in "[Errno 17] File exists"
+            raise HubError(f"--hub-dir {args.hub_dir}: is a file, not a hub folder")
         name = getattr(args, "name", None)
         if args.cmd in ("info", "pull", "verify") and name and _looks_like_path(name):
             raise HubError(
