@@ -22,28 +22,27 @@ MODEL = "configs/models/tiny_pointnet.yaml"  # width 32
 TYPO = "pointnet2-ssg.floaff-demo-layouts.v9"
 
 
+def _fit(tmp_path, *extra: str) -> list[str]:
+    return [
+        "fit",
+        "--config",
+        DATA,
+        "--config",
+        MODEL,
+        "--trainer.max_epochs",
+        "1",
+        *quiet_trainer_args(tmp_path),
+        *extra,
+    ]
+
+
 @pytest.fixture(scope="module")
 def width16_run(tmp_path_factory):
     """A one-epoch fit of the tiny model with width 16 and lr 0.01 (the config says 32 and 0.003)."""
     out = tmp_path_factory.mktemp("run16")
     with pytest.MonkeyPatch.context() as mp:
         mp.chdir(ROOT)
-        cli = run_lightning(
-            [
-                "fit",
-                "--config",
-                DATA,
-                "--config",
-                MODEL,
-                *quiet_trainer_args(out),
-                "--trainer.max_epochs",
-                "1",
-                "--model.init_args.width",
-                "16",
-                "--model.init_args.train.lr",
-                "0.01",
-            ]
-        )
+        cli = run_lightning(_fit(out, "--model.init_args.width", "16", "--model.init_args.train.lr", "0.01"))
     return out, Path(cli.trainer.checkpoint_callback.best_model_path)
 
 
@@ -403,20 +402,6 @@ def test_demo_refuses_epochs_below_one_before_generating(tmp_path):
             demo.parse_args(["--epochs", epochs, "--data", str(tmp_path / "d")])
         assert info.value.code == 2
     assert not (tmp_path / "d").exists()
-
-
-def _fit(tmp_path, *extra: str) -> list[str]:
-    return [
-        "fit",
-        "--config",
-        DATA,
-        "--config",
-        MODEL,
-        "--trainer.max_epochs",
-        "1",
-        *quiet_trainer_args(tmp_path),
-        *extra,
-    ]
 
 
 @pytest.mark.parametrize(

@@ -394,7 +394,7 @@ def three_nn(unknown: Tensor, known: Tensor, known_mask: Tensor | None = None) -
     k = min(3, known.shape[1])
     # three passes of min, each taking the lowest index among equal distances as the C++ kernel does (topk orders
     # ties arbitrarily: on a regular floor grid ~9 % of points got other neighbours on CUDA than on the CPU)
-    work, dists, picks = sqr.clone(), [], []
+    work, dists, picks = sqr, [], []  # sqr is this call's own tensor: overwritten in place, no copy
     for _ in range(k):
         d, i = work.min(dim=-1)
         dists.append(d)
