@@ -507,3 +507,28 @@ def test_a_hub_dir_that_is_a_file_and_a_bad_clip_value_are_named(tmp_path, root,
     monkeypatch.chdir(root)
     with pytest.raises(CLIError, match=r"trainer\.gradient_clip_val: must be a finite number >= 0"):
         main(_fit(tmp_path, "--trainer.gradient_clip_val", ".nan"))  # Lightning said "use only one of them"
+
+
+def test_a_fit_whose_data_setup_fails_leaves_no_empty_run_folder(tmp_path, root, monkeypatch):
+    """Lightning makes ``version_N`` before the data module's setup refuses its root: the folder stayed, empty, and
+    the next run became ``version_1``. A run that wrote anything keeps its folder (the other test below)."""
+    monkeypatch.chdir(root)
+    out = tmp_path / "runs"
+    args = ["fit", "--config", "configs/data/floaff_tiny.yaml", "--config", MODEL, *quiet_trainer_args(out)]
+    with pytest.raises(MisconfigurationException, match="does not exist"):
+        main([*args, "--data.init_args.root", str(tmp_path / "no_data")])
+    assert out.is_dir() and not list(out.iterdir())
+
+
+def test_a_failed_run_that_wrote_files_keeps_its_folder(tmp_path, root, monkeypatch):
+    """The clean-up removes empty folders only: a fit that stops after writing its config keeps the folder."""
+    monkeypatch.chdir(root)
+    out = tmp_path / "runs"
+    keep = out / "tinypointnetmodule" / "version_0"
+    keep.mkdir(parents=True)
+    (keep / "notes.txt").write_text("mine")
+    args = ["fit", "--config", "configs/data/floaff_tiny.yaml", "--config", MODEL, *quiet_trainer_args(out)]
+    with pytest.raises(MisconfigurationException, match="does not exist"):
+        main([*args, "--data.init_args.root", str(tmp_path / "no_data")])
+    assert (keep / "notes.txt").read_text() == "mine"
+    assert sorted(p.name for p in keep.parent.iterdir()) == ["version_0"]

@@ -507,6 +507,31 @@ class FloAffCLI(LightningCLI):
             flush=True,
         )
 
+    def _run_subcommand(self, subcommand: str) -> None:
+        try:
+            super()._run_subcommand(subcommand)
+        except BaseException:
+            self._drop_empty_run_dir()
+            raise
+
+    def _drop_empty_run_dir(self) -> None:
+        """Remove the run folder a failed command left empty (Lightning makes ``version_N`` before the data module's
+        ``setup`` can refuse its files), so the next run is not ``version_N+1`` next to a folder with nothing in it.
+        The logger's own ``log_dir``, not ``trainer.log_dir``: that one is a collective under DDP."""
+        trainer = getattr(self, "trainer", None)
+        log_dir = getattr(getattr(trainer, "logger", None), "log_dir", None)
+        if trainer is None or not log_dir or not trainer.is_global_zero:
+            return
+        run = Path(log_dir)
+        root = Path(str(trainer.default_root_dir)).absolute()
+        for folder in (run, run.parent):  # version_N, then its <model> folder if nothing else is in it
+            if folder.absolute() == root or root not in folder.absolute().parents:
+                return
+            try:
+                folder.rmdir()  # only an empty folder: a run that wrote anything keeps it
+            except OSError:
+                return
+
     def after_fit(self) -> None:
         cb = self.trainer.checkpoint_callback
         best = getattr(cb, "best_model_path", "") or getattr(cb, "last_model_path", "")
