@@ -141,6 +141,23 @@ def test_teacher_with_another_architecture_lists_the_keys(pfal_run, root):
         student.setup("fit")
 
 
+def test_without_fd_the_teacher_is_not_loaded_nor_recorded(pfal_run, root):
+    """w/o FD never reads the teacher: it was loaded anyway (a second encoder in memory, and a teacher file that
+    had to exist) and the saved lineage named a teacher the stage did not learn from."""
+    _, records, _ = pfal_run
+    args = yaml.safe_load((root / "tests/configs/cfar_tiny.yaml").read_text())["model"]["init_args"]
+    for use_fd, weight in ((False, 1.0), (True, 0.0)):
+        student = CFARModule(**{**args, "use_fd": use_fd, "distill_weight": weight}, teacher=records[0]["checkpoint"])
+        student.setup("fit")
+        assert student.teacher is None and not student.distill_active
+        checkpoint = {"state_dict": student.state_dict()}
+        student.on_save_checkpoint(checkpoint)
+        assert checkpoint["floaff_lineage"]["teacher"] is None
+    student = CFARModule(**args, teacher=records[0]["checkpoint"])
+    student.setup("fit")
+    assert student.teacher is not None and student.distill_active
+
+
 def test_dry_run_and_bad_experiment(tmp_path, root, monkeypatch, capsys):
     monkeypatch.chdir(root)
     assert main(["--config", EXP, "--dry-run", "--set", "trainer.max_epochs=1", "--root", str(tmp_path)]) == 0

@@ -115,8 +115,8 @@ class CFARModule(FloAffModule):
         use_align: False = w/o-Align ablation (no rotation; overrides ``yaw_source``; training still adds the
             ``yaw_jitter_deg`` augmentation).
         use_sdl: False = w/o-SDL ablation (``loss: aff`` becomes plain MSE).
-        use_fd: False = w/o-FD ablation (no distillation even with a teacher; still initialise from
-            ``weights``).
+        use_fd: False = w/o-FD ablation (no distillation even with a teacher, which is then not loaded; still
+            initialise from ``weights``).
         yaw_source / eval_yaw_source: where theta_o comes from in training / evaluation.
         axisnet: frozen AxisNet (checkpoint path or hub name).
         axisnet_arch: filled automatically (AxisNet architecture + source + sha256); leave None.
@@ -272,12 +272,18 @@ class CFARModule(FloAffModule):
     # ----------------------------------------------------------------- teacher
     def setup(self, stage: str) -> None:
         super().setup(stage)
-        if stage == "fit" and self.hparams["teacher"] and self.teacher is None:
+        # w/o FD (or lambda 0) never reads the teacher: not loaded, so its memory and lineage entry are not spent
+        if stage == "fit" and self.hparams["teacher"] and self.teacher is None and self.distills:
             self.load_teacher(self.hparams["teacher"])
 
     @property
+    def distills(self) -> bool:
+        """Whether the configuration trains with L_shared (a teacher, ``use_fd`` and a positive lambda)."""
+        return bool(self.hparams["teacher"] and self.hparams["use_fd"] and self.hparams["distill_weight"] > 0)
+
+    @property
     def distill_active(self) -> bool:
-        return bool(self.teacher is not None and self.hparams["use_fd"] and self.hparams["distill_weight"] > 0)
+        return bool(self.teacher is not None and self.distills)
 
     def load_teacher(self, name: str) -> None:
         """Load the previous stage's canonical-cloud encoder, frozen.
@@ -323,7 +329,9 @@ class CFARModule(FloAffModule):
         arch = self.hparams.get("axisnet_arch") or {}
         checkpoint.setdefault("floaff_lineage", {}).update(
             {
-                "teacher": self.teacher_info["name"] if self.teacher_info else self.hparams["teacher"],
+                "teacher": self.teacher_info["name"]
+                if self.teacher_info
+                else (self.hparams["teacher"] if self.distills else None),
                 "teacher_sha256": self.teacher_info["sha256"] if self.teacher_info else None,
                 "weights": self.hparams["weights"],
                 "weights_sha256": self.weights_sha256,
