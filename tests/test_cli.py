@@ -1,6 +1,7 @@
 """The CLI through its real entry points, on the synthetic tiny data."""
 
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -108,20 +109,24 @@ def test_test_without_checkpoint_refuses(tmp_path, root, monkeypatch):
         main(["test", "--config", DATA, "--config", MODEL, *quiet_trainer_args(tmp_path)])
 
 
-def test_config_typo_names_the_field(tmp_path, root, monkeypatch, capsys):
+@pytest.mark.parametrize(
+    "bad, named",
+    [
+        (["--model.init_args.widht", "8"], "Option 'widht' is not accepted"),
+        (["--trainer.max_epoch", "3"], "unrecognized arguments: --trainer.max_epoch 3"),
+        (["--model", "NoSuchModule"], "NoSuchModule"),
+    ],
+)
+def test_a_config_typo_is_one_line_naming_the_field(tmp_path, root, monkeypatch, capsys, bad, named):
+    """jsonargparse printed a 50-line usage of the whole trainer before the line that names the field."""
     monkeypatch.chdir(root)
-    with pytest.raises(SystemExit):
-        main(
-            ["fit", "--config", DATA, "--config", MODEL, "--model.init_args.widht", "8", *quiet_trainer_args(tmp_path)]
-        )
-    assert "widht" in capsys.readouterr().err
-
-
-def test_unknown_class_name(tmp_path, root, monkeypatch, capsys):
-    monkeypatch.chdir(root)
-    with pytest.raises(SystemExit):
-        main(["fit", "--config", DATA, "--model", "NoSuchModule", *quiet_trainer_args(tmp_path)])
-    assert "NoSuchModule" in capsys.readouterr().err
+    args = ["fit", "--config", DATA, "--config", MODEL, *bad, *quiet_trainer_args(tmp_path)]
+    with pytest.raises(CLIError, match=re.escape(named)) as err:
+        main(args)
+    assert "\n" not in str(err.value) and "`floaff-zoo fit --help` lists the options" in str(err.value)
+    assert "usage:" not in capsys.readouterr().err
+    proc = subprocess.run([sys.executable, "-m", "floaff_zoo", *args], capture_output=True, text=True, cwd=root)
+    assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and named in proc.stderr, proc.stderr
 
 
 def test_unknown_command():

@@ -607,8 +607,17 @@ def check_trainer_args(args: list[str]) -> None:
 
 
 def run_lightning(args: list[str]) -> FloAffCLI:
-    """Run a trainer command; returns the CLI object (tests read ``cli.trainer``/``cli.model``)."""
-    return _build_cli(FloAffCLI, args, {"version": __version__})
+    """Run a trainer command; returns the CLI object (tests read ``cli.trainer``/``cli.model``).
+
+    Raises:
+        CLIError: the arguments do not parse (an unknown key, a value of the wrong type), in one line: jsonargparse
+            printed its 50-line usage before the error.
+    """
+    try:
+        return _build_cli(FloAffCLI, args, {"version": __version__, "exit_on_error": False})
+    except argparse.ArgumentError as exc:
+        command = args[0] if args and args[0] in TRAINER_COMMANDS else "<command>"
+        raise CLIError(f"{_one_line(str(exc))} (`floaff-zoo {command} --help` lists the options)") from exc
 
 
 def _build_cli(cls: type[FloAffCLI], args: list[str], parser_kwargs: dict[str, Any]) -> FloAffCLI:
@@ -619,7 +628,7 @@ def _build_cli(cls: type[FloAffCLI], args: list[str], parser_kwargs: dict[str, A
     # `floaff-zoo demo`/`curriculum` call this with args while sys.argv holds their own command.
     warnings.filterwarnings("ignore", message=".*LightningCLI's args parameter is intended.*")
     # no prefixes of a flag: --trainer.limit_train_batch 1 ran as a fraction (integer_limits reads exact flags only)
-    parser_kwargs = {**parser_kwargs, "allow_abbrev": False}
+    parser_kwargs = {**parser_kwargs, "allow_abbrev": False, "prog": "floaff-zoo"}
     return cls(
         ZooModule,
         FloAffDataModule,
