@@ -367,6 +367,7 @@ def test_a_pre_transform_keeps_its_meta_changes_through_the_cache(floaff_root):
         lambda r: r.update(task="CloseDrawerr"),
         lambda r: r["views"][0].update(base_pose_world=[0.5, float("nan"), 0.0]),  # the SR rollout starts there
         lambda r: r["views"][0].update(base_pose_world=[0.5, 0.0]),
+        lambda r: r["views"][0].update(view="Front"),  # was filtered out by `views` without a count
     ],
     ids=[
         "view_without_file",
@@ -376,11 +377,12 @@ def test_a_pre_transform_keeps_its_meta_changes_through_the_cache(floaff_root):
         "task_typo",
         "pose_nan",
         "pose_short",
+        "view_kind_typo",
     ],
 )
 def test_a_malformed_scene_json_is_a_counted_skip_naming_the_file(floaff_root, tmp_path, edit):
-    """A field missing or of the wrong kind, or an unknown split / task: the scene is skipped as corrupt_scene_json
-    with its file named, never a bare exception or a scene that silently vanishes."""
+    """A field missing or of the wrong kind, or an unknown split / task / view kind: the scene is skipped as
+    corrupt_scene_json with its file named, never a bare exception or a scene that silently vanishes."""
     import shutil
 
     root, exp = floaff_root

@@ -268,7 +268,8 @@ class GeneratedReader(FloAffReader):
         """The scene record of a read ``scene.json`` (its views whose file is missing are skipped and counted).
 
         Raises:
-            KeyError / TypeError / ValueError: a field is missing or of the wrong kind, or split / task is unknown.
+            KeyError / TypeError / ValueError: a field is missing or of the wrong kind, or split / task / a view's
+                kind is unknown.
         """
         from floaff_zoo.sim import fileformat as ff
 
@@ -278,6 +279,8 @@ class GeneratedReader(FloAffReader):
             raise ValueError(f"task {rec['task']!r} is not one of {list(TASKS)}")
         views = []
         for v in rec["views"]:
+            if v["view"] not in VIEWS:  # else filtered out later by the data module's `views`, without a count
+                raise ValueError(f"view {v['view_id']!r}: kind {v['view']!r} is not one of {list(VIEWS)}")
             vf = d / v["file"]
             if not vf.is_file():
                 self.skips.add("missing_view", vf, "view file listed in scene.json is missing")
