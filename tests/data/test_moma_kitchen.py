@@ -62,7 +62,9 @@ def test_sample_fields_flags_and_labels(moma_root):
     root, exp = moma_root
     dm = _dm(root)
     dm.setup("fit")
-    ds = dm.datasets["train"]
+    ds = next(
+        dm.datasets[x] for x in ("train", "val") if exp["barrier_sample"] in [r.key for r in dm.datasets[x].records]
+    )
     i = [r.key for r in ds.records].index(exp["barrier_sample"])
     s = ds[i]
     n = s["scene_xyz"].shape[0]
@@ -129,6 +131,26 @@ def test_a_truncated_ply_is_refused_naming_it(tmp_path, ascii_ply):
     assert info.value.kind == "corrupt_ply"
 
 
+@pytest.mark.parametrize(
+    "body, match",
+    [
+        ("1 2 3\n4 5 6\n7 8\n", r"vertex row 2 holds 2\)"),  # cut inside its last row
+        ("1 2 3\n4 5 x\n7 8 9\n", "vertex row 1 holds a word that is no number"),
+    ],
+)
+def test_an_ascii_ply_row_cut_short_or_not_numeric_is_refused(tmp_path, body, match):
+    """Counting non-empty lines let a row cut inside itself through: open3d filled the missing value from
+    uninitialised memory (it printed 'Unexpected end of file' and raised nothing)."""
+    ply = tmp_path / "bad.ply"
+    header = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+    ply.write_text(header + "end_header\n" + body)
+    with pytest.raises(DataError, match=match) as info:
+        read_ply(ply)
+    assert info.value.kind == "corrupt_ply" and str(ply) in str(info.value)
+    ply.write_text(header + "end_header\n1 2 3\n4 5 6\n7 8 9\n")
+    assert np.allclose(read_ply(ply), [[1, 2, 3], [4, 5, 6], [7, 8, 9]])
+
+
 def test_extra_robot_keeps_sample(moma_root):
     root, exp = moma_root
     dm = _dm(root, extra_robots={"elephant": [0.6, 0.5]})
@@ -140,11 +162,50 @@ def test_extra_robot_keeps_sample(moma_root):
 
 def test_robot_table_entries_are_checked_by_name():
     for bad, match in (
-        ({"elephant": 0.9}, "robot 'elephant' needs a list of numbers, got 0.9"),
+        ({"elephant": 0.9}, "robot 'elephant' needs a list of finite numbers, got 0.9"),
         ({"elephant": [0.6]}, "must all have the same length"),
+        # a NaN made every sample of the robot a skip that named the sample folders, not the table
+        ({"elephant": [0.6, float("nan")]}, r"robots / extra_robots: robot 'elephant' needs a list of finite"),
     ):
         with pytest.raises(ValueError, match=match):
             _dm("unused", extra_robots=bad)
+
+
+@pytest.mark.parametrize("field, value", [("seed", -1), ("max_samples", 0), ("max_samples", -2)])
+def test_a_negative_seed_or_a_non_positive_max_samples_is_named(field, value):
+    """A negative seed failed at setup as numpy's bare 'expected non-negative integer' (or, with pre-transforms,
+    skipped every sample); max_samples 0 kept every record and a negative one dropped the last ones."""
+    with pytest.raises(ValueError, match=f"data.{field} must be an integer >= "):
+        _dm("unused", **{field: value})
+
+
+def test_a_scene_is_held_out_by_its_own_draw_whatever_other_scenes_exist(moma_root, tmp_path):
+    """The val scenes were a seeded permutation of the scenes that survived indexing: one missing folder (or
+    max_samples) moved other scenes between train and val, so a scene trained in one run and validated in another."""
+    import shutil
+
+    root, _ = moma_root
+
+    def split(r, **kw):
+        dm = _dm(r, val_fraction=0.5, **kw)
+        dm.setup("fit")
+        return {s: {x.meta["scene_id"] for x in dm.datasets[s].records} for s in ("train", "val")}
+
+    full = split(root)
+    scenes = sorted(full["train"] | full["val"])
+    assert len(scenes) >= 3 and full["val"] and full["train"]
+    for gone in scenes:
+        part = tmp_path / gone
+        shutil.copytree(root, part, ignore=shutil.ignore_patterns(".cache"))
+        for folder in part.rglob(f"*{gone}*"):
+            if folder.is_dir() and folder.exists():
+                shutil.rmtree(folder)
+        got = split(part)
+        assert gone not in got["train"] | got["val"]
+        left = set(scenes) - {gone}
+        for s, other in (("train", "val"), ("val", "train")):
+            if full[other] & left:  # else the rule 'one scene on each side' must move one
+                assert full[s] & left <= got[s], (gone, s, full, got)
 
 
 def test_a_view_folder_name_that_does_not_parse_does_not_abort_setup(moma_root):

@@ -122,6 +122,7 @@ class FloAffDataModule(L.LightningDataModule):
         check_size("num_workers", num_workers, 0)
         check_size("num_points", num_points, 1, "the largest cloud in the batch")
         check_size("num_floor", num_floor, 1, "the largest floor in the batch")
+        check_size("seed", seed, 0)  # numpy's seeded streams refuse a negative seed only at setup, per sample
         if collate_mode not in ("pad", "resample"):
             raise DataConfigError(f"data.collate_mode must be 'pad' or 'resample', got {collate_mode!r}")
         self.train_transforms = list(train_transforms or [])

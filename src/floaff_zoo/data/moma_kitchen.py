@@ -36,6 +36,7 @@ Deliberate differences (documented):
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
@@ -47,7 +48,7 @@ import numpy as np
 from lightning.pytorch.utilities.exceptions import MisconfigurationException
 
 from floaff_zoo.contract import Sample
-from floaff_zoo.data.base import FloAffDataModule
+from floaff_zoo.data.base import FloAffDataModule, check_size
 from floaff_zoo.data.cache import RecordDataset, SampleCache
 from floaff_zoo.data.readers import DataError, SampleRecord, SkipLog, check_finite_arrays
 from floaff_zoo.data.transforms import SampleTransform, transforms_config
@@ -88,11 +89,21 @@ def _check_robot_table(table: dict[str, Any], field: str) -> None:
     if not table:
         raise ValueError(f"MoMaKitchenDataModule: {field}: the robot table is empty")
     for name, desc in table.items():
-        if not isinstance(desc, (list, tuple)) or not all(isinstance(x, (int, float)) for x in desc):
-            raise ValueError(f"MoMaKitchenDataModule: {field}: robot {name!r} needs a list of numbers, got {desc!r}")
+        if not isinstance(desc, (list, tuple)) or not all(
+            isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in desc
+        ):  # a NaN entry made every sample of that robot a 'NaN field robot' skip naming the samples, not the table
+            raise ValueError(
+                f"MoMaKitchenDataModule: {field}: robot {name!r} needs a list of finite numbers, got {desc!r}"
+            )
     lengths = {len(d) for d in table.values()}
     if len(lengths) > 1:
         raise ValueError(f"MoMaKitchenDataModule: {field}: robot entries must all have the same length, got {table}")
+
+
+def scene_draw(seed: int, scene_id: str) -> float:
+    """A scene's seeded uniform draw in [0, 1), a function of (seed, scene id) only."""
+    digest = hashlib.sha256(f"{seed}/{scene_id}".encode()).digest()
+    return int.from_bytes(digest[:8], "big") / 2.0**64
 
 
 class LoadError(DataError):
@@ -119,7 +130,9 @@ def check_ply_complete(path: str | Path, kind: str = "corrupt_ply") -> None:
 
     Binary files: the file's size after the header must hold ``vertices x record size`` (only the header is read;
     elements declared before the vertices, and vertex list properties, make the size unknowable: not checked).
-    ASCII files: at least as many non-empty lines as vertices. A header this function cannot parse is left to open3d.
+    ASCII files: the first ``vertices`` non-empty lines each hold one number per vertex property (a row cut short,
+    or a word that is no number, was read by open3d from memory too). A header this function cannot parse is left
+    to open3d.
     """
     try:
         with open(path, "rb") as f:
@@ -128,7 +141,7 @@ def check_ply_complete(path: str | Path, kind: str = "corrupt_ply") -> None:
             if not head.startswith(b"ply") or end < 0 or b"\n" not in head[end:]:
                 return
             start = head.index(b"\n", end) + 1  # the first byte of the data
-            fmt, count, record = _ply_vertex_block(head[:end].decode("ascii", "replace"))
+            fmt, count, record, n_props = _ply_vertex_block(head[:end].decode("ascii", "replace"))
             if not count:
                 return
             if fmt.startswith("binary"):
@@ -141,19 +154,39 @@ def check_ply_complete(path: str | Path, kind: str = "corrupt_ply") -> None:
                     )
             elif fmt == "ascii":
                 f.seek(start)
-                lines = sum(1 for row in f if row.strip())
-                if lines < count:
-                    raise LoadError(
-                        kind, f"{path}: truncated PLY (its header declares {count} vertices, {lines} lines follow)"
-                    )
+                _check_ascii_rows(f, count, n_props, path, kind)
     except OSError as exc:
         raise LoadError(kind, f"{path}: unreadable PLY ({exc})") from exc
 
 
-def _ply_vertex_block(header: str) -> tuple[str, int | None, int]:
-    """(format, vertex count, bytes per vertex record) of a PLY header; count None when the vertex block's place
-    or size cannot be known (another element first, a list property)."""
-    fmt, count, record, seen_other = "", None, 0, False
+def _check_ascii_rows(rows: Any, count: int, n_props: int, path: str | Path, kind: str) -> None:
+    """LoadError unless the first ``count`` non-empty ``rows`` (bytes lines) each hold ``n_props`` numbers."""
+    seen = 0
+    for row in rows:
+        words = row.split()
+        if not words:
+            continue
+        if seen >= count:
+            return
+        try:
+            [float(w) for w in words]
+        except ValueError:
+            raise LoadError(kind, f"{path}: corrupt PLY (vertex row {seen} holds a word that is no number)") from None
+        if len(words) != n_props:
+            raise LoadError(
+                kind,
+                f"{path}: truncated PLY (its header declares {count} vertices of {n_props} properties; vertex row "
+                f"{seen} holds {len(words)})",
+            )
+        seen += 1
+    if seen < count:
+        raise LoadError(kind, f"{path}: truncated PLY (its header declares {count} vertices, {seen} lines follow)")
+
+
+def _ply_vertex_block(header: str) -> tuple[str, int | None, int, int]:
+    """(format, vertex count, bytes per vertex record, properties per vertex) of a PLY header; count None when the
+    vertex block's place or size cannot be known (another element first, a list property)."""
+    fmt, count, record, n_props, seen_other = "", None, 0, 0, False
     for line in header.splitlines():
         words = line.split()
         if words[:1] == ["format"] and len(words) > 1:
@@ -167,9 +200,10 @@ def _ply_vertex_block(header: str) -> tuple[str, int | None, int]:
                 break  # the vertex block is complete before the next element
         elif words[:1] == ["property"] and count is not None:
             if len(words) != 3 or words[1] not in _PLY_SIZES:
-                return fmt, None, 0  # a list property: records of varying size
+                return fmt, None, 0, 0  # a list property: records of varying size
             record += _PLY_SIZES[words[1]]
-    return fmt, count, record
+            n_props += 1
+    return fmt, count, record, n_props
 
 
 def read_ply(path: str | Path, kind: str = "corrupt_ply") -> np.ndarray:
@@ -387,8 +421,9 @@ class MoMaKitchenDataModule(FloAffDataModule):
         info_root: ``trial_info.json`` directories (default ``<root>/info``).
         split_dir: split files (default ``<root>/data_split``).
         train_split / test_split: split file names.
-        val_fraction: fraction of the train *scenes* (6-digit scene id) held out as val, seeded by
-            ``seed``; 0 = validate on the test split each epoch, as the official code does.
+        val_fraction: fraction of the train *scenes* (6-digit scene id) held out as val, each scene by its own
+            draw seeded by ``seed`` (:meth:`_split_val`); 0 = validate on the test split each epoch, as the official
+            code does.
         robots: robot table replacing the official one (name -> [arm reach m, base height m]).
         extra_robots: entries added to the table (e.g. the paper's Elephant/Realman once known).
         flag_radius: target/obstacle flag radius (m).
@@ -462,6 +497,7 @@ class MoMaKitchenDataModule(FloAffDataModule):
         table.update(extra_robots or {})
         _check_robot_table(table, "robots" if extra_robots is None else "robots / extra_robots")
         self.reader = MoMaKitchenReader(self.rgbd_root, self.info_root, table, flag_radius, yaw_estimator)
+        check_size("max_samples", max_samples, 1, "every record")  # 0 kept all, a negative one dropped the last
         self.max_samples = max_samples
         self.strict = strict
         self.validate = validate
@@ -481,13 +517,19 @@ class MoMaKitchenDataModule(FloAffDataModule):
         return recs[: self.max_samples] if self.max_samples else recs
 
     def _split_val(self, train: list[SampleRecord]) -> tuple[list[SampleRecord], list[SampleRecord]]:
-        """Scene-level seeded hold-out: (train, val) records, each in split-file order."""
-        scenes = sorted({r.meta["scene_id"] for r in train})
-        n_val = int(round(self.val_fraction * len(scenes)))
+        """Scene-level seeded hold-out: (train, val) records, each in split-file order.
+
+        A scene is held out when its own seeded draw (:func:`scene_draw`) is below ``val_fraction``, so whether it
+        validates does not depend on which other scenes survived indexing or ``max_samples`` (a permutation of the
+        surviving scenes moved scenes between train and val when one folder was missing). At least one scene is held
+        out and one kept when there are two or more: the lowest draws, then the highest, decide those edge cases.
+        """
+        scenes = sorted({r.meta["scene_id"] for r in train}, key=lambda s: (scene_draw(self.seed, s), s))
+        val_scenes = {s for s in scenes if scene_draw(self.seed, s) < self.val_fraction}
         if self.val_fraction > 0 and len(scenes) > 1:
-            n_val = min(max(1, n_val), len(scenes) - 1)
-        rng = np.random.default_rng(self.seed)
-        val_scenes = set(rng.permutation(scenes)[:n_val].tolist()) if n_val else set()
+            val_scenes = val_scenes or {scenes[0]}
+            if len(val_scenes) == len(scenes):
+                val_scenes.discard(scenes[-1])
         return (
             [r for r in train if r.meta["scene_id"] not in val_scenes],
             [r for r in train if r.meta["scene_id"] in val_scenes],
