@@ -294,3 +294,10 @@ def test_robust_getitem_after_file_loss(moma_root, capsys):
     assert s["meta"]["sample_id"] == exp["kept"]["test"][1]
     assert s["meta"]["replaces"] == dm.datasets["test"].records[0].key  # counted downstream by this mark
     assert "failed at load time" in capsys.readouterr().out
+
+
+def test_label_centroid_warns_when_the_test_split_is_set_up(moma_root):
+    """The estimate reads the labels: the test split's target_yaw then carries the test labels, without a word."""
+    root, _ = moma_root
+    with pytest.warns(UserWarning, match="label_centroid estimates the test samples' target_yaw from their labels"):
+        _dm(root, yaw_estimator="label_centroid").setup("test")

@@ -53,6 +53,11 @@ def test_file_round_trip_and_bad_files(tmp_path):
         ((np.zeros((3, 2)), np.array([0.0, 2.0, 1.0]), 0.1), "scene b has non-finite values or labels outside"),
         ((np.zeros((3, 2)), np.array([0.0, np.nan, 1.0]), 0.1), "scene b has non-finite"),
         ((np.zeros((3, 2)), np.zeros(2), 0.1), r"scene b has xy \[3, 2\], label \[2\]"),
+        # an inf spacing put every floor point on the grid; a scene of no cell failed at the first sample (numpy's
+        # argmin of an empty sequence); a spacing of shape [2] was a TypeError that escaped the data module's check
+        ((np.zeros((3, 2)), np.zeros(3), np.inf), r"scene b has xy \[3, 2\], label \[3\], cell inf"),
+        ((np.zeros((0, 2)), np.zeros(0), 0.1), r"scene b has xy \[0, 2\], label \[0\], cell 0.1"),
+        ((np.zeros((3, 2)), np.zeros(3), np.array([0.1, 0.1])), r"scene b has xy \[3, 2\], label \[3\], cell nan"),
     ):
         write_scene_labels(path, {"b": bad}, {})
         with pytest.raises(ValueError, match=match):

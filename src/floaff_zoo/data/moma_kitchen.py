@@ -27,9 +27,12 @@ Deliberate differences (documented):
 * ``target_yaw`` is not in the data. It is estimated (``yaw_estimator``): ``toward_origin``
   (default) = direction from the target centroid toward the frame origin (the robot) projected on
   the floor, i.e. "the front faces the robot that observes it"; ``toward_view`` = toward the view
-  position parsed from the folder name; ``label_centroid`` = toward the label-weighted centroid of
-  the floor points (where successful bases stand; uses labels, so never feed it to a model at
-  test time).
+  position parsed from the folder name (that position is a world position: the option assumes the
+  clouds are in that same world frame, which contradicts the base-frame reading above, where the
+  view is the origin and ``toward_origin`` is the same estimate; use it only for a copy whose clouds
+  are in world coordinates); ``label_centroid`` = toward the label-weighted centroid of the floor
+  points (where successful bases stand; uses labels, so never feed it to a model at test time:
+  setting up the test split with it warns).
 * The official release is incomplete (MoMaKitchen/MoMaKitchen#2): samples with missing or
   unreadable files are skipped and counted; setup prints one summary (``strict: true`` raises).
 """
@@ -45,6 +48,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
+from lightning.pytorch.utilities import rank_zero_warn
 from lightning.pytorch.utilities.exceptions import MisconfigurationException
 
 from floaff_zoo.contract import Sample
@@ -565,6 +569,11 @@ class MoMaKitchenDataModule(FloAffDataModule):
         todo = [s for s in want if s not in self.datasets]
         if not todo:
             return
+        if "test" in todo and self.reader.yaw_estimator == "label_centroid":
+            rank_zero_warn(
+                "MoMaKitchenDataModule: yaw_estimator label_centroid estimates the test samples' target_yaw from "
+                "their labels: a model that reads target_yaw (e.g. eval_yaw_source gt) sees the test labels"
+            )
         if ("train" in todo or "val" in todo) and self.val_fraction > 0:
             skips = SkipLog("moma_kitchen train+val", self.strict)
             tr, va = self._split_val(self._records("train", skips))

@@ -59,10 +59,13 @@ def read_scene_labels(path: str | Path) -> tuple[dict[str, tuple[np.ndarray, np.
     out: dict[str, tuple[np.ndarray, np.ndarray, float]] = {}
     for sid in ids:
         try:
-            xy, label, cell = arrays[f"{sid}/xy"], arrays[f"{sid}/label"], float(arrays[f"{sid}/cell"])
+            xy, label, cell = arrays[f"{sid}/xy"], arrays[f"{sid}/label"], arrays[f"{sid}/cell"]
         except KeyError as exc:
             raise ValueError(f"scene labels: {path}: scene {sid} lacks the entry {exc}") from None
-        if xy.ndim != 2 or xy.shape[1] != 2 or label.shape != (len(xy),) or not cell > 0:
+        # one finite positive spacing and at least one cell: an inf spacing put every floor point on the grid, and
+        # an empty scene failed at the first sample with numpy's 'argmin of an empty sequence'
+        cell = float(cell) if cell.shape == () and np.issubdtype(cell.dtype, np.number) else float("nan")
+        if xy.ndim != 2 or xy.shape[1] != 2 or not len(xy) or label.shape != (len(xy),) or not 0 < cell < np.inf:
             raise ValueError(
                 f"scene labels: {path}: scene {sid} has xy {list(xy.shape)}, label {list(label.shape)}, cell {cell}"
             )
