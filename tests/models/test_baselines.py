@@ -167,6 +167,22 @@ def test_n2m_learns_nothing_from_a_view_without_success(batch):
     assert float(loss) == 0.0 and loss.requires_grad
 
 
+def test_votenet_votes_for_nothing_in_a_view_without_success(batch):
+    """A view whose labels are all 0 selected every floor point as a good position to vote for (noise targets)."""
+    model = tiny_model("votenet").eval()
+    failed = {**batch, "floor_label": batch["floor_label"].clone()}
+    failed["floor_label"][1] = 0.0
+    only_first = {k: v[:1] for k, v in failed.items()}
+    with torch.no_grad():
+        _, aux = model.forward_with_aux(failed)
+        _, aux_first = model.forward_with_aux(only_first)
+        assert float(model.vote_loss(failed, aux)) == pytest.approx(float(model.vote_loss(only_first, aux_first)))
+    nothing = {**failed, "floor_label": torch.zeros_like(failed["floor_label"])}
+    _, aux = model.forward_with_aux(nothing)
+    loss = model.vote_loss(nothing, aux)
+    assert float(loss) == 0.0 and loss.requires_grad
+
+
 def test_n2m_propose_pose_collision_free(batch):
     torch.manual_seed(0)
     model = tiny_model("n2m").eval()

@@ -14,28 +14,32 @@ from floaff_zoo.nn.nets import VoteNetNet
 
 
 def good_floor_points(batch: Batch, rel_threshold: float) -> tuple[Tensor, Tensor]:
-    """Floor points whose label is at least ``rel_threshold`` x the sample's best label.
+    """Floor points whose label is positive and at least ``rel_threshold`` x the sample's best label.
 
     Returns:
-        (floor_xyz [B,M,3], selected [B,M] bool); the argmax point is always selected.
+        (floor_xyz [B,M,3], selected [B,M] bool); a sample with a positive label always has its argmax point
+        selected, a sample without one (every label 0: no good position to vote for) has none.
     """
     label = batch["floor_label"].float().masked_fill(~batch["floor_mask"].bool(), -1.0)
     best = label.amax(dim=1, keepdim=True)
     sel = (label >= rel_threshold * best) & batch["floor_mask"].bool()
     sel = sel | (torch.arange(label.shape[1], device=label.device)[None] == label.argmax(dim=1, keepdim=True))
-    return batch["floor_xyz"].float(), sel
+    return batch["floor_xyz"].float(), sel & (best > 0)
 
 
 def vote_loss(votes: Tensor, gt_xyz: Tensor, gt_sel: Tensor) -> Tensor:
     """Min-over-GT L1 distance of every vote (VoteNet's vote loss with a set of GT positions).
 
     Args:
-        votes: [B, S, 3]; gt_xyz: [B, M, 3]; gt_sel: [B, M] bool (at least one True per sample).
+        votes: [B, S, 3]; gt_xyz: [B, M, 3]; gt_sel: [B, M] bool (samples with no True have no target: left out).
     Returns:
-        scalar mean over votes.
+        scalar mean over the votes of the samples with a target (0, with a graph, when no sample has one).
     """
-    d = (votes[:, :, None, :] - gt_xyz[:, None, :, :]).abs().sum(-1)  # [B, S, M]
-    d = d.masked_fill(~gt_sel[:, None, :], float("inf"))
+    has = gt_sel.any(dim=1)  # [B]
+    if not bool(has.any()):
+        return votes.sum() * 0.0
+    d = (votes[has][:, :, None, :] - gt_xyz[has][:, None, :, :]).abs().sum(-1)  # [B', S, M]
+    d = d.masked_fill(~gt_sel[has][:, None, :], float("inf"))
     return d.amin(dim=-1).mean()
 
 
@@ -69,7 +73,8 @@ class VoteNetModule(SeedVotingModule):
     centres; here the seeds (PointNet++ SSG over the observation, robot code fused, FP back to
     the second SA level) vote for **good base positions**: each vote is the seed plus a predicted
     offset, supervised by the vote loss = L1 distance to the nearest floor point whose label is at
-    least ``vote_label_threshold`` x the sample's best label (VoteNet's min-over-GT vote loss).
+    least ``vote_label_threshold`` x the sample's best label (VoteNet's min-over-GT vote loss; a view whose labels
+    are all 0 has no good position and adds no vote loss).
     VoteNet's proposal module becomes the aggregation: FPS over the votes, ball grouping and a
     PointNet give proposal features and an objectness-like score; instead of boxes, the floor
     map is read out of the proposals by 3-NN feature propagation (plus the distance to the nearest
