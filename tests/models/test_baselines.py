@@ -183,6 +183,15 @@ def test_votenet_votes_for_nothing_in_a_view_without_success(batch):
     assert float(loss) == 0.0 and loss.requires_grad
 
 
+def test_n2m_refuses_a_ranking_term_it_would_not_train_with():
+    """train.rank_weight only moved N2M's logged aff_loss: a run that set it trained exactly as without it."""
+    from floaff_zoo.models.base import FloAffTrainConfig
+
+    cfg = yaml.safe_load((TINY / "n2m_tiny.yaml").read_text())["model"].get("init_args", {})
+    with pytest.raises(ValueError, match=r"train.rank_weight has no effect on it \(got 0.1\)"):
+        N2MModule(**{**cfg, "train": FloAffTrainConfig(rank_weight=0.1)})
+
+
 def test_n2m_propose_pose_collision_free(batch):
     torch.manual_seed(0)
     model = tiny_model("n2m").eval()

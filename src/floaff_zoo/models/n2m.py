@@ -73,7 +73,8 @@ class N2MModule(FloAffModule):
         npoints, radii, nsamples, mlps: SSG encoder; decoder: MLP widths; num_components: K (1-2);
         dropout; positive_threshold; lambda_weights, lambda_components: entropy terms;
         num_pose_samples, footprint_*, occupancy_*: placement; seed: sampling seed;
-        compile, bf16: opt-in speed modes. ``train.loss`` is only used for the logged affordance loss.
+        compile, bf16: opt-in speed modes. ``train.loss`` (and ``sdl_beta``) only shape the logged affordance
+        loss; ``train.rank_weight`` > 0 is refused (the NLL is the whole training loss).
         (the rest: see :class:`FloAffModule`)
     """
 
@@ -104,6 +105,11 @@ class N2MModule(FloAffModule):
         weights: str | None = None,
     ) -> None:
         super().__init__(feat_channels=feat_channels, robot_dim=robot_dim, train=train, weights=weights)
+        if self.train_cfg.rank_weight:  # it would only move the logged aff_loss: a run that set it learned nothing
+            raise ValueError(
+                f"N2MModule trains its GMM's negative log-likelihood only: train.rank_weight has no effect on it "
+                f"(got {self.train_cfg.rank_weight}); leave it 0"
+            )
 
     def configure_models(self) -> None:
         h = self.hparams
