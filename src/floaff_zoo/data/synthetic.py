@@ -58,7 +58,7 @@ def make_synthetic_sample(seed: int, num_points: int = 512, floor_cells: int = 1
     ahead = rel @ n
     ring = np.exp(-((d - 0.8 * robot[0]) ** 2) / (2 * 0.15**2))
     label = (ring / (1 + np.exp(-(ahead - 0.35) / 0.08))).astype(np.float32)
-    if task == "PnPCounterToCab":  # a second task with a narrower, closer ring
+    if task == "PnPCounterToCab":  # a second task: the same ring, narrowed sideways (a lateral decay)
         label = label * np.exp(-np.abs(rel @ tang) / 0.5).astype(np.float32)
     sample = {
         "scene_xyz": xyz,
