@@ -15,7 +15,8 @@ floor_xyz     float32 [M, 3]   candidate base positions (robot base frame, z = 0
 floor_label   float32 [M]      probability in [0, 1] that the task succeeds from there
 floor_mask    bool    [M]      valid floor points (False marks padding)
 robot         float32 [R]      robot descriptor (MoMa-Kitchen: [arm reach m, base height m])
-target_xyz    float32 [3]      target centre (robot base frame)
+target_xyz    float32 [3]      target point (robot base frame): the centre of the fixture's front
+                               on the generated benchmark, the target points' centroid on MoMa-Kitchen
 target_yaw    float32 []       yaw of the target's front-facing outward normal (robot base frame);
                                CFAR rotates by R(-pi/2 - yaw) about the target so that every front
                                faces -y (the paper writes R(pi - theta_o) for its own angle origin)

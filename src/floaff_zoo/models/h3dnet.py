@@ -20,7 +20,11 @@ class H3DNetModule(SeedVotingModule):
     the primitives are those of the **target**: its centre (``target_xyz``), its front-face centre
     (``face_offset`` m along the front normal given by ``target_yaw``) and its two front edges
     (``edge_half_width`` m to either side of the face centre) -- the target's extent is not part
-    of the sample contract, so these two sizes are configuration. Seeds (PointNet++ SSG + robot
+    of the sample contract, so these two sizes are configuration. On the generated benchmark ``target_xyz`` is
+    already the centre of the fixture's front, not of its body: there the "centre" primitive is the front face
+    and the face and edge primitives lie ``face_offset`` m in front of it, in free space, so the votes learn points
+    of the approach region rather than H3DNet's surface primitives (the shipped runs were trained so; on
+    MoMa-Kitchen, whose target point is the centroid, they are as described). Seeds (PointNet++ SSG + robot
     code, FP to the second SA level) vote for each primitive (one vote module per type, L1 vote
     loss on seeds within ``vote_radius`` of the target, all seeds if none); per type the votes are
     clustered into proposals (FPS + grouping + PointNet) and pooled into one predicted primitive
