@@ -12,6 +12,9 @@ are written to ``<cache_dir>/<dataset>-<config hash>/<sample hash>.pt``.
   reads every source file at setup). An edited source file therefore misses the cache.
 * A sample that failed to load leaves a small ``.skip`` marker with the reason, so the next setup
   counts it again without re-reading it.
+* The cache is only a speed-up: when it cannot be written (its folder under a file, read-only, a full disk) one
+  warning names the folder and the error, and the dataset stops writing to it and reads its samples from their
+  sources (a good sample is never skipped for it).
 
 Stale entries are never read again but stay on disk; delete the directory to reclaim space.
 """
@@ -20,6 +23,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import warnings
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
@@ -61,6 +65,7 @@ class SampleCache:
             self.config.pop("seed", None)
         self.dir = Path(directory) / f"{name}-{_sha(self.config)[:12]}"
         self.hash_mode = hash_mode
+        self.writable = True  # False after a failed write: the samples are then served from their sources
 
     def entry(self, record: SampleRecord) -> Path:
         """Cache file of ``record`` (its name changes when a source file changes)."""
@@ -96,11 +101,28 @@ class SampleCache:
             path.with_suffix(".skip"), lambda f: f.write(json.dumps({"kind": kind, "problem": problem}).encode())
         )
 
+    def prepare(self) -> bool:
+        """Make the cache folder and its ``config.json`` (warning and disabling the cache when it cannot be
+        written); whether the cache is writable."""
+        if self.writable and not (self.dir / "config.json").is_file():
+            cfg = json.dumps(self.config, indent=1, sort_keys=True, default=str).encode()
+            self._write(self.dir / "config.json", lambda f: f.write(cfg))
+        return self.writable
+
     def _atomic(self, path: Path, write: Callable[[Any], None]) -> None:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        if not (path.parent / "config.json").is_file():
-            (path.parent / "config.json").write_text(json.dumps(self.config, indent=1, sort_keys=True, default=str))
-        atomic_write(path, write)
+        if self.prepare():
+            self._write(path, write)
+
+    def _write(self, path: Path, write: Callable[[Any], None]) -> None:
+        """``atomic_write``; an OSError disables the cache with one warning instead of failing the sample."""
+        try:
+            atomic_write(path, write)
+        except OSError as exc:
+            self.writable = False
+            warnings.warn(
+                f"sample cache {self.dir} cannot be written ({exc}); reading the samples from their sources",
+                stacklevel=2,
+            )
 
 
 #: cache-entry key of the meta a pre-transform changed (JSON: {"set": {key: value}, "drop": [key, ...]})
@@ -233,6 +255,8 @@ class RecordDataset(Dataset):
 
         With ``workers > 0`` records are parsed in that many processes (cache misses only).
         """
+        if self.cache is not None:  # an unwritable cache warns here once, not in every worker
+            self.cache.prepare()
         n = len(self.records)
         if workers > 0 and n > 1:
             with ProcessPoolExecutor(workers) as pool:

@@ -1,0 +1,68 @@
+"""The per-sample cache (floaff_zoo.data.cache) around the MoMa-Kitchen fixture: a cache that cannot be written."""
+
+import errno
+import warnings
+
+import pytest
+import torch
+
+import floaff_zoo.data.cache as cache_mod
+from floaff_zoo.data.moma_kitchen import MoMaKitchenDataModule
+
+
+def _dm(root, **kw):
+    args = dict(root=str(root), val_fraction=0.34, batch_size=2, num_points=256, cache=False)
+    args.update(kw)
+    return MoMaKitchenDataModule(**args)
+
+
+def _cache_warnings(caught) -> list[str]:
+    return [str(w.message) for w in caught if "sample cache" in str(w.message)]
+
+
+def _full_disk(monkeypatch):
+    """Every cache write fails as on a full disk (the folder itself can be made)."""
+
+    def full(path, write, durable=False):
+        raise OSError(errno.ENOSPC, "No space left on device", str(path))
+
+    monkeypatch.setattr(cache_mod, "atomic_write", full)
+
+
+@pytest.mark.parametrize("why", ["under_a_file", "disk_full"])
+def test_an_unwritable_cache_serves_every_sample_from_its_sources(moma_root, tmp_path, monkeypatch, why):
+    """A cache write's OSError made the setup check skip a good sample as an OSError and a failing ``.skip`` marker
+    crashed ``build``; with validate false every access failed. Now one warning names the folder, nothing is
+    written, and the splits are those of an uncached run."""
+    root, _ = moma_root
+    ref = _dm(root)
+    ref.setup("fit")
+    ref.setup("test")
+    cache_dir = tmp_path / "afile" / "cache"
+    if why == "under_a_file":
+        (tmp_path / "afile").write_text("not a folder")
+    else:
+        _full_disk(monkeypatch)
+    dm = _dm(root, cache=True, cache_dir=str(cache_dir))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        dm.setup("fit")
+        dm.setup("test")
+    msgs = _cache_warnings(caught)
+    assert len(msgs) == 3  # once per split's dataset, not once per sample
+    assert all(str(cache_dir) in m and "cannot be written" in m and "\n" not in m for m in msgs)
+    for split in ("train", "val", "test"):
+        assert [r.key for r in dm.datasets[split].records] == [r.key for r in ref.datasets[split].records]
+        assert dict(dm.skips[split].counts) == dict(ref.skips[split].counts)
+    assert not list(tmp_path.rglob("*.pt")) and not list(tmp_path.rglob("*.skip"))
+    # validate false: every access reads the sources (no sample is replaced), with one warning
+    lazy = _dm(root, cache=True, cache_dir=str(cache_dir), validate=False)
+    lazy.setup("test")
+    ds, good = lazy.datasets["test"], ref.datasets["test"]
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        got = {ds.records[i].key: ds[i] for i in range(len(ds))}
+    assert len(_cache_warnings(caught)) == 1 and ds.runtime_failures == 0
+    for i in range(len(good)):
+        s = got[good.records[i].key]
+        assert "replaces" not in s["meta"] and torch.equal(s["scene_xyz"], good[i]["scene_xyz"])
