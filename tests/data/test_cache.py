@@ -1,13 +1,14 @@
 """The per-sample cache (floaff_zoo.data.cache) around the MoMa-Kitchen fixture: a cache that cannot be written."""
 
 import errno
+import os
 import warnings
 
 import pytest
 import torch
 
 import floaff_zoo.data.cache as cache_mod
-from floaff_zoo.data.moma_kitchen import MoMaKitchenDataModule
+from floaff_zoo.data.moma_kitchen import LABEL_TXT, MoMaKitchenDataModule
 
 
 def _dm(root, **kw):
@@ -66,3 +67,36 @@ def test_an_unwritable_cache_serves_every_sample_from_its_sources(moma_root, tmp
     for i in range(len(good)):
         s = got[good.records[i].key]
         assert "replaces" not in s["meta"] and torch.equal(s["scene_xyz"], good[i]["scene_xyz"])
+
+
+@pytest.mark.parametrize("workers", [0, 2])
+def test_content_hash_reads_the_sources_once_at_setup(moma_root, monkeypatch, workers):
+    """``cache_hash: content`` hashed every source file's bytes again at every access (a cache hit read as much as a
+    parse). Now setup reads them once per record (in its worker processes too) and accesses reuse the name; an
+    edit that keeps the file's size and mtime still misses the cache at the next setup."""
+    root, exp = moma_root
+    real, calls = cache_mod.source_signature, []
+
+    def spy(paths, mode="stat"):
+        calls.append(mode)
+        return real(paths, mode)
+
+    monkeypatch.setattr(cache_mod, "source_signature", spy)
+    dm = _dm(root, cache=True, cache_hash="content", num_workers=workers)
+    dm.setup("test")
+    ds = dm.datasets["test"]
+    assert calls == ([] if workers else ["content"] * len(ds))  # one read per record (workers: in their processes)
+    first = [ds[i]["floor_label"] for i in range(len(ds))]
+    assert calls == ([] if workers else ["content"] * len(ds))  # cache hits read no source file
+    # an edit keeping size and mtime: the next setup reads the bytes again and misses the cache for that sample
+    csv = root / "rgbd" / exp["kept"]["test"][0] / LABEL_TXT
+    st, lines = csv.stat(), csv.read_text().splitlines(keepends=True)
+    *xyz, label = lines[0].rstrip("\n").split(",")
+    lines[0] = ",".join([*xyz, "0.5".ljust(len(label), "0")]) + "\n"  # the first floor point's label, same length
+    csv.write_text("".join(lines))
+    assert csv.stat().st_size == st.st_size
+    os.utime(csv, ns=(st.st_atime_ns, st.st_mtime_ns))
+    dm2 = _dm(root, cache=True, cache_hash="content", num_workers=workers)
+    dm2.setup("test")
+    i = [r.key for r in dm2.datasets["test"].records].index(exp["kept"]["test"][0])
+    assert dm2.datasets["test"][i]["floor_label"][0] == 0.5 and first[i][0] != 0.5

@@ -8,8 +8,9 @@ are written to ``<cache_dir>/<dataset>-<config hash>/<sample hash>.pt``.
   estimator) and the ``pre_transforms`` config (with the seed they draw from, when there are any): changing any
   of them uses a fresh directory. Without pre-transforms every training seed shares one directory.
 * ``<sample hash>`` = SHA-256 of the record key and its source files' signature: (path, size,
-  mtime_ns) by default (``hash_mode="stat"``), or the file bytes (``hash_mode="content"``, slower:
-  reads every source file at setup). An edited source file therefore misses the cache.
+  mtime_ns) by default (``hash_mode="stat"``, checked at every access), or the file bytes (``hash_mode="content"``,
+  slower: reads every source file once, at setup, or at a record's first access with ``validate`` false). An edited
+  source file therefore misses the cache.
 * A sample that failed to load leaves a small ``.skip`` marker with the reason, so the next setup
   counts it again without re-reading it.
 * The cache is only a speed-up: when it cannot be written (its folder under a file, read-only, a full disk) one
@@ -66,11 +67,26 @@ class SampleCache:
         self.dir = Path(directory) / f"{name}-{_sha(self.config)[:12]}"
         self.hash_mode = hash_mode
         self.writable = True  # False after a failed write: the samples are then served from their sources
+        self._entries: dict[tuple[str, ...], Path] = {}  # content mode: entry of each record whose bytes were read
 
-    def entry(self, record: SampleRecord) -> Path:
-        """Cache file of ``record`` (its name changes when a source file changes)."""
+    def entry(self, record: SampleRecord, fresh: bool = False) -> Path:
+        """Cache file of ``record`` (its name changes when a source file changes).
+
+        ``content`` mode reads the source files at the record's first call or with ``fresh`` (the setup check),
+        then reuses that name: reading them at every access would cost more than the parse the cache saves.
+        """
+        memo = (record.key, *record.sources)
+        if self.hash_mode == "content" and not fresh and memo in self._entries:
+            return self._entries[memo]
         h = hashlib.sha256(record.key.encode() + source_signature(record.sources, self.hash_mode).encode())
-        return self.dir / f"{h.hexdigest()[:32]}.pt"
+        path = self.dir / f"{h.hexdigest()[:32]}.pt"
+        self.remember(record, path)
+        return path
+
+    def remember(self, record: SampleRecord, path: Path) -> None:
+        """Keep ``record``'s entry in content mode (one a setup worker process computed)."""
+        if self.hash_mode == "content":
+            self._entries[(record.key, *record.sources)] = path
 
     def get(self, path: Path) -> dict[str, torch.Tensor] | None:
         """Cached tensors, or None on a miss or an unreadable entry."""
@@ -233,22 +249,26 @@ class RecordDataset(Dataset):
 
     def check(self, i: int) -> tuple[str, str] | None:
         """Load record ``i`` (filling the cache); None if fine, else (kind, problem)."""
+        return self._check(i)[0]
+
+    def _check(self, i: int) -> tuple[tuple[str, str] | None, Path | None]:
+        """``check``'s result and the record's cache entry (a setup worker process hands it back to the dataset)."""
         rec = self.records[i]
-        path = self.cache.entry(rec) if self.cache is not None else None
+        path = self.cache.entry(rec, fresh=True) if self.cache is not None else None
         if path is not None:
             if path.is_file():
-                return None
+                return None, path
             prev = self.cache.skipped(path)
             if prev is not None:
-                return prev
+                return prev, path
         try:
             self._tensors(rec)
-            return None
+            return None, path
         except (SampleError, ValueError, OSError, RuntimeError, KeyError, IndexError) as exc:
             kind, problem = classify_error(exc), str(exc)
             if path is not None and not _transient(exc):
                 self.cache.mark_skipped(path, kind, problem)
-            return kind, problem
+            return (kind, problem), path
 
     def build(self, skips: SkipLog, workers: int = 0) -> "RecordDataset":
         """Validate every record now (setup time); drop the bad ones into ``skips`` (strict raises).
@@ -260,11 +280,13 @@ class RecordDataset(Dataset):
         n = len(self.records)
         if workers > 0 and n > 1:
             with ProcessPoolExecutor(workers) as pool:
-                results = list(pool.map(self.check, range(n), chunksize=max(1, n // (8 * workers))))
+                checked = list(pool.map(self._check, range(n), chunksize=max(1, n // (8 * workers))))
         else:
-            results = [self.check(i) for i in range(n)]
+            checked = [self._check(i) for i in range(n)]
         keep = []
-        for rec, res in zip(self.records, results):
+        for rec, (res, path) in zip(self.records, checked):
+            if self.cache is not None and path is not None:  # content mode: no access reads the sources again
+                self.cache.remember(rec, path)
             if res is None:
                 keep.append(rec)
             else:
