@@ -1,4 +1,4 @@
-"""The per-sample cache (floaff_zoo.data.cache) around the MoMa-Kitchen fixture: a cache that cannot be written."""
+"""The per-sample cache and RecordDataset (floaff_zoo.data.cache): write failures, content hashing, run-time errors."""
 
 import errno
 import os
@@ -8,7 +8,10 @@ import pytest
 import torch
 
 import floaff_zoo.data.cache as cache_mod
+from floaff_zoo.data.cache import RecordDataset
 from floaff_zoo.data.moma_kitchen import LABEL_TXT, MoMaKitchenDataModule
+from floaff_zoo.data.readers import DataError, SampleRecord, SkipLog
+from floaff_zoo.data.synthetic import make_synthetic_sample
 
 
 def _dm(root, **kw):
@@ -100,3 +103,29 @@ def test_content_hash_reads_the_sources_once_at_setup(moma_root, monkeypatch, wo
     dm2.setup("test")
     i = [r.key for r in dm2.datasets["test"].records].index(exp["kept"]["test"][0])
     assert dm2.datasets["test"][i]["floor_label"][0] == 0.5 and first[i][0] != 0.5
+
+
+@pytest.mark.parametrize("error", [IndexError, TypeError])
+def test_a_sample_breaking_after_setup_with_any_load_error_is_replaced(error, capsys):
+    """Run time caught fewer errors than the setup check: a sample whose loader raised IndexError or TypeError after
+    setup crashed the epoch instead of being replaced by the next one. The setup check counts the same errors."""
+    good = make_synthetic_sample(0, num_points=64, floor_cells=4)
+    broken: set[str] = set()
+
+    def load(rec):
+        if rec.key in broken:
+            raise error(f"{rec.key}: truncated table")
+        return {k: v.clone() if isinstance(v, torch.Tensor) else dict(v) for k, v in good.items()}
+
+    records = [SampleRecord(f"s{i}", [], {}) for i in range(3)]
+    ds = RecordDataset(records, load, name="tiny").build(SkipLog("tiny"))
+    strict = RecordDataset(records, load, name="tiny", strict=True).build(SkipLog("tiny"))
+    broken.add("s0")
+    s = ds[0]
+    assert s["meta"]["replaces"] == "s0" and ds.runtime_failures == 1
+    assert "s0 failed at load time" in capsys.readouterr().out
+    with pytest.raises(DataError, match="s0 failed at load time"):  # strict still names it
+        strict[0]
+    skips = SkipLog("tiny")
+    assert len(RecordDataset(records, load, name="tiny").build(skips)) == 2
+    assert dict(skips.counts) == {error.__name__: 1}

@@ -176,6 +176,11 @@ def _record_seed(seed: int, key: str) -> np.random.Generator:
     return np.random.default_rng([seed, int(hashlib.sha256(key.encode()).hexdigest()[:15], 16)])
 
 
+#: errors of a bad or vanished sample: skipped by the setup check, replaced by the next sample at run time (one set,
+#: so a file that breaks after setup cannot crash an epoch with an error the setup would have counted)
+_LOAD_ERRORS = (SampleError, ValueError, OSError, RuntimeError, KeyError, IndexError, TypeError)
+
+
 def _transient(exc: BaseException) -> bool:
     """Whether a load error may pass: an I/O error of the disk or file system (not a missing file), raised or
     wrapped by a reader. Its record is skipped this time but not marked in the cache, so the next setup reads it
@@ -264,7 +269,7 @@ class RecordDataset(Dataset):
         try:
             self._tensors(rec)
             return None, path
-        except (SampleError, ValueError, OSError, RuntimeError, KeyError, IndexError) as exc:
+        except _LOAD_ERRORS as exc:
             kind, problem = classify_error(exc), str(exc)
             if path is not None and not _transient(exc):
                 self.cache.mark_skipped(path, kind, problem)
@@ -323,7 +328,7 @@ class RecordDataset(Dataset):
                 if k:
                     s["meta"]["replaces"] = self.records[i].key
                 return s
-            except (SampleError, ValueError, OSError, RuntimeError, KeyError) as exc:
+            except _LOAD_ERRORS as exc:
                 if self.strict:
                     raise DataError(
                         f"{self.name}: sample {self.records[j].key} failed at load time ({exc}) (strict=True; set "
