@@ -273,7 +273,7 @@ class CFARModule(FloAffModule):
     def setup(self, stage: str) -> None:
         super().setup(stage)
         # w/o FD (or lambda 0) never reads the teacher: not loaded, so its memory and lineage entry are not spent
-        if stage == "fit" and self.hparams["teacher"] and self.teacher is None and self.distills:
+        if stage == "fit" and self.teacher is None and self.distills:
             self.load_teacher(self.hparams["teacher"])
 
     @property
