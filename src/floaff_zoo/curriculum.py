@@ -33,7 +33,9 @@ tasks, ``from_stages``, ``--set``, ``--trainer.default_root_dir``.
 Resuming: every finished stage writes ``<stage dir>/stage.json`` and the run writes
 ``<root>/lineage.json`` (stage, configs, fit arguments, checkpoint, sha256, metrics, teacher/weights).
 A rerun skips stages whose record is ``done`` with the same fit arguments, the same ``--config`` file contents
-(the stage digest below; any edit, a comment too, means a fresh fit) and an intact checkpoint (sha256 checked).
+(the stage digest below; any edit, a comment too, means a fresh fit), the same input files (a checkpoint or label
+file, ``INPUT_SUFFIXES``, that a fit argument or a value in a ``--config`` file names, such as an earlier stage's
+checkpoint or ``data.init_args.train_labels``; sha256 checked) and an intact checkpoint (sha256 checked).
 Each run directory a stage's fit writes gets ``curriculum_run.json`` (the digest of the stage's
 fit arguments and ``--config`` file contents); a stage that was killed resumes from the newest ``last.ckpt`` of a
 run with its digest only (else a fresh fit), logging into that run's own directory so its ModelCheckpoint keeps the
@@ -377,8 +379,30 @@ INPUT_SUFFIXES = (".ckpt", ".safetensors", ".pt", ".pth", ".npz")
 
 
 def _input_files(args: list[str]) -> dict[str, str]:
-    """{path: sha256} of every existing file of an ``INPUT_SUFFIXES`` kind that a fit argument names."""
-    return {a: _sha256(a) for a in args if a.endswith(INPUT_SUFFIXES) and Path(a).is_file()}
+    """{path: sha256} of every existing file of an ``INPUT_SUFFIXES`` kind that a fit argument names, or that a value
+    in one of its ``--config`` files names (e.g. ``data.init_args.train_labels``, an ``.npz`` a script regenerates)."""
+    named = list(args) + [v for f in _config_files(args) for v in _yaml_strings(f)]
+    return {a: _sha256(a) for a in dict.fromkeys(named) if a.endswith(INPUT_SUFFIXES) and Path(a).is_file()}
+
+
+def _yaml_strings(path: str) -> list[str]:
+    """Every text value in a YAML file ([] when it is missing or does not parse: the fit reports that). The CLI
+    resolves such paths relative to the working directory, as the caller's ``Path(value)`` does."""
+    try:
+        data = yaml.safe_load(Path(path).read_text())
+    except (OSError, yaml.YAMLError):
+        return []
+    out: list[str] = []
+    todo = [data]
+    while todo:
+        item = todo.pop()
+        if isinstance(item, str):
+            out.append(item)
+        elif isinstance(item, dict):
+            todo += list(item.values())
+        elif isinstance(item, list):
+            todo += item
+    return out
 
 
 def _metrics(cli: Any) -> dict[str, float]:

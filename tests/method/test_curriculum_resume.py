@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import json
+import shutil
 from pathlib import Path
 
 import pytest
@@ -13,6 +14,7 @@ import yaml
 
 from floaff_zoo.cli import run_lightning
 from floaff_zoo.curriculum import run_curriculum
+from floaff_zoo.hub.registry import sha256_file
 from floaff_zoo.runs import resolve_ckpt_alias
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -167,8 +169,6 @@ def test_a_later_stage_reruns_when_its_teacher_was_refit_into_the_same_path(tmp_
     """Stage 2 names stage 1's checkpoint by path. Without validation that path is .../version_0/.../last.ckpt:
     stage 1 re-fit into a fresh folder writes a new checkpoint at the same path, and stage 2 (its arguments
     unchanged) was skipped as finished, trained from a teacher that no longer exists."""
-    import shutil
-
     exp = _experiment(tmp_path, max_epochs=1)
     spec = yaml.safe_load(exp.read_text())
     spec["stages"] = [{"name": "s1"}, {"name": "s2", "from_stages": {"model.init_args.weights": "s1"}}]
@@ -183,6 +183,28 @@ def test_a_later_stage_reruns_when_its_teacher_was_refit_into_the_same_path(tmp_
     assert new1["checkpoint"] == s1["checkpoint"] and new1["sha256"] != s1["sha256"]  # same path, new weights
     assert len(seen) == 2 and "a file its arguments name changed" in capsys.readouterr().out
     assert new2["inputs"] == {new1["checkpoint"]: new1["sha256"]}
+
+
+def test_a_finished_stage_reruns_when_a_file_its_config_file_names_changed(tmp_path, capsys):
+    """Only files named in the fit arguments were hashed: a checkpoint or label file named inside a --config file
+    (a recipe's init weights, data.init_args.train_labels) was rewritten by a script, and the finished stage was
+    skipped, trained from the old file."""
+    exp = _experiment(tmp_path, max_epochs=1)
+    (pre,) = run_curriculum(exp)
+    weights = tmp_path / "init.ckpt"
+    shutil.copy(pre["checkpoint"], weights)
+    extra = tmp_path / "init_from.yaml"
+    extra.write_text(f"model:\n  init_args:\n    weights: {weights}\n")
+    (old,) = run_curriculum(exp, extra_configs=[str(extra)])
+    assert old["inputs"] == {str(weights): sha256_file(weights)}
+    shutil.copy(old["checkpoint"], weights)  # other weights at the same path, the config file unchanged
+    capsys.readouterr()
+    seen: list = []
+    (new,) = run_curriculum(exp, extra_configs=[str(extra)], runner=_spy(seen))
+    assert (
+        len(seen) == 1 and f"a file its arguments name changed since it finished ({weights})" in capsys.readouterr().out
+    )
+    assert new["inputs"] == {str(weights): sha256_file(weights)}
 
 
 def test_experiment_checks_extends_roots_and_shared_folders(tmp_path):
