@@ -36,11 +36,11 @@ A rerun skips stages whose record is ``done`` with the same fit arguments, the s
 (the stage digest below; any edit, a comment too, means a fresh fit), the same input files (a checkpoint or label
 file, ``INPUT_SUFFIXES``, that a fit argument or a value in a ``--config`` file names, such as an earlier stage's
 checkpoint or ``data.init_args.train_labels``; sha256 checked) and an intact checkpoint (sha256 checked).
-Each run directory a stage's fit writes gets ``curriculum_run.json`` (the digest of the stage's
-fit arguments and ``--config`` file contents); a stage that was killed resumes from the newest ``last.ckpt`` of a
-run with its digest only (else a fresh fit), logging into that run's own directory so its ModelCheckpoint keeps the
-best of the epochs before the kill: the recorded checkpoint is the best of the whole stage, as ``--ckpt_path best``
-finds it.
+Each run directory a stage's fit writes gets ``curriculum_run.json`` (the digest of the stage's fit arguments and
+``--config`` file contents, and its input files' sha256 when the fit started); a stage that was killed resumes from
+the newest ``last.ckpt`` of a run with its digest whose input files are unchanged since it started (else a fresh
+fit), logging into that run's own directory so its ModelCheckpoint keeps the best of the epochs before the kill: the
+recorded checkpoint is the best of the whole stage, as ``--ckpt_path best`` finds it.
 """
 
 from __future__ import annotations
@@ -360,11 +360,9 @@ def _finished(record: dict[str, Any] | None, args: list[str]) -> tuple[bool, str
     if record.get("digest") and record["digest"] != _digest(args):
         return False, "a --config file it reads changed since it finished"
     # records written before input files were kept have none: their arguments and --config files decide, as they did
-    if record.get("inputs") is not None:
-        now = _input_files(args)
-        changed = sorted(f for f in set(now) | set(record["inputs"]) if now.get(f) != record["inputs"].get(f))
-        if changed:
-            return False, f"a file its arguments name changed since it finished ({changed[0]})"
+    changed = _changed_input(record.get("inputs"), _input_files(args))
+    if changed:
+        return False, f"a file its arguments name changed since it finished ({changed})"
     ckpt = record.get("checkpoint")
     if not ckpt or not Path(ckpt).is_file():
         return False, f"its checkpoint {ckpt} is missing"
@@ -383,6 +381,15 @@ def _input_files(args: list[str]) -> dict[str, str]:
     in one of its ``--config`` files names (e.g. ``data.init_args.train_labels``, an ``.npz`` a script regenerates)."""
     named = list(args) + [v for f in _config_files(args) for v in _yaml_strings(f)]
     return {a: _sha256(a) for a in dict.fromkeys(named) if a.endswith(INPUT_SUFFIXES) and Path(a).is_file()}
+
+
+def _changed_input(recorded: dict[str, str] | None, now: dict[str, str]) -> str | None:
+    """The first input file whose sha256 differs between ``recorded`` and ``now`` (None: none, or nothing was
+    recorded, as by older runners)."""
+    if recorded is None:
+        return None
+    changed = sorted(f for f in set(now) | set(recorded) if now.get(f) != recorded.get(f))
+    return changed[0] if changed else None
 
 
 def _yaml_strings(path: str) -> list[str]:
@@ -440,18 +447,26 @@ def _run_dirs(sdir: Path) -> set[Path]:
 
 
 def _running_record(name: str, args: list[str], sdir: Path) -> dict[str, Any]:
-    """The ``running`` stage record written before a fit: its digest, and the run directories that existed then
-    (any other one found later was written by this fit, see :func:`_claim_runs`)."""
+    """The ``running`` stage record written before a fit: its digest, its input files' sha256 (a killed run is
+    resumed only while they are unchanged) and the run directories that existed then (any other one found later was
+    written by this fit, see :func:`_claim_runs`)."""
     before = sorted(str(p) for p in _run_dirs(sdir))
-    return {"stage": name, "status": "running", "args": args, "digest": _digest(args), "before": before}
+    return {
+        "stage": name,
+        "status": "running",
+        "args": args,
+        "digest": _digest(args),
+        "inputs": _input_files(args),
+        "before": before,
+    }
 
 
 def _claim_runs(sdir: Path, record: dict[str, Any] | None) -> None:
-    """Write ``RUN_FILE`` (the stage digest and arguments) into every unmarked run directory that the fit of a
-    ``running`` record created. A record without ``before`` (an older runner's) claims nothing."""
+    """Write ``RUN_FILE`` (the stage digest, arguments and input files) into every unmarked run directory that the
+    fit of a ``running`` record created. A record without ``before`` (an older runner's) claims nothing."""
     if not record or record.get("status") != "running" or "before" not in record or not record.get("digest"):
         return
-    mark = {"stage": record.get("stage"), "digest": record["digest"], "args": record.get("args")}
+    mark = {k: record.get(k) for k in ("stage", "digest", "args", "inputs")}
     for run in _run_dirs(sdir) - {Path(p) for p in record["before"]}:
         if not (run / RUN_FILE).is_file():
             _write_json(run / RUN_FILE, mark)
@@ -500,16 +515,27 @@ def _same_dir_flags(run: Path) -> list[str] | None:
 
 
 def _resume(
-    name: str, sdir: Path, record: dict[str, Any] | None, digest: str, out: Any
+    name: str, sdir: Path, record: dict[str, Any] | None, running: dict[str, Any], out: Any
 ) -> tuple[Path | None, list[str]]:
     """Where a killed stage resumes: (``last.ckpt``, extra fit flags), or (None, []) for a fresh fit. Only a run
-    written with the same stage digest is resumed, into its own directory when its logger allows."""
+    written with the same stage digest (``running``'s) and the same input files is resumed, into its own directory
+    when its logger allows."""
     if not record or record.get("status") != "running":
         return None, []
     _claim_runs(sdir, record)
-    last = _resume_point(sdir, digest)
+    last = _resume_point(sdir, running["digest"])
     if last is None:
         print(f"[curriculum] stage {name}: no checkpoint of a run with these arguments, starting a fresh fit", file=out)
+        return None, []
+    # a teacher/weights checkpoint re-fit into the same path leaves the digest alone: its content decides
+    mark = _read_json(_run_dir(last) / RUN_FILE, _RECORD_FIELDS) or {}
+    changed = _changed_input(mark.get("inputs"), running["inputs"])
+    if changed:
+        print(
+            f"[curriculum] stage {name}: not resuming {last}: a file its arguments name changed since the killed run "
+            f"started ({changed}); starting a fresh fit",
+            file=out,
+        )
         return None, []
     flags = _same_dir_flags(_run_dir(last).resolve())
     if flags is None:
@@ -570,7 +596,7 @@ def _fit_stage(
     """Fit one stage (resuming its killed run when there is one) and write its ``done`` record; returns
     (record, cli)."""
     running = _running_record(name, args, sdir)
-    resume, pin = _resume(name, sdir, record, running["digest"], out)
+    resume, pin = _resume(name, sdir, record, running, out)
     fit_args = args + pin + (["--ckpt_path", str(resume)] if resume else [])
     print(f"[curriculum] stage {name}: floaff-zoo {shlex.join(fit_args)}", file=out)
     running["started"] = started = time.time()

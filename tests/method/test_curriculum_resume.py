@@ -207,6 +207,26 @@ def test_a_finished_stage_reruns_when_a_file_its_config_file_names_changed(tmp_p
     assert new["inputs"] == {str(weights): sha256_file(weights)}
 
 
+def test_a_killed_stage_whose_input_file_changed_starts_afresh(tmp_path, capsys):
+    """A killed stage resumed whenever its digest matched: its weights file (an earlier stage's checkpoint re-fit
+    into the same path) replaced since the kill, the resumed fit went on from epochs trained on the old weights."""
+    exp = _experiment(tmp_path, max_epochs=2)
+    (pre,) = run_curriculum(exp, root=tmp_path / "pre", sets=["trainer.max_epochs=1"])
+    weights = tmp_path / "init.ckpt"
+    shutil.copy(pre["checkpoint"], weights)
+    sets = [f"model.init_args.weights={weights}"]
+    killed = _killed_after(1)
+    with pytest.raises(KeyboardInterrupt):
+        run_curriculum(exp, sets=sets, runner=killed)
+    shutil.copy(killed.cli.trainer.checkpoint_callback.last_model_path, weights)  # same path, other weights
+    capsys.readouterr()
+    seen: list = []
+    (new,) = run_curriculum(exp, sets=sets, runner=_spy(seen))
+    assert "--ckpt_path" not in seen[0] and new["resumed_from"] is None
+    assert f"changed since the killed run started ({weights}); starting a fresh fit" in capsys.readouterr().out
+    assert new["inputs"] == {str(weights): sha256_file(weights)}
+
+
 def test_experiment_checks_extends_roots_and_shared_folders(tmp_path):
     """An experiment extending another without a root wrote into the other's run folder; a missing 'extends' file
     was named without the file that extends it; two stages in one folder overwrote each other's records."""
