@@ -38,8 +38,9 @@ file, ``INPUT_SUFFIXES``, that a fit argument or a value in a ``--config`` file 
 checkpoint or ``data.init_args.train_labels``; sha256 checked) and an intact checkpoint (sha256 checked).
 Each run directory a stage's fit writes gets ``curriculum_run.json`` (the digest of the stage's fit arguments and
 ``--config`` file contents, and its input files' sha256 when the fit started); a stage that was killed resumes from
-the newest ``last.ckpt`` of a run with its digest whose input files are unchanged since it started (else a fresh
-fit), logging into that run's own directory so its ModelCheckpoint keeps the best of the epochs before the kill: the
+the newest ``last.ckpt`` of a run with its digest whose input files are unchanged since it started, and that no fit
+with other arguments wrote into (``trainer.logger: false`` puts every fit of a stage in one folder), else a fresh
+fit, logging into that run's own directory so its ModelCheckpoint keeps the best of the epochs before the kill: the
 recorded checkpoint is the best of the whole stage, as ``--ckpt_path best`` finds it.
 """
 
@@ -294,6 +295,7 @@ _RECORD_FIELDS: dict[str, tuple[type, ...]] = {
     "before": (list,),
     "inputs": (dict,),
     "fit_ended": (bool,),
+    "shared": (bool,),
 }
 
 
@@ -467,16 +469,43 @@ def _claim_runs(sdir: Path, record: dict[str, Any] | None) -> None:
     if not record or record.get("status") != "running" or "before" not in record or not record.get("digest"):
         return
     mark = {k: record.get(k) for k in ("stage", "digest", "args", "inputs")}
-    for run in _run_dirs(sdir) - {Path(p) for p in record["before"]}:
+    before = {Path(p) for p in record["before"]}
+    for run in _run_dirs(sdir) - before:
         if not (run / RUN_FILE).is_file():
             _write_json(run / RUN_FILE, mark)
+    for run in _run_dirs(sdir) & before:
+        _mark_shared(run, mark, record.get("started"))
+
+
+def _mark_shared(run: Path, mark: dict[str, Any], started: float | None) -> None:
+    """Mark a run directory that existed before a fit and that the fit wrote checkpoints into (``trainer.logger:
+    false``, or a logger with a fixed version: every fit of the stage writes one folder) as shared when the fit's
+    digest or input files are not the ones of the run that made it: its ``last*.ckpt`` may be the other fit's, so
+    it is never resumed. ``started``: when the fit started (None, an older runner's record: nothing is marked)."""
+    old = _read_json(run / RUN_FILE, _RECORD_FIELDS)
+    if started is None or old is None or old.get("shared"):
+        return
+    if (old.get("digest"), old.get("inputs")) == (mark["digest"], mark["inputs"]):
+        return
+    if any(p.stat().st_mtime >= started for p in run.rglob("*.ckpt")):
+        _write_json(run / RUN_FILE, {**old, "shared": True})
 
 
 def _run_digest(run: Path) -> str | None:
-    """The stage digest recorded in a run directory (None: unknown arguments wrote it, or its fit finished: a
-    finished run is never resumed, see :func:`_mark_finished`)."""
+    """The stage digest recorded in a run directory (None: unknown arguments wrote it, fits with other arguments
+    wrote into it too (see :func:`_mark_shared`), or its fit finished: a finished run is never resumed, see
+    :func:`_mark_finished`)."""
     mark = _read_json(run / RUN_FILE, _RECORD_FIELDS)
-    return mark.get("digest") if mark and not mark.get("fit_ended") else None
+    return mark.get("digest") if mark and not mark.get("fit_ended") and not mark.get("shared") else None
+
+
+def _shared_run(sdir: Path, digest: str) -> Path | None:
+    """An unfinished run directory of this digest that fits with other arguments wrote into too (None: none)."""
+    for run in sorted(_run_dirs(sdir)):
+        mark = _read_json(run / RUN_FILE, _RECORD_FIELDS) or {}
+        if mark.get("shared") and mark.get("digest") == digest and not mark.get("fit_ended"):
+            return run
+    return None
 
 
 def _mark_finished(run: Path, record: dict[str, Any]) -> None:
@@ -524,8 +553,16 @@ def _resume(
         return None, []
     _claim_runs(sdir, record)
     last = _resume_point(sdir, running["digest"])
-    if last is None:
+    shared = _shared_run(sdir, running["digest"]) if last is None else None
+    if shared is not None:
+        print(
+            f"[curriculum] stage {name}: not resuming {shared}: fits with other arguments wrote checkpoints into it "
+            "too (trainer.logger false, or a logger with a fixed version), starting a fresh fit",
+            file=out,
+        )
+    elif last is None:
         print(f"[curriculum] stage {name}: no checkpoint of a run with these arguments, starting a fresh fit", file=out)
+    if last is None:
         return None, []
     # a teacher/weights checkpoint re-fit into the same path leaves the digest alone: its content decides
     mark = _read_json(_run_dir(last) / RUN_FILE, _RECORD_FIELDS) or {}

@@ -227,6 +227,26 @@ def test_a_killed_stage_whose_input_file_changed_starts_afresh(tmp_path, capsys)
     assert new["inputs"] == {str(weights): sha256_file(weights)}
 
 
+def test_a_run_folder_shared_with_other_arguments_is_never_resumed(tmp_path, capsys):
+    """With trainer.logger false every fit of a stage writes one folder, marked with the digest of the first: a
+    rerun resumed from the newest last.ckpt there, written by a killed fit with other arguments (another lr)."""
+    exp = _experiment(tmp_path, max_epochs=2)
+    spec = yaml.safe_load(exp.read_text())
+    spec["overrides"]["trainer.logger"] = False
+    exp.write_text(yaml.safe_dump(spec))
+    with pytest.raises(KeyboardInterrupt):
+        run_curriculum(exp, runner=_killed_after(1))
+    with pytest.raises(KeyboardInterrupt):  # other arguments, killed in the same folder
+        run_curriculum(exp, sets=["model.init_args.train.lr=0.5"], runner=_killed_after(1))
+    capsys.readouterr()
+    seen: list = []
+    (rec,) = run_curriculum(exp, runner=_spy(seen))
+    assert "--ckpt_path" not in seen[0] and rec["resumed_from"] is None
+    assert "fits with other arguments wrote checkpoints into it too" in capsys.readouterr().out
+    state = torch.load(rec["checkpoint"], weights_only=True)
+    assert state["hyper_parameters"]["train"]["lr"] == pytest.approx(0.01)
+
+
 def test_experiment_checks_extends_roots_and_shared_folders(tmp_path):
     """An experiment extending another without a root wrote into the other's run folder; a missing 'extends' file
     was named without the file that extends it; two stages in one folder overwrote each other's records."""
