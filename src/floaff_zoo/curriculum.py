@@ -296,6 +296,7 @@ _RECORD_FIELDS: dict[str, tuple[type, ...]] = {
     "inputs": (dict,),
     "fit_ended": (bool,),
     "shared": (bool,),
+    "runs": (list,),
 }
 
 
@@ -512,12 +513,25 @@ def _mark_finished(run: Path, record: dict[str, Any]) -> None:
     """Mark a run directory whose fit ended as finished. A stage re-fit because its checkpoint went missing or
     changed, and killed before its first checkpoint, would otherwise resume this run: Lightning trains nothing past
     its last epoch and the stage records whatever file then sits at the old best path."""
+    if not run.is_dir():  # deleted since: nothing to resume there
+        return
     mark = _read_json(run / RUN_FILE, _RECORD_FIELDS) or {
         "stage": record.get("stage"),
         "digest": record.get("digest"),
         "args": record.get("args"),
     }
-    _write_json(run / RUN_FILE, {**mark, "fit_ended": True})
+    if not mark.get("fit_ended"):
+        _write_json(run / RUN_FILE, {**mark, "fit_ended": True})
+
+
+def _finish_runs(record: dict[str, Any] | None) -> None:
+    """Mark the run directories of a ``done`` record finished. They are marked after the record is written (a kill
+    in between must not make the next run re-fit a finished fit it cannot see), so every run that reads a ``done``
+    record marks them again (nothing to do when they are). Records of older runners name the checkpoint only."""
+    if not record or record.get("status") != "done" or not record.get("checkpoint"):
+        return
+    for run in record.get("runs") or [str(_run_dir(Path(record["checkpoint"])))]:
+        _mark_finished(Path(run), record)
 
 
 def _resume_point(sdir: Path, digest: str) -> Path | None:
@@ -653,8 +667,6 @@ def _fit_stage(
             else "enable checkpointing"
         )
         raise CurriculumError(f"stage {name}: the fit wrote no checkpoint ({why})")
-    for run in {_run_dir(Path(p)) for p in (ckpt, cb.last_model_path) if p}:
-        _mark_finished(run, running)
     score = getattr(cb, "best_model_score", None)
     record = {
         "stage": name,
@@ -668,6 +680,7 @@ def _fit_stage(
         "from_stages": {k: best.get(ref) for k, ref in (stage.get("from_stages") or {}).items()},
         "checkpoint": str(ckpt),
         "sha256": _sha256(ckpt),
+        "runs": sorted({str(_run_dir(Path(p))) for p in (ckpt, cb.last_model_path) if p}),
         "monitor": getattr(cb, "monitor", None),
         "best_score": float(score) if score is not None else None,
         "metrics": _metrics(cli),
@@ -676,6 +689,7 @@ def _fit_stage(
     }
     _write_json(sdir / STAGE_FILE, record)
     _write_json(sdir / _digest_file(record["digest"]), record)
+    _finish_runs(record)  # after the record: a kill before it leaves a killed run, resumed (trains nothing more)
     return record, cli
 
 
@@ -776,7 +790,9 @@ def run_curriculum(
             best[name] = f"<best checkpoint of {name}>"
             continue
         record = _read_json(sdir / STAGE_FILE, _RECORD_FIELDS)
+        _finish_runs(record)  # a kill right after writing it left its runs unmarked
         finished, why = _reusable(sdir, args, record)
+        _finish_runs(finished)
         if finished is not None:
             if finished is not record:  # an earlier fit with these arguments: it becomes the folder's record again
                 _write_json(sdir / STAGE_FILE, finished)

@@ -247,6 +247,49 @@ def test_a_run_folder_shared_with_other_arguments_is_never_resumed(tmp_path, cap
     assert state["hyper_parameters"]["train"]["lr"] == pytest.approx(0.01)
 
 
+def test_a_kill_while_a_finished_stage_is_recorded_loses_no_fit(tmp_path, monkeypatch, capsys):
+    """The run was marked finished before the stage record was written: a kill in between made the next run find
+    no resumable run and re-fit the whole stage ("no checkpoint of a run with these arguments")."""
+    import floaff_zoo.curriculum as curriculum
+
+    exp = _experiment(tmp_path, max_epochs=1)
+    write = curriculum._write_json
+
+    def killed_at_done_record(path, data):
+        if path.name == "stage.json" and data.get("status") == "done":
+            raise KeyboardInterrupt("simulated kill")
+        write(path, data)
+
+    monkeypatch.setattr(curriculum, "_write_json", killed_at_done_record)
+    with pytest.raises(KeyboardInterrupt):
+        run_curriculum(exp)
+    monkeypatch.setattr(curriculum, "_write_json", write)
+    (first_run,) = (tmp_path / "run" / "s1").rglob("version_*")
+    capsys.readouterr()
+    seen: list = []
+    (rec,) = run_curriculum(exp, runner=_spy(seen))
+    assert "--ckpt_path" in seen[0] and "starting a fresh fit" not in capsys.readouterr().out
+    assert Path(rec["checkpoint"]).parents[1] == first_run and rec["runs"] == [str(first_run)]
+    assert json.loads((first_run / "curriculum_run.json").read_text())["fit_ended"] is True
+    # killed after the record, before its run is marked finished: the next run skips the stage and marks it
+    sets = ["model.init_args.train.lr=0.003"]
+
+    def killed_at_mark(run, record):
+        if not json.loads((run / "curriculum_run.json").read_text()).get("fit_ended"):
+            raise KeyboardInterrupt("simulated kill")
+
+    monkeypatch.setattr(curriculum, "_mark_finished", killed_at_mark)
+    with pytest.raises(KeyboardInterrupt):
+        run_curriculum(exp, sets=sets)
+    monkeypatch.undo()
+
+    def refuse(args):
+        raise AssertionError(f"a finished stage was rerun: {args}")
+
+    (again,) = run_curriculum(exp, sets=sets, runner=refuse)
+    assert json.loads((Path(again["runs"][0]) / "curriculum_run.json").read_text())["fit_ended"] is True
+
+
 def test_experiment_checks_extends_roots_and_shared_folders(tmp_path):
     """An experiment extending another without a root wrote into the other's run folder; a missing 'extends' file
     was named without the file that extends it; two stages in one folder overwrote each other's records."""
