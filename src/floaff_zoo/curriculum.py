@@ -198,13 +198,27 @@ def _check_stage(st: Any, where: str, earlier: list[str]) -> None:
     _as_list(st.get("configs"), f"{where}: 'configs'")
     if not isinstance(st.get("shared", True), bool):
         raise CurriculumError(f"{where}: 'shared' must be true or false, got {st['shared']!r}")
-    tasks = st.get("tasks")
-    if tasks is not None and (not isinstance(tasks, list) or not all(isinstance(t, str) for t in tasks)):
-        raise CurriculumError(f"{where}: 'tasks' must be a list of task names, got {tasks!r}")
+    _check_tasks(st.get("tasks"), where)
     _check_mapping(st.get("from_stages"), f"{where}: 'from_stages'", "init-arg key -> earlier stage name")
     for key, ref in (st.get("from_stages") or {}).items():
         if ref not in earlier:
             raise CurriculumError(f"{where}: from_stages {key}: {ref!r} is not an earlier stage (earlier: {earlier})")
+
+
+def _check_tasks(tasks: Any, where: str) -> None:
+    """``tasks`` is absent or a non-empty list of benchmark task names: a typo in a later stage failed only when the
+    data module was built, after the earlier stages trained."""
+    if tasks is None:
+        return
+    if not isinstance(tasks, list) or not all(isinstance(t, str) for t in tasks):
+        raise CurriculumError(f"{where}: 'tasks' must be a list of task names, got {tasks!r}")
+    from floaff_zoo.contract import TASKS
+
+    if not tasks:
+        raise CurriculumError(f"{where}: 'tasks' is empty; name some of {list(TASKS)} or leave it out")
+    unknown = [t for t in tasks if t not in TASKS]
+    if unknown:
+        raise CurriculumError(f"{where}: 'tasks': unknown task(s) {unknown}; valid tasks: {list(TASKS)}")
 
 
 # --------------------------------------------------------------------------- fit arguments
@@ -801,7 +815,11 @@ def run_curriculum(
         else:
             if record and record.get("status") == "done":
                 print(f"[curriculum] stage {name}: rerunning, {why}", file=out)
-            record, cli = _fit_stage(name, stage, sdir, args, record, best, runner, out)
+            try:
+                record, cli = _fit_stage(name, stage, sdir, args, record, best, runner, out)
+            except Exception as exc:
+                exc.curriculum_stage = name  # main names the stage in its one-line error
+                raise
             if on_stage_end is not None:
                 on_stage_end(name, cli)
         best[name] = record["checkpoint"]
@@ -811,12 +829,26 @@ def run_curriculum(
     return lineage["stages"]
 
 
+def _fit_errors() -> tuple[type[BaseException], ...]:
+    """The user errors ``floaff-zoo fit`` prints in one line (``floaff_zoo.cli.main``), imported only when an
+    exception reaches :func:`main`."""
+    from lightning.pytorch.utilities.exceptions import MisconfigurationException
+
+    from floaff_zoo.cli import CLIError
+    from floaff_zoo.contract import SampleError
+    from floaff_zoo.runs import RunError
+
+    return CLIError, RunError, SampleError, MisconfigurationException, FloatingPointError
+
+
 def main(argv: list[str] | None = None, *, raise_errors: bool | None = None) -> int:
     """``floaff-zoo curriculum --config <experiment.yaml> [--root DIR] [--set k=v ...] [--extra-config F ...]
     [--dry-run]``.
 
-    A ``CurriculumError`` is printed in one line; then it is raised when ``raise_errors`` (default: when ``argv``
-    is given, i.e. a Python caller), else exit code 2 is returned (the console: ``floaff-zoo`` passes False).
+    A ``CurriculumError``, and a user error of a stage's fit (``floaff-zoo fit``'s one-line kinds: a value a class
+    rejects, a diverged loss...; the line names the stage), is printed in one line; then it is raised when
+    ``raise_errors`` (default: when ``argv`` is given, i.e. a Python caller), else exit code 2 is returned (the
+    console: ``floaff-zoo`` passes False).
     """
     parser = argparse.ArgumentParser(
         prog="floaff-zoo curriculum",
@@ -848,8 +880,10 @@ def main(argv: list[str] | None = None, *, raise_errors: bool | None = None) -> 
     ns = parser.parse_args(argv)
     try:
         run_curriculum(ns.config, ns.root, ns.sets, ns.extra, ns.dry_run)
-    except CurriculumError as exc:
-        print(f"floaff-zoo curriculum: error: {exc}", file=sys.stderr)
+    except (CurriculumError, *_fit_errors()) as exc:
+        stage = getattr(exc, "curriculum_stage", None)
+        where = f"stage {stage}: " if stage and not isinstance(exc, CurriculumError) else ""
+        print(f"floaff-zoo curriculum: error: {where}{exc}", file=sys.stderr)
         if raise_errors or (raise_errors is None and argv is not None):
             raise
         return 2

@@ -265,6 +265,8 @@ def test_prior_residual_through_pfal_keeps_stage1_prior(tmp_path, root, monkeypa
         ({"root": 5}, "'root' must be a directory path"),
         ({"shared": "no"}, "'shared' must be true or false"),
         ({"tasks": ["CloseDrawer", 3]}, "'tasks' must be a list of task names"),
+        ({"tasks": ["CloseDrawr"]}, "'tasks': unknown task(s) ['CloseDrawr']"),
+        ({"tasks": []}, "'tasks' is empty"),
         ({"model": {"file": "x.yaml"}}, "'model': expected a list of file names"),
     ],
 )
@@ -309,6 +311,17 @@ def test_curriculum_error_is_one_line_and_exit_2_at_the_console(tmp_path, root, 
     ]
     with pytest.raises(CurriculumError, match="'tasks'"):  # a Python caller still gets the exception
         cli.main(["curriculum", "--config", str(bad), "--dry-run"])
+
+
+def test_a_stage_fit_error_is_one_line_naming_the_stage(tmp_path, root, monkeypatch, capsys):
+    """A user error of a stage's fit (here a value the data module rejects in __init__, which the pre-check does not
+    parse) was a traceback at the console, naming no stage."""
+    monkeypatch.chdir(root)
+    argv = ["--config", EXP, "--root", str(tmp_path), "--set", "data.init_args.num_val=-1"]
+    assert main(argv, raise_errors=False) == 2
+    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert len(err) == 1 and err[0].startswith("floaff-zoo curriculum: error: stage stage1_pnp: ")
+    assert "num_val must be >= 0" in err[0]
 
 
 def test_demo_curriculum_error_is_one_line_and_exit_2_at_the_console(tmp_path, root, monkeypatch, capsys):
