@@ -152,8 +152,15 @@ def _check(cfg: dict[str, Any], path: Path) -> None:
     for i, st in enumerate(stages):
         _check_stage(st, f"{where}: stage {i}", names)
         names.append(st["name"])
+    _check_folders(cfg, Path(cfg["root"]), where)
+
+
+def _check_folders(cfg: dict[str, Any], root: Path, where: str) -> None:
+    """No two stages share or nest their folders under run folder ``root`` (checked again for the one a run uses:
+    ``--root`` or the ``--extra-config`` suffix moves the stages without their own ``root``)."""
     # each stage keeps its record in its folder: two stages in one folder overwrite each other's and always rerun
-    dirs = [(st["name"], stage_dir(cfg, st, Path(cfg["root"])).resolve()) for st in stages]
+    stages = cfg["stages"]
+    dirs = [(st["name"], stage_dir(cfg, st, root).resolve()) for st in stages]
     for i, (a, da) in enumerate(dirs):
         for b, db in dirs[i + 1 :]:
             if da == db or da.is_relative_to(db) or db.is_relative_to(da):
@@ -768,6 +775,8 @@ def run_curriculum(
     if root is None:
         root = cfg["root"] + ("__" + "+".join(Path(f).stem for f in extra) if extra else "")
     root = Path(root)
+    if root != Path(cfg["root"]):
+        _check_folders(cfg, root, f"experiment config {config} (run folder {root})")
     flags = parse_sets(sets)
     default_runner = runner is None
     if runner is None:

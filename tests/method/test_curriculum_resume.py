@@ -310,6 +310,12 @@ def test_experiment_checks_extends_roots_and_shared_folders(tmp_path):
     parent.write_text(yaml.safe_dump(spec))
     with pytest.raises(CurriculumError, match="stages 'a' and 'b' share a folder"):
         load_experiment(parent)
+    # --root moves the stages without their own root: b's folder becomes a's, unchecked, even in a dry run
+    spec["stages"] = [{"name": "a", "root": str(tmp_path / "moved" / "b")}, {"name": "b"}]
+    parent.write_text(yaml.safe_dump(spec))
+    load_experiment(parent)
+    with pytest.raises(CurriculumError, match=r"\(run folder .*moved\): stages 'a' and 'b' share a folder"):
+        run_curriculum(parent, root=tmp_path / "moved", dry_run=True)
 
 
 def test_a_rerun_marks_the_earlier_lineage_incomplete_until_it_is_checked(tmp_path):
