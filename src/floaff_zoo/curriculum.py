@@ -734,6 +734,19 @@ def _reusable(sdir: Path, args: list[str], record: dict[str, Any] | None) -> tup
     return None, why
 
 
+def _check_config_files(cfg: dict[str, Any], config: str | Path, extra: list[str]) -> None:
+    """Every ``--config`` file a stage reads exists, in a dry run too (it printed commands that cannot run, exit 0):
+    the ``--extra-config`` and top-level files first, then each stage's own."""
+    where = f"(paths are relative to {Path.cwd()})"
+    for f in extra + [f for key in ("data", "model", "trainer") for f in _as_list(cfg.get(key), key)]:
+        if not Path(f).is_file():
+            raise CurriculumError(f"{config}: config file {f} does not exist {where}")
+    for stage in cfg["stages"]:
+        for f in _config_files(build_stage_args(cfg, stage, Path(cfg["root"]), {}, extra)):
+            if not Path(f).is_file():
+                raise CurriculumError(f"{config}: stage {stage['name']}: config file {f} does not exist {where}")
+
+
 def _check_stages(cfg: dict[str, Any], root: Path, extra: list[str], flags: list[str]) -> None:
     """Parse every stage's ``fit`` arguments before the first stage trains, so a typo in a later stage's overrides
     (or an ``--extra-config`` key no model accepts) fails in seconds, not after the earlier stages trained; the
@@ -769,9 +782,7 @@ def run_curriculum(
     out = out or sys.stdout
     cfg = load_experiment(config)
     extra = list(extra_configs or [])
-    for f in extra + [f for key in ("data", "model", "trainer") for f in _as_list(cfg.get(key), key)]:
-        if not Path(f).is_file() and not dry_run:
-            raise CurriculumError(f"{config}: config file {f} does not exist (paths are relative to {Path.cwd()})")
+    _check_config_files(cfg, config, extra)
     if root is None:
         root = cfg["root"] + ("__" + "+".join(Path(f).stem for f in extra) if extra else "")
     root = Path(root)

@@ -324,6 +324,22 @@ def test_a_stage_fit_error_is_one_line_naming_the_stage(tmp_path, root, monkeypa
     assert "num_val must be >= 0" in err[0]
 
 
+def test_dry_run_refuses_a_missing_config_file(tmp_path, root, monkeypatch, capsys):
+    """A dry run printed the commands of a missing --extra-config or stage config file and exited 0."""
+    monkeypatch.chdir(root)
+    missing = str(tmp_path / "nosuch.yaml")
+    assert main(["--config", EXP, "--dry-run", "--extra-config", missing], raise_errors=False) == 2
+    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert len(err) == 1 and f"config file {missing} does not exist" in err[0]
+    exp = yaml.safe_load((root / EXP).read_text())
+    exp["stages"][1]["configs"] = [missing]
+    bad = tmp_path / "pfal_missing.yaml"
+    bad.write_text(yaml.safe_dump(exp))
+    assert main(["--config", str(bad), "--dry-run"], raise_errors=False) == 2
+    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert len(err) == 1 and f"stage stage2_drawer: config file {missing} does not exist" in err[0]
+
+
 def test_demo_curriculum_error_is_one_line_and_exit_2_at_the_console(tmp_path, root, monkeypatch, capsys):
     """The demo's curriculum step: one error line (not the curriculum's and the demo's), exit code 2."""
     from floaff_zoo import cli, demo
