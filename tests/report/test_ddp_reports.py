@@ -35,30 +35,35 @@ class FirstSampleRight(ConstantModule):
 
 
 def cases() -> dict[str, list[dict]]:
-    """Test sets: every sample simulated (the repeat is a rolled-out success), or sample 0 without sim metadata
-    (the repeat is a skipped sample)."""
+    """Test sets: every sample simulated (the repeat is a rolled-out success), sample 0 without sim metadata
+    (the repeat is a skipped sample), or none simulated, with figures (plain scatters, fast to draw): sample 0 is the
+    only (CloseDrawer, side) one, on rank 0, and the first (CloseDrawer, front) one is sample 1, on rank 1."""
     from tests.report._fake_world import make_samples
 
     unsimulated = make_samples(N_SAMPLES)
     unsimulated[0]["meta"].pop("sim")
-    return {"sim": make_samples(N_SAMPLES), "skip": unsimulated}
+    plain = make_samples(N_SAMPLES)
+    for i, s in enumerate(plain):
+        s["meta"].pop("sim")
+        s["meta"]["task"], s["meta"]["view"] = "CloseDrawer", "side" if i == 0 else "front"
+    return {"sim": make_samples(N_SAMPLES), "skip": unsimulated, "figures": plain}
 
 
 def run_cases(devices: int, out: Path) -> dict[str, dict]:
     """Test ``FirstSampleRight`` on every case with the SR callback (fake simulator) and TestReport, then validate it
-    with SR capped at ``VAL_CAP`` samples; on rank 0 the SR summary (less its wall time), the rolled-out sample ids and
-    the report's data/sr facts per case."""
+    with SR capped at ``VAL_CAP`` samples; on rank 0 the SR summary (less its wall time), the rolled-out sample ids,
+    the report's data/sr facts per case and which sample each figure drew."""
 
     from floaff_zoo.callbacks.report import TestReport
     from floaff_zoo.callbacks.rollout import RolloutSuccessRate
     from tests.report._fake_world import FakeService, loader, quiet_trainer
 
     rollout = RolloutSuccessRate(service=FakeService, progress=False)
-    report = TestReport(figures=False)
+    report = TestReport(figures=False, figures_per_group=2)
     trainer = quiet_trainer([rollout, report], devices=devices, root=str(out))
     results: dict[str, dict] = {}
     for name, samples in cases().items():
-        report.out_dir = str(out / name)
+        report.out_dir, report.figures = str(out / name), name == "figures"
         trainer.test(FirstSampleRight(), dataloaders=loader(samples, batch_size=2), verbose=False)
         if trainer.is_global_zero:
             written = json.loads((out / name / "report.json").read_text())
@@ -67,6 +72,7 @@ def run_cases(devices: int, out: Path) -> dict[str, dict]:
                 "ids": sorted(e["sample_id"] for e in rollout.episodes["test"]),
                 "data": {k: written["data"][k] for k in ("num_samples", "tasks", "views", "dataset")},
                 "sr": {k: v for k, v in written["sr"].items() if k != "seconds"},
+                "figures": dict(zip(written["figures"], [s.meta["sample_id"] for s in report._samples])),
             }
     rollout.every_n_val_epochs, rollout.max_val_samples = 1, VAL_CAP  # the cap is on the split, not on each rank
     trainer.validate(FirstSampleRight(), dataloaders=loader(cases()["sim"], batch_size=2), verbose=False)
@@ -89,7 +95,10 @@ def test_sr_and_report_under_ddp_match_one_process(tmp_path, root):
     assert single["sim"]["summary"]["n_evaluated"] == N_SAMPLES and single["skip"]["summary"]["n_skipped"] == 1
     assert single["sim"]["data"]["num_samples"] == N_SAMPLES
     assert single["val"]["ids"] == [f"fake{i}" for i in range(VAL_CAP)]
-    for name in ("sim", "skip", "val"):
+    # rank 0 alone drew only its own samples: a group went missing and the k-th figure depended on the world size
+    figures = {"figures/CloseDrawer_side_0.png": "fake0", "figures/CloseDrawer_front_0.png": "fake1"}
+    assert single["figures"]["figures"] == {**figures, "figures/CloseDrawer_front_1.png": "fake2"}
+    for name in ("sim", "skip", "figures", "val"):
         assert ddp[name] == single[name], name  # counts, SR means and bootstrap stds, report facts
 
 

@@ -141,8 +141,10 @@ class TestReport(L.Callback):
         self.figures = figures
         self.figures_per_group = figures_per_group
         self.write_episodes = write_episodes
+        #: the figures' samples, chosen when the test ends (every rank's candidates pooled)
         self._samples: list[FigureSample] = []
-        self._counts: dict[tuple[str, str], int] = {}
+        #: (task, view) -> [(split position, sample)]: this rank's first ``figures_per_group`` in split order
+        self._candidates: dict[tuple[str, str], list[tuple[tuple, FigureSample]]] = {}
         self._seen: dict[str, set[str]] = {}
         self._keys: set[tuple[int, int]] = set()  # (dataloader, meta['index']) of every sample seen
         self._unkeyed = 0  # samples seen without meta['index']
@@ -170,7 +172,7 @@ class TestReport(L.Callback):
         self._config_known = True
 
     def on_test_epoch_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        self._samples, self._counts = [], {}
+        self._samples, self._candidates = [], {}
         self._seen = {"dataset": set(), "task": set(), "view": set()}
         self._keys, self._unkeyed, self._replaced = set(), 0, set()
 
@@ -192,36 +194,42 @@ class TestReport(L.Callback):
         if scores is None:
             return  # not a floor-map model (AxisNet's test_step gives a yaw): nothing to draw
         for i, m in enumerate(metas):
-            key = (str(m.get("task", "")), str(m.get("view", "")))
-            if self._counts.get(key, 0) >= self.figures_per_group:
+            group = (str(m.get("task", "")), str(m.get("view", "")))
+            order = split_position(m, dataloader_idx, (trainer.global_rank, batch_idx, i))
+            kept = self._candidates.setdefault(group, [])
+            if len(kept) >= self.figures_per_group and order >= kept[-1][0]:
                 continue
-            self._counts[key] = self._counts.get(key, 0) + 1
             valid = batch["floor_mask"][i].detach().cpu().numpy().astype(bool)
-            self._samples.append(
-                FigureSample(
-                    floor_xyz=batch["floor_xyz"][i].detach().cpu().numpy()[valid],
-                    label=batch["floor_label"][i].detach().cpu().numpy()[valid],
-                    scores=scores[i].detach().float().cpu().numpy()[valid],
-                    target_xyz=batch["target_xyz"][i].detach().cpu().numpy(),
-                    target_yaw=float(batch["target_yaw"][i]),
-                    meta=dict(m),
-                )
+            sample = FigureSample(
+                floor_xyz=batch["floor_xyz"][i].detach().cpu().numpy()[valid],
+                label=batch["floor_label"][i].detach().cpu().numpy()[valid],
+                scores=scores[i].detach().float().cpu().numpy()[valid],
+                target_xyz=batch["target_xyz"][i].detach().cpu().numpy(),
+                target_yaw=float(batch["target_yaw"][i]),
+                meta=dict(m),
             )
+            kept[:] = first_in_split_order([*kept, (order, sample)], self.figures_per_group)
 
     # ------------------------------------------------------------------------------ writing
     def _pool_ranks(self, trainer: L.Trainer) -> None:
         """Under DDP, pool what every rank saw (a collective: every rank calls it): the datasets, tasks and views,
-        and the sample count without the repeats ``DistributedSampler`` pads the last batches with (samples with
-        one ``meta['index']`` count once, as in the metrics)."""
+        the sample count without the repeats ``DistributedSampler`` pads the last batches with (samples with
+        one ``meta['index']`` count once, as in the metrics) and the figure candidates, so that the figures are those
+        one process would draw (each rank sees every world_size-th sample)."""
         dist = torch.distributed
         if trainer.world_size <= 1 or not dist.is_available() or not dist.is_initialized():
             return
         parts: list[Any] = [None] * trainer.world_size
-        dist.all_gather_object(parts, (self._seen, self._keys, self._unkeyed, self._replaced))
-        self._seen = {k: set().union(*(seen[k] for seen, _, _, _ in parts)) for k in self._seen}
-        self._keys = set().union(*(keys for _, keys, _, _ in parts))
-        self._unkeyed = sum(n for _, _, n, _ in parts)
-        self._replaced = set().union(*(r for _, _, _, r in parts))
+        dist.all_gather_object(parts, (self._seen, self._keys, self._unkeyed, self._replaced, self._candidates))
+        self._seen = {k: set().union(*(seen[k] for seen, *_ in parts)) for k in self._seen}
+        self._keys = set().union(*(keys for _, keys, *_ in parts))
+        self._unkeyed = sum(n for _, _, n, *_ in parts)
+        self._replaced = set().union(*(r for *_, r, _ in parts))
+        groups = {g for *_, cands in parts for g in cands}
+        self._candidates = {
+            g: first_in_split_order([c for *_, cands in parts for c in cands.get(g, [])], self.figures_per_group)
+            for g in groups
+        }
 
     def on_test_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         """Write the report on rank 0; every rank first takes part in the collectives (``trainer.log_dir`` is a
@@ -231,6 +239,7 @@ class TestReport(L.Callback):
         self._pool_ranks(trainer)
         if not trainer.is_global_zero:
             return
+        self._samples = [s for _, s in sorted((c for cands in self._candidates.values() for c in cands), key=_first)]
         run_dir.mkdir(parents=True, exist_ok=True)
         rollout = next((c for c in trainer.callbacks if type(c).__name__ == "RolloutSuccessRate"), None)
         report = self.build_report(trainer, pl_module, run_dir, rollout, log_dir)
@@ -336,6 +345,27 @@ class TestReport(L.Callback):
             "versions": package_versions(),
             "figures": [],
         }
+
+
+def split_position(meta: dict[str, Any], dataloader_idx: int, seen: tuple[int, int, int]) -> tuple:
+    """Where a sample stands in the test split: (dataloader, ``meta['index']``); a sample without an index comes
+    after the indexed ones, where it was ``seen`` (rank, batch, row)."""
+    if meta.get("index") is not None:
+        return (dataloader_idx, int(meta["index"]))
+    return (dataloader_idx, 1 << 62, *seen)
+
+
+def _first(candidate: tuple[tuple, FigureSample]) -> tuple:
+    return candidate[0]
+
+
+def first_in_split_order(candidates: list[tuple[tuple, FigureSample]], k: int) -> list[tuple[tuple, FigureSample]]:
+    """The first ``k`` (split position, sample) pairs of one (task, view) in split order, a position once (the
+    repeats ``DistributedSampler`` pads with): the k-th figure of a group shows the same sample in every run."""
+    out: dict[tuple, tuple[tuple, FigureSample]] = {}
+    for c in sorted(candidates, key=_first):
+        out.setdefault(c[0], c)
+    return list(out.values())[:k]
 
 
 # ------------------------------------------------------------------------------------------ markdown
