@@ -107,3 +107,24 @@ def test_the_report_says_over_how_many_maps_pcc_is_a_mean():
     assert "PCC over 3 of 10 maps: 6 constant (Pearson r undefined), 1 without a floor point." in render_markdown(rep)
     rep["map_elements"] = {"maps": 10, "empty": 0, "pcc_undefined": 0}
     assert "PCC over" not in render_markdown(rep)
+
+
+def test_official_batchwise_counts_chunks_not_maps(tmp_path):
+    """Under official_batchwise the metrics average 64-sample chunks: 5 samples are one chunk, which the report
+    called "1 maps"."""
+    from floaff_zoo.callbacks.report import TestReport
+    from floaff_zoo.models.base import FloAffModule, FloAffTrainConfig
+    from tests.report._fake_world import ConstantModule, loader, make_samples, quiet_trainer
+
+    class Batchwise(ConstantModule):
+        def __init__(self) -> None:
+            FloAffModule.__init__(self, train=FloAffTrainConfig(metric_reduction="official_batchwise"))
+
+    quiet_trainer([TestReport(figures=False, out_dir=str(tmp_path))]).test(
+        Batchwise(), dataloaders=loader(make_samples(5), batch_size=2), verbose=False
+    )
+    rep = json.loads((tmp_path / "report.json").read_text())
+    assert rep["data"]["num_samples"] == 5
+    assert rep["map_elements"] == {"chunks": 1, "chunk_size": 64, "empty": 0, "pcc_undefined": 1}
+    md = (tmp_path / "report.md").read_text()
+    assert "PCC over 0 of 1 chunks of 64 samples: 1 constant (Pearson r undefined)" in md

@@ -4,7 +4,8 @@ The run directory is ``out_dir`` when given, else ``trainer.log_dir`` (the logge
 where LightningCLI saves ``config.yaml``), else ``trainer.default_root_dir``.
 
 ``report.json`` (schema ``floaff-zoo/report`` version 1) holds: every ``test_*`` metric (with ``map_elements``:
-how many maps they averaged, how many were empty and how many PCC left out as constant), the SR
+how many maps, or 64-sample chunks under ``official_batchwise``, they averaged, how many were empty and how many
+PCC left out as constant), the SR
 table from a ``RolloutSuccessRate`` callback in the same trainer (or ``available: false`` with the
 reason: "SR n/a"), the resolved CLI config (``<log_dir>/config.yaml``), the model class and its
 hparams, the seed, the checkpoint path and sha256, dataset/benchmark/tasks/views, sim_variant and
@@ -378,15 +379,26 @@ def _sr_cell(cell: dict | None) -> str:
 
 
 def map_elements(pl_module: L.LightningModule) -> dict[str, int] | None:
-    """How many maps (elements) the test's map metrics averaged: ``maps``, ``empty`` (no valid floor point)
-    and ``pcc_undefined`` (a constant map or label, left out of PCC's mean), read from the metrics' last compute;
-    None for a module without them."""
+    """How many elements the test's map metrics averaged, read from the metrics' last compute: ``maps`` (one per
+    sample), or under ``official_batchwise`` ``chunks`` of ``chunk_size`` consecutive samples (the official eval
+    batches: one element each, not one per map); ``empty`` (no valid floor point) and ``pcc_undefined`` (a constant
+    map or label, left out of PCC's mean) count elements of the same kind. None for a module without them."""
     metrics = getattr(pl_module, "test_metrics", None)
     pcc = metrics["pcc"] if metrics is not None and "pcc" in metrics.keys(keep_base=True) else None
     if pcc is None or not hasattr(pcc, "num_undefined"):
         return None
-    maps = int(pcc.num_elements) + int(pcc.num_empty)  # num_elements: the maps with a valid floor point
-    return {"maps": maps, "empty": int(pcc.num_empty), "pcc_undefined": int(pcc.num_undefined)}
+    total = int(pcc.num_elements) + int(pcc.num_empty)  # num_elements: the elements with a valid floor point
+    counts = {"empty": int(pcc.num_empty), "pcc_undefined": int(pcc.num_undefined)}
+    if getattr(pcc, "reduction", "per_sample") == "per_sample":
+        return {"maps": total, **counts}
+    return {"chunks": total, "chunk_size": int(pcc.chunk_size), **counts}
+
+
+def _elements_counted(counts: dict[str, int]) -> tuple[int, str]:
+    """(how many, what) of a report's ``map_elements``: maps, or chunks of N samples (``official_batchwise``)."""
+    if "chunks" in counts:
+        return counts["chunks"], f"chunks of {counts.get('chunk_size')} samples"
+    return counts["maps"], "maps"
 
 
 def render_markdown(report: dict[str, Any]) -> str:
@@ -419,11 +431,12 @@ def render_markdown(report: dict[str, Any]) -> str:
     lines += ["| " + " | ".join(n for _, n, _ in shown) + " |", "|" + "---|" * len(shown)]
     lines.append("| " + " | ".join(_fmt(m.get(f"test_{k}"), d) for k, _, d in shown) + " |")
     counts = report.get("map_elements") or {}
-    if counts.get("pcc_undefined") or counts.get("empty"):  # PCC is a mean over fewer maps than the others
+    if counts.get("pcc_undefined") or counts.get("empty"):  # PCC is a mean over fewer elements than the others
+        total, unit = _elements_counted(counts)
         lines += [
             "",
-            f"PCC over {counts['maps'] - counts['empty'] - counts['pcc_undefined']} of {counts['maps']} "
-            f"maps: {counts['pcc_undefined']} constant (Pearson r undefined), {counts['empty']} without a floor point.",
+            f"PCC over {total - counts['empty'] - counts['pcc_undefined']} of {total} {unit}: "
+            f"{counts['pcc_undefined']} constant (Pearson r undefined), {counts['empty']} without a floor point.",
         ]
     others = {k: v for k, v in m.items() if not any(k == f"test_{x}" for x, _, _ in shown) and "_sr_" not in k}
     if others:
