@@ -128,3 +128,22 @@ def test_official_batchwise_counts_chunks_not_maps(tmp_path):
     assert rep["map_elements"] == {"chunks": 1, "chunk_size": 64, "empty": 0, "pcc_undefined": 1}
     md = (tmp_path / "report.md").read_text()
     assert "PCC over 0 of 1 chunks of 64 samples: 1 constant (Pearson r undefined)" in md
+
+
+def test_pcc_of_constant_maps_only_is_null_and_not_ranked(tmp_path):
+    """A model whose every map is constant has no Pearson r anywhere: the report wrote test_pcc 0.0, which the table
+    then showed (and ranked) as a value."""
+    from floaff_zoo.callbacks.report import TestReport
+    from tests.report._fake_world import ConstantModule, LabelModule, loader, make_samples, quiet_trainer
+
+    for name, module in (("constant", ConstantModule()), ("labels", LabelModule()), ("labels2", LabelModule())):
+        report = TestReport(figures=False, out_dir=str(tmp_path / name), label=name)
+        quiet_trainer([report]).test(module, dataloaders=loader(make_samples(4)), verbose=False)
+    rep = json.loads((tmp_path / "constant" / "report.json").read_text())
+    assert rep["metrics"]["test_pcc"] is None and rep["map_elements"]["pcc_undefined"] == 4
+    assert "| n/a |" in (tmp_path / "constant" / "report.md").read_text()
+    assert table_main(["--runs", str(tmp_path), "--preset", "ablation", "--out", str(tmp_path / "t.md")]) == 0
+    lines = [line.split("|") for line in (tmp_path / "t.md").read_text().splitlines() if line.startswith("|")]
+    pcc = next(i for i, c in enumerate(lines[0]) if c.strip().startswith("PCC"))
+    cells = {row[1].strip(): row[pcc].strip() for row in lines}
+    assert cells["constant"] == "n/a" and cells["labels"] == "**1.000**"  # the constant maps are no rival

@@ -10,7 +10,8 @@ table from a ``RolloutSuccessRate`` callback in the same trainer (or ``available
 reason: "SR n/a"), the resolved CLI config (``<log_dir>/config.yaml``), the model class and its
 hparams, the seed, the checkpoint path and sha256, dataset/benchmark/tasks/views, sim_variant and
 metric_reduction, package versions, an optional ``label`` (row name for ablation tables) and the
-figure paths. ``floaff-zoo table`` reads only these files.
+figure paths. ``test_pcc`` is null ("n/a") when no map has a Pearson r (all constant or empty): the metric's 0.0
+there is no value. ``floaff-zoo table`` reads only these files.
 """
 
 from __future__ import annotations
@@ -311,6 +312,9 @@ class TestReport(L.Callback):
             if rollout is None
             else "RolloutSuccessRate did not run on test",
         }
+        elements = map_elements(pl_module)
+        if "test_pcc" in metrics and elements is not None and pcc_defined(elements) == 0:
+            metrics["test_pcc"] = None  # the metric's 0.0 where no map has a Pearson r is no value to rank
         return {
             "schema": SCHEMA,
             "version": SCHEMA_VERSION,
@@ -340,7 +344,7 @@ class TestReport(L.Callback):
             "metric_reduction": (hp.get("train") or {}).get("metric_reduction"),
             "configured_metrics": configured,
             "metrics": metrics,
-            "map_elements": map_elements(pl_module),
+            "map_elements": elements,
             "sr": sr,
             "config": config,
             "versions": package_versions(),
@@ -401,6 +405,11 @@ def _elements_counted(counts: dict[str, int]) -> tuple[int, str]:
     return counts["maps"], "maps"
 
 
+def pcc_defined(counts: dict[str, int]) -> int:
+    """How many elements of a report's ``map_elements`` PCC averaged (not empty, not constant)."""
+    return _elements_counted(counts)[0] - counts["empty"] - counts["pcc_undefined"]
+
+
 def render_markdown(report: dict[str, Any]) -> str:
     """Readable summary of a report dict: run facts, map metrics, SR table, figures."""
     m = report.get("metrics", {})
@@ -435,7 +444,7 @@ def render_markdown(report: dict[str, Any]) -> str:
         total, unit = _elements_counted(counts)
         lines += [
             "",
-            f"PCC over {total - counts['empty'] - counts['pcc_undefined']} of {total} {unit}: "
+            f"PCC over {pcc_defined(counts)} of {total} {unit}: "
             f"{counts['pcc_undefined']} constant (Pearson r undefined), {counts['empty']} without a floor point.",
         ]
     others = {k: v for k, v in m.items() if not any(k == f"test_{x}" for x, _, _ in shown) and "_sr_" not in k}

@@ -294,6 +294,7 @@ def aggregate(values: list[float], inner_std: list[float | None]) -> Cell | None
 
 
 def _metric(report: dict[str, Any], key: str) -> tuple[float | None, float | None]:
+    """(value, None) of a map metric; null (``test_pcc`` where no map has a Pearson r) is n/a and never ranked."""
     v = (report.get("metrics") or {}).get(f"test_{key}")
     return (float(v) if v is not None else None), None
 
