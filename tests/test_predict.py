@@ -131,3 +131,27 @@ def test_predict_refuses_bad_cells_and_huge_rasters(tiny_model):
     pose[:3, 3] = [0.8, 0.0, 1.2]
     with pytest.raises(ValueError, match=r"predict: cell must be a finite size > 0 m"):
         predict(tiny_model, None, depth, (20.0, 20.0, 16.0, 12.0), pose, mask, [0.85, 1.03], cell=0)
+
+
+def test_the_prediction_writer_refuses_nan_scores_naming_the_samples(tmp_path):
+    """`floaff-zoo predict` wrote NaN scores (and NaN poses) of a model without an error or a count, where
+    predict() raises FloatingPointError."""
+    import torch
+
+    from floaff_zoo.callbacks.predictions import PredictionWriter
+    from tests.report._fake_world import ConstantModule, loader, make_samples, quiet_trainer
+
+    class NaNOnTwo(ConstantModule):
+        def forward(self, batch):
+            out = torch.full_like(batch["floor_label"], 0.5)
+            index = torch.tensor([m["index"] for m in batch["meta"]])
+            out[index == 0] = float("nan")  # every score
+            out[index == 3, :5] = float("inf")  # a few
+            return out + 0.0 * self.net.weight.sum()
+
+    writer = PredictionWriter(out_dir=str(tmp_path))
+    with pytest.raises(
+        FloatingPointError, match=r"NaNOnTwo returned NaN/Inf scores on .* 2 of 4 sample\(s\): fake0, fake3;"
+    ):
+        quiet_trainer([writer]).predict(NaNOnTwo(), dataloaders=loader(make_samples(4), batch_size=2))
+    assert not list(tmp_path.glob("predictions*"))

@@ -3,7 +3,8 @@
 ``predictions.npz`` holds one array per tensor the model's ``predict_step`` returns, the batches concatenated
 in the loader's order: ``[N, ...]`` (N samples); a per-point array ``[N, M, ...]`` is padded to the largest view
 (NaN for floats, False for masks, 0 for integers, so ``floor_mask`` says which entries are real; a floor-map
-model's ``scores`` and ``floor_xyz`` are NaN on every padded point, its batch's padding included). A floor-map
+model's ``scores`` and ``floor_xyz`` are NaN on every padded point, its batch's padding included; a NaN/Inf score on
+a real floor point is refused with the samples named, as ``predict()`` refuses it). A floor-map
 model writes ``scores``, ``floor_xyz``, ``floor_mask``, ``target_xyz`` and ``best_pose`` ([N, 3] x, y, yaw: the
 top-scored floor point facing the target, where the success-rate callback stands at top-1) in the robot base frame;
 CFAR also the yaw, crop radius and canonical-to-robot transform it used, N2M and C2F-Exp their own proposed
@@ -69,6 +70,26 @@ def gather_predictions(records: list[dict[str, Any]]) -> tuple[dict[str, np.ndar
     return arrays, meta
 
 
+def check_finite_scores(arrays: dict[str, np.ndarray], meta: list[dict[str, Any]], model: str) -> None:
+    """Refuse ``scores`` [N, M] that are NaN/Inf on a real floor point (``floor_mask`` [N, M]), as ``predict()``
+    does: written, they would be NaN maps and poses that nothing counts.
+
+    Raises:
+        FloatingPointError: one line naming the samples (``meta['sample_id']``, else their position).
+    """
+    if "scores" not in arrays or "floor_mask" not in arrays:
+        return  # not a floor-map model (AxisNet writes a yaw)
+    scores, mask = arrays["scores"], arrays["floor_mask"].astype(bool)
+    bad = np.flatnonzero((~np.isfinite(scores) & mask).reshape(len(scores), -1).any(axis=1))
+    if len(bad):
+        ids = [str((meta[i] if i < len(meta) else {}).get("sample_id", i)) for i in bad]
+        more = f" and {len(ids) - 5} more" if len(ids) > 5 else ""
+        raise FloatingPointError(
+            f"predict: {model} returned NaN/Inf scores on floor points of {len(ids)} of {len(scores)} sample(s): "
+            f"{', '.join(ids[:5])}{more}; no predictions written"
+        )
+
+
 class PredictionWriter(BasePredictionWriter):
     """Write ``<run>/predictions.npz`` and ``predictions.json`` at the end of ``floaff-zoo predict`` (module
     docstring); under several processes each rank writes its own pair, ``predictions_rank<r>``.
@@ -91,6 +112,7 @@ class PredictionWriter(BasePredictionWriter):
         if not batches:
             return
         arrays, meta = gather_predictions(list(batches))
+        check_finite_scores(arrays, meta, type(pl_module).__name__)
         run_dir = Path(self.out_dir or trainer.log_dir or trainer.default_root_dir)
         run_dir.mkdir(parents=True, exist_ok=True)
         stem = "predictions" if trainer.world_size == 1 else f"predictions_rank{trainer.global_rank}"
