@@ -155,3 +155,17 @@ def test_the_prediction_writer_refuses_nan_scores_naming_the_samples(tmp_path):
     ):
         quiet_trainer([writer]).predict(NaNOnTwo(), dataloaders=loader(make_samples(4), batch_size=2))
     assert not list(tmp_path.glob("predictions*"))
+
+
+def test_the_prediction_writer_removes_another_runs_files_and_says_so(tmp_path, capsys):
+    """A predict run into a folder holding an earlier run's files overwrote them without a word and left the
+    per-rank files of a run with another number of processes beside the new ones."""
+    from floaff_zoo.callbacks.predictions import PredictionWriter
+    from tests.report._fake_world import ConstantModule, loader, make_samples, quiet_trainer
+
+    for stale in ("predictions_rank1.npz", "predictions_rank1.json", "notes.json"):
+        (tmp_path / stale).write_text("{}")
+    writer = PredictionWriter(out_dir=str(tmp_path))
+    quiet_trainer([writer]).predict(ConstantModule(), dataloaders=loader(make_samples(2)))
+    assert sorted(f.name for f in tmp_path.iterdir()) == ["notes.json", "predictions.json", "predictions.npz"]
+    assert f"replaced the earlier predictions in {tmp_path}" in capsys.readouterr().out

@@ -68,3 +68,21 @@ def test_weights_given_by_hub_name_or_folder_are_named_by_their_hash():
     record = checkpoint_record(SimpleNamespace(ckpt_path=None), module)
     assert record == {"path": "cfar-pfal.floaff-dense-layouts.v11", "sha256": "ab" * 32}
     assert checkpoint_record(SimpleNamespace(ckpt_path=None), SimpleNamespace(hparams={})) is None
+
+
+def test_a_new_report_in_the_folder_removes_the_earlier_figures_and_says_so(tmp_path, capsys):
+    """A second test into the same folder overwrote report.json without a word and left the first test's figures of
+    groups it did not draw in figures/, beside a report that does not list them."""
+    samples = make_samples(4)
+    for s in samples:
+        s["meta"].pop("sim")  # plain scatters: no kitchen to rebuild
+    report = TestReport(out_dir=str(tmp_path), figures_per_group=1)
+    trainer = quiet_trainer([report])
+    trainer.test(ConstantModule(), dataloaders=loader(samples), verbose=False)
+    assert len(list((tmp_path / "figures").glob("*.png"))) == 4  # (task, view): 2 x 2
+    assert "replaced the earlier report" not in capsys.readouterr().out
+    trainer.test(ConstantModule(), dataloaders=loader(samples[:2]), verbose=False)  # the front views only
+    rep = json.loads((tmp_path / "report.json").read_text())
+    assert sorted(f"figures/{f.name}" for f in (tmp_path / "figures").glob("*.png")) == sorted(rep["figures"])
+    assert len(rep["figures"]) == 2
+    assert f"replaced the earlier report in {tmp_path} (4 figure(s) removed)" in capsys.readouterr().out

@@ -90,6 +90,21 @@ def check_finite_scores(arrays: dict[str, np.ndarray], meta: list[dict[str, Any]
         )
 
 
+def remove_stale_predictions(run_dir: Path, world_size: int) -> bool:
+    """Remove the prediction files of an earlier run in ``run_dir`` that this run (``world_size`` processes) does
+    not rewrite: ``predictions.*`` under DDP, ``predictions_rank<r>.*`` of other world sizes. Returns whether any
+    went. (Rank 0 alone calls it: no file it removes is one a rank of this run writes.)"""
+    ours = {"predictions"} if world_size == 1 else {f"predictions_rank{r}" for r in range(world_size)}
+    stale = [
+        f
+        for f in [*run_dir.glob("predictions.*"), *run_dir.glob("predictions_rank*.*")]
+        if f.suffix in (".npz", ".json") and f.stem not in ours
+    ]
+    for f in stale:
+        f.unlink()
+    return bool(stale)
+
+
 class PredictionWriter(BasePredictionWriter):
     """Write ``<run>/predictions.npz`` and ``predictions.json`` at the end of ``floaff-zoo predict`` (module
     docstring); under several processes each rank writes its own pair, ``predictions_rank<r>``.
@@ -117,8 +132,13 @@ class PredictionWriter(BasePredictionWriter):
         run_dir.mkdir(parents=True, exist_ok=True)
         stem = "predictions" if trainer.world_size == 1 else f"predictions_rank{trainer.global_rank}"
         npz, js = run_dir / f"{stem}.npz", run_dir / f"{stem}.json"
+        replaced = npz.is_file() or js.is_file()
+        if trainer.is_global_zero:
+            replaced = remove_stale_predictions(run_dir, trainer.world_size) or replaced
         np.savez_compressed(npz, **arrays)
         shapes = {k: list(v.shape) for k, v in arrays.items()}
         js.write_text(json.dumps({"n": len(meta), "arrays": shapes, "meta": jsonable(meta)}, indent=1))
         self.written = {"npz": str(npz), "json": str(js)}
         print(f"floaff-zoo predict: {len(meta)} samples -> {npz} (+ {js.name})", flush=True)
+        if replaced:
+            print(f"floaff-zoo predict: replaced the earlier predictions in {run_dir}", flush=True)

@@ -246,6 +246,7 @@ class TestReport(L.Callback):
         rollout = next((c for c in trainer.callbacks if type(c).__name__ == "RolloutSuccessRate"), None)
         report = self.build_report(trainer, pl_module, run_dir, rollout, log_dir)
         episodes = rollout.episodes.get("test", []) if rollout is not None else []
+        earlier = remove_earlier_figures(run_dir)
         if self.figures and self._samples:
             by_id = {e["sample_id"]: e for e in episodes}
             for s in self._samples:
@@ -263,6 +264,10 @@ class TestReport(L.Callback):
         report = jsonable(report)
         (run_dir / "report.json").write_text(json.dumps(report, indent=2, sort_keys=False))
         (run_dir / "report.md").write_text(render_markdown(report))
+        if earlier is not None:
+            print(
+                f"floaff-zoo test: replaced the earlier report in {run_dir} ({earlier} figure(s) removed)", flush=True
+            )
         self.written = {
             "run_dir": str(run_dir),
             "report_json": str(run_dir / "report.json"),
@@ -350,6 +355,29 @@ class TestReport(L.Callback):
             "versions": package_versions(),
             "figures": [],
         }
+
+
+def remove_earlier_figures(run_dir: Path) -> int | None:
+    """Remove the figures an earlier report in ``run_dir`` listed: a new test draws other (task, view) groups or
+    fewer per group, and their old PNGs would sit beside the new report. Only files of ``run_dir/figures`` go.
+
+    Returns:
+        None without an earlier ``report.json``, else how many figures were removed.
+    """
+    path = run_dir / "report.json"
+    if not path.is_file():
+        return None
+    try:
+        listed = json.loads(path.read_text(encoding="utf-8")).get("figures")
+    except (OSError, UnicodeDecodeError, ValueError, AttributeError):  # unreadable or not an object: nothing listed
+        return 0
+    folder, removed = (run_dir / "figures").resolve(), 0
+    for name in listed if isinstance(listed, list) else []:
+        figure = (run_dir / str(name)).resolve()
+        if figure.parent == folder and figure.suffix == ".png" and figure.is_file():
+            figure.unlink()
+            removed += 1
+    return removed
 
 
 def split_position(meta: dict[str, Any], dataloader_idx: int, seen: tuple[int, int, int]) -> tuple:
