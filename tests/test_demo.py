@@ -61,3 +61,26 @@ def test_demo_outside_the_repository_is_one_line(tmp_path, monkeypatch, capsys):
     err = capsys.readouterr().err
     assert "demo configs not found" in err and "run the demo from the repository root" in err
     assert "Traceback" not in err
+
+
+def test_demo_reuses_a_baseline_only_when_fitted_with_the_same_data_and_epochs(tmp_path, monkeypatch, capsys):
+    """A baseline finished by `demo --epochs 1 --data A` was reused by `demo --epochs 30 --data B` (and its report
+    then compared with a model trained on B)."""
+    import floaff_zoo.cli
+    from floaff_zoo import demo
+    from floaff_zoo.runs import mark_finished
+
+    def fit(*args, **kwargs):
+        raise RuntimeError("fitting")
+
+    monkeypatch.setattr(floaff_zoo.cli, "run_lightning", fit)
+    run = tmp_path / "pointnet2" / "version_0"
+    (run / "checkpoints").mkdir(parents=True)
+    (run / "checkpoints" / "last.ckpt").write_bytes(b"x")
+    args = {"data": str(Path("data/a").resolve()), "max_epochs": 1}  # what `demo --data data/a --epochs 1` records
+    mark_finished(run, run / "checkpoints" / "last.ckpt", {"epochs": 1, "args": args})
+    assert demo._fit_baseline("data/a", tmp_path / "pointnet2", 1) == run
+    for data, epochs in (("data/b", 1), ("data/a", 30)):
+        with pytest.raises(RuntimeError, match="fitting"):
+            demo._fit_baseline(data, tmp_path / "pointnet2", epochs)
+    assert "was fitted with" in capsys.readouterr().out

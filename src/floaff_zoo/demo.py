@@ -9,8 +9,8 @@
 
 Everything goes through the same commands a user runs (``generate``, ``curriculum``, ``fit``,
 ``test``, ``table``); a rerun reuses finished steps (generation resumes, the curriculum skips
-finished stages, a baseline run that wrote ``finished.json`` is not retrained; one killed before that
-is fitted again).
+finished stages, a baseline run that wrote ``finished.json`` with the same ``--data`` and ``--epochs`` is not
+retrained; one killed before that, or fitted with other arguments, is fitted again).
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ import json
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 EXPERIMENT = "configs/demo/pfal_demo.yaml"
 DATA_CONFIG = "configs/demo/data_demo.yaml"
@@ -43,20 +44,33 @@ def _check_configs() -> None:
         raise RunError(f"demo configs not found: {missing}; run the demo from the repository root")
 
 
+def baseline_args(data: str, epochs: int) -> dict[str, Any]:
+    """What a baseline fit was asked for, recorded in its ``finished.json``: a run reused must match it."""
+    return {"data": str(Path(data).resolve()), "max_epochs": int(epochs)}
+
+
 def _fit_baseline(data: str, root: Path, epochs: int) -> Path:
-    """The newest finished baseline run under ``root``, fitting one first when none finished.
+    """The newest finished baseline run under ``root`` fitted on ``data`` for ``epochs``, fitting one first when
+    none did.
 
     A run counts as finished only with its ``finished.json`` (written below after ``fit`` returns): a
-    killed fit leaves a ``last.ckpt`` too, and reusing it would test a half-trained model.
+    killed fit leaves a ``last.ckpt`` too, and reusing it would test a half-trained model. One fitted with other
+    ``--data`` or ``--epochs`` (or before they were recorded) is not this demo's baseline either.
     """
     from floaff_zoo.cli import run_lightning
     from floaff_zoo.runs import finished_runs, mark_finished
 
+    wanted = baseline_args(data, epochs)
     done = finished_runs(root)
+    matching = [(run, rec) for run, rec in done if rec.get("args") == wanted]
+    if matching:
+        print(f"  reusing {matching[-1][0]} (finished {matching[-1][1]['finished']})")
+        return matching[-1][0]
     if done:
-        print(f"  reusing {done[-1][0]} (finished {done[-1][1]['finished']})")
-        return done[-1][0]
-    unfinished = sorted({p.parents[1] for p in root.rglob("last*.ckpt")})
+        print(
+            f"  {done[-1][0]} was fitted with {done[-1][1].get('args', 'unrecorded arguments')}, not {wanted}; fitting"
+        )
+    unfinished = sorted({p.parents[1] for p in root.rglob("last*.ckpt")} - {run for run, _ in done})
     if unfinished:
         print(f"  {', '.join(map(str, unfinished))}: fit did not finish (no finished.json); fitting again")
     cli = run_lightning(
@@ -79,7 +93,7 @@ def _fit_baseline(data: str, root: Path, epochs: int) -> Path:
     run = Path(cli.trainer.log_dir or "")
     if not ckpt or not Path(ckpt).is_file() or not (run / "config.yaml").is_file():
         raise RuntimeError(f"baseline fit under {root} wrote no checkpoint or config.yaml")
-    mark_finished(run, ckpt, {"epochs": int(cli.trainer.current_epoch)})
+    mark_finished(run, ckpt, {"epochs": int(cli.trainer.current_epoch), "args": wanted})
     return run
 
 
