@@ -84,3 +84,19 @@ def test_demo_reuses_a_baseline_only_when_fitted_with_the_same_data_and_epochs(t
         with pytest.raises(RuntimeError, match="fitting"):
             demo._fit_baseline(data, tmp_path / "pointnet2", epochs)
     assert "was fitted with" in capsys.readouterr().out
+
+
+def test_a_failing_comparison_table_fails_the_demo(root, tmp_path, monkeypatch, capsys):
+    """`floaff-zoo table` failed (exit code 2, e.g. no usable report) and the demo still said it finished (0)."""
+    from floaff_zoo import curriculum, demo
+    from floaff_zoo.sim import generate
+
+    monkeypatch.chdir(root)
+    monkeypatch.setattr(generate, "main", lambda argv: 0)
+    monkeypatch.setattr(curriculum, "main", lambda argv, raise_errors=False: 0)
+    stage = {"checkpoint": str(tmp_path / "cfar" / "checkpoints" / "last.ckpt")}
+    monkeypatch.setattr(curriculum, "read_lineage", lambda root: {"stages": [stage]})
+    monkeypatch.setattr(demo, "_fit_baseline", lambda data, root, epochs: tmp_path / "pointnet2")
+    monkeypatch.setattr(demo, "_test", lambda run, data, ckpt=None: tmp_path / "none" / "report.json")  # not written
+    assert demo.main(["--data", str(tmp_path / "data"), "--runs", str(tmp_path / "runs")], raise_errors=False) == 2
+    assert "floaff-zoo demo: error: the map, sr_views, sr_tasks table(s) failed" in capsys.readouterr().err

@@ -221,12 +221,16 @@ def _run(argv: list[str] | None, raise_errors: bool) -> int:
     from floaff_zoo.report import table
 
     dirs = [str(r.parent) for r in reports]
-    for preset in ("map", "sr_views", "sr_tasks"):
-        table.main(["--runs", *dirs, "--preset", preset, "--format", "md"])
+    failed = [
+        p for p in ("map", "sr_views", "sr_tasks") if table.main(["--runs", *dirs, "--preset", p, "--format", "md"])
+    ]
     print("\nreports:")
     for r in reports:
         figs = sorted((r.parent / "figures").glob("*.png"))
         print(f"  {r}  ({r.parent / 'report.md'}; {len(figs)} figures in {r.parent / 'figures'})")
+    if failed:  # the table printed why; the demo did not finish what it promises
+        print(f"floaff-zoo demo: error: the {', '.join(failed)} table(s) failed (named above)", file=sys.stderr)
+        return 2
     print(f"\ndemo finished in {time.time() - t0:.0f} s")
     return 0
 
