@@ -77,3 +77,24 @@ def test_montage_out_names_the_file_it_writes(tmp_path, capsys):
         with pytest.raises(SystemExit) as ex:
             zoo_main([*args, str(out)])
         assert ex.value.code == 2 and message in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "report, named",
+    [
+        ([], "not a report (a JSON list, not an object)"),
+        ({"figures": "figures/CloseDrawer_front_0.png"}, "field 'figures' is str"),
+        ({"figures": [1]}, "field 'figures' holds 1"),
+        ({"figures": [], "model": "CFAR"}, "field 'model' is str"),
+        ({"figures": [], "run_dir": 3}, "field 'run_dir' is int"),
+    ],
+)
+def test_montage_names_a_malformed_report_and_field(tmp_path, capsys, report, named):
+    """A report.json holding [] ended in a traceback (AttributeError); a string 'figures' was read character by
+    character."""
+    (tmp_path / "report.json").write_text(json.dumps(report))
+    with pytest.raises(SystemExit) as ex:
+        zoo_main(["montage", "--runs", str(tmp_path), "--cases", "CloseDrawer_front_0", "--out", str(tmp_path / "x")])
+    assert ex.value.code == 2
+    err = capsys.readouterr().err
+    assert f"floaff-zoo montage: error: {tmp_path / 'report.json'}: {named}" in err and len(err.splitlines()) == 1

@@ -43,9 +43,34 @@ def _load_report(run: str | Path) -> tuple[Path, dict[str, Any]]:
     if not path.is_file():
         raise MontageError(f"{run}: no report.json")
     try:
-        return path, json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError) as exc:
+        report = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise MontageError(f"{path}: unreadable report ({exc})") from exc
+    check_report(path, report)
+    return path, report
+
+
+#: the fields montage reads: name -> (JSON kind, Python types); each may be absent or null
+FIELDS = {
+    "figures": ("a list", list),
+    "run_dir": ("a string", str),
+    "label": ("a string", str),
+    "model": ("an object", dict),
+}
+
+
+def check_report(path: Path, report: Any) -> None:
+    """MontageError naming ``path`` and the field when ``report`` is not a JSON object or a field montage reads
+    holds the wrong kind of value (a string ``figures`` was read character by character)."""
+    if not isinstance(report, dict):
+        raise MontageError(f"{path}: not a report (a JSON {type(report).__name__}, not an object)")
+    for name, (kind, types) in FIELDS.items():
+        value = report.get(name)
+        if value is not None and not isinstance(value, types):
+            raise MontageError(f"{path}: field {name!r} is {type(value).__name__} {json.dumps(value)[:40]}, not {kind}")
+    bad = next((f for f in report.get("figures") or [] if not isinstance(f, str)), None)
+    if bad is not None:
+        raise MontageError(f"{path}: field 'figures' holds {json.dumps(bad)[:40]}, not a figure path")
 
 
 def find_figure(report_path: Path, report: dict[str, Any], case: str) -> Path:
