@@ -335,6 +335,18 @@ def check_task(net: torch.nn.Module, task: str) -> None:
         )
 
 
+def check_floor_model(net: torch.nn.Module) -> None:
+    """Raise TypeError when ``net`` is a zoo model that predicts no floor map (AxisNet estimates the target's yaw):
+    its output would be read as floor scores and fail somewhere unrelated."""
+    from floaff_zoo.models.base import FloAffModule, ZooModule
+
+    if isinstance(net, ZooModule) and not isinstance(net, FloAffModule):
+        raise TypeError(
+            f"predict: {type(net).__name__} predicts no floor map (it is no FloAffModule; AxisNet estimates the "
+            "target's yaw): pass a floor-affordance model"
+        )
+
+
 def predict_from_points(
     model: Any,
     scene_xyz: np.ndarray,
@@ -379,6 +391,7 @@ def predict_from_points(
     Raises:
         ValueError: bad shapes, a channel 0 that is not the target flag or a bad cell (checked before the model
             is loaded), too large a grid or raster (before it runs), each naming the argument.
+        TypeError: a model that predicts no floor map (AxisNet).
     """
     xyz, feat = check_scene(scene_xyz, scene_feat)
     cell = check_cell(cell)
@@ -390,6 +403,7 @@ def predict_from_points(
     if t.size != 3 or not np.isfinite(t).all():
         raise ValueError(f"predict: target_xyz must be 3 finite values, got {target_xyz!r}")
     net = resolve_model(model, model_class, device)
+    check_floor_model(net)
     check_task(net, task)
     if target_yaw is None:
         target_yaw = default_target_yaw(t)
@@ -424,6 +438,10 @@ def predict_from_points(
         check(batch)
     with torch.no_grad():
         scores = net(batch)[0].float().cpu().numpy()
+    if scores.shape != (len(floor),):  # another module's output: a yaw, a pose
+        raise ValueError(
+            f"predict: {type(net).__name__} gave {list(scores.shape)} per sample, not a score per floor point"
+        )
     if not np.isfinite(scores).all():
         raise FloatingPointError(
             f"predict: {type(net).__name__} returned {int((~np.isfinite(scores)).sum())} NaN/Inf score(s)"

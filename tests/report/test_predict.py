@@ -310,3 +310,13 @@ def test_a_figure_breaks_ties_as_predict_does():
         assert drawn_pose(s, None, s.scores, None) == pytest.approx(chosen)
         marked.add(tuple(np.round(chosen[:2], 6)))
     assert len(marked) == 2
+
+
+def test_a_model_without_a_floor_map_is_named():
+    """AxisNet (a yaw estimator) given to predict_from_points ended in an unrelated IndexError in the raster."""
+    from floaff_zoo.models.axisnet import AxisNetModule
+
+    xyz, feat, t = _scene()
+    floor = np.array([[0.2, 0.0, 0.0], [1.0, 0.1, 0.0], [0.6, -0.5, 0.0]], np.float32)
+    with pytest.raises(TypeError, match="AxisNetModule predicts no floor map"):
+        predict_from_points(AxisNetModule(), xyz, feat, floor, [0.85, 1.03], t)
