@@ -29,6 +29,7 @@ from __future__ import annotations
 import math
 import sys
 import types
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
@@ -347,6 +348,43 @@ def check_floor_model(net: torch.nn.Module) -> None:
         )
 
 
+def kept_state(model: Any) -> Callable[[], None]:
+    """A function that gives a caller's module back as it came: ``resolve_model`` puts it in eval mode on the
+    predict device, which must not change the caller's training (every submodule's mode) or move it for good.
+    A no-op for a checkpoint path or hub name (predict loads its own copy)."""
+    if not isinstance(model, torch.nn.Module):
+        return lambda: None
+    modes = [(m, m.training) for m in model.modules()]
+    home = next(model.parameters(), torch.empty(0)).device
+
+    def restore() -> None:
+        for m, training in modes:
+            m.training = training
+        model.to(home)
+
+    return restore
+
+
+def run_model(net: torch.nn.Module, batch: dict[str, Any]) -> np.ndarray:
+    """Scores [M] of a one-sample batch (moved to the model's device), without gradients.
+
+    Raises:
+        ValueError: the model's output is not one score per floor point (another module's: a yaw, a pose).
+    """
+    dev = next(net.parameters(), torch.empty(0)).device
+    batch = {key: (v.to(dev) if torch.is_tensor(v) else v) for key, v in batch.items()}
+    check = getattr(net, "check_inputs", None)
+    if callable(check):
+        check(batch)
+    with torch.no_grad():
+        scores = net(batch)[0].float().cpu().numpy()
+    if scores.shape != tuple(batch["floor_xyz"].shape[1:2]):
+        raise ValueError(
+            f"predict: {type(net).__name__} gave {list(scores.shape)} per sample, not a score per floor point"
+        )
+    return scores
+
+
 def predict_from_points(
     model: Any,
     scene_xyz: np.ndarray,
@@ -369,7 +407,8 @@ def predict_from_points(
     """Score candidate floor points for one observation (robot base frame).
 
     Args:
-        model: a FloAffModule, a ``.ckpt`` path or a hub name.
+        model: a FloAffModule, a ``.ckpt`` path or a hub name; a module is run in eval mode on ``device`` and given
+            back in its own training modes, on its own device.
         scene_xyz [N, 3], scene_feat [N, C] (channel 0 = target flag, then RGB in [0, 1]).
         floor_xyz [M, 3] candidates, or None for the observed floor cells of the cloud (module docstring).
         robot [R] descriptor (default MoMa-Kitchen style: [arm reach m, base height m]).
@@ -402,9 +441,6 @@ def predict_from_points(
     t = np.asarray(target_xyz, dtype=np.float32).reshape(-1)
     if t.size != 3 or not np.isfinite(t).all():
         raise ValueError(f"predict: target_xyz must be 3 finite values, got {target_xyz!r}")
-    net = resolve_model(model, model_class, device)
-    check_floor_model(net)
-    check_task(net, task)
     if target_yaw is None:
         target_yaw = default_target_yaw(t)
     if floor_xyz is None:
@@ -431,17 +467,14 @@ def predict_from_points(
     check_raster_size(grid.shape, raster_cell, "the returned raster", "candidates (floor_xyz) that cover less floor")
     gen = torch.Generator().manual_seed(seed)
     batch = collate_samples([sample], num_points=num_points, mode="resample" if num_points else "pad", generator=gen)
-    dev = next(net.parameters(), torch.empty(0)).device
-    batch = {key: (v.to(dev) if torch.is_tensor(v) else v) for key, v in batch.items()}
-    check = getattr(net, "check_inputs", None)
-    if callable(check):
-        check(batch)
-    with torch.no_grad():
-        scores = net(batch)[0].float().cpu().numpy()
-    if scores.shape != (len(floor),):  # another module's output: a yaw, a pose
-        raise ValueError(
-            f"predict: {type(net).__name__} gave {list(scores.shape)} per sample, not a score per floor point"
-        )
+    restore = kept_state(model)  # a caller's module goes back as it came
+    try:
+        net = resolve_model(model, model_class, device)
+        check_floor_model(net)
+        check_task(net, task)
+        scores = run_model(net, batch)
+    finally:
+        restore()
     if not np.isfinite(scores).all():
         raise FloatingPointError(
             f"predict: {type(net).__name__} returned {int((~np.isfinite(scores)).sum())} NaN/Inf score(s)"

@@ -320,3 +320,23 @@ def test_a_model_without_a_floor_map_is_named():
     floor = np.array([[0.2, 0.0, 0.0], [1.0, 0.1, 0.0], [0.6, -0.5, 0.0]], np.float32)
     with pytest.raises(TypeError, match="AxisNetModule predicts no floor map"):
         predict_from_points(AxisNetModule(), xyz, feat, floor, [0.85, 1.03], t)
+
+
+def test_predict_gives_the_callers_model_back_in_its_training_mode():
+    """predict put the caller's model in eval mode (every submodule) and left it there: a training loop that
+    called it to look at a map went on training with BatchNorm and dropout frozen."""
+    xyz, feat, t = _scene()
+    model = TinyPointNetModule(width=16).train()
+    frozen = next(m for m in model.modules() if m is not model)
+    frozen.eval()  # a caller's frozen part stays frozen
+    modes = [m.training for m in model.modules()]
+    predict_from_points(model, xyz, feat, None, [0.85, 1.03], t, num_points=256)
+    assert [m.training for m in model.modules()] == modes and model.training and not frozen.training
+
+    def refuse(batch):
+        raise ValueError("refused batch")
+
+    model.check_inputs = refuse  # a call that fails once the model is in eval mode gives it back too
+    with pytest.raises(ValueError, match="refused batch"):
+        predict_from_points(model, xyz, feat, None, [0.85, 1.03], t, num_points=256)
+    assert [m.training for m in model.modules()] == modes
