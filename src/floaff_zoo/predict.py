@@ -253,6 +253,8 @@ def backproject_depth(
         raise ValueError(f"predict: camera_pose must be a finite 4x4 camera-to-base matrix, got shape {pose.shape}")
     if convention not in ("opengl", "opencv"):
         raise ValueError(f"predict: convention must be 'opengl' or 'opencv', got {convention!r}")
+    if not float(max_depth) > 0:  # NaN made every pixel invalid, named later as a target mask without depth
+        raise ValueError(f"predict: max_depth must be > 0 metres (inf: no cut), got {max_depth!r}")
     fx, fy, cx, cy = k
     h, w = d.shape
     uu, vv = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)

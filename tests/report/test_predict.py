@@ -340,3 +340,13 @@ def test_predict_gives_the_callers_model_back_in_its_training_mode():
     with pytest.raises(ValueError, match="refused batch"):
         predict_from_points(model, xyz, feat, None, [0.85, 1.03], t, num_points=256)
     assert [m.training for m in model.modules()] == modes
+
+
+def test_a_max_depth_that_is_no_distance_is_named():
+    """max_depth=nan invalidated every pixel and was reported as a target mask without valid depth."""
+    depth, k, pose = _floor_depth()
+    mask = np.zeros(depth.shape, bool)
+    mask[20:24, 30:34] = True
+    for bad in (float("nan"), 0.0):
+        with pytest.raises(ValueError, match="max_depth must be > 0"):
+            predict(TinyPointNetModule(width=16), None, depth, k, pose, mask, [0.85, 1.03], max_depth=bad)
