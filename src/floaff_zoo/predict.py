@@ -230,6 +230,16 @@ def check_scene(scene_xyz: Any, scene_feat: Any) -> tuple[np.ndarray, np.ndarray
 
 
 # ------------------------------------------------------------------------------------------ geometry
+def check_float_rgb(c: np.ndarray) -> None:
+    """Raise ValueError unless the float colours [P, 3] of the points are finite and in [0, 1] (clipping made
+    0..255 floats white)."""
+    if not (np.isfinite(c) & (c >= 0.0) & (c <= 1.0)).all():
+        raise ValueError(
+            f"predict: a float rgb must hold values in [0, 1], got {float(np.nanmin(c)):.4g} to "
+            f"{float(np.nanmax(c)):.4g}{' and NaN' if np.isnan(c).any() else ''}: pass uint8 or divide by 255"
+        )
+
+
 def backproject_depth(
     depth: np.ndarray,
     intrinsics: tuple[float, float, float, float] | np.ndarray,
@@ -550,11 +560,8 @@ def predict(
         c = c[..., :3].reshape(-1, 3).astype(np.float32)
         if np.asarray(rgb).dtype == np.uint8:
             c = c / 255.0
-        elif not (np.isfinite(c) & (c >= 0.0) & (c <= 1.0)).all():  # clipping made 0..255 floats white
-            raise ValueError(
-                f"predict: a float rgb must hold values in [0, 1], got {float(np.nanmin(c)):.4g} to "
-                f"{float(np.nanmax(c)):.4g}{' and NaN' if np.isnan(c).any() else ''}: pass uint8 or divide by 255"
-            )
+        else:  # only pixels with valid depth become points: a NaN colour where depth is invalid is never read
+            check_float_rgb(c[valid])
         feats.append(c)
     feat = np.concatenate(feats, axis=1)
     tgt = valid & (flag > 0)

@@ -350,3 +350,17 @@ def test_a_max_depth_that_is_no_distance_is_named():
     for bad in (float("nan"), 0.0):
         with pytest.raises(ValueError, match="max_depth must be > 0"):
             predict(TinyPointNetModule(width=16), None, depth, k, pose, mask, [0.85, 1.03], max_depth=bad)
+
+
+def test_nan_colour_where_depth_is_invalid_is_not_read():
+    """A float rgb with NaN at pixels without depth (never back-projected) was refused as out of [0, 1]."""
+    depth, k, pose = _floor_depth()
+    mask = np.zeros(depth.shape, bool)
+    mask[20:24, 30:34] = True
+    rgb = np.full(depth.shape + (3,), 0.5, np.float32)
+    rgb[depth == 0] = np.nan
+    model = TinyPointNetModule(width=16, feat_channels=4)
+    assert np.isfinite(predict(model, rgb, depth, k, pose, mask, [0.85, 1.03], num_points=256).scores).all()
+    rgb[depth > 0] = 2.0  # a colour that is read is still checked
+    with pytest.raises(ValueError, match=r"must hold values in \[0, 1\]"):
+        predict(model, rgb, depth, k, pose, mask, [0.85, 1.03], num_points=256)
