@@ -208,6 +208,42 @@ def test_top_k_with_cloud_free_space_avoids_an_observed_obstacle():
             assert not footprint_blocked(world, e["pose"])
 
 
+class ProposingModule(LabelModule):
+    """A perfect map, and a placement procedure of its own that stands 0.3 m ahead, 0.1 m left, turned 0.2 rad."""
+
+    def propose_pose(self, item):
+        assert item["scene_xyz"].shape[0] == 1  # one sample, as N2M's and C2F-Exp's procedures take it
+        return (0.3, 0.1, 0.2)
+
+
+def test_pose_source_model_rolls_out_the_models_own_placement():
+    """N2M's and C2F-Exp's SR stood on their maps' argmax, never on their own published placement procedures."""
+    samples = make_samples(6)
+    cb = RolloutSuccessRate(service=FakeService, progress=False, pose_source="model", oracle=True)
+    _trainer(cb).test(ProposingModule(), dataloaders=loader(samples), verbose=False)
+    assert cb.summaries["test"]["pose_source"] == "model"
+    for e, s in zip(cb.episodes["test"], samples):
+        base = s["meta"]["sim"]["base_pose_world"]
+        assert np.allclose(e["pose"], pose_to_world((0.3, 0.1, 0.2), base))
+        assert not np.allclose(e["pose"], e["oracle_pose"])  # the map's argmax is not what was rolled out
+    cb = RolloutSuccessRate(service=FakeService, progress=False)
+    _trainer(cb).test(ProposingModule(), dataloaders=loader(samples), verbose=False)
+    assert cb.summaries["test"]["pose_source"] == "map"
+    assert all(np.allclose(e["pose"], e["oracle_pose"]) for e in cb.episodes["test"])  # the perfect map's argmax
+
+
+def test_pose_source_model_needs_a_placement_procedure_and_top_1():
+    from lightning.pytorch.utilities.exceptions import MisconfigurationException
+
+    with pytest.raises(ValueError, match="pose_source must be one of"):
+        RolloutSuccessRate(pose_source="models")
+    with pytest.raises(ValueError, match="top_k must be 1, got 5"):
+        RolloutSuccessRate(pose_source="model", top_k=5)
+    cb = RolloutSuccessRate(service=FakeService, progress=False, pose_source="model")
+    with pytest.raises(MisconfigurationException, match="LabelModule has no placement procedure of its own"):
+        _trainer(cb).test(LabelModule(), dataloaders=loader(make_samples(2)), verbose=False)
+
+
 def test_free_space_is_checked():
     with pytest.raises(ValueError, match="free_space"):
         RolloutSuccessRate(free_space="cloudy")

@@ -14,7 +14,9 @@ FIX = Path(__file__).parent / "fixtures" / "runs"
 BASE = json.loads((FIX / "cfar_styles_s0" / "report.json").read_text())
 
 
-def report(seed: int, top_k: int = 1, free_space: str | None = None, **top: object) -> dict:
+def report(
+    seed: int, top_k: int = 1, free_space: str | None = None, pose_source: str | None = None, **top: object
+) -> dict:
     """A CFAR Styles report of seed ``seed`` (its own checkpoint hash) under an SR protocol; ``top`` overrides
     top-level fields (``sim_variant``, ``metric_reduction``, ``checkpoint``, ``label``)."""
     rep = copy.deepcopy(BASE)
@@ -23,6 +25,8 @@ def report(seed: int, top_k: int = 1, free_space: str | None = None, **top: obje
     rep["sr"]["top_k"] = top_k
     if free_space is not None:
         rep["sr"]["free_space"] = free_space
+    if pose_source is not None:
+        rep["sr"]["pose_source"] = pose_source
     rep.update(top)
     return rep
 
@@ -43,8 +47,11 @@ def write(tmp_path: Path, reports: dict[str, dict]) -> list[str]:
         (dict(top_k=10, free_space="cloud"), "sr.top_k"),
         (dict(sim_variant="hist"), "sim_variant"),
         (dict(metric_reduction="official_batchwise"), "metric_reduction"),
+        # the model's own placement (N2M, C2F-Exp) is another protocol than the map's argmax (a report without
+        # the field stood on the argmax)
+        (dict(pose_source="model"), "sr.pose_source"),
     ],
-    ids=["top_k", "sim_variant", "metric_reduction"],
+    ids=["top_k", "sim_variant", "metric_reduction", "pose_source"],
 )
 @pytest.mark.parametrize("preset", ["map", "sr_views", "sr_tasks"])
 def test_a_row_refuses_reports_of_different_protocols(tmp_path, capsys, other, setting, preset):

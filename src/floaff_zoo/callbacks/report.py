@@ -499,7 +499,9 @@ def render_markdown(report: dict[str, Any]) -> str:
         lines += [
             "",
             f"± = {sr.get('std_method')}; {sr.get('n_evaluated')} evaluated, {sr.get('n_skipped')} skipped"
-            f" (no sim metadata); top_k = {sr.get('top_k')} (free space: {sr.get('free_space', 'sim')});"
+            f" (no sim metadata); pose from the {'model' if sr.get('pose_source') == 'model' else 'map'}"
+            f"{'s placement procedure' if sr.get('pose_source') == 'model' else ''};"
+            f" top_k = {sr.get('top_k')} (free space: {sr.get('free_space', 'sim')});"
             f" rollouts took {sr.get('seconds', 0):.1f} s.",
         ]
     if report.get("figures"):

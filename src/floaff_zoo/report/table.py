@@ -26,12 +26,12 @@ is marked ``(n=1/2)``. The best mean of each column within a section is bold (th
 ``--group-by`` takes ``model`` (class name), ``label``, ``benchmark`` or any dotted path into
 ``report.json`` (``model.hparams.crop_radius``, ``config.data.init_args.crop_radius``, ``seed``).
 
-A row pools runs of one protocol: reports that differ in the SR protocol (``sr.top_k``; ``sr.free_space`` where
-top_k > 1), ``sim_variant`` or ``metric_reduction``, or two reports of one checkpoint (``checkpoint.sha256``), are
-refused with the row, the setting and the report paths (pass one protocol's reports, e.g. a narrower ``--runs`` glob);
-so is an Oracle row over reports of different SR protocols (or pass ``--no-oracle``). Rows of different SR protocols
-(without an Oracle row) are allowed, since a top-k ablation compares them on purpose; the Markdown note and stderr name
-the setting and the rows of each value.
+A row pools runs of one protocol: reports that differ in the SR protocol (``sr.top_k``; ``sr.free_space`` where top_k >
+1; ``sr.pose_source``, the map's argmax or the model's own placement), ``sim_variant`` or ``metric_reduction``, or two
+reports of one checkpoint (``checkpoint.sha256``), are refused with the row, the setting and the report paths (pass one
+protocol's reports, e.g. a narrower ``--runs`` glob); so is an Oracle row over reports of different SR protocols (or
+pass ``--no-oracle``). Rows of different SR protocols (without an Oracle row) are allowed, since a top-k ablation
+compares them on purpose; the Markdown note and stderr name the setting and the rows of each value.
 
 A row whose runs read the simulator's target yaw at test time (``eval_yaw_source: gt``; C2F-Exp's ``yaw_source:
 gt``), which a robot does not have, is named with `` (simulator yaw)`` unless its name says so already.
@@ -186,6 +186,7 @@ def _typed_fields(rep: dict[str, Any]) -> Iterator[tuple[str, Any, str]]:
     yield "sr.available", get(sr, "available"), FLAG
     yield "sr.top_k", get(sr, "top_k"), INTEGER
     yield "sr.free_space", get(sr, "free_space"), TEXT
+    yield "sr.pose_source", get(sr, "pose_source"), TEXT
     for who in ("model", "oracle"):
         results = get(sr, who)
         yield f"sr.{who}", results, OBJECT
@@ -379,13 +380,14 @@ PATH_KEY = "_report_path"
 PROTOCOL = (
     "sr.top_k",
     "sr.free_space",
+    "sr.pose_source",
     "sim_variant",
     "metric_reduction",
     "data.tasks",
     "data.views",
     "data.num_samples",
 )
-SR_PROTOCOL = PROTOCOL[:2]
+SR_PROTOCOL = PROTOCOL[:3]
 
 
 def _where(report: dict[str, Any]) -> str:
@@ -404,6 +406,8 @@ def protocol(report: dict[str, Any]) -> dict[str, Any]:
     top_k = sr.get("top_k") if sr.get("available") else None
     out["sr.top_k"] = top_k
     out["sr.free_space"] = sr.get("free_space", "sim") if top_k is not None and top_k != 1 else None
+    # reports from before the choice existed stood on the map's argmax
+    out["sr.pose_source"] = sr.get("pose_source", "map") if top_k is not None else None
     data = report.get("data") or {}
     for key in ("tasks", "views", "num_samples"):
         out[f"data.{key}"] = data.get(key)
