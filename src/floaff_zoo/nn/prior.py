@@ -59,6 +59,12 @@ class CanonicalLabelGrid(nn.Module):
         super().__init__()
         if cell <= 0 or extent <= cell:
             raise ValueError(f"CanonicalLabelGrid: need 0 < cell < extent, got cell={cell}, extent={extent}")
+        if centred and abs(extent / cell - round(extent / cell)) > 1e-6:
+            # centres sit at -extent + k cell: off the lattice's multiples of cell, labels fall on edges again
+            raise ValueError(
+                f"CanonicalLabelGrid: centred cells need extent to be a multiple of cell, got cell={cell}, "
+                f"extent={extent}"
+            )
         if not tasks:
             raise ValueError("CanonicalLabelGrid: at least one task")
         self.tasks = list(tasks)
@@ -70,6 +76,8 @@ class CanonicalLabelGrid(nn.Module):
         # saved with the sums: the binning they were accumulated with, and which task each layer holds
         self.register_buffer("centred", torch.tensor(bool(centred)))
         self.register_buffer("task_names", _encode_names(self.tasks))
+        # the geometry the sums were binned with: a state of another (cell, extent) and the same size loaded silently
+        self.register_buffer("geometry", torch.tensor([self.cell, self.extent], dtype=torch.float64))
         self._lower = self._lower_edge(bool(centred))
         self._maps: tuple[tuple, Tensor] | None = None  # (buffer versions, mean maps): read() runs every batch
 
@@ -98,6 +106,14 @@ class CanonicalLabelGrid(nn.Module):
         named = names_key in state_dict
         if named:
             self._align_tasks(state_dict, prefix, error_msgs)
+        geometry_key = prefix + "geometry"
+        measured = geometry_key in state_dict
+        if measured and not torch.allclose(state_dict[geometry_key].double().cpu(), self.geometry.cpu()):
+            cell, extent = state_dict[geometry_key].tolist()
+            error_msgs.append(
+                f"CanonicalLabelGrid: the saved grid has cell {cell} m and extent {extent} m, this model is "
+                f"configured for cell {self.cell} m and extent {self.extent} m"
+            )
         super()._load_from_state_dict(
             state_dict, prefix, local_metadata, strict, missing_keys, unexpected_keys, error_msgs
         )
@@ -107,6 +123,8 @@ class CanonicalLabelGrid(nn.Module):
             self.centred.fill_(False)
         if not named and names_key in missing_keys:  # saved before the grid named its tasks: read in today's order
             missing_keys.remove(names_key)
+        if not measured and geometry_key in missing_keys:  # saved before the grid recorded its geometry
+            missing_keys.remove(geometry_key)
         self._lower = self._lower_edge(bool(self.centred))
 
     def _align_tasks(self, state_dict: dict[str, Any], prefix: str, error_msgs: list[str]) -> None:
@@ -148,7 +166,14 @@ class CanonicalLabelGrid(nn.Module):
         self.counts.view(-1).index_add_(0, index, torch.ones_like(index, dtype=self.counts.dtype))
 
     def mean_maps(self) -> Tensor:
-        """[T, size, size] float32: smoothed mean label per cell, ``fill`` where nothing was seen."""
+        """[T, size, size] float32: smoothed mean label per cell, ``fill`` where nothing was seen.
+
+        Computed in float32 whatever the trainer's precision: under autocast (``bf16-mixed``, ``16-mixed``) the
+        smoothing ran in half precision and the cached map moved the argmax cell of a few per cent of views."""
+        with torch.autocast(self.sums.device.type, enabled=False):
+            return self._mean_maps()
+
+    def _mean_maps(self) -> Tensor:
         s, c = self.sums[:, None].float(), self.counts[:, None].float()
         if self.smooth_sigma_cells > 0:
             k = self._kernel().to(s)
