@@ -96,7 +96,7 @@ class FakeScene:
         gid = lambda n: mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_GEOM, n)  # noqa: E731
         self.robot_geom_ids = [gid("robot_col"), gid("robot_vis")]
         self.scene_geom_ids = [gid(n) for n in ("floor", "counter", "handle", "wall")]
-        self.floor_id = gid("floor")
+        self.floor_id = self.floor_geom_id = gid("floor")
         self.counter_id = gid("counter")
         self.target = FakeTarget(pos=np.array([COUNTER_X, 0.0, 0.6]), yaw=math.pi, geom_ids=[gid("handle")])
         mujoco.mj_forward(self.model, self.data)
@@ -133,6 +133,10 @@ class FakeScene:
             if pair & rob and self.floor_id not in pair and c.dist < -1e-3:
                 return True
         return False
+
+    def wall_between(self, x: float, y: float, point_xy) -> bool:
+        # the one wall (x in [ROOM - 0.05, ROOM + 0.05]) spans the room's depth: crossed iff an end is at or past it
+        return max(float(x), float(point_xy[0])) >= ROOM - 0.05
 
     def floor_outline(self) -> list[np.ndarray]:
         room = np.array([[-ROOM, -ROOM], [ROOM, -ROOM], [ROOM, ROOM], [-ROOM, ROOM]])

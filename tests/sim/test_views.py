@@ -121,3 +121,144 @@ def test_robot_geoms_never_enter_the_cloud(fake):
     res = r.render(scene.data, views.EGO_CAMERA)
     assert np.any(res.geom_id == scene.robot_geom_ids[1])  # the 'arm' box is in the camera's view
     assert near[True] > near[False]  # hiding the robot reveals the floor it occludes
+
+
+# ---------------------------------------------------------------------------------------------------- generator 2.2
+def _camera_xyz(scene) -> np.ndarray:
+    """The ego camera's world position as MuJoCo's full forward pass puts it (independent of views.py)."""
+    import mujoco
+
+    mujoco.mj_forward(scene.model, scene.data)
+    return scene.data.cam_xpos[mujoco.mj_name2id(scene.model, mujoco.mjtObj.mjOBJ_CAMERA, views.EGO_CAMERA)].copy()
+
+
+def _box_clearance(scene, p: np.ndarray) -> float:
+    """Signed distance from p [3] to the nearest box geom of the scene (the audit's test; the floor is a plane)."""
+    import mujoco
+
+    m, d, best = scene.model, scene.data, math.inf
+    for g in scene.scene_geom_ids:
+        if m.geom_type[g] == mujoco.mjtGeom.mjGEOM_BOX:
+            q = np.abs(d.geom_xmat[g].reshape(3, 3).T @ (p - d.geom_xpos[g])) - m.geom_size[g]
+            best = min(best, float(np.linalg.norm(np.maximum(q, 0.0)) + min(q.max(), 0.0)))
+    return best
+
+
+def _assert_view_pose_ok(scene, pose) -> None:
+    """No wall between base and target (the annotation's test) and the camera a near plane away from every box."""
+    assert not scene.wall_between(pose[0], pose[1], scene.target.pos[:2]), pose
+    scene.set_base_pose(*pose)
+    near = scene.model.vis.map.znear * scene.model.stat.extent  # as the renderer clips
+    assert _box_clearance(scene, _camera_xyz(scene)) >= near, pose
+
+
+# SceneSpec, kind, world xy of a view the sampler of generator 2.1 kept (the sim-views audit of 2026-12-06):
+# the camera inside a range hood, a base just past the end of a wall looking around it
+AUDIT_POSES = [
+    ((5, 6, 0, "OpenSingleDoor"), "side", (0.465, -2.804), "camera"),
+    ((0, 3, 11, "PnPCounterToCab"), "side", (4.361, 0.403), "wall"),
+]
+
+
+def _propose_first(xo: np.ndarray):
+    """A stand-in for views._propose: xo [2] first, then the sampler's own proposals."""
+    real, first = views._propose, [xo]
+    return lambda kind, rng, cfg: first.pop() if first else real(kind, rng, cfg)
+
+
+@pytest.mark.parametrize("spec, kind, xy, why", AUDIT_POSES, ids=[p[3] for p in AUDIT_POSES])
+def test_sampler_rejects_the_audit_poses(spec, kind, xy, why, monkeypatch):
+    """The audit's poses pass the footprint and robot tests and show the target, yet are refused; the refusal costs
+    one proposal of the budget (with one try and only that proposal the sampler returns nothing)."""
+    from floaff_zoo.sim.kitchen import SceneSpec, build_scene
+
+    scene = build_scene(SceneSpec(*spec))
+    scene.reset_task(np.random.default_rng(0))
+    tpos, tyaw = scene.target.pos[:2], scene.target.yaw
+    pose = np.array([*xy, views.heading_to(np.array(xy), tpos)])
+    xo = views.world_to_target(pose[None, :2], tpos, tyaw)[0]
+    region = views.in_front_region if kind == "front" else views.in_side_region
+    assert region(xo, CFG)[0] and scene.footprint_free(*pose)
+    scene.set_base_pose(*pose)
+    assert not scene.robot_collides()
+    assert scene.wall_between(pose[0], pose[1], tpos) == (why == "wall")
+    clearance = _box_clearance(scene, _camera_xyz(scene))
+    assert (clearance < 0) == (why == "camera")  # the camera inside a geom
+
+    r = Renderer(scene.model, 32, 32)
+    try:
+        cfg = views.ViewConfig(image_size=32, max_tries_per_view=1)
+        assert views.render_view(scene, r, pose, cfg, np.random.default_rng(0)).n_target >= cfg.min_target_pixels
+        monkeypatch.setattr(views, "_propose", _propose_first(xo))
+        assert views.sample_view_poses(scene, r, kind, 1, cfg, np.random.default_rng(0)) == []
+        # with budget left the sampler goes on to a good pose
+        monkeypatch.setattr(views, "_propose", _propose_first(xo))
+        cfg = views.ViewConfig(image_size=32, max_tries_per_view=40)
+        ((got, _),) = views.sample_view_poses(scene, r, kind, 1, cfg, np.random.default_rng(0))
+    finally:
+        r.close()
+    assert not np.allclose(got[:2], pose[:2])
+    _assert_view_pose_ok(scene, got)
+    assert not views.view_pose_clear(scene, pose) and views.view_pose_clear(scene, got)
+    if why == "camera":
+        scene.set_base_pose(*pose)
+        assert views.camera_clearance(scene)[0] == pytest.approx(clearance, abs=1e-9)
+
+
+# (SceneSpec, kind, n, rng seed) where generator 2.1's sampler kept a bad view: the camera inside a cabinet door, a
+# base past a wall's end, the camera 0.049 m from a surface (within the near plane)
+BAD_IN_2_1 = [
+    ((5, 0, 11, "CloseDoubleDoor"), "front", 1, 1105),
+    ((0, 4, 12, "PnPCounterToCab"), "side", 1, 1200),
+    ((3, 7, 12, "CloseDrawer"), "side", 2, 1203),
+]
+
+
+@pytest.mark.parametrize("spec, kind, n, seed", BAD_IN_2_1, ids=["camera_inside", "wall", "camera_near"])
+def test_sampled_poses_have_no_wall_and_a_clear_camera(spec, kind, n, seed):
+    from floaff_zoo.sim.kitchen import SceneSpec, build_scene
+
+    scene = build_scene(SceneSpec(*spec))
+    scene.reset_task(np.random.default_rng(0))
+    cfg = views.ViewConfig(image_size=24, max_tries_per_view=40)
+    r = Renderer(scene.model, 24, 24)
+    try:
+        got = views.sample_view_poses(scene, r, kind, n, cfg, np.random.default_rng(seed))
+    finally:
+        r.close()
+    assert len(got) == n
+    for pose, _ in got:
+        _assert_view_pose_ok(scene, pose)
+    assert all(views.view_pose_clear(scene, pose) for pose, _ in got)
+
+
+def test_camera_clearance_is_the_exact_signed_distance():
+    """views' signed distance to boxes, spheres and cylinders (the kitchen's geom types) equals MuJoCo's
+    mj_geomDistance to a tiny probe sphere, outside and inside (negative), for rotated geoms."""
+    import mujoco
+
+    s = mujoco.MjSpec()
+    w = s.worldbody
+    box, sph, cyl = mujoco.mjtGeom.mjGEOM_BOX, mujoco.mjtGeom.mjGEOM_SPHERE, mujoco.mjtGeom.mjGEOM_CYLINDER
+    w.add_geom(type=box, size=[0.3, 0.2, 0.1], pos=[0, 0, 1], euler=[0.3, 0.2, 0.7])
+    w.add_geom(type=sph, size=[0.15, 0, 0], pos=[1, 0, 1])
+    w.add_geom(type=cyl, size=[0.2, 0.1, 0], pos=[0, 1, 1], euler=[0.5, -0.4, 0.1])
+    w.add_geom(type=mujoco.mjtGeom.mjGEOM_CAPSULE, size=[0.1, 0.2, 0], pos=[3, 3, 1])
+    r = 1e-3
+    w.add_body(name="probe", mocap=True).add_geom(type=sph, size=[r, 0, 0])
+    m = s.compile()
+    d = mujoco.MjData(m)
+    rng = np.random.default_rng(0)
+    inside = 0
+    for k in range(150):
+        g = k % 3
+        mujoco.mj_forward(m, d)
+        p = d.geom_xpos[g] + rng.normal(scale=0.2, size=3)
+        d.mocap_pos[0] = p
+        mujoco.mj_forward(m, d)
+        got = views._signed_distances(m, d, np.arange(3), p)[g]
+        assert got == pytest.approx(mujoco.mj_geomDistance(m, d, g, 4, 10.0, None) + r, abs=1e-9)
+        inside += got < 0
+    assert inside > 10
+    with pytest.raises(ValueError, match="CAPSULE"):
+        views._signed_distances(m, d, np.arange(4), np.zeros(3))

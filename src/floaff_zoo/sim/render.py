@@ -39,6 +39,7 @@ __all__ = [
     "backproject",
     "camera_intrinsics",
     "gl_backend",
+    "near_clip",
 ]
 
 _BACKENDS = ("egl", "osmesa")
@@ -141,6 +142,12 @@ class RenderResult:
     cam_pos: np.ndarray
     cam_mat: np.ndarray
     fovy: float
+
+
+def near_clip(model: mujoco.MjModel) -> float:
+    """Distance (m) of the near clipping plane every camera of ``model`` renders with: ``vis.map.znear`` is a fraction
+    of the model's extent (MuJoCo's convention); a surface nearer the camera than this is cut away."""
+    return float(model.vis.map.znear * model.stat.extent)
 
 
 def camera_intrinsics(height: int, width: int, fovy_deg: float) -> tuple[float, float, float]:
@@ -254,9 +261,8 @@ class Renderer:
 
     def _depth_to_metric(self, zbuf: np.ndarray) -> np.ndarray:
         """OpenGL depth buffer [H,W] in [0,1] -> metric distance along the camera axis (same as mujoco.Renderer)."""
-        extent = self.model.stat.extent
-        near = self.model.vis.map.znear * extent
-        far = self.model.vis.map.zfar * extent
+        near = near_clip(self.model)
+        far = self.model.vis.map.zfar * self.model.stat.extent
         return (near / (1.0 - zbuf * (1.0 - near / far))).astype(np.float32)
 
     # ------------------------------------------------------------------ API

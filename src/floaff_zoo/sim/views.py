@@ -5,8 +5,11 @@ Target frame (x^o, y^o): origin at the target's floor projection c, the target's
 
     V_front = {|x^o| < r_f^x, y^o < -r_f^y}        V_side = {|x^o| > r_s^x, |y^o| < r_s^y}
 
-both capped at ``max_dist`` from c. A view pose is collision-free (``scene.footprint_free`` and ``robot_collides``),
-heads toward the target, and its stored (subsampled) cloud must hold at least ``min_target_pixels`` target points.
+both capped at ``max_dist`` from c (tested on the base origin, not the camera). A view pose is collision-free
+(``scene.footprint_free`` and ``robot_collides``), heads toward the target, has no wall between base and target
+(``scene.wall_between``, as the annotation's pose filter) and its ego camera clear of every scene geom by the near
+clipping plane (:func:`view_pose_clear`, generator 2.2), and its stored (subsampled) cloud must hold at least
+``min_target_pixels`` target points.
 
 Robot base frame: origin at the base pose (x, y) on the floor, x forward (yaw), y left, z up, floor at z = 0.
 Every view of a scene shares the scene's per-cell floor labels; since format v2 each view stores the label-grid cells
@@ -22,7 +25,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from floaff_zoo.sim.render import Renderer, backproject
+from floaff_zoo.sim.render import Renderer, backproject, near_clip
 
 __all__ = [
     "EGO_CAMERA",
@@ -30,6 +33,7 @@ __all__ = [
     "ViewConfig",
     "ViewObservation",
     "base_to_world",
+    "camera_clearance",
     "candidates_in_target_frame",
     "heading_to",
     "in_front_region",
@@ -38,6 +42,7 @@ __all__ = [
     "render_view",
     "sample_view_poses",
     "target_to_world",
+    "view_pose_clear",
     "world_to_base",
     "world_to_target",
     "wrap_angle",
@@ -170,6 +175,78 @@ def heading_to(xy: np.ndarray, target_xy: np.ndarray) -> float:
     return float(math.atan2(d[1], d[0]))
 
 
+# ---------------------------------------------------------------------------------------------------- clearance
+def _signed_distances(model: Any, data: Any, geom_ids: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Exact signed distance (m, < 0 inside) from the world point p [3] to each geom in geom_ids, as posed in data.
+
+    Boxes, spheres and cylinders (every scene geom type the kitchen builder makes besides the floor plane); another
+    type raises ValueError rather than being passed unchecked.
+    """
+    import mujoco
+
+    geom_ids = np.asarray(geom_ids, dtype=np.int64).reshape(-1)
+    types = model.geom_type[geom_ids]
+    known = (mujoco.mjtGeom.mjGEOM_BOX, mujoco.mjtGeom.mjGEOM_SPHERE, mujoco.mjtGeom.mjGEOM_CYLINDER)
+    bad = ~np.isin(types, [int(t) for t in known])
+    if bad.any():
+        g = int(geom_ids[np.flatnonzero(bad)[0]])
+        kind = mujoco.mjtGeom(int(model.geom_type[g])).name
+        raise ValueError(f"no camera clearance test for geom {g} of type {kind}")
+    rot = data.geom_xmat[geom_ids].reshape(-1, 3, 3)
+    loc = np.einsum("kji,kj->ki", rot, np.asarray(p, dtype=np.float64)[None] - data.geom_xpos[geom_ids])  # R^T (p - c)
+    size = model.geom_size[geom_ids]
+    out = np.empty(len(geom_ids))
+    box = types == mujoco.mjtGeom.mjGEOM_BOX
+    q = np.abs(loc[box]) - size[box]
+    out[box] = np.linalg.norm(np.maximum(q, 0.0), axis=1) + np.minimum(q.max(axis=1), 0.0)
+    sph = types == mujoco.mjtGeom.mjGEOM_SPHERE
+    out[sph] = np.linalg.norm(loc[sph], axis=1) - size[sph, 0]
+    cyl = types == mujoco.mjtGeom.mjGEOM_CYLINDER  # size = (radius, half height), axis local z
+    q = np.stack([np.hypot(loc[cyl, 0], loc[cyl, 1]) - size[cyl, 0], np.abs(loc[cyl, 2]) - size[cyl, 1]], axis=1)
+    out[cyl] = np.linalg.norm(np.maximum(q, 0.0), axis=1) + np.minimum(q.max(axis=1), 0.0)
+    return out
+
+
+def camera_clearance(scene: Any) -> tuple[float, int]:
+    """Signed distance (m, < 0 inside) from the ego camera, with the robot as posed now, to the nearest scene geom
+    (the robot's own geoms and the floor excluded), and that geom's id (-1 when there is none).
+
+    Reads ``scene.data``'s body and geom poses (``mj_kinematics``, which ``scene.set_base_pose`` runs; the camera's
+    own ``cam_xpos`` is only updated by ``mj_camlight``, so the camera is placed here from its body).
+    """
+    import mujoco
+
+    m, d = scene.model, scene.data
+    cid = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_CAMERA, EGO_CAMERA)
+    if cid < 0:
+        raise KeyError(f"the scene has no camera {EGO_CAMERA!r}")
+    if m.cam_mode[cid] != mujoco.mjtCamLight.mjCAMLIGHT_FIXED:
+        raise ValueError(f"camera {EGO_CAMERA!r} is not fixed to its body (mode {int(m.cam_mode[cid])})")
+    b = int(m.cam_bodyid[cid])
+    cam = d.xpos[b] + d.xmat[b].reshape(3, 3) @ m.cam_pos[cid]
+    ids = np.asarray(scene.scene_geom_ids, dtype=np.int64).reshape(-1)
+    ids = ids[ids != int(scene.floor_geom_id)]
+    if ids.size == 0:
+        return math.inf, -1
+    dist = _signed_distances(m, d, ids, cam)
+    k = int(np.argmin(dist))
+    return float(dist[k]), int(ids[k])
+
+
+def view_pose_clear(scene: Any, pose: np.ndarray) -> bool:
+    """The view sampler's tests of a base pose (world x, y, yaw) beyond the footprint and the robot's collision
+    geometry: no wall between the base origin and the target's floor projection (``scene.wall_between``, as the
+    annotation's pose filter), and the ego camera outside every scene geom by at least the near clipping plane
+    (:func:`camera_clearance` >= :func:`floaff_zoo.sim.render.near_clip`; nearer, the render cuts the surface away or
+    looks through it from inside). Leaves the robot's base at the pose when the wall test passes.
+    """
+    x, y, yaw = (float(v) for v in pose)
+    if scene.wall_between(x, y, np.asarray(scene.target.pos, dtype=np.float64)[:2]):
+        return False
+    scene.set_base_pose(x, y, yaw)
+    return camera_clearance(scene)[0] >= near_clip(scene.model)
+
+
 # ---------------------------------------------------------------------------------------------------- rendering
 def render_view(
     scene: Any,
@@ -222,8 +299,10 @@ def sample_view_poses(
 ) -> list[tuple[np.ndarray, ViewObservation]]:
     """Sample up to n collision-free view poses of one kind, each with its rendered observation.
 
+    A pose must be in the region (base origin), its footprint free, :func:`view_pose_clear` (no wall between base and
+    target, the camera clear of the scene by the near plane; since generator 2.2) and the robot touch nothing.
     accept(pose, obs): an extra test of a rendered view (e.g. "sees a floor cell with a positive label"); a rejected
-    view costs one proposal, like one that sees too little of the target.
+    view costs one proposal, like one that sees too little of the target or fails any test above.
     Returns a list of (base_pose_world [3] float64, ViewObservation); fewer than n when the region has too little free
     floor (n * cfg.max_tries_per_view proposals in total). Deterministic for a given rng state and scene.
     """
@@ -244,7 +323,8 @@ def sample_view_poses(
         if not scene.footprint_free(float(xy[0]), float(xy[1]), yaw):
             continue
         pose = np.array([xy[0], xy[1], yaw], dtype=np.float64)
-        scene.set_base_pose(*pose.tolist())
+        if not view_pose_clear(scene, pose):  # leaves the base at the pose
+            continue
         if scene.robot_collides():
             continue
         obs = render_view(scene, renderer, pose, cfg, rng)
