@@ -425,7 +425,8 @@ def _check_run(out: Path, man: dict, p) -> list[dict]:
             assert sample["scene_xyz"].shape[0] > 0 and sample["scene_feat"][:, 0].max() == 1.0  # the target is seen
             assert sample["meta"]["view"] == v["view"] and sample["meta"]["sim"]["seed"] == s["spec"]["seed"]
             seen_sets.add(_check_v2_view(s, v, sample))
-        assert len(seen_sets) == len(s["views"])  # the floor points depend on the view
+        # the floor points depend on the view (two views of one region may still see the same few cells)
+        assert len(seen_sets) > 1 or len(s["views"]) == 1
     assert max(len(s["views"]) for s in scenes) > 1  # (a scene may keep one view: the other one rejected)
     assert not (out / "styles" / ff.STAGING).exists()
     return scenes
