@@ -47,6 +47,7 @@ recorded checkpoint is the best of the whole stage, as ``--ckpt_path best`` find
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
 import hashlib
 import json
@@ -54,7 +55,7 @@ import os
 import shlex
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -823,30 +824,56 @@ def run_curriculum(
             print(f"# stage {name}\nfloaff-zoo {shlex.join(args)}", file=out)
             best[name] = f"<best checkpoint of {name}>"
             continue
-        record = _read_json(sdir / STAGE_FILE, _RECORD_FIELDS)
-        _finish_runs(record)  # a kill right after writing it left its runs unmarked
-        finished, why = _reusable(sdir, args, record)
-        _finish_runs(finished)
-        if finished is not None:
-            if finished is not record:  # an earlier fit with these arguments: it becomes the folder's record again
-                _write_json(sdir / STAGE_FILE, finished)
-            record = finished
-            print(f"[curriculum] stage {name}: already finished ({record['checkpoint']}), skipping", file=out)
-        else:
-            if record and record.get("status") == "done":
-                print(f"[curriculum] stage {name}: rerunning, {why}", file=out)
-            try:
-                record, cli = _fit_stage(name, stage, sdir, args, record, best, runner, out)
-            except Exception as exc:
-                exc.curriculum_stage = name  # main names the stage in its one-line error
-                raise
-            if on_stage_end is not None:
-                on_stage_end(name, cli)
+        with _stage_lock(name, sdir, out):
+            record = _read_json(sdir / STAGE_FILE, _RECORD_FIELDS)
+            _finish_runs(record)  # a kill right after writing it left its runs unmarked
+            finished, why = _reusable(sdir, args, record)
+            _finish_runs(finished)
+            if finished is not None:
+                if finished is not record:  # an earlier fit with these arguments: it becomes the folder's record
+                    _write_json(sdir / STAGE_FILE, finished)
+                record = finished
+                print(f"[curriculum] stage {name}: already finished ({record['checkpoint']}), skipping", file=out)
+            else:
+                if record and record.get("status") == "done":
+                    print(f"[curriculum] stage {name}: rerunning, {why}", file=out)
+                try:
+                    record, cli = _fit_stage(name, stage, sdir, args, record, best, runner, out)
+                except Exception as exc:
+                    exc.curriculum_stage = name  # main names the stage in its one-line error
+                    raise
+                if on_stage_end is not None:
+                    on_stage_end(name, cli)
         best[name] = record["checkpoint"]
         lineage["stages"].append(record)
         lineage["complete"] = len(lineage["stages"]) == len(cfg["stages"])
         _write_json(lineage_path, lineage)
     return lineage["stages"]
+
+
+#: lock file of a stage folder, held while a curriculum reads, fits and records that stage
+STAGE_LOCK = ".stage.lock"
+
+
+@contextlib.contextmanager
+def _stage_lock(name: str, sdir: Path, out: Any) -> Iterator[None]:
+    """Hold the stage folder's lock: two curricula sharing a stage (the AxisNet folder of every Layouts experiment)
+    fitted it twice at once, and each tagged the other's live run as its own. The second waits, then finds the stage
+    finished. DDP worker processes (a nonzero LOCAL_RANK / NODE_RANK: Lightning's launcher re-runs the command in
+    them) take no lock: rank 0 of the same run holds it."""
+    if any(int(os.environ.get(k, "0") or 0) > 0 for k in ("LOCAL_RANK", "NODE_RANK")):
+        yield
+        return
+    from floaff_zoo.atomic import LockedError, folder_lock
+
+    lock, held = sdir / STAGE_LOCK, contextlib.ExitStack()
+    try:
+        held.enter_context(folder_lock(lock, wait=False))
+    except LockedError:
+        print(f"[curriculum] stage {name}: another curriculum is working on {sdir}; waiting for it", file=out)
+        held.enter_context(folder_lock(lock))
+    with held:
+        yield
 
 
 def _fit_errors() -> tuple[type[BaseException], ...]:

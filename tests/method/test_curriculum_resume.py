@@ -349,3 +349,36 @@ def test_a_shared_stage_folder_keeps_every_finished_fit(tmp_path, capsys):
     again = run_curriculum(exp, runner=refuse)
     assert [r["checkpoint"] for r in again] == [r["checkpoint"] for r in first]
     assert capsys.readouterr().out.count("already finished") == 2
+
+
+def test_a_stage_another_curriculum_is_working_on_is_waited_for(tmp_path, monkeypatch):
+    """Two curricula sharing a stage folder (the Layouts AxisNet) fitted it at once, each tagging the other's live run
+    as its own: the second now waits for the stage's lock, and a DDP worker process (nonzero LOCAL_RANK) takes none."""
+    import io
+    import threading
+    import time as clock
+
+    from floaff_zoo.atomic import folder_lock
+    from floaff_zoo.curriculum import STAGE_LOCK, _stage_lock
+
+    sdir = tmp_path / "axisnet"
+    held, release = threading.Event(), threading.Event()
+
+    def other_curriculum():
+        with folder_lock(sdir / STAGE_LOCK):
+            held.set()
+            release.wait(10)
+
+    thread = threading.Thread(target=other_curriculum)
+    thread.start()
+    held.wait(10)
+    threading.Timer(0.5, release.set).start()
+    out, t0 = io.StringIO(), clock.monotonic()
+    with _stage_lock("axisnet", sdir, out):
+        waited = clock.monotonic() - t0
+    thread.join()
+    assert waited >= 0.4 and "another curriculum is working on" in out.getvalue()
+    with folder_lock(sdir / STAGE_LOCK):  # held by "rank 0": a worker process of the same run goes on
+        monkeypatch.setenv("LOCAL_RANK", "1")
+        with _stage_lock("axisnet", sdir, out):
+            pass
