@@ -60,6 +60,9 @@ def _sample_manhattan_yaw(xyz: Tensor, target: Tensor, radius: float) -> Tensor 
     """Dominant face orientation (mod 90 deg) near one target, or None. xyz [N, 3] (valid points), target [3]."""
     d = (xyz - target).norm(dim=-1)
     near = xyz[d <= radius]
+    unique = torch.unique(near, dim=0)
+    if len(unique) < len(near):  # a cloud padded by repetition: copies made neighbourhoods "planar" at any normal
+        near = unique
     if len(near) <= MANHATTAN_K:
         return None
     if len(near) > MAX_POINTS:
