@@ -676,9 +676,11 @@ def _fit_stage(
     _write_json(sdir / STAGE_FILE, running)
     if pin:
         _keep_metrics(_run_dir(resume))
-    cli = runner(fit_args)
-    if pin:
-        _restore_metrics(_run_dir(resume))
+    try:
+        cli = runner(fit_args)
+    finally:  # a resumed fit killed or failing again keeps every epoch's rows in its metrics.csv too
+        if pin:
+            _restore_metrics(_run_dir(resume))
     _claim_runs(sdir, running)
     cb = cli.trainer.checkpoint_callback
     ckpt = (cb.best_model_path or cb.last_model_path) if cb is not None else ""

@@ -382,3 +382,20 @@ def test_a_stage_another_curriculum_is_working_on_is_waited_for(tmp_path, monkey
         monkeypatch.setenv("LOCAL_RANK", "1")
         with _stage_lock("axisnet", sdir, out):
             pass
+
+
+def test_a_resumed_fit_that_is_killed_again_keeps_its_metrics_in_place(tmp_path):
+    """The rows before the resume went back into metrics.csv only when the resumed fit returned: killed again, the
+    run's metrics.csv held only the epochs after the resume (the rest sat in metrics.before_resume.csv)."""
+    from floaff_zoo.curriculum import KEPT_METRICS
+
+    exp = _experiment(tmp_path)
+    with pytest.raises(KeyboardInterrupt):
+        run_curriculum(exp, runner=_killed_after(2))
+    seen: list = []
+    with pytest.raises(KeyboardInterrupt):
+        run_curriculum(exp, runner=_killed_after(3, seen))
+    assert "--ckpt_path" in seen[0]  # it resumed, then was killed after one more epoch
+    (metrics,) = (tmp_path / "run" / "s1").rglob("metrics.csv")
+    assert {int(r["epoch"]) for r in csv.DictReader(metrics.open())} == {0, 1, 2}
+    assert not (metrics.parent / KEPT_METRICS).exists()
