@@ -14,7 +14,9 @@ Pipeline per scene:
    the label (same code path);
 5. one rollout per remaining candidate -> binary label;
 6. Gaussian smoothing of the binary grid (``scipy.ndimage.gaussian_filter``, sigma = ``sigma_cells``
-   cells, mode "constant"), then max-normalised to 1 when any candidate succeeded.
+   cells, mode "constant"; cells skipped for the budget count as unknown, not as failures, since generator 2.2:
+   :func:`_smooth`), then max-normalised to 1 when any candidate succeeded; filtered cells are set to 0 after the
+   normalisation (:func:`cell_labels`), so the map can peak below 1 when its maximum lay on a filtered cell.
 
 Every cell ends with a ``status``: ``FILTERED`` (steps 2-4: infeasible, never rolled out), ``ROLLED_OUT``
 (step 5) or ``SKIPPED`` (feasible but over the ``max_candidates`` budget: never considered).
@@ -71,7 +73,7 @@ def probability_label(
             f"probability_label: need {int(np.prod(shape))} finite probabilities in [0, 1] for grid {tuple(shape)}, "
             f"got {p.size} ({p.size - finite.size} not finite, {span})"
         )
-    return cell_labels(_smooth(p, shape, sigma_cells), status)[0]
+    return cell_labels(_smooth(p, shape, sigma_cells, np.asarray(status).reshape(-1) != SKIPPED), status)[0]
 
 
 @dataclass
@@ -108,12 +110,27 @@ def candidate_grid(
     return target_frame_to_world(scene.target, xo), (len(ys), len(xs)), xo
 
 
-def _smooth(binary: np.ndarray, shape: tuple[int, int], sigma: float) -> np.ndarray:
+def _smooth(binary: np.ndarray, shape: tuple[int, int], sigma: float, known: np.ndarray | None = None) -> np.ndarray:
+    """Step 6 over values [M] (1/0 successes, or probabilities) on the (H, W) grid -> label [M] f32.
+
+    ``known`` [M] bool (``status != SKIPPED``): cells over the ``max_candidates`` budget were never rolled out, so
+    they carry no value; the smoothing then weighs each cell's neighbourhood by the share of it that is known (the
+    kernel's mass over the grid divided by its mass over known cells) instead of counting the skipped cells as
+    failures, which lowered the labels of rolled-out cells beside them. Without skipped cells the map is unchanged.
+    """
     from scipy.ndimage import gaussian_filter
 
     g = binary.reshape(shape).astype(np.float64)
+    skipped = known is not None and not np.asarray(known, dtype=bool).all()
+    if skipped:
+        k = np.asarray(known, dtype=np.float64).reshape(shape)
+        g = g * k
     if sigma > 0:
         g = gaussian_filter(g, sigma=sigma, mode="constant")
+        if skipped:
+            mass = gaussian_filter(k, sigma=sigma, mode="constant")
+            full = gaussian_filter(np.ones(shape), sigma=sigma, mode="constant")
+            g = np.where(mass > 1e-9, g * full / np.maximum(mass, 1e-9), 0.0)
     mx = g.max()
     if mx > 0:
         g = g / mx
@@ -211,7 +228,7 @@ def annotate_scene(
         yaw=yaws,
         valid=valid,
         success=success,
-        label=_smooth(success, shape, sigma_cells),
+        label=_smooth(success, shape, sigma_cells, status != SKIPPED),
         reasons=reasons,
         counts=counts,
         grid_shape=shape,
