@@ -114,8 +114,13 @@ def test_malformed_records_are_named(tmp_path):
     ("field", "value", "message"),
     [
         (("labels", "cell_label"), [0.5] * 5, "labels.cell_label has 5 entries"),
-        (("candidates", "status"), 7, "candidates.status must be lists"),
+        (("candidates", "status"), 7, r"candidates\.status.* must be lists"),
         (("labels", "label"), "nan", "labels.label holds NaN or Inf values"),
+        # a yaw or valid list of another length, a grid of another shape: scripts reading them (fresh labels, repeat
+        # rollouts) zeroed the cells past the short list without a word
+        (("candidates", "valid"), [1] * 2, "candidates.valid has 2 entries, candidates.xy has 36"),
+        (("candidates", "yaw"), [0.0] * 3, "candidates.yaw has 3 entries"),
+        (("candidates", "grid_shape"), [7, 9], r"grid_shape \[7, 9\] does not hold the 36 cells"),
     ],
 )
 def test_format_2_scene_records_are_checked(tmp_path, field, value, message):

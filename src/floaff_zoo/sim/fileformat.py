@@ -295,6 +295,8 @@ def read_scene(scene_path: str | Path) -> dict[str, Any]:
     # file has them they must cover the grid like the labels
     keys = [("labels", "success"), ("labels", "label")]
     extra = [("labels", "cell_label"), ("labels", "known"), ("candidates", "status")]
+    # the per-cell lists a script indexes by cell (fresh labels, repeat rollouts): a short one zeroed the cells past it
+    extra += [("candidates", "yaw"), ("candidates", "valid"), ("candidates", "on_floor")]
     keys += [(a, b) for a, b in extra if isinstance(rec.get(a), dict) and b in rec[a]]
     try:
         m = len(rec["candidates"]["xy"])
@@ -305,6 +307,14 @@ def read_scene(scene_path: str | Path) -> dict[str, Any]:
     for k, n in sizes.items():
         if n != m:
             raise FormatError(f"{p}: {k} has {n} entries, candidates.xy has {m}")
+    shape = rec["candidates"].get("grid_shape")
+    if shape is not None and (
+        not isinstance(shape, list)
+        or len(shape) != 2
+        or not all(isinstance(v, int) for v in shape)
+        or shape[0] * shape[1] != m
+    ):  # the labels are smoothed and read on this grid: another shape mixes rows
+        raise FormatError(f"{p}: candidates.grid_shape {shape} does not hold the {m} cells of candidates.xy")
     for k in ("label", "cell_label"):
         if k not in rec["labels"]:
             continue
