@@ -129,3 +129,30 @@ def test_ray_backend_clear_error(monkeypatch):
         RolloutService(backend="ray")
     with pytest.raises(ValueError, match="backend"):
         RolloutService(backend="dask")
+
+
+def test_one_service_serves_every_task_seed(monkeypatch):
+    """repeat.service_runner kept one service, hence one pool of worker processes with their scene caches, alive per
+    task seed (per episode); one service now takes the seed per run and keeps the results of each seed apart."""
+    import floaff_zoo.sim.rollout as ro
+    from floaff_zoo.sim.repeat import service_runner
+
+    seen: list[int] = []
+
+    def fake_job(job):
+        seen.append(job[2])
+        return ro.RolloutResult(success=job[2] % 2 == 0, reason="fake", sim_seconds=0.0, wall_seconds=0.0)
+
+    made: list = []
+
+    class CountingService(ro.RolloutService):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs, job_fn=fake_job)
+            made.append(self)
+
+    monkeypatch.setattr(ro, "RolloutService", CountingService)
+    job = [(SceneSpec(0, 0, 0, "CloseDrawer"), (0.5, -1.0, 1.0))]
+    run = service_runner(1)
+    assert run(4, job) == [True] and run(5, job) == [False] and run(4, job) == [True]
+    assert len(made) == 1 and seen == [4, 5]  # one service; the seed-4 result came from its cache
+    assert len(made[0].cache) == 2

@@ -102,15 +102,15 @@ def write_probs(path: Path, setting: dict, probs: dict[str, np.ndarray]) -> None
 
 
 def service_runner(workers: int) -> Runner:
-    """A Runner on the simulator's rollout service: one service (and result cache) per task seed."""
+    """A Runner on the simulator's rollout service: one service (one worker pool, one result cache keyed by the task
+    seed too) for every task seed. A service per seed kept a pool of ``workers`` processes alive per episode, each
+    holding every scene it had built."""
     from floaff_zoo.sim.rollout import RolloutService
 
-    services: dict[int, RolloutService] = {}
+    service = RolloutService(workers=workers, cache_decimals=ROLLOUT_POSE_DECIMALS)
 
     def run(task_seed: int, jobs: list) -> list[bool]:
-        if task_seed not in services:
-            services[task_seed] = RolloutService(workers=workers, cache_decimals=ROLLOUT_POSE_DECIMALS, seed=task_seed)
-        return [r.success for r in services[task_seed].run(jobs)]
+        return [r.success for r in service.run(jobs, seed=task_seed)]
 
     return run
 

@@ -266,17 +266,23 @@ class RolloutService:
         self._pool: cf.ProcessPoolExecutor | None = None
         self._ray_started = False  # this service called ray.init, so close() shuts it down
 
-    def _key(self, spec: SceneSpec, pose) -> tuple:
+    def _key(self, spec: SceneSpec, pose, seed: int) -> tuple:
         x, y, yaw = _check_pose(pose)
         r = self.cache_decimals
-        return (spec, round(x, r), round(y, r), round(yaw, r))
+        return (spec, round(x, r), round(y, r), round(yaw, r), seed)
 
     def run(
-        self, jobs: list[tuple[SceneSpec, tuple[float, float, float]]], progress: bool = False
+        self,
+        jobs: list[tuple[SceneSpec, tuple[float, float, float]]],
+        progress: bool = False,
+        seed: int | None = None,
     ) -> list[RolloutResult]:
-        keys = [self._key(s, p) for s, p in jobs]
+        """Roll every (scene, pose) job out (cached); ``seed``: the task's reset seed for these jobs (default the
+        service's), so one pool serves episodes of several seeds (``repeat.service_runner``)."""
+        seed = self.seed if seed is None else int(seed)
+        keys = [self._key(s, p, seed) for s, p in jobs]
         todo = sorted({k for k in keys if k not in self.cache}, key=lambda k: (k[0].scene_id, k[1:]))
-        payload = [(k[0].to_dict(), (k[1], k[2], k[3]), self.seed) for k in todo]
+        payload = [(k[0].to_dict(), (k[1], k[2], k[3]), k[4]) for k in todo]
         t0 = time.perf_counter()
         if self.workers == 1 or len(payload) <= 1:
             results = []
