@@ -43,9 +43,10 @@
 # Needs the data:
 #   floaff-zoo generate --preset small --benchmarks layouts styles --out data/floaff_small --workers 2 --n-test 4
 # Every job trains (a `fit` or a PFAL `curriculum`), tests on all four tasks with the rollout success-rate
-# callback, and copies its report.json/report.md to docs/results/small/<benchmark>/<job>/ (machine paths
-# stripped). A job whose report is already there is skipped; a killed job resumes (the curriculum skips
-# finished stages, fit resumes from last.ckpt). Logs: runs/small/logs/<job>.log.
+# callback, and copies its report.json/report.md to $OUT/<benchmark>/<job>/ (default docs/results/small_v2 for
+# PRESET=small, docs/results/<preset> otherwise; machine paths stripped). A job whose report is already there is
+# skipped; a killed job resumes (the curriculum skips finished stages, fit resumes from last.ckpt).
+# Logs: $RUNS/logs/<job>.log (default runs/small_v2, runs/<preset>).
 # Then: scripts/results_tables.sh (the tables and pictures of docs/results.md).
 # Order matters for the diagnostic jobs: gtyaw_*, stage1_*, axisnet_longer need cfar_pfal_s<seed> finished,
 # axis100_* need axisnet_longer (a job whose input is missing fails with a message; rerun it later).
