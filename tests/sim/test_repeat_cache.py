@@ -33,3 +33,17 @@ def test_a_write_killed_midway_keeps_the_previous_cache(tmp_path, monkeypatch):
     with pytest.raises(KeyboardInterrupt):
         repeat.write_probs(path, SETTING, {"a": np.array([1.0, 1.0, 1.0])})
     assert path.read_bytes() == before and [p.name for p in tmp_path.iterdir()] == ["probs.npz"]
+
+
+def test_a_scene_cached_from_another_generator_version_is_refused(tmp_path):
+    """The cache matched scenes by id and size only: probabilities rolled out on generator-2.0 data (the old
+    double-door push) were reused on a 2.1 copy of the same kitchens without a word."""
+    path = tmp_path / "probs.npz"
+    repeat.write_probs(path, SETTING, {"a": np.array([0.0, 0.5, 1.0])}, {"a": "2.0.0"})
+    same = {"a": {**SCENES["a"], "generator_version": "2.0.0"}}
+    assert repeat.read_probs(path, SETTING, same)["a"].tolist() == [0.0, 0.5, 1.0]
+    newer = {"a": {**SCENES["a"], "generator_version": "2.1.0"}}
+    with pytest.raises(ValueError, match="scene a was cached from generator 2.0.0 data, this copy is 2.1.0"):
+        repeat.read_probs(path, SETTING, newer)
+    repeat.write_probs(path, SETTING, {"a": np.array([0.0, 0.5, 1.0])})  # an older cache: nothing to compare
+    assert repeat.read_probs(path, SETTING, newer)["a"].tolist() == [0.0, 0.5, 1.0]

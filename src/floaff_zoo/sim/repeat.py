@@ -79,12 +79,19 @@ def fresh_probability(
     return wins / len(task_seeds)
 
 
+#: the cache entry recording which generator version made each cached scene
+_MADE_FROM = "generator_versions"
+
+
 def read_probs(path: Path, setting: dict, scenes: dict[str, dict]) -> dict[str, np.ndarray]:
-    """Cached fresh probabilities (scene id -> [M]) made with ``setting``; a mismatch or a corrupt file is an error."""
+    """Cached fresh probabilities (scene id -> [M]) made with ``setting``; a mismatch, a scene cached from data of
+    another generator version (a scene id names its kitchen, not its rollouts: 2.1 changed the double-door push) or a
+    corrupt file is an error. Caches written before the versions were recorded are not checked for them."""
     try:
         with np.load(path) as z:
             made = json.loads(str(z["setting"]))
-            probs = {k: z[k] for k in z.files if k != "setting"}
+            versions = json.loads(str(z[_MADE_FROM])) if _MADE_FROM in z.files else {}
+            probs = {k: z[k] for k in z.files if k not in ("setting", _MADE_FROM)}
     except (OSError, ValueError, KeyError, zipfile.BadZipFile, EOFError) as exc:  # a cut-off file is a BadZipFile
         raise ValueError(f"{path} is not a fresh-probability cache ({exc}); delete it") from exc
     if made != setting:
@@ -92,13 +99,22 @@ def read_probs(path: Path, setting: dict, scenes: dict[str, dict]) -> dict[str, 
     for sid, p in probs.items():
         if sid in scenes and p.shape != (len(scenes[sid]["candidates"]["xy"]),):
             raise ValueError(f"{path}: scene {sid} has {p.shape} probabilities for its candidates")
+        now = scenes.get(sid, {}).get("generator_version")
+        if sid in versions and now is not None and versions[sid] != now:
+            raise ValueError(
+                f"{path}: scene {sid} was cached from generator {versions[sid]} data, this copy is {now}; delete it"
+            )
     return probs
 
 
-def write_probs(path: Path, setting: dict, probs: dict[str, np.ndarray]) -> None:
-    """Cache ``probs`` (scene id -> [M]) made with ``setting`` in ``path`` (.npz), atomically: a run killed while
-    writing leaves the previous cache whole (it is rewritten after every scene)."""
-    atomic_write(path, lambda f: np.savez(f, setting=json.dumps(setting), **probs))
+def write_probs(
+    path: Path, setting: dict, probs: dict[str, np.ndarray], versions: dict[str, str] | None = None
+) -> None:
+    """Cache ``probs`` (scene id -> [M]) made with ``setting`` (and ``versions``: scene id -> the generator version of
+    its record) in ``path`` (.npz), atomically: a run killed while writing leaves the previous cache whole (it is
+    rewritten after every scene)."""
+    tags = {_MADE_FROM: json.dumps(versions)} if versions else {}
+    atomic_write(path, lambda f: np.savez(f, setting=json.dumps(setting), **tags, **probs))
 
 
 def service_runner(workers: int) -> Runner:
@@ -135,5 +151,6 @@ def scene_probabilities(
         probs[sid] = fresh_probability(scene, run, n, sxy, yaw, seed, seeds)
         print(f"{sid}: {int((probs[sid] > 0).sum())} cells with a fresh success", flush=True)
         if cache is not None:
-            write_probs(cache, setting, probs)
+            made = {k: scenes[k]["generator_version"] for k in probs if scenes.get(k, {}).get("generator_version")}
+            write_probs(cache, setting, probs, made)
     return probs
