@@ -92,6 +92,23 @@ def test_a_scene_job_leaves_no_compiled_kitchen_behind(monkeypatch):
     assert set(kitchen._CACHE) == before
 
 
+def test_a_scene_whose_regions_give_no_view_is_dropped_not_committed(monkeypatch, tmp_path):
+    """A scene whose view regions yielded no acceptable view was committed with no view (no sample, counted nowhere);
+    it is now an attempt dropped for want of a view, and the slot tries the next seed's kitchen."""
+    from floaff_zoo.sim import fileformat as ff
+    from floaff_zoo.sim import views
+
+    monkeypatch.setattr(views, "sample_view_poses", lambda *args, **kw: [])
+    preset = get_preset("tiny", tasks=("CloseDrawer",), n_test=0)
+    (job, *_) = gen.plan_jobs(preset, 0, list(range(6)), list(range(8)))
+    job = dataclasses.replace(job, seeds=job.seeds[:1])
+    res = gen.run_job(job, str(tmp_path), preset.to_dict(), False)
+    assert res["status"] == "dropped" and [a["outcome"] for a in res["attempts"]] == ["dropped_no_view"]
+    assert "kept view" in res["reason"]
+    assert not list(ff.iter_scenes(tmp_path, benchmark=job.benchmark))
+    assert not any((tmp_path / job.benchmark / ff.STAGING).glob("*"))  # the staged files went too
+
+
 def test_paper_view_counts_match_the_appendix_table():
     p = PRESETS["paper"]
     total = 0

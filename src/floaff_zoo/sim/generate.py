@@ -338,7 +338,8 @@ def _write_scene(
     save_images: bool,
     rng_views: np.random.Generator,
 ) -> dict[str, Any]:
-    """Render views, write everything into the staging dir, write scene.json last and commit. Returns view counts."""
+    """Render views, write everything into the staging dir, write scene.json last and commit. Returns view counts
+    (both 0, and nothing committed, when no view was kept)."""
     from floaff_zoo.floor import FLOOR_Z_MAX
     from floaff_zoo.sim.annotate import cell_labels
     from floaff_zoo.sim.pictures import render_topdown_png, rgb_png
@@ -426,6 +427,9 @@ def _write_scene(
                 first_rgb.setdefault(kind, obs.rgb)
     finally:
         renderer.close()
+    if not views:  # no region gave an acceptable view: a scene without one would be committed and hold no sample
+        shutil.rmtree(stage, ignore_errors=True)
+        return {"front": 0, "side": 0}
     valid = _arr(getattr(ann, "valid", np.ones(len(label), bool)), bool).reshape(-1)
     title = f"{job.benchmark} {job.task} {job.split} L{spec.layout_id} S{spec.style_id}"
     poses = np.array([v["base_pose_world"] + [v["view"] == "side"] for v in views], dtype=np.float64).reshape(-1, 4)
@@ -540,6 +544,10 @@ def run_job(job: SceneJob, out: str, preset_dict: dict[str, Any], save_images: b
             nv = _write_scene(
                 outp, job, spec, scene, ann, preset, save_images, np.random.default_rng(derive_seed(seed, "views"))
             )
+            if not sum(nv.values()):  # the next attempt's kitchen, as for a scene without a positive candidate
+                att.update(outcome="dropped_no_view", views_s=time.perf_counter() - tc)
+                attempts.append(att)
+                continue
             att.update(outcome="ok", views_s=time.perf_counter() - tc, n_views=nv)
             attempts.append(att)
             return {
@@ -555,7 +563,7 @@ def run_job(job: SceneJob, out: str, preset_dict: dict[str, Any], save_images: b
             "status": "dropped",
             "scene_id": None,
             "attempts": attempts,
-            "reason": f"no positive candidate in {len(job.seeds)} seed attempts",
+            "reason": f"no scene with a positive candidate and a kept view in {len(job.seeds)} seed attempts",
             "wall_s": time.perf_counter() - t0,
             "pid": os.getpid(),
         }
@@ -813,10 +821,9 @@ def _summarise(manifest: dict[str, Any]) -> None:
             for why, k in (s.get("views_rejected") or {}).items():
                 counts[f"views_rejected_{why}"] = counts.get(f"views_rejected_{why}", 0) + int(k)
         for a in s.get("attempts", []):
-            if a.get("outcome") == "dropped_no_positive":
-                drops.append(
-                    {"slot": key, "scene_id": a["scene_id"], "seed": a["seed"], "reason": "no positive candidate"}
-                )
+            why = {"dropped_no_positive": "no positive candidate", "dropped_no_view": "no view kept"}
+            if a.get("outcome") in why:
+                drops.append({"slot": key, "scene_id": a["scene_id"], "seed": a["seed"], "reason": why[a["outcome"]]})
         if st in ("failed", "dropped"):
             drops.append({"slot": key, "scene_id": None, "reason": f"{st}: {s.get('reason')}"})
     counts["views_total"] = counts["views_front"] + counts["views_side"]
