@@ -290,6 +290,60 @@ def test_cosine_schedule_anneals_over_max_steps_with_a_step_budget():
         open_ended.fit(TinyPointNetModule(), loader)
 
 
+def test_cosine_anneals_over_the_steps_when_max_steps_ends_the_fit_before_max_epochs():
+    """With both max_epochs and max_steps the schedule ran per epoch over max_epochs: a fit the step budget ended
+    first kept nearly the base rate (0.0029 of 0.003 after 8 of 20 epochs' steps); it now anneals over the optimizer
+    steps the fit takes."""
+    loader = torch.utils.data.DataLoader(
+        [make_synthetic_sample(i, num_points=64, floor_cells=4) for i in range(4)],
+        batch_size=2,
+        collate_fn=collate_samples,
+    )  # 2 steps per epoch: max_steps 8 ends the fit in epoch 4 of 20
+    lrs: list[float] = []
+
+    class Record(lightning.Callback):
+        def on_train_batch_start(self, trainer, *_):
+            lrs.append(trainer.optimizers[0].param_groups[0]["lr"])
+
+    trainer = lightning.Trainer(
+        max_epochs=20,
+        max_steps=8,
+        accelerator="cpu",
+        logger=False,
+        enable_checkpointing=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        callbacks=[Record()],
+    )
+    trainer.fit(TinyPointNetModule(), loader)
+    assert len(lrs) == 8 and all(b < a for a, b in zip(lrs, lrs[1:])), lrs
+    assert trainer.optimizers[0].param_groups[0]["lr"] == pytest.approx(1e-6, abs=1e-9)
+
+
+def test_plateau_is_refused_when_validation_runs_by_steps():
+    """plateau steps at epoch ends on the monitored metric; with validation every val_check_interval steps (the
+    dense budget) the metric was missing there and the fit crashed mid-run, or read a stale value."""
+    loader = torch.utils.data.DataLoader(
+        [make_synthetic_sample(i, num_points=64, floor_cells=4) for i in range(4)],
+        batch_size=2,
+        collate_fn=collate_samples,
+    )
+    trainer = lightning.Trainer(
+        max_epochs=-1,
+        max_steps=4,
+        val_check_interval=2,
+        check_val_every_n_epoch=None,
+        accelerator="cpu",
+        logger=False,
+        enable_checkpointing=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+    )
+    model = TinyPointNetModule(train=FloAffTrainConfig(scheduler="plateau"))
+    with pytest.raises(MisconfigurationException, match="'plateau' steps at epoch ends on val_rmse"):
+        trainer.fit(model, loader, loader)
+
+
 def test_navaff_evaluation_loss_repeats_and_draws_nothing():
     """NavAff's training loss draws Bernoulli weights; its val/test loss uses their expectation: the same value on
     every call, and torch's global generator (the training augmentation's) untouched."""

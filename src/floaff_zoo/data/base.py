@@ -137,6 +137,22 @@ class FloAffDataModule(L.LightningDataModule):
         self.datasets: dict[str, Dataset] = {}
         #: split -> keys of the samples that failed at load time after setup and were replaced (``meta['replaces']``)
         self.load_failures: dict[str, set[str]] = {}
+        #: the train loader's shuffle generator, and a state a resumed fit's checkpoint gave it before it was made
+        self._train_generator: torch.Generator | None = None
+        self._train_generator_state: torch.Tensor | None = None
+
+    def state_dict(self) -> dict[str, Any]:
+        """Saved in every checkpoint: the train shuffle's generator state, so a resumed fit goes on with the next
+        epochs' orders instead of drawing the first epoch's again."""
+        gen = self._train_generator
+        return {"train_generator": gen.get_state()} if gen is not None else {}
+
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        """A resumed fit's saved state (applied when the train loader is made, after Lightning restores it)."""
+        state = state_dict.get("train_generator")
+        self._train_generator_state = state if isinstance(state, torch.Tensor) else None
+        if self._train_generator is not None and self._train_generator_state is not None:
+            self._train_generator.set_state(self._train_generator_state)
 
     def collate_fn(self, split: str) -> Callable[[Sequence[Sample]], dict[str, Any]]:
         # eval splits resample each sample from its own seeded stream, so metrics repeat across epochs and worker
@@ -174,6 +190,13 @@ class FloAffDataModule(L.LightningDataModule):
             ds = TransformedDataset(
                 ds, transforms, self.sample_transform if self._has_hook() else None, split, self.seed
             )
+        # every loader has its own generator: an iterator of a loader without one draws its base seed from torch's
+        # global generator, so each validation moved the stream the training augmentation draws from
+        generator = torch.Generator().manual_seed(self.seed)
+        if split == "train":
+            if self._train_generator_state is not None:
+                generator.set_state(self._train_generator_state)
+            self._train_generator = generator
         return DataLoader(
             ds,
             batch_size=self.batch_size if split == "train" else self.eval_batch_size,
@@ -181,7 +204,7 @@ class FloAffDataModule(L.LightningDataModule):
             num_workers=self.num_workers,
             persistent_workers=self.num_workers > 0,
             collate_fn=self.collate_fn(split),
-            generator=torch.Generator().manual_seed(self.seed) if split == "train" else None,
+            generator=generator,
         )
 
     def on_after_batch_transfer(self, batch: Any, dataloader_idx: int) -> Any:

@@ -25,6 +25,7 @@ import dataclasses
 import inspect
 import math
 import os
+import random
 import typing
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -32,6 +33,7 @@ from pathlib import Path
 from typing import IO, Any, ClassVar, Literal
 
 import lightning as L
+import numpy as np
 import torch
 from lightning.pytorch.utilities.exceptions import MisconfigurationException
 from torch import Tensor
@@ -41,6 +43,8 @@ from floaff_zoo.contract import Batch, SampleError, best_pose, check_batch
 from floaff_zoo.losses import build_loss
 from floaff_zoo.metrics import affordance_metrics
 
+#: checkpoint entry of the random streams a resumed fit restores (``ZooModule.on_save_checkpoint``)
+RNG_KEY = "floaff_rng_states"
 #: the size attributes of the layers ``check_layer_sizes`` reads
 _LAYER_SIZES: dict[type, tuple[str, ...]] = {
     torch.nn.Linear: ("in_features", "out_features"),
@@ -385,6 +389,11 @@ class ZooModule(L.LightningModule):
                 if epochs < 1 and steps > 0:  # a step budget (max_epochs -1): anneal per step over max_steps
                     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=steps, eta_min=1e-6)
                     return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
+                if steps > 0 and tr is not None:  # both: whichever ends first (per epoch it never annealed when the
+                    # steps ran out first); Lightning counts the optimizer steps the fit will take
+                    total = max(1, int(tr.estimated_stepping_batches))
+                    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=total, eta_min=1e-6)
+                    return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
                 if epochs < 1 and tr is not None:  # T_max 1 would swing the rate between lr and eta_min every epoch
                     raise MisconfigurationException(
                         f"{type(self).__name__}: train.scheduler 'cosine' anneals over trainer.max_epochs or "
@@ -400,12 +409,27 @@ class ZooModule(L.LightningModule):
                         f"{type(self).__name__}: train.scheduler 'plateau' follows {self.monitor}, but the data "
                         "module has no validation (val_scenes 0): use 'cosine' or 'none'"
                     )
+                if self._trainer is not None and self._trainer.check_val_every_n_epoch is None:
+                    raise MisconfigurationException(
+                        f"{type(self).__name__}: train.scheduler 'plateau' steps at epoch ends on {self.monitor}, but "
+                        "this trainer validates every val_check_interval steps (check_val_every_n_epoch null, as "
+                        "dense_budget.yaml): the metric is missing or stale there; use 'cosine' or 'none'"
+                    )
                 sched = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, mode=self.mode, patience=3)
                 return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "monitor": self.monitor}}
         raise MisconfigurationException(f"unknown scheduler {t.scheduler!r}")
 
     # ----------------------------------------------------------------- weights in and out
     def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        # the random streams of the training augmentation (torch's global generator, and numpy's and Python's for
+        # transforms that use them): a fit resumed from this checkpoint goes on with them instead of redrawing the
+        # first epochs' noise from the seed (on_load_checkpoint)
+        kind, keys, pos, has_gauss, gauss = np.random.get_state()
+        checkpoint[RNG_KEY] = {  # tensors and plain numbers only: checkpoints are read with weights_only
+            "torch": torch.get_rng_state(),
+            "numpy": [str(kind), torch.from_numpy(np.asarray(keys, dtype=np.int64)), int(pos), int(has_gauss), gauss],
+            "python": random.getstate(),
+        }
         # The state dict already holds the pretrained weights: record where they came from, but
         # save ``weights: null`` so reloading the checkpoint never needs that source again.
         hp = checkpoint.get("hyper_parameters")
@@ -413,6 +437,18 @@ class ZooModule(L.LightningModule):
             lineage = checkpoint.setdefault("floaff_lineage", {})
             lineage.update({"weights": hp["weights"], "weights_sha256": self.weights_sha256})
             checkpoint["hyper_parameters"] = {**hp, "weights": None}
+
+    def on_load_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        """A fit resumed from ``checkpoint`` restores the saved random streams (only then: loading a model to test or
+        predict with leaves the caller's generators alone)."""
+        trainer = self._trainer
+        state = checkpoint.get(RNG_KEY)
+        if not state or trainer is None or trainer.state.fn != "fit":
+            return
+        kind, keys, pos, has_gauss, gauss = state["numpy"]
+        torch.set_rng_state(state["torch"])
+        np.random.set_state((kind, keys.numpy().astype(np.uint32), pos, has_gauss, float(gauss)))
+        random.setstate(state["python"])
 
     def load_pretrained(self, name_or_path: str) -> None:
         """Initialise from a checkpoint/hub name; layers whose shapes differ are dropped with a warning.

@@ -341,6 +341,7 @@ class CFARModule(FloAffModule):
         )
 
     def on_load_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        super().on_load_checkpoint(checkpoint)
         # resuming a stage: the checkpoint has no teacher.* keys; keep the teacher loaded from its file
         if self.teacher is not None and "state_dict" in checkpoint:
             for k, v in self.teacher.state_dict().items():

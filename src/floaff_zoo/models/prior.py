@@ -117,6 +117,7 @@ class CanonicalPriorModule(FloAffModule):
         return self
 
     def on_load_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        super().on_load_checkpoint(checkpoint)
         # evaluating a fitted prior with an AxisNet it was not saved with (or saved without one)
         keep_configured_axisnet(checkpoint, self.axisnet, self.hparams.get("axisnet_arch"))
 

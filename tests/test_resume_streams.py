@@ -1,0 +1,86 @@
+"""A fit resumed from last.ckpt goes on with the data stream an uninterrupted fit draws: the shuffle order and the
+augmentation noise of the next epochs, not the first epoch's again; validation does not move that stream."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import lightning as L
+import torch
+
+from floaff_zoo.cli import run_lightning
+from tests.conftest import quiet_trainer_args
+
+DATA = "configs/data/synthetic_tiny.yaml"
+MODEL = "configs/models/tiny_pointnet.yaml"
+JITTER = '[{"class_path": "floaff_zoo.data.transforms.Jitter", "init_args": {"sigma": 0.05}}]'
+
+
+class BatchRecorder(L.Callback):
+    """Records (epoch, the batch's first cloud coordinate) of every training batch: order and jitter in one number."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.seen: list[tuple[int, float]] = []
+
+    def on_train_batch_start(self, trainer, pl_module, batch, batch_idx) -> None:
+        self.seen.append((trainer.current_epoch, round(float(batch["scene_xyz"][0, 0, 0]), 6)))
+
+
+def _fit(out: Path, epochs: int, *extra: str):
+    args = [
+        "fit",
+        "--config",
+        DATA,
+        "--config",
+        MODEL,
+        "--data.init_args.train_transforms",
+        JITTER,
+        "--trainer.max_epochs",
+        str(epochs),
+        "--trainer.callbacks+=tests.test_resume_streams.BatchRecorder",
+        *quiet_trainer_args(out),
+        *extra,
+    ]
+    cli = run_lightning(args)
+    (rec,) = [c for c in cli.trainer.callbacks if isinstance(c, BatchRecorder)]
+    return cli, [x for _, x in rec.seen], rec.seen
+
+
+def _epoch(seen, k):
+    return [x for e, x in seen if e == k]
+
+
+def test_a_resumed_fit_draws_the_next_epochs_not_the_first_again(tmp_path, root, monkeypatch):
+    monkeypatch.chdir(root)
+    _, _, whole = _fit(tmp_path / "whole", 3)
+    cli, _, _ = _fit(tmp_path / "cut", 2)
+    last = Path(cli.trainer.checkpoint_callback.last_model_path)
+    _, _, resumed = _fit(tmp_path / "cut", 3, "--ckpt_path", str(last))
+    assert _epoch(resumed, 2) == _epoch(whole, 2)  # the uninterrupted fit's third epoch, order and noise
+    assert _epoch(resumed, 2) != _epoch(whole, 0)  # it used to replay the first
+
+
+def test_validation_does_not_move_the_training_stream(tmp_path, root, monkeypatch):
+    """Each validation's loader iterator drew its base seed from torch's global generator, which the augmentation
+    draws from: validating every epoch or every other one gave different training noise from the second epoch on."""
+    monkeypatch.chdir(root)
+    _, every, _ = _fit(tmp_path / "a", 3, "--trainer.check_val_every_n_epoch", "1")
+    _, sparse, _ = _fit(tmp_path / "b", 3, "--trainer.check_val_every_n_epoch", "2")
+    assert every == sparse
+
+
+def test_resuming_restores_the_generators_only_in_fit(tmp_path, root, monkeypatch):
+    """Loading a checkpoint to evaluate must not reset the caller's random generators."""
+    from floaff_zoo.models.base import RNG_KEY
+
+    monkeypatch.chdir(root)
+    cli, _, _ = _fit(tmp_path / "run", 1)
+    checkpoint = torch.load(cli.trainer.checkpoint_callback.best_model_path, weights_only=True)  # as fits read it
+    assert set(checkpoint[RNG_KEY]) == {"torch", "numpy", "python"}
+    model = type(cli.model)()  # no trainer: a model loaded to test or predict with
+    torch.manual_seed(123)
+    expected = torch.rand(3)
+    torch.manual_seed(123)
+    model.on_load_checkpoint(checkpoint)
+    assert torch.equal(torch.rand(3), expected)
