@@ -463,9 +463,9 @@ class FloAffCLI(LightningCLI):
         if not gaps:
             return
         raise CLIError(
-            f"--model.init_args.weights {self.model.hparams.get('weights')}: {len(gaps)} tensor(s) of "
-            f"{type(self.model).__name__} not loaded (shape in the weights vs the model's: "
-            f"{'; '.join(gaps[:5])}{'; ...' if len(gaps) > 5 else ''}); "
+            f"--model.init_args.weights {self.model.hparams.get('weights')}: {len(gaps)} tensor(s) or part(s) of "
+            f"{type(self.model).__name__} and its weights not loaded (shape in the weights vs the model's, or a part "
+            f"only one side has: {'; '.join(gaps[:5])}{'; ...' if len(gaps) > 5 else ''}); "
             f"`floaff-zoo {self.subcommand}` needs weights that fit the configured model (same class and "
             "architecture init args), or pass --ckpt_path"
         )

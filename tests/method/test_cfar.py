@@ -349,3 +349,14 @@ def test_a_mistyped_teacher_batchnorm_mode_is_refused(root):
     """Anything but 'batch' ran the frozen teacher on its running statistics, without a word."""
     with pytest.raises(MisconfigurationException, match="distill_bn must be 'batch' or 'running', got 'batchnorm'"):
         CFARModule(**tiny_args(root), distill_bn="batchnorm")
+
+
+def test_weights_with_a_part_the_model_lacks_are_not_all_loaded(tmp_path):
+    """A CFAR trained over the canonical prior, built without it and given those weights, warned and was then
+    evaluated without its prior (its head's residual scored alone); the unused part is now listed in
+    weights_not_loaded, which `floaff-zoo test`/`validate`/`predict` refuse."""
+    init_args = yaml.safe_load(Path(CFAR).read_text())["model"]["init_args"]
+    with_prior = CFARModule(**{**init_args, "prior_residual": True}).save_pretrained(tmp_path / "with_prior")
+    with pytest.warns(UserWarning, match=r"weights of \['prior'\] are not used"):
+        plain = CFARModule(**{**init_args, "prior_residual": False}, weights=str(with_prior))
+    assert plain.weights_not_loaded == ["prior.*: in the weights, no such part in this CFARModule"]

@@ -668,9 +668,11 @@ def load_matching_state(module: torch.nn.Module, state: dict[str, Tensor], sourc
     """Load ``state`` into ``module``, skipping (and reporting) keys with mismatched shapes.
 
     Returns:
-        the tensors of ``module`` left as they were, one ``"key: why"`` line each: ``(shape in state) vs
-        (module's shape)`` for a skipped key, ``not in the weights`` for a key ``state`` lacks (keys a module's
-        own loading hook fills in, e.g. a legacy buffer, are not listed).
+        what did not load, one ``"key: why"`` line each: the tensors of ``module`` left as they were (``(shape in
+        state) vs (module's shape)`` for a skipped key, ``not in the weights`` for a key ``state`` lacks; keys a
+        module's own loading hook fills in, e.g. a legacy buffer, are not listed), and ``<part>.*: ...`` for a part of
+        the weights the module has no place for (a CFAR trained over the prior, built without it, scored on
+        without its prior: evaluation must refuse that too).
     Raises:
         ValueError: when nothing at all matches (almost surely the wrong checkpoint).
     """
@@ -698,4 +700,5 @@ def load_matching_state(module: torch.nn.Module, state: dict[str, Tensor], sourc
         )
     result = module.load_state_dict(keep, strict=False)
     absent = [f"{k}: not in the weights" for k in result.missing_keys if k not in state]
-    return skipped + absent
+    parts = [f"{p}.*: in the weights, no such part in this {type(module).__name__}" for p in unused]
+    return skipped + absent + parts
