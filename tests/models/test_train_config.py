@@ -170,6 +170,17 @@ def test_old_flat_checkpoint_loads(tmp_path, batch, cli):
     assert TinyPointNetModule.load_from_checkpoint(ckpt, weights_only=True, lr=0.02).train_cfg.lr == 0.02
 
 
+def test_load_from_checkpoint_overrides_training_fields_one_by_one(tmp_path):
+    """A partial train override was completed from the class defaults (the checkpoint's recipe lost: lr 0.001, loss
+    mse), and a flat override lost to the saved train without a word."""
+    recipe = {"lr": 3e-4, "loss": "aff", "sdl_beta": 0.5}
+    ckpt = old_style_ckpt(TinyPointNetModule(width=8), tmp_path / "new.ckpt", {"width": 8, "train": recipe})
+    for override in ({"train": {"metric_reduction": "official_batchwise"}}, {"metric_reduction": "official_batchwise"}):
+        m = TinyPointNetModule.load_from_checkpoint(ckpt, weights_only=True, **override)
+        assert m.train_cfg == FloAffTrainConfig(**recipe, metric_reduction="official_batchwise"), override
+    assert TinyPointNetModule.load_from_checkpoint(ckpt, weights_only=True).train_cfg == FloAffTrainConfig(**recipe)
+
+
 def test_old_axisnet_checkpoint_drops_unused_shared_args(tmp_path, batch):
     torch.manual_seed(0)
     ref = AxisNetModule(widths=[8], head=[8]).eval()

@@ -535,13 +535,15 @@ class ZooModule(L.LightningModule):
         **kwargs: Any,
     ) -> ZooModule:
         """Lightning's ``load_from_checkpoint``, also for checkpoints with the old flat training arguments
-        (see :meth:`upgrade_init_args`; ``kwargs`` may use either form too)."""
+        (see :meth:`upgrade_init_args`; ``kwargs`` may use either form too: ``train={"metric_reduction": ...}`` or
+        ``metric_reduction=...``). Training fields given override the checkpoint's one by one: a partial ``train``
+        was completed from the class defaults (the saved recipe lost), and a flat one lost to the saved ``train``."""
         saved = {k: v for k, v in _checkpoint_hparams(checkpoint_path, weights_only).items() if not k.startswith("_")}
-        given = {**saved, **kwargs}
-        upgraded = cls.upgrade_init_args(given)
-        kwargs = {k: v for k, v in kwargs.items() if k in upgraded}  # legacy names given by the caller
-        if "train" in upgraded and upgraded["train"] != given.get("train"):
-            kwargs["train"] = upgraded["train"]
+        over = cls.upgrade_init_args(kwargs)  # the caller's flat training fields move into its train
+        train = {**_as_dict(cls.upgrade_init_args(saved).get("train")), **_as_dict(over.get("train"))}
+        kwargs = {k: v for k, v in over.items() if k != "train"}
+        if train:
+            kwargs["train"] = train
         return super().load_from_checkpoint(
             checkpoint_path,
             map_location=map_location,
@@ -550,6 +552,13 @@ class ZooModule(L.LightningModule):
             weights_only=weights_only,
             **kwargs,
         )
+
+
+def _as_dict(train: Any) -> dict[str, Any]:
+    """A ``train`` init arg (a config dataclass, a mapping or None) as a plain dict."""
+    if train is None:
+        return {}
+    return dataclasses.asdict(train) if dataclasses.is_dataclass(train) else dict(train)
 
 
 # ----------------------------------------------------------------------------- floor maps
