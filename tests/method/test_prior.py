@@ -276,3 +276,15 @@ def test_a_fit_on_several_processes_is_refused_naming_the_option():
     with pytest.raises(MisconfigurationException, match="--trainer.devices 1"):
         model.setup("fit")
     model.setup("test")  # testing on several processes is fine
+
+
+def test_weights_of_other_tasks_are_refused_not_loaded_into_the_wrong_layers(tmp_path):
+    """The grid's task names are a byte tensor: weights of other tasks whose names had another total length had them
+    skipped as a shape mismatch while the sums and counts loaded, so CloseDrawer read OpenSingleDoor's labels."""
+    saved = CanonicalPriorModule(tasks=["PnPCounterToCab", "OpenSingleDoor"])
+    saved.net.sums[1] += 2.0
+    path = saved.save_pretrained(tmp_path / "prior")
+    with pytest.raises(RuntimeError, match=r"the saved grid holds tasks \['PnPCounterToCab', 'OpenSingleDoor'\]"):
+        CanonicalPriorModule(tasks=["PnPCounterToCab", "CloseDrawer"], weights=str(path))
+    reordered = CanonicalPriorModule(tasks=["OpenSingleDoor", "PnPCounterToCab"], weights=str(path))
+    assert reordered.net.sums[0].max() == 2.0 and reordered.weights_not_loaded == []

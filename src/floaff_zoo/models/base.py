@@ -688,9 +688,16 @@ def load_matching_state(module: torch.nn.Module, state: dict[str, Tensor], sourc
     import warnings
 
     own = module.state_dict()
+    # keys a submodule's own loading hook adapts whatever their saved shape (the prior grid's task names: it puts
+    # the saved task layers in its own order, or refuses other tasks); skipped, the layers loaded unaligned
+    adapts = {
+        f"{name}.{key}" if name else key
+        for name, sub in module.named_modules()
+        for key in getattr(sub, "state_keys_it_adapts", ())
+    }
     keep, skipped = {}, []
     for k, v in state.items():
-        if k in own and own[k].shape == v.shape:
+        if k in own and (own[k].shape == v.shape or k in adapts):
             keep[k] = v
         elif k in own:
             skipped.append(f"{k}: {tuple(v.shape)} vs {tuple(own[k].shape)}")

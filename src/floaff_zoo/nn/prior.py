@@ -47,6 +47,9 @@ class CanonicalLabelGrid(nn.Module):
             before this switch existed, whose state has no ``centred`` entry, load as False).
     """
 
+    #: state entries whose saved shape may differ: ``_load_from_state_dict`` realigns the task layers by them
+    state_keys_it_adapts = ("task_names",)
+
     def __init__(
         self,
         tasks: Sequence[str],
