@@ -169,3 +169,38 @@ def test_the_prediction_writer_removes_another_runs_files_and_says_so(tmp_path, 
     quiet_trainer([writer]).predict(ConstantModule(), dataloaders=loader(make_samples(2)))
     assert sorted(f.name for f in tmp_path.iterdir()) == ["notes.json", "predictions.json", "predictions.npz"]
     assert f"replaced the earlier predictions in {tmp_path}" in capsys.readouterr().out
+
+
+def test_resolve_model_uses_the_class_given_and_refuses_a_half_loaded_model(tmp_path):
+    """A bare state dict could not be used even with its class given (load_model never got it), and a model built
+    from weights that left layers untrained ran in predict(), which `floaff-zoo predict` refuses."""
+    import torch
+
+    from floaff_zoo.models.tiny import TinyPointNetModule
+    from floaff_zoo.predict import resolve_model
+
+    torch.manual_seed(0)
+    state = tmp_path / "tiny_sd.pth"
+    torch.save(TinyPointNetModule().state_dict(), state)
+    assert isinstance(resolve_model(str(state), model_class=TinyPointNetModule), TinyPointNetModule)
+    narrow = TinyPointNetModule(width=16).save_pretrained(tmp_path / "w16")
+    with pytest.warns(UserWarning, match="skipped"):
+        half = TinyPointNetModule(weights=str(narrow))
+    with pytest.raises(ValueError, match=r"predict: TinyPointNetModule was built from weights that do not fit it"):
+        resolve_model(half)
+
+
+def test_a_config_value_a_class_refuses_names_the_exported_file(tmp_path):
+    """Only a TypeError named the file; a ValueError of the constructor (a train field of a newer version) did not."""
+    import json
+
+    from floaff_zoo.hub import load_model
+    from floaff_zoo.models.tiny import TinyPointNetModule
+
+    out = TinyPointNetModule().save_pretrained(tmp_path / "tiny")
+    cfg = out / "config.json" if out.is_dir() else out.parent / "config.json"
+    data = json.loads(cfg.read_text())
+    data["init_args"]["train"] = {"grad_clip": 1.0}
+    cfg.write_text(json.dumps(data))
+    with pytest.raises(ValueError, match=r"tiny.*train has no field"):
+        load_model(str(out))

@@ -98,8 +98,10 @@ def resolve_model(model: Any, model_class: type | str | None = None, device: str
     if isinstance(model, (str, Path)):
         from floaff_zoo.hub import HubError, load_model
 
-        try:
-            model = load_model(str(model), map_location=device)
+        try:  # a class given builds a checkpoint that does not record its own (a bare state dict, a plain fit's)
+            model = load_model(
+                str(model), map_location=device, expected=model_class if isinstance(model_class, type) else None
+            )
         except HubError:
             raise  # a registered name whose file is missing / corrupt: the hub's message says what to do
         except FileNotFoundError as exc:
@@ -115,6 +117,12 @@ def resolve_model(model: Any, model_class: type | str | None = None, device: str
         ok = type(model).__name__ == name if isinstance(model_class, str) else isinstance(model, model_class)
         if not ok:
             raise TypeError(f"predict: expected a {name} but the checkpoint/model is a {type(model).__name__}")
+    gaps = list(getattr(model, "weights_not_loaded", None) or [])
+    if gaps:  # as `floaff-zoo predict` refuses it: part of the model would score with random weights
+        raise ValueError(
+            f"predict: {type(model).__name__} was built from weights that do not fit it ({len(gaps)} tensor(s) or "
+            f"part(s) not loaded: {'; '.join(gaps[:3])}{'; ...' if len(gaps) > 3 else ''})"
+        )
     return model.to(device).eval()
 
 

@@ -437,6 +437,14 @@ def load_model(
         model = cls(**init_args)
     except TypeError as exc:
         raise TypeError(f"{where}: its init_args do not fit {cls.__name__} ({exc})") from exc
+    except ValueError as exc:  # a value the class refuses (a train field of a newer version...): name the file too
+        raise ValueError(f"{where}: {exc}") from exc
+    except Exception as exc:
+        from lightning.fabric.utilities.exceptions import MisconfigurationException
+
+        if isinstance(exc, MisconfigurationException):
+            raise MisconfigurationException(f"{where}: {exc}") from exc
+        raise
     own = model.state_dict()
     resized = [
         f"{k} {tuple(v.shape)} (model {tuple(own[k].shape)})"
