@@ -165,3 +165,22 @@ def test_hub_push_of_a_run_with_a_truncated_last_ckpt_exits_2(truncated_run, cap
     err = capsys.readouterr().err
     assert "floaff-zoo hub: error:" in err
     assert "last.ckpt: not a readable checkpoint" in err  # the truncated file named, not "no last.ckpt found"
+
+
+def test_another_models_unreadable_last_ckpt_does_not_block_best(truncated_run):
+    """Under one default_root_dir, a newer cut-off last.ckpt of another run (killed, or still being written) stopped
+    `--ckpt_path best` of every model; it is now passed over (and named when nothing else is found)."""
+    import os
+
+    import torch
+
+    root, cut = truncated_run
+    mine = root / "tinypointnetmodule" / "version_0" / "checkpoints" / "last.ckpt"
+    mine.parent.mkdir(parents=True)
+    hp = {"_class_path": "floaff_zoo.models.tiny.TinyPointNetModule"}
+    torch.save({"state_dict": {}, "hyper_parameters": hp, "callbacks": {}, "pytorch-lightning_version": "2"}, mine)
+    os.utime(mine, (1, 1))  # older than the cut-off file
+    assert resolve_ckpt_alias("best", root, model_class="TinyPointNetModule") == str(mine)
+    mine.unlink()
+    with pytest.raises(RunError, match=rf"no last.ckpt of TinyPointNetModule under .*{cut} \(unreadable\)"):
+        resolve_ckpt_alias("best", root, model_class="TinyPointNetModule")

@@ -43,7 +43,11 @@ def resolve_ckpt_alias(alias: str, root: str | Path, model_class: str | None = N
     if model_class is not None:
         last, others = None, []
         for path in lasts:  # newest first; each file is memory-mapped, so a look at its hyper-parameters costs little
-            ckpt = load_checkpoint(path, f"--ckpt_path {alias}: ")
+            try:
+                ckpt = load_checkpoint(path, f"--ckpt_path {alias}: ")
+            except RunError:  # another run's file cut off or still being written: it must not stop this model's
+                others.append(f"{path} (unreadable)")
+                continue
             found = checkpoint_class(ckpt)
             if found == model_class:
                 last, state = path, ckpt
