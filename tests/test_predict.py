@@ -204,3 +204,17 @@ def test_a_config_value_a_class_refuses_names_the_exported_file(tmp_path):
     cfg.write_text(json.dumps(data))
     with pytest.raises(ValueError, match=r"tiny.*train has no field"):
         load_model(str(out))
+
+
+def test_the_device_of_a_model_without_parameters_is_its_buffers():
+    """The canonical prior without an AxisNet has buffers only: predict read the device from parameters alone and
+    said cpu for a prior on another device (the batch stayed there; restore() moved the caller's prior for good)."""
+    import torch
+
+    from floaff_zoo.models.prior import CanonicalPriorModule
+    from floaff_zoo.predict import module_device
+
+    prior = CanonicalPriorModule(tasks=["CloseDrawer"])
+    assert not list(prior.parameters()) and module_device(prior) == torch.device("cpu")
+    assert module_device(prior.to("meta")) == torch.device("meta")
+    assert module_device(torch.nn.Module()) == torch.device("cpu")

@@ -26,6 +26,7 @@ Conventions:
 
 from __future__ import annotations
 
+import itertools
 import math
 import sys
 import types
@@ -83,6 +84,13 @@ class Prediction:
 
 
 # ------------------------------------------------------------------------------------------ model
+def module_device(module: torch.nn.Module) -> torch.device:
+    """Where a module lives: its first parameter's device, else its first buffer's (the canonical prior without an
+    AxisNet has buffers only: reading parameters alone said cpu for a prior on the GPU), else the CPU."""
+    first = next(itertools.chain(module.parameters(), module.buffers()), None)
+    return first.device if first is not None else torch.device("cpu")
+
+
 def resolve_model(model: Any, model_class: type | str | None = None, device: str = "cpu") -> torch.nn.Module:
     """A ready-to-run module from a module, a checkpoint path or a hub name.
 
@@ -375,7 +383,7 @@ def kept_state(model: Any) -> Callable[[], None]:
     if not isinstance(model, torch.nn.Module):
         return lambda: None
     modes = [(m, m.training) for m in model.modules()]
-    home = next(model.parameters(), torch.empty(0)).device
+    home = module_device(model)
 
     def restore() -> None:
         for m, training in modes:
@@ -391,7 +399,7 @@ def run_model(net: torch.nn.Module, batch: dict[str, Any]) -> np.ndarray:
     Raises:
         ValueError: the model's output is not one score per floor point (another module's: a yaw, a pose).
     """
-    dev = next(net.parameters(), torch.empty(0)).device
+    dev = module_device(net)
     batch = {key: (v.to(dev) if torch.is_tensor(v) else v) for key, v in batch.items()}
     check = getattr(net, "check_inputs", None)
     if callable(check):
