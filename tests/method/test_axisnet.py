@@ -37,6 +37,18 @@ def test_angle_error_metric_matches_numpy_and_wraps():
         m.update(torch.tensor([float("nan")]), torch.tensor([0.0]))
 
 
+def test_angle_error_counts_a_repeated_sample_once():
+    """DistributedSampler pads the last rank-batches with repeats: the floor-map metrics drop them by index, AxisNet's
+    monitored angle error counted them twice."""
+    m = AngleErrorDeg()
+    yaw = torch.tensor([math.radians(10.0), math.radians(20.0)])
+    m.update(yaw, torch.zeros(2), torch.tensor([0, 1]))
+    m.update(torch.tensor([math.radians(20.0), math.radians(60.0)]), torch.zeros(2), torch.tensor([1, 2]))
+    assert float(m.compute()) == pytest.approx((10.0 + 20.0 + 60.0) / 3, abs=1e-4)
+    m.reset()
+    assert math.isnan(float(m.compute()))
+
+
 def test_yaw_vector_round_trip():
     yaw = torch.linspace(-3.1, 3.1, 17)
     assert torch.allclose(yaw_from_vector(yaw_to_vector(yaw)), yaw, atol=1e-6)

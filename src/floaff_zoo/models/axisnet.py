@@ -20,6 +20,7 @@ from typing import Any, ClassVar
 import torch
 from torch import Tensor
 from torchmetrics import Metric, MetricCollection
+from torchmetrics.utilities import dim_zero_cat
 
 from floaff_zoo.contract import Batch
 from floaff_zoo.models.base import TrainConfig, ZooModule, sample_names
@@ -34,7 +35,13 @@ from floaff_zoo.nn.axisnet import (
 
 
 class AngleErrorDeg(Metric):
-    """Mean absolute wrapped angle error in degrees. ``update(pred_yaw [B], target_yaw [B])`` (radians)."""
+    """Mean absolute wrapped angle error in degrees. ``update(pred_yaw [B], target_yaw [B], index [B] | None)``
+    (radians; ``index``: each sample's position in its split).
+
+    Samples with one ``index`` count once, as the floor-map metrics count them: ``DistributedSampler`` pads the
+    last rank-batches by repeating samples, which weighed the repeats twice in AxisNet's monitored error. Without
+    ``index`` every row counts.
+    """
 
     is_differentiable = False
     higher_is_better = False
@@ -42,22 +49,30 @@ class AngleErrorDeg(Metric):
 
     def __init__(self) -> None:
         super().__init__()
-        self.add_state("total", default=torch.tensor(0.0, dtype=torch.float64), dist_reduce_fx="sum")
-        self.add_state("count", default=torch.tensor(0, dtype=torch.long), dist_reduce_fx="sum")
+        self.add_state("rows", default=[], dist_reduce_fx="cat")  # [B, 2] (index or -1, error deg) per update
 
-    def update(self, pred_yaw: Tensor, target_yaw: Tensor) -> None:
+    def update(self, pred_yaw: Tensor, target_yaw: Tensor, index: Tensor | None = None) -> None:
         if pred_yaw.shape != target_yaw.shape:
             raise ValueError(f"AngleErrorDeg: shapes differ, {tuple(pred_yaw.shape)} vs {tuple(target_yaw.shape)}")
         if not (torch.isfinite(pred_yaw).all() and torch.isfinite(target_yaw).all()):
             raise ValueError("AngleErrorDeg: NaN/Inf yaw")
-        err = angle_error_deg(pred_yaw.double(), target_yaw.double())
-        self.total += err.sum()
-        self.count += err.numel()
+        err = angle_error_deg(pred_yaw.double(), target_yaw.double()).reshape(-1)
+        idx = torch.full_like(err, -1.0) if index is None else index.reshape(-1).to(err)
+        self.rows.append(torch.stack([idx, err], dim=1))
 
     def compute(self) -> Tensor:
-        if int(self.count) == 0:
+        rows = dim_zero_cat(self.rows) if self.rows else torch.zeros(0, 2, dtype=torch.float64)
+        if rows.shape[0] == 0:
             return torch.tensor(float("nan"))
-        return (self.total / self.count).float()
+        keyed = rows[:, 0] >= 0
+        kept = rows[~keyed, 1]
+        if keyed.any():  # the first row of each index (repeats carry the same sample, hence the same error)
+            order = torch.argsort(rows[keyed, 0], stable=True)
+            ids, errs = rows[keyed, 0][order], rows[keyed, 1][order]
+            first = torch.ones_like(ids, dtype=torch.bool)
+            first[1:] = ids[1:] != ids[:-1]
+            kept = torch.cat([kept, errs[first]])
+        return kept.mean().float()
 
 
 class AxisNetModule(ZooModule):
@@ -154,7 +169,8 @@ class AxisNetModule(ZooModule):
         return loss, yaw_from_vector(q), {}
 
     def update_metrics(self, metrics: MetricCollection, pred: Tensor, batch: Batch) -> None:
-        metrics.update(pred, batch["target_yaw"].reshape(-1))
+        index = torch.as_tensor([int(m.get("index", -1)) for m in batch["meta"]], device=pred.device)
+        metrics.update(pred, batch["target_yaw"].reshape(-1), index if (index >= 0).all() else None)
 
     def predict_step(self, batch: Batch, batch_idx: int, dataloader_idx: int = 0) -> dict[str, Any]:
         self.check_inputs(batch)
