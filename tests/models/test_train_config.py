@@ -266,67 +266,58 @@ def test_test_step_returns_the_prediction(batch):
     assert not hasattr(floor, "last_test_scores")
 
 
-def test_cosine_schedule_anneals_over_max_steps_with_a_step_budget():
-    """configs/trainer/dense_budget.yaml trains to max_steps with max_epochs -1: the cosine schedule decays over the
-    steps. It took T_max = 1 epoch, so the learning rate fell to eta_min after the first epoch and rose again after
-    the second."""
-    loader = torch.utils.data.DataLoader(
+def _tiny_loader() -> torch.utils.data.DataLoader:
+    """Four synthetic samples in batches of 2: two steps per epoch."""
+    return torch.utils.data.DataLoader(
         [make_synthetic_sample(i, num_points=64, floor_cells=4) for i in range(4)],
         batch_size=2,
         collate_fn=collate_samples,
-    )  # 2 steps per epoch
+    )
+
+
+def _quiet_trainer(**kwargs) -> lightning.Trainer:
+    return lightning.Trainer(
+        accelerator="cpu",
+        logger=False,
+        enable_checkpointing=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        **kwargs,
+    )
+
+
+def _fit_lrs(**trainer_kwargs) -> tuple[list[float], lightning.Trainer]:
+    """The learning rate at every training step of a tiny fit, and its trainer."""
     lrs: list[float] = []
 
     class Record(lightning.Callback):
         def on_train_batch_start(self, trainer, *_):
             lrs.append(trainer.optimizers[0].param_groups[0]["lr"])
 
-    trainer = lightning.Trainer(
-        max_epochs=-1,
-        max_steps=8,
-        accelerator="cpu",
-        logger=False,
-        enable_checkpointing=False,
-        enable_progress_bar=False,
-        enable_model_summary=False,
-        callbacks=[Record()],
-    )
-    trainer.fit(TinyPointNetModule(), loader)
+    trainer = _quiet_trainer(callbacks=[Record()], **trainer_kwargs)
+    trainer.fit(TinyPointNetModule(), _tiny_loader())
+    return lrs, trainer
+
+
+def test_cosine_schedule_anneals_over_max_steps_with_a_step_budget():
+    """configs/trainer/dense_budget.yaml trains to max_steps with max_epochs -1: the cosine schedule decays over the
+    steps. It took T_max = 1 epoch, so the learning rate fell to eta_min after the first epoch and rose again after
+    the second."""
+    lrs, _ = _fit_lrs(max_epochs=-1, max_steps=8)
     assert len(lrs) == 8
     assert all(b < a for a, b in zip(lrs, lrs[1:])), lrs  # no restart, no plateau at eta_min
     assert lrs[0] == pytest.approx(1e-3) and lrs[-1] > 1e-5, lrs
     # with no budget at all (a time limit only) the schedule had T_max 1 epoch: lr, 1e-6, lr, 1e-6, ...
     open_ended = lightning.Trainer(max_epochs=-1, max_time="00:00:00:30", accelerator="cpu", logger=False)
     with pytest.raises(MisconfigurationException, match="'cosine' anneals over trainer.max_epochs or trainer"):
-        open_ended.fit(TinyPointNetModule(), loader)
+        open_ended.fit(TinyPointNetModule(), _tiny_loader())
 
 
 def test_cosine_anneals_over_the_steps_when_max_steps_ends_the_fit_before_max_epochs():
     """With both max_epochs and max_steps the schedule ran per epoch over max_epochs: a fit the step budget ended
     first kept nearly the base rate (0.0029 of 0.003 after 8 of 20 epochs' steps); it now anneals over the optimizer
     steps the fit takes."""
-    loader = torch.utils.data.DataLoader(
-        [make_synthetic_sample(i, num_points=64, floor_cells=4) for i in range(4)],
-        batch_size=2,
-        collate_fn=collate_samples,
-    )  # 2 steps per epoch: max_steps 8 ends the fit in epoch 4 of 20
-    lrs: list[float] = []
-
-    class Record(lightning.Callback):
-        def on_train_batch_start(self, trainer, *_):
-            lrs.append(trainer.optimizers[0].param_groups[0]["lr"])
-
-    trainer = lightning.Trainer(
-        max_epochs=20,
-        max_steps=8,
-        accelerator="cpu",
-        logger=False,
-        enable_checkpointing=False,
-        enable_progress_bar=False,
-        enable_model_summary=False,
-        callbacks=[Record()],
-    )
-    trainer.fit(TinyPointNetModule(), loader)
+    lrs, trainer = _fit_lrs(max_epochs=20, max_steps=8)  # max_steps ends the fit in epoch 4 of 20
     assert len(lrs) == 8 and all(b < a for a, b in zip(lrs, lrs[1:])), lrs
     assert trainer.optimizers[0].param_groups[0]["lr"] == pytest.approx(1e-6, abs=1e-9)
 
@@ -334,25 +325,10 @@ def test_cosine_anneals_over_the_steps_when_max_steps_ends_the_fit_before_max_ep
 def test_plateau_is_refused_when_validation_runs_by_steps():
     """plateau steps at epoch ends on the monitored metric; with validation every val_check_interval steps (the
     dense budget) the metric was missing there and the fit crashed mid-run, or read a stale value."""
-    loader = torch.utils.data.DataLoader(
-        [make_synthetic_sample(i, num_points=64, floor_cells=4) for i in range(4)],
-        batch_size=2,
-        collate_fn=collate_samples,
-    )
-    trainer = lightning.Trainer(
-        max_epochs=-1,
-        max_steps=4,
-        val_check_interval=2,
-        check_val_every_n_epoch=None,
-        accelerator="cpu",
-        logger=False,
-        enable_checkpointing=False,
-        enable_progress_bar=False,
-        enable_model_summary=False,
-    )
+    trainer = _quiet_trainer(max_epochs=-1, max_steps=4, val_check_interval=2, check_val_every_n_epoch=None)
     model = TinyPointNetModule(train=FloAffTrainConfig(scheduler="plateau"))
     with pytest.raises(MisconfigurationException, match="'plateau' steps at epoch ends on val_rmse"):
-        trainer.fit(model, loader, loader)
+        trainer.fit(model, _tiny_loader(), _tiny_loader())
 
 
 def test_navaff_evaluation_loss_repeats_and_draws_nothing():
