@@ -169,7 +169,7 @@ def test_hub_push_of_a_run_with_a_truncated_last_ckpt_exits_2(truncated_run, cap
 
 def test_another_models_unreadable_last_ckpt_does_not_block_best(truncated_run):
     """Under one default_root_dir, a newer cut-off last.ckpt of another run (killed, or still being written) stopped
-    `--ckpt_path best` of every model; it is now passed over (and named when nothing else is found)."""
+    `--ckpt_path best` of every model; it is now passed over (and its error raised when nothing else is found)."""
     import os
 
     import torch
@@ -182,5 +182,5 @@ def test_another_models_unreadable_last_ckpt_does_not_block_best(truncated_run):
     os.utime(mine, (1, 1))  # older than the cut-off file
     assert resolve_ckpt_alias("best", root, model_class="TinyPointNetModule") == str(mine)
     mine.unlink()
-    with pytest.raises(RunError, match=rf"no last.ckpt of TinyPointNetModule under .*{cut} \(unreadable\)"):
+    with pytest.raises(RunError, match=rf"--ckpt_path best: {cut}: not a readable checkpoint"):  # maybe its own
         resolve_ckpt_alias("best", root, model_class="TinyPointNetModule")

@@ -41,11 +41,12 @@ def resolve_ckpt_alias(alias: str, root: str | Path, model_class: str | None = N
         raise RunError(f"--ckpt_path {alias}: no last.ckpt under {root}; pass a checkpoint file instead")
     last, state = lasts[0], None
     if model_class is not None:
-        last, others = None, []
+        last, others, unreadable = None, [], None
         for path in lasts:  # newest first; each file is memory-mapped, so a look at its hyper-parameters costs little
             try:
                 ckpt = load_checkpoint(path, f"--ckpt_path {alias}: ")
-            except RunError:  # another run's file cut off or still being written: it must not stop this model's
+            except RunError as exc:  # another run's file cut off or still being written: it must not stop this one
+                unreadable = unreadable or exc
                 others.append(f"{path} (unreadable)")
                 continue
             found = checkpoint_class(ckpt)
@@ -53,6 +54,8 @@ def resolve_ckpt_alias(alias: str, root: str | Path, model_class: str | None = N
                 last, state = path, ckpt
                 break
             others.append(f"{path} ({found or 'no class recorded'})")
+        if last is None and unreadable is not None:  # perhaps this model's own: its file and why, as before
+            raise unreadable
         if last is None:
             raise RunError(
                 f"--ckpt_path {alias}: no last.ckpt of {model_class} under {root} (only {len(others)} of other "
