@@ -697,7 +697,7 @@ def _fit_stage(
         "status": "done",
         "args": args,
         "digest": running["digest"],
-        "inputs": _input_files(args),
+        "inputs": running["inputs"],  # as the fit read them: a file rewritten meanwhile is not what it used
         "resumed_from": str(resume) if resume else None,
         "configs": _config_files(args),
         "tasks": stage.get("tasks"),

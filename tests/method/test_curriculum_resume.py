@@ -399,3 +399,25 @@ def test_a_resumed_fit_that_is_killed_again_keeps_its_metrics_in_place(tmp_path)
     (metrics,) = (tmp_path / "run" / "s1").rglob("metrics.csv")
     assert {int(r["epoch"]) for r in csv.DictReader(metrics.open())} == {0, 1, 2}
     assert not (metrics.parent / KEPT_METRICS).exists()
+
+
+def test_a_weights_file_rewritten_during_the_fit_is_not_recorded_as_its_input(tmp_path, capsys):
+    """The done record hashed its input files after the fit: a weights file rewritten meanwhile was recorded as what
+    the stage started from, so the next run skipped a stage trained from other weights."""
+    from floaff_zoo.models.tiny import TinyPointNetModule
+
+    init = tmp_path / "init.pt"
+    torch.save(TinyPointNetModule().state_dict(), init)
+    exp = _experiment(tmp_path, max_epochs=1)
+    sets = [f"model.init_args.weights={init}"]
+
+    def rewrites(args):
+        cli = run_lightning(args)
+        torch.manual_seed(1)
+        torch.save(TinyPointNetModule().state_dict(), init)  # e.g. the earlier stage refit into the same path
+        return cli
+
+    run_curriculum(exp, sets=sets, runner=rewrites)
+    capsys.readouterr()
+    run_curriculum(exp, sets=sets)
+    assert "rerunning, a file its arguments name changed" in capsys.readouterr().out
