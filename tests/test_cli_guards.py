@@ -7,6 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import lightning as L
 import pytest
 import torch
 from lightning.pytorch.utilities.exceptions import MisconfigurationException
@@ -519,15 +520,20 @@ def test_a_fit_whose_data_setup_fails_leaves_no_empty_run_folder(tmp_path, root,
     assert out.is_dir() and not list(out.iterdir())
 
 
+class WritesThenFails(L.Callback):
+    """Writes a file into its run's folder, then stops the fit (a run that failed after writing something)."""
+
+    def setup(self, trainer, pl_module, stage) -> None:
+        (Path(trainer.log_dir) / "notes.txt").write_text("written before the failure")
+        raise MisconfigurationException("stopped after writing")
+
+
 def test_a_failed_run_that_wrote_files_keeps_its_folder(tmp_path, root, monkeypatch):
-    """The clean-up removes empty folders only: a fit that stops after writing its config keeps the folder."""
+    """The clean-up removes empty folders only: a fit that fails after writing into its folder keeps it."""
     monkeypatch.chdir(root)
     out = tmp_path / "runs"
-    keep = out / "tinypointnetmodule" / "version_0"
-    keep.mkdir(parents=True)
-    (keep / "notes.txt").write_text("mine")
-    args = ["fit", "--config", "configs/data/floaff_tiny.yaml", "--config", MODEL, *quiet_trainer_args(out)]
-    with pytest.raises(MisconfigurationException, match="does not exist"):
-        main([*args, "--data.init_args.root", str(tmp_path / "no_data")])
-    assert (keep / "notes.txt").read_text() == "mine"
-    assert sorted(p.name for p in keep.parent.iterdir()) == ["version_0"]
+    args = ["fit", "--config", DATA, "--config", MODEL, *quiet_trainer_args(out)]
+    with pytest.raises(MisconfigurationException, match="stopped after writing"):
+        main([*args, "--trainer.callbacks+=tests.test_cli_guards.WritesThenFails"])
+    (notes,) = out.rglob("notes.txt")
+    assert notes.read_text() == "written before the failure" and notes.parent.name == "version_0"

