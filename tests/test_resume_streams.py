@@ -84,3 +84,11 @@ def test_resuming_restores_the_generators_only_in_fit(tmp_path, root, monkeypatc
     torch.manual_seed(123)
     model.on_load_checkpoint(checkpoint)
     assert torch.equal(torch.rand(3), expected)
+    # a validation from the checkpoint (a trainer, but not a fit) leaves them as a validation without it does
+    after = []
+    for ckpt_path in (None, cli.trainer.checkpoint_callback.best_model_path):
+        torch.manual_seed(123)
+        trainer = L.Trainer(accelerator="cpu", logger=False, enable_progress_bar=False, enable_model_summary=False)
+        trainer.validate(cli.model, datamodule=cli.datamodule, ckpt_path=ckpt_path, verbose=False)
+        after.append(torch.rand(3))
+    assert torch.equal(*after)

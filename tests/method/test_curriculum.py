@@ -321,7 +321,7 @@ def test_a_stage_fit_error_is_one_line_naming_the_stage(tmp_path, root, monkeypa
     assert main(argv, raise_errors=False) == 2
     err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
     assert len(err) == 1 and err[0].startswith("floaff-zoo curriculum: error: stage stage1_pnp: ")
-    assert "num_val must be >= 0" in err[0]
+    assert "data.num_val must be an integer >= 0, got -1" in err[0]
 
 
 def test_dry_run_refuses_a_missing_config_file(tmp_path, root, monkeypatch, capsys):

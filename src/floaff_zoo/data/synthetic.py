@@ -15,7 +15,7 @@ import numpy as np
 from torch.utils.data import Dataset
 
 from floaff_zoo.contract import TASKS, Sample, validate_sample
-from floaff_zoo.data.base import FloAffDataModule
+from floaff_zoo.data.base import FloAffDataModule, check_size
 from floaff_zoo.data.readers import check_names
 from floaff_zoo.data.transforms import SampleTransform
 
@@ -151,8 +151,7 @@ class SyntheticDataModule(FloAffDataModule):
             ("points_per_sample", points_per_sample, 1),
             ("floor_cells", floor_cells, 1),
         ):  # numpy's messages at the sanity check named no field
-            if value < least:
-                raise ValueError(f"SyntheticDataModule: {name} must be >= {least}, got {value}")
+            check_size(name, value, least)
         self.sizes = {"train": num_train, "val": num_val, "test": num_test}
         self.points_per_sample = points_per_sample
         self.floor_cells = floor_cells

@@ -386,11 +386,9 @@ class ZooModule(L.LightningModule):
                 tr = self._trainer
                 epochs = int(tr.max_epochs or 0) if tr is not None else 0
                 steps = int(tr.max_steps or -1) if tr is not None else -1
-                if epochs < 1 and steps > 0:  # a step budget (max_epochs -1): anneal per step over max_steps
-                    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=steps, eta_min=1e-6)
-                    return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
-                if steps > 0 and tr is not None:  # both: whichever ends first (per epoch it never annealed when the
-                    # steps ran out first); Lightning counts the optimizer steps the fit will take
+                if steps > 0 and tr is not None:  # a step budget (alone, max_epochs -1, or with max_epochs: per
+                    # epoch it never annealed when the steps ran out first): anneal per optimizer step over the steps
+                    # the fit will take, as Lightning counts them (max_steps, or fewer when the epochs end first)
                     total = max(1, int(tr.estimated_stepping_batches))
                     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=total, eta_min=1e-6)
                     return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
