@@ -82,6 +82,17 @@ def test_a_taken_name_is_pushed_over_only_with_replace(registered, tmp_path, cap
     assert _push(second, shipped, "--replace") == 0 and load_model(shipped).hparams.width == 16
 
 
+def test_a_name_registered_while_a_push_ran_is_not_pushed_over(registered, tmp_path, monkeypatch, capsys):
+    """The name check ran before the seconds of loading and staging, without the index lock, and the index then took
+    the entry with overwrite on: a second push of one new name deleted the first's weights. The index now refuses it
+    under its lock (here the early check is skipped, as a push that passed it before the other one registered)."""
+    before, _entry = registered
+    monkeypatch.setattr(hub_export, "check_name_free", lambda *args, **kwargs: None)
+    assert _push(_ckpt(tmp_path / "second.ckpt", seed=2, width=16)) == 2
+    assert "exists already" in capsys.readouterr().err
+    assert _snapshot(hub_dir()) == before
+
+
 def test_push_over_a_name_replaces_it(registered, tmp_path):
     _before, old = registered
     assert _push(_ckpt(tmp_path / "second.ckpt", seed=2, width=16), NAME, "--replace") == 0

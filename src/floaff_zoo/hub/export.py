@@ -399,7 +399,7 @@ def export_checkpoint(
     try:
         entry = _stage_export(staging, name, cls_path, init_args, state, meta, ckpt_path)
         out = root / name
-        _install_export(staging, out, entry, directory)
+        _install_export(staging, out, entry, directory, overwrite=replace)
     finally:
         shutil.rmtree(staging, ignore_errors=True)
     return entry, out
@@ -470,8 +470,14 @@ def _stage_export(
     return entry
 
 
-def _install_export(staging: Path, out: Path, entry: HubEntry, directory: str | os.PathLike[str] | None) -> None:
+def _install_export(
+    staging: Path, out: Path, entry: HubEntry, directory: str | os.PathLike[str] | None, overwrite: bool
+) -> None:
     """Move a checked export from ``staging`` into ``out`` and register it, each step by an atomic rename.
+
+    ``overwrite`` False: the index, under its lock, refuses a name registered meanwhile (``check_name_free`` ran
+    seconds earlier without the lock: two pushes of one new name both passed it, and the second deleted the first's
+    weights).
 
     The new weights file (its name carries its hash) lands beside the old one; the index is switched to it;
     then ``config.json`` and the model card are replaced and the earlier weights of the name are deleted. At
@@ -482,7 +488,7 @@ def _install_export(staging: Path, out: Path, entry: HubEntry, directory: str | 
     existed = weights.is_file()  # same name = same hash: the same content, pushed again
     os.replace(staging / entry.filename, weights)
     try:
-        register(entry, directory)
+        register(entry, directory, overwrite=overwrite)
     except BaseException:
         if not existed:
             weights.unlink(missing_ok=True)
