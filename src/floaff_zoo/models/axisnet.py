@@ -20,10 +20,10 @@ from typing import Any, ClassVar
 import torch
 from torch import Tensor
 from torchmetrics import Metric, MetricCollection
-from torchmetrics.utilities import dim_zero_cat
 
 from floaff_zoo.contract import Batch
-from floaff_zoo.models.base import TrainConfig, ZooModule, sample_names
+from floaff_zoo.metrics import _cat_or_empty, _first_occurrence
+from floaff_zoo.models.base import TrainConfig, ZooModule, batch_index, sample_names
 from floaff_zoo.nn.axisnet import (
     AxisNet,
     angle_error_deg,
@@ -61,18 +61,13 @@ class AngleErrorDeg(Metric):
         self.rows.append(torch.stack([idx, err], dim=1))
 
     def compute(self) -> Tensor:
-        rows = dim_zero_cat(self.rows) if self.rows else torch.zeros(0, 2, dtype=torch.float64)
+        rows = _cat_or_empty(self.rows, 2, torch.float64, self.device)  # a list before a DDP sync, a tensor after
         if rows.shape[0] == 0:
             return torch.tensor(float("nan"))
-        keyed = rows[:, 0] >= 0
-        kept = rows[~keyed, 1]
-        if keyed.any():  # the first row of each index (repeats carry the same sample, hence the same error)
-            order = torch.argsort(rows[keyed, 0], stable=True)
-            ids, errs = rows[keyed, 0][order], rows[keyed, 1][order]
-            first = torch.ones_like(ids, dtype=torch.bool)
-            first[1:] = ids[1:] != ids[:-1]
-            kept = torch.cat([kept, errs[first]])
-        return kept.mean().float()
+        keys = rows[:, 0].clone()
+        unkeyed = keys < 0  # rows without an index are distinct samples: give each a key of its own
+        keys[unkeyed] = -1.0 - torch.arange(int(unkeyed.sum()), dtype=keys.dtype, device=keys.device)
+        return rows[_first_occurrence(keys), 1].mean().float()
 
 
 class AxisNetModule(ZooModule):
@@ -169,8 +164,7 @@ class AxisNetModule(ZooModule):
         return loss, yaw_from_vector(q), {}
 
     def update_metrics(self, metrics: MetricCollection, pred: Tensor, batch: Batch) -> None:
-        index = torch.as_tensor([int(m.get("index", -1)) for m in batch["meta"]], device=pred.device)
-        metrics.update(pred, batch["target_yaw"].reshape(-1), index if (index >= 0).all() else None)
+        metrics.update(pred, batch["target_yaw"].reshape(-1), batch_index(batch, pred.device))
 
     def predict_step(self, batch: Batch, batch_idx: int, dataloader_idx: int = 0) -> dict[str, Any]:
         self.check_inputs(batch)

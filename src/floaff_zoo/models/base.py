@@ -552,6 +552,13 @@ class ZooModule(L.LightningModule):
         )
 
 
+def batch_index(batch: Batch, device: torch.device) -> Tensor | None:
+    """Each sample's position in its split [B] long (``meta['index']``), or None when a sample has none: the
+    metrics count a sample once per index (DDP pads the last rank-batches with repeats)."""
+    index = torch.as_tensor([int(m.get("index", -1)) for m in batch["meta"]], device=device, dtype=torch.long)
+    return index if (index >= 0).all() else None
+
+
 def _as_dict(train: Any) -> dict[str, Any]:
     """A ``train`` init arg (a config dataclass, a mapping or None) as a plain dict."""
     if train is None:
@@ -633,8 +640,7 @@ class FloAffModule(ZooModule):
 
     def update_metrics(self, metrics: MetricCollection, pred: Tensor, batch: Batch) -> None:
         """Map metrics of scores [B, M] (per-sample ``index`` from the metadata when every sample has one)."""
-        index = torch.as_tensor([int(m.get("index", -1)) for m in batch["meta"]], device=pred.device, dtype=torch.long)
-        metrics.update(pred.float(), batch["floor_label"], batch["floor_mask"], index if (index >= 0).all() else None)
+        metrics.update(pred.float(), batch["floor_label"], batch["floor_mask"], batch_index(batch, pred.device))
 
     def predict_step(self, batch: Batch, batch_idx: int, dataloader_idx: int = 0) -> dict[str, Any]:
         self.check_inputs(batch)
