@@ -459,15 +459,12 @@ class FloAffCLI(LightningCLI):
     def _guard_partial_weights(self) -> None:
         """``weights`` that do not fit the model load leniently (right for initialising a fit); evaluating such a
         half-random model would write a meaningless report: refuse, naming the weights and the tensors."""
-        gaps = list(getattr(self.model, "weights_not_loaded", None) or [])
-        if not gaps:
+        gap = self.model.weights_gap()
+        if gap is None:
             return
         raise CLIError(
-            f"--model.init_args.weights {self.model.hparams.get('weights')}: {len(gaps)} tensor(s) or part(s) of "
-            f"{type(self.model).__name__} and its weights not loaded (shape in the weights vs the model's, or a part "
-            f"only one side has: {'; '.join(gaps[:5])}{'; ...' if len(gaps) > 5 else ''}); "
-            f"`floaff-zoo {self.subcommand}` needs weights that fit the configured model (same class and "
-            "architecture init args), or pass --ckpt_path"
+            f"--model.init_args.weights {self.model.hparams.get('weights')}: {gap}; `floaff-zoo {self.subcommand}` "
+            "needs weights that fit the configured model (same class and architecture init args), or pass --ckpt_path"
         )
 
     @staticmethod

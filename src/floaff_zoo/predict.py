@@ -125,12 +125,9 @@ def resolve_model(model: Any, model_class: type | str | None = None, device: str
         ok = type(model).__name__ == name if isinstance(model_class, str) else isinstance(model, model_class)
         if not ok:
             raise TypeError(f"predict: expected a {name} but the checkpoint/model is a {type(model).__name__}")
-    gaps = list(getattr(model, "weights_not_loaded", None) or [])
-    if gaps:  # as `floaff-zoo predict` refuses it: part of the model would score with random weights
-        raise ValueError(
-            f"predict: {type(model).__name__} was built from weights that do not fit it ({len(gaps)} tensor(s) or "
-            f"part(s) not loaded: {'; '.join(gaps[:3])}{'; ...' if len(gaps) > 3 else ''})"
-        )
+    gap = model.weights_gap() if callable(getattr(model, "weights_gap", None)) else None
+    if gap is not None:  # as `floaff-zoo predict` refuses it: part of the model would score with random weights
+        raise ValueError(f"predict: {type(model).__name__} was built from weights that do not fit it: {gap}")
     return model.to(device).eval()
 
 

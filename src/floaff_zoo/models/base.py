@@ -468,6 +468,18 @@ class ZooModule(L.LightningModule):
         unloaded = load_matching_state(self, state, source=name_or_path)
         self.weights_not_loaded = [line for line in unloaded if not line.startswith(own_files)]
 
+    def weights_gap(self) -> str | None:
+        """What ``weights`` left unloaded, in one phrase for an error (None: everything loaded). Evaluating such a
+        half-random model (``floaff-zoo test``/``validate``/``predict``, ``predict()``) is refused with it."""
+        gaps = list(self.weights_not_loaded)
+        if not gaps:
+            return None
+        return (
+            f"{len(gaps)} tensor(s) or part(s) of {type(self).__name__} and its weights "
+            f"{self.hparams.get('weights')} not loaded (shape in the weights vs the model's, or a part only one side "
+            f"has: {'; '.join(gaps[:5])}{'; ...' if len(gaps) > 5 else ''})"
+        )
+
     def _parts_with_own_weights(self) -> tuple[str, ...]:
         """State-dict prefixes of parts loaded from a file of their own (``teacher``, CFAR's ``axisnet``: an init
         arg naming a file and a submodule of the same name): ``weights`` need not provide them."""
