@@ -255,11 +255,26 @@ class FloAffCLI(LightningCLI):
         super().parse_arguments(parser, args)
 
     def _set_seed(self) -> None:
-        """Lightning's seeding, with a seed outside numpy's range named instead of its ValueError traceback."""
+        """Lightning's seeding, after :meth:`_check_values` (the first hook after parsing)."""
+        self._check_values()
+        super()._set_seed()
+
+    def _check_values(self) -> None:
+        """Values the parser takes but Lightning or a class would refuse with a traceback or a misleading message,
+        named in one line. Also run by :func:`check_trainer_args` (a curriculum's pre-check of every stage)."""
         seed = self._get(self.config, "seed_everything")
         if isinstance(seed, int) and not isinstance(seed, bool) and not 0 <= seed <= 2**32 - 1:
             raise CLIError(f"seed_everything: {seed} is not a seed (0 to {2**32 - 1}, true for a random one)")
-        super()._set_seed()
+        cfg = self.config[self.subcommand]
+        trainer = cfg.trainer
+        if not isinstance(trainer, Namespace):  # `trainer: null` in a config: an AttributeError below
+            raise CLIError(f"trainer: expected a mapping of trainer settings, got {trainer!r}")
+        clip = trainer.get("gradient_clip_val")
+        if clip is not None and not (math.isfinite(float(clip)) and clip >= 0):  # Lightning's message misleads
+            raise CLIError(f"trainer.gradient_clip_val: must be a finite number >= 0 or null, got {clip}")
+        train = cfg.model.get("init_args", Namespace()).get("train") if isinstance(cfg.model, Namespace) else None
+        if train is not None and not isinstance(train, (Namespace, dict)):  # a TypeError deep in jsonargparse
+            raise CLIError(f"model.init_args.train: expected a mapping of training settings, got {train!r}")
 
     def _parse_ckpt_path(self) -> None:
         """Lightning rebuilds the model config from the hyper-parameters of a ``--ckpt_path`` file (so the trained
@@ -379,15 +394,7 @@ class FloAffCLI(LightningCLI):
 
     def before_instantiate_classes(self) -> None:
         cfg = self.config[self.subcommand]
-        trainer = cfg.trainer
-        if not isinstance(trainer, Namespace):  # `trainer: null` in a config: an AttributeError below
-            raise CLIError(f"trainer: expected a mapping of trainer settings, got {trainer!r}")
-        clip = trainer.get("gradient_clip_val")
-        if clip is not None and not (math.isfinite(float(clip)) and clip >= 0):  # Lightning's message misleads
-            raise CLIError(f"trainer.gradient_clip_val: must be a finite number >= 0 or null, got {clip}")
-        train = cfg.model.get("init_args", Namespace()).get("train") if isinstance(cfg.model, Namespace) else None
-        if train is not None and not isinstance(train, (Namespace, dict)):  # a TypeError deep in jsonargparse
-            raise CLIError(f"model.init_args.train: expected a mapping of training settings, got {train!r}")
+        trainer = cfg.trainer  # a mapping: checked in _check_values
         if trainer.logger in (None, True):
             model_cfg = cfg.model
             name = str(getattr(model_cfg, "class_path", "model")).rsplit(".", 1)[-1].lower()
@@ -578,7 +585,7 @@ class _ParseOnlyCLI(FloAffCLI):
         pass  # a curriculum's later checkpoints do not exist yet
 
     def _set_seed(self) -> None:
-        pass
+        self._check_values()  # seeds nothing: only the checks
 
     def before_instantiate_classes(self) -> None:
         pass

@@ -374,3 +374,19 @@ def test_typo_in_a_later_stage_fails_before_the_first_stage_trains(tmp_path, roo
     with pytest.raises(CurriculumError, match=r"stage stage1_pnp: its fit arguments do not parse: .*crop_radus"):
         main(["--config", EXP, "--root", str(run_root), "--extra-config", str(extra)])
     assert not run_root.exists()
+
+
+@pytest.mark.parametrize(
+    "bad, named", [("trainer.gradient_clip_val=.nan", "gradient_clip_val"), ("seed_everything=-1", "is not a seed")]
+)
+def test_a_bad_value_in_any_stage_is_named_before_the_first_stage_trains(tmp_path, root, monkeypatch, bad, named):
+    """The value checks of `floaff-zoo fit` ran in hooks the curriculum's pre-check skipped: a bad --set failed only
+    when the stage's fit started, after the earlier stages had trained."""
+    import floaff_zoo.cli
+
+    monkeypatch.chdir(root)
+    seen: list = []
+    monkeypatch.setattr(floaff_zoo.cli, "run_lightning", seen.append)  # the default runner, which pre-checks
+    with pytest.raises(CurriculumError, match=named):
+        run_curriculum(EXP, root=tmp_path, sets=[*SETS, bad])
+    assert seen == []  # no stage ran
