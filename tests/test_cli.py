@@ -187,3 +187,26 @@ def test_integer_limits_follow_the_parsers_order(tmp_path):
     assert integer_limits(["--config", str(tmp_path / "missing.yaml"), "--trainer.limit_predict_batches", "1"]) == {
         "predict": 1
     }
+
+
+def test_only_a_non_finite_model_output_is_a_one_line_error(monkeypatch, capsys):
+    """Every FloatingPointError printed as a user error without a traceback, a bug's (numpy's) too: only the zoo's
+    NonFiniteError (a diverged loss, NaN scores) is one line now."""
+    from floaff_zoo import cli
+    from floaff_zoo.contract import NonFiniteError
+
+    for exc, one_line in (
+        (NonFiniteError("train loss is nan on samples ['s0']"), True),
+        (FloatingPointError("x"), False),
+    ):
+
+        def boom(args, exc=exc):
+            raise exc
+
+        monkeypatch.setattr(cli, "run_lightning", boom)
+        monkeypatch.setattr(sys, "argv", ["floaff-zoo", "fit"])
+        if one_line:
+            assert cli.main() == 2 and "train loss is nan" in capsys.readouterr().err
+        else:
+            with pytest.raises(FloatingPointError):
+                cli.main()

@@ -27,7 +27,7 @@ from lightning.pytorch.utilities.exceptions import MisconfigurationException
 from floaff_zoo import quiet, runtime
 from floaff_zoo._version import __version__
 from floaff_zoo.atomic import atomic_write
-from floaff_zoo.contract import SampleError
+from floaff_zoo.contract import NonFiniteError, SampleError
 from floaff_zoo.data.base import FloAffDataModule
 from floaff_zoo.models.base import WEIGHTS_FAILURE_NOTE, ZooModule
 from floaff_zoo.nn import _fps_ext, ops
@@ -49,6 +49,17 @@ OTHER_COMMANDS: dict[str, tuple[str, str]] = {
 
 class CLIError(RuntimeError):
     """A user-facing command-line error (printed without a traceback)."""
+
+
+#: the errors a trainer command prints in one line (exit code 2) instead of a traceback; the curriculum names the
+#: stage in front of them (a NonFiniteError: a diverged loss or NaN scores, with the samples named)
+USER_ERRORS: tuple[type[BaseException], ...] = (
+    CLIError,
+    RunError,
+    SampleError,
+    MisconfigurationException,
+    NonFiniteError,
+)
 
 
 def _import_registries() -> None:
@@ -674,8 +685,7 @@ def main(args: list[str] | None = None) -> int:
             raise CLIError(f"unknown command {argv[0]!r}; choose from {list(TRAINER_COMMANDS) + list(OTHER_COMMANDS)}")
         run_lightning(argv)
         return 0
-    except (CLIError, RunError, SampleError, MisconfigurationException, FloatingPointError) as exc:
-        # FloatingPointError: a loss that is no longer finite (a diverged run) stops the fit with the samples named
+    except USER_ERRORS as exc:
         print(f"floaff-zoo: error: {exc}", file=sys.stderr)
         if args is not None:  # called from Python (tests, curriculum): let callers see the exception
             raise

@@ -90,6 +90,11 @@ class SampleError(ValueError):
     """A sample breaks the contract; the message names the sample and the field."""
 
 
+class NonFiniteError(FloatingPointError):
+    """A model's output went NaN/Inf (a diverged loss, NaN scores): a user-facing stop naming the samples, printed in
+    one line by the CLI. Other FloatingPointErrors (numpy's, a bug's) keep their traceback."""
+
+
 def _where(meta: dict | None) -> str:
     """Human-readable sample name for error messages."""
     if not meta:

@@ -881,13 +881,9 @@ def _stage_lock(name: str, sdir: Path, out: Any) -> Iterator[None]:
 def _fit_errors() -> tuple[type[BaseException], ...]:
     """The user errors ``floaff-zoo fit`` prints in one line (``floaff_zoo.cli.main``), imported only when an
     exception reaches :func:`main`."""
-    from lightning.pytorch.utilities.exceptions import MisconfigurationException
+    from floaff_zoo.cli import USER_ERRORS
 
-    from floaff_zoo.cli import CLIError
-    from floaff_zoo.contract import SampleError
-    from floaff_zoo.runs import RunError
-
-    return CLIError, RunError, SampleError, MisconfigurationException, FloatingPointError
+    return USER_ERRORS
 
 
 def main(argv: list[str] | None = None, *, raise_errors: bool | None = None) -> int:

@@ -42,6 +42,7 @@ from floaff_zoo import runtime
 from floaff_zoo.contract import (
     TARGET_FLAG_VALUES,
     FloorGrid,
+    NonFiniteError,
     SampleError,
     best_pose,
     collate_samples,
@@ -501,7 +502,7 @@ def predict_from_points(
     finally:
         restore()
     if not np.isfinite(scores).all():
-        raise FloatingPointError(
+        raise NonFiniteError(
             f"predict: {type(net).__name__} returned {int((~np.isfinite(scores)).sum())} NaN/Inf score(s)"
         )
     poses = best_pose(floor, scores, None, t, k=max(1, k), seed=seed)  # seed: the tie-break, as documented

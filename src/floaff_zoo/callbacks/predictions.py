@@ -26,6 +26,7 @@ import torch
 from lightning.pytorch.callbacks import BasePredictionWriter
 
 from floaff_zoo.callbacks.report import jsonable
+from floaff_zoo.contract import NonFiniteError
 
 
 def _pad_value(dtype: np.dtype) -> Any:
@@ -75,7 +76,7 @@ def check_finite_scores(arrays: dict[str, np.ndarray], meta: list[dict[str, Any]
     does: written, they would be NaN maps and poses that nothing counts.
 
     Raises:
-        FloatingPointError: one line naming the samples (``meta['sample_id']``, else their position).
+        NonFiniteError: one line naming the samples (``meta['sample_id']``, else their position).
     """
     if "scores" not in arrays or "floor_mask" not in arrays:
         return  # not a floor-map model (AxisNet writes a yaw)
@@ -84,7 +85,7 @@ def check_finite_scores(arrays: dict[str, np.ndarray], meta: list[dict[str, Any]
     if len(bad):
         ids = [str((meta[i] if i < len(meta) else {}).get("sample_id", i)) for i in bad]
         more = f" and {len(ids) - 5} more" if len(ids) > 5 else ""
-        raise FloatingPointError(
+        raise NonFiniteError(
             f"predict: {model} returned NaN/Inf scores on floor points of {len(ids)} of {len(scores)} sample(s): "
             f"{', '.join(ids[:5])}{more}; no predictions written"
         )

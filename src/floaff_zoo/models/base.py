@@ -39,7 +39,7 @@ from lightning.pytorch.utilities.exceptions import MisconfigurationException
 from torch import Tensor
 from torchmetrics import MetricCollection
 
-from floaff_zoo.contract import Batch, SampleError, best_pose, check_batch
+from floaff_zoo.contract import Batch, NonFiniteError, SampleError, best_pose, check_batch
 from floaff_zoo.losses import build_loss
 from floaff_zoo.metrics import affordance_metrics
 
@@ -318,7 +318,7 @@ class ZooModule(L.LightningModule):
             batch = self.augment(batch)
         loss, pred, extra = self.model_step(batch)
         if not torch.isfinite(loss):
-            raise FloatingPointError(f"{stage} loss is {loss.item()} on samples {sample_names(batch)[:4]}")
+            raise NonFiniteError(f"{stage} loss is {loss.item()} on samples {sample_names(batch)[:4]}")
         bsz = batch["scene_xyz"].shape[0]
         # Under DDP an evaluation loss is the batch-size-weighted mean over every rank (without sync each rank kept
         # its own, and rank 0's share alone reached the report and the checkpoint monitor). It still counts the
