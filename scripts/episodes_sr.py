@@ -18,6 +18,9 @@ from collections import defaultdict
 from pathlib import Path
 from typing import Any
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from sr_json import sr_all  # noqa: E402
+
 #: the fields an episode needs here
 FIELDS = ("sample_id", "scene_id", "task", "success")
 
@@ -66,21 +69,21 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--json", required=True, help="where the scene table goes")
     args = p.parse_args(argv)
     runs: dict[str, list[dict[str, Any]]] = {}
+    paths: dict[str, str] = {}
     for item in args.runs:
         name, sep, path = item.partition("=")
         if not sep or not name or not path:
             p.error(f"{item!r} is not NAME=PATH")
         if name in runs:
             p.error(f"the name {name!r} is given twice")
-        runs[name] = read_episodes(path)
+        runs[name], paths[name] = read_episodes(path), path
     table = scene_table(runs)
-    out = {"runs": {n: p for n, _, p in (r.partition("=") for r in args.runs)}, "scenes": table}
+    out = {"runs": dict(paths), "scenes": table}
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)
     Path(args.json).write_text(json.dumps(out, indent=1) + "\n")
     views = sum(r["views"] for r in table.values())
     for n in runs:
-        sr = sum(r["sr"][n] * r["views"] for r in table.values()) / views
-        print(f"{n}: SR_all {sr:.3f} over {views} views of {len(table)} scenes")
+        print(f"{n}: SR_all {sr_all(table, list(table), n):.3f} over {views} views of {len(table)} scenes")
     return 0
 
 

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from sr_json import checked_scenes  # noqa: E402
+from sr_json import checked_scenes, sr_all  # noqa: E402
 
 
 def load(path: str) -> dict:
@@ -45,12 +45,6 @@ def matched(a: dict, b: dict) -> tuple[list[str], list[str]]:
     if not names:
         raise SystemExit("protocol_change: the files share no model NAME")
     return sorted(a), names
-
-
-def sr_all(scenes: dict, ids: list[str], name: str) -> float:
-    """SR over all views of the listed scenes (a scene listed twice counts twice)."""
-    views = np.array([scenes[s]["views"] for s in ids], float)
-    return float(np.dot(views, [scenes[s]["sr"][name] for s in ids]) / views.sum())
 
 
 def bootstrap_ids(scenes: dict, ids: list[str], draws: int, seed: int) -> list[list[str]]:

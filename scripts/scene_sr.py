@@ -70,6 +70,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from fresh_sr import nearest_cells, split_data  # noqa: E402
+from sr_json import sr_all  # noqa: E402,F401  (also scene_sr.sr_all for its callers)
 
 from floaff_zoo.callbacks.rollout import check_clouds, choose_pose, cloud_free, cloud_observed  # noqa: E402
 from floaff_zoo.contract import TASKS  # noqa: E402
@@ -268,12 +269,6 @@ def per_scene(rows: list[Row], names: list[str]) -> dict[str, dict]:
         sid: {"task": a["task"], "views": a["views"], "sr": {n: a["sum"][n] / a["views"] for n in names}}
         for sid, a in sorted(acc.items())
     }
-
-
-def sr_all(scenes: dict[str, dict], ids: list[str], name: str) -> float:
-    """SR over all views of the listed scenes (a scene listed twice counts twice)."""
-    views = np.array([scenes[s]["views"] for s in ids], float)
-    return float(np.dot(views, [scenes[s]["sr"][name] for s in ids]) / views.sum())
 
 
 def scenes_by_task(scenes: dict[str, dict]) -> dict[str, list[str]]:

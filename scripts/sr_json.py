@@ -5,6 +5,8 @@ from __future__ import annotations
 import math
 from typing import Any
 
+import numpy as np
+
 
 def _fraction(v: Any) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and 0.0 <= v <= 1.0
@@ -31,3 +33,9 @@ def checked_scenes(doc: Any, where: str, prog: str) -> dict[str, dict]:
         if not ok:
             raise SystemExit(f"{prog}: {where}: scene {sid} needs a task, views >= 1 and SR values in [0, 1]")
     return scenes
+
+
+def sr_all(scenes: dict[str, dict], ids: list[str], name: str) -> float:
+    """SR over all views of the listed scenes (a scene listed twice counts twice)."""
+    views = np.array([scenes[s]["views"] for s in ids], float)
+    return float(np.dot(views, [scenes[s]["sr"][name] for s in ids]) / views.sum())
