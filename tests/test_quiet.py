@@ -62,3 +62,23 @@ def test_robosuite_import_notices_only_with_verbose(root):
     if importlib.util.find_spec("robosuite.macros_private") is None:  # robosuite prints them only then
         loud = _run(["-c", code], root, verbose_env=True)
         assert "No private macro file" in loud
+
+
+def test_the_no_optimiser_warning_of_a_fit_without_parameters_is_dropped():
+    """The canonical prior's fit makes Lightning warn that configure_optimizers returned None: noise, dropped."""
+    import warnings
+
+    import lightning.pytorch as pl
+    from lightning.pytorch.core.optimizer import _init_optimizers_and_lr_schedulers
+
+    class NoOptimiser(pl.LightningModule):
+        def configure_optimizers(self) -> None:
+            return None
+
+    module = NoOptimiser()
+    module.trainer = pl.Trainer(logger=False, enable_progress_bar=False, enable_checkpointing=False)
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        quiet.quiet_lightning()
+        _init_optimizers_and_lr_schedulers(module)  # where Lightning warns, with its own text
+    assert not [str(w.message) for w in seen if "configure_optimizers" in str(w.message)]

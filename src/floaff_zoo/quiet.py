@@ -54,7 +54,7 @@ WARNING_NOISE: tuple[tuple[str, type[Warning], str], ...] = (
     (r".*isinstance\(treespec, LeafSpec\)` is deprecated.*", Warning, ""),
     (r".*when using `ckpt_path`, callbacks used to create the checkpoint need to be provided.*", Warning, ""),
     (r".*skip_none parameter was deprecated.*", Warning, ""),  # jsonargparse, through Lightning's CLI
-    (r".*`configure_optimizers` returned `None`.*", Warning, ""),  # the canonical prior has no optimiser
+    (r".*configure_optimizers` returned `None`.*", Warning, ""),  # the canonical prior has no optimiser
     (r".*Total length of `list` across ranks is zero.*", Warning, ""),  # val_scenes 0: no validation loaders
     (r".*", DeprecationWarning, r"jsonargparse.*"),  # jsonargparse's own deprecation notices
 )
