@@ -173,6 +173,7 @@ def test_a_batch_limit_of_1_is_one_batch(tmp_path, root, monkeypatch):
     cfg = tmp_path / "one_batch.yaml"
     cfg.write_text("trainer:\n  limit_train_batches: 1\n")  # a config file's int means one batch too
     assert run_lightning([*base, "--config", str(cfg)]).trainer.global_step == 1
+    assert run_lightning([*base, f"--config={cfg}"]).trainer.global_step == 1  # the '=' spelling too
 
 
 def test_integer_limits_follow_the_parsers_order(tmp_path):

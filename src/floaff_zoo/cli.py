@@ -169,8 +169,9 @@ def integer_limits(args: list[str]) -> dict[str, int]:
     order, as the parser applies them) is an integer: a literal such as ``1``, or an int in the file's YAML."""
     given: dict[str, Any] = {}
     for i, arg in enumerate(args):
-        if arg == "--config" and i + 1 < len(args):
-            trainer = _yaml_mapping(args[i + 1]).get("trainer")
+        config = _config_value(args, i)
+        if config is not None:
+            trainer = _yaml_mapping(config).get("trainer")
             for stage in _LIMIT_STAGES:
                 if isinstance(trainer, dict) and f"limit_{stage}_batches" in trainer:
                     given[stage] = trainer[f"limit_{stage}_batches"]
@@ -187,12 +188,18 @@ def integer_limits(args: list[str]) -> dict[str, int]:
     return {s: v for s, v in given.items() if isinstance(v, int) and not isinstance(v, bool)}
 
 
+def _config_value(args: list[str], i: int) -> str | None:
+    """The value ``args[i]`` gives ``--config`` (``--config X`` or ``--config=X``); None when it gives none."""
+    if args[i] == "--config":
+        return args[i + 1] if i + 1 < len(args) else None
+    return args[i].partition("=")[2] if args[i].startswith("--config=") else None
+
+
 def config_files(args: list[str]) -> list[str]:
-    """The ``--config`` values of ``args`` that name existing files (a value that is no file is YAML text, or a
-    missing file jsonargparse names itself)."""
-    values = [args[i + 1] for i, a in enumerate(args[:-1]) if a == "--config"]
-    values += [a.partition("=")[2] for a in args if a.startswith("--config=")]
-    return [v for v in values if Path(v).is_file()]
+    """The ``--config`` values of ``args``, in order, that name existing files (a value that is no file is YAML
+    text, or a missing file jsonargparse names itself)."""
+    values = [_config_value(args, i) for i in range(len(args))]
+    return [v for v in values if v is not None and Path(v).is_file()]
 
 
 def check_config_file(path: str) -> None:
