@@ -35,3 +35,67 @@ def test_candidate_region_and_unknown():
         assert rx > 0 and ry > 0
     with pytest.raises(ValueError, match="valid tasks"):
         get_task("Nope")
+
+
+def _idle(sc, seconds: float = 2.0) -> dict:
+    """The task state after ``seconds`` of simulation with the robot parked away and its arm held still."""
+    import mujoco
+
+    q = sc.robot.ik_q(sc.data)
+    for _ in range(int(round(seconds / (25 * sc.model.opt.timestep)))):
+        sc.robot.hold(sc.data, q[1:], float(q[0]), True)
+        mujoco.mj_step(sc.model, sc.data, 25)
+    return sc.task.state(sc)
+
+
+@pytest.mark.parametrize(("layout", "style", "seed"), [(3, 3, 0), (3, 4, 1), (5, 5, 0), (5, 7, 2), (1, 1, 0)])
+def test_no_door_or_drawer_of_a_corner_layout_reaches_into_other_furniture(layout, style, seed):
+    """U-, G- and L-shaped kitchens (generator 2.3): closed, and in every task's reset state, no door or drawer
+    reaches into another body (the side run stood flush with the back run, whose corner filler had fronts and
+    handles: a drawer beside it overlapped 8.5 mm closed, a door opened at the corner 7-25 mm)."""
+    import mujoco
+    import numpy as np
+
+    from floaff_zoo.sim import tasks
+    from floaff_zoo.sim.kitchen import PARK_POSE, SceneSpec, build_scene
+
+    sc = build_scene(SceneSpec(layout, style, seed, "CloseDoubleDoor"))
+    m = sc.model
+    hinges = [j for j in range(m.njnt) if m.jnt_type[j] in (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE)]
+    parts = {int(m.jnt_bodyid[j]) for j in hinges} - set(sc.robot.body_ids.tolist())
+    assert parts, "a kitchen has doors and drawers"
+    for name in ("CloseDoubleDoor", "CloseDrawer", "PnPCounterToCab", None):  # None: every part closed
+        mujoco.mj_resetData(m, sc.data)
+        sc.robot.set_base_pose(sc.data, *PARK_POSE)
+        if name is not None:
+            TASK_REGISTRY[name].reset(sc, np.random.default_rng(0))
+        stuck = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, b) for b in sorted(parts)]
+        stuck = [n for b, n in zip(sorted(parts), stuck) if tasks._overlaps_furniture(sc, tasks._subtree_geoms(m, b))]
+        assert not stuck, (name, stuck)
+        if name is not None:
+            sc.task = TASK_REGISTRY[name]
+            assert min(v for k, v in sc.task.state(sc).items() if k.endswith("_open")) >= 0.8
+
+
+def test_an_opened_part_stays_where_its_reset_left_it():
+    """The Layouts test scene whose double door swung shut by itself after the reset (generator 2.1/2.2, 0.93 ->
+    0.02 in 2 s), and a drawer whose drawn opening reaches into furniture: the reset lowers it until it is clear."""
+    import numpy as np
+
+    from floaff_zoo.sim.kitchen import PARK_POSE, SceneSpec, build_scene
+
+    sc = build_scene(SceneSpec(5, 3, 1443886777, "CloseDoubleDoor"))
+    sc.robot.set_base_pose(sc.data, *PARK_POSE)
+    sc.reset_task(np.random.default_rng(0))
+    before = sc.task.state(sc)
+    assert min(before.values()) >= 0.9
+    after = _idle(sc)
+    assert all(abs(after[k] - before[k]) < 0.005 for k in before), (before, after)
+
+    sc = build_scene(SceneSpec(5, 5, 117899901, "CloseDrawer"))
+    sc.robot.set_base_pose(sc.data, *PARK_POSE)
+    sc.reset_task(np.random.default_rng(0))
+    drawn = float(np.random.default_rng(0).uniform(0.90, 1.00))
+    opened = sc.task.state(sc)["drawer_open"]
+    assert 0.5 < opened < drawn - 0.005  # lowered: the drawn opening reaches into the furniture in front
+    assert abs(_idle(sc)["drawer_open"] - opened) < 0.005

@@ -48,7 +48,7 @@ from floaff_zoo.sim.presets import ALL_BENCHMARKS, ALL_TASKS, PRESETS, GenPreset
 
 __all__ = ["GENERATOR_VERSION", "SceneJob", "derive_seed", "generate", "main", "plan_jobs", "run_job"]
 
-GENERATOR_VERSION = "2.2.0"
+GENERATOR_VERSION = "2.3.0"
 #: task reset seed of the rollouts (annotate_scene) and of the rendered views, so both see the same fixture state
 ANNOTATE_SEED = 0
 
@@ -142,7 +142,8 @@ def find_done(out: Path, job: SceneJob, min_views: int = 0) -> str | None:
 
     A scene of another format version (an older generator) is not resumed: it is regenerated, so one dataset never
     mixes floor rules; nor is a scene of another generator minor version (its rollouts, hence labels, or its views
-    may differ: 2.1 changed the CloseDoubleDoor push, 2.2 refuses views past a wall or with the camera in furniture).
+    may differ: 2.1 changed the CloseDoubleDoor push, 2.2 refuses views past a wall or with the camera in furniture,
+    2.3 moves the side runs of corner layouts off the back run's fronts).
     Nor is a scene drawn with another top-up (``min_views`` in its scene.json; a scene written before the field
     existed counts as topped up when it holds at least ``min_views`` views).
     """

@@ -393,7 +393,7 @@ class _Builder:
         self.box(body, [-D, -w / 2, H - 0.04], [0.025, w / 2, H], self.m_top)
 
     def solid_base(self, body, w: float, D: float, fronts: int = 1, drawer_row: bool = True) -> None:
-        """Static base cabinet with decorative fronts and handles."""
+        """Static base cabinet with ``fronts`` decorative doors (0: a blind panel) and a drawer row, with handles."""
         H = self.st["counter_h"]
         self.box(body, [-D, -w / 2, 0.10], [0.0, w / 2, H - 0.04], self.m_carcass)
         self.box(body, [-D, -w / 2, 0.0], [-0.06, w / 2, 0.10], self.m_dark)
@@ -404,7 +404,7 @@ class _Builder:
             self.box(body, [0.0, -w / 2 + 0.003, zc + 0.003], [0.02, w / 2 - 0.003, top - 0.003], self.m_door)
             self.handle(body, 0.02, 0.0, (zc + top) / 2, False, min(0.3, 0.5 * w), None)
             top = zc
-        fw = w / fronts
+        fw = w / max(fronts, 1)
         for i in range(fronts):
             y0 = -w / 2 + i * fw
             self.box(body, [0.0, y0 + 0.003, 0.103], [0.02, y0 + fw - 0.003, top - 0.003], self.m_door)
@@ -603,8 +603,11 @@ class _Builder:
             self.handle(b, 0.02, w / 2 - 0.08, 0.9, True, 0.4, None)
             self.rects.pop()  # replace the base-module footprint by the deeper fridge one
             self.rect_local(origin, yaw, (-0.72, -w / 2), (0.04, w / 2))
-        else:  # plain / corner filler
-            self.solid_base(b, w, D, fronts=2 if w > 0.7 else 1, drawer_row=kind == "plain")
+        elif kind == "corner":  # a blind filler: the side run stands in front of it (generator 2.3; its fronts and
+            # handles reached up to 19 mm into the side run's doors and drawers, whose contact forces then moved them)
+            self.solid_base(b, w, D, fronts=0, drawer_row=False)
+        else:
+            self.solid_base(b, w, D, fronts=2 if w > 0.7 else 1, drawer_row=True)
         if kind not in ("fridge", "wall_cab", "microwave") and self.rng.random() < 0.6:
             self.static_wall_cab(b, w, D)
 
@@ -745,6 +748,12 @@ def _widths(kinds: list[str], rng: np.random.Generator, scale: float, D: float) 
     return out
 
 
+#: gap (m) between a side run and the back run's front line (a filler strip): flush, a door of the side run opened at
+#: the corner, or its drawer pulled out, ran into the fronts and handles of the back run, and the contact forces of
+#: the reset state then moved it (generator 2.3)
+CORNER_GAP = 0.08
+
+
 def _plan(layout_id: int, rng: np.random.Generator) -> list[dict]:
     """Runs for a layout family: each {'kinds': [...], 'side': 'back'|'left'|'right'|'front'|'island'|'peninsula'}."""
     fixtures = ["drawer", "double_door", "microwave", "wall_cab"]
@@ -802,17 +811,17 @@ def _build_spec(spec_: SceneSpec) -> tuple[mujoco.MjSpec, dict, list[_Rect], dic
         L = sum(ws)
         if side == "back":
             start, yaw = np.array([X0, -D]), -math.pi / 2
-        elif side == "left":  # ends at the back run's front line, in front of its corner filler
-            start, yaw = np.array([X0 + D, -D - L]), 0.0
+        elif side == "left":  # ends CORNER_GAP in front of the back run's front line, before its corner filler
+            start, yaw = np.array([X0 + D, -D - CORNER_GAP - L]), 0.0
         elif side == "right":
-            start, yaw = np.array([X0 + Lback - D, -D]), math.pi
+            start, yaw = np.array([X0 + Lback - D, -D - CORNER_GAP]), math.pi
         elif side == "front":
             start, yaw = np.array([X0 + Lback, -D - aisle]), math.pi / 2
         elif side == "island":
             start, yaw = np.array([L / 2, -D - aisle]), math.pi / 2
         else:  # peninsula: attached to the far end of the right run, facing the back wall
             right_len = sum(widths[2])
-            start, yaw = np.array([X0 + Lback, -D - right_len]), math.pi / 2
+            start, yaw = np.array([X0 + Lback, -D - CORNER_GAP - right_len]), math.pi / 2
         runs.append((start, yaw, p["kinds"], ws, side))
     for start, yaw, kinds, ws, side in runs:
         n = np.array([math.cos(yaw), math.sin(yaw)])
@@ -820,7 +829,7 @@ def _build_spec(spec_: SceneSpec) -> tuple[mujoco.MjSpec, dict, list[_Rect], dic
         s = 0.0
         for k, w in zip(kinds, ws):
             centre = start + (s + w / 2) * u
-            bld.module("plain" if k == "corner" else k, centre, yaw, w, D)
+            bld.module(k, centre, yaw, w, D)
             s += w
         if side == "island":  # back half of the island: a solid block behind the front run
             c = start + (sum(ws) / 2) * u - n * (D + 0.35)

@@ -9,6 +9,8 @@
 * CloseDoubleDoor: target = a double-door base cabinet; reset: both doors 90-100 % open; success: both
   q / (pi/2) <= 0.05.
 
+Every reset opening is lowered where the part would overlap other furniture (``_open_clear``).
+
 Candidate region (paper eq. "supp_candidate"), in the TARGET frame: origin at ``TargetInfo.pos``
 projected on the floor, ``x°`` along the front (lateral, = fixture-local +y), ``y°`` = minus the
 distance along the outward normal, so the open floor in front of the target has ``y° < 0`` (the
@@ -165,6 +167,53 @@ def _open_fraction(rng: np.random.Generator | None) -> float:
     return 0.95 if rng is None else float(rng.uniform(0.90, 1.00))
 
 
+#: deepest overlap (m) a reset's opened part may have with other furniture; deeper, the part is opened less
+RESET_OVERLAP_TOL = 1e-4
+#: step (fraction of the full opening) by which an obstructed reset opening is lowered
+RESET_OPENING_STEP = 0.01
+
+
+def _subtree_geoms(model: mujoco.MjModel, body: int) -> np.ndarray:
+    """Bool mask [ngeom] of the geoms of ``body`` and of the bodies below it (a door and its handle)."""
+    inside = np.zeros(model.nbody, dtype=bool)
+    inside[body] = True
+    for b in range(body + 1, model.nbody):  # MuJoCo numbers a parent before its children
+        inside[b] = inside[model.body_parentid[b]]
+    return inside[model.geom_bodyid]
+
+
+def _overlaps_furniture(scene: "TaskScene", moving: np.ndarray) -> bool:
+    """True when a geom of ``moving`` (mask [ngeom]) reaches deeper than RESET_OVERLAP_TOL into a geom of the
+    scene outside it; the robot does not count (the reset state must not depend on where the base stands)."""
+    m, d = scene.model, scene.data
+    mujoco.mj_kinematics(m, d)
+    mujoco.mj_collision(m, d)
+    n = d.ncon
+    if n == 0:
+        return False
+    g1, g2 = d.contact.geom1[:n], d.contact.geom2[:n]
+    other = np.ones(m.ngeom, dtype=bool)
+    other[moving] = False
+    other[np.asarray(scene.robot.geom_ids, dtype=np.int64)] = False
+    pair = (moving[g1] & other[g2]) | (moving[g2] & other[g1])
+    return bool((pair & (d.contact.dist[:n] < -RESET_OVERLAP_TOL)).any())
+
+
+def _open_clear(scene: "TaskScene", joint: str, fraction: float, full: float) -> float:
+    """Open ``joint`` to ``fraction`` of ``full`` (its travel), or less where the part would then overlap other
+    furniture (a door beside a corner meets the perpendicular run: reset into it, the contact forces swing the door
+    by themselves): lowered in RESET_OPENING_STEP steps until clear. Returns the fraction set."""
+    m = scene.model
+    jid = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, joint)
+    adr = _jq(scene, joint)
+    moving = _subtree_geoms(m, int(m.jnt_bodyid[jid]))
+    while True:
+        scene.data.qpos[adr] = fraction * full
+        if fraction <= 0.0 or not _overlaps_furniture(scene, moving):
+            return fraction
+        fraction = max(0.0, fraction - RESET_OPENING_STEP)
+
+
 @dataclass(frozen=True)
 class CloseDrawer(Task):
     name: str = "CloseDrawer"
@@ -182,7 +231,7 @@ class CloseDrawer(Task):
 
     def reset(self, scene, rng):
         f = scene.fixtures["drawer"]
-        scene.data.qpos[_jq(scene, f["joint"])] = _open_fraction(rng) * f["travel"]
+        _open_clear(scene, f["joint"], _open_fraction(rng), f["travel"])
 
     def state(self, scene):
         return {"drawer_open": self.opening(scene)}
@@ -215,8 +264,9 @@ class CloseDoubleDoor(Task):
         ]
 
     def reset(self, scene, rng):
-        for d in scene.fixtures["double_door"]["doors"]:
-            scene.data.qpos[_jq(scene, d["joint"])] = _open_fraction(rng) * HALF_PI
+        fractions = [_open_fraction(rng) for _ in scene.fixtures["double_door"]["doors"]]  # the rng's draws first
+        for d, fraction in zip(scene.fixtures["double_door"]["doors"], fractions):
+            _open_clear(scene, d["joint"], fraction, HALF_PI)
 
     def state(self, scene):
         a, b = self.openings(scene)
@@ -284,7 +334,7 @@ class PnPCounterToCab(Task):
 
     def reset(self, scene, rng):
         f = scene.fixtures["wall_cab"]
-        scene.data.qpos[_jq(scene, f["door"]["joint"])] = _open_fraction(rng) * HALF_PI
+        _open_clear(scene, f["door"]["joint"], _open_fraction(rng), HALF_PI)
 
     def _corners_local(self, scene) -> np.ndarray:
         """Object-box corners [8,3] in the cabinet frame (x outward, y lateral, z up), relative to the interior
