@@ -69,6 +69,18 @@ def _metric_collections() -> dict[str, torch.nn.Module]:
     }
 
 
+def _angle_metric() -> torch.nn.Module:
+    from floaff_zoo.models.axisnet import AngleErrorDeg
+
+    return AngleErrorDeg()
+
+
+def _angle_batch() -> tuple[Tensor, Tensor, Tensor]:
+    """AxisNet's metric's inputs for 5 samples: predicted and true yaw [5] (rad), index [5]."""
+    gen = torch.Generator().manual_seed(1)
+    return torch.rand(5, generator=gen) * 6 - 3, torch.rand(5, generator=gen) * 6 - 3, torch.arange(5)
+
+
 def _one_rank_updates(rank: int, port: int, out: str) -> None:
     """Worker of a 2-process gloo group in which only rank 0 updates the metrics; each rank saves what it computes."""
     os.environ.update(MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port))
@@ -79,13 +91,18 @@ def _one_rank_updates(rank: int, port: int, out: str) -> None:
             if rank == 0:
                 metrics.update(*_metric_batch())
             results[name] = {k: float(v) for k, v in metrics.compute().items()}
+        angle = _angle_metric()
+        if rank == 0:
+            angle.update(*_angle_batch())
+        results["angle"] = {"AngleErrorDeg": float(angle.compute())}
         torch.save(results, f"{out}.{rank}")
     finally:
         torch.distributed.destroy_process_group()
 
 
 def test_metrics_sync_when_a_process_saw_no_batch(tmp_path):
-    """A process that never updated gathered a 1-D stand-in for its [S, width] rows and the collective aborted."""
+    """A process that never updated gathered a 1-D stand-in for its [S, width] rows and the collective aborted (the
+    floor metrics, and AxisNet's angle error)."""
     import socket
     import warnings
 
@@ -100,6 +117,9 @@ def test_metrics_sync_when_a_process_saw_no_batch(tmp_path):
         for name, metrics in _metric_collections().items():
             metrics.update(*_metric_batch())
             single[name] = {k: float(v) for k, v in metrics.compute().items()}
+        angle = _angle_metric()
+        angle.update(*_angle_batch())
+        single["angle"] = {"AngleErrorDeg": float(angle.compute())}
     for rank in (0, 1):
         got = torch.load(f"{out}.{rank}")
         for name, values in single.items():

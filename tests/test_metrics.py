@@ -213,6 +213,35 @@ def test_reset_and_clone():
     first = run_metric(m, preds, target, mask, [7])
     m.reset()
     assert run_metric(copy.deepcopy(m), preds, target, mask, [3]) == pytest.approx(first)
+    # reset forgets: other samples under the same indices give their own values (stale rows would win, first seen)
+    other = make_data(seed=6, n=20)
+    m.reset()
+    assert run_metric(m, *other, [7]) == pytest.approx(
+        run_metric(affordance_metrics("hist", "official_batchwise", 4), *other, [7])
+    )
+    assert run_metric(m, *other, [7]) != pytest.approx(first)
+
+
+@pytest.mark.parametrize("reduction", ["per_sample", "official_batchwise"])
+def test_calling_a_metric_batch_by_batch_accumulates_every_batch(reduction):
+    """``metric(preds, target)`` (torchmetrics' forward, as ``self.log(name, metric(...))`` uses it) without
+    ``index``: each batch's samples were numbered from 0 again, so every batch after the first counted as repeats."""
+    preds, target, mask = make_data(seed=7, n=24)
+    called, updated = affordance_metrics("hist", reduction, 4), affordance_metrics("hist", reduction, 4)
+    batches = [slice(0, 8), slice(8, 16), slice(16, 24)]
+    for sl in batches:
+        p, g, v = (torch.from_numpy(a[sl]) for a in (preds, target, mask))
+        step = called(p, g, v)  # the batch's own values
+        alone = affordance_metrics("hist", reduction, 4)
+        alone.update(p, g, v)
+        assert {k: float(x) for k, x in step.items()} == pytest.approx(
+            {k: float(x) for k, x in alone.compute().items()}
+        )
+        updated.update(p, g, v)
+    assert {k: float(x) for k, x in called.compute().items()} == pytest.approx(
+        {k: float(x) for k, x in updated.compute().items()}
+    )
+    assert called["rmse"].num_elements == updated["rmse"].num_elements > 2
 
 
 def test_attributes_and_bad_input():

@@ -82,3 +82,24 @@ def test_the_no_optimiser_warning_of_a_fit_without_parameters_is_dropped():
         quiet.quiet_lightning()
         _init_optimizers_and_lr_schedulers(module)  # where Lightning warns, with its own text
     assert not [str(w.message) for w in seen if "configure_optimizers" in str(w.message)]
+
+
+def test_lightnings_own_verbose_option_of_test_keeps_its_value(tmp_path, root, monkeypatch, capsys):
+    """``test --verbose false`` (Lightning's: print the results table or not) lost its flag to the zoo's --verbose
+    and failed on 'unrecognized arguments: false'; a bare --verbose is still the zoo's."""
+    import pytest
+    import yaml
+
+    from floaff_zoo.cli import _take_verbose, main
+
+    monkeypatch.chdir(root)
+    monkeypatch.delenv(quiet.VERBOSE_ENV, raising=False)
+    base = ["test", "--config", "configs/data/synthetic_tiny.yaml", "--config", "configs/models/tiny_pointnet.yaml"]
+    for value in ("false", "True"):
+        with pytest.raises(SystemExit) as done:
+            main([*base, "--verbose", value, "--trainer.default_root_dir", str(tmp_path), "--print_config"])
+        assert done.value.code in (0, None)
+        assert yaml.safe_load(capsys.readouterr().out)["verbose"] is (value == "True")
+    assert not quiet.verbose()
+    assert _take_verbose(["--verbose", "fit", "--config", "a.yaml"]) == (["fit", "--config", "a.yaml"], True)
+    assert _take_verbose(["test", "--verbose", "false", "--verbose"]) == (["test", "--verbose", "false"], True)

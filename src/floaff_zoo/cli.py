@@ -575,7 +575,8 @@ def _print_overview() -> None:
         print(f"  {c:<11} {text}")
     print(
         "\noptions:\n  -h, --help  show this overview\n  --version   print the version\n"
-        "  --verbose   (anywhere) show all third-party output: warnings, Lightning banners, robosuite notices"
+        "  --verbose   (anywhere) show all third-party output: warnings, Lightning banners, robosuite notices\n"
+        "              (test/validate's own --verbose true|false, Lightning's results table, keeps its value)"
     )
 
 
@@ -665,11 +666,24 @@ def _build_cli(cls: type[FloAffCLI], args: list[str], parser_kwargs: dict[str, A
     )
 
 
+def _take_verbose(argv: list[str]) -> tuple[list[str], bool]:
+    """``argv`` without the zoo's ``--verbose`` flag (any command, any position), and whether it was there. A
+    ``--verbose`` followed by ``true`` or ``false`` is Lightning's option of ``test`` and ``validate`` (print the
+    results table) and stays for their parser."""
+    out, found = [], False
+    for i, arg in enumerate(argv):
+        value = argv[i + 1].strip().lower() if i + 1 < len(argv) else ""
+        if arg == "--verbose" and value not in ("true", "false"):
+            found = True
+            continue
+        out.append(arg)
+    return out, found
+
+
 def main(args: list[str] | None = None) -> int:
     """Entry point of ``floaff-zoo`` and ``python -m floaff_zoo``."""
-    argv = list(sys.argv[1:] if args is None else args)
-    if "--verbose" in argv:  # ours on every command (no subcommand defines it): strip before they parse
-        argv = [a for a in argv if a != "--verbose"]
+    argv, verbose = _take_verbose(list(sys.argv[1:] if args is None else args))
+    if verbose:
         quiet.set_verbose(True)
     quiet.install()
     try:

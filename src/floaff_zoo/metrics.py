@@ -236,11 +236,23 @@ _CAT_STATES: dict[str, tuple[int, torch.dtype]] = {
 }
 
 
+def fill_empty_cat_states(metric: Metric, states: dict[str, tuple[int, torch.dtype]]) -> None:
+    """Before a DDP sync, give each empty list state ``name`` of ``metric`` one [0, width] tensor (``states``: name ->
+    (width, dtype)). A process that saw no batch holds empty lists, for which torchmetrics gathers a 1-D stand-in
+    whose size does not match the other processes' [S, width] rows, and the collective aborts."""
+    for name, (width, dtype) in states.items():
+        state = getattr(metric, name, None)
+        if isinstance(state, list) and not state:
+            state.append(torch.zeros((0, width), dtype=dtype, device=metric.device))
+
+
 class _FloorMetric(Metric):
     """Shared state and element bookkeeping of the FloAff map metrics (see the module docstring)."""
 
     is_differentiable = False
     full_state_update = False
+    #: added to ``seen`` when update() numbers samples without ``index`` (see forward)
+    _forward_offset = 0
     higher_is_better: bool
 
     def __init__(self, reduction: Reduction = "per_sample", chunk_size: int = 64, keep_points: bool = False) -> None:
@@ -272,12 +284,7 @@ class _FloorMetric(Metric):
         return _cat_or_empty(getattr(self, name), width, dtype, self.device)
 
     def _sync_dist(self, dist_sync_fn: Any = gather_all_tensors, process_group: Any = None) -> None:
-        # A process that saw no batch holds empty lists, for which torchmetrics gathers a 1-D stand-in whose size
-        # does not match the other processes' [S, width] rows (the collective aborts): give it empty rows instead.
-        for name, (width, dtype) in _CAT_STATES.items():
-            state = getattr(self, name, None)
-            if isinstance(state, list) and not state:
-                state.append(torch.zeros((0, width), dtype=dtype, device=self.device))
+        fill_empty_cat_states(self, _CAT_STATES)
         super()._sync_dist(dist_sync_fn, process_group)
 
     def update(self, preds: Tensor, target: Tensor, mask: Tensor | None = None, index: Tensor | None = None) -> None:
@@ -287,12 +294,21 @@ class _FloorMetric(Metric):
         if p.shape[1] == 0:  # no floor point in the batch: one padded column keeps the per-sample reductions defined
             p, g, mask = p.new_zeros((b, 1)), g.new_zeros((b, 1)), mask.new_zeros((b, 1))
         if index is None:
-            index = torch.arange(b, device=p.device) + self.seen
+            index = torch.arange(b, device=p.device) + self.seen + self._forward_offset
         index = index.to(p.device).long()
         self.seen += b
         self.rows.append(_sample_stats(p, g, mask, index))
         if self._keep_points:
             self._update_points(p, g, mask, index)
+
+    def forward(self, *args: Any, **kwargs: Any) -> Any:
+        """torchmetrics' forward updates a fresh state with the batch alone (``seen`` 0), then merges it into the one
+        held: without ``index`` its samples took the numbers of the first batch's and counted once with them."""
+        self._forward_offset = int(self.seen)
+        try:
+            return super().forward(*args, **kwargs)
+        finally:
+            self._forward_offset = 0
 
     def _update_points(self, p: Tensor, g: Tensor, mask: Tensor, index: Tensor) -> None:
         """Buffer valid (p, g) points; reduce chunks whose chunk_size samples are all here to one SIM row."""
@@ -333,7 +349,7 @@ class _FloorMetric(Metric):
     def _hist_sim(self, table: dict[str, Tensor]) -> Tensor:
         """Histogram SIM per element [E], aligned with ``table['id']``."""
         if not self._keep_points:
-            return table["simh_sample"]  # per_sample (or chunk_size 1 never buffers): one sample per element
+            return table["simh_sample"]  # per_sample: one sample per element
         done = self._cat("hist_done")
         done = done[_first_occurrence(done[:, 0])]
         rows = self._cat("pend_rows")

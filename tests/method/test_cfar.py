@@ -360,3 +360,18 @@ def test_weights_with_a_part_the_model_lacks_are_not_all_loaded(tmp_path):
     with pytest.warns(UserWarning, match=r"weights of \['prior'\] are not used"):
         plain = CFARModule(**{**init_args, "prior_residual": False}, weights=str(with_prior))
     assert plain.weights_not_loaded == ["prior.*: in the weights, no such part in this CFARModule"]
+
+
+def test_the_alignment_jitter_is_within_its_degrees_in_training_and_off_in_evaluation(root):
+    """``yaw_jitter_deg: 5`` turns each training sample's alignment by a random angle within +-5 deg (the paper's
+    perturbation); evaluation is never perturbed."""
+    args = {**tiny_args(root), "yaw_source": "gt", "eval_yaw_source": "manhattan"}
+    b = _batch(32)
+    torch.manual_seed(0)
+    plain, jittered = CFARModule(**args, yaw_jitter_deg=0.0).train(), CFARModule(**args, yaw_jitter_deg=5.0).train()
+    turned = math.degrees(1) * (jittered.canonicalize(b)[0].angle - plain.canonicalize(b)[0].angle)
+    turned = (turned + 180) % 360 - 180
+    assert turned.abs().max() <= 5.0 + 1e-3 and turned.abs().max() > 2.0 and turned.std() > 1.0, turned
+    jittered.eval()
+    plain.eval()
+    assert torch.equal(jittered.canonicalize(b)[0].angle, plain.canonicalize(b)[0].angle)

@@ -20,9 +20,10 @@ from typing import Any, ClassVar
 import torch
 from torch import Tensor
 from torchmetrics import Metric, MetricCollection
+from torchmetrics.utilities.distributed import gather_all_tensors
 
 from floaff_zoo.contract import Batch
-from floaff_zoo.metrics import _cat_or_empty, _first_occurrence
+from floaff_zoo.metrics import _cat_or_empty, _first_occurrence, fill_empty_cat_states
 from floaff_zoo.models.base import TrainConfig, ZooModule, batch_index, sample_names
 from floaff_zoo.nn.axisnet import (
     AxisNet,
@@ -59,6 +60,10 @@ class AngleErrorDeg(Metric):
         err = angle_error_deg(pred_yaw.double(), target_yaw.double()).reshape(-1)
         idx = torch.full_like(err, -1.0) if index is None else index.reshape(-1).to(err)
         self.rows.append(torch.stack([idx, err], dim=1))
+
+    def _sync_dist(self, dist_sync_fn: Any = gather_all_tensors, process_group: Any = None) -> None:
+        fill_empty_cat_states(self, {"rows": (2, torch.float64)})
+        super()._sync_dist(dist_sync_fn, process_group)
 
     def compute(self) -> Tensor:
         rows = _cat_or_empty(self.rows, 2, torch.float64, self.device)  # a list before a DDP sync, a tensor after

@@ -117,13 +117,27 @@ class CFARModule(FloAffModule):
         use_sdl: False = w/o-SDL ablation (``loss: aff`` becomes plain MSE).
         use_fd: False = w/o-FD ablation (no distillation even with a teacher, which is then not loaded; still
             initialise from ``weights``).
-        yaw_source / eval_yaw_source: where theta_o comes from in training / evaluation.
+        yaw_source: where theta_o comes from in training.
+        eval_yaw_source: where theta_o comes from in evaluation (test, predict).
         axisnet: frozen AxisNet (checkpoint path or hub name).
         axisnet_arch: filled automatically (AxisNet architecture + source + sha256); leave None.
         yaw_jitter_deg: training perturbation of the alignment (deg; paper 5).
-        teacher: previous PFAL stage (checkpoint path or hub name); distill_weight: lambda (paper 1.0);
+        teacher: previous PFAL stage (checkpoint path or hub name).
+        distill_weight: lambda, the weight of the distillation term (paper 1.0).
         distill_bn: teacher BatchNorm mode, ``batch`` or ``running``.
-        local_* / floor_* / robot_mlp / head: :class:`~floaff_zoo.nn.cfar.CFARNet` architecture.
+        local_npoints: centres per SSG level of the local encoder (None: the default of
+            :class:`~floaff_zoo.nn.cfar.CFARNet`, as for every architecture list below).
+        local_radii: ball radius per local level (m).
+        local_nsamples: neighbours per local level.
+        local_mlps: MLP widths per local level.
+        local_global_mlp: widths of the local encoder's group-all layer (its last is C_g).
+        floor_npoints: centres per SSG level of the floor encoder.
+        floor_radii: ball radius per floor level (m).
+        floor_nsamples: neighbours per floor level.
+        floor_mlps: MLP widths per floor level.
+        floor_fp_mlps: feature-propagation widths, deepest level first.
+        robot_mlp: widths of the robot-description MLP.
+        head: hidden widths of the decoder.
         floor_encoder: ``set`` (paper) or ``pointwise`` (query-independent floor features; departure).
         prior_residual: predict a residual over the canonical prior (departure, see module docstring).
         residual_scale: the learned residual logit is multiplied by this before it is added to the prior's logit
