@@ -21,7 +21,11 @@ torch.set_num_threads(2)
 
 @pytest.fixture(autouse=True)
 def _isolated_caches(tmp_path_factory, monkeypatch):
-    """Keep torch.hub and the floaff hub inside a temp dir so tests never touch user caches."""
+    """Keep torch.hub and the floaff hub inside a temp dir so tests never touch the user's hubs. The compiled point
+    kernels are the exception, on purpose: their build folder (``TORCH_EXTENSIONS_DIR``, torch's default
+    ``~/.cache/torch_extensions``) is shared with the user's runs, as torch rebuilds a kernel whose sources changed and
+    a build per test session would add its 40-60 s compile to every run (``tests/nn/test_ops.py`` checks the folder
+    rule under a temp dir)."""
     hub = tmp_path_factory.mktemp("hub")
     torch.hub.set_dir(str(hub / "torch"))
     monkeypatch.setenv("FLOAFF_ZOO_HUB", str(hub / "floaff"))

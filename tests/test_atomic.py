@@ -28,6 +28,9 @@ def test_generated_files_get_the_mode_of_the_umask(tmp_path, umask_022):
     assert _mode(tmp_path / "scene.json") == 0o644
     assert _mode(tmp_path / "views" / "front_0000.npz") == 0o644
     np.testing.assert_array_equal(np.load(tmp_path / "views" / "front_0000.npz")["x"], np.zeros(3))
+    os.umask(0o027)  # another umask, another mode (a fixed 0o644 passed the lines above); the fixture restores it
+    ff.atomic_write_json(tmp_path / "private.json", {"a": 1})
+    assert _mode(tmp_path / "private.json") == 0o640
 
 
 def test_a_failed_write_keeps_the_old_file_and_leaves_no_temp(tmp_path):

@@ -48,7 +48,7 @@ def test_scene_table_counts_each_views_success(tmp_path, capsys):
     assert res["models"]["m"]["change"] == pytest.approx(0.0)
 
 
-def test_bad_files_are_named(tmp_path):
+def test_bad_files_are_named(tmp_path, capsys):
     good = tmp_path / "good.json"
     good.write_text(json.dumps(_episodes({"s0": [True], "s1": [False]})))
     other = tmp_path / "other.json"
@@ -62,5 +62,10 @@ def test_bad_files_are_named(tmp_path):
         es.main([f"b={broken}", "--json", out])
     with pytest.raises(SystemExit, match="missing.json is not a readable sr_episodes.json"):
         es.main([f"m={tmp_path / 'missing.json'}", "--json", out])
-    with pytest.raises(SystemExit):
-        es.main(["no-equals-sign", "--json", out])
+    for bad, why in (
+        (["no-equals-sign"], "'no-equals-sign' is not NAME=PATH"),
+        ([f"a={good}", f"a={other}"], "given twice"),
+    ):
+        with pytest.raises(SystemExit) as done:
+            es.main([*bad, "--json", out])
+        assert done.value.code == 2 and why in capsys.readouterr().err

@@ -28,6 +28,7 @@ def test_turn_is_a_rotation_about_the_target():
     out = pc.turn(xy, np.pi / 2)
     assert np.allclose(np.linalg.norm(out, axis=1), [1.0, 2.0])
     assert np.allclose(pc.turn(out, -np.pi / 2), xy)
+    assert np.allclose(out, [[0.0, 1.0], [2.0, 0.0]])  # counter-clockwise, as a positive yaw turns
 
 
 @pytest.mark.parametrize("noise", [0.0, 0.3])

@@ -14,8 +14,8 @@ def _run(tmp_path, name, value, cases=("CloseDrawer_front_0", "OpenSingleDoor_si
 
     run_dir = tmp_path / "runs" / name / "version_1"
     (run_dir / "figures").mkdir(parents=True)
-    for case in cases:
-        img = np.full((40, 60, 3), value, dtype=np.float32)
+    for i, case in enumerate(cases):  # each later case darker: rows can be told apart
+        img = np.full((40, 60, 3), value / (1 + i), dtype=np.float32)
         plt.imsave(run_dir / "figures" / f"{case}.png", img)
     report = {"label": name, "run_dir": str(run_dir), "figures": [f"figures/{c}.png" for c in cases]}
     out = tmp_path / "docs" / name
@@ -48,10 +48,11 @@ def test_montage_puts_runs_in_columns_and_cases_in_rows(tmp_path, capsys):
     assert str(out) in capsys.readouterr().out
     img = plt.imread(out)[..., :3]
     h, w = img.shape[:2]
-    # the dark run is on the left, the light one on the right, in both rows
-    for row in (h // 4, 3 * h // 4):
-        left, right = img[row, : w // 2].mean(), img[row, w // 2 :].mean()
+    # the dark run is on the left, the light one on the right, in both rows; the second case (darker) below
+    means = [[img[row, : w // 2].mean(), img[row, w // 2 :].mean()] for row in (h // 4, 3 * h // 4)]
+    for left, right in means:
         assert left < right
+    assert means[1][1] < means[0][1] - 0.05, means
 
 
 def test_montage_names_the_missing_case_and_report(tmp_path, capsys):

@@ -55,21 +55,20 @@ def test_killed_worker_episodes_are_retried_and_the_sr_is_unchanged(tmp_path, mo
     reference, _ = _sr(ConstantModule(), samples, workers=1)  # in-process: no pool involved
     monkeypatch.setenv(_fake_jobs.PID_DIR_ENV, str(tmp_path))
     killer = _kill_a_worker_once_busy(tmp_path)
-    t0 = time.monotonic()
     res, cb = _sr(ConstantModule(), samples, workers=2)
-    elapsed = time.monotonic() - t0
     killer.join(timeout=1)
     assert not killer.is_alive()
     assert len(os.listdir(tmp_path)) >= 3  # the two first workers and at least one fresh one after the kill
     assert res["test_sr_all"] == reference["test_sr_all"] and res["test_oracle_sr_all"] == 1.0
     assert cb.summaries["test"]["n_evaluated"] == 40
-    assert elapsed < 90, f"evaluation took {elapsed:.0f} s after a worker was killed"
 
     (tmp_path / "again").mkdir()
     monkeypatch.setenv(_fake_jobs.PID_DIR_ENV, str(tmp_path / "again"))
     killer = _kill_a_worker_once_busy(tmp_path / "again", after_s=0.1)
     res, _ = _sr(LabelModule(), samples, workers=2)
     killer.join(timeout=1)
+    assert not killer.is_alive()
+    assert len(os.listdir(tmp_path / "again")) >= 3  # a worker was killed and replaced here too
     assert res["test_sr_all"] == 1.0 and res["test_oracle_sr_all"] == 1.0
 
 
@@ -79,7 +78,6 @@ def _jobs(n: int):
 
 def test_a_job_that_always_kills_its_worker_is_named():
     svc = RolloutService(workers=2, max_retries=1, job_fn=_fake_jobs.crashing_job)
-    t0 = time.monotonic()
     try:
         with pytest.raises(
             RolloutPoolError, match=r"L0_S0_s3_CloseDrawer at \(0\.3, 0\.5, 0\.0\) killed its worker process 3 times"
@@ -87,18 +85,15 @@ def test_a_job_that_always_kills_its_worker_is_named():
             svc.run(_jobs(8))
     finally:
         svc.close()
-    assert time.monotonic() - t0 < 90
 
 
 def test_a_hanging_worker_times_out_naming_the_episode():
     svc = RolloutService(workers=2, timeout_s=4.0, job_fn=_fake_jobs.hanging_job)
-    t0 = time.monotonic()
     try:
         with pytest.raises(RolloutPoolError, match=r"no progress for 4 s.*L0_S0_s3_CloseDrawer"):
             svc.run(_jobs(8))
     finally:
         svc.close()
-    assert time.monotonic() - t0 < 60
     assert svc._pool is None  # the stuck workers were killed, not left behind
 
 

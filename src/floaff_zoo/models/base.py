@@ -78,9 +78,9 @@ class TrainConfig:
         optimizer: ``adam`` or ``adamw``.
         lr: learning rate (> 0).
         weight_decay: weight decay (>= 0).
-        scheduler: ``cosine`` (eta_min 1e-6; per epoch with T_max = max_epochs, or per step with T_max =
-            max_steps when the trainer has a step budget and max_epochs -1; refused with neither), ``plateau`` on
-            the model's monitor, or ``none``.
+        scheduler: ``cosine`` (eta_min 1e-6; per optimizer step over the steps the fit will take whenever the
+            trainer has a step budget, ``max_steps`` > 0, with or without ``max_epochs``; else per epoch with T_max =
+            max_epochs; refused with neither), ``plateau`` on the model's monitor, or ``none``.
     """
 
     optimizer: Literal["adam", "adamw"] = "adam"
