@@ -603,8 +603,8 @@ class _Builder:
             self.handle(b, 0.02, w / 2 - 0.08, 0.9, True, 0.4, None)
             self.rects.pop()  # replace the base-module footprint by the deeper fridge one
             self.rect_local(origin, yaw, (-0.72, -w / 2), (0.04, w / 2))
-        elif kind == "corner":  # a blind filler: the side run stands in front of it (generator 2.3; its fronts and
-            # handles reached up to 19 mm into the side run's doors and drawers, whose contact forces then moved them)
+        elif kind == "corner":  # a blind filler: the side run stands in front of it (generator 2.3; its handles
+            # reached 7-9 mm into the side run's closed doors and drawers, whose contact forces then moved them)
             self.solid_base(b, w, D, fronts=0, drawer_row=False)
         else:
             self.solid_base(b, w, D, fronts=2 if w > 0.7 else 1, drawer_row=True)
