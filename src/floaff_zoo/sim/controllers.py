@@ -507,8 +507,8 @@ class PnPCounterToCabPolicy(ScriptedPolicy):
         inside = inside + 0.02 * n
         front = f["front"]
         pre_place = inside + n * ((front - inside) @ n + 0.12)
-        # out point: in front of the counter edge at the object height + 0.12
-        out = obj + n * (0.30 - (obj - front) @ n * 0.0) + np.array([0.0, 0.0, 0.10])
+        # lift-out point: 0.30 m out from the object along the cabinet's normal and 0.10 m above it
+        out = obj + n * 0.30 + np.array([0.0, 0.0, 0.10])
         return n, obj, inside, pre_place, out, f
 
     def keypoints(self, scene):
