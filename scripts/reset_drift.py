@@ -23,19 +23,10 @@ import numpy as np
 
 from floaff_zoo.sim import fileformat as ff
 from floaff_zoo.sim.kitchen import PARK_POSE, SceneSpec, build_scene
+from floaff_zoo.sim.rollout import hold_still
 
 #: the parts' opening fractions in a task's state (PnPCounterToCab's object and gripper entries are left out)
 OPENING_KEYS = ("drawer_open", "door_pos_open", "door_neg_open", "door_open", "cab_door_open")
-
-
-def idle(scene, seconds: float) -> None:
-    """Simulate ``seconds`` with the arm held at its current joint targets (the base stays parked)."""
-    import mujoco
-
-    q = scene.robot.ik_q(scene.data)
-    for _ in range(int(round(seconds / (25 * scene.model.opt.timestep)))):
-        scene.robot.hold(scene.data, q[1:], float(q[0]), True)
-        mujoco.mj_step(scene.model, scene.data, 25)
 
 
 def openings(scene) -> dict[str, float]:
@@ -49,7 +40,7 @@ def scene_drift(spec: SceneSpec, seconds: float) -> dict:
     scene.robot.set_base_pose(scene.data, *PARK_POSE)
     scene.reset_task(np.random.default_rng(0))
     before = openings(scene)
-    idle(scene, seconds)
+    hold_still(scene, seconds)
     after = openings(scene)
     moved = max((abs(after[k] - before[k]) for k in before), default=0.0)
     return {"reset": before, "after": after, "moved": round(moved, 4)}

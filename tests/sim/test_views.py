@@ -206,16 +206,17 @@ def test_sampler_rejects_the_audit_poses(spec, kind, xy, why, monkeypatch):
         assert views.camera_clearance(scene)[0] == pytest.approx(clearance, abs=1e-9)
 
 
-# (SceneSpec, kind, n, rng seed) where generator 2.1's sampler kept a bad view: the camera inside a cabinet door, a
-# base past a wall's end, the camera 0.049 m from a surface (within the near plane)
+# (SceneSpec, kind, n, rng seed) where generator 2.1's sampler kept a bad view: a base past a wall's end, the camera
+# 0.049 m from a surface (within the near plane); each fails with the sampler's checks off. (A third, the camera inside
+# a door of layout 5, no longer draws that pose since generator 2.3 moved the corner runs: the audit pose "camera"
+# above covers it.)
 BAD_IN_2_1 = [
-    ((5, 0, 11, "CloseDoubleDoor"), "front", 1, 1105),
     ((0, 4, 12, "PnPCounterToCab"), "side", 1, 1200),
     ((3, 7, 12, "CloseDrawer"), "side", 2, 1203),
 ]
 
 
-@pytest.mark.parametrize("spec, kind, n, seed", BAD_IN_2_1, ids=["camera_inside", "wall", "camera_near"])
+@pytest.mark.parametrize("spec, kind, n, seed", BAD_IN_2_1, ids=["wall", "camera_near"])
 def test_sampled_poses_have_no_wall_and_a_clear_camera(spec, kind, n, seed):
     from floaff_zoo.sim.kitchen import SceneSpec, build_scene
 

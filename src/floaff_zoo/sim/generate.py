@@ -499,7 +499,8 @@ def _write_scene(
 def run_job(job: SceneJob, out: str, preset_dict: dict[str, Any], save_images: bool) -> dict[str, Any]:
     """Fill one scene slot (runs in a worker). Never raises for scene problems: returns a status record.
 
-    status: "ok" (scene committed), "dropped" (no attempt had a positive candidate) or "error" (exception; the driver
+    status: "ok" (scene committed), "dropped" (no attempt had a positive candidate and an acceptable view: each
+    attempt records ``dropped_no_positive`` or ``dropped_no_view``) or "error" (exception; the driver
     retries once). Records the attempts (seed, scene_id, outcome) and timings.
     """
     from floaff_zoo.sim.annotate import annotate_scene

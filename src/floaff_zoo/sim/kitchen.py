@@ -953,16 +953,25 @@ class SimScene:
             mujoco.mj_collision(m, d)
         finally:
             m.geom_margin[ids] = old
+        return self._touching(self._robot_mask, self._scene_mask, margin)
+
+    def part_overlaps(self, part: np.ndarray, depth: float) -> bool:
+        """True if a geom of ``part`` (bool [ngeom]: a door and its handle, say), as posed now, reaches deeper than
+        ``depth`` (m) into another scene geom; the robot and the floor do not count."""
+        mujoco.mj_kinematics(self.model, self.data)
+        mujoco.mj_collision(self.model, self.data)
+        return self._touching(part, self._scene_mask & ~part, -depth)
+
+    def _touching(self, a: np.ndarray, b: np.ndarray, below: float) -> bool:
+        """True if the last collision pass holds a contact closer than ``below`` (m; < 0: that deep) between a geom of
+        mask ``a`` and one of mask ``b`` (bool [ngeom] each)."""
+        d = self.data
         n = d.ncon
         if n == 0:
             return False
-        g1 = d.contact.geom1[:n]
-        g2 = d.contact.geom2[:n]
-        dist = d.contact.dist[:n]
-        hit = ((self._robot_mask[g1] & self._scene_mask[g2]) | (self._robot_mask[g2] & self._scene_mask[g1])) & (
-            dist < margin
-        )
-        return bool(hit.any())
+        g1, g2 = d.contact.geom1[:n], d.contact.geom2[:n]
+        pair = (a[g1] & b[g2]) | (a[g2] & b[g1])
+        return bool((pair & (d.contact.dist[:n] < below)).any())
 
     def robot_contacts(self) -> list[tuple[str, str, float]]:
         """Robot-scene contacts as posed now, by name: (robot body, scene body, distance m < 0), deepest first.

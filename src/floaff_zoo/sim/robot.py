@@ -158,7 +158,7 @@ class RobotIndex:
         torso_j = jid(TORSO_JOINT)
         ik_j = [torso_j] + arm_j
         root = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "robot0_base")
-        bodies = [b for b in range(m.nbody) if _has_ancestor(m, b, root)]
+        bodies = np.flatnonzero(subtree_bodies(m, root)).tolist()
         geoms = [
             g for g in range(m.ngeom) if m.geom_bodyid[g] in bodies and (m.geom_contype[g] or m.geom_conaffinity[g])
         ]
@@ -228,12 +228,13 @@ class RobotIndex:
         return data.qpos[self.ik_qadr].copy()
 
 
-def _has_ancestor(m: mujoco.MjModel, body: int, root: int) -> bool:
-    while body > 0:
-        if body == root:
-            return True
-        body = int(m.body_parentid[body])
-    return False
+def subtree_bodies(m: mujoco.MjModel, root: int) -> np.ndarray:
+    """Bool mask [nbody] of body ``root`` and every body below it (MuJoCo numbers a parent before its children)."""
+    inside = np.zeros(m.nbody, dtype=bool)
+    inside[root] = True
+    for b in range(root + 1, m.nbody):
+        inside[b] = inside[m.body_parentid[b]]
+    return inside
 
 
 class DLSIK:

@@ -145,6 +145,17 @@ def rollout(
 _DIVERGED = (mujoco.mjtWarning.mjWARN_BADQACC, mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL)
 
 
+def hold_still(scene: SimScene, seconds: float) -> None:
+    """Simulate ``seconds`` at the rollout's control rate with the base and arm held where they are (a part the reset
+    put into furniture moves by itself here: ``scripts/reset_drift.py``)."""
+    m, d = scene.model, scene.data
+    nsub = max(1, int(round(CTRL_DT / m.opt.timestep)))
+    q = scene.robot.ik_q(d)
+    scene.robot.hold(d, q[1:], float(q[0]), True)  # actuator targets persist across steps
+    for _ in range(int(round(seconds / (nsub * m.opt.timestep)))):
+        mujoco.mj_step(m, d, nsub)
+
+
 def _diverged(d: mujoco.MjData) -> bool:
     """Whether the simulation diverged since the rollout's reset (any of ``_DIVERGED`` raised)."""
     return any(d.warning[w].number > 0 for w in _DIVERGED)

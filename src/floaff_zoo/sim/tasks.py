@@ -28,6 +28,8 @@ from typing import Any, Protocol
 import mujoco
 import numpy as np
 
+from floaff_zoo.sim.robot import subtree_bodies
+
 HALF_PI = math.pi / 2
 
 
@@ -42,6 +44,10 @@ class TaskScene(Protocol):
     data: mujoco.MjData
     fixtures: dict
     robot: Any
+
+    def part_overlaps(self, part: np.ndarray, depth: float) -> bool:
+        """A part's geoms (bool [ngeom]) reach deeper than ``depth`` (m) into other furniture, as posed now."""
+        ...
 
 
 @dataclass
@@ -173,43 +179,18 @@ RESET_OVERLAP_TOL = 1e-4
 RESET_OPENING_STEP = 0.01
 
 
-def _subtree_geoms(model: mujoco.MjModel, body: int) -> np.ndarray:
-    """Bool mask [ngeom] of the geoms of ``body`` and of the bodies below it (a door and its handle)."""
-    inside = np.zeros(model.nbody, dtype=bool)
-    inside[body] = True
-    for b in range(body + 1, model.nbody):  # MuJoCo numbers a parent before its children
-        inside[b] = inside[model.body_parentid[b]]
-    return inside[model.geom_bodyid]
-
-
-def _overlaps_furniture(scene: "TaskScene", moving: np.ndarray) -> bool:
-    """True when a geom of ``moving`` (mask [ngeom]) reaches deeper than RESET_OVERLAP_TOL into a geom of the
-    scene outside it; the robot does not count (the reset state must not depend on where the base stands)."""
-    m, d = scene.model, scene.data
-    mujoco.mj_kinematics(m, d)
-    mujoco.mj_collision(m, d)
-    n = d.ncon
-    if n == 0:
-        return False
-    g1, g2 = d.contact.geom1[:n], d.contact.geom2[:n]
-    other = np.ones(m.ngeom, dtype=bool)
-    other[moving] = False
-    other[np.asarray(scene.robot.geom_ids, dtype=np.int64)] = False
-    pair = (moving[g1] & other[g2]) | (moving[g2] & other[g1])
-    return bool((pair & (d.contact.dist[:n] < -RESET_OVERLAP_TOL)).any())
-
-
 def _open_clear(scene: "TaskScene", joint: str, fraction: float, full: float) -> float:
     """Open ``joint`` to ``fraction`` of ``full`` (its travel), or less where the part would then overlap other
     furniture (a door beside a corner meets the perpendicular run: reset into it, the contact forces swing the door
     by themselves): lowered in RESET_OPENING_STEP steps until clear. Returns the fraction set."""
     m = scene.model
-    jid = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, joint)
     adr = _jq(scene, joint)
-    moving = _subtree_geoms(m, int(m.jnt_bodyid[jid]))
+    part = subtree_bodies(m, int(m.jnt_bodyid[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, joint)]))
+    part = part[m.geom_bodyid]  # the part's geoms (door and handle); the robot never counts: the reset state must
+    # not depend on where the base stands
     while True:
         scene.data.qpos[adr] = fraction * full
-        if fraction <= 0.0 or not _overlaps_furniture(scene, moving):
+        if fraction <= 0.0 or not scene.part_overlaps(part, RESET_OVERLAP_TOL):
             return fraction
         fraction = max(0.0, fraction - RESET_OPENING_STEP)
 
