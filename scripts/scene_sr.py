@@ -70,7 +70,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from fresh_sr import nearest_cells, split_data  # noqa: E402
-from sr_json import sr_all  # noqa: E402,F401  (also scene_sr.sr_all for its callers)
+from sr_json import sr_all  # noqa: E402
 
 from floaff_zoo.callbacks.rollout import check_clouds, choose_pose, cloud_free, cloud_observed  # noqa: E402
 from floaff_zoo.contract import TASKS  # noqa: E402

@@ -385,7 +385,7 @@ def _finished(record: dict[str, Any] | None, args: list[str]) -> tuple[bool, str
     if record.get("digest") and record["digest"] != _digest(args):
         return False, "a --config file it reads changed since it finished"
     # records written before input files were kept have none: their arguments and --config files decide, as they did
-    changed = _changed_input(record.get("inputs"), _input_files(args))
+    changed = record.get("inputs") is not None and _changed_input(record["inputs"], _input_files(args))
     if changed:
         return False, f"a file its arguments name changed since it finished ({changed})"
     ckpt = record.get("checkpoint")
@@ -493,10 +493,11 @@ def _claim_runs(sdir: Path, record: dict[str, Any] | None) -> None:
         return
     mark = {k: record.get(k) for k in ("stage", "digest", "args", "inputs")}
     before = {Path(p) for p in record["before"]}
-    for run in _run_dirs(sdir) - before:
+    runs = _run_dirs(sdir)
+    for run in runs - before:
         if not (run / RUN_FILE).is_file():
             _write_json(run / RUN_FILE, mark)
-    for run in _run_dirs(sdir) & before:
+    for run in runs & before:
         _mark_shared(run, mark, record.get("started"))
 
 
@@ -508,7 +509,8 @@ def _mark_shared(run: Path, mark: dict[str, Any], started: float | None) -> None
     old = _read_json(run / RUN_FILE, _RECORD_FIELDS)
     if started is None or old is None or old.get("shared"):
         return
-    if (old.get("digest"), old.get("inputs")) == (mark["digest"], mark["inputs"]):
+    # a mark without input files (an older runner's) is judged by its digest, as _resume judges it
+    if old.get("digest") == mark["digest"] and not _changed_input(old.get("inputs"), mark["inputs"] or {}):
         return
     if any(p.stat().st_mtime >= started for p in run.rglob("*.ckpt")):
         _write_json(run / RUN_FILE, {**old, "shared": True})

@@ -47,7 +47,6 @@ def resolve_ckpt_alias(alias: str, root: str | Path, model_class: str | None = N
                 ckpt = load_checkpoint(path, f"--ckpt_path {alias}: ")
             except RunError as exc:  # another run's file cut off or still being written: it must not stop this one
                 unreadable = unreadable or exc
-                others.append(f"{path} (unreadable)")
                 continue
             found = checkpoint_class(ckpt)
             if found == model_class:

@@ -421,3 +421,22 @@ def test_a_weights_file_rewritten_during_the_fit_is_not_recorded_as_its_input(tm
     capsys.readouterr()
     run_curriculum(exp, sets=sets)
     assert "rerunning, a file its arguments name changed" in capsys.readouterr().out
+
+
+def test_a_run_marked_by_an_older_runner_stays_resumable_after_its_resumed_fit_writes(tmp_path):
+    """A run mark without input files (written before they were recorded) that its own stage resumed and that wrote a
+    newer checkpoint was marked shared: None inputs against {} looked like other arguments, and it was never resumed
+    again. The digest decides for such a mark, as it does when resuming."""
+    import time
+
+    from floaff_zoo import curriculum as cur
+
+    run = tmp_path / "cfarmodule" / "version_0"
+    (run / "checkpoints").mkdir(parents=True)
+    (run / cur.RUN_FILE).write_text(json.dumps({"stage": "s", "digest": "D", "args": ["fit"]}))
+    started = time.time() - 5
+    (run / "checkpoints" / "last.ckpt").write_bytes(b"newer than the fit's start")
+    cur._mark_shared(run, {"stage": "s", "digest": "D", "args": ["fit"], "inputs": {}}, started)
+    assert not json.loads((run / cur.RUN_FILE).read_text()).get("shared")
+    cur._mark_shared(run, {"stage": "s", "digest": "other", "args": ["fit"], "inputs": {}}, started)
+    assert json.loads((run / cur.RUN_FILE).read_text()).get("shared") is True  # another digest still marks it

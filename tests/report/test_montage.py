@@ -99,3 +99,13 @@ def test_montage_names_a_malformed_report_and_field(tmp_path, capsys, report, na
     assert ex.value.code == 2
     err = capsys.readouterr().err
     assert f"floaff-zoo montage: error: {tmp_path / 'report.json'}: {named}" in err and len(err.splitlines()) == 1
+
+
+def test_a_report_whose_model_is_null_is_titled_by_its_folder(tmp_path, capsys):
+    """check_report lets every field be null, yet the title read rep['model'].get(...) and raised AttributeError."""
+    a = _run(tmp_path, "CFAR+PFAL", 0.1)
+    rep = json.loads((a / "report.json").read_text())
+    (a / "report.json").write_text(json.dumps({**rep, "label": None, "model": None}))
+    out = tmp_path / "m.png"
+    assert zoo_main(["montage", "--runs", str(a), "--cases", "CloseDrawer_front_0", "--out", str(out)]) == 0
+    assert out.is_file()

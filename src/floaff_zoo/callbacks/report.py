@@ -46,6 +46,10 @@ MAP_METRICS = (
 )
 
 
+#: what rolled out a view's pose, by RolloutSuccessRate's ``pose_source`` (reports before it existed: the map)
+_POSE_FROM = {"map": "the map's best cell", "model": "the model's placement procedure"}
+
+
 def sha256_file(path: str | Path, chunk: int = 1 << 20) -> str:
     h = hashlib.sha256()
     with open(path, "rb") as f:
@@ -499,8 +503,7 @@ def render_markdown(report: dict[str, Any]) -> str:
         lines += [
             "",
             f"± = {sr.get('std_method')}; {sr.get('n_evaluated')} evaluated, {sr.get('n_skipped')} skipped"
-            f" (no sim metadata); pose from the {'model' if sr.get('pose_source') == 'model' else 'map'}"
-            f"{'s placement procedure' if sr.get('pose_source') == 'model' else ''};"
+            f" (no sim metadata); pose from {_POSE_FROM.get(sr.get('pose_source'), _POSE_FROM['map'])};"
             f" top_k = {sr.get('top_k')} (free space: {sr.get('free_space', 'sim')});"
             f" rollouts took {sr.get('seconds', 0):.1f} s.",
         ]

@@ -109,7 +109,7 @@ def montage(
     if labels is not None and len(labels) != len(runs):
         raise MontageError(f"--labels: {len(labels)} given for {len(runs)} runs")
     titles = labels or [
-        str(rep.get("label") or rep.get("model", {}).get("name") or p.parent.name) for p, rep in reports
+        str(rep.get("label") or (rep.get("model") or {}).get("name") or p.parent.name) for p, rep in reports
     ]
     images = [[_read_image(find_figure(p, rep, case)) for p, rep in reports] for case in cases]
     h, w = images[0][0].shape[:2]
