@@ -314,6 +314,11 @@ def _collate_full_cloud(samples: Sequence[Sample], batch: Batch) -> None:
         batch["full_mask"][i, :k] = True
 
 
+def batch_item(batch: Batch, i: int) -> Batch:
+    """Sample ``i`` of a collated batch as a one-sample batch (tensors sliced [i:i+1], other fields [value])."""
+    return {k: (v[i : i + 1] if torch.is_tensor(v) else [v[i]]) for k, v in batch.items()}
+
+
 def check_batch(batch: Batch) -> None:
     """Raise a clear error for an empty batch or one whose samples have no valid floor point."""
     if batch["scene_xyz"].shape[0] == 0:

@@ -49,7 +49,7 @@ import torch
 from lightning.pytorch.utilities import rank_zero_warn
 from lightning.pytorch.utilities.exceptions import MisconfigurationException
 
-from floaff_zoo.contract import FULL_CLOUD_KEY, best_pose
+from floaff_zoo.contract import FULL_CLOUD_KEY, batch_item, best_pose
 from floaff_zoo.floor import footprint_blocked, footprint_coverage, grown_footprint
 from floaff_zoo.frames import ROLLOUT_POSE_DECIMALS, Pose, base_to_world, pose_to_world
 
@@ -425,9 +425,8 @@ class RolloutSuccessRate(L.Callback):
                 free = self._is_free(spec)
             tie_seed = int(meta.get("index", i))
             if propose is not None:
-                item = {k: (v[i : i + 1] if torch.is_tensor(v) else [v[i]]) for k, v in batch.items()}
                 with torch.no_grad():
-                    pose, rank = pose_to_world(tuple(float(v) for v in propose(item)), base), 0
+                    pose, rank = pose_to_world(tuple(float(v) for v in propose(batch_item(batch, i))), base), 0
             else:
                 pose, rank = choose_pose(floor[i], pred[i], mask[i], target[i], base, self.top_k, free, tie_seed)
             ep = {

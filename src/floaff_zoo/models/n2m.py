@@ -8,7 +8,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from floaff_zoo.contract import Batch
+from floaff_zoo.contract import Batch, batch_item
 from floaff_zoo.models.base import FloAffModule, FloAffTrainConfig
 from floaff_zoo.models.pointnet2 import floor_inputs, maybe_bf16, maybe_compile, scene_inputs
 from floaff_zoo.nn.nets import N2MNet, gmm_log_prob
@@ -206,7 +206,7 @@ class N2MModule(FloAffModule):
     def predict_step(self, batch: Batch, batch_idx: int, dataloader_idx: int = 0) -> dict[str, Any]:
         out = super().predict_step(batch, batch_idx, dataloader_idx)
         b = batch["scene_xyz"].shape[0]
-        sub = lambda i: {k: (v[i : i + 1] if torch.is_tensor(v) else [v[i]]) for k, v in batch.items()}  # noqa: E731
         # a tensor: the prediction writer keeps tensors only (a list of tuples was dropped from predictions.npz)
-        out["poses"] = torch.tensor([self.propose_pose(sub(i)) for i in range(b)], dtype=torch.float32).reshape(b, 3)
+        poses = [self.propose_pose(batch_item(batch, i)) for i in range(b)]
+        out["poses"] = torch.tensor(poses, dtype=torch.float32).reshape(b, 3)
         return out
