@@ -109,6 +109,42 @@ def test_a_scene_whose_regions_give_no_view_is_dropped_not_committed(monkeypatch
     assert not any((tmp_path / job.benchmark / ff.STAGING).glob("*"))  # the staged files went too
 
 
+def test_a_kitchen_whose_reset_is_blocked_is_dropped_before_annotation(monkeypatch, tmp_path):
+    """Generator 2.3.1: a kitchen where a part the reset opens stops below half its travel (a closing task half done
+    at reset) is not annotated; the slot tries the next seed's kitchen, and the manifest lists the drop."""
+    import types
+
+    from floaff_zoo.sim import annotate
+    from floaff_zoo.sim.tasks import Task
+
+    annotated = []
+    no_positive = types.SimpleNamespace(success=np.zeros(4, bool), label=np.zeros(4))
+    monkeypatch.setattr(
+        annotate, "annotate_scene", lambda scene, **kw: annotated.append(scene.spec.seed) or no_positive
+    )
+    first = []
+
+    def blocked_first(self, scene):  # the slot's first kitchen is blocked, the second is not
+        first.append(scene.spec.seed)
+        return {"drawer_target_slide": 0.3} if len(first) == 1 else {}
+
+    monkeypatch.setattr(Task, "blocked_parts", blocked_first)
+    preset = get_preset("tiny", tasks=("CloseDrawer",), n_test=0)
+    (job, *_) = gen.plan_jobs(preset, 0, list(range(6)), list(range(8)))
+    job = dataclasses.replace(job, seeds=job.seeds[:2])
+    res = gen.run_job(job, str(tmp_path), preset.to_dict(), False)
+    assert [a["outcome"] for a in res["attempts"]] == ["dropped_reset_blocked", "dropped_no_positive"]
+    assert res["attempts"][0]["blocked"] == {"drawer_target_slide": 0.3}
+    assert annotated == [job.seeds[1]]  # the blocked kitchen was never annotated
+    assert res["status"] == "dropped" and "resets" in res["reason"]
+    entry = {"benchmark": job.benchmark, "task": job.task, "split": job.split}
+    manifest = {"scenes": {job.key: {**res, **entry, "status": "dropped"}}}
+    gen._summarise(manifest)
+    reasons = [d["reason"] for d in manifest["drops"]]
+    assert reasons[:2] == ["a part the reset opens is blocked", "no positive candidate"], reasons
+    assert manifest["counts"]["scenes_dropped"] == 1
+
+
 def test_paper_view_counts_match_the_appendix_table():
     p = PRESETS["paper"]
     total = 0

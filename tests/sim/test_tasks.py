@@ -109,3 +109,42 @@ def test_an_opened_part_stays_where_its_reset_left_it():
     opened = sc.task.state(sc)["drawer_open"]
     assert 0.5 < opened < drawn - 0.005  # lowered: the drawn opening reaches into the furniture in front
     assert abs(_idle(sc)["drawer_open"] - opened) < 0.005
+
+
+def test_a_part_the_furniture_blocks_is_reported_and_the_state_kept(scene_factory, monkeypatch):
+    """Generator 2.3.1: a kitchen where a part the reset opens cannot pass half its travel is refused (a closing task
+    half done at reset). ``blocked_parts`` names such parts and leaves the scene as it found it."""
+    import numpy as np
+
+    from floaff_zoo.sim.tasks import MIN_RESET_FRACTION
+
+    sc = scene_factory("CloseDoubleDoor")
+    sc.reset_task(np.random.default_rng(1))
+    before = sc.data.qpos.copy()
+    assert sc.task.blocked_parts(sc) == {}
+    np.testing.assert_array_equal(sc.data.qpos, before)
+    joints = [d["joint"] for d in sc.fixtures["double_door"]["doors"]]
+    assert [j for j, _ in sc.task.opened_parts(sc)] == joints
+
+    monkeypatch.setattr(type(sc), "part_overlaps", lambda self, part, depth: True)  # every opening meets furniture
+    assert sc.task.blocked_parts(sc) == dict.fromkeys(joints, 0.0)
+    np.testing.assert_array_equal(sc.data.qpos, before)
+
+    def overlaps_past_0_4(self, part, depth):  # the furniture stops every part at 40 % of its travel
+        return any(self.data.qpos[_part_qpos(self, j)] / full > 0.4 + 1e-9 for j, full in self.task.opened_parts(self))
+
+    monkeypatch.setattr(type(sc), "part_overlaps", overlaps_past_0_4)
+    assert sorted(sc.task.blocked_parts(sc)) == sorted(joints) and 0.4 < MIN_RESET_FRACTION
+    assert all(abs(f - 0.4) < 1e-6 for f in sc.task.blocked_parts(sc).values())
+    for task in ("CloseDrawer", "PnPCounterToCab"):
+        other = scene_factory(task)
+        ((joint, _),) = other.task.opened_parts(other)
+        assert list(other.task.blocked_parts(other)) == [joint]
+    closed = scene_factory("OpenSingleDoor")  # its reset opens nothing
+    assert closed.task.opened_parts(closed) == [] and closed.task.blocked_parts(closed) == {}
+
+
+def _part_qpos(sc, joint: str) -> int:
+    import mujoco
+
+    return int(sc.model.jnt_qposadr[mujoco.mj_name2id(sc.model, mujoco.mjtObj.mjOBJ_JOINT, joint)])

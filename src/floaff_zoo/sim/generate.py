@@ -6,7 +6,8 @@ Determinism: every scene slot (benchmark, task, split, index) gets its seed from
 task, split, index, attempt), never from worker order, and each scene is generated start to finish by one worker with
 single-threaded annotation, so the output does not depend on the worker count or back end. A slot whose scene has no
 positive candidate is dropped and retried with the next attempt's seed (up to ``max_seed_attempts``), as the paper
-drops scenes without positives. Wall times live only in manifest.json.
+drops scenes without positives; so is a kitchen whose furniture keeps a part the task's reset opens below half its
+travel (``Task.blocked_parts``), before it is annotated. Wall times live only in manifest.json.
 
 Floor points (format 2, GENERATOR_VERSION 2.x): each view stores the cells of the scene's label grid (the annotation's
 target-centred window and cell) that hold at least one ground point of THAT view's cloud (``floaff_zoo.floor``:
@@ -48,7 +49,7 @@ from floaff_zoo.sim.presets import ALL_BENCHMARKS, ALL_TASKS, PRESETS, GenPreset
 
 __all__ = ["GENERATOR_VERSION", "SceneJob", "derive_seed", "generate", "main", "plan_jobs", "run_job"]
 
-GENERATOR_VERSION = "2.3.0"
+GENERATOR_VERSION = "2.3.1"
 #: task reset seed of the rollouts (annotate_scene) and of the rendered views, so both see the same fixture state
 ANNOTATE_SEED = 0
 
@@ -499,9 +500,9 @@ def _write_scene(
 def run_job(job: SceneJob, out: str, preset_dict: dict[str, Any], save_images: bool) -> dict[str, Any]:
     """Fill one scene slot (runs in a worker). Never raises for scene problems: returns a status record.
 
-    status: "ok" (scene committed), "dropped" (no attempt had a positive candidate and an acceptable view: each
-    attempt records ``dropped_no_positive`` or ``dropped_no_view``) or "error" (exception; the driver
-    retries once). Records the attempts (seed, scene_id, outcome) and timings.
+    status: "ok" (scene committed), "dropped" (no attempt could be reset, had a positive candidate and an acceptable
+    view: each attempt records ``dropped_reset_blocked``, ``dropped_no_positive`` or ``dropped_no_view``) or "error"
+    (exception; the driver retries once). Records the attempts (seed, scene_id, outcome) and timings.
     """
     from floaff_zoo.sim.annotate import annotate_scene
     from floaff_zoo.sim.kitchen import build_scene, release_scene
@@ -519,6 +520,10 @@ def run_job(job: SceneJob, out: str, preset_dict: dict[str, Any], save_images: b
             # no other slot or attempt draws this kitchen, and this attempt keeps its scene: without the release the
             # per-process cache of compiled kitchens grew by ~70 MB per attempt for a worker's whole run
             release_scene(spec)
+            blocked = scene.task.blocked_parts(scene)
+            if blocked:  # a closing task half done at reset, or a cabinet the object cannot go into
+                attempts.append({"seed": seed, "scene_id": sid, "outcome": "dropped_reset_blocked", "blocked": blocked})
+                continue
             tb = time.perf_counter()
             ann = annotate_scene(
                 scene,
@@ -565,7 +570,8 @@ def run_job(job: SceneJob, out: str, preset_dict: dict[str, Any], save_images: b
             "status": "dropped",
             "scene_id": None,
             "attempts": attempts,
-            "reason": f"no scene with a positive candidate and a kept view in {len(job.seeds)} seed attempts",
+            "reason": f"no scene that resets, with a positive candidate and a kept view, in {len(job.seeds)} seed "
+            "attempts",
             "wall_s": time.perf_counter() - t0,
             "pid": os.getpid(),
         }
@@ -823,7 +829,11 @@ def _summarise(manifest: dict[str, Any]) -> None:
             for why, k in (s.get("views_rejected") or {}).items():
                 counts[f"views_rejected_{why}"] = counts.get(f"views_rejected_{why}", 0) + int(k)
         for a in s.get("attempts", []):
-            why = {"dropped_no_positive": "no positive candidate", "dropped_no_view": "no view kept"}
+            why = {
+                "dropped_reset_blocked": "a part the reset opens is blocked",
+                "dropped_no_positive": "no positive candidate",
+                "dropped_no_view": "no view kept",
+            }
             if a.get("outcome") in why:
                 drops.append({"slot": key, "scene_id": a["scene_id"], "seed": a["seed"], "reason": why[a["outcome"]]})
         if st in ("failed", "dropped"):

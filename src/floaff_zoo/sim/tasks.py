@@ -9,7 +9,8 @@
 * CloseDoubleDoor: target = a double-door base cabinet; reset: both doors 90-100 % open; success: both
   q / (pi/2) <= 0.05.
 
-Every reset opening is lowered where the part would overlap other furniture (``_open_clear``).
+Every reset opening is lowered where the part would overlap other furniture (``_open_clear``); a kitchen where a
+part cannot open past ``MIN_RESET_FRACTION`` of its travel is refused by the generator (``Task.blocked_parts``).
 
 Candidate region (paper eq. "supp_candidate"), in the TARGET frame: origin at ``TargetInfo.pos``
 projected on the floor, ``x°`` along the front (lateral, = fixture-local +y), ``y°`` = minus the
@@ -151,6 +152,28 @@ class Task(abc.ABC):
         """Fixture facts the controller needs, carried in ``TargetInfo.extra``."""
         return dict(fixture)
 
+    def opened_parts(self, scene: "TaskScene") -> list[tuple[str, float]]:
+        """[(joint, full travel)] of the parts the reset opens, in the order the reset draws their openings."""
+        return []
+
+    def blocked_parts(self, scene: "TaskScene") -> dict[str, float]:
+        """{joint: fraction} of the opened parts the furniture stops below MIN_RESET_FRACTION of their travel, opened
+        as a reset opens them (from closed, in order) to the smallest opening it draws; empty for a kitchen the task
+        can be reset in. The scene's state is left as it was."""
+        qpos = scene.data.qpos.copy()
+        parts = self.opened_parts(scene)
+        for joint, _ in parts:  # closed, as after the reset's mj_resetData
+            adr = _jq(scene, joint)
+            scene.data.qpos[adr] = scene.model.qpos0[adr]
+        blocked = {}
+        for joint, full in parts:
+            fraction = _open_clear(scene, joint, RESET_OPENING_MIN, full)
+            if fraction < MIN_RESET_FRACTION:
+                blocked[joint] = round(fraction, 4)
+        scene.data.qpos[:] = qpos
+        mujoco.mj_forward(scene.model, scene.data)
+        return blocked
+
     @abc.abstractmethod
     def reset(self, scene: "TaskScene", rng: np.random.Generator | None) -> None:
         """Task-specific; see the module table."""
@@ -168,9 +191,16 @@ class Task(abc.ABC):
         """Task-specific; see the module table."""
 
 
+#: the smallest reset opening drawn (fraction of the full travel); the largest is 1.0
+RESET_OPENING_MIN = 0.90
+#: a part the furniture stops below this fraction of its travel leaves a task that is half done at reset (a
+#: closing task) or an object that cannot be placed: the generator draws the next seed's kitchen instead
+MIN_RESET_FRACTION = 0.5
+
+
 def _open_fraction(rng: np.random.Generator | None) -> float:
-    """Reset opening in [0.90, 1.00]; deterministic 0.95 without an rng."""
-    return 0.95 if rng is None else float(rng.uniform(0.90, 1.00))
+    """Reset opening in [RESET_OPENING_MIN, 1.00]; deterministic 0.95 without an rng."""
+    return 0.95 if rng is None else float(rng.uniform(RESET_OPENING_MIN, 1.00))
 
 
 #: deepest overlap (m) a reset's opened part may have with other furniture; deeper, the part is opened less
@@ -210,9 +240,13 @@ class CloseDrawer(Task):
         f = scene.fixtures["drawer"]
         return float(scene.data.qpos[_jq(scene, f["joint"])]) / f["travel"]
 
-    def reset(self, scene, rng):
+    def opened_parts(self, scene):
         f = scene.fixtures["drawer"]
-        _open_clear(scene, f["joint"], _open_fraction(rng), f["travel"])
+        return [(f["joint"], f["travel"])]
+
+    def reset(self, scene, rng):
+        ((joint, full),) = self.opened_parts(scene)
+        _open_clear(scene, joint, _open_fraction(rng), full)
 
     def state(self, scene):
         return {"drawer_open": self.opening(scene)}
@@ -244,10 +278,14 @@ class CloseDoubleDoor(Task):
             float(scene.data.qpos[_jq(scene, d["joint"])]) / HALF_PI for d in scene.fixtures["double_door"]["doors"]
         ]
 
+    def opened_parts(self, scene):
+        return [(d["joint"], HALF_PI) for d in scene.fixtures["double_door"]["doors"]]
+
     def reset(self, scene, rng):
-        fractions = [_open_fraction(rng) for _ in scene.fixtures["double_door"]["doors"]]  # the rng's draws first
-        for d, fraction in zip(scene.fixtures["double_door"]["doors"], fractions):
-            _open_clear(scene, d["joint"], fraction, HALF_PI)
+        parts = self.opened_parts(scene)
+        fractions = [_open_fraction(rng) for _ in parts]  # the rng's draws first
+        for (joint, full), fraction in zip(parts, fractions):
+            _open_clear(scene, joint, fraction, full)
 
     def state(self, scene):
         a, b = self.openings(scene)
@@ -313,9 +351,12 @@ class PnPCounterToCab(Task):
         b = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, scene.fixtures["wall_cab"]["object"])
         return b, _jq(scene, "pnp_object_joint")
 
+    def opened_parts(self, scene):
+        return [(scene.fixtures["wall_cab"]["door"]["joint"], HALF_PI)]
+
     def reset(self, scene, rng):
-        f = scene.fixtures["wall_cab"]
-        _open_clear(scene, f["door"]["joint"], _open_fraction(rng), HALF_PI)
+        ((joint, full),) = self.opened_parts(scene)
+        _open_clear(scene, joint, _open_fraction(rng), full)
 
     def _corners_local(self, scene) -> np.ndarray:
         """Object-box corners [8,3] in the cabinet frame (x outward, y lateral, z up), relative to the interior
