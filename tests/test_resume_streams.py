@@ -92,3 +92,37 @@ def test_resuming_restores_the_generators_only_in_fit(tmp_path, root, monkeypatc
         trainer.validate(cli.model, datamodule=cli.datamodule, ckpt_path=ckpt_path, verbose=False)
         after.append(torch.rand(3))
     assert torch.equal(*after)
+
+
+
+class OrderRecorder(L.Callback):
+    """Records (epoch, the batch's scene ids) of every training batch: the shuffle order alone."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.seen: list[tuple[int, tuple[str, ...]]] = []
+
+    def on_train_batch_start(self, trainer, pl_module, batch, batch_idx) -> None:
+        self.seen.append((trainer.current_epoch, tuple(m["scene_id"] for m in batch["meta"])))
+
+
+def test_reloading_the_train_loader_goes_on_with_its_shuffle(tmp_path, root, monkeypatch):
+    """With ``reload_dataloaders_every_n_epochs`` each reloaded train loader got a generator seeded anew (or set to a
+    resumed checkpoint's state again): every reloaded epoch drew the same shuffle order."""
+    monkeypatch.chdir(root)
+
+    def orders(out: Path, epochs: int, *extra: str) -> dict[int, list[tuple[str, ...]]]:
+        args = ["fit", "--config", DATA, "--config", MODEL, "--trainer.max_epochs", str(epochs)]
+        args += ["--trainer.reload_dataloaders_every_n_epochs", "1"]
+        args += ["--trainer.callbacks+=tests.test_resume_streams.OrderRecorder", *quiet_trainer_args(out), *extra]
+        cli = run_lightning(args)
+        (rec,) = [c for c in cli.trainer.callbacks if isinstance(c, OrderRecorder)]
+        return {e: [ids for k, ids in rec.seen if k == e] for e in range(epochs)}
+
+    whole = orders(tmp_path / "whole", 4)
+    assert len({tuple(whole[e]) for e in range(4)}) == 4, whole  # every epoch its own order
+    cut = tmp_path / "cut"
+    orders(cut, 2)
+    last = sorted(cut.rglob("last.ckpt"))[-1]
+    resumed = orders(cut, 4, "--ckpt_path", str(last))
+    assert [resumed[2], resumed[3]] == [whole[2], whole[3]]

@@ -194,9 +194,11 @@ class FloAffDataModule(L.LightningDataModule):
         # global generator, so each validation moved the stream the training augmentation draws from
         generator = torch.Generator().manual_seed(self.seed)
         if split == "train":
-            if self._train_generator_state is not None:
+            if self._train_generator is not None:  # reloaded in the same fit: go on with its stream, not seed again
+                generator = self._train_generator
+            elif self._train_generator_state is not None:  # a resumed fit's first train loader
                 generator.set_state(self._train_generator_state)
-            self._train_generator = generator
+            self._train_generator, self._train_generator_state = generator, None
         return DataLoader(
             ds,
             batch_size=self.batch_size if split == "train" else self.eval_batch_size,
