@@ -94,7 +94,6 @@ def test_resuming_restores_the_generators_only_in_fit(tmp_path, root, monkeypatc
     assert torch.equal(*after)
 
 
-
 class OrderRecorder(L.Callback):
     """Records (epoch, the batch's scene ids) of every training batch: the shuffle order alone."""
 
