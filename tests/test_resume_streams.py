@@ -125,3 +125,30 @@ def test_reloading_the_train_loader_goes_on_with_its_shuffle(tmp_path, root, mon
     last = sorted(cut.rglob("last.ckpt"))[-1]
     resumed = orders(cut, 4, "--ckpt_path", str(last))
     assert [resumed[2], resumed[3]] == [whole[2], whole[3]]
+
+
+def test_a_fit_on_a_gpu_saves_and_restores_each_devices_generator(tmp_path, root, monkeypatch):
+    """GPU dropout and sampling draw from each CUDA device's generator, which a resumed fit did not restore. (No GPU
+    here: torch.cuda's state functions are stood in for.)"""
+    from floaff_zoo.models.base import RNG_KEY
+
+    monkeypatch.chdir(root)
+    cli, _, _ = _fit(tmp_path / "run", 1)
+    model = cli.model
+    saved = [torch.arange(4, dtype=torch.uint8), torch.arange(4, 8, dtype=torch.uint8)]
+    monkeypatch.setattr(torch.cuda, "is_initialized", lambda: True)
+    monkeypatch.setattr(torch.cuda, "get_rng_state_all", lambda: saved)
+    checkpoint: dict = {}
+    model.on_save_checkpoint(checkpoint)
+    assert checkpoint[RNG_KEY]["cuda"] == saved
+
+    restored = []
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    monkeypatch.setattr(torch.cuda, "device_count", lambda: 1)  # resumed on one GPU of the two
+    monkeypatch.setattr(torch.cuda, "set_rng_state_all", restored.extend)
+    monkeypatch.setattr(model._trainer.state, "fn", "fit")
+    model.on_load_checkpoint(checkpoint)
+    assert restored == saved[:1]
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)  # a GPU checkpoint resumed on a CPU
+    model.on_load_checkpoint(checkpoint)
+    assert restored == saved[:1]

@@ -428,6 +428,8 @@ class ZooModule(L.LightningModule):
             "numpy": [str(kind), torch.from_numpy(np.asarray(keys, dtype=np.int64)), int(pos), int(has_gauss), gauss],
             "python": random.getstate(),
         }
+        if torch.cuda.is_initialized():  # GPU dropout and sampling draw from each device's own generator
+            checkpoint[RNG_KEY]["cuda"] = torch.cuda.get_rng_state_all()
         # The state dict already holds the pretrained weights: record where they came from, but
         # save ``weights: null`` so reloading the checkpoint never needs that source again.
         hp = checkpoint.get("hyper_parameters")
@@ -447,6 +449,9 @@ class ZooModule(L.LightningModule):
         torch.set_rng_state(state["torch"])
         np.random.set_state((kind, keys.numpy().astype(np.uint32), pos, has_gauss, float(gauss)))
         random.setstate(state["python"])
+        cuda = state.get("cuda")
+        if cuda and torch.cuda.is_available():  # a fit on fewer devices restores the ones it has
+            torch.cuda.set_rng_state_all(cuda[: torch.cuda.device_count()])
 
     def load_pretrained(self, name_or_path: str) -> None:
         """Initialise from a checkpoint/hub name; layers whose shapes differ are dropped with a warning.
