@@ -380,6 +380,31 @@ def test_other_model_class_is_a_type_error(tmp_path):
     assert isinstance(FloAffModule.from_pretrained(str(ckpt)), OtherTiny)
 
 
+def test_an_error_of_the_model_class_keeps_its_class_and_names_the_file(tmp_path, monkeypatch):
+    """A ValueError the model's constructor raises is re-raised naming the checkpoint; a subclass of it (a
+    ChecksumError from a weights file the model loads itself, CFAR's AxisNet) was turned into a plain ValueError."""
+    from lightning.fabric.utilities.exceptions import MisconfigurationException
+
+    ckpt = _lightning_ckpt(_model(3), tmp_path / "tiny.ckpt")
+    for error in (ChecksumError("axisnet.ckpt: sha256 differs"), ValueError("width must be >= 1")):
+
+        def refuse(self, *args, error=error, **kwargs):
+            raise error
+
+        monkeypatch.setattr(TinyPointNetModule, "__init__", refuse)
+        with pytest.raises(type(error)) as info:
+            TinyPointNetModule.from_pretrained(str(ckpt))
+        assert type(info.value) is type(error) and str(info.value) == f"{ckpt}: {error}"
+        assert info.value.__cause__ is error
+    monkeypatch.setattr(TinyPointNetModule, "__init__", lambda self, *a, **k: (_ for _ in ()).throw(KeyError("x")))
+    with pytest.raises(KeyError):  # anything else goes through as it is
+        TinyPointNetModule.from_pretrained(str(ckpt))
+    misconf = MisconfigurationException("no optimizer")
+    monkeypatch.setattr(TinyPointNetModule, "__init__", lambda self, *a, **k: (_ for _ in ()).throw(misconf))
+    with pytest.raises(MisconfigurationException, match=f"{ckpt}: no optimizer"):
+        TinyPointNetModule.from_pretrained(str(ckpt))
+
+
 def test_untrusted_class_paths_are_not_imported(tmp_path):
     m = _model(7)
     for path in ("untrusted_pkg_floaff_xyz.Model", "os.system"):

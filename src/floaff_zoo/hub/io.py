@@ -21,6 +21,7 @@ a checkpoint's class is found by the dotted name it records, like a config's ``c
 
 from __future__ import annotations
 
+import copy
 import importlib
 import json
 import os
@@ -402,6 +403,14 @@ def _is_model_class(cls: type) -> bool:
     return any(f"{c.__module__}.{c.__qualname__}" == MODEL_BASE_CLASS for c in cls.__mro__)
 
 
+def _naming(exc: Exception, where: str) -> Exception:
+    """A copy of ``exc`` whose message starts with ``where``, of the same class (a ChecksumError a model's own
+    weights file raised stays one for the callers that catch it)."""
+    named = copy.copy(exc)
+    named.args = (f"{where}: {exc}",)
+    return named
+
+
 def load_model(
     name_or_path: str | os.PathLike[str],
     map_location: str | torch.device = "cpu",
@@ -437,13 +446,11 @@ def load_model(
         model = cls(**init_args)
     except TypeError as exc:
         raise TypeError(f"{where}: its init_args do not fit {cls.__name__} ({exc})") from exc
-    except ValueError as exc:  # a value the class refuses (a train field of a newer version...): name the file too
-        raise ValueError(f"{where}: {exc}") from exc
-    except Exception as exc:
+    except Exception as exc:  # a value the class refuses (a train field of a newer version...): name the file too
         from lightning.fabric.utilities.exceptions import MisconfigurationException
 
-        if isinstance(exc, MisconfigurationException):
-            raise MisconfigurationException(f"{where}: {exc}") from exc
+        if isinstance(exc, (ValueError, MisconfigurationException)):
+            raise _naming(exc, where) from exc
         raise
     own = model.state_dict()
     resized = [
