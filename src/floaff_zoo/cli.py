@@ -195,11 +195,15 @@ def _config_value(args: list[str], i: int) -> str | None:
     return args[i].partition("=")[2] if args[i].startswith("--config=") else None
 
 
+def config_values(args: list[str]) -> list[str]:
+    """The ``--config`` values of ``args`` (``--config X`` or ``--config=X``), in order."""
+    return [v for v in (_config_value(args, i) for i in range(len(args))) if v is not None]
+
+
 def config_files(args: list[str]) -> list[str]:
     """The ``--config`` values of ``args``, in order, that name existing files (a value that is no file is YAML
     text, or a missing file jsonargparse names itself)."""
-    values = [_config_value(args, i) for i in range(len(args))]
-    return [v for v in values if v is not None and Path(v).is_file()]
+    return [v for v in config_values(args) if Path(v).is_file()]
 
 
 def check_config_file(path: str) -> None:
