@@ -223,12 +223,12 @@ def _check_tasks(tasks: Any, where: str) -> None:
     if not isinstance(tasks, list) or not all(isinstance(t, str) for t in tasks):
         raise CurriculumError(f"{where}: 'tasks' must be a list of task names, got {tasks!r}")
     from floaff_zoo.contract import TASKS
+    from floaff_zoo.data.readers import check_names
 
-    if not tasks:
-        raise CurriculumError(f"{where}: 'tasks' is empty; name some of {list(TASKS)} or leave it out")
-    unknown = [t for t in tasks if t not in TASKS]
-    if unknown:
-        raise CurriculumError(f"{where}: 'tasks': unknown task(s) {unknown}; valid tasks: {list(TASKS)}")
+    try:
+        check_names("tasks", tasks, TASKS)  # the data module's own check, before any stage trains
+    except ValueError as exc:
+        raise CurriculumError(f"{where}: 'tasks': {exc}") from exc
 
 
 # --------------------------------------------------------------------------- fit arguments

@@ -265,8 +265,8 @@ def test_prior_residual_through_pfal_keeps_stage1_prior(tmp_path, root, monkeypa
         ({"root": 5}, "'root' must be a directory path"),
         ({"shared": "no"}, "'shared' must be true or false"),
         ({"tasks": ["CloseDrawer", 3]}, "'tasks' must be a list of task names"),
-        ({"tasks": ["CloseDrawr"]}, "'tasks': unknown task(s) ['CloseDrawr']"),
-        ({"tasks": []}, "'tasks' is empty"),
+        ({"tasks": ["CloseDrawr"]}, "'tasks': unknown tasks ['CloseDrawr']; valid tasks: ['PnPCounterToCab'"),
+        ({"tasks": []}, "'tasks': empty tasks list; choose from ['PnPCounterToCab'"),
         ({"model": {"file": "x.yaml"}}, "'model': expected a list of file names"),
     ],
 )
