@@ -829,9 +829,9 @@ def run_curriculum(
             record = _read_json(sdir / STAGE_FILE, _RECORD_FIELDS)
             _finish_runs(record)  # a kill right after writing it left its runs unmarked
             finished, why = _reusable(sdir, args, record)
-            _finish_runs(finished)
             if finished is not None:
                 if finished is not record:  # an earlier fit with these arguments: it becomes the folder's record
+                    _finish_runs(finished)  # (the runner that replaced its record marked them; an older one did not)
                     _write_json(sdir / STAGE_FILE, finished)
                 record = finished
                 print(f"[curriculum] stage {name}: already finished ({record['checkpoint']}), skipping", file=out)
