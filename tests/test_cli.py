@@ -29,6 +29,17 @@ def test_help_lists_subcommands(root):
     assert ver.stdout.strip() == "0.1.0"
 
 
+def test_fit_help_titles_the_model_and_data_groups_for_users(root):
+    """The --model and --data groups of ``fit --help`` were titled by the base classes' first docstring lines, which
+    spoke to developers ("Shared machinery: ``setup`` fills ``self.datasets[split]``...")."""
+    out = subprocess.run(
+        [sys.executable, "-m", "floaff_zoo", "fit", "--help"], capture_output=True, text=True, cwd=root, check=True
+    ).stdout
+    titles = [line for line in out.splitlines() if line.endswith(":") and not line.startswith(" ")]
+    assert "The model: any model of the zoo; --model.help CLASS lists one's arguments:" in titles, titles
+    assert "The data: any data module of the zoo; --data.help CLASS lists one's arguments:" in titles, titles
+
+
 def test_fit_test_predict_round_trip(tmp_path, root, monkeypatch):
     monkeypatch.chdir(root)
     base = ["--config", DATA, "--config", MODEL, *quiet_trainer_args(tmp_path)]

@@ -73,7 +73,10 @@ class TransformedDataset(Dataset):
 
 
 class FloAffDataModule(L.LightningDataModule):
-    """Shared machinery: ``setup`` fills ``self.datasets[split]``; loaders collate to fixed sizes.
+    """The data: any data module of the zoo; --data.help CLASS lists one's arguments
+
+    The parent of every data module: ``setup`` fills ``self.datasets[split]``; loaders collate to fixed sizes. (The
+    first line is the title of the --data group in ``floaff-zoo fit --help``.)
 
     Args:
         batch_size: samples per batch, >= 1 (eval loaders use ``eval_batch_size`` when set).

@@ -221,7 +221,10 @@ SUPPORTED_PRECISIONS = ("32-true", "16-mixed", "bf16-mixed")
 
 
 class ZooModule(L.LightningModule):
-    """Parent of every model of the zoo: training recipe, optimiser, weights, steps, export.
+    """The model: any model of the zoo; --model.help CLASS lists one's arguments
+
+    The parent of every model: training recipe, optimiser, weights, steps, export. (The first line is the title of
+    the --model group in ``floaff-zoo fit --help``.)
 
     Args:
         train: the training recipe (:class:`TrainConfig`, or the family's extension of it); a dict of
