@@ -129,3 +129,31 @@ def test_a_sample_breaking_after_setup_with_any_load_error_is_replaced(error, ca
     skips = SkipLog("tiny")
     assert len(RecordDataset(records, load, name="tiny").build(skips)) == 2
     assert dict(skips.counts) == {error.__name__: 1}
+
+
+def test_a_parsing_fix_reaches_samples_cached_before_it(moma_root, monkeypatch):
+    """The cache key held the reader's settings and the source files' signatures, never the parsing code: what an
+    older reader decided stayed cached after a fix (here a sound PLY an older check refused, as the ASCII-row check
+    once did: its skip marker outlived the fix)."""
+    import floaff_zoo.data.moma_kitchen as mk
+
+    root, _ = moma_root
+    rel = (root / "data_split/kitchen_test.txt").read_text().split()[0]
+
+    def kept() -> tuple[bool, dict]:
+        dm = _dm(root, cache=True)
+        dm.setup("test")
+        return rel in [r.key for r in dm.datasets["test"].records], dict(dm.skips["test"].counts)
+
+    def refuse(path, kind="corrupt_ply"):  # the older reader: refuses this sample's sound PLY
+        if rel in str(path):
+            raise mk.LoadError(kind, f"{path}: refused")
+
+    check = mk.check_ply_complete
+    monkeypatch.setattr(mk, "check_ply_complete", refuse)
+    monkeypatch.setattr(cache_mod, "parser_digest", lambda: "older parser", raising=False)
+    assert kept() == (False, {"corrupt_ply": 1})
+    monkeypatch.setattr(mk, "check_ply_complete", check)
+    assert kept() == (False, {"corrupt_ply": 1})  # the same code version reads its own markers back
+    monkeypatch.undo()  # the fixed reader, the installed code's digest
+    assert kept() == (True, {})

@@ -5,8 +5,10 @@ decompression) happens once: the validated tensors, after the deterministic ``pr
 are written to ``<cache_dir>/<dataset>-<config hash>/<sample hash>.pt``.
 
 * ``<config hash>`` = SHA-256 of the reader's settings (e.g. flag radius, robot table, yaw
-  estimator) and the ``pre_transforms`` config (with the seed they draw from, when there are any): changing any
-  of them uses a fresh directory. Without pre-transforms every training seed shares one directory.
+  estimator), the ``pre_transforms`` config (with the seed they draw from, when there are any) and the source code
+  of the modules that turn files into tensors (``PARSER_MODULES``): changing any of them uses a fresh directory, so a
+  parsing fix reaches samples (and ``.skip`` markers) cached before it. Without pre-transforms every training seed
+  shares one directory.
 * ``<sample hash>`` = SHA-256 of the record key and its source files' signature: (path, size,
   mtime_ns) by default (``hash_mode="stat"``, checked at every access), or the file bytes (``hash_mode="content"``,
   slower: reads every source file once, at setup, or at a record's first access with ``validate`` false). An edited
@@ -22,7 +24,9 @@ Stale entries are never read again but stay on disk; delete the directory to rec
 
 from __future__ import annotations
 
+import functools
 import hashlib
+import importlib.util
 import json
 import warnings
 from collections.abc import Callable, Sequence
@@ -40,6 +44,29 @@ from floaff_zoo.data.readers import DataError, SampleRecord, SkipLog, source_sig
 from floaff_zoo.data.transforms import SampleTransform, apply_transforms
 
 CACHE_VERSION = 1
+#: the modules whose code turns source files into cached tensors or skip markers (read, validate, pre-transform)
+PARSER_MODULES = (
+    "floaff_zoo.contract",
+    "floaff_zoo.floor",
+    "floaff_zoo.data.cache",
+    "floaff_zoo.data.readers",
+    "floaff_zoo.data.transforms",
+    "floaff_zoo.data.floaff_kitchen",
+    "floaff_zoo.data.moma_kitchen",
+    "floaff_zoo.sim.fileformat",
+)
+
+
+@functools.cache
+def parser_digest() -> str:
+    """SHA-256 (16 hex digits) of the source files of ``PARSER_MODULES`` as installed: part of every cache key."""
+    h = hashlib.sha256()
+    for name in PARSER_MODULES:
+        spec = importlib.util.find_spec(name)
+        if spec is None or spec.origin is None:
+            raise ImportError(f"sample cache: cannot find the module {name}")
+        h.update(name.encode() + b"\0" + Path(spec.origin).read_bytes())
+    return h.hexdigest()[:16]
 
 
 def _sha(obj: Any) -> str:
@@ -59,7 +86,7 @@ class SampleCache:
     def __init__(self, directory: str | Path, name: str, config: dict[str, Any], hash_mode: str = "stat") -> None:
         if hash_mode not in ("stat", "content"):
             raise ValueError(f"cache hash_mode must be 'stat' or 'content', got {hash_mode!r}")
-        self.config = {"version": CACHE_VERSION, **config}
+        self.config = {"version": CACHE_VERSION, "parser": parser_digest(), **config}
         if config.get("pre_transforms"):  # entries made before kept no meta change of the pre-transforms
             self.config["pre_transform_meta"] = True
         else:  # the seed reaches the cached tensors through the pre-transforms only: every seed shares the parse
