@@ -478,3 +478,23 @@ def test_a_root_that_is_a_file_is_named_as_such(tmp_path):
     (tmp_path / "data.zip").write_bytes(b"x")
     with pytest.raises(MisconfigurationException, match=r"data\.zip is a file, not a data folder"):
         _dm(tmp_path / "data.zip").setup("fit")
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "message"),
+    [
+        ("max_views_per_scene", 0, "data.max_views_per_scene must be an integer >= 1 or null"),
+        ("max_views_per_scene", -1, "data.max_views_per_scene must be an integer >= 1 or null"),
+        ("val_scenes", 1.5, "data.val_scenes must be an integer >= 0"),
+        ("val_scenes", -1, "data.val_scenes must be an integer >= 0"),
+        ("val_view_fraction", 1.0, r"data.val_view_fraction must be in \[0, 1\)"),
+    ],
+)
+def test_a_bad_split_size_is_named_before_setup(field, value, message):
+    """max_views_per_scene 0 failed at setup as 'the train split is empty' and val_scenes 1.5 as a bare TypeError
+    (a slice index), naming neither field."""
+    from lightning.pytorch.utilities.exceptions import MisconfigurationException
+
+    with pytest.raises(ValueError, match=message) as err:
+        _dm("unused", **{field: value})
+    assert isinstance(err.value, MisconfigurationException)

@@ -179,6 +179,13 @@ def test_a_negative_seed_or_a_non_positive_max_samples_is_named(field, value):
         _dm("unused", **{field: value})
 
 
+@pytest.mark.parametrize("radius", [0.0, -0.031, float("nan"), float("inf"), True, "0.031"])
+def test_a_flag_radius_that_flags_nothing_is_named(radius):
+    """0, a negative or a NaN flag radius flagged no point as target or obstacle, silently, in every sample."""
+    with pytest.raises(ValueError, match="data.flag_radius must be a positive distance in metres"):
+        _dm("unused", flag_radius=radius)
+
+
 def test_a_scene_is_held_out_by_its_own_draw_whatever_other_scenes_exist(moma_root, tmp_path):
     """The val scenes were a seeded permutation of the scenes that survived indexing: one missing folder (or
     max_samples) moved other scenes between train and val, so a scene trained in one run and validated in another."""

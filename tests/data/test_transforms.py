@@ -205,6 +205,9 @@ def test_plot_writes_png(tmp_path):
 def test_synthetic_task_names_are_checked():
     with pytest.raises(ValueError, match=r"unknown tasks \['CloseDrawerr'\]"):
         SyntheticDataModule(tasks=["CloseDrawerr"])
+    with pytest.raises(ValueError, match="empty tasks list"):  # it stood for CloseDrawer, as None does
+        SyntheticDataModule(tasks=[])
+    assert SyntheticDataModule().tasks == ["CloseDrawer"]
 
 
 def test_datamodule_sizes_are_checked_up_front():

@@ -27,7 +27,7 @@ import numpy as np
 from lightning.pytorch.utilities.exceptions import MisconfigurationException
 
 from floaff_zoo.contract import FULL_CLOUD_KEY, TASKS, VIEWS, Sample, SampleError
-from floaff_zoo.data.base import FloAffDataModule
+from floaff_zoo.data.base import DataConfigError, FloAffDataModule, check_size
 from floaff_zoo.data.cache import RecordDataset, SampleCache
 from floaff_zoo.data.readers import (
     FloAffReader,
@@ -146,10 +146,10 @@ class FloAffKitchenDataModule(FloAffDataModule):
         self.tasks = check_names("tasks", list(TASKS) if tasks is None else list(tasks), TASKS)
         self.views = check_names("views", list(VIEWS) if views is None else list(views), VIEWS)
         self.reader_cls = get_reader(reader)
-        if val_scenes < 0 or not 0.0 <= val_view_fraction < 1.0:
-            raise ValueError(
-                f"val_scenes must be >= 0 and val_view_fraction in [0, 1); got {val_scenes}, {val_view_fraction}"
-            )
+        check_size("val_scenes", val_scenes, 0)  # 1.5 reached the scene split as a slice index (a TypeError)
+        check_size("max_views_per_scene", max_views_per_scene, 1, "every view")  # 0 or less emptied every split
+        if not 0.0 <= val_view_fraction < 1.0:
+            raise DataConfigError(f"data.val_view_fraction must be in [0, 1), got {val_view_fraction!r}")
         self.root = Path(root)
         self.val_scenes = val_scenes
         self.val_scene_ids = None if val_scene_ids is None else list(val_scene_ids)

@@ -52,7 +52,7 @@ from lightning.pytorch.utilities import rank_zero_warn
 from lightning.pytorch.utilities.exceptions import MisconfigurationException
 
 from floaff_zoo.contract import Sample
-from floaff_zoo.data.base import FloAffDataModule, check_size
+from floaff_zoo.data.base import DataConfigError, FloAffDataModule, check_size
 from floaff_zoo.data.cache import RecordDataset, SampleCache
 from floaff_zoo.data.readers import DataError, SampleRecord, SkipLog, check_finite_arrays
 from floaff_zoo.data.transforms import SampleTransform, transforms_config
@@ -500,6 +500,9 @@ class MoMaKitchenDataModule(FloAffDataModule):
         table = dict(OFFICIAL_ROBOTS if robots is None else robots)
         table.update(extra_robots or {})
         _check_robot_table(table, "robots" if extra_robots is None else "robots / extra_robots")
+        if isinstance(flag_radius, bool) or not (isinstance(flag_radius, (int, float)) and 0 < flag_radius < math.inf):
+            # 0, a negative or a NaN radius flagged no point at all, silently: every sample lost its target
+            raise DataConfigError(f"data.flag_radius must be a positive distance in metres, got {flag_radius!r}")
         self.reader = MoMaKitchenReader(self.rgbd_root, self.info_root, table, flag_radius, yaw_estimator)
         check_size("max_samples", max_samples, 1, "every record")  # 0 kept all, a negative one dropped the last
         self.max_samples = max_samples

@@ -155,7 +155,7 @@ class SyntheticDataModule(FloAffDataModule):
         self.sizes = {"train": num_train, "val": num_val, "test": num_test}
         self.points_per_sample = points_per_sample
         self.floor_cells = floor_cells
-        self.tasks = check_names("tasks", list(tasks or ["CloseDrawer"]), TASKS)
+        self.tasks = check_names("tasks", ["CloseDrawer"] if tasks is None else list(tasks), TASKS)
 
     def setup(self, stage: str | None = None) -> None:
         offsets = {"train": 0, "val": 100_000, "test": 200_000}
