@@ -498,3 +498,33 @@ def test_a_bad_split_size_is_named_before_setup(field, value, message):
     with pytest.raises(ValueError, match=message) as err:
         _dm("unused", **{field: value})
     assert isinstance(err.value, MisconfigurationException)
+
+
+def test_skip_kinds_do_not_depend_on_the_dataset_path(floaff_src, tmp_path):
+    """The kind of a view that failed to load was found by searching the error text, which holds the path: under a
+    folder named 'corrupted_copy' every bad view counted as corrupt."""
+    src, expected = floaff_src
+    counts = []
+    for name in ("plain", "corrupted_copy_with_NaN"):
+        root = tmp_path / name / "floaff"
+        shutil.copytree(src, root)
+        dm = _dm(root, tasks=["CloseDrawer", "PnPCounterToCab"])
+        dm.setup("fit")
+        counts.append(dict(dm.skips.counts))
+    assert counts[0] == counts[1] == expected["skips"]
+
+
+def test_strict_names_a_missing_view_file_once_and_as_missing(tmp_path):
+    """strict=True raised for a missing view file inside the scene.json handler, which took it for a field problem:
+    the message said the scene.json was corrupt and carried the view's message inside it."""
+    from tests.data.floaff_fixture import make_floaff_dataset
+
+    root = tmp_path / "floaff"
+    make_floaff_dataset(root, problems=False)
+    view = sorted(root.glob("styles/*/views/side_0001.npz"))[0]
+    view.unlink()
+    with pytest.raises(DataError) as err:
+        _dm(root, strict=True).setup("fit")
+    message = str(err.value)
+    assert str(view) in message and "view file listed in scene.json is missing" in message
+    assert message.count("strict=True") == 1 and "scene.json:" not in message.split(str(view))[0]

@@ -65,6 +65,13 @@ def test_file_round_trip_and_bad_files(tmp_path):
     np.savez(path, setting="{}", **{"c/xy": np.zeros((1, 2))})
     with pytest.raises(ValueError, match="scene c lacks the entry"):
         read_scene_labels(path)
+    # a setting that is no JSON (a JSONDecodeError naming no file) and xy as text (a TypeError from isfinite)
+    np.savez(path, setting="not json", **{"d/xy": np.zeros((1, 2)), "d/label": np.zeros(1), "d/cell": 0.1})
+    with pytest.raises(ValueError, match=f"{path}: its 'setting' entry is not JSON"):
+        read_scene_labels(path)
+    np.savez(path, setting="{}", **{"d/xy": np.array([["a", "b"]]), "d/label": np.zeros(1), "d/cell": 0.1})
+    with pytest.raises(ValueError, match=f"{path}: scene d has xy of <U1"):
+        read_scene_labels(path)
 
 
 def _sample(pose, floor_xy, sid="s1"):

@@ -253,6 +253,8 @@ class GeneratedReader(FloAffReader):
                 continue
             try:
                 entry = self._entry(rec, d, benchmark)
+            except DataError:  # strict: a missing view file, already named and counted as one
+                raise
             except (KeyError, TypeError, ValueError, AttributeError) as exc:  # a field of the wrong kind or missing
                 why = f"missing field {exc}" if isinstance(exc, KeyError) else str(exc)
                 self.skips.add("corrupt_scene_json", sj, why)
@@ -323,10 +325,10 @@ class GeneratedReader(FloAffReader):
                 {"file": os.path.relpath(view.file, scene.dir), "view": view.view, "view_id": view.view_id},
                 root=self.root,
             )
-        except ff.FormatError as exc:
-            msg = str(exc)
-            kind = "corrupt_view" if "corrupt" in msg else "nan_values" if "NaN" in msg else "bad_view"
-            raise DataError(msg, kind) from exc
+        except ff.FormatError as exc:  # by its class: the message holds the path, which may say 'corrupt' or 'NaN'
+            kinds = {ff.CorruptFileError: "corrupt_view", ff.NonFiniteFieldError: "nan_values"}
+            kind = kinds.get(type(exc), "bad_view")
+            raise DataError(str(exc), kind) from exc
         return s
 
 

@@ -54,7 +54,10 @@ def read_scene_labels(path: str | Path) -> tuple[dict[str, tuple[np.ndarray, np.
         raise ValueError(f"scene labels: {path} is not a readable .npz file ({exc})") from exc
     if "setting" not in arrays:
         raise ValueError(f"scene labels: {path} has no 'setting' entry")
-    setting = json.loads(str(arrays.pop("setting")))
+    try:
+        setting = json.loads(str(arrays.pop("setting")))
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"scene labels: {path}: its 'setting' entry is not JSON ({exc})") from exc
     ids = sorted({k.rsplit("/", 1)[0] for k in arrays})
     out: dict[str, tuple[np.ndarray, np.ndarray, float]] = {}
     for sid in ids:
@@ -65,6 +68,8 @@ def read_scene_labels(path: str | Path) -> tuple[dict[str, tuple[np.ndarray, np.
         # one finite positive spacing and at least one cell: an inf spacing put every floor point on the grid, and
         # an empty scene failed at the first sample with numpy's 'argmin of an empty sequence'
         cell = float(cell) if cell.shape == () and np.issubdtype(cell.dtype, np.number) else float("nan")
+        if not (np.issubdtype(xy.dtype, np.number) and np.issubdtype(label.dtype, np.number)):
+            raise ValueError(f"scene labels: {path}: scene {sid} has xy of {xy.dtype} and label of {label.dtype}")
         if xy.ndim != 2 or xy.shape[1] != 2 or not len(xy) or label.shape != (len(xy),) or not 0 < cell < np.inf:
             raise ValueError(
                 f"scene labels: {path}: scene {sid} has xy {list(xy.shape)}, label {list(label.shape)}, cell {cell}"

@@ -41,7 +41,9 @@ __all__ = [
     "SUPPORTED_FORMAT_VERSIONS",
     "V2_VIEW_FIELDS",
     "VIEW_FIELDS",
+    "CorruptFileError",
     "FormatError",
+    "NonFiniteFieldError",
     "atomic_save_npz",
     "atomic_write_bytes",
     "atomic_write_json",
@@ -95,6 +97,14 @@ class FormatError(ValueError):
     """A dataset file is missing, corrupt or does not follow the format; the message names the file and field."""
 
 
+class CorruptFileError(FormatError):
+    """A file that cannot be decoded (cut-off npz, invalid JSON): readers count it apart from a field problem."""
+
+
+class NonFiniteFieldError(FormatError):
+    """A field holding NaN or Inf: readers count it apart from other field problems."""
+
+
 # ------------------------------------------------------------------------------------------------ atomic writes
 def atomic_write_bytes(path: str | Path, data: bytes) -> None:
     """Write bytes to path via a temp file in the same directory + os.replace (never a partial file)."""
@@ -133,7 +143,7 @@ def read_json(path: str | Path) -> Any:
     except FileNotFoundError as exc:
         raise FormatError(f"{path}: file not found") from exc
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise FormatError(f"{path}: corrupt JSON ({exc})") from exc
+        raise CorruptFileError(f"{path}: corrupt JSON ({exc})") from exc
     except OSError as exc:  # a directory in its place, no permission, a failing disk
         raise FormatError(f"{path}: unreadable ({type(exc).__name__}: {exc})") from exc
 
@@ -205,7 +215,7 @@ def _check_shape(path: Path, name: str, arr: np.ndarray, dtype: str, pattern: tu
         elif dim != want:
             raise FormatError(f"{path}: field {name!r} has shape {arr.shape}, expected {pattern}")
     if arr.dtype.kind == "f" and not np.all(np.isfinite(arr)):
-        raise FormatError(f"{path}: field {name!r} contains NaN or inf")
+        raise NonFiniteFieldError(f"{path}: field {name!r} contains NaN or inf")
 
 
 def check_format_version(version: Any, path: str | Path) -> int:
@@ -268,7 +278,7 @@ def read_view(path: str | Path, format_version: int | None = None, n_cells: int 
     except OSError as exc:  # the disk or the file system failed, maybe for the moment: not the file's content
         raise FormatError(f"{path}: unreadable ({type(exc).__name__}: {exc})") from exc
     except Exception as exc:  # noqa: BLE001 - zipfile.BadZipFile, EOFError, ValueError (pickled data), ...
-        raise FormatError(f"{path}: corrupt npz ({type(exc).__name__}: {exc})") from exc
+        raise CorruptFileError(f"{path}: corrupt npz ({type(exc).__name__}: {exc})") from exc
     validate_view(arrays, path, format_version, n_cells)
     return arrays
 
@@ -323,7 +333,7 @@ def read_scene(scene_path: str | Path) -> dict[str, Any]:
         except (TypeError, ValueError) as exc:
             raise FormatError(f"{p}: labels.{k} must hold numbers ({exc})") from exc
         if not finite:
-            raise FormatError(f"{p}: labels.{k} holds NaN or Inf values")
+            raise NonFiniteFieldError(f"{p}: labels.{k} holds NaN or Inf values")
     rec["dir"] = str(p.parent)
     return rec
 
