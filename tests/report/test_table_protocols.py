@@ -153,3 +153,26 @@ def test_rows_of_different_sr_protocols_are_named_under_the_table(tmp_path, caps
     assert main(["--runs", *runs, "--preset", "sr_views", "--group-by", "label", "--no-oracle", "--format", "csv"]) == 0
     assert "note: the rows differ in sr.top_k: 1 (CFARModule), 10 (top-10)" in capsys.readouterr().err
     assert build_table([top1, report(1)], "sr_views", oracle=False).mixed == ""  # one protocol: no note
+
+
+def test_map_rows_of_different_test_protocols_are_named_under_the_table():
+    """The map, ablation and sweep presets put rows of another metric reduction or test set in one column with no
+    word, and one of them in bold as the best."""
+    official = report(2, metric_reduction="official_batchwise", label="official")
+    fewer = report(3, label="two tasks", data=dict(BASE["data"], tasks=["CloseDrawer", "PnPCounterToCab"]))
+    for preset in ("map", "ablation"):
+        table = build_table([report(0), report(1), official, fewer], preset, group_by="label")
+        assert "metric_reduction: " in table.mixed and "(official)" in table.mixed, table.mixed
+        assert "data.tasks: " in table.mixed and "(two tasks)" in table.mixed, table.mixed
+        assert f"; {table.mixed}. Runs per row" in render(table, "md")
+    assert build_table([report(0), report(1)], "map").mixed == ""
+
+
+def test_sr_views_counts_each_benchmarks_runs_apart():
+    """A model with one run per benchmark was listed as 2 runs: its cells read as a spread over 2 seeds, each being
+    one run's bootstrap std."""
+    layouts = report(1, data=dict(BASE["data"], benchmark="layouts", dataset="floaff_sim_layouts"))
+    table = build_table([report(0), layouts], "sr_views", oracle=False)
+    assert [r.runs for r in table.sections[0].rows] == ["Styles 1, Layouts 1"]
+    assert "Runs per row: CFARModule: Styles 1, Layouts 1." in render(table, "md")
+    assert [r.runs for r in build_table([report(0), report(1)], "sr_views", oracle=False).sections[0].rows] == [2]

@@ -261,7 +261,7 @@ class Column:
 class Row:
     name: str
     cells: list[Cell | None]
-    runs: int
+    runs: int | str  # reports pooled in the row; sr_views: per benchmark ("Layouts 3, Styles 1")
     oracle: bool = False
 
 
@@ -278,7 +278,7 @@ class Table:
     columns: list[Column]
     sections: list[Section]
     note: str = ""
-    mixed: str = ""  # how the rows' SR protocols differ (``mixed_protocols``), named under the table and on stderr
+    mixed: str = ""  # how the rows' protocols differ (``mixed_protocols``), named under the table and on stderr
 
 
 def aggregate(values: list[float], inner_std: list[float | None]) -> Cell | None:
@@ -436,20 +436,25 @@ def check_oracle(reports: list[dict[str, Any]], section: str = "") -> None:
     check_protocol("Oracle", with_oracle, section, SR_PROTOCOL, HINT + ", or pass --no-oracle")
 
 
-def mixed_protocols(rows: list[tuple[str, list[dict[str, Any]]]], keys: tuple[str, ...]) -> str:
-    """``"rows differ in sr.top_k: 1 (A, B), 10 (C)"`` when the rows' reports differ in a setting of ``keys``
-    (each row is one protocol, ``check_row``), else ``""``: an SR table without an Oracle row may compare rows of
-    different protocols (a top-k ablation does on purpose), and its note then says so."""
+def mixed_protocols(
+    sections: list[tuple[str, list[tuple[str, list[dict[str, Any]]]]]], keys: tuple[str, ...] = PROTOCOL
+) -> str:
+    """``"rows differ in sr.top_k: 1 (A, B), 10 (C)"`` when the rows of one section (benchmark) differ in a setting
+    of ``keys`` (each row is one protocol, ``check_row``), else ``""``. A table may compare rows of different
+    protocols (a top-k ablation does on purpose; rows tested on other tasks or views, or with another metric
+    reduction, do not), and its note then says so; each part names its benchmark when the table has several."""
     parts = []
-    for key in keys:
-        seen: dict[str, list[str]] = {}
-        for name, reports in rows:
-            values = {repr(v) for v in (protocol(r)[key] for r in reports) if v is not None}
-            for v in values:
-                if name not in seen.setdefault(v, []):
-                    seen[v].append(name)
-        if len(seen) > 1:
-            parts.append(f"{key}: " + ", ".join(f"{v} ({', '.join(names)})" for v, names in seen.items()))
+    for title, rows in sections:
+        where = f"{_short(title)} " if title and len(sections) > 1 else ""
+        for key in keys:
+            seen: dict[str, list[str]] = {}
+            for name, reports in rows:
+                values = {repr(v) for v in (protocol(r)[key] for r in reports) if v is not None}
+                for v in values:
+                    if name not in seen.setdefault(v, []):
+                        seen[v].append(name)
+            if len(seen) > 1:
+                parts.append(f"{where}{key}: " + ", ".join(f"{v} ({', '.join(names)})" for v, names in seen.items()))
     return f"rows differ in {'; '.join(parts)}" if parts else ""
 
 
@@ -584,14 +589,16 @@ def build_table(
     if preset in ("map", "ablation", "sweep"):
         columns = [Column(n, d, lo, arrow=True) for _, n, d, lo in MAP_COLUMNS]
         sections = []
+        grouped = []
         for title, reps in _sections(reports):
             sec = Section(title)
-            for name, group in _group_rows(reps, group_by, numeric, title):
+            grouped.append((title, _group_rows(reps, group_by, numeric, title)))
+            for name, group in grouped[-1][1]:
                 cells = [_cell(group, lambda r, k=k: _metric(r, k)) for k, _, _, _ in MAP_COLUMNS]
                 sec.rows.append(Row(_marked(name, group), cells, len(group)))
             sections.append(sec)
         header = {"map": "Method", "ablation": "Ablation", "sweep": group_by.rsplit(".", 1)[-1]}[preset]
-        return Table(preset, header, columns, sections, note)
+        return Table(preset, header, columns, sections, note, mixed_protocols(grouped))
     if preset == "sr_views":
         benches = _sections(reports)
         columns = [Column(f"SR_{v}", 2, False, group=_short(b)) for b, _ in benches for v in VIEWS]
@@ -600,7 +607,6 @@ def build_table(
         by_bench = [dict(_group_rows(reps, group_by, False, bench, floats)) for bench, reps in benches]
         names = list(dict.fromkeys(n for groups in by_bench for n in groups))
         sec = Section("")
-        rows: list[tuple[str, list[dict[str, Any]]]] = []
         for name in names:
             cells: list[Cell | None] = []
             row_reports = []
@@ -608,15 +614,18 @@ def build_table(
                 group = groups.get(name, [])
                 row_reports += group
                 cells += [_cell(group, lambda r, v=v: _sr(r, "model", view=v)) for v in VIEWS]
-            rows.append((name, row_reports))
-            sec.rows.append(Row(_marked(name, row_reports), cells, len(row_reports)))
+            # each cell pools one benchmark's runs: a total over benchmarks read as a spread over that many seeds
+            counts = [(_short(b), len(g.get(name, []))) for (b, _), g in zip(benches, by_bench)]
+            runs = len(row_reports) if len(benches) == 1 else ", ".join(f"{b} {n}" for b, n in counts if n)
+            sec.rows.append(Row(_marked(name, row_reports), cells, runs))
         if oracle:
             for bench, reps in benches:
                 check_oracle(reps, bench)
             cells = [_oracle_cell(reps, lambda r, v=v: _sr(r, "oracle", view=v)) for _, reps in benches for v in VIEWS]
             if any(c is not None for c in cells):
                 sec.rows.append(Row("Oracle", cells, len(reports), oracle=True))
-        return Table(preset, "Method", columns, [sec], note, mixed_protocols(rows, SR_PROTOCOL))
+        mixed = mixed_protocols([(b, list(g.items())) for (b, _), g in zip(benches, by_bench)])
+        return Table(preset, "Method", columns, [sec], note, mixed)
     # sr_tasks
     tasks = [
         t
@@ -632,11 +641,11 @@ def build_table(
         )
     columns = [Column(TASK_SHORT.get(t, t), 2, False) for t in tasks]
     sections = []
-    all_rows: list[tuple[str, list[dict[str, Any]]]] = []
+    grouped = []
     for title, reps in _sections(reports):
         sec = Section(title)
-        for name, group in _group_rows(reps, group_by, False, title):
-            all_rows.append((name, group))
+        grouped.append((title, _group_rows(reps, group_by, False, title)))
+        for name, group in grouped[-1][1]:
             sec.rows.append(
                 Row(
                     _marked(name, group),
@@ -650,7 +659,7 @@ def build_table(
             if any(c is not None for c in cells):
                 sec.rows.append(Row("Oracle", cells, len(reps), oracle=True))
         sections.append(sec)
-    return Table(preset, "Method", columns, sections, note, mixed_protocols(all_rows, SR_PROTOCOL))
+    return Table(preset, "Method", columns, sections, note, mixed_protocols(grouped))
 
 
 # ------------------------------------------------------------------------------------------ rendering
