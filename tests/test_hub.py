@@ -174,6 +174,12 @@ def test_push_refuses_a_report_of_another_checkpoint_or_class(run_dir, tmp_path,
         err = capsys.readouterr().err
         assert all(s in err for s in (str(report), "--report", *named)), err
         assert f"tiny.bad{i}.v1" not in load_registry()
+    latin = tmp_path / "latin" / "report.json"  # bytes that are no UTF-8: the codec's message named no file
+    latin.parent.mkdir()
+    latin.write_bytes(b"\xff\xfe{}")
+    assert _push(run, "tiny.latin.v1", "--report", str(latin)) == 2
+    assert f"{latin}: unreadable report" in capsys.readouterr().err
+    assert "tiny.latin.v1" not in load_registry()
 
 
 def test_push_records_a_report_only_of_its_own_checkpoint(run_dir, tmp_path):

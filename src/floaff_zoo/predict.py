@@ -277,8 +277,9 @@ def backproject_depth(
         raise ValueError(f"predict: camera_pose must be a finite 4x4 camera-to-base matrix, got shape {pose.shape}")
     if convention not in ("opengl", "opencv"):
         raise ValueError(f"predict: convention must be 'opengl' or 'opencv', got {convention!r}")
-    if not float(max_depth) > 0:  # NaN made every pixel invalid, named later as a target mask without depth
-        raise ValueError(f"predict: max_depth must be > 0 metres (inf: no cut), got {max_depth!r}")
+    # NaN made every pixel invalid (named later as a target mask without depth), text failed inside numpy
+    if isinstance(max_depth, (bool, str, bytes)) or not float(max_depth) > 0:
+        raise ValueError(f"predict: max_depth must be a number > 0 metres (inf: no cut), got {max_depth!r}")
     fx, fy, cx, cy = k
     h, w = d.shape
     uu, vv = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
@@ -411,6 +412,11 @@ def run_model(net: torch.nn.Module, batch: dict[str, Any]) -> np.ndarray:
     return scores
 
 
+def _count(value: object) -> bool:
+    """True for an int >= 1 (numpy ints too; not a bool)."""
+    return not isinstance(value, bool) and isinstance(value, (int, np.integer)) and value >= 1
+
+
 def predict_from_points(
     model: Any,
     scene_xyz: np.ndarray,
@@ -460,8 +466,12 @@ def predict_from_points(
     """
     xyz, feat = check_scene(scene_xyz, scene_feat)
     cell = check_cell(cell)
-    if isinstance(free_k, bool) or not isinstance(free_k, int) or free_k < 1:
+    if not _count(free_k):
         raise ValueError(f"predict: free_k must be an int >= 1 (1: no footprint check), got {free_k!r}")
+    if not _count(k):  # 0 or less returned one pose, 2.5 failed as a slice index
+        raise ValueError(f"predict: k (top poses returned) must be an int >= 1, got {k!r}")
+    if num_points is not None and not _count(num_points):  # 0 fed every point, < 0 failed inside torch
+        raise ValueError(f"predict: num_points must be an int >= 1, or None for every point, got {num_points!r}")
     check_window(target_yaw, window, grid_radius)
     check_device(device)
     t = np.asarray(target_xyz, dtype=np.float32).reshape(-1)

@@ -221,6 +221,12 @@ def test_bad_arguments_are_named_before_the_model_loads():
         ({"window": (1.0, -1.2)}, "window must be two finite half-sizes"),
         ({"grid_radius": 0.0}, "grid_radius must be a finite radius"),
         ({"device": "cuda:99"}, "device 'cuda:99' is not available"),
+        # k 0 or -1 returned one pose, 2.5 failed as a slice index; num_points -5 failed inside torch, 0 fed all
+        ({"k": 0}, r"k \(top poses returned\) must be an int >= 1, got 0"),
+        ({"k": -1}, r"k \(top poses returned\) must be an int >= 1, got -1"),
+        ({"k": 2.5}, r"k \(top poses returned\) must be an int >= 1, got 2.5"),
+        ({"num_points": -5}, "num_points must be an int >= 1, or None for every point, got -5"),
+        ({"num_points": 0}, "num_points must be an int >= 1, or None for every point, got 0"),
     ]
     for kwargs, message in cases:
         with pytest.raises(ValueError, match=message):
@@ -347,8 +353,8 @@ def test_a_max_depth_that_is_no_distance_is_named():
     depth, k, pose = _floor_depth()
     mask = np.zeros(depth.shape, bool)
     mask[20:24, 30:34] = True
-    for bad in (float("nan"), 0.0):
-        with pytest.raises(ValueError, match="max_depth must be > 0"):
+    for bad in (float("nan"), 0.0, "5", True):  # text failed inside numpy as a UFuncTypeError
+        with pytest.raises(ValueError, match="max_depth must be a number > 0"):
             predict(TinyPointNetModule(width=16), None, depth, k, pose, mask, [0.85, 1.03], max_depth=bad)
 
 

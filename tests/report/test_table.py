@@ -222,6 +222,10 @@ def test_runs_on_different_copies_of_the_data_are_not_mixed(tmp_path, capsys):
     assert main(["--runs", str(tmp_path / "a"), str(tmp_path / "b")]) == 2
     err = capsys.readouterr().err
     assert "scene s1" in err and "aaaa" in err and "bbbb" in err and "--allow-mixed-data" in err
+    # the files read here, not the run folders recorded on the machine that wrote them
+    assert str(tmp_path / "a" / "report.json") in err and str(tmp_path / "b" / "report.json") in err
+    assert main(["--runs", str(tmp_path / "a"), "--group-by", "model.hparams.nope"]) == 2
+    assert f"report {tmp_path / 'a' / 'report.json'} has no such field" in capsys.readouterr().err
     assert main(["--runs", str(tmp_path / "a"), str(tmp_path / "b"), "--allow-mixed-data"]) == 0
     # the same labels, disjoint scenes, or a report from before the hash was recorded: one table
     assert main(["--runs", str(tmp_path / "a"), str(tmp_path / "a2"), str(tmp_path / "old")]) == 0

@@ -99,7 +99,7 @@ def _report_metrics(
         if path.is_file():
             try:
                 raw = json.loads(path.read_text(encoding="utf-8"))
-            except (OSError, json.JSONDecodeError) as exc:
+            except (OSError, ValueError) as exc:  # ValueError: invalid JSON, or bytes that are no UTF-8
                 raise HubError(f"{path}: unreadable report ({exc})") from exc
             problem = _report_mismatch(raw, ckpt_path, cls, ckpt_sha)
             if problem and report is not None:

@@ -343,7 +343,7 @@ def _group_rows(
     values = [lookup(r, group_by) for r in reports]
     for r, v in zip(reports, values):
         if v is None:
-            raise TableError(f"--group-by {group_by}: report {r.get('run_dir', '?')} has no such field")
+            raise TableError(f"--group-by {group_by}: report {_where(r)} has no such field")
     # where some runs give a float, an int is the same number (crop_radius 1 and 1.0 are one row)
     if floats is None:
         floats = any(isinstance(v, float) for v in values)
@@ -550,7 +550,7 @@ def check_one_copy(reports: list[dict[str, Any]]) -> None:
     seen: dict[tuple[str, str], tuple[str, str]] = {}  # (benchmark, scene) -> (hash, run)
     for r in reports:
         data = r.get("data") or {}
-        run = str(r.get("run_dir") or r.get("label") or "?")
+        run = _where(r)  # the file read here, not the folder of the machine that wrote it
         for scene, digest in sorted((data.get("labels_sha256") or {}).items()):
             key = (benchmark_name(r), scene)
             first = seen.setdefault(key, (digest, run))
