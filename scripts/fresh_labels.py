@@ -65,8 +65,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--zero-failures", action="store_true", help="label 0 on cells that never succeeded (module doc)")
     p.add_argument("--out", required=True, help="the scene-label file to write (.npz)")
     a = p.parse_args(argv)
-    if a.episodes < 0 or a.sigma_xy < 0 or a.sigma_yaw_deg < 0 or a.workers < 1:
-        p.error("--episodes must be >= 0, --workers >= 1 and the sigmas >= 0")
+    if a.episodes < 0 or a.sigma_xy < 0 or a.sigma_yaw_deg < 0 or a.workers < 1 or a.seed < 0:
+        p.error("--episodes must be >= 0, --workers >= 1 and the sigmas and --seed >= 0")
     for name in ("probs", "out"):
         v = getattr(a, name)
         if v is not None and not v.endswith(".npz"):

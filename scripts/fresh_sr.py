@@ -262,8 +262,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--probs", default=None, help="cache of the fresh probabilities (.npz; read if it exists)")
     p.add_argument("--json", default=None)
     a = p.parse_args(argv)
-    if a.episodes < 1 or a.sigma_xy < 0 or a.sigma_yaw_deg < 0:
-        p.error("--episodes must be >= 1 and the sigmas >= 0")
+    if a.episodes < 1 or a.sigma_xy < 0 or a.sigma_yaw_deg < 0 or a.seed < 0:
+        p.error("--episodes must be >= 1 and the sigmas and --seed >= 0")
     if min(a.top_k, a.workers, a.batch_size) < 1:
         p.error("--top-k, --workers and --batch-size must be >= 1")
     if a.full_cloud and a.top_k == 1:

@@ -89,7 +89,8 @@ def test_cli_annotation_seed_without_noise_is_the_exact_evaluation(drawer_root, 
 
 def test_cli_names_bad_arguments_and_a_corrupt_cache(drawer_root, tmp_path):
     args = ["--root", str(drawer_root), "--benchmark", "styles"]
-    for bad in (["--top-k", "0"], ["--episodes", "0"], ["--probs", str(tmp_path / "p.txt")], ["--full-cloud"]):
+    bad_args = (["--top-k", "0"], ["--episodes", "0"], ["--seed", "-1"], ["--probs", str(tmp_path / "p.txt")])
+    for bad in (*bad_args, ["--full-cloud"]):
         with pytest.raises(SystemExit):
             fs.main([*args, *bad])
     corrupt = tmp_path / "corrupt.npz"

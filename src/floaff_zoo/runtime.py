@@ -14,8 +14,10 @@ resident memory (freed memory stays with the process instead of going back to th
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import os
+from collections.abc import Iterator
 
 MALLOC_ENV = "FLOAFF_ZOO_MALLOC"
 #: glibc mallopt parameters (malloc.h)
@@ -56,3 +58,25 @@ def keep_freed_memory() -> bool:
         ok = False
     _state["applied"] = ok
     return ok
+
+
+#: the variables that cap the BLAS / OpenMP threads of a process (read when the library loads)
+THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+@contextlib.contextmanager
+def one_thread_children() -> Iterator[None]:
+    """Worker processes started inside get one BLAS / OpenMP thread each (docs/background.md §5: a pool of
+    workers oversubscribes the cores otherwise). A pool's initializer sets them too late: a spawned worker loads
+    numpy while it unpickles the initializer's module. This process keeps its own threads, whose libraries are
+    loaded already."""
+    saved = {k: os.environ.get(k) for k in THREAD_ENV}
+    os.environ.update(dict.fromkeys(THREAD_ENV, "1"))
+    try:
+        yield
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v

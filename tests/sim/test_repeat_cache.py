@@ -47,3 +47,35 @@ def test_a_scene_cached_from_another_generator_version_is_refused(tmp_path):
         repeat.read_probs(path, SETTING, newer)
     repeat.write_probs(path, SETTING, {"a": np.array([0.0, 0.5, 1.0])})  # an older cache: nothing to compare
     assert repeat.read_probs(path, SETTING, newer)["a"].tolist() == [0.0, 0.5, 1.0]
+
+
+def _scene(sid: str, version: str) -> dict:
+    return {
+        "scene_id": sid,
+        "generator_version": version,
+        "spec": {"layout_id": 0, "style_id": 0, "seed": 0, "task": "CloseDrawer"},
+        "candidates": {"xy": [[0, 0], [1, 0]], "yaw": [0.0, 0.0], "valid": [True, False]},
+    }
+
+
+def test_a_cache_shared_by_two_runs_keeps_every_scenes_version(tmp_path, monkeypatch):
+    """A run over other scenes rewrote the cache with only its own scenes' versions: the earlier scenes lost theirs,
+    and with them the refusal of a cache made from another generator's data."""
+    path = tmp_path / "probs.npz"
+    setting = {"episodes": 1, "sigma_xy": 0.0, "sigma_yaw_deg": 0.0, "seed": 0}
+    monkeypatch.setattr(repeat, "service_runner", lambda workers: lambda seed, jobs: [True] * len(jobs))
+    repeat.scene_probabilities({"a": _scene("a", "2.0.0")}, setting, path)
+    repeat.scene_probabilities({"b": _scene("b", "2.0.0")}, setting, path)  # the same file, another split
+    assert repeat.read_versions(path) == {"a": "2.0.0", "b": "2.0.0"}
+    with pytest.raises(ValueError, match="scene a was cached from generator 2.0.0 data, this copy is 2.1.0"):
+        repeat.scene_probabilities({"a": _scene("a", "2.1.0")}, setting, path)
+
+
+def test_no_episode_and_a_negative_noise_seed_are_named():
+    """episodes 0 gave NaN probabilities (0 / 0), which the cache kept; a negative seed failed inside numpy."""
+    run = lambda seed, jobs: [True] * len(jobs)  # noqa: E731
+    with pytest.raises(ValueError, match="episodes must be >= 1"):
+        repeat.fresh_probability(_scene("a", "2.0.0"), run, 0, 0.0, 0.0, 0)
+    with pytest.raises(ValueError, match="parking-noise seed must be >= 0, got -1"):
+        repeat.fresh_probability(_scene("a", "2.0.0"), run, 1, 0.0, 0.0, -1)
+    assert repeat.fresh_probability(_scene("a", "2.0.0"), run, 1, 0.0, 0.0, 0).tolist() == [1.0, 0.0]

@@ -156,3 +156,68 @@ def test_one_service_serves_every_task_seed(monkeypatch):
     assert run(4, job) == [True] and run(5, job) == [False] and run(4, job) == [True]
     assert len(made) == 1 and seen == [4, 5]  # one service; the seed-4 result came from its cache
     assert len(made[0].cache) == 2
+
+
+def _jobs_module():
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    import _rollout_jobs
+
+    return _rollout_jobs
+
+
+def test_close_after_an_interrupted_run_drops_the_queued_rollouts(tmp_path, monkeypatch):
+    """close() waited for every chunk still queued when run() was interrupted (Ctrl-C): a hung worker kept it
+    waiting for ever."""
+    import floaff_zoo.sim.rollout as ro
+
+    rj = _jobs_module()
+    monkeypatch.setenv(rj.MARK_DIR_ENV, str(tmp_path))
+    svc = RolloutService(workers=2, job_fn=rj.touch_slowly)
+    jobs = [(SceneSpec(0, 0, 0, "CloseDrawer"), (float(i), 0.0, 0.0)) for i in range(400)]  # 13 chunks of <= 32
+    wait = ro.cf.wait
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt("simulated Ctrl-C while the rollouts run")
+
+    monkeypatch.setattr(ro.cf, "wait", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        svc.run(jobs)
+    monkeypatch.setattr(ro.cf, "wait", wait)
+    svc.close()
+    ran = len(list(tmp_path.iterdir()))
+    assert ran <= 5 * ro.MAX_CHUNK_JOBS, ran  # the chunks running or handed to a worker, not the 400
+
+
+def test_pool_workers_start_with_one_blas_thread(monkeypatch):
+    """The thread variables were set only while the pool object was made; its workers start at the first submit,
+    and load numpy before their initializer runs: each started with as many BLAS threads as cores."""
+    import os
+
+    from floaff_zoo.runtime import THREAD_ENV
+
+    rj = _jobs_module()
+    for k in THREAD_ENV:
+        monkeypatch.delenv(k, raising=False)
+    svc = RolloutService(workers=2, job_fn=rj.spawn_environment)
+    try:
+        results = svc.run([(SceneSpec(0, 0, 0, "CloseDrawer"), (float(i), 0.0, 0.0)) for i in range(8)])
+    finally:
+        svc.close()
+    assert all(r.state == dict.fromkeys(THREAD_ENV, "1") for r in results), [r.state for r in results]
+    assert not any(k in os.environ for k in THREAD_ENV)  # this process's environment is as it was
+
+
+def test_close_releases_the_scenes_built_for_rollouts_in_this_process():
+    """With workers=1 (the callback's default) the scenes were built in the training process and kept for its
+    life (~80 MB each), close() or not."""
+    import floaff_zoo.sim.kitchen as kitchen
+    import floaff_zoo.sim.rollout as ro
+
+    spec = SceneSpec(0, 0, 7, "CloseDrawer")
+    svc = RolloutService(workers=1)
+    svc.run([(spec, (9.0, 9.0, 0.0))])
+    assert spec in ro._WORKER_SCENES and (0, 0, 7) in kitchen._CACHE
+    svc.close()
+    assert spec not in ro._WORKER_SCENES and (0, 0, 7) not in kitchen._CACHE

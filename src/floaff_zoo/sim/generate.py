@@ -44,6 +44,7 @@ from typing import Any
 import numpy as np
 
 from floaff_zoo.atomic import LockedError, folder_lock
+from floaff_zoo.runtime import THREAD_ENV, one_thread_children
 from floaff_zoo.sim import fileformat as ff
 from floaff_zoo.sim.presets import ALL_BENCHMARKS, ALL_TASKS, PRESETS, GenPreset, get_preset, view_counts
 
@@ -590,8 +591,8 @@ def run_job(job: SceneJob, out: str, preset_dict: dict[str, Any], save_images: b
 
 # ------------------------------------------------------------------------------------------------ execution
 def _worker_init() -> None:
-    # one BLAS/OpenMP thread per worker: pools oversubscribe otherwise (docs/background.md §5)
-    for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    # one BLAS/OpenMP thread per worker (docs/background.md §5); _run_local starts the workers with them already
+    for k in THREAD_ENV:
         os.environ[k] = "1"
     os.environ.setdefault("MUJOCO_GL", "egl")
     # a worker outlives a killed driver otherwise: it would finish its queued scenes into --out beside the rerun
@@ -653,25 +654,26 @@ def _run_local(jobs, out, preset_dict, save_images, workers, on_result, job_fn=N
                     break
             on_result(job, res, tries[job.key])
         return
-    queue = [(job, False) for job in jobs]  # (job, alone: in a process of its own)
-    while queue:
-        shared = [job for job, alone in queue if not alone]
-        alone = [job for job, alone in queue if alone]
-        queue = []
-        for job in shared + alone:
-            tries[job.key] += 1
-        args = (workers, job_fn, out, preset_dict, save_images)
-        # as each job finishes (the manifest records it at once, for a resume)
-        outcomes = itertools.chain(_in_shared_pool(shared, *args), _each_alone(alone, *args))
-        for job, res, was_alone in outcomes:
-            if res.get("pool_broken") and not was_alone:
-                tries[job.key] -= 1  # maybe another job killed the worker: not this job's try
-                queue.append((job, True))
-            elif res["status"] == "error" and tries[job.key] < 2:
-                queue.append((job, was_alone))
-            else:
-                res.pop("pool_broken", None)
-                on_result(job, res, tries[job.key])
+    with one_thread_children():  # the workers start during the submits, with one BLAS thread each
+        queue = [(job, False) for job in jobs]  # (job, alone: in a process of its own)
+        while queue:
+            shared = [job for job, alone in queue if not alone]
+            alone = [job for job, alone in queue if alone]
+            queue = []
+            for job in shared + alone:
+                tries[job.key] += 1
+            args = (workers, job_fn, out, preset_dict, save_images)
+            # as each job finishes (the manifest records it at once, for a resume)
+            outcomes = itertools.chain(_in_shared_pool(shared, *args), _each_alone(alone, *args))
+            for job, res, was_alone in outcomes:
+                if res.get("pool_broken") and not was_alone:
+                    tries[job.key] -= 1  # maybe another job killed the worker: not this job's try
+                    queue.append((job, True))
+                elif res["status"] == "error" and tries[job.key] < 2:
+                    queue.append((job, was_alone))
+                else:
+                    res.pop("pool_broken", None)
+                    on_result(job, res, tries[job.key])
 
 
 def _died(job: SceneJob, exc: BaseException) -> dict[str, Any]:

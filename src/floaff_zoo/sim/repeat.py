@@ -33,6 +33,7 @@ __all__ = [
     "fresh_probability",
     "perturbed_poses",
     "read_probs",
+    "read_versions",
     "scene_probabilities",
     "service_runner",
     "write_probs",
@@ -70,6 +71,10 @@ def fresh_probability(
     valid = np.flatnonzero(np.asarray(cand["valid"], bool))
     spec = SceneSpec.from_dict(scene["spec"])
     task_seeds = list(seeds) or [FRESH_SEED0 + k for k in range(episodes)]
+    if not task_seeds:  # 0 / 0 made every probability NaN, and the cache kept them
+        raise ValueError(f"fresh_probability: episodes must be >= 1 (or seeds given), got {episodes}")
+    if int(seed) < 0:  # numpy refused the negative noise seed with a bare 'expected non-negative integer'
+        raise ValueError(f"fresh_probability: the parking-noise seed must be >= 0, got {seed}")
     scene_seed = zlib.crc32(scene["scene_id"].encode()) ^ int(seed)
     wins = np.zeros(len(xy))
     for k, task_seed in enumerate(task_seeds):
@@ -107,6 +112,15 @@ def read_probs(path: Path, setting: dict, scenes: dict[str, dict]) -> dict[str, 
     return probs
 
 
+def read_versions(path: Path) -> dict[str, str]:
+    """{scene id: generator version} recorded in a fresh-probability cache ({} for caches written before)."""
+    try:
+        with np.load(path) as z:
+            return json.loads(str(z[_MADE_FROM])) if _MADE_FROM in z.files else {}
+    except (OSError, ValueError, KeyError, zipfile.BadZipFile, EOFError) as exc:
+        raise ValueError(f"{path} is not a fresh-probability cache ({exc}); delete it") from exc
+
+
 def write_probs(
     path: Path, setting: dict, probs: dict[str, np.ndarray], versions: dict[str, str] | None = None
 ) -> None:
@@ -140,7 +154,9 @@ def scene_probabilities(
     :func:`fresh_probability`. Scenes in the cache are not rolled out again; the cache is rewritten after every new
     scene (a killed run resumes). A cache made with another setting raises ``ValueError``.
     """
-    probs = read_probs(cache, setting, scenes) if cache is not None and cache.is_file() else {}
+    cached = cache is not None and cache.is_file()
+    probs = read_probs(cache, setting, scenes) if cached else {}
+    known = read_versions(cache) if cached else {}  # the versions of cached scenes not among ``scenes`` stay
     run: Runner | None = None
     for sid, scene in scenes.items():
         if sid in probs:
@@ -151,6 +167,7 @@ def scene_probabilities(
         probs[sid] = fresh_probability(scene, run, n, sxy, yaw, seed, seeds)
         print(f"{sid}: {int((probs[sid] > 0).sum())} cells with a fresh success", flush=True)
         if cache is not None:
-            made = {k: scenes[k]["generator_version"] for k in probs if scenes.get(k, {}).get("generator_version")}
+            made = {k: scenes.get(k, {}).get("generator_version") or known.get(k) for k in probs}
+            made = {k: v for k, v in made.items() if v}
             write_probs(cache, setting, probs, made)
     return probs

@@ -22,8 +22,9 @@ import mujoco
 import numpy as np
 
 from floaff_zoo.frames import ROLLOUT_POSE_DECIMALS
+from floaff_zoo.runtime import THREAD_ENV, one_thread_children
 from floaff_zoo.sim.controllers import CTRL_DT, Policy, default_policy
-from floaff_zoo.sim.kitchen import SceneSpec, SimScene, TargetInfo, build_scene
+from floaff_zoo.sim.kitchen import SceneSpec, SimScene, TargetInfo, build_scene, release_scene
 from floaff_zoo.sim.tasks import target_frame
 
 
@@ -170,7 +171,6 @@ def _settled(scene: SimScene) -> bool:
 # service
 # ----------------------------------------------------------------------------------------------
 _WORKER_SCENES: dict[SceneSpec, SimScene] = {}
-THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 Job = tuple[dict, tuple[float, float, float], int]  # (spec dict, rounded pose, seed): what a worker receives
 
 
@@ -316,17 +316,7 @@ class RolloutService:
     def _new_pool(self) -> cf.ProcessPoolExecutor:
         import multiprocessing as mp
 
-        saved = {k: os.environ.get(k) for k in THREAD_ENV}
-        for k in saved:
-            os.environ[k] = "1"  # inherited by spawned workers before numpy loads
-        try:
-            return cf.ProcessPoolExecutor(self.workers, mp_context=mp.get_context("spawn"), initializer=_worker_init)
-        finally:
-            for k, v in saved.items():
-                if v is None:
-                    os.environ.pop(k, None)
-                else:
-                    os.environ[k] = v
+        return cf.ProcessPoolExecutor(self.workers, mp_context=mp.get_context("spawn"), initializer=_worker_init)
 
     def _run_pool(self, payload: list[Job]) -> list[RolloutResult]:
         """All jobs on the process pool, in order; see the class doc for dead workers and the timeout.
@@ -359,9 +349,10 @@ class RolloutService:
         """Run ``chunks`` (lists of job indices) on the pool, filling ``results``; returns the indices lost
         with a dead worker (the broken pool is then shut down). Raises RolloutPoolError after ``timeout_s``
         without progress."""
-        if self._pool is None:
-            self._pool = self._new_pool()
-        running = {self._pool.submit(_run_chunk, self.job_fn, [payload[i] for i in idx]): idx for idx in chunks}
+        with one_thread_children():  # the workers start at these submits, not with the pool
+            if self._pool is None:
+                self._pool = self._new_pool()
+            running = {self._pool.submit(_run_chunk, self.job_fn, [payload[i] for i in idx]): idx for idx in chunks}
         lost: list[int] = []
         while running:
             done, _ = cf.wait(running, timeout=self.timeout_s, return_when=cf.FIRST_COMPLETED)
@@ -408,14 +399,18 @@ class RolloutService:
             ray.init(num_cpus=self.workers, include_dashboard=False, log_to_driver=False)
             self._ray_started = True
         # one BLAS/OpenMP thread per worker, as in _worker_init (set before the worker process imports numpy)
-        env = {"env_vars": {k: "1" for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}}
+        env = {"env_vars": dict.fromkeys(THREAD_ENV, "1")}
         remote = ray.remote(num_cpus=1, runtime_env=env)(_run_one)
         return ray.get([remote.remote(self.job_fn, p) for p in payload])
 
     def close(self) -> None:
+        """Stop the pool (rollouts still queued by an interrupted ``run`` are dropped, not waited for) and release
+        the scenes this process built for rollouts it ran itself."""
         if self._pool is not None:
-            self._pool.shutdown(wait=True)
+            self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = None
+        for spec in list(_WORKER_SCENES):  # ~80 MB each, for the life of a training process
+            release_scene(_WORKER_SCENES.pop(spec).spec)
         if self._ray_started:
             import ray
 
