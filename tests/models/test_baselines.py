@@ -205,6 +205,23 @@ def test_n2m_propose_pose_collision_free(batch):
     assert not footprint_collides(cells, torch.tensor([[x, y, yaw]]))[0]
 
 
+def test_n2m_falls_back_to_the_densest_candidate_when_every_one_collides(batch, monkeypatch):
+    """The fallback was the heaviest component's mean, whatever its density: a wide, heavy component beat a narrow
+    one whose samples are far denser."""
+    import floaff_zoo.models.n2m as n2m
+    from floaff_zoo.nn.nets import gmm_log_prob
+
+    model = tiny_model("n2m").eval()
+    means = torch.tensor([[[5.0, 5.0, 0.0], [0.5, 0.0, 0.0]]])
+    cov = torch.stack([torch.eye(3) * 4.0, torch.eye(3) * 1e-3])[None]
+    logw = torch.log(torch.tensor([[0.6, 0.4]]))
+    monkeypatch.setattr(model, "gmm", lambda item: (means, cov, logw))
+    monkeypatch.setattr(n2m, "footprint_collides", lambda cells, cand, *a: torch.ones(len(cand), dtype=torch.bool))
+    pose = model.propose_pose({k: v[:1] if torch.is_tensor(v) else v[:1] for k, v in batch.items()})
+    assert torch.dist(torch.tensor(pose[:2]), means[0, 1, :2]) < 0.2, pose  # in the narrow component
+    assert gmm_log_prob(torch.tensor([[pose]]), means, cov, logw).item() > 0
+
+
 def test_footprint_geometry():
     from floaff_zoo.nn.placement import footprint_collides
 
@@ -231,6 +248,24 @@ def test_c2f_exp_deterministic_in_range_and_training_free(batch):
     g = batch["target_xyz"][0, :2]
     d = float(torch.dist(torch.tensor(pose[:2]), g))
     assert 0.4 <= d <= 1.2
+
+
+def test_a_c2f_scorer_sees_the_same_context_keys_in_every_round_and_the_final_pose(batch, monkeypatch):
+    """The final pose gave a plugged-in scorer only cells, g, round and mu: one reading target_yaw (as in the
+    search rounds) worked in forward and failed in propose_pose and predict_step."""
+    import floaff_zoo.nn.c2f as c2f
+
+    seen: list[set[str]] = []
+
+    def yaw_scorer(candidates, weights, context):
+        seen.append(set(context))
+        return weights * (1 + 0 * context["target_yaw"])
+
+    monkeypatch.setitem(c2f.SCORERS, "yaw_reader", yaw_scorer)
+    model = C2FExpModule(scorer="yaw_reader")
+    model.propose_pose({k: (v[0] if torch.is_tensor(v) else v[0]) for k, v in batch.items()})
+    assert len(seen) > 1 and all(keys == seen[0] for keys in seen), seen
+    assert {"cells", "g", "target_yaw", "round", "mu", "sigma", "alpha"} == seen[-1]
 
 
 def test_c2f_exp_alpha_schedule_and_scorers():

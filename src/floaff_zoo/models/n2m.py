@@ -199,7 +199,10 @@ class N2MModule(FloAffModule):
         )
         hits = footprint_collides(cells, cand, h["footprint_length"], h["footprint_width"], h["footprint_back"])
         free = torch.nonzero(~hits).flatten()
-        best = cand[int(free[0])] if free.numel() else cand[0]
+        if free.numel():
+            best = cand[int(free[0])]
+        else:  # the densest candidate (the heaviest component's mean need not be: a wide component is flat)
+            best = cand[int(gmm_log_prob(cand[None], means.cpu(), cov.cpu(), logw.cpu())[0].argmax())]
         yaw = math.atan2(math.sin(float(best[2])), math.cos(float(best[2])))
         return float(best[0]), float(best[1]), yaw
 

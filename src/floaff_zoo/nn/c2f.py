@@ -23,6 +23,9 @@ from torch import Tensor
 from floaff_zoo.nn.placement import heading_to, occupied_cells
 
 #: scorer(candidates [n, 2], weights [n], context) -> scores [n] (higher = better)
+#: scorer(candidates [n, 2], weights [n], context) -> scores [n]; the context holds ``cells`` [K, 2] (occupied cell
+#: centres), ``g`` [2] (the target), ``target_yaw``, ``round`` (0 .. rounds; ``rounds`` in the final pose), ``mu`` [2],
+#: ``sigma`` and ``alpha`` (this round's Gaussian and its geometric share), in every round and in the final pose
 Scorer = Callable[[Tensor, Tensor, dict[str, Any]], Tensor]
 
 
@@ -122,7 +125,8 @@ class C2FPlanner(torch.nn.Module):
         """Run the T rounds for one sample (CPU float32).
 
         Returns:
-            dict with g [2], mu [2], sigma, alpha (final), cells [K, 2], history (list of mu).
+            dict with g [2], mu [2], sigma, alpha (final), cells [K, 2], history (list of mu), gen (the search's
+            generator) and context (the scorer's fixed keys: cells, g, target_yaw).
         """
         c = self.cfg
         gen = torch.Generator().manual_seed(int(c.seed))
@@ -149,7 +153,16 @@ class C2FPlanner(torch.nn.Module):
             sigma *= c.sigma_decay
             history.append(mu.clone())
         alpha = alpha_schedule(c.rounds, c.rounds, c.max_alpha)
-        return {"g": g, "mu": mu, "sigma": sigma, "alpha": alpha, "cells": cells, "history": history, "gen": gen}
+        return {
+            "g": g,
+            "mu": mu,
+            "sigma": sigma,
+            "alpha": alpha,
+            "cells": cells,
+            "history": history,
+            "gen": gen,
+            "context": context,
+        }
 
     @torch.no_grad()
     def score_floor(self, state: dict[str, Any], floor_xyz: Tensor, floor_mask: Tensor) -> Tensor:
@@ -174,7 +187,9 @@ class C2FPlanner(torch.nn.Module):
             best = mu
         else:
             w = self.weight(cand, g, mu, sigma, alpha)
-            scores = self.scorer(cand, w, {"cells": state["cells"], "g": g, "round": c.rounds, "mu": mu})
+            # the keys of every search round (a plugged-in scorer read target_yaw there, then failed here)
+            context = {**state["context"], "round": c.rounds, "mu": mu, "sigma": sigma, "alpha": alpha}
+            scores = self.scorer(cand, w, context)
             keep = cand[scores.topk(min(5, cand.shape[0])).indices]
             if keep.shape[0] > 3:
                 m = keep.mean(dim=0)
