@@ -150,7 +150,9 @@ def view_choices(
         if top_k > 1:
             free = cloud_free(cloud[i][cloud_mask[i]], sim["base_pose_world"])
         for name, s in scores.items():
-            pose, _ = choose_pose(floor[i], s[i], mask[i], target[i], sim["base_pose_world"], top_k, free, tie)
+            # the Oracle (``label``) stands on its argmax, as the test's does: top 1, no footprint check
+            k, check = (1, None) if name == "label" else (top_k, free)
+            pose, _ = choose_pose(floor[i], s[i], mask[i], target[i], sim["base_pose_world"], k, check, tie)
             c = nearest_cells(cand, np.array([pose[:2]]), cell, where)[0]
             row[name] = (bool(exact[c]), float(p[c]))
         seen = nearest_cells(cand, base_to_world(floor[i][mask[i]], sim["base_pose_world"]), cell, where)

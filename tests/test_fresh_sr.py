@@ -53,7 +53,7 @@ def test_nearest_cells_names_an_off_grid_point():
         fs.nearest_cells(cand, np.array([[0.5, 0.0]]), 0.1, "view7")
 
 
-def test_cli_scores_the_label_oracle_and_caches_probabilities(drawer_root, tmp_path):
+def test_cli_scores_the_label_oracle_and_caches_probabilities(drawer_root, tmp_path, monkeypatch):
     out, cache = tmp_path / "fresh.json", tmp_path / "new_dir" / "p.npz"  # folders are made
     args = ["--root", str(drawer_root), "--benchmark", "styles", "--episodes", "2", "--probs", str(cache)]
     assert fs.main([*args, "--json", str(out)]) == 0
@@ -66,6 +66,12 @@ def test_cli_scores_the_label_oracle_and_caches_probabilities(drawer_root, tmp_p
     assert rep["sr"]["best"]["fresh"]["all"] >= rep["sr"]["label"]["fresh"]["all"]
     assert cache.is_file()
     # the cache is reused (no rollout) only for the setting it was made with
+    import floaff_zoo.sim.repeat as repeat
+
+    def no_rollout(workers):
+        raise AssertionError("the cached probabilities were rolled out again")
+
+    monkeypatch.setattr(repeat, "service_runner", no_rollout)
     assert fs.main([*args, "--json", str(out)]) == 0
     assert json.loads(out.read_text())["sr"] == rep["sr"]
     with pytest.raises(SystemExit, match="was made with"):
@@ -233,3 +239,26 @@ def test_split_data_ends_bad_data_with_the_scripts_message(tmp_path, drawer_root
     assert set(scenes) == val and scenes
     with pytest.raises(SystemExit, match="scene_sr: .*no usable 'layouts' scene"):
         fs.split_data("scene_sr", str(drawer_root), "layouts", "test", 256, False)
+
+
+def test_the_label_oracle_stands_on_its_argmax_under_top_k(drawer_root):
+    """Under --top-k the Oracle row went through the footprint check like the models, and stood elsewhere when the
+    view's cloud reached into its argmax cell's footprint; the test's Oracle takes its argmax (top 1, no check)."""
+    import torch
+
+    from floaff_zoo.contract import validate_sample
+    from tests.report._fake_world import loader
+
+    scenes = {s["scene_id"]: s for s in ff.iter_scenes(drawer_root)}
+    samples = [validate_sample(ff.read_sample(sc, v, drawer_root)) for sc in scenes.values() for v in sc["views"]]
+    probs = {sid: np.arange(len(s["candidates"]["xy"]), dtype=float) for sid, s in scenes.items()}  # tells cells apart
+    for batch in loader(samples, 4):
+        label = batch["floor_label"].masked_fill(~batch["floor_mask"], -1.0)
+        for i, best in enumerate(label.argmax(dim=1).tolist()):  # an obstacle (two points) over each argmax cell
+            for j, dx in enumerate((0.0, 0.02)):
+                batch["scene_xyz"][i, j] = batch["floor_xyz"][i, best] + torch.tensor([dx, 0.0, 0.3])
+                batch["scene_mask"][i, j] = True
+        scores = {"label": batch["floor_label"].numpy()}
+        top1 = fs.view_choices(batch, scores, scenes, probs, top_k=1)
+        topk = fs.view_choices(batch, scores, scenes, probs, top_k=batch["floor_xyz"].shape[1])
+        assert [r["label"] for r in topk] == [r["label"] for r in top1]
