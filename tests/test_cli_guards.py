@@ -537,3 +537,64 @@ def test_a_failed_run_that_wrote_files_keeps_its_folder(tmp_path, root, monkeypa
         main([*args, "--trainer.callbacks+=tests.test_cli_guards.WritesThenFails"])
     (notes,) = out.rglob("notes.txt")
     assert notes.read_text() == "written before the failure" and notes.parent.name == "version_0"
+
+
+@pytest.mark.parametrize(
+    ("flag", "value", "message"),
+    [
+        ("--trainer.val_check_interval", "0", r"trainer\.val_check_interval: must be a fraction of an epoch"),
+        ("--trainer.check_val_every_n_epoch", "0", r"trainer\.check_val_every_n_epoch: must be an integer >= 1"),
+        ("--trainer.accumulate_grad_batches", "0", r"trainer\.accumulate_grad_batches: must be an integer >= 1"),
+        ("--ckpt_path", "hpc", r"--ckpt_path hpc: not supported by floaff-zoo"),
+        ("--ckpt_path", "registry", r"--ckpt_path registry: not supported by floaff-zoo"),
+    ],
+)
+def test_a_zero_schedule_value_or_an_unsupported_resume_keyword_is_one_line(
+    tmp_path, root, monkeypatch, flag, value, message
+):
+    """0 for these trainer settings was a ZeroDivisionError mid-fit; --ckpt_path hpc|registry a traceback that left
+    a run folder holding only its config.yaml."""
+    monkeypatch.chdir(root)
+    with pytest.raises(CLIError, match=message):
+        main(_fit(tmp_path, flag, value))
+    assert not list(tmp_path.rglob("config.yaml"))
+
+
+def test_a_resumed_fits_config_neither_resumes_nor_pins_its_log_folder(tmp_path, root, monkeypatch):
+    """A resumed fit's config.yaml kept ckpt_path (``test --config`` of it then tested that older checkpoint without
+    --ckpt_path) and a pinned logger version (a resumed curriculum stage's: ``test --config`` logged into the fit's
+    own folder and replaced its metrics.csv and config.yaml)."""
+    import json
+
+    import yaml
+
+    monkeypatch.chdir(root)
+    first = run_lightning(_fit(tmp_path))
+    run = Path(first.trainer.log_dir)
+    last = run / "checkpoints" / "last.ckpt"
+    init = {"save_dir": str(tmp_path), "name": run.parent.name, "version": run.name}
+    pinned = json.dumps({"class_path": "lightning.pytorch.loggers.CSVLogger", "init_args": init})
+    resumed = run_lightning(
+        _fit(tmp_path, "--trainer.max_epochs", "2", "--ckpt_path", str(last), "--trainer.logger", pinned)
+    )
+    assert Path(resumed.trainer.log_dir) == run  # resumed into its own folder, as the curriculum does
+    saved = yaml.safe_load((run / "config.yaml").read_text())
+    assert saved["ckpt_path"] is None and saved["trainer"]["logger"]["init_args"]["version"] is None
+    rows = (run / "metrics.csv").read_text()
+    with pytest.raises(CLIError, match="needs trained weights"):
+        main(["test", "--config", str(run / "config.yaml"), *quiet_trainer_args(tmp_path)])
+    test = run_lightning(["test", "--config", str(run / "config.yaml"), "--ckpt_path", "best"])
+    assert Path(test.trainer.log_dir) != run and (run / "metrics.csv").read_text() == rows
+
+
+def test_fit_last_resumes_the_run_its_config_came_from(tmp_path, root, monkeypatch):
+    """``fit --config <run>/config.yaml --ckpt_path last`` trained from scratch: Lightning looked for 'last' in the
+    new run's folder, found nothing, warned and started at epoch 0."""
+    monkeypatch.chdir(root)
+    first = run_lightning(_fit(tmp_path))
+    run = Path(first.trainer.log_dir)
+    again = run_lightning(
+        ["fit", "--config", str(run / "config.yaml"), "--trainer.max_epochs", "2", "--ckpt_path", "last"]
+    )
+    assert again.trainer.global_step == 2 * first.trainer.global_step  # one more epoch on top of the first
+    assert again.trainer.ckpt_path == str((run / "checkpoints" / "last.ckpt").resolve())

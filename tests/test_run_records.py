@@ -92,6 +92,13 @@ def test_corrupt_stage_record_is_an_error_naming_it(tmp_path, root, monkeypatch)
     stage_file.write_text('{"stage": "stage1_pnp", "status": "do')  # truncated by a full disk, say
     with pytest.raises(CurriculumError, match=str(stage_file)):
         run_curriculum(EXP, root=tmp_path, runner=_never)
+    stage_file.write_bytes(b'{"stage": "caf\xe9"}')  # bytes that are no UTF-8: a UnicodeDecodeError traceback
+    with pytest.raises(CurriculumError, match=f"{stage_file}: corrupt curriculum record"):
+        run_curriculum(EXP, root=tmp_path, runner=_never)
+    latin = tmp_path / "latin.yaml"
+    latin.write_bytes(b"stages:\n  - name: caf\xe9\n")
+    with pytest.raises(CurriculumError, match=f"experiment config {latin}: invalid YAML"):
+        curriculum.load_experiment(latin)
 
 
 @pytest.mark.parametrize(("field", "value"), [("checkpoint", 123), ("before", 5), ("args", ["fit", 3])])

@@ -232,10 +232,35 @@ def _yaml_mapping(path: str) -> dict[str, Any]:
     return data if isinstance(data, dict) else {}
 
 
+def _check_schedule_values(trainer: Namespace) -> None:
+    """Trainer settings whose 0 Lightning meets as a ZeroDivisionError mid-fit (a traceback naming none of them)."""
+    for key in ("check_val_every_n_epoch", "accumulate_grad_batches"):
+        value = trainer.get(key)
+        none_ok = key == "check_val_every_n_epoch"  # null: validate by val_check_interval alone
+        if value is None and none_ok:
+            continue
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            alt = " or null" if none_ok else ""
+            raise CLIError(f"trainer.{key}: must be an integer >= 1{alt}, got {value!r}")
+    interval = trainer.get("val_check_interval")
+    ok = interval is None or (
+        not isinstance(interval, bool)
+        and (interval >= 1 if isinstance(interval, int) else isinstance(interval, float) and 0 < interval <= 1)
+    )
+    if not ok:
+        raise CLIError(
+            "trainer.val_check_interval: must be a fraction of an epoch in (0, 1], a number of batches >= 1 "
+            f"or null, got {interval!r}"
+        )
+
+
 class SaveConfig(SaveConfigCallback):
     """Lightning's config.yaml of a run, with the batch limits given as integers written as integers: the parser
     stores ``1`` as ``1.0`` (see ``FloAffCLI._integer_limits``), and rerunning a config that says ``1.0`` would run
-    every batch."""
+    every batch. A fit's file leaves out where it resumed from (``ckpt_path``) and a fixed logger ``version`` (a
+    resumed curriculum stage pins it): ``floaff-zoo test --config <run>/config.yaml`` read them, tested the older
+    checkpoint the fit resumed from without ``--ckpt_path``, and logged into the fit's own folder, replacing its
+    metrics.csv and config.yaml."""
 
     integer_limits: dict[str, int] = {}
     _log_dir: str | None = None
@@ -250,7 +275,7 @@ class SaveConfig(SaveConfigCallback):
     def save_config(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
         """Called on rank 0 right after the file is written."""
         path = Path(self._log_dir or "") / self.config_filename
-        if not self.integer_limits or not self.save_to_log_dir or not path.is_file():
+        if not self.save_to_log_dir or not path.is_file():
             return
         data = yaml.safe_load(path.read_text())
         trainer_cfg = data.get("trainer") if isinstance(data, dict) else None
@@ -258,6 +283,14 @@ class SaveConfig(SaveConfigCallback):
             return
         for stage_name, value in self.integer_limits.items():
             trainer_cfg[f"limit_{stage_name}_batches"] = value
+        if stage == "fit":
+            if data.get("ckpt_path") is not None:
+                data["ckpt_path"] = None
+            loggers = trainer_cfg.get("logger")
+            for logger in loggers if isinstance(loggers, list) else [loggers]:
+                init = logger.get("init_args") if isinstance(logger, dict) else None
+                if isinstance(init, dict) and init.get("version") is not None:
+                    init["version"] = None
         text = yaml.safe_dump(data, sort_keys=False)
         atomic_write(path, lambda f: f.write(text.encode()))
 
@@ -294,6 +327,7 @@ class FloAffCLI(LightningCLI):
         clip = trainer.get("gradient_clip_val")
         if clip is not None and not (math.isfinite(float(clip)) and clip >= 0):  # Lightning's message misleads
             raise CLIError(f"trainer.gradient_clip_val: must be a finite number >= 0 or null, got {clip}")
+        _check_schedule_values(trainer)
         train = cfg.model.get("init_args", Namespace()).get("train") if isinstance(cfg.model, Namespace) else None
         if train is not None and not isinstance(train, (Namespace, dict)):  # a TypeError deep in jsonargparse
             raise CLIError(f"model.init_args.train: expected a mapping of training settings, got {train!r}")
@@ -331,15 +365,13 @@ class FloAffCLI(LightningCLI):
             )
 
     def _resolve_ckpt_alias(self) -> None:
-        """``--ckpt_path best|last`` of an evaluation command -> the checkpoint file (``runs.resolve_ckpt_alias``).
-
-        ``fit`` keeps Lightning's own ``last`` (resume from the fit's checkpoint callback)."""
+        """``--ckpt_path best|last`` of an evaluation command, and ``last`` of ``fit`` (resume), -> the checkpoint
+        file (``runs.resolve_ckpt_alias``). Lightning's own ``last`` looks in the new run's folder, where a fit
+        finds nothing and trains from scratch."""
         sub = self.config.get("subcommand")
-        if sub not in EVAL_COMMANDS:
-            return
-        cfg = self.config[sub]
-        alias = cfg.get("ckpt_path")
-        if alias in ("best", "last"):
+        cfg = self.config[sub] if sub else None
+        alias = cfg.get("ckpt_path") if cfg is not None else None
+        if (sub in EVAL_COMMANDS and alias in ("best", "last")) or (sub == "fit" and alias == "last"):
             cfg.ckpt_path = resolve_ckpt_alias(alias, self._run_dir(cfg), self._configured_class("model"))
 
     def _check_ckpt_file(self) -> None:
@@ -349,8 +381,9 @@ class FloAffCLI(LightningCLI):
         Lightning's own keywords ``last``/``hpc``/``registry`` pass) and by ``_guard_eval`` otherwise."""
         sub = self.config.get("subcommand")
         ckpt = self.config[sub].get("ckpt_path") if sub else None
-        keyword = ckpt in ("last", "hpc", "registry")
-        if sub == "fit" and ckpt is not None and not keyword and not Path(str(ckpt)).is_file():
+        if ckpt in ("hpc", "registry"):  # Lightning's SLURM / model-registry resumes: tracebacks, and an empty run
+            raise CLIError(f"--ckpt_path {ckpt}: not supported by floaff-zoo; pass a checkpoint file, best or last")
+        if sub == "fit" and ckpt is not None and ckpt != "last" and not Path(str(ckpt)).is_file():
             raise CLIError(f"--ckpt_path {ckpt}: no such file")
         if ckpt is None or not Path(str(ckpt)).is_file():
             return

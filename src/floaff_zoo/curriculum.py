@@ -112,8 +112,8 @@ def _load_chain(path: Path, seen: tuple[Path, ...], by: Path | None = None) -> d
     if path.resolve() in seen:
         raise CurriculumError(f"experiment config {path}: 'extends' cycle {[str(p) for p in seen]}")
     try:
-        cfg = yaml.safe_load(path.read_text()) or {}
-    except yaml.YAMLError as exc:
+        cfg = yaml.safe_load(path.read_text(encoding="utf-8")) or {}
+    except (yaml.YAMLError, UnicodeDecodeError) as exc:
         raise CurriculumError(f"experiment config {path}: invalid YAML ({exc})") from exc
     if not isinstance(cfg, dict):
         raise CurriculumError(f"experiment config {path}: expected a mapping at the top level")
@@ -331,8 +331,8 @@ def _read_json(path: Path, fields: dict[str, tuple[type, ...]] | None = None) ->
     if not path.is_file():
         return None
     try:
-        record = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as exc:
+        record = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:  # ValueError: invalid JSON, or bytes that are no UTF-8
         raise CurriculumError(f"{path}: corrupt curriculum record ({exc}); fix or delete it") from exc
     if not isinstance(record, dict):
         raise CurriculumError(f"{path}: expected a JSON object, got {type(record).__name__}; fix or delete it")
