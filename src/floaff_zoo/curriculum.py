@@ -584,10 +584,13 @@ def _resume(
     """Where a killed stage resumes: (``last.ckpt``, extra fit flags), or (None, []) for a fresh fit. Only a run
     written with the same stage digest (``running``'s) and the same input files is resumed, into its own directory
     when its logger allows."""
-    if not record or record.get("status") != "running":
-        return None, []
-    _claim_runs(sdir, record)
+    was_running = bool(record) and record.get("status") == "running"
+    if was_running:
+        _claim_runs(sdir, record)
+    # by the runs' own marks: a fit of these arguments killed, then another fit's record put in the folder
     last = _resume_point(sdir, running["digest"])
+    if last is None and not was_running:
+        return None, []
     shared = _shared_run(sdir, running["digest"]) if last is None else None
     if shared is not None:
         print(
@@ -832,6 +835,7 @@ def run_curriculum(
             if finished is not None:
                 if finished is not record:  # an earlier fit with these arguments: it becomes the folder's record
                     _finish_runs(finished)  # (the runner that replaced its record marked them; an older one did not)
+                    _claim_runs(sdir, record)  # a killed fit's running record goes: its runs keep its digest
                     _write_json(sdir / STAGE_FILE, finished)
                 record = finished
                 print(f"[curriculum] stage {name}: already finished ({record['checkpoint']}), skipping", file=out)

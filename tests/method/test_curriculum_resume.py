@@ -440,3 +440,21 @@ def test_a_run_marked_by_an_older_runner_stays_resumable_after_its_resumed_fit_w
     assert not json.loads((run / cur.RUN_FILE).read_text()).get("shared")
     cur._mark_shared(run, {"stage": "s", "digest": "other", "args": ["fit"], "inputs": {}}, started)
     assert json.loads((run / cur.RUN_FILE).read_text()).get("shared") is True  # another digest still marks it
+
+
+def test_a_killed_fit_resumes_after_a_finished_fit_of_other_arguments_took_its_folder(tmp_path):
+    """A finished fit found again by its digest replaced a killed fit's running record without marking the killed
+    run as its own, and only a running record was looked at for a resume: the killed fit started afresh."""
+    exp = _experiment(tmp_path, max_epochs=1)
+    run_curriculum(exp)  # arguments A, finished
+    longer = ["trainer.max_epochs=4"]
+    with pytest.raises(KeyboardInterrupt):
+        run_curriculum(exp, sets=longer, runner=_killed_after(2))  # arguments B, killed after 2 epochs
+
+    def refuse(args):
+        raise AssertionError(f"a finished stage was rerun: {args}")
+
+    run_curriculum(exp, runner=refuse)  # A again: its record back in the folder
+    seen: list = []
+    (rec,) = run_curriculum(exp, sets=longer, runner=_spy(seen))
+    assert "--ckpt_path" in seen[0] and rec["resumed_from"]
