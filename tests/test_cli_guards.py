@@ -598,3 +598,19 @@ def test_fit_last_resumes_the_run_its_config_came_from(tmp_path, root, monkeypat
     )
     assert again.trainer.global_step == 2 * first.trainer.global_step  # one more epoch on top of the first
     assert again.trainer.ckpt_path == str((run / "checkpoints" / "last.ckpt").resolve())
+
+
+def test_model_settings_of_a_config_file_that_the_checkpoint_replaces_are_named(tmp_path, root, monkeypatch, capsys):
+    """With --ckpt_path the checkpoint's hyper-parameters replace the model config: a setting in a later --config
+    file (an evaluation-time choice) was dropped without a word, while the same flag on the command line is kept."""
+    monkeypatch.chdir(root)
+    run = Path(run_lightning(_fit(tmp_path)).trainer.log_dir)
+    extra = tmp_path / "eval.yaml"
+    extra.write_text("model:\n  init_args:\n    train:\n      lr: 0.5\n")
+    base = ["validate", "--config", str(run / "config.yaml"), "--config", str(extra), "--ckpt_path", "best"]
+    capsys.readouterr()
+    run_lightning(base)
+    err = capsys.readouterr().err
+    assert "the --config value(s) of model train are replaced by those of" in err, err
+    run_lightning([*base, "--model.init_args.train", '{"lr": 0.5}'])
+    assert "the --config value(s) of model" not in capsys.readouterr().err

@@ -232,6 +232,18 @@ def _yaml_mapping(path: str) -> dict[str, Any]:
     return data if isinstance(data, dict) else {}
 
 
+def _model_init_args(config: dict[str, Any]) -> dict[str, Any]:
+    """The ``model.init_args`` mapping of a config file's top level ({} when it has none)."""
+    model = config.get("model")
+    init = model.get("init_args") if isinstance(model, dict) else None
+    return init if isinstance(init, dict) else {}
+
+
+def _plain(value: Any) -> Any:
+    """A parsed config value as plain data (namespaces as dicts), to compare two of them."""
+    return value.as_dict() if isinstance(value, Namespace) else value
+
+
 def _check_schedule_values(trainer: Namespace) -> None:
     """Trainer settings whose 0 Lightning meets as a ZeroDivisionError mid-fit (a traceback naming none of them)."""
     for key in ("check_val_every_n_epoch", "accumulate_grad_batches"):
@@ -346,11 +358,14 @@ class FloAffCLI(LightningCLI):
         if sub:
             _upgrade_legacy_model_args(self.config[sub].get("model"))
         keys = getattr(self, "_explicit_model_args", [])
-        if before is None or not keys:
+        if before is None:
             return
         after = self.config[sub].model
         if _import_class(after.get("class_path")) is not _import_class(before.get("class_path")):
             return  # another model class: the command-line values belong to the config's class
+        self._note_dropped_model_args(before, after, keys)
+        if not keys:
+            return
         kept = []
         for key in keys:
             full = f"init_args.{key}"
@@ -361,6 +376,34 @@ class FloAffCLI(LightningCLI):
             print(
                 f"floaff-zoo: model hyper-parameters from {self.config[sub].ckpt_path}, except "
                 f"{', '.join(kept)} (given on the command line)",
+                file=sys.stderr,
+            )
+
+    def _note_dropped_model_args(self, before: Namespace, after: Namespace, explicit: list[str]) -> None:
+        """Say which model settings of the ``--config`` files the checkpoint's hyper-parameters replaced (an
+        evaluation-time choice in a config file, e.g. ``eval_yaw_source: gt``, was dropped without a word); those
+        typed on the command line are applied again (``_parse_ckpt_path``)."""
+        ckpt = self.config[self.config.get("subcommand")].get("ckpt_path")
+        if not ckpt or not Path(str(ckpt)).is_file():
+            return
+        old, new = before.get("init_args") or Namespace(), after.get("init_args") or Namespace()
+        # keys the --config files set, a run's own config.yaml left out (its values are the run's: ``weights`` is
+        # blanked in the checkpoint on purpose, derived records such as ``axisnet_arch`` are added there)
+        given = {
+            k
+            for f in config_files(self._raw_args)
+            if not (Path(f).parent / "checkpoints").is_dir()
+            for k in _model_init_args(_yaml_mapping(f))
+        }
+        dropped = [
+            k
+            for k in sorted(given)
+            if k not in explicit and k in vars(old) and k in vars(new) and _plain(old[k]) != _plain(new[k])
+        ]
+        if dropped:
+            print(
+                f"floaff-zoo: the --config value(s) of model {', '.join(dropped)} are replaced by those of {ckpt} "
+                "(give one on the command line, --model.init_args.<name>, to evaluate with it)",
                 file=sys.stderr,
             )
 
