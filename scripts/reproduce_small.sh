@@ -97,9 +97,13 @@ test_run() {
   touch "$before"
   "$FZ" test --config "$run/config.yaml" --config "$EVAL" --data.init_args.tasks "$TASKS" \
     --ckpt_path "$ckpt" --trainer.callbacks.init_args.label "$label" "$@"
-  # the report lands in the next version_<n> beside the fit run: the newest report.json there
+  # the report lands in the next version_<n> beside the fit run: the one written since, with this job's label (jobs
+  # testing one run at once, e.g. occ_recipe_rs<a>_s<n> and occ_recipe_rs<b>_s<n>, write theirs beside it too)
   local report
-  report=$(find "$run/.." -name report.json -newer "$before" | head -n 1)
+  report=$(find "$run/.." -name report.json -newer "$before" -print0 | xargs -0 -r python3 -c '
+import json, sys
+label, files = sys.argv[1], sys.argv[2:]
+print(next((f for f in files if json.load(open(f)).get("label") == label), ""))' "$label")
   copy_report "$report" "$bench" "$job"
 }
 
