@@ -45,6 +45,8 @@ def test_a_scene_cached_from_another_generator_version_is_refused(tmp_path):
     newer = {"a": {**SCENES["a"], "generator_version": "2.1.0"}}
     with pytest.raises(ValueError, match="scene a was cached from generator 2.0.0 data, this copy is 2.1.0"):
         repeat.read_probs(path, SETTING, newer)
+    patch = {"a": {**SCENES["a"], "generator_version": "2.0.1"}}  # a patch release changes no rollout
+    assert repeat.read_probs(path, SETTING, patch)["a"].tolist() == [0.0, 0.5, 1.0]
     repeat.write_probs(path, SETTING, {"a": np.array([0.0, 0.5, 1.0])})  # an older cache: nothing to compare
     assert repeat.read_probs(path, SETTING, newer)["a"].tolist() == [0.0, 0.5, 1.0]
 

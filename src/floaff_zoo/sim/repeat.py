@@ -26,6 +26,7 @@ import numpy as np
 
 from floaff_zoo.atomic import atomic_write
 from floaff_zoo.frames import ROLLOUT_POSE_DECIMALS
+from floaff_zoo.sim.generate import labels_version
 
 __all__ = [
     "FRESH_SEED0",
@@ -90,8 +91,9 @@ _MADE_FROM = "generator_versions"
 
 def read_probs(path: Path, setting: dict, scenes: dict[str, dict]) -> dict[str, np.ndarray]:
     """Cached fresh probabilities (scene id -> [M]) made with ``setting``; a mismatch, a scene cached from data of
-    another generator version (a scene id names its kitchen, not its rollouts: 2.1 changed the double-door push) or a
-    corrupt file is an error. Caches written before the versions were recorded are not checked for them."""
+    another generator minor version (a scene id names its kitchen, not its rollouts: 2.1 changed the double-door push;
+    a patch release such as 2.3.1 changes no rollout) or a corrupt file is an error. Caches written before the
+    versions were recorded are not checked for them."""
     try:
         with np.load(path) as z:
             made = json.loads(str(z["setting"]))
@@ -105,7 +107,7 @@ def read_probs(path: Path, setting: dict, scenes: dict[str, dict]) -> dict[str, 
         if sid in scenes and p.shape != (len(scenes[sid]["candidates"]["xy"]),):
             raise ValueError(f"{path}: scene {sid} has {p.shape} probabilities for its candidates")
         now = scenes.get(sid, {}).get("generator_version")
-        if sid in versions and now is not None and versions[sid] != now:
+        if sid in versions and now is not None and labels_version(versions[sid]) != labels_version(now):
             raise ValueError(
                 f"{path}: scene {sid} was cached from generator {versions[sid]} data, this copy is {now}; delete it"
             )
