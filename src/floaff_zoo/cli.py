@@ -421,11 +421,12 @@ class FloAffCLI(LightningCLI):
         """A ``--ckpt_path`` file must be a Lightning checkpoint: Lightning's own loaders fail on a truncated file,
         a text file or a bare state dict with a traceback that never names it. The check memory-maps the file, so a
         large one costs little. A path that is no file is refused here for ``fit`` (before a run folder is made;
-        Lightning's own keywords ``last``/``hpc``/``registry`` pass) and by ``_guard_eval`` otherwise."""
+        ``last`` was resolved to its file) and by ``_guard_eval`` otherwise; Lightning's ``hpc``/``registry`` resumes
+        are refused."""
         sub = self.config.get("subcommand")
         ckpt = self.config[sub].get("ckpt_path") if sub else None
         if ckpt in ("hpc", "registry"):  # Lightning's SLURM / model-registry resumes: tracebacks, and an empty run
-            raise CLIError(f"--ckpt_path {ckpt}: not supported by floaff-zoo; pass a checkpoint file, best or last")
+            raise CLIError(f"--ckpt_path {ckpt}: not supported by floaff-zoo; pass a checkpoint file or last")
         if sub == "fit" and ckpt is not None and ckpt != "last" and not Path(str(ckpt)).is_file():
             raise CLIError(f"--ckpt_path {ckpt}: no such file")
         if ckpt is None or not Path(str(ckpt)).is_file():
