@@ -51,6 +51,7 @@ __all__ = [
     "commit_scene_dir",
     "iter_scenes",
     "labels_digest",
+    "labels_version",
     "read_json",
     "read_manifest",
     "read_sample",
@@ -216,6 +217,11 @@ def _check_shape(path: Path, name: str, arr: np.ndarray, dtype: str, pattern: tu
             raise FormatError(f"{path}: field {name!r} has shape {arr.shape}, expected {pattern}")
     if arr.dtype.kind == "f" and not np.all(np.isfinite(arr)):
         raise NonFiniteFieldError(f"{path}: field {name!r} contains NaN or inf")
+
+
+def labels_version(version: str) -> tuple[str, ...]:
+    """'2.1.0' -> ('2', '1'): the part of a generator version that labels depend on (a patch release changes none)."""
+    return tuple(version.split(".")[:2])
 
 
 def check_format_version(version: Any, path: str | Path) -> int:

@@ -48,16 +48,7 @@ from floaff_zoo.runtime import THREAD_ENV, one_thread_children
 from floaff_zoo.sim import fileformat as ff
 from floaff_zoo.sim.presets import ALL_BENCHMARKS, ALL_TASKS, PRESETS, GenPreset, get_preset, view_counts
 
-__all__ = [
-    "GENERATOR_VERSION",
-    "SceneJob",
-    "derive_seed",
-    "generate",
-    "labels_version",
-    "main",
-    "plan_jobs",
-    "run_job",
-]
+__all__ = ["GENERATOR_VERSION", "SceneJob", "derive_seed", "generate", "main", "plan_jobs", "run_job"]
 
 GENERATOR_VERSION = "2.3.1"
 #: task reset seed of the rollouts (annotate_scene) and of the rendered views, so both see the same fixture state
@@ -143,11 +134,6 @@ def _scene_id(spec: Any) -> str:
     return sid() if callable(sid) else str(sid)
 
 
-def labels_version(version: str) -> tuple[str, ...]:
-    """'2.1.0' -> ('2', '1'): the part of a generator version that labels depend on (a patch release changes none)."""
-    return tuple(version.split(".")[:2])
-
-
 def find_done(out: Path, job: SceneJob, min_views: int = 0) -> str | None:
     """scene_id of an already committed scene of this slot (any attempt) in this format version, else None.
 
@@ -166,7 +152,7 @@ def find_done(out: Path, job: SceneJob, min_views: int = 0) -> str | None:
                 continue
             if rec.get("views_requested", [job.n_front, job.n_side]) != [job.n_front, job.n_side]:
                 continue  # the paper preset's counts per scene follow --n-train / --n-test
-            if labels_version(str(rec.get("generator_version", ""))) != labels_version(GENERATOR_VERSION):
+            if ff.labels_version(str(rec.get("generator_version", ""))) != ff.labels_version(GENERATOR_VERSION):
                 continue
             if "min_views" in rec:
                 topped_up = rec["min_views"] == min_views

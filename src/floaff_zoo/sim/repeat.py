@@ -26,7 +26,7 @@ import numpy as np
 
 from floaff_zoo.atomic import atomic_write
 from floaff_zoo.frames import ROLLOUT_POSE_DECIMALS
-from floaff_zoo.sim.generate import labels_version
+from floaff_zoo.sim.fileformat import labels_version
 
 __all__ = [
     "FRESH_SEED0",
