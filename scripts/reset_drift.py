@@ -16,14 +16,31 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from pathlib import Path
 
 import numpy as np
 
 from floaff_zoo.sim import fileformat as ff
-from floaff_zoo.sim.kitchen import PARK_POSE, SceneSpec, build_scene
-from floaff_zoo.sim.rollout import hold_still
+from floaff_zoo.sim.kitchen import PARK_POSE, SceneSpec, build_scene, release_scene
+
+try:
+    from floaff_zoo.sim.rollout import hold_still
+except ImportError:  # a simulator before generator 2.3 first on PYTHONPATH (to check an older copy): the same loop
+    import mujoco
+
+    from floaff_zoo.sim.controllers import CTRL_DT
+
+    def hold_still(scene, seconds: float) -> None:
+        """``floaff_zoo.sim.rollout.hold_still`` of generator 2.3: base and arm held, ``seconds`` simulated."""
+        m, d = scene.model, scene.data
+        nsub = max(1, int(round(CTRL_DT / m.opt.timestep)))
+        q = scene.robot.ik_q(d)
+        scene.robot.hold(d, q[1:], float(q[0]), True)
+        for _ in range(int(round(seconds / (nsub * m.opt.timestep)))):
+            mujoco.mj_step(m, d, nsub)
+
 
 #: the parts' opening fractions in a task's state (PnPCounterToCab's object and gripper entries are left out)
 OPENING_KEYS = ("drawer_open", "door_pos_open", "door_neg_open", "door_open", "cab_door_open")
@@ -37,6 +54,7 @@ def openings(scene) -> dict[str, float]:
 def scene_drift(spec: SceneSpec, seconds: float) -> dict:
     """{"reset": {part: opening}, "after": {part: opening}, "moved": max |after - reset|} for one scene."""
     scene = build_scene(spec)
+    release_scene(spec)  # one scene each: the per-process cache kept every compiled kitchen (~70 MB) otherwise
     scene.robot.set_base_pose(scene.data, *PARK_POSE)
     scene.reset_task(np.random.default_rng(0))
     before = openings(scene)
@@ -46,15 +64,30 @@ def scene_drift(spec: SceneSpec, seconds: float) -> dict:
     return {"reset": before, "after": after, "moved": round(moved, 4)}
 
 
-def read_spec(folder: Path) -> tuple[dict, SceneSpec]:
-    """A scene folder's scene.json and the SceneSpec its ``spec`` names (FormatError naming the file otherwise)."""
+def read_spec(folder: Path) -> tuple[dict, SceneSpec | None]:
+    """A scene folder's scene.json and the SceneSpec its ``spec`` names (None for a slot the generator dropped or
+    failed: no scene to reset; FormatError naming the file for a spec that names no kitchen)."""
     path = folder / ff.SCENE_JSON
     meta = ff.read_json(path)
-    spec = meta.get("spec") if isinstance(meta, dict) else None
+    if isinstance(meta, dict) and meta.get("status", "ok") != "ok":
+        return meta, None
     try:
-        return meta, SceneSpec(int(spec["layout_id"]), int(spec["style_id"]), int(spec["seed"]), str(spec["task"]))
+        return meta, SceneSpec.from_dict(meta["spec"])
     except (TypeError, KeyError, ValueError) as exc:
         raise ff.FormatError(f"{path}: 'spec' must hold layout_id, style_id, seed and task ({exc!r})") from exc
+
+
+def scene_folders(root: Path, benchmark: str | None) -> list[Path]:
+    """The scene folders of ``root`` that hold a scene.json, as ``fileformat.iter_scenes`` lists them (a killed run's
+    ``.staging`` and the ``.retired`` scenes left out)."""
+    benches = [benchmark] if benchmark else list(ff.BENCHMARKS)
+    return [
+        d
+        for b in benches
+        if (root / b).is_dir()
+        for d in sorted((root / b).iterdir())
+        if d.is_dir() and not d.name.startswith(".") and (d / ff.SCENE_JSON).is_file()
+    ]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -65,15 +98,16 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--tol", type=float, default=0.005, help="a move larger than this (fraction of opening) counts")
     p.add_argument("--json", type=Path, default=None, help="write every scene's record here")
     args = p.parse_args(argv)
-    if args.seconds <= 0 or args.tol < 0:
-        p.error(f"--seconds must be > 0 and --tol >= 0, got {args.seconds} and {args.tol}")
-    benches = [args.benchmark] if args.benchmark else ["layouts", "styles"]
-    folders = [d for b in benches if (args.root / b).is_dir() for d in sorted((args.root / b).iterdir()) if d.is_dir()]
+    if not (0 < args.seconds < math.inf and 0 <= args.tol < math.inf):  # NaN passed a plain comparison
+        p.error(f"--seconds must be a finite number > 0 and --tol one >= 0, got {args.seconds} and {args.tol}")
+    folders = scene_folders(args.root, args.benchmark)
     if not folders:
-        raise FileNotFoundError(f"{args.root}: no scene folders under {', '.join(benches)}")
+        raise FileNotFoundError(f"{args.root}: no scene folders under {args.benchmark or ', '.join(ff.BENCHMARKS)}")
     records, moved = [], 0
     for d in folders:
         meta, spec = read_spec(d)
+        if spec is None:
+            continue
         rec = {"scene": f"{d.parent.name}/{d.name}", "split": meta.get("split"), **scene_drift(spec, args.seconds)}
         records.append(rec)
         flag = rec["moved"] > args.tol
