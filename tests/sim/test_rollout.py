@@ -215,9 +215,13 @@ def test_close_releases_the_scenes_built_for_rollouts_in_this_process():
     import floaff_zoo.sim.kitchen as kitchen
     import floaff_zoo.sim.rollout as ro
 
-    spec = SceneSpec(0, 0, 7, "CloseDrawer")
-    svc = RolloutService(workers=1)
+    spec, other = SceneSpec(0, 0, 7, "CloseDrawer"), SceneSpec(0, 0, 8, "CloseDrawer")
+    svc, beside = RolloutService(workers=1), RolloutService(workers=1)
     svc.run([(spec, (9.0, 9.0, 0.0))])
+    beside.run([(other, (9.0, 9.0, 0.0))])
     assert spec in ro._WORKER_SCENES and (0, 0, 7) in kitchen._CACHE
     svc.close()
     assert spec not in ro._WORKER_SCENES and (0, 0, 7) not in kitchen._CACHE
+    assert other in ro._WORKER_SCENES  # a service beside it keeps its scenes until it closes
+    beside.close()
+    assert other not in ro._WORKER_SCENES

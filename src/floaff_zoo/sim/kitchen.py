@@ -393,7 +393,8 @@ class _Builder:
         self.box(body, [-D, -w / 2, H - 0.04], [0.025, w / 2, H], self.m_top)
 
     def solid_base(self, body, w: float, D: float, fronts: int = 1, drawer_row: bool = True) -> None:
-        """Static base cabinet with ``fronts`` decorative doors (0: a blind panel) and a drawer row, with handles."""
+        """Static base cabinet with ``fronts`` decorative doors and, with ``drawer_row``, a drawer row, with handles
+        (``fronts`` 0 and no drawer row: the bare carcass front, no handle: a corner filler)."""
         H = self.st["counter_h"]
         self.box(body, [-D, -w / 2, 0.10], [0.0, w / 2, H - 0.04], self.m_carcass)
         self.box(body, [-D, -w / 2, 0.0], [-0.06, w / 2, 0.10], self.m_dark)
@@ -748,7 +749,7 @@ def _widths(kinds: list[str], rng: np.random.Generator, scale: float, D: float) 
     return out
 
 
-#: gap (m) between a side run and the back run's front line (a filler strip): flush, a door of the side run opened at
+#: gap (m), left empty, between a side run and the back run's front line: flush, a door of the side run opened at
 #: the corner, or its drawer pulled out, ran into the fronts and handles of the back run, and the contact forces of
 #: the reset state then moved it (generator 2.3)
 CORNER_GAP = 0.08

@@ -276,6 +276,7 @@ class RolloutService:
         self.cache: dict[tuple, RolloutResult] = {}
         self._pool: cf.ProcessPoolExecutor | None = None
         self._ray_started = False  # this service called ray.init, so close() shuts it down
+        self._built_here: set[SceneSpec] = set()  # scenes of rollouts this service ran in this process
 
     def _key(self, spec: SceneSpec, pose, seed: int) -> tuple:
         x, y, yaw = _check_pose(pose)
@@ -296,6 +297,7 @@ class RolloutService:
         payload = [(k[0].to_dict(), (k[1], k[2], k[3]), k[4]) for k in todo]
         t0 = time.perf_counter()
         if self.workers == 1 or len(payload) <= 1:
+            self._built_here.update(k[0] for k in todo)
             results = []
             for i, p in enumerate(payload):
                 results.append(_run_one(self.job_fn, p))
@@ -405,12 +407,14 @@ class RolloutService:
 
     def close(self) -> None:
         """Stop the pool (rollouts still queued by an interrupted ``run`` are dropped, not waited for) and release
-        the scenes this process built for rollouts it ran itself."""
+        the scenes this service built for the rollouts it ran in this process (another service's scenes stay)."""
         if self._pool is not None:
             self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = None
-        for spec in list(_WORKER_SCENES):  # ~80 MB each, for the life of a training process
-            release_scene(_WORKER_SCENES.pop(spec).spec)
+        for spec in self._built_here:  # ~80 MB each, for the life of a training process; another service's stay
+            if _WORKER_SCENES.pop(spec, None) is not None:
+                release_scene(spec)
+        self._built_here.clear()
         if self._ray_started:
             import ray
 
