@@ -598,6 +598,10 @@ def test_fit_last_resumes_the_run_its_config_came_from(tmp_path, root, monkeypat
     )
     assert again.trainer.global_step == 2 * first.trainer.global_step  # one more epoch on top of the first
     assert again.trainer.ckpt_path == str((run / "checkpoints" / "last.ckpt").resolve())
+    # without a run's config, 'last' would be the newest run of the class under default_root_dir, maybe another
+    # experiment's: refused
+    with pytest.raises(CLIError, match="fit --ckpt_path last resumes the run a --config <run>/config.yaml came from"):
+        main(_fit(tmp_path, "--ckpt_path", "last"))
 
 
 def test_model_settings_of_a_config_file_that_the_checkpoint_replaces_are_named(tmp_path, root, monkeypatch, capsys):
@@ -613,4 +617,6 @@ def test_model_settings_of_a_config_file_that_the_checkpoint_replaces_are_named(
     err = capsys.readouterr().err
     assert "the --config value(s) of model train are replaced by those of" in err, err
     run_lightning([*base, "--model.init_args.train", '{"lr": 0.5}'])
+    assert "the --config value(s) of model" not in capsys.readouterr().err
+    run_lightning([*base, "--model.init_args.train.lr", "0.5"])  # a nested flag is applied again too: no note
     assert "the --config value(s) of model" not in capsys.readouterr().err

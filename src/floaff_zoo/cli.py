@@ -293,16 +293,19 @@ class SaveConfig(SaveConfigCallback):
         trainer_cfg = data.get("trainer") if isinstance(data, dict) else None
         if not isinstance(trainer_cfg, dict):
             return
+        changed = bool(self.integer_limits)
         for stage_name, value in self.integer_limits.items():
             trainer_cfg[f"limit_{stage_name}_batches"] = value
         if stage == "fit":
             if data.get("ckpt_path") is not None:
-                data["ckpt_path"] = None
+                data["ckpt_path"], changed = None, True
             loggers = trainer_cfg.get("logger")
             for logger in loggers if isinstance(loggers, list) else [loggers]:
                 init = logger.get("init_args") if isinstance(logger, dict) else None
                 if isinstance(init, dict) and init.get("version") is not None:
-                    init["version"] = None
+                    init["version"], changed = None, True
+        if not changed:
+            return
         text = yaml.safe_dump(data, sort_keys=False)
         atomic_write(path, lambda f: f.write(text.encode()))
 
@@ -398,12 +401,15 @@ class FloAffCLI(LightningCLI):
         dropped = [
             k
             for k in sorted(given)
-            if k not in explicit and k in vars(old) and k in vars(new) and _plain(old[k]) != _plain(new[k])
+            if not any(e == k or e.startswith(f"{k}.") for e in explicit)  # applied again: not dropped
+            and k in vars(old)
+            and k in vars(new)
+            and _plain(old[k]) != _plain(new[k])
         ]
         if dropped:
             print(
                 f"floaff-zoo: the --config value(s) of model {', '.join(dropped)} are replaced by those of {ckpt} "
-                "(give one on the command line, --model.init_args.<name>, to evaluate with it)",
+                "(give one on the command line, --model.init_args.<name>, to use it)",
                 file=sys.stderr,
             )
 
@@ -414,8 +420,19 @@ class FloAffCLI(LightningCLI):
         sub = self.config.get("subcommand")
         cfg = self.config[sub] if sub else None
         alias = cfg.get("ckpt_path") if cfg is not None else None
-        if (sub in EVAL_COMMANDS and alias in ("best", "last")) or (sub == "fit" and alias == "last"):
+        if sub in EVAL_COMMANDS and alias in ("best", "last"):
             cfg.ckpt_path = resolve_ckpt_alias(alias, self._run_dir(cfg), self._configured_class("model"))
+        elif sub == "fit" and alias == "last":
+            # only the run a --config came from: the newest run of the class under default_root_dir may be another
+            # experiment's (a Styles fit resumed a Layouts run that way)
+            run = self._run_dir(cfg)
+            if not (run / "checkpoints").is_dir():
+                raise CLIError(
+                    "fit --ckpt_path last resumes the run a --config <run>/config.yaml came from; none was given "
+                    "(pass that config, or the checkpoint file)"
+                )
+            cfg.ckpt_path = resolve_ckpt_alias(alias, run, self._configured_class("model"))
+            print(f"floaff-zoo fit: resuming {cfg.ckpt_path}", file=sys.stderr)
 
     def _check_ckpt_file(self) -> None:
         """A ``--ckpt_path`` file must be a Lightning checkpoint: Lightning's own loaders fail on a truncated file,
