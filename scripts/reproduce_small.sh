@@ -102,8 +102,13 @@ test_run() {
   local report
   report=$(find "$run/.." -name report.json -newer "$before" -print0 | xargs -0 -r python3 -c '
 import json, sys
+def label_of(f):
+    try:
+        return json.load(open(f)).get("label")
+    except ValueError:  # another job'"'"'s report, half written
+        return None
 label, files = sys.argv[1], sys.argv[2:]
-print(next((f for f in files if json.load(open(f)).get("label") == label), ""))' "$label")
+print(next((f for f in files if label_of(f) == label), ""))' "$label")
   copy_report "$report" "$bench" "$job"
 }
 

@@ -152,3 +152,10 @@ def test_a_fit_on_a_gpu_saves_and_restores_each_devices_generator(tmp_path, root
     monkeypatch.setattr(torch.cuda, "is_available", lambda: False)  # a GPU checkpoint resumed on a CPU
     model.on_load_checkpoint(checkpoint)
     assert restored == saved[:1]
+    # under DDP rank 0's checkpoint holds no other rank's stream: none is saved, none restored
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    monkeypatch.setattr(type(model._trainer), "world_size", property(lambda self: 2))
+    ddp: dict = {}
+    model.on_save_checkpoint(ddp)
+    model.on_load_checkpoint(checkpoint)
+    assert "cuda" not in ddp[RNG_KEY] and restored == saved[:1]

@@ -166,6 +166,9 @@ def test_map_rows_of_different_test_protocols_are_named_under_the_table():
         assert "data.tasks: " in table.mixed and "(two tasks)" in table.mixed, table.mixed
         assert f"; {table.mixed}. Runs per row" in render(table, "md")
     assert build_table([report(0), report(1)], "map").mixed == ""
+    # how SR chose its pose does not touch the map columns: no note for that
+    top10 = report(4, top_k=10, free_space="cloud", label="top-10")
+    assert build_table([report(0), report(1), top10], "map", group_by="label").mixed == ""
 
 
 def test_sr_views_counts_each_benchmarks_runs_apart():
@@ -173,6 +176,6 @@ def test_sr_views_counts_each_benchmarks_runs_apart():
     one run's bootstrap std."""
     layouts = report(1, data=dict(BASE["data"], benchmark="layouts", dataset="floaff_sim_layouts"))
     table = build_table([report(0), layouts], "sr_views", oracle=False)
-    assert [r.runs for r in table.sections[0].rows] == ["Styles 1, Layouts 1"]
+    assert [(r.runs, r.runs_text) for r in table.sections[0].rows] == [(2, "Styles 1, Layouts 1")]  # CSV keeps 2
     assert "Runs per row: CFARModule: Styles 1, Layouts 1." in render(table, "md")
     assert [r.runs for r in build_table([report(0), report(1)], "sr_views", oracle=False).sections[0].rows] == [2]

@@ -326,8 +326,13 @@ class GeneratedReader(FloAffReader):
                 root=self.root,
             )
         except ff.FormatError as exc:  # by its class: the message holds the path, which may say 'corrupt' or 'NaN'
-            kinds = {ff.CorruptFileError: "corrupt_view", ff.NonFiniteFieldError: "nan_values"}
-            kind = kinds.get(type(exc), "bad_view")
+            kind = (
+                "corrupt_view"
+                if isinstance(exc, ff.CorruptFileError)
+                else "nan_values"
+                if isinstance(exc, ff.NonFiniteFieldError)
+                else "bad_view"
+            )
             raise DataError(str(exc), kind) from exc
         return s
 

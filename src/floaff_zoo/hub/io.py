@@ -406,9 +406,12 @@ def _is_model_class(cls: type) -> bool:
 def _naming(exc: Exception, where: str) -> Exception:
     """A copy of ``exc`` whose message starts with ``where``, of the same class (a ChecksumError a model's own
     weights file raised stays one for the callers that catch it)."""
-    named = copy.copy(exc)
-    named.args = (f"{where}: {exc}",)
-    return named
+    try:
+        named = copy.copy(exc)
+        named.args = (f"{where}: {exc}",)
+    except Exception:  # noqa: BLE001 - a class copy cannot rebuild (its own __init__): the message matters more
+        return ValueError(f"{where}: {exc}")
+    return named if str(named).startswith(where) else ValueError(f"{where}: {exc}")  # str() not from args
 
 
 def load_model(

@@ -431,7 +431,10 @@ class ZooModule(L.LightningModule):
             "numpy": [str(kind), torch.from_numpy(np.asarray(keys, dtype=np.int64)), int(pos), int(has_gauss), gauss],
             "python": random.getstate(),
         }
-        if torch.cuda.is_initialized():  # GPU dropout and sampling draw from each device's own generator
+        # GPU dropout and sampling draw from each device's own generator. Under DDP (a process per device) only rank
+        # 0's checkpoint is written, holding none of the other ranks' streams: those fits resume without them
+        trainer = self._trainer
+        if torch.cuda.is_initialized() and (trainer is None or trainer.world_size == 1):
             checkpoint[RNG_KEY]["cuda"] = torch.cuda.get_rng_state_all()
         # The state dict already holds the pretrained weights: record where they came from, but
         # save ``weights: null`` so reloading the checkpoint never needs that source again.
@@ -453,7 +456,7 @@ class ZooModule(L.LightningModule):
         np.random.set_state((kind, keys.numpy().astype(np.uint32), pos, has_gauss, float(gauss)))
         random.setstate(state["python"])
         cuda = state.get("cuda")
-        if cuda and torch.cuda.is_available():  # a fit on fewer devices restores the ones it has
+        if cuda and torch.cuda.is_available() and trainer.world_size == 1:  # fewer devices: the ones it has
             torch.cuda.set_rng_state_all(cuda[: torch.cuda.device_count()])
 
     def load_pretrained(self, name_or_path: str) -> None:

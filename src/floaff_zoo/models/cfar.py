@@ -118,7 +118,7 @@ class CFARModule(FloAffModule):
         use_fd: False = w/o-FD ablation (no distillation even with a teacher, which is then not loaded; still
             initialise from ``weights``).
         yaw_source: where theta_o comes from in training.
-        eval_yaw_source: where theta_o comes from in evaluation (test, predict).
+        eval_yaw_source: where theta_o comes from in evaluation (validation, test, predict).
         axisnet: frozen AxisNet (checkpoint path or hub name).
         axisnet_arch: filled automatically (AxisNet architecture + source + sha256); leave None.
         yaw_jitter_deg: training perturbation of the alignment (deg; paper 5).

@@ -201,8 +201,9 @@ class N2MModule(FloAffModule):
         free = torch.nonzero(~hits).flatten()
         if free.numel():
             best = cand[int(free[0])]
-        else:  # the densest candidate (the heaviest component's mean need not be: a wide component is flat)
-            best = cand[int(gmm_log_prob(cand[None], means.cpu(), cov.cpu(), logw.cpu())[0].argmax())]
+        else:  # the densest candidate: the mean (tried first, as N2M does) or the densest sample, cand[1]
+            mean_dens = gmm_log_prob(cand[None, :1], means.cpu(), cov.cpu(), logw.cpu())[0, 0]
+            best = cand[0] if len(cand) == 1 or mean_dens >= dens.max() else cand[1]
         yaw = math.atan2(math.sin(float(best[2])), math.cos(float(best[2])))
         return float(best[0]), float(best[1]), yaw
 

@@ -45,7 +45,7 @@ class CanonicalPriorModule(FloAffModule):
         centred: cells centred on the label lattice (``nn.prior``); False reproduces the binning of checkpoints
             written before (a loaded checkpoint keeps the binning its state records).
         yaw_source: yaw used to accumulate the training labels (see module docstring).
-        eval_yaw_source: yaw used to read the grid in evaluation (test, predict).
+        eval_yaw_source: yaw used to read the grid in evaluation (validation, test, predict).
         axisnet: AxisNetModule checkpoint or hub name (for the ``axisnet*`` sources).
         axisnet_arch: filled automatically (architecture + source + sha256 of the AxisNet); leave None.
         manhattan_radius: neighbourhood (m) of the Manhattan face estimate.

@@ -22,10 +22,10 @@ from torch import Tensor
 
 from floaff_zoo.nn.placement import heading_to, occupied_cells
 
-#: scorer(candidates [n, 2], weights [n], context) -> scores [n] (higher = better)
-#: scorer(candidates [n, 2], weights [n], context) -> scores [n]; the context holds ``cells`` [K, 2] (occupied cell
-#: centres), ``g`` [2] (the target), ``target_yaw``, ``round`` (0 .. rounds; ``rounds`` in the final pose), ``mu`` [2],
-#: ``sigma`` and ``alpha`` (this round's Gaussian and its geometric share), in every round and in the final pose
+#: scorer(candidates [n, 2], weights [n], context) -> scores [n] (higher = better); the context holds ``cells``
+#: [K, 2] (occupied cell centres), ``g`` [2] (the target), ``target_yaw``, ``round`` (0 .. rounds; ``rounds`` in the
+#: final pose), ``mu`` [2], ``sigma`` and ``alpha`` (this round's Gaussian and its geometric share), in every round
+#: and in the final pose
 Scorer = Callable[[Tensor, Tensor, dict[str, Any]], Tensor]
 
 
@@ -126,7 +126,7 @@ class C2FPlanner(torch.nn.Module):
 
         Returns:
             dict with g [2], mu [2], sigma, alpha (final), cells [K, 2], history (list of mu), gen (the search's
-            generator) and context (the scorer's fixed keys: cells, g, target_yaw).
+            generator) and target_yaw (the final pose's scorer gets the search rounds' keys).
         """
         c = self.cfg
         gen = torch.Generator().manual_seed(int(c.seed))
@@ -161,7 +161,7 @@ class C2FPlanner(torch.nn.Module):
             "cells": cells,
             "history": history,
             "gen": gen,
-            "context": context,
+            "target_yaw": yaw,
         }
 
     @torch.no_grad()
@@ -188,7 +188,8 @@ class C2FPlanner(torch.nn.Module):
         else:
             w = self.weight(cand, g, mu, sigma, alpha)
             # the keys of every search round (a plugged-in scorer read target_yaw there, then failed here)
-            context = {**state["context"], "round": c.rounds, "mu": mu, "sigma": sigma, "alpha": alpha}
+            context = {"cells": state["cells"], "g": g, "target_yaw": state["target_yaw"], "round": c.rounds}
+            context.update(mu=mu, sigma=sigma, alpha=alpha)
             scores = self.scorer(cand, w, context)
             keep = cand[scores.topk(min(5, cand.shape[0])).indices]
             if keep.shape[0] > 3:

@@ -261,8 +261,9 @@ class Column:
 class Row:
     name: str
     cells: list[Cell | None]
-    runs: int | str  # reports pooled in the row; sr_views: per benchmark ("Layouts 3, Styles 1")
+    runs: int  # reports pooled in the row
     oracle: bool = False
+    runs_text: str = ""  # how the footnote counts them when not ``runs`` (sr_views: "Styles 3, Layouts 1")
 
 
 @dataclass
@@ -598,7 +599,9 @@ def build_table(
                 sec.rows.append(Row(_marked(name, group), cells, len(group)))
             sections.append(sec)
         header = {"map": "Method", "ablation": "Ablation", "sweep": group_by.rsplit(".", 1)[-1]}[preset]
-        return Table(preset, header, columns, sections, note, mixed_protocols(grouped))
+        # the map columns do not depend on how SR chose a pose: only the other settings make rows incomparable
+        map_keys = tuple(k for k in PROTOCOL if not k.startswith("sr."))
+        return Table(preset, header, columns, sections, note, mixed_protocols(grouped, map_keys))
     if preset == "sr_views":
         benches = _sections(reports)
         columns = [Column(f"SR_{v}", 2, False, group=_short(b)) for b, _ in benches for v in VIEWS]
@@ -616,8 +619,8 @@ def build_table(
                 cells += [_cell(group, lambda r, v=v: _sr(r, "model", view=v)) for v in VIEWS]
             # each cell pools one benchmark's runs: a total over benchmarks read as a spread over that many seeds
             counts = [(_short(b), len(g.get(name, []))) for (b, _), g in zip(benches, by_bench)]
-            runs = len(row_reports) if len(benches) == 1 else ", ".join(f"{b} {n}" for b, n in counts if n)
-            sec.rows.append(Row(_marked(name, row_reports), cells, runs))
+            text = ", ".join(f"{b} {n}" for b, n in counts if n) if len(benches) > 1 else ""
+            sec.rows.append(Row(_marked(name, row_reports), cells, len(row_reports), runs_text=text))
         if oracle:
             for bench, reps in benches:
                 check_oracle(reps, bench)
@@ -711,7 +714,7 @@ def render_markdown(table: Table) -> str:
                 cells.append(f"**{t}**" if _is_best(row.cells[j], bests[j], c) and not row.oracle else t)
             lines.append("| " + " | ".join([row.name] + cells) + " |")
     runs = "; ".join(
-        f"{r.name}{f' ({_short(sec.title)})' if sec.title else ''}: {r.runs}"
+        f"{r.name}{f' ({_short(sec.title)})' if sec.title else ''}: {r.runs_text or r.runs}"
         for sec in table.sections
         for r in sec.rows
         if not r.oracle
