@@ -405,6 +405,7 @@ def test_an_error_of_the_model_class_keeps_its_class_and_names_the_file(tmp_path
     monkeypatch.setattr(TinyPointNetModule, "__init__", lambda self, *a, **k: (_ for _ in ()).throw(KeyError("x")))
     with pytest.raises(KeyError):  # anything else goes through as it is
         TinyPointNetModule.from_pretrained(str(ckpt))
+
     class Strict(ValueError):  # an exception whose class cannot be rebuilt from its args
         def __init__(self, field: str, value: int) -> None:
             super().__init__(f"{field} refuses {value}")
