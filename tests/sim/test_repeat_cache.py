@@ -68,7 +68,9 @@ def test_a_cache_shared_by_two_runs_keeps_every_scenes_version(tmp_path, monkeyp
     monkeypatch.setattr(repeat, "service_runner", lambda workers: lambda seed, jobs: [True] * len(jobs))
     repeat.scene_probabilities({"a": _scene("a", "2.0.0")}, setting, path)
     repeat.scene_probabilities({"b": _scene("b", "2.0.0")}, setting, path)  # the same file, another split
-    assert repeat.read_versions(path) == {"a": "2.0.0", "b": "2.0.0"}
+    versions: dict = {}
+    repeat.read_probs(path, setting, {}, versions)
+    assert versions == {"a": "2.0.0", "b": "2.0.0"}
     with pytest.raises(ValueError, match="scene a was cached from generator 2.0.0 data, this copy is 2.1.0"):
         repeat.scene_probabilities({"a": _scene("a", "2.1.0")}, setting, path)
 

@@ -34,7 +34,6 @@ __all__ = [
     "fresh_probability",
     "perturbed_poses",
     "read_probs",
-    "read_versions",
     "scene_probabilities",
     "service_runner",
     "write_probs",
@@ -89,11 +88,14 @@ def fresh_probability(
 _MADE_FROM = "generator_versions"
 
 
-def read_probs(path: Path, setting: dict, scenes: dict[str, dict]) -> dict[str, np.ndarray]:
+def read_probs(
+    path: Path, setting: dict, scenes: dict[str, dict], versions_out: dict[str, str] | None = None
+) -> dict[str, np.ndarray]:
     """Cached fresh probabilities (scene id -> [M]) made with ``setting``; a mismatch, a scene cached from data of
     another generator minor version (a scene id names its kitchen, not its rollouts: 2.1 changed the double-door push;
     a patch release such as 2.3.1 changes no rollout) or a corrupt file is an error. Caches written before the
-    versions were recorded are not checked for them."""
+    versions were recorded are not checked for them. ``versions_out``: filled with the recorded {scene id: generator
+    version} (a rewrite keeps them for the cached scenes a run does not read)."""
     try:
         with np.load(path) as z:
             made = json.loads(str(z["setting"]))
@@ -111,16 +113,9 @@ def read_probs(path: Path, setting: dict, scenes: dict[str, dict]) -> dict[str, 
             raise ValueError(
                 f"{path}: scene {sid} was cached from generator {versions[sid]} data, this copy is {now}; delete it"
             )
+    if versions_out is not None:
+        versions_out.update(versions)
     return probs
-
-
-def read_versions(path: Path) -> dict[str, str]:
-    """{scene id: generator version} recorded in a fresh-probability cache ({} for caches written before)."""
-    try:
-        with np.load(path) as z:
-            return json.loads(str(z[_MADE_FROM])) if _MADE_FROM in z.files else {}
-    except (OSError, ValueError, KeyError, zipfile.BadZipFile, EOFError) as exc:
-        raise ValueError(f"{path} is not a fresh-probability cache ({exc}); delete it") from exc
 
 
 def write_probs(
@@ -156,9 +151,8 @@ def scene_probabilities(
     :func:`fresh_probability`. Scenes in the cache are not rolled out again; the cache is rewritten after every new
     scene (a killed run resumes). A cache made with another setting raises ``ValueError``.
     """
-    cached = cache is not None and cache.is_file()
-    probs = read_probs(cache, setting, scenes) if cached else {}
-    known = read_versions(cache) if cached else {}  # the versions of cached scenes not among ``scenes`` stay
+    known: dict[str, str] = {}  # the versions of cached scenes not among ``scenes`` stay
+    probs = read_probs(cache, setting, scenes, known) if cache is not None and cache.is_file() else {}
     run: Runner | None = None
     for sid, scene in scenes.items():
         if sid in probs:
