@@ -232,7 +232,13 @@ def tolerant_fps(xyz: Tensor, mask: Tensor | None, npoint: int, tol: float = FPS
     return out
 
 
-def stable_three_interpolate(unknown: Tensor, known: Tensor, known_feat: Tensor, tol: float = FPS_TIE_TOL) -> Tensor:
+#: where ``stable_three_interpolate`` parks masked known points: 1e4 m away, a weight ~1e-8 of a neighbour's at 1 m
+MASKED_KNOWN_AT = 1.0e4
+
+
+def stable_three_interpolate(
+    unknown: Tensor, known: Tensor, known_feat: Tensor, tol: float = FPS_TIE_TOL, known_mask: Tensor | None = None
+) -> Tensor:
     """Inverse-squared-distance interpolation from 3 neighbours chosen without float-noise flips.
 
     Like PointNet++ FP (weights ``1 / (d^2 + 1e-8)``), but each neighbour is the lowest-index point
@@ -240,7 +246,9 @@ def stable_three_interpolate(unknown: Tensor, known: Tensor, known_feat: Tensor,
     are chosen the same way in a rotated copy of the scene.
 
     Args:
-        unknown: [B, n, 3]; known: [B, m, 3] (all valid); known_feat: [B, m, C].
+        unknown: [B, n, 3]; known: [B, m, 3]; known_feat: [B, m, C]; known_mask: [B, m] bool or None (all
+            valid): a masked point is moved ``MASKED_KNOWN_AT`` away, chosen only where fewer than 3 remain,
+            and then with a negligible weight.
     Returns:
         [B, n, C].
     """
@@ -248,6 +256,8 @@ def stable_three_interpolate(unknown: Tensor, known: Tensor, known_feat: Tensor,
     m = known.shape[1]
     if m == 1:
         return known_feat.expand(b, n, known_feat.shape[-1])
+    if known_mask is not None and not bool(known_mask.all()):
+        known = torch.where(known_mask[..., None], known, known.new_tensor(MASKED_KNOWN_AT))
     dist_t, idx_t = _stable_three_nn(unknown.detach(), known.detach(), tol)
     recip = 1.0 / (dist_t.to(known_feat.dtype) + 1e-8)
     weight = recip / recip.sum(-1, keepdim=True)
@@ -422,17 +432,20 @@ class CFARNet(nn.Module):
         """Per-floor-point features [B, M, C] from canonical floor points [B, M, 3] (mask [B, M])."""
         if self.floor_mode == "pointwise":
             return self.floor_point(self.fourier(floor_xyz[..., :2]))
-        flv = self.floor_encoder(floor_xyz, None, floor_mask, sample_levels(self.floor_encoder, floor_xyz, floor_mask))
+        fps = sample_levels(self.floor_encoder, floor_xyz, floor_mask)
+        flv = self.floor_encoder(floor_xyz, None, floor_mask, fps)
+        # level 0 = the floor points themselves (padding masked); deeper levels: a floor with fewer points than
+        # centres repeats one, kept out of the batch statistics and the interpolation (in training its rows are 0)
+        masks = [floor_mask] + self.floor_encoder.centre_masks(fps)
         skips: list[Tensor | None] = [floor_xyz] + [f for _, f in flv[1:]]
         cur = flv[-1][1]
         n = len(flv) - 1
         for j, fp in enumerate(self.floor_fp):
             lvl = n - 1 - j
-            interp = stable_three_interpolate(flv[lvl][0], flv[lvl + 1][0], cur)
+            interp = stable_three_interpolate(flv[lvl][0], flv[lvl + 1][0], cur, known_mask=masks[lvl + 1])
             skip = skips[lvl]
-            # level 0 = the floor points themselves: padding stays out of the MLP's batch statistics
             h = interp if skip is None else torch.cat([skip, interp], dim=-1)
-            cur = fp.mlp(h, floor_mask if lvl == 0 else None)
+            cur = fp.mlp(h, masks[lvl])
         return cur
 
     def forward(

@@ -147,14 +147,17 @@ class SceneEncoderDecoder(nn.Module):
         self, xyz: Tensor, feat: Tensor, mask: Tensor, robot: Tensor, fps: list[Tensor | None] | None
     ) -> tuple[Tensor, Tensor, list[tuple[Tensor, Tensor | None]]]:
         """Returns (xyz at stop level [B,S,3], features [B,S,C], all encoder levels)."""
+        if fps is None:
+            fps = self.encoder.sample(xyz, mask)
         levels = self.encoder(xyz, feat, mask, fps)
+        kept = [None] + self.encoder.centre_masks(fps)  # repeated centres (a cloud under npoint), per level
         deep_xyz, deep = levels[-1]
         r = self.robot(robot)[:, None, :].expand(-1, deep.shape[1], -1)
         cur = torch.cat([deep, r.to(deep.dtype)], dim=-1)
         n = len(levels) - 1
         for j, fp in enumerate(self.fps_layers):
             lvl = n - 1 - j
-            cur = fp(levels[lvl][0], levels[lvl + 1][0], levels[lvl][1], cur)
+            cur = fp(levels[lvl][0], levels[lvl + 1][0], levels[lvl][1], cur, kept[lvl + 1], kept[lvl])
         stop = self.stop_level
         return levels[stop][0], cur, levels
 
@@ -377,14 +380,21 @@ class NavAffNet(nn.Module):
         fps_g, fps_f = fps if fps is not None else (None, None)
         g = self.encoder_global(gxyz, scene_feat, scene_mask, fps_g)
         axyz, amask = self.floor_anchors(scene_xyz, scene_mask, floor_xyz, floor_mask)
+        if fps_f is None:
+            fps_f = self.encoder_floor.sample(axyz, amask)
         f = self.encoder_floor(axyz, None, amask, fps_f)
+        # a view's floor holds fewer points than sa1 has centres (median 150 of 256): FPS repeats the first one, and
+        # the decoder keeps the repeats out of its interpolation and batch statistics
+        k1, k2, k3 = self.encoder_floor.centre_masks(fps_f)
         token = self.mlp_robot(robot)[:, None, :]
         kv = torch.cat([token.to(g[3][1].dtype), g[3][1]], dim=1)  # [B, 1 + N_p, 512]
         fused = self.fusion(f[3][1], kv)  # replaces the floor sa3 features (no residual)
-        up = self.fp3(f[2][0], f[3][0], f[2][1], fused)
-        up = self.fp2(f[1][0], f[2][0], f[1][1], up)
+        up = self.fp3(f[2][0], f[3][0], f[2][1], fused, mask_sparse=k3, mask_dense=k2)
+        up = self.fp2(f[1][0], f[2][0], f[1][1], up, mask_sparse=k2, mask_dense=k1)
         # f[0][0] = anchors; padded floor points stay out of fp1's and the head's batch statistics
-        up = self.fp1(floor_xyz, f[1][0], torch.cat([floor_xyz, floor_xyz], dim=-1), up, mask_dense=floor_mask)
+        up = self.fp1(
+            floor_xyz, f[1][0], torch.cat([floor_xyz, floor_xyz], dim=-1), up, mask_sparse=k1, mask_dense=floor_mask
+        )
         batch_stats = self.head_bn.training or self.head_bn.running_mean is None
         logits = on_valid_rows(self._head_logits, up, floor_mask) if batch_stats else self._head_logits(up)
         return torch.sigmoid(logits.float())

@@ -49,6 +49,7 @@ __all__ = [
     "PointNet2Seg",
     "SetAbstraction",
     "SharedMLP",
+    "first_positions",
     "masked_max",
     "on_valid_rows",
 ]
@@ -228,6 +229,32 @@ def on_valid_rows(fn: Callable[[Tensor], Tensor], x: Tensor, mask: Tensor) -> Te
 
 #: Linear layers this narrow take ``_NarrowLinear``'s weight gradient
 NARROW_IN_FEATURES = 8
+
+
+def first_positions(idx: Tensor) -> Tensor:
+    """For each entry of idx [B, S] (int64), the first position of its row holding the same index: [B, S] int64.
+
+    FPS over a cloud with fewer valid points than centres repeats a point (``farthest_point_sample``); a
+    centre whose index appeared earlier in its row is a repeat, ``first_positions(idx) != arange(S)``.
+    """
+    b, s = idx.shape
+    pos = torch.arange(s, device=idx.device).expand(b, s)
+    first = torch.full((b, int(idx.max()) + 1), s, dtype=torch.long, device=idx.device)
+    first = first.scatter_reduce(1, idx, pos, reduce="amin")
+    return first.gather(1, idx)
+
+
+def repeat_sources(idx: Tensor | None) -> Tensor | None:
+    """``first_positions(idx)`` [B, S] where a row repeats an index, None where none does (or idx is None)."""
+    if idx is None or idx.numel() == 0:
+        return None
+    src = first_positions(idx)
+    return None if bool((src == torch.arange(idx.shape[1], device=idx.device)).all()) else src
+
+
+def kept_centres(src: Tensor | None) -> Tensor | None:
+    """[B, S] bool, False on repeated centres (``repeat_sources``), or None when nothing repeats."""
+    return None if src is None else src == torch.arange(src.shape[1], device=src.device)
 
 
 def _linear(h: Tensor, lin: nn.Linear, with_bias: bool = True) -> Tensor:
@@ -698,6 +725,9 @@ class SetAbstraction(nn.Module):
             fps_idx = farthest_point_sample(xyz, mask, self.npoint)
         new_xyz = index_points(xyz, fps_idx)
         groups = ball_query_multi(self.radii, self.nsamples, xyz, new_xyz, mask)
+        # a repeated centre groups the same neighbours as its first occurrence, so it has the same features; with
+        # batch statistics it would still count again in them (a 150-point floor under 256 centres: 40 % of the rows)
+        src = repeat_sources(fps_idx) if not all(m.rowwise() for m in self.mlps) else None
         outs = []
         for idx, mlp in zip(groups, self.mlps):
             per_point = None
@@ -706,7 +736,7 @@ class SetAbstraction(nn.Module):
             step = _centres_per_chunk(mlp, idx)
             # a one-layer MLP given its (gathered) first layer has nothing left to chunk
             if step >= idx.shape[1] or (per_point is not None and len(mlp.linears) == 1):
-                outs.append(self._group_pool(mlp, xyz, feat, new_xyz, idx, per_point))
+                outs.append(self._group_pool(mlp, xyz, feat, new_xyz, idx, per_point, None if mlp.rowwise() else src))
                 continue
             layers = mlp.folded_layers()  # folded once for all chunks
             parts = []
@@ -739,15 +769,26 @@ class SetAbstraction(nn.Module):
         new_xyz: Tensor,
         idx: Tensor,
         per_point: tuple[Tensor, Tensor] | None,
+        src: Tensor | None = None,
     ) -> Tensor:
         """Group the neighbours ``idx`` [B,S,K] of the centres new_xyz [B,S,3], run ``mlp`` and max-pool: [B,S,C].
 
         With ``per_point`` (see ``_first_layer_per_point``) the first Linear is gathered, not recomputed:
-        ``W [p - c, f] + b = (W [p, f] + b)[idx] - W_xyz c`` (equal up to float rounding).
+        ``W [p - c, f] + b = (W [p, f] + b)[idx] - W_xyz c`` (equal up to float rounding). With ``src`` [B,S]
+        (``repeat_sources``) only first occurrences run, and each repeat copies its first occurrence's row.
         """
         if per_point is not None:
-            return mlp.pooled(None, dim=2, first=self._gathered_first(per_point, new_xyz, idx))
-        return mlp.pooled(self._grouped(xyz, feat, new_xyz, idx), dim=2)
+            x, first = None, self._gathered_first(per_point, new_xyz, idx)
+        else:
+            x, first = self._grouped(xyz, feat, new_xyz, idx), None
+        if src is None:
+            return mlp.pooled(x, dim=2, first=first)
+        keep = kept_centres(src)  # [B, S]
+        rows = mlp.pooled(
+            None if x is None else x[keep][None], dim=2, first=None if first is None else first[keep][None]
+        )
+        out = rows.new_zeros(*keep.shape, rows.shape[-1]).masked_scatter(keep[..., None], rows[0])
+        return out.gather(1, src[..., None].expand(-1, -1, out.shape[-1]))
 
     def _first_layer_per_point(self, mlp: SharedMLP, xyz: Tensor, feat: Tensor) -> tuple[Tensor, Tensor]:
         """The first Linear of ``[p, f]`` on the N input points, not on the S x K grouped rows.
@@ -859,9 +900,20 @@ class PointNet2Encoder(nn.Module):
         cur_mask = mask
         for sa, idx in zip(self.levels, fps):
             xyz, feat = sa(xyz, feat, cur_mask, idx)
-            cur_mask = None  # centres are valid points
+            # centres are valid points; repeated ones (a cloud smaller than npoint) stay out of the next level's
+            # groups, where they would only add copies of the first point to the batch statistics
+            cur_mask = kept_centres(repeat_sources(idx))
             levels.append((xyz, feat))
         return levels
+
+    @staticmethod
+    def centre_masks(fps: list[Tensor | None]) -> list[Tensor | None]:
+        """Per level 1..L of ``sample``'s indices: [B, S_l] bool, False on repeated centres, or None (none repeat).
+
+        A decoder passes them to ``FeaturePropagation`` (``mask_sparse`` / ``mask_dense``): a repeat shares its
+        first occurrence's position, so 3-NN interpolation would otherwise weigh that point two or three times.
+        """
+        return [kept_centres(repeat_sources(idx)) for idx in fps]
 
 
 class PointNet2Seg(nn.Module):
@@ -904,14 +956,17 @@ class PointNet2Seg(nn.Module):
         self, xyz: Tensor, feat: Tensor | None, mask: Tensor | None = None, fps: list[Tensor | None] | None = None
     ) -> Tensor:
         """xyz [B,N,3], feat [B,N,D] | None, mask [B,N] -> logits [B,N]."""
+        if fps is None:
+            fps = self.encoder.sample(xyz, mask)
         levels = self.encoder(xyz, feat, mask, fps)
+        masks = [mask] + self.encoder.centre_masks(fps)  # padding, then repeated centres (a cloud under npoint)
         skip0 = xyz if feat is None else torch.cat([xyz, feat], dim=-1)
         skips = [skip0] + [f for _, f in levels[1:]]
         cur = levels[-1][1]
         n = len(levels) - 1
         for j, fp in enumerate(self.fps_layers):
             lvl = n - 1 - j
-            cur = fp(levels[lvl][0], levels[lvl + 1][0], skips[lvl], cur, mask_dense=mask if lvl == 0 else None)
+            cur = fp(levels[lvl][0], levels[lvl + 1][0], skips[lvl], cur, masks[lvl + 1], masks[lvl])
         if isinstance(self.head, SharedMLP):
             cur = self.head(cur, mask)
         return self.out(cur).squeeze(-1)

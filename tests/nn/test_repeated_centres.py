@@ -1,0 +1,101 @@
+"""FPS over a cloud smaller than a level's centre count repeats a point; the repeats must change nothing.
+
+A view's floor holds a median of 150 points, NavAff's floor encoder asks for 256 (demo) or 512 (paper size)
+centres: FPS fills the rest with the first floor point. A repeated centre groups the same neighbours as its
+first occurrence, so its features are the same; it must not count again in the training-mode batch statistics
+nor in the decoder's 3-NN interpolation, i.e. a level with more centres than points must give what a level with
+exactly as many centres gives.
+"""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+
+import pytest
+import torch
+import yaml
+from torch import nn
+
+from floaff_zoo.models.cfar import CFARModule
+from floaff_zoo.nn.nets import NavAffNet
+from floaff_zoo.nn.pointnet2 import PointNet2Encoder, SetAbstraction, first_positions
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _stats(model: nn.Module) -> dict[str, torch.Tensor]:
+    return {k: v.clone() for k, v in model.state_dict().items() if k.endswith(("running_mean", "running_var"))}
+
+
+def test_first_positions_points_each_repeat_at_its_first_occurrence():
+    idx = torch.tensor([[3, 1, 3, 3, 0], [0, 1, 2, 3, 4]])
+    assert first_positions(idx).tolist() == [[0, 1, 0, 0, 4], [0, 1, 2, 3, 4]]
+
+
+@pytest.mark.parametrize("per_point", [False, True])
+def test_set_abstraction_training_statistics_ignore_repeated_centres(per_point):
+    torch.manual_seed(0)
+    channels = 16 if per_point else 2  # 16: the first Linear runs per point before grouping
+    xyz = torch.rand(2, 7, 3)
+    feat = torch.randn(2, 7, channels)
+    exact = SetAbstraction(7, [0.3, 0.6], [4, 8], channels, [[8, 8], [8, 16]]).train()
+    more = copy.deepcopy(exact)
+    more.npoint = 12  # 5 repeats per cloud
+    new_a, out_a = exact(xyz, feat)
+    new_b, out_b = more(xyz, feat)
+    torch.testing.assert_close(new_b[:, :7], new_a)
+    torch.testing.assert_close(out_b[:, :7], out_a, atol=1e-5, rtol=1e-4)
+    torch.testing.assert_close(out_b[:, 7:], out_b[:, :1].expand(-1, 5, -1))  # FPS repeats the first point
+    for key, value in _stats(exact).items():
+        torch.testing.assert_close(_stats(more)[key], value, atol=1e-6, rtol=1e-5, msg=key)
+
+
+def test_encoder_centre_masks_flag_the_repeats_only():
+    torch.manual_seed(0)
+    enc = PointNet2Encoder(0, [6, 4], [[0.3], [0.6]], [[4], [4]], [[[8]], [[8]]])
+    xyz = torch.rand(1, 4, 3)
+    masks = enc.centre_masks(enc.sample(xyz, None))
+    assert masks[0].tolist() == [[True] * 4 + [False] * 2]
+    assert masks[1] is None
+
+
+def _navaff(train: bool) -> NavAffNet:
+    torch.manual_seed(0)
+    net = NavAffNet(npoints=(10, 6, 3), num_heads=2, dropout=0.0)
+    return net.train(train)
+
+
+@pytest.mark.parametrize("train", [False, True])
+def test_navaff_scores_do_not_depend_on_surplus_floor_centres(train):
+    """Floor sa1 with as many centres as floor points, or three times as many (the surplus repeats): same scores."""
+    torch.manual_seed(1)
+    b, n_scene, n_floor = 2, 64, 10
+    scene = torch.rand(b, n_scene, 3) * torch.tensor([2.0, 2.0, 1.0])
+    feat = torch.rand(b, n_scene, 1)
+    floor = torch.cat([torch.rand(b, n_floor, 2) * 2.0, torch.zeros(b, n_floor, 1)], dim=-1)
+    smask, fmask = torch.ones(b, n_scene, dtype=torch.bool), torch.ones(b, n_floor, dtype=torch.bool)
+    robot = torch.rand(b, 2)
+    exact = _navaff(train)
+    more = copy.deepcopy(exact)
+    more.encoder_floor.levels[0].npoint = 3 * n_floor
+    a = exact(scene, feat, smask, floor, fmask, robot, fps=exact.sample(scene, smask, floor, fmask))
+    c = more(scene, feat, smask, floor, fmask, robot, fps=more.sample(scene, smask, floor, fmask))
+    torch.testing.assert_close(c, a, atol=1e-5, rtol=1e-4)
+    for key, value in _stats(exact).items():
+        torch.testing.assert_close(_stats(more)[key], value, atol=1e-5, rtol=1e-4, msg=key)
+
+
+def test_cfar_floor_features_do_not_depend_on_surplus_floor_centres():
+    """CFAR's floor encoder in training: a floor under its sa1 centre count gives the same features and statistics."""
+    args = yaml.safe_load((ROOT / "tests/configs/cfar_tiny.yaml").read_text())["model"]["init_args"]
+    torch.manual_seed(0)
+    exact = CFARModule(**args).net.train()  # floor sa1: 16 centres
+    more = copy.deepcopy(exact)
+    more.floor_encoder.levels[0].npoint = 40
+    torch.manual_seed(1)
+    floor = torch.cat([torch.rand(2, 16, 2) * 2.0 - 1.0, torch.zeros(2, 16, 1)], dim=-1)
+    fmask = torch.ones(2, 16, dtype=torch.bool)
+    torch.testing.assert_close(more.encode_floor(floor, fmask), exact.encode_floor(floor, fmask), atol=1e-5, rtol=1e-4)
+    for key, value in _stats(exact).items():
+        torch.testing.assert_close(_stats(more)[key], value, atol=1e-5, rtol=1e-4, msg=key)
