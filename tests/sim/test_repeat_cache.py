@@ -83,3 +83,28 @@ def test_no_episode_and_a_negative_noise_seed_are_named():
     with pytest.raises(ValueError, match="parking-noise seed must be >= 0, got -1"):
         repeat.fresh_probability(_scene("a", "2.0.0"), run, 1, 0.0, 0.0, -1)
     assert repeat.fresh_probability(_scene("a", "2.0.0"), run, 1, 0.0, 0.0, 0).tolist() == [1.0, 0.0]
+
+
+def test_each_scene_closes_its_service_when_done_or_failed(monkeypatch):
+    """One service for the whole run kept every scene it built (~80 MB each, in this process or in each pool worker)
+    until the run ended; now each scene's service is closed after it, also when its rollouts fail."""
+    setting = {"episodes": 1, "sigma_xy": 0.0, "sigma_yaw_deg": 0.0, "seed": 0}
+    events: list[str] = []
+
+    def runner(workers):
+        n = sum(e.startswith("open") for e in events)
+        events.append(f"open{n}")
+
+        def run(seed, jobs):
+            if n == 2:
+                raise RuntimeError("worker died")
+            return [True] * len(jobs)
+
+        run.close = lambda: events.append(f"close{n}")
+        return run
+
+    monkeypatch.setattr(repeat, "service_runner", runner)
+    scenes = {k: _scene(k, "2.0.0") for k in "abc"}
+    with pytest.raises(RuntimeError, match="worker died"):
+        repeat.scene_probabilities(scenes, setting)
+    assert events == ["open0", "close0", "open1", "close1", "open2", "close2"]

@@ -131,7 +131,7 @@ def write_probs(
 def service_runner(workers: int) -> Runner:
     """A Runner on the simulator's rollout service: one service (one worker pool, one result cache keyed by the task
     seed too) for every task seed. A service per seed kept a pool of ``workers`` processes alive per episode, each
-    holding every scene it had built."""
+    holding every scene it had built. ``run.close()`` stops the pool and frees the scenes it built."""
     from floaff_zoo.sim.rollout import RolloutService
 
     service = RolloutService(workers=workers, cache_decimals=ROLLOUT_POSE_DECIMALS)
@@ -139,6 +139,7 @@ def service_runner(workers: int) -> Runner:
     def run(task_seed: int, jobs: list) -> list[bool]:
         return [r.success for r in service.run(jobs, seed=task_seed)]
 
+    run.close = service.close  # type: ignore[attr-defined]  # the pool and the scenes it built
     return run
 
 
@@ -153,14 +154,18 @@ def scene_probabilities(
     """
     known: dict[str, str] = {}  # the versions of cached scenes not among ``scenes`` stay
     probs = read_probs(cache, setting, scenes, known) if cache is not None and cache.is_file() else {}
-    run: Runner | None = None
     for sid, scene in scenes.items():
         if sid in probs:
             continue
-        run = run or service_runner(workers)
+        # a service per scene: closing it frees the scene it built (~80 MB in this process or in each pool
+        # worker), which one service for the whole run kept until the end, every scene of the split at once
+        run = service_runner(workers)
         yaw = float(np.radians(setting["sigma_yaw_deg"]))
         n, sxy, seed = setting["episodes"], setting["sigma_xy"], setting["seed"]
-        probs[sid] = fresh_probability(scene, run, n, sxy, yaw, seed, seeds)
+        try:
+            probs[sid] = fresh_probability(scene, run, n, sxy, yaw, seed, seeds)
+        finally:
+            getattr(run, "close", lambda: None)()
         print(f"{sid}: {int((probs[sid] > 0).sum())} cells with a fresh success", flush=True)
         if cache is not None:
             made = {k: scenes.get(k, {}).get("generator_version") or known.get(k) for k in probs}
