@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from floaff_zoo.frames import pose_to_world
+from floaff_zoo.frames import facing_pose, pose_to_world
 from floaff_zoo.predict import predict_from_points, resolve_model
 from floaff_zoo.sim import fileformat as ff
 from floaff_zoo.sim.kitchen import SceneSpec
@@ -45,8 +45,10 @@ def main(argv: list[str] | None = None) -> int:
             default = predict_from_points(model, *args, None, target_yaw=None, cell=a.cell, **common)
             dataset = predict_from_points(model, *args, s["floor_xyz"], target_yaw=None, **common)
             spec = SceneSpec.from_dict(sim)
+            target_world = (scene.get("target") or {}).get("pos")  # faced in float64, as floaff-zoo test does
             for key, pred in (("default", default), ("dataset", dataset)):
-                jobs[key].append((spec, pose_to_world(pred.best_pose, sim["base_pose_world"])))
+                pose = pose_to_world(pred.best_pose, sim["base_pose_world"])
+                jobs[key].append((spec, pose if target_world is None else facing_pose(pose, target_world)))
             tasks.append(task)
     service = RolloutService()
     out: dict[str, dict[str, float]] = {}

@@ -70,7 +70,15 @@ def main(argv: list[str] | None = None) -> int:
                     free = cloud_free(xyz, sim["base_pose_world"])
                 for m in a.models:
                     pose, _ = choose_pose(
-                        floor[i], scores[m][i], mask[i], target[i], sim["base_pose_world"], a.top_k, free, seed
+                        floor[i],
+                        scores[m][i],
+                        mask[i],
+                        target[i],
+                        sim["base_pose_world"],
+                        a.top_k,
+                        free,
+                        seed,
+                        target_world=sim.get("target_world"),  # the annotation's exact pose, as floaff-zoo test
                     )
                     jobs[m].append((spec, pose))
                 tasks.append(meta["task"])

@@ -21,6 +21,18 @@ Pose = tuple[float, float, float]
 ROLLOUT_POSE_DECIMALS = 6
 
 
+def facing_pose(pose: Pose, target_world: Sequence[float]) -> Pose:
+    """A world pose facing the target, as the annotation simulates a candidate cell: (x, y) rounded to
+    ``ROLLOUT_POSE_DECIMALS``, the yaw toward the target's world (x, y) from that rounded position, in float64.
+
+    A pose chosen from a view's float32 base-frame points rounds to the cell's (x, y), but its yaw can differ from
+    the annotated one by 1e-6 rad, enough to flip the sixth decimal and, at a knife edge, the rollout
+    (docs/background.md §5).
+    """
+    x, y = round(float(pose[0]), ROLLOUT_POSE_DECIMALS), round(float(pose[1]), ROLLOUT_POSE_DECIMALS)
+    return x, y, math.atan2(float(target_world[1]) - y, float(target_world[0]) - x)
+
+
 def base_to_world(xyz: np.ndarray, base_pose_world: Sequence[float]) -> np.ndarray:
     """Points in the view's robot base frame -> world. xyz [K, 2+] -> same shape (z untouched)."""
     p = np.array(xyz, dtype=np.float64, copy=True)

@@ -39,6 +39,7 @@ def test_scene_level_splits_meta_and_skips(floaff_root, capsys):
     assert m["dataset"] == "floaff_kitchen_styles" and m["index"] == 0
     assert set(m["sim"]) >= {"layout_id", "style_id", "seed", "task", "base_pose_world", "scene_dir"}
     assert len(m["sim"]["base_pose_world"]) == 3 and m["sim"]["scene_dir"].endswith(m["scene_id"])
+    assert m["sim"]["target_world"] == [1.0, 2.0]  # scene.json's target.pos: the rollout faces it exactly
     assert s["scene_feat"].shape[1] == 4
     b = next(iter(dm.val_dataloader()))
     assert b["scene_xyz"].shape == (2, 128, 3) and isinstance(b["meta"][0]["sim"], dict)
@@ -368,6 +369,8 @@ def test_a_pre_transform_keeps_its_meta_changes_through_the_cache(floaff_root):
         lambda r: r["views"][0].update(base_pose_world=[0.5, float("nan"), 0.0]),  # the SR rollout starts there
         lambda r: r["views"][0].update(base_pose_world=[0.5, 0.0]),
         lambda r: r["views"][0].update(view="Front"),  # was filtered out by `views` without a count
+        lambda r: r["target"].update(pos=[float("nan"), 2.0, 0.9]),  # the rollout's yaw faces it
+        lambda r: r["target"].update(pos=[1.0]),
     ],
     ids=[
         "view_without_file",
@@ -378,6 +381,8 @@ def test_a_pre_transform_keeps_its_meta_changes_through_the_cache(floaff_root):
         "pose_nan",
         "pose_short",
         "view_kind_typo",
+        "target_nan",
+        "target_short",
     ],
 )
 def test_a_malformed_scene_json_is_a_counted_skip_naming_the_file(floaff_root, tmp_path, edit):

@@ -47,8 +47,9 @@ def world_to_base(xy: np.ndarray, pose) -> np.ndarray:
     return np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]], axis=1)
 
 
-def make_samples(n: int, seed: int = 0, cell: float = 0.05, half: int = 6) -> list[dict]:
-    """n samples of a fake scene: a target in the world, a candidate grid around it, random robot views."""
+def make_samples(n: int, seed: int = 0, cell: float = 0.05, half: int = 6, target_world: bool = False) -> list[dict]:
+    """n samples of a fake scene: a target in the world, a candidate grid around it, random robot views
+    (``target_world``: ``meta['sim']`` also gives the target's world (x, y), as the FloAff DataModule does)."""
     rng = np.random.default_rng(seed)
     out = []
     for i in range(n):
@@ -85,6 +86,8 @@ def make_samples(n: int, seed: int = 0, cell: float = 0.05, half: int = 6) -> li
                 "sim": {"layout_id": i % 6, "style_id": i % 8, "seed": i, "task": task, "base_pose_world": list(base)},
             },
         }
+        if target_world:
+            sample["meta"]["sim"]["target_world"] = [float(v) for v in t_world]
         out.append(validate_sample(sample))
     return out
 

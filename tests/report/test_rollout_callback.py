@@ -320,3 +320,29 @@ def test_full_cloud_free_space_without_a_stored_cloud_is_refused():
     cb = RolloutSuccessRate(service=FakeService, progress=False, top_k=8, free_space="full_cloud", oracle=False)
     with pytest.raises(MisconfigurationException, match="NoStoredCloud has full_cloud: false"):
         _trainer(cb).test(LabelModule(), datamodule=NoStoredCloud(), verbose=False)
+
+
+def test_a_chosen_cell_is_rolled_out_at_the_annotations_exact_pose():
+    """A pose chosen from the view's float32 base frame rounds to its cell's (x, y), but its yaw missed the annotated
+    one (atan2 toward the target in float64, rounded to 6 decimals) by 1e-6 rad in some views, which flips
+    knife-edge rollouts; with the target's world (x, y) in meta['sim'] every chosen and Oracle pose is the
+    annotation's to the last decimal."""
+    samples = make_samples(60, target_world=True)
+    cb = RolloutSuccessRate(service=FakeService, progress=False)
+    _trainer(cb).test(ConstantModule(), dataloaders=loader(samples), verbose=False)
+    by_id = {s["meta"]["sample_id"]: s for s in samples}
+    for ep in cb.episodes["test"]:
+        s = by_id[ep["sample_id"]]
+        sim = s["meta"]["sim"]
+        cells = base_to_world(np.asarray(s["floor_xyz"], dtype=np.float64), sim["base_pose_world"])[:, :2].round(2)
+        tx, ty = sim["target_world"]
+        annotated = {(x, y, round(math.atan2(ty - y, tx - x), 6)) for x, y in cells.tolist()}
+        for key in ("pose", "oracle_pose"):
+            assert tuple(round(v, 6) for v in ep[key]) in annotated, (ep["sample_id"], key, ep[key])
+
+
+def test_facing_pose_rounds_the_position_and_faces_the_target_from_it():
+    from floaff_zoo.frames import facing_pose
+
+    x, y, yaw = facing_pose((1.0000004, -0.4999996, 2.0), (2.0, 0.5))
+    assert (x, y) == (1.0, -0.5) and yaw == math.atan2(1.0, 1.0)

@@ -51,7 +51,7 @@ from lightning.pytorch.utilities.exceptions import MisconfigurationException
 
 from floaff_zoo.contract import FULL_CLOUD_KEY, batch_item, best_pose
 from floaff_zoo.floor import footprint_blocked, footprint_coverage, grown_footprint
-from floaff_zoo.frames import ROLLOUT_POSE_DECIMALS, Pose, base_to_world, pose_to_world
+from floaff_zoo.frames import ROLLOUT_POSE_DECIMALS, Pose, base_to_world, facing_pose, pose_to_world
 
 __all__ = [
     "RolloutSuccessRate",
@@ -85,6 +85,7 @@ def choose_pose(
     is_free: Callable[[float, float, float], bool] | None = None,
     seed: int = 0,
     prefer: Callable[[float, float, float], bool] | None = None,
+    target_world: Sequence[float] | None = None,
 ) -> tuple[Pose, int]:
     """World base pose chosen from per-point scores.
 
@@ -95,12 +96,16 @@ def choose_pose(
             (the top-1 when none is free or ``is_free`` is None).
         prefer: a stricter check tried first: the best-scored candidate that is free and ``prefer``-ed wins; when
             none of the top-k is, ``is_free`` alone decides (``scripts/scene_sr.py --min-observed``).
+        target_world: the target's world (x, y) (``meta['sim']['target_world']``): each candidate becomes the exact
+            pose the annotation rolled out for its cell (``frames.facing_pose``); None keeps the view's float32 pose.
     Returns:
         ((x, y, yaw) world, rank of the chosen candidate among the top-k).
         ``seed`` seeds ``best_pose``'s tie-break (the sample's index, so runs are repeatable).
     """
     poses = best_pose(floor_xyz, scores, mask, target_xyz, k=max(1, top_k), seed=seed)
     world = [pose_to_world(p, base_pose_world) for p in poses]
+    if target_world is not None:
+        world = [facing_pose(w, target_world) for w in world]
     if top_k > 1 and is_free is not None:
         first_free = None
         for rank, w in enumerate(world):
@@ -424,11 +429,15 @@ class RolloutSuccessRate(L.Callback):
             elif self.top_k > 1:
                 free = self._is_free(spec)
             tie_seed = int(meta.get("index", i))
+            # a map's cell faces the target: roll out the exact pose the annotation rolled out for it
+            target_world = sim.get("target_world")
             if propose is not None:
                 with torch.no_grad():
                     pose, rank = pose_to_world(tuple(float(v) for v in propose(batch_item(batch, i))), base), 0
             else:
-                pose, rank = choose_pose(floor[i], pred[i], mask[i], target[i], base, self.top_k, free, tie_seed)
+                pose, rank = choose_pose(
+                    floor[i], pred[i], mask[i], target[i], base, self.top_k, free, tie_seed, target_world=target_world
+                )
             ep = {
                 "sample_id": str(meta.get("sample_id", "")),
                 "scene_id": str(getattr(spec, "scene_id", meta.get("scene_id", ""))),
@@ -440,8 +449,10 @@ class RolloutSuccessRate(L.Callback):
                 "_key": _sample_key(meta, dataloader_idx),
             }
             if self.oracle:  # the label's argmax, as the paper's Oracle: no footprint check moves it
-                argmax = choose_pose(floor[i], label[i], mask[i], target[i], base, 1, None, tie_seed)[0]
-                ep["oracle_pose"] = list(argmax)
+                argmax = choose_pose(
+                    floor[i], label[i], mask[i], target[i], base, 1, None, tie_seed, None, target_world
+                )
+                ep["oracle_pose"] = list(argmax[0])
             pending.append(ep)
 
     def _run(self, episodes: list[dict[str, Any]]) -> float:

@@ -188,6 +188,8 @@ class FloAffKitchenDataModule(FloAffDataModule):
                 "root": str(self.root),
                 "benchmark": scene.benchmark,
             }
+            if scene.target_world is not None:  # the rollout faces it as the annotation did (frames.facing_pose)
+                sim["target_world"] = list(scene.target_world)
             sample_id = f"{scene.benchmark}/{scene.scene_id}/{v.view_id}"
             meta = {
                 "dataset": f"floaff_kitchen_{scene.benchmark}",

@@ -161,6 +161,22 @@ class SceneEntry:
     sources: list[str] = field(default_factory=list)  # scene-level files (e.g. scene.json)
     format_version: int | None = None  # generated data's on-disk format (1 or 2, docs/data_format.md); else None
     labels_digest: str | None = None  # short hash of the scene's labels (``fileformat.labels_digest``); else None
+    target_world: list[float] | None = None  # the target centre's world (x, y) the annotation faced; else None
+
+
+def _target_world(rec: dict[str, Any]) -> list[float] | None:
+    """The world (x, y) of ``scene.json``'s target (``target.pos``), or None where the record has none.
+
+    Raises:
+        ValueError: ``target.pos`` is there but not 2+ finite numbers.
+    """
+    pos = (rec.get("target") or {}).get("pos")
+    if pos is None:
+        return None
+    xy = [float(v) for v in pos[:2]]
+    if len(xy) != 2 or not all(math.isfinite(v) for v in xy):
+        raise ValueError(f"target.pos must hold finite world coordinates, got {pos}")
+    return xy
 
 
 class FloAffReader(abc.ABC):
@@ -305,6 +321,7 @@ class GeneratedReader(FloAffReader):
             sources=[str(d / ff.SCENE_JSON)],
             format_version=int(rec["format_version"]),
             labels_digest=ff.labels_digest(rec),
+            target_world=_target_world(rec),
         )
 
     def load_view(self, scene: SceneEntry, view: ViewEntry) -> Sample:
