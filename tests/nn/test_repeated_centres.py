@@ -18,7 +18,7 @@ import yaml
 from torch import nn
 
 from floaff_zoo.models.cfar import CFARModule
-from floaff_zoo.nn.nets import NavAffNet
+from floaff_zoo.nn.nets import NavAffNet, SceneEncoderDecoder
 from floaff_zoo.nn.pointnet2 import PointNet2Encoder, SetAbstraction, first_positions
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -99,3 +99,32 @@ def test_cfar_floor_features_do_not_depend_on_surplus_floor_centres():
     torch.testing.assert_close(more.encode_floor(floor, fmask), exact.encode_floor(floor, fmask), atol=1e-5, rtol=1e-4)
     for key, value in _stats(exact).items():
         torch.testing.assert_close(_stats(more)[key], value, atol=1e-5, rtol=1e-4, msg=key)
+
+
+def test_group_all_level_statistics_ignore_repeated_centres():
+    """CFAR's local encoder ends in a group-all level; its batch statistics ran over the repeats of the level below."""
+    torch.manual_seed(0)
+    xyz, feat = torch.rand(2, 7, 3), torch.randn(2, 7, 2)
+    exact = PointNet2Encoder(2, [7], [[0.4]], [[4]], [[[8]]], group_all_mlp=[8, 16]).train()
+    more = copy.deepcopy(exact)
+    more.levels[0].npoint = 12
+    torch.testing.assert_close(more(xyz, feat)[-1][1], exact(xyz, feat)[-1][1], atol=1e-5, rtol=1e-4)
+    for key, value in _stats(exact).items():
+        torch.testing.assert_close(_stats(more)[key], value, atol=1e-6, rtol=1e-5, msg=key)
+
+
+def test_scene_decoder_gives_repeated_seeds_their_first_occurrences_row_in_training():
+    """The scene decoder keeps repeats out of its batch statistics (their training rows are 0 there), but the floor FP
+    and the vote heads read every stop-level row: each repeat must carry its first occurrence's row, as in eval."""
+    torch.manual_seed(0)
+    net = SceneEncoderDecoder(1, 2, 8, [12, 4], [[0.3], [0.6]], [[4], [4]], [[[8]], [[16]]], [[16]], True).train()
+    xyz, feat, mask, robot = (
+        torch.rand(2, 5, 3),
+        torch.rand(2, 5, 1),
+        torch.ones(2, 5, dtype=torch.bool),
+        torch.rand(2, 2),
+    )
+    fps = net.sample(xyz, mask)
+    _, rows, _ = net(xyz, feat, mask, robot, fps)
+    assert rows.shape[1] == 12 and rows.abs().sum(-1).gt(0).all()
+    torch.testing.assert_close(rows[:, 5:], rows[:, :1].expand(-1, 7, -1))  # FPS repeats the first point

@@ -27,8 +27,10 @@ from floaff_zoo.nn.pointnet2 import (
     PointNet2Encoder,
     SetAbstraction,
     SharedMLP,
+    copy_to_repeats,
     on_valid_rows,
     one_row_batch_norm,
+    repeat_sources,
 )
 
 __all__ = [
@@ -159,6 +161,10 @@ class SceneEncoderDecoder(nn.Module):
             lvl = n - 1 - j
             cur = fp(levels[lvl][0], levels[lvl + 1][0], levels[lvl][1], cur, kept[lvl + 1], kept[lvl])
         stop = self.stop_level
+        # the caller reads every stop-level row (FP onto the floor, vote heads): a repeat gets its first occurrence's
+        # row, which training left at 0 (kept out of the batch statistics above)
+        if stop > 0:
+            cur = copy_to_repeats(cur, repeat_sources(fps[stop - 1]))
         return levels[stop][0], cur, levels
 
 

@@ -252,6 +252,11 @@ def repeat_sources(idx: Tensor | None) -> Tensor | None:
     return None if bool((src == torch.arange(idx.shape[1], device=idx.device)).all()) else src
 
 
+def copy_to_repeats(x: Tensor, src: Tensor | None) -> Tensor:
+    """x [B, S, C] with every repeated centre's row replaced by its first occurrence's (``repeat_sources`` src)."""
+    return x if src is None else x.gather(1, src[..., None].expand(-1, -1, x.shape[-1]))
+
+
 def kept_centres(src: Tensor | None) -> Tensor | None:
     """[B, S] bool, False on repeated centres (``repeat_sources``), or None when nothing repeats."""
     return None if src is None else src == torch.arange(src.shape[1], device=src.device)
@@ -719,7 +724,11 @@ class SetAbstraction(nn.Module):
         """
         if self.group_all:
             grouped = self._cat(xyz, feat)  # classic port: raw xyz, centre at the origin
-            out = self.mlps[0].pooled(grouped, dim=1, mask=mask)[:, None]
+            mlp = self.mlps[0]
+            if mask is not None and not mlp.rowwise():  # masked rows (repeated centres) stay out of the statistics
+                out = masked_max(mlp(grouped, mask), mask, 1)[:, None]
+            else:
+                out = mlp.pooled(grouped, dim=1, mask=mask)[:, None]
             return xyz.new_zeros(xyz.shape[0], 1, 3), out
         if fps_idx is None:
             fps_idx = farthest_point_sample(xyz, mask, self.npoint)
@@ -788,7 +797,7 @@ class SetAbstraction(nn.Module):
             None if x is None else x[keep][None], dim=2, first=None if first is None else first[keep][None]
         )
         out = rows.new_zeros(*keep.shape, rows.shape[-1]).masked_scatter(keep[..., None], rows[0])
-        return out.gather(1, src[..., None].expand(-1, -1, out.shape[-1]))
+        return copy_to_repeats(out, src)
 
     def _first_layer_per_point(self, mlp: SharedMLP, xyz: Tensor, feat: Tensor) -> tuple[Tensor, Tensor]:
         """The first Linear of ``[p, f]`` on the N input points, not on the S x K grouped rows.
