@@ -45,7 +45,7 @@ def main(argv: list[str] | None = None) -> int:
             default = predict_from_points(model, *args, None, target_yaw=None, cell=a.cell, **common)
             dataset = predict_from_points(model, *args, s["floor_xyz"], target_yaw=None, **common)
             spec = SceneSpec.from_dict(sim)
-            target_world = (scene.get("target") or {}).get("pos")  # faced in float64, as floaff-zoo test does
+            target_world = sim.get("target_world")  # faced in float64, as floaff-zoo test does
             for key, pred in (("default", default), ("dataset", dataset)):
                 pose = pose_to_world(pred.best_pose, sim["base_pose_world"])
                 jobs[key].append((spec, pose if target_world is None else facing_pose(pose, target_world)))

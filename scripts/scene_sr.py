@@ -7,10 +7,9 @@ Every view of a test scene asks the same question about one kitchen, and a model
 target-relative cell in most of them, so one scene's 200 views are not 200 independent trials: a scene adds
 or removes its whole weight at once. ``floaff-zoo test``'s bootstrap resamples views and says nothing about
 that. This script scores each model's argmax as ``RolloutSuccessRate`` chooses it (top 1) by the annotated
-outcome of the chosen cell (the test's SR up to a few views: the test replays the annotation's episode and refuses
-the cells it filtered, but it parks the base at the chosen floor point's pose rebuilt from float32 and rounded to
-6 decimals, and on the generator-2.3 Layouts copy that flipped 4 of 4,735 views of the three seeds of the best
-configuration, one Layouts CloseDoubleDoor cell, from success to collision), then reports:
+outcome of the chosen cell (the test's SR: the test replays the annotation's episode at the annotation's exact pose
+and refuses the cells it filtered; before 2026-12-06 it parked at a pose rebuilt from float32, which changed 4
+outcomes in 51,859 view evaluations, ``docs/results.md``), then reports:
 
 - SR per scene, per task and over all views, for every NAME (runs given under one NAME, e.g. seeds, are averaged
   per scene: a row of the tables);

@@ -31,7 +31,7 @@ from floaff_zoo.contract import NonFiniteError, SampleError
 from floaff_zoo.data.base import FloAffDataModule
 from floaff_zoo.models.base import WEIGHTS_FAILURE_NOTE, ZooModule
 from floaff_zoo.nn import _fps_ext, ops
-from floaff_zoo.runs import CHECKPOINT_KEYS, RunError, load_checkpoint, resolve_ckpt_alias
+from floaff_zoo.runs import CHECKPOINT_KEYS, RunError, config_value, config_values, load_checkpoint, resolve_ckpt_alias
 
 TRAINER_COMMANDS = ("fit", "validate", "test", "predict")
 #: commands that evaluate a trained model: ``--ckpt_path best|last`` and strict ``weights`` apply to them
@@ -169,7 +169,7 @@ def integer_limits(args: list[str]) -> dict[str, int]:
     order, as the parser applies them) is an integer: a literal such as ``1``, or an int in the file's YAML."""
     given: dict[str, Any] = {}
     for i, arg in enumerate(args):
-        config = _config_value(args, i)
+        config = config_value(args, i)
         if config is not None:
             trainer = _yaml_mapping(config).get("trainer")
             for stage in _LIMIT_STAGES:
@@ -186,18 +186,6 @@ def integer_limits(args: list[str]) -> dict[str, int]:
                 continue
             given[stage] = int(text) if text.strip().isdigit() else text
     return {s: v for s, v in given.items() if isinstance(v, int) and not isinstance(v, bool)}
-
-
-def _config_value(args: list[str], i: int) -> str | None:
-    """The value ``args[i]`` gives ``--config`` (``--config X`` or ``--config=X``); None when it gives none."""
-    if args[i] == "--config":
-        return args[i + 1] if i + 1 < len(args) else None
-    return args[i].partition("=")[2] if args[i].startswith("--config=") else None
-
-
-def config_values(args: list[str]) -> list[str]:
-    """The ``--config`` values of ``args`` (``--config X`` or ``--config=X``), in order."""
-    return [v for v in (_config_value(args, i) for i in range(len(args))) if v is not None]
 
 
 def config_files(args: list[str]) -> list[str]:

@@ -61,6 +61,8 @@ from typing import Any
 
 import yaml
 
+from floaff_zoo.runs import config_values
+
 __all__ = ["CurriculumError", "build_stage_args", "load_experiment", "main", "read_lineage", "run_curriculum"]
 
 STAGE_FILE = "stage.json"
@@ -401,18 +403,10 @@ def _finished(record: dict[str, Any] | None, args: list[str]) -> tuple[bool, str
 INPUT_SUFFIXES = (".ckpt", ".safetensors", ".pt", ".pth", ".npz")
 
 
-def _config_values(args: list[str]) -> list[str]:
-    """``floaff_zoo.cli.config_values`` (the ``--config`` values of a fit argument list), imported when first needed:
-    the cli module loads Lightning and every model, which reading a lineage does not need."""
-    from floaff_zoo.cli import config_values as values
-
-    return values(args)
-
-
 def _input_files(args: list[str]) -> dict[str, str]:
     """{path: sha256} of every existing file of an ``INPUT_SUFFIXES`` kind that a fit argument names, or that a value
     in one of its ``--config`` files names (e.g. ``data.init_args.train_labels``, an ``.npz`` a script regenerates)."""
-    named = list(args) + [v for f in _config_values(args) for v in _yaml_strings(f)]
+    named = list(args) + [v for f in config_values(args) for v in _yaml_strings(f)]
     return {a: _sha256(a) for a in dict.fromkeys(named) if a.endswith(INPUT_SUFFIXES) and Path(a).is_file()}
 
 
@@ -459,7 +453,7 @@ def _metrics(cli: Any) -> dict[str, float]:
 def _digest(args: list[str]) -> str:
     """sha256 of a stage's fit arguments and of its ``--config`` files' contents: a run may be resumed only by a
     stage whose digest is the one recorded for that run."""
-    configs = {f: _sha256(f) for f in _config_values(args) if Path(f).is_file()}
+    configs = {f: _sha256(f) for f in config_values(args) if Path(f).is_file()}
     blob = json.dumps({"args": args, "config_sha256": configs}, sort_keys=True)
     return hashlib.sha256(blob.encode()).hexdigest()
 
@@ -707,7 +701,7 @@ def _fit_stage(
         "digest": running["digest"],
         "inputs": running["inputs"],  # as the fit read them: a file rewritten meanwhile is not what it used
         "resumed_from": str(resume) if resume else None,
-        "configs": _config_values(args),
+        "configs": config_values(args),
         "tasks": stage.get("tasks"),
         "from_stages": {k: best.get(ref) for k, ref in (stage.get("from_stages") or {}).items()},
         "checkpoint": str(ckpt),
@@ -753,7 +747,7 @@ def _check_config_files(cfg: dict[str, Any], config: str | Path, extra: list[str
         if not Path(f).is_file():
             raise CurriculumError(f"{config}: config file {f} does not exist {where}")
     for stage in cfg["stages"]:
-        for f in _config_values(build_stage_args(cfg, stage, Path(cfg["root"]), {}, extra)):
+        for f in config_values(build_stage_args(cfg, stage, Path(cfg["root"]), {}, extra)):
             if not Path(f).is_file():
                 raise CurriculumError(f"{config}: stage {stage['name']}: config file {f} does not exist {where}")
 

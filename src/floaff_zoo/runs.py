@@ -159,3 +159,16 @@ def finished_runs(root: str | Path) -> list[tuple[Path, dict[str, Any]]]:
         if record is not None and Path(record["checkpoint"]).is_file():
             out.append((marker.parent, record))
     return sorted(out, key=lambda item: item[0].joinpath(FINISHED_FILE).stat().st_mtime)
+
+
+def config_value(args: list[str], i: int) -> str | None:
+    """The value ``args[i]`` gives ``--config`` (``--config X`` or ``--config=X``); None when it gives none."""
+    if args[i] == "--config":
+        return args[i + 1] if i + 1 < len(args) else None
+    return args[i].partition("=")[2] if args[i].startswith("--config=") else None
+
+
+def config_values(args: list[str]) -> list[str]:
+    """The ``--config`` values of ``args`` (``--config X`` or ``--config=X``), in order: the CLI's and the
+    curriculum's (which reads lineages without loading the CLI's Lightning and models)."""
+    return [v for v in (config_value(args, i) for i in range(len(args))) if v is not None]

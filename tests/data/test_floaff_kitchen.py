@@ -371,6 +371,8 @@ def test_a_pre_transform_keeps_its_meta_changes_through_the_cache(floaff_root):
         lambda r: r["views"][0].update(view="Front"),  # was filtered out by `views` without a count
         lambda r: r["target"].update(pos=[float("nan"), 2.0, 0.9]),  # the rollout's yaw faces it
         lambda r: r["target"].update(pos=[1.0]),
+        lambda r: r["target"].update(pos=1.0),
+        lambda r: r.update(target=[1.0, 2.0]),
     ],
     ids=[
         "view_without_file",
@@ -383,6 +385,8 @@ def test_a_pre_transform_keeps_its_meta_changes_through_the_cache(floaff_root):
         "view_kind_typo",
         "target_nan",
         "target_short",
+        "target_scalar",
+        "target_not_a_record",
     ],
 )
 def test_a_malformed_scene_json_is_a_counted_skip_naming_the_file(floaff_root, tmp_path, edit):

@@ -137,3 +137,20 @@ def test_format_2_scene_records_are_checked(tmp_path, field, value, message):
     sj.write_text(json.dumps(data))
     with pytest.raises(ff.FormatError, match=message):
         ff.read_scene(sj)
+
+
+def test_read_sample_gives_the_target_world_and_names_a_bad_one(tmp_path):
+    """predict_sr.py rolls out from read_sample's meta: it faces the target as the annotation did, and a bad
+    target.pos is a FormatError naming scene.json, not a TypeError inside the rollout."""
+    import json
+
+    make_floaff_dataset(tmp_path, problems=False, version=2)
+    rec = next(ff.iter_scenes(tmp_path, benchmark="styles"))
+    assert ff.read_sample(rec, rec["views"][0])["meta"]["sim"]["target_world"] == [1.0, 2.0]
+    sj = tmp_path / "styles" / rec["scene_id"] / ff.SCENE_JSON
+    bad = json.loads(sj.read_text())
+    bad["target"]["pos"] = "here"
+    sj.write_text(json.dumps(bad))
+    rec = next(r for r in ff.iter_scenes(tmp_path, benchmark="styles") if r["scene_id"] == rec["scene_id"])
+    with pytest.raises(ff.FormatError, match=r"scene.json: target.pos must be a list"):
+        ff.read_sample(rec, rec["views"][0])

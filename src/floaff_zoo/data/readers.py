@@ -164,21 +164,6 @@ class SceneEntry:
     target_world: list[float] | None = None  # the target centre's world (x, y) the annotation faced; else None
 
 
-def _target_world(rec: dict[str, Any]) -> list[float] | None:
-    """The world (x, y) of ``scene.json``'s target (``target.pos``), or None where the record has none.
-
-    Raises:
-        ValueError: ``target.pos`` is there but not 2+ finite numbers.
-    """
-    pos = (rec.get("target") or {}).get("pos")
-    if pos is None:
-        return None
-    xy = [float(v) for v in pos[:2]]
-    if len(xy) != 2 or not all(math.isfinite(v) for v in xy):
-        raise ValueError(f"target.pos must hold finite world coordinates, got {pos}")
-    return xy
-
-
 class FloAffReader(abc.ABC):
     """Interface of a FloAff-Kitchen reader (subclass it and :func:`register_reader` it).
 
@@ -321,7 +306,7 @@ class GeneratedReader(FloAffReader):
             sources=[str(d / ff.SCENE_JSON)],
             format_version=int(rec["format_version"]),
             labels_digest=ff.labels_digest(rec),
-            target_world=_target_world(rec),
+            target_world=ff.target_world(rec),
         )
 
     def load_view(self, scene: SceneEntry, view: ViewEntry) -> Sample:

@@ -388,6 +388,30 @@ def iter_scenes(
             yield rec
 
 
+def target_world(rec: dict[str, Any]) -> list[float] | None:
+    """The world (x, y) of a scene record's target (``target.pos``), which the annotation's poses face; None where
+    the record has none.
+
+    Raises:
+        FormatError: ``target.pos`` is there but not 2+ finite numbers.
+    """
+    target = rec.get("target")
+    if target is not None and not isinstance(target, dict):
+        raise FormatError(f"target must be a record with a 'pos', got {target!r:.80}")
+    pos = None if target is None else target.get("pos")
+    if pos is None:
+        return None
+    if not isinstance(pos, (list, tuple)):
+        raise FormatError(f"target.pos must be a list of world coordinates, got {pos!r:.80}")
+    try:
+        xy = [float(v) for v in pos[:2]]
+    except (TypeError, ValueError) as exc:
+        raise FormatError(f"target.pos must hold world coordinates, got {pos!r:.80}") from exc
+    if len(xy) != 2 or not all(np.isfinite(xy)):
+        raise FormatError(f"target.pos must hold finite world coordinates, got {pos}")
+    return xy
+
+
 def read_sample(scene: dict[str, Any], view: dict[str, Any], root: str | Path | None = None) -> dict[str, Any]:
     """Build one sample-contract dict (README, "The sample contract") from a scene record and one of its views.
 
@@ -409,6 +433,12 @@ def read_sample(scene: dict[str, Any], view: dict[str, Any], root: str | Path | 
         "base_pose_world": [float(v) for v in arr["base_pose_world"]],
         "root": str(root) if root is not None else str(Path(scene["dir"]).parent.parent),
     }
+    try:
+        target = target_world(scene)
+    except FormatError as exc:
+        raise FormatError(f"{Path(scene['dir']) / SCENE_JSON}: {exc}") from exc
+    if target is not None:  # the rollout faces it as the annotation did (frames.facing_pose)
+        sim["target_world"] = target
     meta = {
         "dataset": f"floaff_sim_{scene['benchmark']}",
         "task": scene["task"],
