@@ -19,7 +19,8 @@ from torch import nn
 
 from floaff_zoo.models.cfar import CFARModule
 from floaff_zoo.nn.nets import NavAffNet, SceneEncoderDecoder
-from floaff_zoo.nn.pointnet2 import PointNet2Encoder, SetAbstraction, first_positions
+from floaff_zoo.nn.ops import farthest_point_sample
+from floaff_zoo.nn.pointnet2 import PointNet2Encoder, SetAbstraction, repeat_sources
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -28,9 +29,23 @@ def _stats(model: nn.Module) -> dict[str, torch.Tensor]:
     return {k: v.clone() for k, v in model.state_dict().items() if k.endswith(("running_mean", "running_var"))}
 
 
-def test_first_positions_points_each_repeat_at_its_first_occurrence():
-    idx = torch.tensor([[3, 1, 3, 3, 0], [0, 1, 2, 3, 4]])
-    assert first_positions(idx).tolist() == [[0, 1, 0, 0, 4], [0, 1, 2, 3, 4]]
+@pytest.mark.parametrize("tolerant", [False, True])
+def test_repeat_sources_find_what_fps_repeats(tolerant):
+    """Every FPS of the zoo repeats its first centre once a cloud runs out, even with padding and points that share
+    a position: the repeats are exactly the entries that index a point chosen before."""
+    from floaff_zoo.nn.cfar import tolerant_fps
+
+    torch.manual_seed(0)
+    xyz = torch.rand(3, 9, 3)
+    xyz[1, 4] = xyz[1, 2]  # two points at one position
+    mask = torch.ones(3, 9, dtype=torch.bool)
+    mask[2, 5:] = False  # padding
+    idx = (tolerant_fps if tolerant else farthest_point_sample)(xyz, mask, 12)
+    seen_before = torch.tensor([[row[j] in row[:j] for j in range(12)] for row in idx.tolist()])
+    src = repeat_sources(idx)
+    assert (src != torch.arange(12)).equal(seen_before) and seen_before.any()
+    assert idx.gather(1, src).equal(idx)  # each repeat points at its first occurrence
+    assert repeat_sources(idx[:, :5]) is None  # 9 or 5 valid points: no repeat among the first 5 centres
 
 
 @pytest.mark.parametrize("per_point", [False, True])

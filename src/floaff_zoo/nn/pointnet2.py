@@ -49,7 +49,6 @@ __all__ = [
     "PointNet2Seg",
     "SetAbstraction",
     "SharedMLP",
-    "first_positions",
     "masked_max",
     "on_valid_rows",
 ]
@@ -231,25 +230,22 @@ def on_valid_rows(fn: Callable[[Tensor], Tensor], x: Tensor, mask: Tensor) -> Te
 NARROW_IN_FEATURES = 8
 
 
-def first_positions(idx: Tensor) -> Tensor:
-    """For each entry of idx [B, S] (int64), the first position of its row holding the same index: [B, S] int64.
-
-    FPS over a cloud with fewer valid points than centres repeats a point (``farthest_point_sample``); a
-    centre whose index appeared earlier in its row is a repeat, ``first_positions(idx) != arange(S)``.
-    """
-    b, s = idx.shape
-    pos = torch.arange(s, device=idx.device).expand(b, s)
-    first = torch.full((b, int(idx.max()) + 1), s, dtype=torch.long, device=idx.device)
-    first = first.scatter_reduce(1, idx, pos, reduce="amin")
-    return first.gather(1, idx)
-
-
 def repeat_sources(idx: Tensor | None) -> Tensor | None:
-    """``first_positions(idx)`` [B, S] where a row repeats an index, None where none does (or idx is None)."""
-    if idx is None or idx.numel() == 0:
+    """Where each centre of idx [B, S] (FPS indices) takes its row from: [B, S] int64, 0 for a repeat, else its own
+    position; None where nothing repeats (or idx is None).
+
+    FPS over a cloud with fewer valid points than centres repeats its first centre once the valid points run out
+    (``ops.farthest_point_sample``, CFAR's ``tolerant_fps`` and their C++ / Triton kernels: the first valid point
+    wins every tie at distance 0), so a repeat is an entry equal to ``idx[:, 0]`` after position 0.
+    """
+    if idx is None or idx.shape[1] < 2:
         return None
-    src = first_positions(idx)
-    return None if bool((src == torch.arange(idx.shape[1], device=idx.device)).all()) else src
+    repeat = idx == idx[:, :1]
+    repeat[:, 0] = False
+    if not bool(repeat.any()):
+        return None
+    own = torch.arange(idx.shape[1], device=idx.device).expand_as(idx)
+    return torch.where(repeat, torch.zeros_like(own), own)
 
 
 def copy_to_repeats(x: Tensor, src: Tensor | None) -> Tensor:
