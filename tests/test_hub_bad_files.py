@@ -102,3 +102,15 @@ def test_a_class_path_other_than_the_recorded_one_is_refused(tmp_path):
         export_checkpoint(ckpt, "tiny.cls.v1", class_path="floaff_zoo.models.Nope")
     entry, _ = export_checkpoint(ckpt, "tiny.cls.v1", class_path=TINY)  # the same class: fine
     assert entry.class_path == TINY
+
+
+@pytest.mark.parametrize("field, value", [("meta", ["x"]), ("name", 5)])
+def test_an_exported_config_of_a_wrong_meta_or_name_names_its_file(tmp_path, field, value):
+    """A `meta` that is no object died in `dict(...)` with "dictionary update sequence element #0 has length 1",
+    naming neither the file nor the field."""
+    exported = tmp_path / "export"
+    TinyPointNetModule(width=8).save_pretrained(str(exported))
+    cfg = json.loads((exported / "config.json").read_text())
+    (exported / "config.json").write_text(json.dumps({**cfg, field: value}))
+    with pytest.raises(ValueError, match=rf"config\.json: '{field}' must be an? "):
+        load_model(exported)

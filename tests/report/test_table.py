@@ -260,3 +260,15 @@ def test_rows_that_read_the_simulators_yaw_are_marked(tmp_path):
     labelled = dict(gt, label="CFAR, simulator yaw")
     assert build_table([labelled, c2f_fair], "map", group_by="label").sections[0].rows[0].name == "CFAR, simulator yaw"
     assert build_table([c2f_fair], "map").sections[0].rows[0].name == "C2FExpModule"
+
+
+def test_a_pipe_in_a_row_label_stays_in_its_markdown_cell(tmp_path):
+    """A `|` in a label (``--label``, a ``--group-by`` value) split the Markdown row: every value moved one column to
+    the right under the wrong header and the last one fell off the table."""
+    src = json.loads((RUNS / "cfar_styles_s0" / "report.json").read_text())
+    md = render(build_table([dict(src, label="r=1.2 | top-k")], "map", group_by="label"), "md")
+    row = next(line for line in md.splitlines() if line.startswith("| r=1.2"))
+    header = md.splitlines()[0]
+    cells = [c for c in row.replace("\\|", "\0").split("|")[1:-1]]
+    assert len(cells) == len(header.split("|")[1:-1]) == 5  # Method + RMSE, logMSE, PCC, SIM
+    assert cells[0].strip() == "r=1.2 \0 top-k" and row.startswith("| r=1.2 \\| top-k |")

@@ -148,6 +148,10 @@ def read_config(directory: Path) -> dict[str, Any]:
     sha = cfg.get("sha256")
     if sha is not None and not (isinstance(sha, str) and re.fullmatch(r"[0-9a-fA-F]{64}", sha)):
         raise ValueError(f"{cfg_path}: 'sha256' must be 64 hex digits, got {sha!r}")
+    if not isinstance(cfg.get("meta") or {}, dict):  # the loader hands it on as a dict (test metrics, SR, ...)
+        raise ValueError(f"{cfg_path}: 'meta' must be an object, got {cfg['meta']!r}")
+    if not isinstance(cfg.get("name") or "", str):
+        raise ValueError(f"{cfg_path}: 'name' must be a string, got {cfg['name']!r}")
     return cfg
 
 

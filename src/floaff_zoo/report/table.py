@@ -697,22 +697,28 @@ def _col_title(col: Column, latex: bool = False) -> str:
     return head + ((" ↓" if col.lower_better else " ↑") if col.arrow else "")
 
 
+def _md(s: str) -> str:
+    """Text for a Markdown table cell: a ``|`` in a row label (``--label``, a ``--group-by`` value) split the row
+    and moved every value one column to the right."""
+    return s.replace("|", "\\|")
+
+
 def render_markdown(table: Table) -> str:
     cols = table.columns
     lines = [
-        "| " + " | ".join([table.row_header] + [_col_title(c) for c in cols]) + " |",
+        "| " + " | ".join([_md(table.row_header)] + [_md(_col_title(c)) for c in cols]) + " |",
         "|" + "---|" + "---:|" * len(cols),
     ]
     for sec in table.sections:
         if sec.title:
-            lines.append(f"| **{sec.title}** |" + " |" * len(cols))
+            lines.append(f"| **{_md(sec.title)}** |" + " |" * len(cols))
         bests = [_best(sec, j, c) for j, c in enumerate(cols)]
         for row in sec.rows:
             cells = []
             for j, c in enumerate(cols):
                 t = _text(row.cells[j], c, " ± ")
                 cells.append(f"**{t}**" if _is_best(row.cells[j], bests[j], c) and not row.oracle else t)
-            lines.append("| " + " | ".join([row.name] + cells) + " |")
+            lines.append("| " + " | ".join([_md(row.name)] + cells) + " |")
     runs = "; ".join(
         f"{r.name}{f' ({_short(sec.title)})' if sec.title else ''}: {r.runs_text or r.runs}"
         for sec in table.sections
