@@ -537,3 +537,39 @@ def test_strict_names_a_missing_view_file_once_and_as_missing(tmp_path):
     message = str(err.value)
     assert str(view) in message and "view file listed in scene.json is missing" in message
     assert message.count("strict=True") == 1 and "scene.json:" not in message.split(str(view))[0]
+
+
+_SCALED_READER = """
+from floaff_zoo.data.readers import GeneratedReader
+
+
+class ScaledReader(GeneratedReader):
+    def load_view(self, scene, view):
+        s = super().load_view(scene, view)
+        s["floor_label"] = s["floor_label"] * {scale}
+        return s
+"""
+
+
+def test_an_edited_user_reader_reaches_the_cached_samples(floaff_root, tmp_path, monkeypatch):
+    """The cache key held the package's parsing code and the reader's class name, not a user reader's code: after
+    an edit to ``reader: my_module:MyReader`` the cache kept serving what the old code had read."""
+    import importlib
+    import sys
+
+    root, _ = floaff_root
+    module = tmp_path / "user_reader_mod.py"
+    monkeypatch.syspath_prepend(str(tmp_path))
+
+    def labels(scale: float) -> float:
+        module.write_text(_SCALED_READER.format(scale=scale))
+        sys.modules.pop("user_reader_mod", None)  # a new process would import the edited file
+        importlib.invalidate_caches()
+        dm = _dm(root, reader="user_reader_mod:ScaledReader", tasks=["CloseDrawer"], cache=True)
+        dm.setup("test")
+        return max(float(dm.datasets["test"][i]["floor_label"].max()) for i in range(len(dm.datasets["test"])))
+
+    half = labels(0.5)
+    assert half > 0
+    assert labels(1.0) == pytest.approx(2 * half)
+    assert labels(0.5) == pytest.approx(half)  # the first code's entries are found again

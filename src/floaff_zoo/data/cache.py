@@ -6,8 +6,9 @@ are written to ``<cache_dir>/<dataset>-<config hash>/<sample hash>.pt``.
 
 * ``<config hash>`` = SHA-256 of the reader's settings (e.g. flag radius, robot table, yaw
   estimator), the ``pre_transforms`` config (with the seed they draw from, when there are any) and the source code
-  of the modules that turn files into tensors (``PARSER_MODULES``): changing any of them uses a fresh directory, so a
-  parsing fix reaches samples (and ``.skip`` markers) cached before it. Without pre-transforms every training seed
+  of the modules that turn files into tensors (``PARSER_MODULES``, and the files defining a reader or pre-transform
+  class from outside them: ``code_digest``): changing any of them uses a fresh directory, so a parsing fix reaches
+  samples (and ``.skip`` markers) cached before it. Without pre-transforms every training seed
   shares one directory.
 * ``<sample hash>`` = SHA-256 of the record key and its source files' signature: (path, size,
   mtime_ns) by default (``hash_mode="stat"``, checked at every access), or the file bytes (``hash_mode="content"``,
@@ -27,7 +28,9 @@ from __future__ import annotations
 import functools
 import hashlib
 import importlib.util
+import inspect
 import json
+import sys
 import warnings
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
@@ -67,6 +70,28 @@ def parser_digest() -> str:
             raise ImportError(f"sample cache: cannot find the module {name}")
         h.update(name.encode() + b"\0" + Path(spec.origin).read_bytes())
     return h.hexdigest()[:16]
+
+
+def code_digest(objects: Sequence[object]) -> str | None:
+    """SHA-256 (16 hex digits) of the code of the classes of ``objects`` (a reader, the pre-transforms) and their
+    bases that lie outside ``PARSER_MODULES`` and the standard library: a user's reader (``reader:
+    my_pkg.my_module:MyReader``) or pre-transform, whose edits must reach cached samples as the package's do. None
+    when every class is the package's parsing code (those caches keep their key)."""
+    h, found = hashlib.sha256(), False
+    for obj in objects:
+        for cls in type(obj).__mro__:
+            module = cls.__module__
+            if module in PARSER_MODULES or module.split(".")[0] in sys.stdlib_module_names:
+                continue
+            found = True
+            h.update(f"{module}:{cls.__qualname__}".encode() + b"\0")
+            try:
+                path = inspect.getsourcefile(cls)
+            except TypeError:  # a class without a source file (a C extension's)
+                path = None
+            if path is not None and Path(path).is_file():
+                h.update(Path(path).read_bytes())
+    return h.hexdigest()[:16] if found else None
 
 
 def _sha(obj: Any) -> str:

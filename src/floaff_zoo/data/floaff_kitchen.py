@@ -28,7 +28,7 @@ from lightning.pytorch.utilities.exceptions import MisconfigurationException
 
 from floaff_zoo.contract import FULL_CLOUD_KEY, TASKS, VIEWS, Sample, SampleError
 from floaff_zoo.data.base import DataConfigError, FloAffDataModule, check_size
-from floaff_zoo.data.cache import RecordDataset, SampleCache
+from floaff_zoo.data.cache import RecordDataset, SampleCache, code_digest
 from floaff_zoo.data.readers import (
     FloAffReader,
     SampleRecord,
@@ -373,6 +373,9 @@ class FloAffKitchenDataModule(FloAffDataModule):
         cfg = {**reader.config(), "pre_transforms": transforms_config(self.pre_transforms), "seed": self.seed}
         if full_cloud:  # only then: caches made without it keep their key
             cfg["full_cloud"] = True
+        code = code_digest([reader, *self.pre_transforms])
+        if code is not None:  # a user's reader or pre-transform: its edits re-parse, as the package's do
+            cfg["code"] = code
         return SampleCache(self.cache_dir, f"floaff_{self.benchmark}", cfg, self.cache_hash)
 
     def transforms_for(self, split: str) -> list[SampleTransform]:

@@ -53,7 +53,7 @@ from lightning.pytorch.utilities.exceptions import MisconfigurationException
 
 from floaff_zoo.contract import Sample
 from floaff_zoo.data.base import DataConfigError, FloAffDataModule, check_size
-from floaff_zoo.data.cache import RecordDataset, SampleCache
+from floaff_zoo.data.cache import RecordDataset, SampleCache, code_digest
 from floaff_zoo.data.readers import DataError, SampleRecord, SkipLog, check_finite_arrays
 from floaff_zoo.data.transforms import SampleTransform, transforms_config
 
@@ -546,6 +546,9 @@ class MoMaKitchenDataModule(FloAffDataModule):
         cache = None
         if self.use_cache:
             cfg = {**self.reader.config(), "pre_transforms": transforms_config(self.pre_transforms), "seed": self.seed}
+            code = code_digest([self.reader, *self.pre_transforms])
+            if code is not None:  # a user's reader or pre-transform: its edits re-parse, as the package's do
+                cfg["code"] = code
             cache = SampleCache(self.cache_dir, "moma_kitchen", cfg, self.cache_hash)
         ds = RecordDataset(
             records, self.reader.load, cache, self.pre_transforms, self.seed, f"moma_kitchen/{name}", self.strict
