@@ -573,3 +573,50 @@ def test_an_edited_user_reader_reaches_the_cached_samples(floaff_root, tmp_path,
     assert half > 0
     assert labels(1.0) == pytest.approx(2 * half)
     assert labels(0.5) == pytest.approx(half)  # the first code's entries are found again
+
+
+def _edit_first_train_scene(root, tmp_path, edit):
+    """A copy of the fixture whose first CloseDrawer training scene.json is changed by edit(rec); (copy, path)."""
+    copy = tmp_path / "data"
+    shutil.copytree(root, copy, ignore=shutil.ignore_patterns(".cache"))
+    sj = sorted((copy / "styles").glob("CloseDrawer-train*/scene.json"))[0]
+    rec = json.loads(sj.read_text())
+    edit(rec)
+    sj.write_text(json.dumps(rec))
+    return copy, sj
+
+
+def test_a_view_listed_twice_is_read_once(floaff_root, tmp_path):
+    """A view listed twice in scene.json (by id, or two ids naming one file) was loaded twice without a word: twice
+    in the metrics, and one more view of its kind against max_views_per_scene."""
+    root, _ = floaff_root
+
+    def twice(rec):
+        v = rec["views"][0]
+        rec["views"] += [dict(v), dict(v, view_id=v["view_id"] + "_again")]
+
+    copy, sj = _edit_first_train_scene(root, tmp_path, twice)
+    dm = _dm(copy, tasks=["CloseDrawer"])
+    dm.setup("fit")
+    keys = [r.key for s in ("train", "val") for r in dm.datasets[s].records if sj.parent.name in r.key]
+    first = json.loads(sj.read_text())["views"][0]["view_id"]
+    assert len(keys) == len(set(keys)) and sum(k.endswith(f"/{first}") for k in keys) == 1
+    assert not any(k.endswith("_again") for k in keys)
+    assert dm.skips.counts["duplicate_view"] == 2 and str(sj) in dm.skips.summary()
+
+
+def test_a_view_whose_npz_pose_disagrees_with_scene_json_is_skipped(floaff_root, tmp_path):
+    """scene.json's base_pose_world was taken on trust: edited, the rollout parked the robot there while the view's
+    points were taken at the npz's pose, and SR was scored at the wrong place without a word."""
+    root, exp = floaff_root
+
+    def moved(rec):
+        rec["views"][0]["base_pose_world"] = [9.0, 9.0, 0.0]
+
+    copy, sj = _edit_first_train_scene(root, tmp_path, moved)
+    dm = _dm(copy, tasks=["CloseDrawer"])
+    dm.setup("fit")
+    assert dm.skips.counts["bad_view"] == exp["skips"].get("bad_view", 0) + 1
+    assert "disagrees with" in dm.skips.summary() and str(sj) in dm.skips.summary()
+    view = json.loads(sj.read_text())["views"][0]["view_id"]
+    assert all(not r.key.endswith(f"{sj.parent.name}/{view}") for s in ("train", "val") for r in dm.datasets[s].records)

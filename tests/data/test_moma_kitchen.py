@@ -308,3 +308,24 @@ def test_label_centroid_warns_when_the_test_split_is_set_up(moma_root):
     root, _ = moma_root
     with pytest.warns(UserWarning, match="label_centroid estimates the test samples' target_yaw from their labels"):
         _dm(root, yaw_estimator="label_centroid").setup("test")
+
+
+def test_a_split_file_that_is_no_utf8_text_or_repeats_a_line(moma_root):
+    """A latin-1 byte died as a bare UnicodeDecodeError naming no file; a repeated line loaded its sample twice
+    (counted twice by the metrics) without a word."""
+    root, exp = moma_root
+    split = root / "data_split" / "kitchen_test.txt"
+    text = split.read_text()
+    first = text.split()[0]
+    split.write_text(text.rstrip("\n") + f"\n{first}\n")
+    dm = _dm(root)
+    dm.setup("test")
+    assert [r.key for r in dm.datasets["test"].records] == exp["kept"]["test"]
+    assert dm.skips["test"].counts["duplicate_line"] == 1 and str(split) in dm.skips["test"].summary()
+    split.write_bytes(text.encode() + b"caf\xe9\n")
+    with pytest.raises(MisconfigurationException, match=r"kitchen_test\.txt is unreadable \(UnicodeDecodeError"):
+        _dm(root).setup("test")
+    split.unlink()
+    split.mkdir()
+    with pytest.raises(MisconfigurationException, match=r"kitchen_test\.txt is not a file"):
+        _dm(root).setup("test")

@@ -274,6 +274,14 @@ def estimate_target_yaw(
     return math.atan2(float(d[1]), float(d[0])) if np.hypot(*d) > 1e-9 else 0.0
 
 
+def read_split_file(path: Path) -> str:
+    """The text of a split file; ValueError naming it when it is not UTF-8 text or cannot be read."""
+    try:
+        return path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ValueError(f"split file {path} is unreadable ({type(exc).__name__}: {exc})") from exc
+
+
 class MoMaKitchenReader:
     """Indexes split files and loads samples in the official layout (picklable: used by worker processes).
 
@@ -323,12 +331,21 @@ class MoMaKitchenReader:
         return self._robot_of[key]
 
     def index(self, split_file: Path, skips: SkipLog, dataset: str = "moma_kitchen") -> list[SampleRecord]:
-        """Records of one split file, in file order; missing files/unknown robots go to ``skips``."""
-        lines = [ln.strip() for ln in split_file.read_text().splitlines()]
+        """Records of one split file, in file order; missing files/unknown robots/repeated lines go to ``skips``.
+
+        Raises:
+            ValueError: the split file cannot be read as UTF-8 text (the message names it).
+        """
+        lines = [ln.strip() for ln in read_split_file(split_file).splitlines()]
         records: list[SampleRecord] = []
+        first_line: dict[str, int] = {}
         for line_no, rel in enumerate(lines):
             if not rel:
                 continue
+            if rel in first_line:  # one sample twice would count twice in the metrics
+                skips.add("duplicate_line", split_file, f"line {line_no + 1} repeats line {first_line[rel] + 1}: {rel}")
+                continue
+            first_line[rel] = line_no
             d = self.rgbd_root / rel
             pcd = d / PCD_DIR
             need = [
@@ -517,8 +534,13 @@ class MoMaKitchenDataModule(FloAffDataModule):
     def _records(self, split: str, skips: SkipLog) -> list[SampleRecord]:
         path = self.split_dir / self.split_files[split]
         if not path.is_file():
-            raise MisconfigurationException(f"MoMaKitchenDataModule: split file {path} not found")
-        if not path.read_text().strip():
+            what = "is not a file" if path.exists() else "not found"
+            raise MisconfigurationException(f"MoMaKitchenDataModule: split file {path} {what}")
+        try:
+            text = read_split_file(path)
+        except ValueError as exc:
+            raise MisconfigurationException(f"MoMaKitchenDataModule: {exc}") from exc
+        if not text.strip():
             raise MisconfigurationException(f"MoMaKitchenDataModule: split file {path} is empty")
         recs = self.reader.index(path, skips, "moma_kitchen")
         return recs[: self.max_samples] if self.max_samples else recs

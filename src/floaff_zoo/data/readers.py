@@ -28,6 +28,7 @@ import importlib
 import math
 import os
 from collections import Counter
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -280,11 +281,16 @@ class GeneratedReader(FloAffReader):
             raise ValueError(f"split {rec['split']!r} is not 'train' or 'test'")
         if rec["task"] not in TASKS:
             raise ValueError(f"task {rec['task']!r} is not one of {list(TASKS)}")
-        views = []
+        views: list[ViewEntry] = []
         for v in rec["views"]:
             if v["view"] not in VIEWS:  # else filtered out later by the data module's `views`, without a count
                 raise ValueError(f"view {v['view_id']!r}: kind {v['view']!r} is not one of {list(VIEWS)}")
             vf = d / v["file"]
+            again = next((w for w in views if w.view_id == v["view_id"] or Path(w.file) == vf), None)
+            if again is not None:  # one view twice: twice in the metrics, and one more under max_views_per_scene
+                why = f"view {v['view_id']!r} ({v['file']}) repeats view {again.view_id!r} ({Path(again.file).name})"
+                self.skips.add("duplicate_view", d / ff.SCENE_JSON, why)
+                continue
             if not vf.is_file():
                 self.skips.add("missing_view", vf, "view file listed in scene.json is missing")
                 continue
@@ -336,7 +342,30 @@ class GeneratedReader(FloAffReader):
                 else "bad_view"
             )
             raise DataError(str(exc), kind) from exc
+        # the rollout parks the robot from scene.json's pose (float64); the view's points were taken at the npz's
+        stored = s["meta"]["sim"]["base_pose_world"]
+        if not poses_agree(stored, view.base_pose_world):
+            raise DataError(
+                f"{view.file}: base_pose_world {[round(x, 6) for x in stored]} disagrees with "
+                f"{Path(scene.dir) / ff.SCENE_JSON}'s {[round(x, 6) for x in view.base_pose_world]} for view "
+                f"{view.view_id!r}: the view's points and its rollout would be in different places",
+                "bad_view",
+            )
         return s
+
+
+#: largest difference (m, rad) of a view's base pose between its npz (float32) and scene.json (float64)
+POSE_TOLERANCE = 1e-4
+
+
+def poses_agree(a: Sequence[float], b: Sequence[float]) -> bool:
+    """True when the base poses a and b [x, y, yaw] agree within ``POSE_TOLERANCE`` (yaw modulo 2 pi)."""
+    dyaw = math.remainder(float(a[2]) - float(b[2]), math.tau)
+    return (
+        abs(float(a[0]) - float(b[0])) <= POSE_TOLERANCE
+        and abs(float(a[1]) - float(b[1])) <= POSE_TOLERANCE
+        and abs(dyaw) <= POSE_TOLERANCE
+    )
 
 
 def check_names(kind: str, given: list[str], valid: tuple[str, ...] | list[str]) -> list[str]:
