@@ -89,6 +89,20 @@ def test_floor_index_beyond_the_candidate_grid_is_named(tmp_path):
     ff.read_view(path, 2)  # without the grid's size nothing to check it against
 
 
+def test_floor_points_off_the_floor_are_named(tmp_path):
+    """The format puts a view's floor points (candidate base positions) at z = 0; a file with z = 5 was read as is."""
+    make_floaff_dataset(tmp_path, problems=False, version=2)
+    rec = next(ff.iter_scenes(tmp_path, benchmark="styles"))
+    path = tmp_path / "styles" / rec["scene_id"] / rec["views"][0]["file"]
+    arr = dict(np.load(path))
+    ff.validate_view(arr, path)  # the fixture's own floor is at 0
+    arr["floor_xyz"] = arr["floor_xyz"].copy()
+    arr["floor_xyz"][0, 2] = 5.0
+    ff.atomic_save_npz(path, arr)
+    with pytest.raises(ff.FormatError, match=r"front_0000.npz: field 'floor_xyz' has z up to 5 m"):
+        ff.read_sample(rec, rec["views"][0])
+
+
 def test_malformed_records_are_named(tmp_path):
     """A repeated floor cell, a view record without its file name, a boolean format version and a scene.json
     that is a directory passed the reader or ended in a bare KeyError / IsADirectoryError."""

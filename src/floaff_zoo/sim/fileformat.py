@@ -234,13 +234,17 @@ def check_format_version(version: Any, path: str | Path) -> int:
     return int(version)
 
 
+#: largest |z| (m) of a view's floor points, which the format puts at z = 0 in the base frame
+FLOOR_Z_TOLERANCE = 1e-3
+
+
 def validate_view(
     arrays: dict[str, np.ndarray],
     path: str | Path = "<view>",
     format_version: int | None = None,
     n_cells: int | None = None,
 ) -> None:
-    """Check one view's arrays against VIEW_FIELDS (dtypes, shapes, shared N/M, finite, labels in [0,1]).
+    """Check one view's arrays against VIEW_FIELDS (dtypes, shapes, shared N/M, finite, labels in [0,1], floor z 0).
 
     format_version >= 2 also requires V2_VIEW_FIELDS; None checks them only when present. n_cells: the size of the
     scene's candidate grid, which every ``floor_index`` entry must index (None: not checked).
@@ -264,6 +268,9 @@ def validate_view(
         raise FormatError(
             f"{path}: field 'floor_index' reaches cell {idx.max()}, but the scene's candidate grid has {n_cells} cells"
         )
+    floor_z = np.asarray(arrays["floor_xyz"])[:, 2]
+    if floor_z.size and np.abs(floor_z).max() > FLOOR_Z_TOLERANCE:  # candidate base positions: on the floor
+        raise FormatError(f"{path}: field 'floor_xyz' has z up to {np.abs(floor_z).max():.4g} m; the format's is 0")
     lab = np.asarray(arrays["floor_label"])
     if lab.size and (lab.min() < 0.0 or lab.max() > 1.0):
         raise FormatError(f"{path}: field 'floor_label' outside [0, 1] (min {lab.min()}, max {lab.max()})")
