@@ -56,6 +56,8 @@ DEFAULT_FLOOR_CELL = 0.1
 #: depth (m) beyond which pixels are dropped: the generator's ``depth_max`` (every preset), so a model is given no
 #: farther points than it was trained on
 MAX_DEPTH = 4.0
+#: largest deviation of camera_pose's rotation from orthonormal (R R^T - I, elementwise)
+RIGID_TOLERANCE = 1e-3
 #: most cells of the default grid's lattice or of the returned raster (2000 x 2000: 20 m x 20 m at 1 cm); a finer
 #: cell or candidates spread wider are refused instead of allocating gigabytes for one map
 MAX_RASTER_CELLS = 4_000_000
@@ -267,6 +269,11 @@ def backproject_depth(
         raise ValueError(f"predict: depth must be [H, W], got shape {d.shape}")
     k = np.asarray(intrinsics, dtype=np.float64).reshape(-1)
     if k.size == 9:  # a 3x3 K matrix
+        if not np.allclose(k[[3, 6, 7, 8]], [0.0, 0.0, 0.0, 1.0]):  # a transposed K parked the robot elsewhere
+            raise ValueError(
+                f"predict: a 3x3 intrinsics K must be [[fx, s, cx], [0, fy, cy], [0, 0, 1]], got rows "
+                f"{np.asarray(intrinsics, dtype=np.float64).reshape(3, 3).tolist()} (transposed?)"
+            )
         k = np.array([k[0], k[4], k[2], k[5]])
     if k.size != 4 or not np.isfinite(k).all() or k[0] <= 0 or k[1] <= 0:
         raise ValueError(
@@ -275,10 +282,20 @@ def backproject_depth(
     pose = np.asarray(camera_pose, dtype=np.float64)
     if pose.shape != (4, 4) or not np.isfinite(pose).all():
         raise ValueError(f"predict: camera_pose must be a finite 4x4 camera-to-base matrix, got shape {pose.shape}")
+    rot = pose[:3, :3]
+    if not (
+        np.allclose(pose[3], [0.0, 0.0, 0.0, 1.0], atol=1e-6)
+        and np.allclose(rot @ rot.T, np.eye(3), atol=RIGID_TOLERANCE)
+        and np.linalg.det(rot) > 0
+    ):  # a scaled or sheared pose moved every point (and the chosen base) without a word
+        raise ValueError(
+            "predict: camera_pose must be a rigid camera-to-base transform (a rotation with determinant +1 and a "
+            f"translation, last row [0, 0, 0, 1]), got {np.round(pose, 4).tolist()}"
+        )
     if convention not in ("opengl", "opencv"):
         raise ValueError(f"predict: convention must be 'opengl' or 'opencv', got {convention!r}")
     # NaN made every pixel invalid (named later as a target mask without depth), text failed inside numpy
-    if isinstance(max_depth, (bool, str, bytes)) or not float(max_depth) > 0:
+    if not isinstance(max_depth, (int, float, np.number)) or isinstance(max_depth, bool) or not max_depth > 0:
         raise ValueError(f"predict: max_depth must be a number > 0 metres (inf: no cut), got {max_depth!r}")
     fx, fy, cx, cy = k
     h, w = d.shape
@@ -470,6 +487,8 @@ def predict_from_points(
         raise ValueError(f"predict: free_k must be an int >= 1 (1: no footprint check), got {free_k!r}")
     if not _count(k):  # 0 or less returned one pose, 2.5 failed as a slice index
         raise ValueError(f"predict: k (top poses returned) must be an int >= 1, got {k!r}")
+    if not (_count(seed) or (seed == 0 and not isinstance(seed, bool))):  # numpy's own error named no argument
+        raise ValueError(f"predict: seed must be an int >= 0, got {seed!r}")
     if num_points is not None and not _count(num_points):  # 0 fed every point, < 0 failed inside torch
         raise ValueError(f"predict: num_points must be an int >= 1, or None for every point, got {num_points!r}")
     check_window(target_yaw, window, grid_radius)
@@ -590,7 +609,14 @@ def predict(
     feat = np.concatenate(feats, axis=1)
     tgt = valid & (flag > 0)
     if not tgt.any():
-        raise SampleError("predict: target_mask marks no pixel with valid depth; cannot locate the target")
+        why = ""
+        marked = np.isfinite(d.reshape(-1)) & (d.reshape(-1) > 0) & (flag > 0)
+        if marked.any():  # the depth is there but beyond the cut: often millimetres (a uint16 image) for metres
+            why = (
+                f" (its pixels' depth is {float(d.reshape(-1)[marked].min()):.4g} or more, at or beyond max_depth "
+                f"{max_depth} m: depth must be in metres; divide a millimetre image by 1000)"
+            )
+        raise SampleError(f"predict: target_mask marks no pixel with valid depth{why}; cannot locate the target")
     if target_xyz is None:
         target_xyz = xyz[tgt].mean(axis=0)
     return predict_from_points(

@@ -370,3 +370,29 @@ def test_nan_colour_where_depth_is_invalid_is_not_read():
     rgb[depth > 0] = 2.0  # a colour that is read is still checked
     with pytest.raises(ValueError, match=r"must hold values in \[0, 1\]"):
         predict(model, rgb, depth, k, pose, mask, [0.85, 1.03], num_points=256)
+
+
+def test_a_transposed_k_a_non_rigid_pose_and_millimetre_depth_are_named():
+    """A transposed 3x3 K and a scaled camera pose were taken as given (the robot parked elsewhere, no word);
+    millimetre depth was named as a target mask without depth; max_depth None and a negative seed failed as bare
+    TypeError / numpy ValueError naming no argument."""
+    depth, (f, _, cx, cy), pose = _floor_depth()
+    K = np.array([[f, 0.0, cx], [0.0, f, cy], [0.0, 0.0, 1.0]])
+    pts, valid = backproject_depth(depth, K, pose, max_depth=20.0)
+    ref, _ = backproject_depth(depth, (f, f, cx, cy), pose, max_depth=20.0)
+    assert np.allclose(pts[valid], ref[valid])  # a proper K reads as (fx, fy, cx, cy)
+    with pytest.raises(ValueError, match=r"K must be \[\[fx, s, cx\], \[0, fy, cy\], \[0, 0, 1\]\].*transposed"):
+        backproject_depth(depth, K.T, pose)
+    for bad in (pose * 2.0, pose @ np.diag([1.0, 1.0, -1.0, 1.0])):  # scaled; a reflection (det -1)
+        with pytest.raises(ValueError, match="camera_pose must be a rigid camera-to-base transform"):
+            backproject_depth(depth, K, bad)
+    with pytest.raises(ValueError, match="max_depth must be a number > 0 metres"):
+        backproject_depth(depth, K, pose, max_depth=None)
+    mask = np.zeros(depth.shape, bool)
+    mask[40:44, 30:34] = True  # floor pixels near the robot: valid in metres
+    mm = (depth * 1000).astype(np.uint16)
+    with pytest.raises(SampleError, match="beyond max_depth 4.0 m: depth must be in metres"):
+        predict(ConstantModule(), None, mm, K, pose, mask, [0.85, 1.03])
+    xyz, feat, t = _scene()
+    with pytest.raises(ValueError, match="seed must be an int >= 0, got -1"):
+        predict_from_points("no-such-model-is-loaded", xyz, feat, None, [0.85, 1.03], t, seed=-1)
