@@ -186,6 +186,9 @@ def test_a_batch_limit_of_1_is_one_batch(tmp_path, root, monkeypatch):
     cfg.write_text("trainer:\n  limit_train_batches: 1\n")  # a config file's int means one batch too
     assert run_lightning([*base, "--config", str(cfg)]).trainer.global_step == 1
     assert run_lightning([*base, f"--config={cfg}"]).trainer.global_step == 1  # the '=' spelling too
+    # --config also takes YAML text, which was never read here: its 1 ran every batch
+    inline = run_lightning([*base, "--config", "{trainer: {limit_train_batches: 1, limit_val_batches: 1}}"])
+    assert inline.trainer.global_step == 1 and inline.trainer.num_val_batches == [1]
 
 
 def test_integer_limits_follow_the_parsers_order(tmp_path):
@@ -200,6 +203,8 @@ def test_integer_limits_follow_the_parsers_order(tmp_path):
     assert integer_limits(["--config", str(tmp_path / "missing.yaml"), "--trainer.limit_predict_batches", "1"]) == {
         "predict": 1
     }
+    assert integer_limits(["--config", "trainer:\n  limit_val_batches: 2\n"]) == {"val": 2}  # YAML text
+    assert integer_limits(["--config", "x" * 5000]) == {}  # no path (too long for one): text that is no mapping
 
 
 def test_only_a_non_finite_model_output_is_a_one_line_error(monkeypatch, capsys):

@@ -616,6 +616,9 @@ def test_model_settings_of_a_config_file_that_the_checkpoint_replaces_are_named(
     run_lightning(base)
     err = capsys.readouterr().err
     assert "the --config value(s) of model train are replaced by those of" in err, err
+    inline = ["validate", "--config", str(run / "config.yaml"), "--config", extra.read_text(), "--ckpt_path", "best"]
+    run_lightning(inline)  # the same setting as YAML text
+    assert "the --config value(s) of model train are replaced by those of" in capsys.readouterr().err
     run_lightning([*base, "--model.init_args.train", '{"lr": 0.5}'])
     assert "the --config value(s) of model" not in capsys.readouterr().err
     run_lightning([*base, "--model.init_args.train.lr", "0.5"])  # a nested flag is applied again too: no note

@@ -191,7 +191,7 @@ def integer_limits(args: list[str]) -> dict[str, int]:
 def config_files(args: list[str]) -> list[str]:
     """The ``--config`` values of ``args``, in order, that name existing files (a value that is no file is YAML
     text, or a missing file jsonargparse names itself)."""
-    return [v for v in config_values(args) if Path(v).is_file()]
+    return [v for v in config_values(args) if _is_file(v)]
 
 
 def check_config_file(path: str) -> None:
@@ -211,10 +211,20 @@ def check_config_file(path: str) -> None:
         raise CLIError(f"--config {path}: expected a mapping of settings (e.g. 'trainer:'), got a {kind}")
 
 
-def _yaml_mapping(path: str) -> dict[str, Any]:
-    """A config file's top-level mapping ({} when it is not one: the parser reports such files itself)."""
+def _is_file(value: str) -> bool:
+    """True when a ``--config`` value names a file (a long YAML text is no path: ENAMETOOLONG)."""
     try:
-        data = yaml.safe_load(Path(path).read_text())
+        return Path(value).is_file()
+    except (OSError, ValueError):
+        return False
+
+
+def _yaml_mapping(value: str) -> dict[str, Any]:
+    """A ``--config`` value's top-level mapping: its file's, or the value read as YAML text where it names no file
+    (jsonargparse takes both; only files were read, so an inline ``limit_train_batches: 1`` ran every batch). {}
+    when it is not a mapping: the parser reports that itself."""
+    try:
+        data = yaml.safe_load(Path(value).read_text() if _is_file(value) else value)
     except (OSError, yaml.YAMLError, UnicodeDecodeError):
         return {}
     return data if isinstance(data, dict) else {}
@@ -382,9 +392,9 @@ class FloAffCLI(LightningCLI):
         # blanked in the checkpoint on purpose, derived records such as ``axisnet_arch`` are added there)
         given = {
             k
-            for f in config_files(self._raw_args)
-            if not (Path(f).parent / "checkpoints").is_dir()
-            for k in _model_init_args(_yaml_mapping(f))
+            for v in config_values(self._raw_args)  # files and inline YAML alike
+            if not (_is_file(v) and (Path(v).parent / "checkpoints").is_dir())
+            for k in _model_init_args(_yaml_mapping(v))
         }
         dropped = [
             k
