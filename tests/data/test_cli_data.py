@@ -49,6 +49,9 @@ def test_moma_kitchen_cli(tmp_path, root, monkeypatch, moma_root):
     cli = _round_trip(tmp_path, "configs/data/moma_kitchen.yaml", moma_root[0], [])
     assert len(cli.datamodule.datasets["val"]) >= 1
     assert list((moma_root[0] / ".cache").rglob("*.pt"))
+    (report,) = (tmp_path / "runs").rglob("report.json")  # the test split file's skips, not train's
+    skipped = json.loads(report.read_text())["data"]["skipped_at_setup"]
+    assert skipped["log"] == "moma_kitchen test" and skipped["total"] == sum(skipped["counts"].values())
 
 
 def test_floaff_styles_cli(tmp_path, root, monkeypatch, floaff_root):
@@ -142,3 +145,8 @@ def test_a_view_that_breaks_after_setup_is_replaced_counted_and_reported(
     assert data["num_samples"] == n_test - 1  # the stand-in sample counts once
     assert "1 test sample(s) failed at load time and were replaced by the next sample" in capsys.readouterr().out
     assert "failed at load time" in (report.parent / "report.md").read_text()
+    # the fixture's corrupt and missing files, skipped at setup: the report said nothing of them (console only)
+    skipped, log = data["skipped_at_setup"], cli.datamodule.skips
+    assert skipped["total"] == log.total > 0 and skipped["counts"] == dict(log.counts)
+    assert skipped["log"] == "floaff_kitchen styles" and all(skipped["examples"][k] for k in skipped["counts"])
+    assert f"{log.total} record(s) skipped at setup" in (report.parent / "report.md").read_text()

@@ -346,6 +346,8 @@ class TestReport(L.Callback):
                 # distinct samples (one index counts once: DDP's padding repeats, a replacement of a broken file)
                 "num_samples": len(self._keys) + self._unkeyed,
                 "samples_replaced": sorted(self._replaced),
+                # records setup skipped (a corrupt or missing file): not in num_samples, named here, not on a console
+                "skipped_at_setup": _skipped_at_setup(dm),
                 # scene id -> labels hash: copies generated on different CPUs differ (floaff-zoo table checks it)
                 "labels_sha256": getattr(dm, "labels_digests", None) or None,
             },
@@ -442,6 +444,12 @@ def pcc_defined(counts: dict[str, int]) -> int:
     return _elements_counted(counts)[0] - counts["empty"] - counts["pcc_undefined"]
 
 
+def _skipped_at_setup(dm: Any) -> dict[str, Any] | None:
+    """The data module's record of what its setup skipped for the test split (``skip_log``; None without one)."""
+    log = dm.skip_log("test") if dm is not None and hasattr(dm, "skip_log") else None
+    return log.record() if log is not None else None
+
+
 def render_markdown(report: dict[str, Any]) -> str:
     """Readable summary of a report dict: run facts, map metrics, SR table, figures."""
     m = report.get("metrics", {})
@@ -462,6 +470,14 @@ def render_markdown(report: dict[str, Any]) -> str:
     if replaced:  # files that broke after setup: the next sample stood in, so these were not evaluated
         lines.append(
             f"- **{len(replaced)} sample(s) failed at load time** and were not evaluated: {', '.join(replaced[:5])}"
+        )
+    skipped = data.get("skipped_at_setup") or {}
+    if skipped.get("total"):  # never evaluated: a report over fewer samples than its split file or scenes list
+        kinds = "; ".join(f"{k} {n}" for k, n in skipped.get("counts", {}).items())
+        first = next((e[0] for e in skipped.get("examples", {}).values() if e), "")
+        lines.append(
+            f"- **{skipped['total']} record(s) skipped at setup** ({skipped.get('log')}): {kinds}"
+            + (f"; e.g. {first}" if first else "")
         )
     lines += [
         "",

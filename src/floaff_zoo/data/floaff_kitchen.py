@@ -368,6 +368,11 @@ class FloAffKitchenDataModule(FloAffDataModule):
                     f"{self.views} under {self.root}/{self.benchmark} (scenes per split: {self.split_scenes})"
                 )
 
+    def skip_log(self, split: str) -> SkipLog | None:
+        """What setup skipped, for a report on ``split``: one log over every split (scenes are read, and a corrupt
+        scene.json skipped, before they are split); None before setup."""
+        return self.skips
+
     def _cache(self, reader: FloAffReader, full_cloud: bool) -> SampleCache:
         """The sample cache of this reader and these pre-transforms, with or without the stored cloud."""
         cfg = {**reader.config(), "pre_transforms": transforms_config(self.pre_transforms), "seed": self.seed}

@@ -631,6 +631,11 @@ class MoMaKitchenDataModule(FloAffDataModule):
                     f"{self.skips[split].summary()}"
                 )
 
+    def skip_log(self, split: str) -> SkipLog | None:
+        """What setup skipped from ``split``'s split file (train and val share one), for a report; None when that
+        split was not set up."""
+        return self.skips.get(split)
+
     def _report(self, skips: SkipLog, splits: list[str]) -> None:
         sizes = ", ".join(f"{s} {len(self.datasets[s])}" for s in splits)
         print(f"MoMaKitchenDataModule: {sizes} samples. {skips.summary()}")

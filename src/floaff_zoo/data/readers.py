@@ -94,6 +94,16 @@ class SkipLog:
     def total(self) -> int:
         return sum(self.counts.values())
 
+    def record(self) -> dict[str, Any]:
+        """The log as JSON-able data: ``{"log": name, "total", "counts": {kind: n}, "examples": {kind: [path:
+        problem]}}`` (test reports carry it)."""
+        return {
+            "log": self.name,
+            "total": self.total,
+            "counts": dict(sorted(self.counts.items())),
+            "examples": {k: list(v) for k, v in sorted(self.examples.items())},
+        }
+
     def summary(self) -> str:
         """One multi-line summary: total, per kind count and the first few paths."""
         if not self.total:
