@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+import os
 import platform
+import signal
 import subprocess
 import sys
+import time
+from pathlib import Path
 
 import pytest
 
@@ -49,3 +53,59 @@ def test_bad_setting_is_named(monkeypatch, capsys):
     monkeypatch.setattr(sys, "argv", ["floaff-zoo", "--version"])
     assert cli.main() == 2
     assert "FLOAFF_ZOO_MALLOC='jemalloc'" in capsys.readouterr().err
+
+
+_DRIVER = """
+import multiprocessing as mp, os, sys, threading, time
+
+
+def job_fn(job, out, preset, images):
+    time.sleep(120)
+
+
+if __name__ == "__main__":
+    if sys.argv[1] == "generate":  # generate's own pool, as _run_local starts it
+        from floaff_zoo.sim.generate import _in_shared_pool
+
+        jobs = _in_shared_pool([1, 2], 2, job_fn, "out", {}, False)
+        threading.Thread(target=lambda: next(jobs, None), daemon=True).start()
+    else:  # the rollout service's pool
+        from floaff_zoo.sim.rollout import RolloutService
+
+        pool = RolloutService(workers=2)._new_pool()
+        for _ in range(2):
+            pool.submit(time.sleep, 120)
+    while len(mp.active_children()) < 2:
+        time.sleep(0.001)
+    print(" ".join(str(p.pid) for p in mp.active_children()), flush=True)
+    os._exit(0)  # killed at once: its workers are still importing the initializer's module
+"""
+
+
+def _alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+@pytest.mark.parametrize("pool", ["generate", "rollout"])
+@pytest.mark.skipif(not Path("/proc").is_dir(), reason="reads /proc")
+def test_pool_workers_end_with_a_driver_killed_before_their_initializer_ran(tmp_path, pool):
+    """`generate` killed in its first seconds left its workers running: a spawned worker runs its initializer only
+    after importing the initializer's module, and the initializer took its parent from os.getppid(), by then init.
+    They went on committing scenes into --out beside a rerun, then waited for ever. The rollout service's workers
+    had no watch at all."""
+    script = tmp_path / "driver.py"
+    script.write_text(_DRIVER)
+    out = subprocess.run([sys.executable, str(script), pool], capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    workers = [int(p) for p in out.stdout.split()]
+    assert len(workers) == 2, out.stderr
+    deadline = time.monotonic() + 90  # a worker still imports torch and MuJoCo, on a busy 2-core machine
+    while any(_alive(p) for p in workers) and time.monotonic() < deadline:
+        time.sleep(0.5)
+    left = [p for p in workers if _alive(p)]
+    for p in left:
+        os.kill(p, signal.SIGKILL)
+    assert not left, f"worker(s) {left} outlived their driver"

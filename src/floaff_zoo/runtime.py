@@ -17,6 +17,8 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import os
+import threading
+import time
 from collections.abc import Iterator
 
 MALLOC_ENV = "FLOAFF_ZOO_MALLOC"
@@ -80,3 +82,18 @@ def one_thread_children() -> Iterator[None]:
                 os.environ.pop(k, None)
             else:
                 os.environ[k] = v
+
+
+def exit_with_parent(parent: int, every_s: float = 0.5) -> None:
+    """Start a daemon thread that ends this process once ``parent`` (a pid the parent passed down) is no longer its
+    parent: a pool worker otherwise outlives a killed driver, finishing its queued jobs (and writing their files)
+    and then waiting forever. The pid must come from the parent, not ``os.getppid()`` here: a spawned worker runs
+    its initializer only after importing the job's modules (seconds), and a driver killed meanwhile left it
+    watching init, its new parent, for ever."""
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(every_s)
+        os._exit(1)
+
+    threading.Thread(target=watch, daemon=True, name="exit-with-parent").start()

@@ -33,7 +33,6 @@ import multiprocessing as mp
 import os
 import shutil
 import sys
-import threading
 import time
 import traceback
 from collections.abc import Callable, Iterator
@@ -44,7 +43,7 @@ from typing import Any
 import numpy as np
 
 from floaff_zoo.atomic import LockedError, folder_lock
-from floaff_zoo.runtime import THREAD_ENV, one_thread_children
+from floaff_zoo.runtime import THREAD_ENV, exit_with_parent, one_thread_children
 from floaff_zoo.sim import fileformat as ff
 from floaff_zoo.sim.presets import ALL_BENCHMARKS, ALL_TASKS, PRESETS, GenPreset, get_preset, view_counts
 
@@ -585,21 +584,15 @@ def run_job(job: SceneJob, out: str, preset_dict: dict[str, Any], save_images: b
 
 
 # ------------------------------------------------------------------------------------------------ execution
-def _worker_init() -> None:
+def _worker_init(driver: int) -> None:
+    """A scene worker's set-up; ``driver``: the pid of the process that started it."""
     # one BLAS/OpenMP thread per worker (docs/background.md §5); _run_local starts the workers with them already
     for k in THREAD_ENV:
         os.environ[k] = "1"
     os.environ.setdefault("MUJOCO_GL", "egl")
-    # a worker outlives a killed driver otherwise: it would finish its queued scenes into --out beside the rerun
-    threading.Thread(target=_exit_with_parent, args=(os.getppid(),), daemon=True, name="exit-with-parent").start()
-
-
-def _exit_with_parent(parent: int, every_s: float = 0.5) -> None:
-    """Exit this process once its parent ``parent`` is gone (the process is re-parented); a scene being written
-    stays in .staging/, which the next run deletes."""
-    while os.getppid() == parent:
-        time.sleep(every_s)
-    os._exit(1)
+    # a worker outlives a killed driver otherwise: it would finish its queued scenes into --out beside the rerun (a
+    # scene being written stays in .staging/, which the next run deletes)
+    exit_with_parent(driver)
 
 
 class _Progress:
@@ -689,7 +682,9 @@ def _in_shared_pool(jobs, workers, job_fn, out, preset_dict, save_images) -> Ite
     if not jobs:
         return
     ctx = mp.get_context("spawn")
-    with cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init) as pool:
+    with cf.ProcessPoolExecutor(
+        max_workers=workers, mp_context=ctx, initializer=_worker_init, initargs=(os.getpid(),)
+    ) as pool:
         futs = {pool.submit(job_fn, job, out, preset_dict, save_images): job for job in jobs}
         for fut in cf.as_completed(futs):
             try:
@@ -706,7 +701,9 @@ def _each_alone(jobs, workers, job_fn, out, preset_dict, save_images) -> Iterato
     ctx = mp.get_context("spawn")
 
     def one(job: SceneJob) -> dict[str, Any]:
-        with cf.ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=_worker_init) as pool:
+        with cf.ProcessPoolExecutor(
+            max_workers=1, mp_context=ctx, initializer=_worker_init, initargs=(os.getpid(),)
+        ) as pool:
             try:
                 return pool.submit(job_fn, job, out, preset_dict, save_images).result()
             except Exception as exc:  # noqa: BLE001 - the worker died: this job's doing

@@ -22,7 +22,7 @@ import mujoco
 import numpy as np
 
 from floaff_zoo.frames import ROLLOUT_POSE_DECIMALS
-from floaff_zoo.runtime import THREAD_ENV, one_thread_children
+from floaff_zoo.runtime import THREAD_ENV, exit_with_parent, one_thread_children
 from floaff_zoo.sim.controllers import CTRL_DT, Policy, default_policy
 from floaff_zoo.sim.kitchen import SceneSpec, SimScene, TargetInfo, build_scene, release_scene
 from floaff_zoo.sim.tasks import target_frame
@@ -178,9 +178,11 @@ class RolloutPoolError(RuntimeError):
     """A rollout could not be run by the worker pool: its worker kept dying, or no rollout finished in time."""
 
 
-def _worker_init() -> None:
+def _worker_init(driver: int) -> None:
+    """A rollout worker's set-up; ``driver``: the pid of the process that started it."""
     for k in THREAD_ENV:
         os.environ[k] = "1"
+    exit_with_parent(driver)  # else it outlives a killed driver, holding its scenes (~80 MB each) for ever
 
 
 def _run_job(job: Job) -> RolloutResult:
@@ -318,7 +320,9 @@ class RolloutService:
     def _new_pool(self) -> cf.ProcessPoolExecutor:
         import multiprocessing as mp
 
-        return cf.ProcessPoolExecutor(self.workers, mp_context=mp.get_context("spawn"), initializer=_worker_init)
+        return cf.ProcessPoolExecutor(
+            self.workers, mp_context=mp.get_context("spawn"), initializer=_worker_init, initargs=(os.getpid(),)
+        )
 
     def _run_pool(self, payload: list[Job]) -> list[RolloutResult]:
         """All jobs on the process pool, in order; see the class doc for dead workers and the timeout.
