@@ -761,6 +761,26 @@ def test_a_rerun_with_fewer_slots_keeps_the_others_in_the_manifest(mini_run, tmp
     assert man["counts"]["scenes_ok"] == 2
 
 
+def test_a_rerun_leaving_out_a_slot_of_an_older_generator_is_refused(mini_run, tmp_path):
+    """A rerun with fewer slots kept the left-out slots' scenes whatever generator made them: a 2.2 test scene stayed
+    beside the 2.3 training scenes, one dataset of two generators (docs/data_format.md: resume never mixes them)."""
+    src, _ = mini_run
+    out = tmp_path / "copy"
+    shutil.copytree(src, out)
+    (test_scene,) = [s for s in ff.iter_scenes(out) if s["split"] == "test"]
+    sj = ff.scene_dir(out, test_scene["benchmark"], test_scene["scene_id"]) / ff.SCENE_JSON
+    rec = json.loads(sj.read_text())
+    sj.write_text(json.dumps({**rec, "generator_version": "2.2.0"}))
+    before = sorted(str(p) for p in out.rglob("*"))
+    with pytest.raises(
+        ValueError, match=rf"holds 1 scene\(s\) of another generator version .*{test_scene['scene_id']}"
+    ):
+        gen.generate(out, get_preset("tiny", **{**MINI, "n_test": 0}), seed=0, workers=0, quiet=True)
+    assert sorted(str(p) for p in out.rglob("*")) == before  # refused before anything was written
+    sj.write_text(json.dumps(rec))  # the same generator's scene: kept, as before
+    gen.generate(out, get_preset("tiny", **{**MINI, "n_test": 0}), seed=0, workers=0, quiet=True)
+
+
 def test_workers_exit_when_the_driver_is_killed(tmp_path):
     """Pool workers outlived a killed `generate`: they finished their queued scenes into --out (beside the rerun the
     docs tell the user to start) and then waited forever."""

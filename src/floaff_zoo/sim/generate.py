@@ -944,10 +944,22 @@ def _generate(
             todo.append(job)
     # slots of an earlier run that this run leaves out (fewer tasks, scenes or benchmarks): their scenes stay and
     # are read, so the manifest keeps describing them
+    stale = []
     for key, s in sorted((old or {}).get("scenes", {}).items()):
         sid = s.get("scene_id")
         if key not in manifest["scenes"] and sid and ff.scene_is_done(outp, s["benchmark"], sid):
             manifest["scenes"][key] = {**s, "in_plan": False}
+            rec = ff.read_json(ff.scene_dir(outp, s["benchmark"], sid) / ff.SCENE_JSON)
+            made = (rec.get("format_version", 1), ff.labels_version(str(rec.get("generator_version", ""))))
+            if made != (ff.FORMAT_VERSION, ff.labels_version(GENERATOR_VERSION)):
+                stale.append(f"{s['benchmark']}/{sid} (generator {rec.get('generator_version') or '1.x'})")
+    if stale:  # kept beside this run's scenes, they would mix generator versions in one dataset
+        raise ValueError(
+            f"{outp}: holds {len(stale)} scene(s) of another generator version outside this run's plan (e.g. "
+            f"{', '.join(stale[:3])}); one dataset must not mix them: rerun with the slots that hold them (the "
+            f"recorded --tasks, --n-train, --n-test: manifest.json 'config') so they are regenerated, or generate "
+            f"into another --out"
+        )
     _summarise(manifest)
     ff.atomic_write_json(outp / ff.MANIFEST, manifest)
     prog = _Progress(len(todo), quiet)
