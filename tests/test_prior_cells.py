@@ -43,3 +43,20 @@ def test_edge_binned_prior_loses_the_cell_under_a_small_yaw_error():
     grid = pc.fit_grid(views, centred=False)
     # the lattice points sit on the cell edges: a 0.3 deg error moves some of them into the neighbouring cells
     assert pc.success_rates(grid, views, "test", 0.3, seed=0)["all"] < 1.0
+
+
+def test_the_views_a_one_scene_task_holds_out_are_validation_views(tmp_path):
+    """A task with one training scene gives some of its views to validation, listed as "<scene> (views)": a scene id
+    test never matched them, so they filled the grid, no view scored as validation and the table's row crashed."""
+    from floaff_zoo.data.floaff_kitchen import FloAffKitchenDataModule
+    from tests.data.floaff_fixture import make_floaff_dataset
+
+    make_floaff_dataset(tmp_path, problems=False, version=2)
+    views = pc.read_views(tmp_path, "styles")
+    dm = FloAffKitchenDataModule(root=str(tmp_path), tasks=["PnPCounterToCab"], val_scenes=1, cache=False)
+    dm.setup("fit")
+    assert any(s.endswith(" (views)") for s in dm.split_scenes["val"])  # the fixture's PnP has one training scene
+    pnp = pc.TASKS.index("PnPCounterToCab")
+    splits = [split for t, split, *_ in views if t == pnp]
+    assert splits.count("val") == len(dm.datasets["val"]) > 0 and "train" in splits
+    assert pc.main(["--root", str(tmp_path), "--benchmarks", "styles"]) == 0  # tasks without views print n/a
