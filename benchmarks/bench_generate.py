@@ -59,6 +59,8 @@ def bench_preset(name: str, workers: int, out: Path | None, **overrides) -> tupl
     from floaff_zoo.sim.presets import get_preset
 
     tmp = Path(tempfile.mkdtemp(prefix=f"bench_{name}_")) if out is None else out / name
+    if out is not None and tmp.exists() and any(tmp.iterdir()):  # generate would resume it: no wall time
+        raise SystemExit(f"bench_generate: {tmp} holds an earlier run, which generate would resume: give a new --out")
     try:
         t0 = time.perf_counter()
         man = generate(tmp, get_preset(name, **overrides), seed=0, workers=workers, quiet=True)

@@ -1,0 +1,30 @@
+"""benchmarks/bench_loader.py and bench_generate.py: what their figures are measured over."""
+
+from __future__ import annotations
+
+import pytest
+
+from tests.conftest import load_benchmark
+
+
+def test_the_loader_benchmark_parses_cold_every_run_and_counts_every_split(tmp_path, capsys):
+    """Its cache lived in the dataset folder and stayed, so a second run's "cold setup" was a cache hit (670x
+    faster); and the rate divided by the train samples while the setup parsed the test split too."""
+    bl = load_benchmark("bench_loader")
+    root = tmp_path / "moma"
+    bl.write_moma_like(root, 4)  # the same 4 samples in the train and the test split file
+    args = ["--root", str(root), "--num-points", "64", "--batch-size", "2", "--epochs", "1", "--steps", "1"]
+    for _ in range(2):
+        bl.main(args)
+        out = capsys.readouterr().out
+        assert "(8 samples of every split parsed)" in out and "4 train samples" in out
+        assert sorted(p.name for p in root.iterdir()) == ["data_split", "info", "rgbd"]  # nothing left behind
+
+
+def test_the_generate_benchmark_refuses_a_folder_it_would_resume(tmp_path):
+    """A second run with the same --out resumed the first one's scenes and printed that as the preset's wall time."""
+    bg = load_benchmark("bench_generate")
+    (tmp_path / "tiny").mkdir()
+    (tmp_path / "tiny" / "manifest.json").write_text("{}")
+    with pytest.raises(SystemExit, match="holds an earlier run, which generate would resume"):
+        bg.bench_preset("tiny", 1, tmp_path)
