@@ -392,15 +392,8 @@ def test_a_pre_transform_keeps_its_meta_changes_through_the_cache(floaff_root):
 def test_a_malformed_scene_json_is_a_counted_skip_naming_the_file(floaff_root, tmp_path, edit):
     """A field missing or of the wrong kind, or an unknown split / task / view kind: the scene is skipped as
     corrupt_scene_json with its file named, never a bare exception or a scene that silently vanishes."""
-    import shutil
-
     root, exp = floaff_root
-    copy = tmp_path / "data"
-    shutil.copytree(root, copy, ignore=shutil.ignore_patterns(".cache"))
-    sj = sorted((copy / "styles").glob("CloseDrawer-train*/scene.json"))[0]
-    rec = json.loads(sj.read_text())
-    edit(rec)
-    sj.write_text(json.dumps(rec))
+    copy, sj = _edit_first_train_scene(root, tmp_path, edit)
     dm = _dm(copy, tasks=["CloseDrawer"])
     dm.setup("fit")
     assert dm.skips.counts["corrupt_scene_json"] == exp["skips"].get("corrupt_scene_json", 0) + 1
