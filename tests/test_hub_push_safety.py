@@ -132,3 +132,20 @@ def test_a_name_that_ends_like_a_weights_file_is_refused(tmp_path, capsys):
     """`tiny.syn.pt` was pushed, then `hub info tiny.syn.pt` took it for a path."""
     assert _push(_ckpt(tmp_path / "a.ckpt", seed=1), "tiny.syn.pt") == 2
     assert "ends like a weights file" in capsys.readouterr().err and "tiny.syn.pt" not in load_registry()
+
+
+def test_a_name_of_the_hubs_own_files_is_refused(tmp_path, capsys):
+    """`hub push --name index.json` made the entry folder <hub>/index.json/, the index's own path: the push failed with
+    a bare Errno 21, every later push failed the same way, and list/load read the folder as an empty user index."""
+    from floaff_zoo.hub import RegistryFormatError
+
+    ckpt = _ckpt(tmp_path / "a.ckpt", seed=1)
+    for name in ("index.json", "retired.json", "io.py"):
+        assert _push(ckpt, name) == 2
+        assert "ends like one of the hub's own files" in capsys.readouterr().err
+    assert not (hub_dir() / "index.json").exists()
+    assert _push(ckpt) == 0 and NAME in load_registry()  # the hub still takes pushes
+    broken = tmp_path / "broken_hub"
+    (broken / "index.json").mkdir(parents=True)  # as the old push left it
+    with pytest.raises(RegistryFormatError, match=r"broken_hub/index\.json: not a file"):
+        load_registry(broken)

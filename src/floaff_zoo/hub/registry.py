@@ -43,6 +43,8 @@ USER_INDEX_NAME = "index.json"
 DEFAULT_HUB_DIR = Path("~/.cache/floaff_zoo/hub")
 #: weight file formats the hub reads (all without executing code: safetensors / weights-only torch.load)
 WEIGHT_EXTS = (".safetensors", ".ckpt", ".pth", ".pt")
+#: endings of the files a hub folder holds beside its entries' folders (index.json, retired.json, the package's code)
+HUB_FILE_EXTS = (".json", ".py", ".lock")
 #: init args that must never travel with a checkpoint (they point at other files)
 NON_PORTABLE_ARGS = ("weights", "teacher")
 
@@ -115,6 +117,10 @@ def check_name(name: Any, where: str) -> str:
         )
     if name.endswith(WEIGHT_EXTS):  # read as a file path by every command that takes a name or a path
         raise RegistryFormatError(f"{where}: entry name {name!r} ends like a weights file ({', '.join(WEIGHT_EXTS)})")
+    if name.endswith(HUB_FILE_EXTS):  # an entry is a folder <hub dir>/<name>: 'index.json' took the index's path
+        raise RegistryFormatError(
+            f"{where}: entry name {name!r} ends like one of the hub's own files ({', '.join(HUB_FILE_EXTS)})"
+        )
     return name
 
 
@@ -219,6 +225,8 @@ def _check_source(source: Any, at: str) -> None:
 def read_index(path: Path) -> list[HubEntry]:
     """Entries of one index file (a missing user index is empty; a malformed one is an error)."""
     if not path.is_file():
+        if path.exists():  # a folder in its place read as an empty index: every user entry vanished without a word
+            raise RegistryFormatError(f"{path}: not a file (a hub index must be a JSON file; move the folder away)")
         return []
     try:
         raw = json.loads(path.read_text(encoding="utf-8"))
