@@ -116,6 +116,35 @@ def test_cfar_floor_features_do_not_depend_on_surplus_floor_centres():
         torch.testing.assert_close(_stats(more)[key], value, atol=1e-5, rtol=1e-4, msg=key)
 
 
+def test_cfar_local_context_does_not_depend_on_surplus_local_centres():
+    """CFAR's local context interpolates the floor from the last local level's centres; a crop with fewer points
+    than that level's centres repeats one, which filled several of the 3 neighbours (eval logits moved by 0.018)."""
+    args = yaml.safe_load((ROOT / "tests/configs/cfar_tiny.yaml").read_text())["model"]["init_args"]
+    torch.manual_seed(0)
+    exact = CFARModule(**args).net.eval()
+    for m in exact.modules():  # statistics and an output layer that let every input reach the logits
+        if isinstance(m, nn.BatchNorm1d):
+            m.running_mean.normal_()
+            m.running_var.uniform_(0.5, 2.0)
+    nn.init.normal_(exact.out.weight)
+    n = exact.local_encoder.levels[-2].npoint  # the crop holds exactly as many points as the level's centres
+    more = copy.deepcopy(exact)
+    more.local_encoder.levels[-2].npoint = n + 5
+    torch.manual_seed(1)
+    size = max(n, exact.local_encoder.levels[0].npoint)
+    mask = torch.zeros(2, size, dtype=torch.bool)
+    mask[:, :n] = True
+    xyz = torch.where(mask[..., None], torch.rand(2, size, 3) * 0.6 - 0.3, 0.0)
+    feat = torch.randn(2, size, exact.feat_channels)
+    floor = torch.cat([torch.rand(2, 200, 2) * 0.6 - 0.3, torch.zeros(2, 200, 1)], dim=-1)
+    fmask = torch.ones(2, 200, dtype=torch.bool)
+    robot = torch.randn(2, args.get("robot_dim", 2))
+    with torch.no_grad():
+        a, _ = exact.logits(xyz, feat, mask, floor, fmask, robot)
+        b, _ = more.logits(xyz, feat, mask, floor, fmask, robot)
+    torch.testing.assert_close(b, a, atol=1e-5, rtol=1e-4)
+
+
 def test_group_all_level_statistics_ignore_repeated_centres():
     """CFAR's local encoder ends in a group-all level; its batch statistics ran over the repeats of the level below."""
     torch.manual_seed(0)

@@ -414,11 +414,12 @@ class CFARNet(nn.Module):
 
     def encode_local(
         self, xyz: Tensor, feat: Tensor, mask: Tensor
-    ) -> tuple[Tensor, list[tuple[Tensor, Tensor | None]]]:
-        """Canonical cloud xyz [B,N,3], feat [B,N,C], mask [B,N] -> (g [B, C_g], all levels)."""
+    ) -> tuple[Tensor, list[tuple[Tensor, Tensor | None]], list[Tensor | None]]:
+        """Canonical cloud xyz [B,N,3], feat [B,N,C], mask [B,N] -> (g [B, C_g], all levels, per level 1..L its
+        centre mask [B, S_l] (False on a repeated centre) or None: ``PointNet2Encoder.centre_masks``)."""
         fps = sample_levels(self.local_encoder, xyz, mask)
         levels = self.local_encoder(xyz, feat[..., : self.feat_channels], mask, fps)
-        return levels[-1][1][:, 0], levels
+        return levels[-1][1][:, 0], levels, self.local_encoder.centre_masks(fps)
 
     def fourier(self, xy: Tensor) -> Tensor:
         """Canonical floor xy [B, M, 2] -> [B, M, 2 + 4F]: xy and sin/cos at F octaves (wavelengths 2 m, 1 m, ...)."""
@@ -479,12 +480,13 @@ class CFARNet(nn.Module):
         """As :meth:`forward`, before the sigmoid: (logits [B, M], g [B, C_g])."""
         m = floor_xyz.shape[1]
         check_floor_feat("CFARNet", floor_feat, floor_xyz, self.floor_feat_channels)
-        g, levels = self.encode_local(xyz, feat, mask)
+        g, levels, kept = self.encode_local(xyz, feat, mask)
         cur = self.encode_floor(floor_xyz, floor_mask)
-        # local context: last SA level (before group-all), interpolated in the horizontal plane
+        # local context: last SA level (before group-all), interpolated in the horizontal plane; a crop with fewer
+        # points than the level's centres repeats one, which would fill several of the 3 neighbours
         cxyz, cfeat = levels[-2]
         flat = torch.tensor([1.0, 1.0, 0.0], device=floor_xyz.device, dtype=floor_xyz.dtype)
-        ctx = stable_three_interpolate(floor_xyz * flat, cxyz * flat, cfeat)
+        ctx = stable_three_interpolate(floor_xyz * flat, cxyz * flat, cfeat, known_mask=kept[-2])
         rob = self.robot_mlp(robot)
         parts = [cur, g[:, None].expand(-1, m, -1), rob[:, None].expand(-1, m, -1), ctx, floor_xyz]
         z = torch.cat(parts + ([floor_feat.to(cur.dtype)] if floor_feat is not None else []), dim=-1)
