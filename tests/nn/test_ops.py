@@ -171,6 +171,23 @@ def test_three_interpolate_few_known_points():
     assert torch.allclose(masked, torch.full((1, 4, 1), 3.0))
 
 
+@pytest.mark.parametrize("path", ["fast", "portable"])
+def test_three_interpolate_of_near_coincident_points_stays_within_its_features(monkeypatch, path):
+    """The search's expanded distance went below 0 for a query on a known point with two more 0.3-0.6 mm away:
+    1 / (d + 1e-8) gave weights of both signs, and features 1, 2 and 3 interpolated to -776 on one path, 1.10 on
+    the other. The weights now come from the picks' coordinate differences, as the official kernel's."""
+    monkeypatch.setenv(ops.CPU_PATHS_ENV, path)
+    torch.manual_seed(0)
+    worst_low, worst_high = 1.0, 3.0
+    for scale, eps in ((0.5, 1e-4), (1.0, 3e-4), (2.0, 1e-3), (4.0, 1e-4)):
+        u = torch.rand(1, 2000, 3) * scale
+        known = torch.cat([u + torch.randn_like(u) * eps, u + torch.randn_like(u) * eps, u], 1)
+        feat = torch.cat([torch.full((1, 2000, 1), v) for v in (1.0, 2.0, 3.0)], 1)
+        out = ops.three_interpolate(u, known, feat)
+        worst_low, worst_high = min(worst_low, float(out.min())), max(worst_high, float(out.max()))
+    assert worst_low >= 1.0 - 1e-5 and worst_high <= 3.0 + 1e-5  # a convex combination of the features
+
+
 def test_index_points_gradients_flow():
     feat = torch.randn(2, 10, 3, requires_grad=True)
     idx = torch.randint(0, 10, (2, 4, 5))

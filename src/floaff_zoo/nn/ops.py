@@ -413,7 +413,8 @@ def three_interpolate(unknown: Tensor, known: Tensor, known_feat: Tensor, known_
     """Inverse-squared-distance interpolation from the 3 nearest known points (PointNet++ FP).
 
     Weights are ``1 / (d^2 + 1e-8)`` normalised, ``d^2`` the squared distance (as the classic
-    PyTorch port). A single known point is broadcast.
+    PyTorch port), taken from the coordinate differences of the 3 picks (never below 0). A single known point is
+    broadcast.
 
     Args:
         unknown: [B, n, 3]; known: [B, m, 3]; known_feat: [B, m, C]; known_mask: [B, m].
@@ -424,6 +425,12 @@ def three_interpolate(unknown: Tensor, known: Tensor, known_feat: Tensor, known_
     if known.shape[1] == 1:
         return known_feat.expand(b, n, known_feat.shape[-1])
     dist, idx = three_nn(unknown, known, known_mask)
+    # the picks' distances again from coordinate differences: the search's expanded |a|^2 - 2 a.b + |b|^2 goes below
+    # 0 for (near-)coincident points, and 1 / (d + 1e-8) then gave weights of both signs that cancel (a value of -776
+    # interpolated from features 1, 2 and 3; another on the other path), as the official kernel's differences cannot
+    picked = index_points(known.detach().float(), idx)  # [B, n, 3, 3]
+    exact = ((unknown.detach().float()[:, :, None] - picked) ** 2).sum(-1)
+    dist = torch.where(torch.isinf(dist), dist, exact)
     recip = 1.0 / (dist + 1e-8)  # inf distance -> weight 0
     weight = recip / recip.sum(dim=-1, keepdim=True)
     return weighted_gather3(known_feat, idx, weight.to(known_feat.dtype))
