@@ -410,3 +410,16 @@ def test_three_nn_distances_carry_no_gradient_on_either_path(monkeypatch):
         out[path] = (ops.three_nn(floor, votes)[0], ops.three_interpolate(floor, votes, feat))
     assert [t.requires_grad for t in out["portable"]] == [t.requires_grad for t in out["fast"]] == [False, False]
     torch.testing.assert_close(out["portable"][0], out["fast"][0])
+
+
+def test_stable_three_interpolate_in_float16_keeps_a_coincident_point_finite():
+    """In float16 the weights' 1e-8 rounded to 0: a query on a known point got an infinite weight and a NaN value."""
+    from floaff_zoo.nn.cfar import stable_three_interpolate
+
+    known = torch.tensor([[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]])
+    feat = torch.tensor([[[1.0], [2.0], [3.0]]])
+    query = torch.tensor([[[0.0, 0.0, 0.0], [0.5, 0.5, 0.0]]])
+    ref = stable_three_interpolate(query, known, feat)
+    half = stable_three_interpolate(query, known, feat.half())
+    assert half.dtype == torch.float16 and torch.isfinite(half).all()
+    torch.testing.assert_close(half.float(), ref, atol=2e-3, rtol=2e-3)

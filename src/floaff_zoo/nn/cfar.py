@@ -259,9 +259,11 @@ def stable_three_interpolate(
     if known_mask is not None and not bool(known_mask.all()):
         known = torch.where(known_mask[..., None], known, known.new_tensor(MASKED_KNOWN_AT))
     dist_t, idx_t = _stable_three_nn(unknown.detach(), known.detach(), tol)
-    recip = 1.0 / (dist_t.to(known_feat.dtype) + 1e-8)
+    # weights in at least float32: in float16 the 1e-8 rounds to 0, and a coincident point's weight was inf -> NaN
+    wdtype = torch.promote_types(known_feat.dtype, torch.float32)
+    recip = 1.0 / (dist_t.to(wdtype) + 1e-8)
     weight = recip / recip.sum(-1, keepdim=True)
-    return weighted_gather3(known_feat, idx_t, weight)
+    return weighted_gather3(known_feat, idx_t, weight.to(known_feat.dtype))
 
 
 def _stable_three_nn(unknown: Tensor, known: Tensor, tol: float) -> tuple[Tensor, Tensor]:
