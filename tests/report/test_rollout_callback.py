@@ -346,3 +346,20 @@ def test_facing_pose_rounds_the_position_and_faces_the_target_from_it():
 
     x, y, yaw = facing_pose((1.0000004, -0.4999996, 2.0), (2.0, 0.5))
     assert (x, y) == (1.0, -0.5) and yaw == math.atan2(1.0, 1.0)
+
+
+def test_a_stood_in_sample_counts_once_toward_the_validation_cap():
+    """A view that broke after setup is stood in for by the next record, which then arrives twice (as the stand-in and
+    in its own place): both counted toward max_val_samples, so validation scored 3 views where 4 were asked for."""
+    from floaff_zoo.contract import collate_samples
+
+    samples = make_samples(6)
+    stand_in = dict(samples[2], meta=dict(samples[2]["meta"], replaces=samples[1]["meta"]["sample_id"]))
+    order = [samples[0], stand_in, samples[2], samples[3], samples[4], samples[5]]
+    cb = RolloutSuccessRate(service=FakeService, progress=False, max_val_samples=4)
+    cb._start("val", True)
+    for b in range(0, len(order), 2):
+        batch = collate_samples(order[b : b + 2])
+        cb._collect("val", batch, batch["floor_label"], 0)
+    got = [e["sample_id"] for e in cb._pool("val", cb._pending["val"], False)]
+    assert got == [samples[i]["meta"]["sample_id"] for i in (0, 2, 3, 4)]

@@ -245,6 +245,13 @@ def _first_per_key(items: list[Any], keys: list[tuple[int, int] | None]) -> list
     return out
 
 
+def _n_samples(pending: list[dict[str, Any]]) -> int:
+    """Distinct samples among collected episodes: a file that broke after setup is stood in for by the next record,
+    which then arrives twice (as the stand-in and in its own place); counted twice, it filled the validation cap
+    with fewer views than configured."""
+    return len(_first_per_key(pending, [e["_key"] for e in pending]))
+
+
 def default_service(workers: int = 1, backend: str = "local", cache_decimals: int = ROLLOUT_POSE_DECIMALS) -> Any:
     """The simulator's rollout service (imported lazily: the callback module never needs mujoco)."""
     from floaff_zoo.sim.rollout import RolloutService
@@ -416,7 +423,7 @@ class RolloutSuccessRate(L.Callback):
             if not sim or "base_pose_world" not in sim:
                 self._skipped[stage].append(_sample_key(meta, dataloader_idx))
                 continue
-            if cap is not None and len(pending) >= cap:
+            if cap is not None and _n_samples(pending) >= cap:
                 return
             try:
                 spec = self._spec_factory(sim)
@@ -603,7 +610,7 @@ class RolloutSuccessRate(L.Callback):
     def on_validation_batch_end(self, trainer, pl_module, outputs, batch, batch_idx, dataloader_idx=0) -> None:
         if not self._active.get("val"):
             return
-        if self.max_val_samples is not None and len(self._pending["val"]) >= self.max_val_samples:
+        if self.max_val_samples is not None and _n_samples(self._pending["val"]) >= self.max_val_samples:
             return
         scores = outputs.get("scores") if isinstance(outputs, dict) else None
         if scores is not None:  # validation_step returns the scores it computed: no second forward
