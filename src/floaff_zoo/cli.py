@@ -31,7 +31,15 @@ from floaff_zoo.contract import NonFiniteError, SampleError
 from floaff_zoo.data.base import FloAffDataModule
 from floaff_zoo.models.base import WEIGHTS_FAILURE_NOTE, ZooModule
 from floaff_zoo.nn import _fps_ext, ops
-from floaff_zoo.runs import CHECKPOINT_KEYS, RunError, config_value, config_values, load_checkpoint, resolve_ckpt_alias
+from floaff_zoo.runs import (
+    CHECKPOINT_KEYS,
+    RunError,
+    config_value,
+    config_values,
+    is_config_file,
+    load_checkpoint,
+    resolve_ckpt_alias,
+)
 
 TRAINER_COMMANDS = ("fit", "validate", "test", "predict")
 #: commands that evaluate a trained model: ``--ckpt_path best|last`` and strict ``weights`` apply to them
@@ -191,7 +199,7 @@ def integer_limits(args: list[str]) -> dict[str, int]:
 def config_files(args: list[str]) -> list[str]:
     """The ``--config`` values of ``args``, in order, that name existing files (a value that is no file is YAML
     text, or a missing file jsonargparse names itself)."""
-    return [v for v in config_values(args) if _is_file(v)]
+    return [v for v in config_values(args) if is_config_file(v)]
 
 
 def check_config_file(path: str) -> None:
@@ -211,20 +219,12 @@ def check_config_file(path: str) -> None:
         raise CLIError(f"--config {path}: expected a mapping of settings (e.g. 'trainer:'), got a {kind}")
 
 
-def _is_file(value: str) -> bool:
-    """True when a ``--config`` value names a file (a long YAML text is no path: ENAMETOOLONG)."""
-    try:
-        return Path(value).is_file()
-    except (OSError, ValueError):
-        return False
-
-
 def _yaml_mapping(value: str) -> dict[str, Any]:
     """A ``--config`` value's top-level mapping: its file's, or the value read as YAML text where it names no file
     (jsonargparse takes both; only files were read, so an inline ``limit_train_batches: 1`` ran every batch). {}
     when it is not a mapping: the parser reports that itself."""
     try:
-        data = yaml.safe_load(Path(value).read_text() if _is_file(value) else value)
+        data = yaml.safe_load(Path(value).read_text() if is_config_file(value) else value)
     except (OSError, yaml.YAMLError, UnicodeDecodeError):
         return {}
     return data if isinstance(data, dict) else {}
@@ -393,7 +393,7 @@ class FloAffCLI(LightningCLI):
         given = {
             k
             for v in config_values(self._raw_args)  # files and inline YAML alike
-            if not (_is_file(v) and (Path(v).parent / "checkpoints").is_dir())
+            if not (is_config_file(v) and (Path(v).parent / "checkpoints").is_dir())
             for k in _model_init_args(_yaml_mapping(v))
         }
         dropped = [

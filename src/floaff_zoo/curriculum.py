@@ -61,7 +61,7 @@ from typing import Any
 
 import yaml
 
-from floaff_zoo.runs import config_values
+from floaff_zoo.runs import config_values, is_config_file
 
 __all__ = ["CurriculumError", "build_stage_args", "load_experiment", "main", "read_lineage", "run_curriculum"]
 
@@ -453,7 +453,7 @@ def _metrics(cli: Any) -> dict[str, float]:
 def _digest(args: list[str]) -> str:
     """sha256 of a stage's fit arguments and of its ``--config`` files' contents: a run may be resumed only by a
     stage whose digest is the one recorded for that run."""
-    configs = {f: _sha256(f) for f in config_values(args) if Path(f).is_file()}
+    configs = {f: _sha256(f) for f in config_values(args) if is_config_file(f)}
     blob = json.dumps({"args": args, "config_sha256": configs}, sort_keys=True)
     return hashlib.sha256(blob.encode()).hexdigest()
 
@@ -744,11 +744,11 @@ def _check_config_files(cfg: dict[str, Any], config: str | Path, extra: list[str
     the ``--extra-config`` and top-level files first, then each stage's own."""
     where = f"(paths are relative to {Path.cwd()})"
     for f in extra + [f for key in ("data", "model", "trainer") for f in _as_list(cfg.get(key), key)]:
-        if not Path(f).is_file():
+        if not is_config_file(f):
             raise CurriculumError(f"{config}: config file {f} does not exist {where}")
     for stage in cfg["stages"]:
         for f in config_values(build_stage_args(cfg, stage, Path(cfg["root"]), {}, extra)):
-            if not Path(f).is_file():
+            if not is_config_file(f):
                 raise CurriculumError(f"{config}: stage {stage['name']}: config file {f} does not exist {where}")
 
 

@@ -30,7 +30,13 @@ def facing_pose(pose: Pose, target_world: Sequence[float]) -> Pose:
     (docs/background.md §5).
     """
     x, y = round(float(pose[0]), ROLLOUT_POSE_DECIMALS), round(float(pose[1]), ROLLOUT_POSE_DECIMALS)
-    return x, y, math.atan2(float(target_world[1]) - y, float(target_world[0]) - x)
+    return x, y, heading_to(x, y, target_world)
+
+
+def heading_to(x: float, y: float, target_world: Sequence[float]) -> float:
+    """Yaw (rad, float64) of a base at world (x, y) facing the target's world (x, y): the annotation's and the
+    evaluation's one formula."""
+    return math.atan2(float(target_world[1]) - y, float(target_world[0]) - x)
 
 
 def base_to_world(xyz: np.ndarray, base_pose_world: Sequence[float]) -> np.ndarray:

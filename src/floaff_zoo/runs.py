@@ -168,6 +168,15 @@ def config_value(args: list[str], i: int) -> str | None:
     return args[i].partition("=")[2] if args[i].startswith("--config=") else None
 
 
+def is_config_file(value: str) -> bool:
+    """True when a ``--config`` value names a file; else it is YAML text (jsonargparse takes both) or a missing
+    file. A YAML text too long for a path is no file (``is_file`` raised ENAMETOOLONG)."""
+    try:
+        return Path(value).is_file()
+    except (OSError, ValueError):
+        return False
+
+
 def config_values(args: list[str]) -> list[str]:
     """The ``--config`` values of ``args`` (``--config X`` or ``--config=X``), in order: the CLI's and the
     curriculum's (which reads lineages without loading the CLI's Lightning and models)."""

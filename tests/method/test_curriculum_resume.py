@@ -458,3 +458,12 @@ def test_a_killed_fit_resumes_after_a_finished_fit_of_other_arguments_took_its_f
     seen: list = []
     (rec,) = run_curriculum(exp, sets=longer, runner=_spy(seen))
     assert "--ckpt_path" in seen[0] and rec["resumed_from"]
+
+
+def test_a_stage_digest_takes_a_config_given_as_yaml_text():
+    """The CLI reads a --config value that is no file as YAML text; the curriculum's digest called Path.is_file on it,
+    which raised a bare OSError (ENAMETOOLONG) for a long text."""
+    from floaff_zoo.curriculum import _digest
+
+    long_text = "{trainer: {max_epochs: 1}}" + " " * 5000
+    assert _digest(["fit", "--config", long_text]) == _digest(["fit", "--config", long_text])

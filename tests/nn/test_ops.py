@@ -423,3 +423,14 @@ def test_stable_three_interpolate_in_float16_keeps_a_coincident_point_finite():
     half = stable_three_interpolate(query, known, feat.half())
     assert half.dtype == torch.float16 and torch.isfinite(half).all()
     torch.testing.assert_close(half.float(), ref, atol=2e-3, rtol=2e-3)
+
+
+def test_three_nn_returns_its_picks_distances_never_below_zero():
+    """three_nn gave the search's expanded distance, below 0 for near-coincident points: three_interpolate and
+    VoteNet's proposal distance each worked around it on their own."""
+    torch.manual_seed(0)
+    u = torch.rand(1, 2000, 3) * 4.0
+    known = torch.cat([u + torch.randn_like(u) * 1e-4, u], 1)
+    dist, idx = ops.three_nn(u, known)
+    assert (dist >= 0).all()
+    torch.testing.assert_close(dist, ((u[:, :, None] - ops.index_points(known, idx)) ** 2).sum(-1))

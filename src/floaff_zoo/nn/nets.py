@@ -456,7 +456,7 @@ class VoteAggregation(nn.Module):
 def _proposal_distance(floor_xyz: Tensor, prop_xyz: Tensor) -> Tensor:
     """[B,M,3], [B,P,3] -> [B,M,1] 3-D distance to the nearest proposal (no gradient, see ``three_nn``)."""
     d, _ = three_nn(floor_xyz, prop_xyz)
-    return d[..., :1].clamp_min(0).sqrt()
+    return d[..., :1].sqrt()  # three_nn measures its picks by coordinate differences: never below 0
 
 
 class SeedVotingNet(nn.Module, abc.ABC):

@@ -378,11 +378,23 @@ def three_nn(unknown: Tensor, known: Tensor, known_mask: Tensor | None = None) -
     """Three nearest valid known points of every unknown point.
 
     Returns:
-        (sq_dist [B, n, 3], idx [B, n, 3]); with fewer than 3 valid known points the missing
+        (sq_dist [B, n, 3] from the picks' coordinate differences, never below 0, idx [B, n, 3]); with fewer
+        than 3 valid known points the missing
         slots get distance ``inf`` (zero interpolation weight) and index 0. The distances carry no gradient on
         any path (the C++ kernel has none), so a model whose known points are learned (VoteNet's votes) trains
         the same on CPU, CUDA and the portable path.
     """
+    dist, idx = _three_nn_search(unknown, known, known_mask)
+    # the picks' distances again from coordinate differences: the search's expanded |a|^2 - 2 a.b + |b|^2 goes below
+    # 0 for (near-)coincident points, and inverse-distance weights then took both signs and cancelled (features 1, 2
+    # and 3 interpolated to -776 on one path, 1.10 on the other), as the official kernel's differences cannot
+    picked = index_points(known.detach().float(), idx)  # [B, n, 3, 3]
+    exact = ((unknown.detach().float()[:, :, None] - picked) ** 2).sum(-1)
+    return torch.where(torch.isinf(dist), dist, exact), idx
+
+
+def _three_nn_search(unknown: Tensor, known: Tensor, known_mask: Tensor | None) -> tuple[Tensor, Tensor]:
+    """``three_nn``'s picks by the expanded distance (C++ kernel or torch): (sq_dist [B, n, 3], idx [B, n, 3])."""
     kernel = point_kernel(unknown.device)
     if kernel is not None:
         if known_mask is None:
@@ -425,12 +437,6 @@ def three_interpolate(unknown: Tensor, known: Tensor, known_feat: Tensor, known_
     if known.shape[1] == 1:
         return known_feat.expand(b, n, known_feat.shape[-1])
     dist, idx = three_nn(unknown, known, known_mask)
-    # the picks' distances again from coordinate differences: the search's expanded |a|^2 - 2 a.b + |b|^2 goes below
-    # 0 for (near-)coincident points, and 1 / (d + 1e-8) then gave weights of both signs that cancel (a value of -776
-    # interpolated from features 1, 2 and 3; another on the other path), as the official kernel's differences cannot
-    picked = index_points(known.detach().float(), idx)  # [B, n, 3, 3]
-    exact = ((unknown.detach().float()[:, :, None] - picked) ** 2).sum(-1)
-    dist = torch.where(torch.isinf(dist), dist, exact)
     recip = 1.0 / (dist + 1e-8)  # inf distance -> weight 0
     weight = recip / recip.sum(dim=-1, keepdim=True)
     return weighted_gather3(known_feat, idx, weight.to(known_feat.dtype))

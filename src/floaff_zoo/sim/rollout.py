@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import mujoco
 import numpy as np
 
-from floaff_zoo.frames import ROLLOUT_POSE_DECIMALS
+from floaff_zoo.frames import ROLLOUT_POSE_DECIMALS, heading_to
 from floaff_zoo.runtime import THREAD_ENV, exit_with_parent, one_thread_children
 from floaff_zoo.sim.controllers import CTRL_DT, Policy, default_policy
 from floaff_zoo.sim.kitchen import SceneSpec, SimScene, TargetInfo, build_scene, release_scene
@@ -40,7 +40,7 @@ class RolloutResult:
 def heading_to_target(scene_or_target: SimScene | TargetInfo, x: float, y: float) -> float:
     """Yaw (rad) of a base at (x, y) facing the target centre's floor projection."""
     t = scene_or_target.target if isinstance(scene_or_target, SimScene) else scene_or_target
-    return math.atan2(float(t.pos[1]) - y, float(t.pos[0]) - x)
+    return heading_to(x, y, t.pos)
 
 
 #: a pose this close to the target's front plane (m, target frame) is on it: poses are rounded to 1e-6 m
