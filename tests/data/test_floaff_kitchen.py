@@ -611,5 +611,8 @@ def test_a_view_whose_npz_pose_disagrees_with_scene_json_is_skipped(floaff_root,
     dm.setup("fit")
     assert dm.skips.counts["bad_view"] == exp["skips"].get("bad_view", 0) + 1
     assert "disagrees with" in dm.skips.summary() and str(sj) in dm.skips.summary()
+    rec = ff.read_scene(sj)  # the scripts' reader (predict_sr.py) checks the same, one place for both
+    with pytest.raises(ff.FormatError, match="disagrees with"):
+        ff.read_sample(rec, rec["views"][0])
     view = json.loads(sj.read_text())["views"][0]["view_id"]
     assert all(not r.key.endswith(f"{sj.parent.name}/{view}") for s in ("train", "val") for r in dm.datasets[s].records)

@@ -28,7 +28,6 @@ import importlib
 import math
 import os
 from collections import Counter
-from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -340,7 +339,12 @@ class GeneratedReader(FloAffReader):
         try:
             s = ff.read_sample(
                 rec,
-                {"file": os.path.relpath(view.file, scene.dir), "view": view.view, "view_id": view.view_id},
+                {
+                    "file": os.path.relpath(view.file, scene.dir),
+                    "view": view.view,
+                    "view_id": view.view_id,
+                    "base_pose_world": view.base_pose_world,  # checked against the npz's (the rollout parks from it)
+                },
                 root=self.root,
             )
         except ff.FormatError as exc:  # by its class: the message holds the path, which may say 'corrupt' or 'NaN'
@@ -352,30 +356,7 @@ class GeneratedReader(FloAffReader):
                 else "bad_view"
             )
             raise DataError(str(exc), kind) from exc
-        # the rollout parks the robot from scene.json's pose (float64); the view's points were taken at the npz's
-        stored = s["meta"]["sim"]["base_pose_world"]
-        if not poses_agree(stored, view.base_pose_world):
-            raise DataError(
-                f"{view.file}: base_pose_world {[round(x, 6) for x in stored]} disagrees with "
-                f"{Path(scene.dir) / ff.SCENE_JSON}'s {[round(x, 6) for x in view.base_pose_world]} for view "
-                f"{view.view_id!r}: the view's points and its rollout would be in different places",
-                "bad_view",
-            )
         return s
-
-
-#: largest difference (m, rad) of a view's base pose between its npz (float32) and scene.json (float64)
-POSE_TOLERANCE = 1e-4
-
-
-def poses_agree(a: Sequence[float], b: Sequence[float]) -> bool:
-    """True when the base poses a and b [x, y, yaw] agree within ``POSE_TOLERANCE`` (yaw modulo 2 pi)."""
-    dyaw = math.remainder(float(a[2]) - float(b[2]), math.tau)
-    return (
-        abs(float(a[0]) - float(b[0])) <= POSE_TOLERANCE
-        and abs(float(a[1]) - float(b[1])) <= POSE_TOLERANCE
-        and abs(dyaw) <= POSE_TOLERANCE
-    )
 
 
 def check_names(kind: str, given: list[str], valid: tuple[str, ...] | list[str]) -> list[str]:

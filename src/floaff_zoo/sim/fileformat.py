@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import os
 import shutil
 from collections.abc import Iterator
@@ -419,6 +420,20 @@ def target_world(rec: dict[str, Any]) -> list[float] | None:
     return xy
 
 
+#: largest difference (m, rad) of a view's base pose between its npz (float32) and scene.json (float64)
+POSE_TOLERANCE = 1e-4
+
+
+def poses_agree(a: Any, b: Any) -> bool:
+    """True when the base poses a and b [x, y, yaw] agree within ``POSE_TOLERANCE`` (yaw modulo 2 pi)."""
+    dyaw = math.remainder(float(a[2]) - float(b[2]), math.tau)
+    return (
+        abs(float(a[0]) - float(b[0])) <= POSE_TOLERANCE
+        and abs(float(a[1]) - float(b[1])) <= POSE_TOLERANCE
+        and abs(dyaw) <= POSE_TOLERANCE
+    )
+
+
 def read_sample(scene: dict[str, Any], view: dict[str, Any], root: str | Path | None = None) -> dict[str, Any]:
     """Build one sample-contract dict (README, "The sample contract") from a scene record and one of its views.
 
@@ -431,6 +446,14 @@ def read_sample(scene: dict[str, Any], view: dict[str, Any], root: str | Path | 
     if not isinstance(view, dict) or not isinstance(view.get("file"), str):
         raise FormatError(f"{Path(scene['dir']) / SCENE_JSON}: a view record needs a 'file' name, got {view!r:.80}")
     arr = read_view(Path(scene["dir"]) / view["file"], version, len(cells) if cells is not None else None)
+    listed = view.get("base_pose_world")
+    if listed is not None and not poses_agree(arr["base_pose_world"], listed):
+        # the rollout parks the robot from scene.json's pose (float64); the view's points were taken at the npz's
+        raise FormatError(
+            f"{Path(scene['dir']) / view['file']}: base_pose_world {np.round(arr['base_pose_world'], 6).tolist()} "
+            f"disagrees with {Path(scene['dir']) / SCENE_JSON}'s {[round(float(x), 6) for x in listed]} for view "
+            f"{view.get('view_id')!r}: the view's points and its rollout would be in different places"
+        )
     spec = scene["spec"]
     sim = {
         "layout_id": spec.get("layout_id"),
