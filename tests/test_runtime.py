@@ -77,7 +77,8 @@ if __name__ == "__main__":
             pool.submit(time.sleep, 120)
     while len(mp.active_children()) < 2:
         time.sleep(0.001)
-    print(" ".join(str(p.pid) for p in mp.active_children()), flush=True)
+    with open("pids.txt", "w") as f:  # the log takes the workers' own output as well
+        f.write(" ".join(str(p.pid) for p in mp.active_children()))
     os._exit(0)  # killed at once: its workers are still importing the initializer's module
 """
 
@@ -99,13 +100,19 @@ def test_pool_workers_end_with_a_driver_killed_before_their_initializer_ran(tmp_
     had no watch at all."""
     script = tmp_path / "driver.py"
     script.write_text(_DRIVER)
-    out = subprocess.run([sys.executable, str(script), pool], capture_output=True, text=True, timeout=120, cwd=tmp_path)
-    workers = [int(p) for p in out.stdout.split()]
-    assert len(workers) == 2, out.stderr
+    log = tmp_path / "driver.log"  # not a pipe: orphans would hold it open, and run() would wait for them
+    with open(log, "w") as out:
+        done = subprocess.run([sys.executable, str(script), pool], stdout=out, stderr=subprocess.STDOUT, cwd=tmp_path)
+    pids = tmp_path / "pids.txt"
+    workers = [int(p) for p in pids.read_text().split()] if pids.is_file() else []
+    assert done.returncode == 0 and len(workers) == 2, log.read_text()
     deadline = time.monotonic() + 90  # a worker still imports torch and MuJoCo, on a busy 2-core machine
-    while any(_alive(p) for p in workers) and time.monotonic() < deadline:
-        time.sleep(0.5)
-    left = [p for p in workers if _alive(p)]
-    for p in left:
-        os.kill(p, signal.SIGKILL)
-    assert not left, f"worker(s) {left} outlived their driver"
+    try:
+        while any(_alive(p) for p in workers) and time.monotonic() < deadline:
+            time.sleep(0.5)
+        left = [p for p in workers if _alive(p)]
+        assert not left, f"worker(s) {left} outlived their driver"
+    finally:
+        for p in workers:
+            if _alive(p):
+                os.kill(p, signal.SIGKILL)

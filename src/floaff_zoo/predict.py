@@ -269,7 +269,7 @@ def backproject_depth(
         raise ValueError(f"predict: depth must be [H, W], got shape {d.shape}")
     k = np.asarray(intrinsics, dtype=np.float64).reshape(-1)
     if k.size == 9:  # a 3x3 K matrix
-        if not np.allclose(k[[3, 6, 7, 8]], [0.0, 0.0, 0.0, 1.0]):  # a transposed K parked the robot elsewhere
+        if np.isfinite(k).all() and not np.allclose(k[[3, 6, 7, 8]], [0.0, 0.0, 0.0, 1.0]):  # a transposed K
             raise ValueError(
                 f"predict: a 3x3 intrinsics K must be [[fx, s, cx], [0, fy, cy], [0, 0, 1]], got rows "
                 f"{np.asarray(intrinsics, dtype=np.float64).reshape(3, 3).tolist()} (transposed?)"
@@ -487,7 +487,7 @@ def predict_from_points(
         raise ValueError(f"predict: free_k must be an int >= 1 (1: no footprint check), got {free_k!r}")
     if not _count(k):  # 0 or less returned one pose, 2.5 failed as a slice index
         raise ValueError(f"predict: k (top poses returned) must be an int >= 1, got {k!r}")
-    if not (_count(seed) or (seed == 0 and not isinstance(seed, bool))):  # numpy's own error named no argument
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:  # numpy/torch named no argument
         raise ValueError(f"predict: seed must be an int >= 0, got {seed!r}")
     if num_points is not None and not _count(num_points):  # 0 fed every point, < 0 failed inside torch
         raise ValueError(f"predict: num_points must be an int >= 1, or None for every point, got {num_points!r}")

@@ -89,7 +89,8 @@ def exit_with_parent(parent: int, every_s: float = 0.5) -> None:
     parent: a pool worker otherwise outlives a killed driver, finishing its queued jobs (and writing their files)
     and then waiting forever. The pid must come from the parent, not ``os.getppid()`` here: a spawned worker runs
     its initializer only after importing the job's modules (seconds), and a driver killed meanwhile left it
-    watching init, its new parent, for ever."""
+    watching init, its new parent, for ever. For workers the driver starts itself (the ``spawn`` context); under a
+    forkserver their parent is the server, and they would exit at once."""
 
     def watch() -> None:
         while os.getppid() == parent:

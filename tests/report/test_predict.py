@@ -394,5 +394,8 @@ def test_a_transposed_k_a_non_rigid_pose_and_millimetre_depth_are_named():
     with pytest.raises(SampleError, match="beyond max_depth 4.0 m: depth must be in metres"):
         predict(ConstantModule(), None, mm, K, pose, mask, [0.85, 1.03])
     xyz, feat, t = _scene()
-    with pytest.raises(ValueError, match="seed must be an int >= 0, got -1"):
-        predict_from_points("no-such-model-is-loaded", xyz, feat, None, [0.85, 1.03], t, seed=-1)
+    for seed in (-1, 0.0, True):  # a float passed to torch's manual_seed named no argument either
+        with pytest.raises(ValueError, match=f"seed must be an int >= 0, got {seed}"):
+            predict_from_points("no-such-model-is-loaded", xyz, feat, None, [0.85, 1.03], t, seed=seed)
+    with pytest.raises(ValueError, match="intrinsics must be finite"):  # NaN is named as such, not as transposed
+        backproject_depth(depth, np.full((3, 3), np.nan), pose)

@@ -133,6 +133,13 @@ def _scene_id(spec: Any) -> str:
     return sid() if callable(sid) else str(sid)
 
 
+def same_generator(rec: dict[str, Any]) -> bool:
+    """Whether a scene record was made by this format version and this generator's major.minor (what resume keeps:
+    another's labels or views may differ)."""
+    made = ff.labels_version(str(rec.get("generator_version", "")))
+    return rec.get("format_version", 1) == ff.FORMAT_VERSION and made == ff.labels_version(GENERATOR_VERSION)
+
+
 def find_done(out: Path, job: SceneJob, min_views: int = 0) -> str | None:
     """scene_id of an already committed scene of this slot (any attempt) in this format version, else None.
 
@@ -147,12 +154,10 @@ def find_done(out: Path, job: SceneJob, min_views: int = 0) -> str | None:
         sid = _scene_id(_spec(job, s))
         if ff.scene_is_done(out, job.benchmark, sid):
             rec = ff.read_json(ff.scene_dir(out, job.benchmark, sid) / ff.SCENE_JSON)
-            if rec.get("slot") != job.key or rec.get("format_version", 1) != ff.FORMAT_VERSION:
+            if rec.get("slot") != job.key or not same_generator(rec):
                 continue
             if rec.get("views_requested", [job.n_front, job.n_side]) != [job.n_front, job.n_side]:
                 continue  # the paper preset's counts per scene follow --n-train / --n-test
-            if ff.labels_version(str(rec.get("generator_version", ""))) != ff.labels_version(GENERATOR_VERSION):
-                continue
             if "min_views" in rec:
                 topped_up = rec["min_views"] == min_views
             else:
@@ -950,8 +955,7 @@ def _generate(
         if key not in manifest["scenes"] and sid and ff.scene_is_done(outp, s["benchmark"], sid):
             manifest["scenes"][key] = {**s, "in_plan": False}
             rec = ff.read_json(ff.scene_dir(outp, s["benchmark"], sid) / ff.SCENE_JSON)
-            made = (rec.get("format_version", 1), ff.labels_version(str(rec.get("generator_version", ""))))
-            if made != (ff.FORMAT_VERSION, ff.labels_version(GENERATOR_VERSION)):
+            if not same_generator(rec):
                 stale.append(f"{s['benchmark']}/{sid} (generator {rec.get('generator_version') or '1.x'})")
     if stale:  # kept beside this run's scenes, they would mix generator versions in one dataset
         raise ValueError(
