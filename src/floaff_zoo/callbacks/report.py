@@ -30,6 +30,7 @@ import lightning as L
 import numpy as np
 import torch
 
+from floaff_zoo.data.base import FloAffDataModule
 from floaff_zoo.report.figures import FigureSample, write_figures
 
 SCHEMA = "floaff-zoo/report"
@@ -446,7 +447,7 @@ def pcc_defined(counts: dict[str, int]) -> int:
 
 def _skipped_at_setup(dm: Any) -> dict[str, Any] | None:
     """The data module's record of what its setup skipped for the test split (``skip_log``; None without one)."""
-    log = dm.skip_log("test") if dm is not None and hasattr(dm, "skip_log") else None
+    log = dm.skip_log("test") if isinstance(dm, FloAffDataModule) else None  # a plain LightningDataModule has none
     return log.record() if log is not None else None
 
 

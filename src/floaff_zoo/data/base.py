@@ -177,6 +177,11 @@ class FloAffDataModule(L.LightningDataModule):
         """The configured transform list of ``split``."""
         return self.train_transforms if split == "train" else self.eval_transforms
 
+    def skip_log(self, split: str) -> Any:
+        """The ``readers.SkipLog`` of what setup skipped for ``split`` (test reports record it), None when the data
+        module keeps none (the synthetic data skips nothing)."""
+        return None
+
     def _has_hook(self) -> bool:
         return type(self).sample_transform is not FloAffDataModule.sample_transform
 
