@@ -39,6 +39,8 @@
 #                                              # RUNS and OUT);
 #                                              # occ_recipe_rs<scale>_s<seed> tests the best configuration with its
 #                                              # learned residual scaled (no training)
+#                                              # st_<task>_<model>_s<seed> (and styles_...): one model per task, no
+#                                              # PFAL, the paper's Table 3 (single_task below)
 #
 # Needs the data:
 #   floaff-zoo generate --preset small --benchmarks layouts styles --out data/floaff_small --workers 2 --n-test 4
@@ -261,6 +263,44 @@ axisnet_longer() {
   mv "$out.tmp" "$out"
 }
 
+# single_task JOB: the paper's Table 3 protocol, one model per task and no PFAL (docs/results.md, "One model per
+# task"). JOB = [styles_]st_<task>_<model>_s<seed>, task pnp | osd | drawer | cdd, model cfar (the paper's CFAR path
+# without PFAL), cfar_best (the best configuration's network without PFAL: zoo recipe + footprint occupancy + failed
+# cells 0), pointnet2 | navaff | votenet | h3dnet | n2m. Whole training pool, 1,000 samples each: PFAL's per-task
+# share of the equal budget (stage 1 gives PnPCounterToCab 1,000, stage 2 each door or drawer task 1,000), so
+# `st_pnp_cfar_s<n>` is PFAL's stage 1 on the whole pool. Tested on its own task. CFAR takes the frozen AxisNet of
+# the curriculum pool_cfar_pfal_s<seed> (cfar) or pool_succ_occ_recipe_s<seed> (cfar_best) under AXIS_RUNS
+# (default RUNS): run that job first.
+single_task() {
+  local b j; split_job
+  local rest=${j#st_} short model seed task
+  short=${rest%%_*} rest=${rest#*_}
+  case $rest in *_s[0-9]) seed=${rest##*_s} model=${rest%_s*} ;; *) echo "$job: no seed (st_<task>_<model>_s<seed>)" >&2; return 2 ;; esac
+  case $short in
+    pnp) task=PnPCounterToCab ;; osd) task=OpenSingleDoor ;; drawer) task=CloseDrawer ;; cdd) task=CloseDoubleDoor ;;
+    *) echo "$job: unknown task '$short' (pnp, osd, drawer, cdd)" >&2; return 2 ;;
+  esac
+  # test_run reads TASKS: this job tests its own task only
+  local TASKS="[\"$task\"]"
+  local one=(--data.init_args.tasks "[$task]" --data.init_args.val_scenes 0 --trainer.max_steps 250)
+  case $model in
+    cfar|cfar_best)
+      local src=pool_cfar_pfal_s$seed label="CFAR (no PFAL), single task" extra=() axis
+      if [ "$model" = cfar_best ]; then
+        success_labels "$b"
+        src=pool_succ_occ_recipe_s$seed label="CFAR, best configuration without PFAL, single task"
+        extra=(--config "$RECIPE" --config configs/experiments/recipe/occupancy.yaml
+          --config "configs/experiments/recipe/success_labels_$b.yaml")
+      fi
+      axis=$(stage_ckpt "${AXIS_RUNS:-$RUNS}/$b/$src" 0) || { echo "$job: run $src first (its AxisNet)" >&2; return 1; }
+      baseline "$j" "$b" "$seed" configs/demo/cfar_demo.yaml "$label" --model.init_args.axisnet "$axis" \
+        "${extra[@]}" "${one[@]}" ;;
+    pointnet2|navaff|votenet|h3dnet|n2m)
+      baseline "$j" "$b" "$seed" "configs/demo/${model}_demo.yaml" "$(label_of "$model"), single task" "${one[@]}" ;;
+    *) echo "$job: unknown model '$model' (cfar, cfar_best, pointnet2, navaff, votenet, h3dnet, n2m)" >&2; return 2 ;;
+  esac
+}
+
 label_of() {  # table label of a baseline model name
   case $1 in pointnet2) echo "PointNet++" ;; navaff) echo NavAff ;; votenet) echo VoteNet ;; h3dnet) echo H3DNet ;;
     n2m) echo N2M ;; *) echo "$1" ;; esac
@@ -475,6 +515,7 @@ run_job() {
       stage_test "$job" "cfar_pfal_s${job#axis100_s}" -1 "CFAR+PFAL, AxisNet 100 epochs" --model.init_args.axisnet "$axis" ;;
     stage1_s[0-9]) # PFAL stage 1 alone (trained on PnPCounterToCab only), tested on all four tasks
       stage_test "$job" "cfar_pfal_s${job#stage1_s}" 1 "CFAR, stage 1 only" ;;
+    st_*|styles_st_*) single_task ;;  # one model per task (the paper's Table 3)
     styles_cfar_pfal) curriculum cfar_pfal_s0 styles 0 "CFAR+PFAL" ;;
     styles_pointnet2) baseline pointnet2_s0 styles 0 configs/demo/pointnet2_demo.yaml "PointNet++" ;;
     styles_c2f_exp) training_free c2f_exp styles C2F-Exp ;;

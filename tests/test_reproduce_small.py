@@ -64,3 +64,104 @@ def test_two_jobs_testing_one_run_at_once_copy_their_own_reports(tmp_path, slow)
     for scale in ("0", "2"):
         report = json.loads((tmp_path / "out" / "layouts" / f"occ_recipe_rs{scale}_s0" / "report.json").read_text())
         assert report["residual_scale"] == scale, (slow, report)
+
+
+#: a stand-in for `floaff-zoo fit` and `test` that logs each call's arguments, one per line, to $LOG: fit makes the run
+#: folder (config.yaml, checkpoints/last.ckpt), test writes a labelled report beside it
+FAKE_FZ_LOGGING = textwrap.dedent(
+    """\
+    #!/usr/bin/env bash
+    printf '%s\\n' "$@" > "$LOG.$1.$$"; echo "== $1 $$" >> "$LOG"
+    cmd=$1; root=; cfg=; label=
+    while [ $# -gt 0 ]; do
+      case $1 in
+        --trainer.default_root_dir) root=$2 ;;
+        --config) [ -z "$cfg" ] && cfg=$2 ;;
+        --trainer.callbacks.init_args.label) label=$2 ;;
+      esac
+      shift
+    done
+    if [ "$cmd" = fit ]; then
+      mkdir -p "$root/m/version_0/checkpoints"; : > "$root/m/version_0/checkpoints/last.ckpt"
+      : > "$root/m/version_0/config.yaml"
+    else
+      d=$(dirname "$cfg")/../version_1; mkdir -p "$d"
+      printf '{"label": "%s"}' "$label" > "$d/report.json"; echo x > "$d/report.md"
+    fi
+    """
+)
+
+
+def _single_task_env(tmp_path: Path) -> dict[str, str]:
+    fz = tmp_path / "fakefz"
+    fz.write_text(FAKE_FZ_LOGGING)
+    fz.chmod(0o755)
+    return {
+        **os.environ,
+        "FZ": str(fz),
+        "PRESET": "dense",
+        "RUNS": str(tmp_path / "runs"),
+        "OUT": str(tmp_path / "out"),
+        "LOG": str(tmp_path / "calls"),
+        "PAR": "1",
+    }
+
+
+def _calls(tmp_path: Path, cmd: str) -> list[list[str]]:
+    return [f.read_text().splitlines() for f in sorted(tmp_path.glob(f"calls.{cmd}.*"))]
+
+
+def _value(args: list[str], flag: str) -> str:
+    return args[args.index(flag) + 1]
+
+
+def test_single_task_job_trains_and_tests_its_own_task_only(tmp_path):
+    """`st_<task>_<model>_s<seed>` (the paper's Table 3: one model per task) fits on its task alone, on the whole
+    training pool, for PFAL's per-task share of the budget (250 steps), and tests on that task only."""
+    axis = tmp_path / "runs" / "styles" / "pool_cfar_pfal_s1" / "axisnet.ckpt"
+    axis.parent.mkdir(parents=True)
+    axis.write_text("")
+    lineage = {"complete": True, "stages": [{"checkpoint": str(axis)}]}
+    (axis.parent / "lineage.json").write_text(json.dumps(lineage))
+    env = _single_task_env(tmp_path)
+    jobs = ["st_osd_pointnet2_s0", "styles_st_cdd_cfar_s1"]
+    done = subprocess.run(
+        [str(ROOT / "scripts" / "reproduce_small.sh"), *jobs], env=env, capture_output=True, text=True, timeout=120
+    )
+    assert done.returncode == 0, done.stdout + done.stderr
+    fits, tests = _calls(tmp_path, "fit"), _calls(tmp_path, "test")
+    assert len(fits) == 2 and len(tests) == 2
+    by_model = {("cfar_demo" in " ".join(f)): f for f in fits}
+    pn2, cfar = by_model[False], by_model[True]
+    for fit, task in ((pn2, "OpenSingleDoor"), (cfar, "CloseDoubleDoor")):
+        # a flag given twice counts at its last occurrence (jsonargparse): the budget file's 1,000 steps are replaced
+        last = {fit[i]: fit[i + 1] for i in range(len(fit) - 1) if fit[i].startswith("--")}
+        assert last["--data.init_args.tasks"] == f"[{task}]"
+        assert last["--data.init_args.val_scenes"] == "0"
+        assert last["--trainer.max_steps"] == "250"
+    assert _value(cfar, "--model.init_args.axisnet") == str(axis)
+    assert _value(cfar, "--seed_everything") == "1"
+    assert "configs/data/floaff_dense_styles.yaml" in cfar
+    assert sorted(_value(t, "--data.init_args.tasks") for t in tests) == ['["CloseDoubleDoor"]', '["OpenSingleDoor"]']
+    assert (tmp_path / "out" / "layouts" / "st_osd_pointnet2_s0" / "report.json").is_file()
+    assert (tmp_path / "out" / "styles" / "st_cdd_cfar_s1" / "report.json").is_file()
+
+
+@pytest.mark.parametrize(
+    ("job", "message"),
+    [
+        ("st_sink_pointnet2_s0", "unknown task 'sink'"),
+        ("st_osd_resnet_s0", "unknown model 'resnet'"),
+        ("st_osd_pointnet2", "no seed"),
+        ("st_osd_cfar_s0", "run pool_cfar_pfal_s0 first"),
+    ],
+)
+def test_single_task_job_names_what_is_wrong(tmp_path, job, message):
+    env = _single_task_env(tmp_path)
+    done = subprocess.run(
+        [str(ROOT / "scripts" / "reproduce_small.sh"), job], env=env, capture_output=True, text=True, timeout=120
+    )
+    assert done.returncode != 0
+    log = (tmp_path / "runs" / "logs" / f"{job}.log").read_text()
+    assert message in log, log
+    assert not _calls(tmp_path, "fit")
