@@ -172,3 +172,62 @@ def test_scene_decoder_gives_repeated_seeds_their_first_occurrences_row_in_train
     _, rows, _ = net(xyz, feat, mask, robot, fps)
     assert rows.shape[1] == 12 and rows.abs().sum(-1).gt(0).all()
     torch.testing.assert_close(rows[:, 5:], rows[:, :1].expand(-1, 7, -1))  # FPS repeats the first point
+
+
+def _randomise_statistics(net: nn.Module) -> None:
+    """Eval-mode running statistics away from (0, 1), so every path of the network reaches its output."""
+    for m in net.modules():
+        if isinstance(m, nn.BatchNorm1d):
+            m.running_mean.normal_()
+            m.running_var.uniform_(0.5, 2.0)
+
+
+def _small_cloud(n: int, seed: int = 1) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Two clouds of n points in a 0.6 m box, with one feature channel: xyz [2, n, 3], feat [2, n, 1], mask [2, n]."""
+    torch.manual_seed(seed)
+    return torch.rand(2, n, 3) * 0.6, torch.rand(2, n, 1), torch.ones(2, n, dtype=torch.bool)
+
+
+@pytest.mark.parametrize("train", [False, True])
+def test_pointnet2_seg_logits_do_not_depend_on_surplus_centres(train):
+    """PointNet2Seg with as many level-1 centres as points, or more (the surplus repeats the first): same per-point
+    logits and statistics: the decoder's FP layers keep the repeats out of their batch statistics (fails in training
+    without the centre masks). The encoder's next-level mask changes no ball-query level: a ball that holds a repeat
+    holds its first occurrence, the lowest index, which is also what the query pads with; the group-all test above
+    covers it."""
+    from floaff_zoo.nn.pointnet2 import PointNet2Seg
+
+    n = 12
+    torch.manual_seed(0)
+    exact = PointNet2Seg(1, [n, 8], [[0.15], [0.25]], [[4], [4]], [[[8]], [[16]]], [[16], [16]], head=[8])
+    _randomise_statistics(exact)
+    nn.init.normal_(exact.out.weight)
+    exact.train(train)
+    more = copy.deepcopy(exact)
+    more.encoder.levels[0].npoint = n + 9
+    xyz, feat, mask = _small_cloud(n)
+    a, b = exact(xyz, feat, mask), more(xyz, feat, mask)
+    torch.testing.assert_close(b, a, atol=1e-5, rtol=1e-4)
+    for key, value in _stats(exact).items():
+        torch.testing.assert_close(_stats(more)[key], value, atol=1e-5, rtol=1e-4, msg=key)
+
+
+@pytest.mark.parametrize("train", [False, True])
+def test_scene_decoder_rows_do_not_depend_on_surplus_centres(train):
+    """SceneEncoderDecoder (PointNet++, VoteNet- and H3DNet-style nets) decoded to level 1: its first n rows, and
+    its statistics, are the same with exactly n level-1 centres or with a surplus that repeats the first."""
+    n = 12
+    torch.manual_seed(0)
+    args = (1, 2, 8, [n, 8, 3], [[0.15], [0.25], [0.8]], [[4], [4], [4]], [[[8]], [[16]], [[16]]], [[16], [16]], True)
+    exact = SceneEncoderDecoder(*args)
+    _randomise_statistics(exact)
+    exact.train(train)
+    more = copy.deepcopy(exact)
+    more.encoder.levels[0].npoint = n + 9
+    xyz, feat, mask = _small_cloud(n)
+    robot = torch.rand(2, 2)
+    _, a, _ = exact(xyz, feat, mask, robot, None)
+    _, b, _ = more(xyz, feat, mask, robot, None)
+    torch.testing.assert_close(b[:, :n], a, atol=1e-5, rtol=1e-4)
+    for key, value in _stats(exact).items():
+        torch.testing.assert_close(_stats(more)[key], value, atol=1e-5, rtol=1e-4, msg=key)
