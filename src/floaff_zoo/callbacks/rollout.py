@@ -245,13 +245,6 @@ def _first_per_key(items: list[Any], keys: list[tuple[int, int] | None]) -> list
     return out
 
 
-def _n_samples(pending: list[dict[str, Any]]) -> int:
-    """Distinct samples among collected episodes: a file that broke after setup is stood in for by the next record,
-    which then arrives twice (as the stand-in and in its own place); counted twice, it filled the validation cap
-    with fewer views than configured."""
-    return len(_first_per_key(pending, [e["_key"] for e in pending]))
-
-
 def default_service(workers: int = 1, backend: str = "local", cache_decimals: int = ROLLOUT_POSE_DECIMALS) -> Any:
     """The simulator's rollout service (imported lazily: the callback module never needs mujoco)."""
     from floaff_zoo.sim.rollout import RolloutService
@@ -359,6 +352,7 @@ class RolloutSuccessRate(L.Callback):
         self._scenes: dict[str, Any] = {}
         self._pending: dict[str, list[dict[str, Any]]] = {}
         self._skipped: dict[str, list[tuple[int, int] | None]] = {}  # stage -> key of every skipped sample
+        self._seen: dict[str, set[tuple[int, int]]] = {}  # stage -> keys of the samples collected on this rank
         self._active: dict[str, bool] = {}
         self._warned: set[str] = set()
         #: stage -> SR summary (see ``summarize_episodes``) + bookkeeping; read by TestReport
@@ -389,6 +383,7 @@ class RolloutSuccessRate(L.Callback):
         self._active[stage] = active
         self._pending[stage] = []
         self._skipped[stage] = []
+        self._seen[stage] = set()
         # an inactive run must not leave the previous run's results to be read as its own (the test report does)
         self.summaries.pop(stage, None)
         self.episodes.pop(stage, None)
@@ -407,7 +402,7 @@ class RolloutSuccessRate(L.Callback):
     ) -> None:
         """Choose poses for every sim sample of a batch (scores [B, M]; ``propose``: the model's own procedure,
         which then replaces the map's choice); rollouts run at epoch end."""
-        pending = self._pending[stage]
+        pending, seen = self._pending[stage], self._seen[stage]
         cap = self.max_val_samples if stage == "val" else None
         floor = batch["floor_xyz"].detach().cpu().numpy()
         mask = batch["floor_mask"].detach().cpu().numpy()
@@ -423,7 +418,13 @@ class RolloutSuccessRate(L.Callback):
             if not sim or "base_pose_world" not in sim:
                 self._skipped[stage].append(_sample_key(meta, dataloader_idx))
                 continue
-            if cap is not None and _n_samples(pending) >= cap:
+            key = _sample_key(meta, dataloader_idx)
+            # a sample already collected: a stand-in's own copy (a file that broke after setup is stood in for by the
+            # next record, which then arrives twice) or a padding repeat of DistributedSampler; `_pool` keeps the
+            # first, so the copy gets no pose and does not count toward the cap
+            if key is not None and key in seen:
+                continue
+            if cap is not None and len(pending) >= cap:
                 return
             try:
                 spec = self._spec_factory(sim)
@@ -453,7 +454,7 @@ class RolloutSuccessRate(L.Callback):
                 "pose": list(pose),
                 "rank": rank,
                 "_spec": spec,
-                "_key": _sample_key(meta, dataloader_idx),
+                "_key": key,
             }
             if self.oracle:  # the label's argmax, as the paper's Oracle: no footprint check moves it
                 argmax = choose_pose(
@@ -461,6 +462,8 @@ class RolloutSuccessRate(L.Callback):
                 )
                 ep["oracle_pose"] = list(argmax[0])
             pending.append(ep)
+            if key is not None:
+                seen.add(key)
 
     def _run(self, episodes: list[dict[str, Any]]) -> float:
         """Roll out model (and oracle) poses in one batch of deduplicated jobs; returns wall seconds."""
@@ -610,7 +613,7 @@ class RolloutSuccessRate(L.Callback):
     def on_validation_batch_end(self, trainer, pl_module, outputs, batch, batch_idx, dataloader_idx=0) -> None:
         if not self._active.get("val"):
             return
-        if self.max_val_samples is not None and _n_samples(self._pending["val"]) >= self.max_val_samples:
+        if self.max_val_samples is not None and len(self._pending["val"]) >= self.max_val_samples:
             return
         scores = outputs.get("scores") if isinstance(outputs, dict) else None
         if scores is not None:  # validation_step returns the scores it computed: no second forward
