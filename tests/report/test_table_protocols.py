@@ -179,3 +179,49 @@ def test_sr_views_counts_each_benchmarks_runs_apart():
     assert [(r.runs, r.runs_text) for r in table.sections[0].rows] == [(2, "Styles 1, Layouts 1")]  # CSV keeps 2
     assert "Runs per row: CFARModule: Styles 1, Layouts 1." in render(table, "md")
     assert [r.runs for r in build_table([report(0), report(1)], "sr_views", oracle=False).sections[0].rows] == [2]
+
+
+def single_task(seed: int, task: str, mean: float, label: str = "one model per task") -> dict:
+    """A report of a model trained and tested on ``task`` alone (the paper's Table 3 protocol)."""
+    rep = report(seed, label=label)
+    rep["data"] = {**BASE["data"], "tasks": [task], "num_samples": 200}
+    rep["sr"]["model"]["tasks"] = {task: {"mean": mean, "std": 0.02, "n": 200}}
+    rep["sr"]["oracle"]["tasks"] = {task: BASE["sr"]["oracle"]["tasks"][task]}
+    return rep
+
+
+def test_an_sr_tasks_row_pools_one_model_per_task(tmp_path, capsys):
+    """One model per task (the paper's Table 3) was refused as a row mixing test sets: each column now pools the
+    runs tested on its task, and the count under the table says how many runs each task has."""
+    reps = [
+        single_task(0, "PnPCounterToCab", 0.6),
+        single_task(1, "PnPCounterToCab", 0.8),
+        single_task(2, "OpenSingleDoor", 0.5),
+    ]
+    table = build_table(reps, "sr_tasks", group_by="label")
+    (row, oracle) = table.sections[0].rows
+    assert [c.name for c in table.columns] == ["PnPC2C", "OpenSD"]
+    pnp, osd = row.cells
+    assert round(pnp.mean, 6) == 0.7 and round(pnp.std, 6) == round(0.02**0.5, 6) and (pnp.n, pnp.of) == (2, 2)
+    assert round(osd.mean, 6) == 0.5 and (osd.n, osd.of) == (1, 1)
+    assert row.runs_text == "3 (PnPC2C 2, OpenSD 1)" and oracle.oracle
+    assert table.mixed == ""
+    md = render(table, "md")
+    assert "| one model per task | 0.70 ± 0.14 | 0.50 ± 0.02 |" in md, md
+    runs = write(tmp_path, {f"r{i}": r for i, r in enumerate(reps)})
+    assert main(["--runs", *runs, "--preset", "sr_tasks", "--group-by", "label"]) == 0
+    # the map preset has no per-task columns: its rows still hold one test set
+    with pytest.raises(TableError, match=r"data\.tasks"):
+        build_table(reps, "map", group_by="label")
+
+
+def test_an_sr_tasks_column_refuses_one_task_runs_beside_a_multi_task_run():
+    """A column must not pool a model trained for one task with one trained for all of them."""
+    both = report(3, label="one model per task")  # tested on OpenSingleDoor and PnPCounterToCab
+    with pytest.raises(TableError, match=r"row 'one model per task, PnPC2C'.*data\.tasks"):
+        build_table([single_task(0, "PnPCounterToCab", 0.6), both], "sr_tasks", group_by="label")
+
+
+def test_sr_tasks_rows_of_one_and_of_several_tasks_per_run_are_named_under_the_table():
+    table = build_table([single_task(0, "PnPCounterToCab", 0.6), report(1)], "sr_tasks", group_by="label")
+    assert table.mixed == "rows differ in tasks per run: 1 (one model per task), 2 (CFARModule)"

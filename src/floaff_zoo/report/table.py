@@ -14,7 +14,9 @@ Presets (shaped like the FloAff-Kitchen paper's tables):
 
 * ``map`` (Table 1): RMSE ↓, logMSE ↓, PCC ↑, SIM ↑; one section per benchmark, one row per group.
 * ``sr_views`` (Table 2): SR_front, SR_side, SR_all per benchmark; an Oracle row (ground-truth maps).
-* ``sr_tasks`` (Table 3): SR per task (all views); one section per benchmark; an Oracle row.
+* ``sr_tasks`` (Table 3): SR per task (all views); one section per benchmark; an Oracle row. A row may hold one
+  model per task (runs each tested on one task, as the paper's Table 3 trains them): each column pools the runs
+  tested on its task, which must share their test tasks; the count under the table gives each task's runs.
 * ``ablation`` (Tables 4-5): map metrics, rows grouped by the report's ``label`` by default.
 * ``sweep`` (crop-radius study): map metrics, rows grouped by ``model.hparams.crop_radius`` by
   default and sorted numerically.
@@ -334,11 +336,17 @@ def _oracle_cell(reports: list[dict[str, Any]], getter) -> Cell | None:
 
 
 def _group_rows(
-    reports: list[dict[str, Any]], group_by: str, numeric: bool, section: str = "", floats: bool | None = None
+    reports: list[dict[str, Any]],
+    group_by: str,
+    numeric: bool,
+    section: str = "",
+    floats: bool | None = None,
+    protocol_keys: tuple[str, ...] | None = None,
 ) -> list[tuple[str, list[dict]]]:
     """Reports split into rows by their ``group_by`` value (``numeric``: rows sorted by it); each row is checked
-    by ``check_row`` (one protocol, one report per checkpoint). ``section`` names the rows' section in errors.
-    ``floats``: read int values as floats (default: when one of ``reports`` gives a float)."""
+    by ``check_row`` (one protocol in ``protocol_keys``, default ``PROTOCOL``; one report per checkpoint).
+    ``section`` names the rows' section in errors. ``floats``: read int values as floats (default: when one of
+    ``reports`` gives a float)."""
     groups: dict[str, list[dict]] = {}
     keys: dict[str, Any] = {}
     values = [lookup(r, group_by) for r in reports]
@@ -361,7 +369,7 @@ def _group_rows(
         except (TypeError, ValueError) as exc:
             raise TableError(f"--group-by {group_by}: values {sorted(groups)} are not numeric") from exc
     for n in names:
-        check_row(n, groups[n], section)
+        check_row(n, groups[n], section, protocol_keys)
     return [(n, groups[n]) for n in names]
 
 
@@ -424,11 +432,59 @@ def _checkpoint_sha(report: dict[str, Any]) -> str | None:
 HINT = "tabulate one protocol's reports per row (e.g. a narrower --runs glob)"
 
 
-def check_row(name: str, reports: list[dict[str, Any]], section: str = "") -> None:
-    """Raise TableError unless a row's reports are runs of one protocol (``check_protocol``) and of different
-    checkpoints (``check_checkpoints``): only then is mean ± std over them a spread over seeds."""
-    check_protocol(name, reports, section, PROTOCOL, HINT)
+def check_row(name: str, reports: list[dict[str, Any]], section: str = "", keys: tuple[str, ...] | None = None) -> None:
+    """Raise TableError unless a row's reports are runs of one protocol (``check_protocol`` over ``keys``, default
+    ``PROTOCOL``) and of different checkpoints (``check_checkpoints``): only then is mean ± std over them a spread
+    over seeds."""
+    check_protocol(name, reports, section, PROTOCOL if keys is None else keys, HINT)
     check_checkpoints(name, reports, section)
+
+
+#: what a test set's tasks decide: an ``sr_tasks`` row's runs may differ in them, since each column is checked on its
+#: own (``task_reports``)
+TASK_SET = ("data.tasks", "data.num_samples")
+#: the protocol of an ``sr_tasks`` row
+TASK_ROW_PROTOCOL = tuple(k for k in PROTOCOL if k not in TASK_SET)
+
+
+def tested_on(report: dict[str, Any], task: str) -> bool:
+    """Whether a report's test set held ``task`` (a report that does not record its tasks counts as holding it)."""
+    tasks = protocol(report)["data.tasks"]
+    return tasks is None or task in tasks
+
+
+def task_reports(name: str, reports: list[dict[str, Any]], task: str, section: str = "") -> list[dict[str, Any]]:
+    """The reports of an ``sr_tasks`` row tested on ``task``. They must share their test tasks: a row may pool
+    single-task runs (one model per task, the paper's Table 3), each column one task's runs, but not a column of
+    one-task runs with runs of a multi-task model."""
+    on_task = [r for r in reports if tested_on(r, task)]
+    check_protocol(f"{name}, {TASK_SHORT.get(task, task)}", on_task, section, TASK_SET, HINT)
+    return on_task
+
+
+def _task_counts(rows: list[tuple[str, list[dict[str, Any]]]]) -> dict[str, str]:
+    """Per row of one section, how many tasks each of its runs was tested on (``"1"``, ``"4"``, ``"1, 4"``; rows
+    whose runs record no tasks are left out): the ``sr_tasks`` note's stand-in for ``data.tasks``."""
+    out = {}
+    for name, reports in rows:
+        counts = sorted({len(t) for t in (protocol(r)["data.tasks"] for r in reports) if t is not None})
+        if counts:
+            out[name] = ", ".join(map(str, counts))
+    return out
+
+
+def task_count_note(sections: list[tuple[str, list[tuple[str, list[dict[str, Any]]]]]]) -> str:
+    """``"rows differ in tasks per run: 1 (A), 4 (B)"`` when the rows of one section differ in how many tasks their
+    runs were tested on (one model per task against one model for all), else ``""``."""
+    parts = []
+    for title, rows in sections:
+        where = f"{_short(title)} " if title and len(sections) > 1 else ""
+        seen: dict[str, list[str]] = {}
+        for name, count in _task_counts(rows).items():
+            seen.setdefault(count, []).append(name)
+        if len(seen) > 1:
+            parts.append(f"{where}tasks per run: " + ", ".join(f"{c} ({', '.join(n)})" for c, n in seen.items()))
+    return f"rows differ in {'; '.join(parts)}" if parts else ""
 
 
 def check_oracle(reports: list[dict[str, Any]], section: str = "") -> None:
@@ -647,22 +703,28 @@ def build_table(
     grouped = []
     for title, reps in _sections(reports):
         sec = Section(title)
-        grouped.append((title, _group_rows(reps, group_by, False, title)))
+        grouped.append((title, _group_rows(reps, group_by, False, title, protocol_keys=TASK_ROW_PROTOCOL)))
         for name, group in grouped[-1][1]:
-            sec.rows.append(
-                Row(
-                    _marked(name, group),
-                    [_cell(group, lambda r, t=t: _sr(r, "model", task=t)) for t in tasks],
-                    len(group),
-                )
-            )
+            # each cell pools the row's runs tested on its task (all of them, unless the row holds one model per task)
+            on_task = [task_reports(name, group, t, title) for t in tasks]
+            cells = [_cell(runs, lambda r, t=t: _sr(r, "model", task=t)) for runs, t in zip(on_task, tasks)]
+            text = ""
+            if any(len(runs) != len(group) for runs in on_task):  # a total over tasks is no count of seeds
+                per = ", ".join(f"{TASK_SHORT.get(t, t)} {len(runs)}" for runs, t in zip(on_task, tasks) if runs)
+                text = f"{len(group)} ({per})"
+            sec.rows.append(Row(_marked(name, group), cells, len(group), runs_text=text))
         if oracle:
             check_oracle(reps, title)
             cells = [_oracle_cell(reps, lambda r, t=t: _sr(r, "oracle", task=t)) for t in tasks]
             if any(c is not None for c in cells):
                 sec.rows.append(Row("Oracle", cells, len(reps), oracle=True))
         sections.append(sec)
-    return Table(preset, "Method", columns, sections, note, mixed_protocols(grouped))
+    mixed = "; ".join(
+        m.removeprefix("rows differ in ")
+        for m in (mixed_protocols(grouped, TASK_ROW_PROTOCOL), task_count_note(grouped))
+        if m
+    )
+    return Table(preset, "Method", columns, sections, note, f"rows differ in {mixed}" if mixed else "")
 
 
 # ------------------------------------------------------------------------------------------ rendering
