@@ -448,3 +448,36 @@ def test_inference_linear_equals_linear_and_relu(monkeypatch):
         with torch.inference_mode():
             outs.append(model(batch))
     assert torch.allclose(outs[0], outs[1], atol=1e-5), (outs[0] - outs[1]).abs().max()
+
+
+@pytest.mark.parametrize("use_kernel", [True, False], ids=["kernel", "torch"])
+def test_shared_mlp_two_forwards_before_one_backward(use_kernel, monkeypatch):
+    """A train-mode MLP called twice before one backward (a siamese use; nn.BatchNorm1d allows it): the torch path
+    (CUDA, autocast) wrote its running-mean correction in place into the statistics BN had saved for the first
+    call's backward, which then raised. Gradients and statistics must equal nn.Sequential's."""
+    import floaff_zoo.nn.pointnet2 as pn2
+    from floaff_zoo.nn.pointnet2 import SharedMLP
+
+    if use_kernel and ops.point_kernel(torch.device("cpu")) is None:
+        pytest.skip("the C++ kernels are unavailable here (no compiler)")
+    if not use_kernel:
+        monkeypatch.setattr(pn2, "point_kernel", lambda device: None)
+    torch.manual_seed(0)
+    mlp = SharedMLP(4, [16, 8]).train()
+    layers = []
+    for lin, norm in zip(mlp.linears, mlp.norms, strict=True):
+        layers += [
+            torch.nn.Linear(4 if not layers else lin.in_features, lin.out_features),
+            torch.nn.BatchNorm1d(lin.out_features),
+            torch.nn.ReLU(),
+        ]
+        layers[-3].load_state_dict(lin.state_dict())
+        layers[-2].load_state_dict(norm.state_dict())
+    ref = torch.nn.Sequential(*layers).train()
+    x1, x2 = torch.randn(30, 4), torch.randn(20, 4) * 2.0
+    mlp(x1).square().sum().add(mlp(x2).sum()).backward()
+    ref(x1).square().sum().add(ref(x2).sum()).backward()
+    for lin, norm, r_lin, r_norm in zip(mlp.linears, mlp.norms, layers[0::3], layers[1::3], strict=True):
+        torch.testing.assert_close(lin.weight.grad, r_lin.weight.grad, atol=1e-4, rtol=1e-4)
+        torch.testing.assert_close(norm.running_mean, r_norm.running_mean, atol=1e-5, rtol=1e-5)
+        torch.testing.assert_close(norm.running_var, r_norm.running_var, atol=1e-5, rtol=1e-5)

@@ -454,9 +454,10 @@ def _batch_norm_absorbing_bias(z: Tensor, bias: Tensor, norm: nn.BatchNorm1d) ->
     if track:
         norm.num_batches_tracked.add_(1)
         # BN then sets (1 - m) r + m mean(z); adding m b / (1 - m) first makes it (1 - m) r + m mean(z + b).
-        # Before the call: BN saves the running stats for its backward, so a later write would fail there.
+        # BN saves the running stats for its backward: written through .data, which leaves their version
+        # alone (as BN's own update does), a second forward before the first backward keeps the first graph valid
         with torch.no_grad():
-            norm.running_mean.add_(bias.to(norm.running_mean.dtype), alpha=m / (1.0 - m))
+            norm.running_mean.data.add_(bias.to(norm.running_mean.dtype), alpha=m / (1.0 - m))
     stats = (norm.running_mean, norm.running_var) if track else (None, None)
     return F.batch_norm(z, *stats, norm.weight, norm.bias + 0.0 * bias, True, m, norm.eps)
 
