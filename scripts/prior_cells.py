@@ -24,7 +24,7 @@ import numpy as np
 import torch
 
 from floaff_zoo.contract import TASKS
-from floaff_zoo.data.floaff_kitchen import FloAffKitchenDataModule
+from floaff_zoo.data.floaff_kitchen import FloAffKitchenDataModule, view_sample_id
 from floaff_zoo.nn.prior import CanonicalLabelGrid
 from floaff_zoo.sim import fileformat as ff
 from floaff_zoo.sim.views import candidates_in_target_frame
@@ -50,7 +50,7 @@ def read_views(root: Path, benchmark: str) -> list[View]:
         success = np.asarray(scene["labels"]["success"]) > 0
         can = candidates_in_target_frame(scene)
         for view in scene["views"]:
-            held_out = f"{benchmark}/{scene['scene_id']}/{view['view_id']}" in val
+            held_out = view_sample_id(benchmark, scene["scene_id"], view["view_id"]) in val
             split = "val" if scene["split"] == "train" and held_out else scene["split"]
             arrays = ff.read_view(Path(scene["dir"]) / view["file"], scene["format_version"], len(success))
             if "floor_index" not in arrays:

@@ -44,6 +44,11 @@ from floaff_zoo.data.transforms import SampleTransform, transforms_config
 BENCHMARKS: tuple[str, ...] = ("styles", "layouts")
 
 
+def view_sample_id(benchmark: str, scene_id: str, view_id: str) -> str:
+    """A view's sample id (and record key): ``<benchmark>/<scene_id>/<view_id>``."""
+    return f"{benchmark}/{scene_id}/{view_id}"
+
+
 class _ViewLoader:
     """Picklable record -> sample function (worker processes rebuild the reader from its class and root).
 
@@ -190,7 +195,7 @@ class FloAffKitchenDataModule(FloAffDataModule):
             }
             if scene.target_world is not None:  # the rollout faces it as the annotation did (frames.facing_pose)
                 sim["target_world"] = list(scene.target_world)
-            sample_id = f"{scene.benchmark}/{scene.scene_id}/{v.view_id}"
+            sample_id = view_sample_id(scene.benchmark, scene.scene_id, v.view_id)
             meta = {
                 "dataset": f"floaff_kitchen_{scene.benchmark}",
                 "task": scene.task,
