@@ -330,13 +330,16 @@ class MoMaKitchenReader:
                 self._robot_of[key] = ("", f"unreadable trial_info.json ({type(exc).__name__}: {exc})")
         return self._robot_of[key]
 
-    def index(self, split_file: Path, skips: SkipLog, dataset: str = "moma_kitchen") -> list[SampleRecord]:
+    def index(
+        self, split_file: Path, skips: SkipLog, dataset: str = "moma_kitchen", text: str | None = None
+    ) -> list[SampleRecord]:
         """Records of one split file, in file order; missing files/unknown robots/repeated lines go to ``skips``.
+        ``text``: the file's text when the caller has read it already (``read_split_file``).
 
         Raises:
             ValueError: the split file cannot be read as UTF-8 text (the message names it).
         """
-        lines = [ln.strip() for ln in read_split_file(split_file).splitlines()]
+        lines = [ln.strip() for ln in (read_split_file(split_file) if text is None else text).splitlines()]
         records: list[SampleRecord] = []
         first_line: dict[str, int] = {}
         for line_no, rel in enumerate(lines):
@@ -542,7 +545,7 @@ class MoMaKitchenDataModule(FloAffDataModule):
             raise MisconfigurationException(f"MoMaKitchenDataModule: {exc}") from exc
         if not text.strip():
             raise MisconfigurationException(f"MoMaKitchenDataModule: split file {path} is empty")
-        recs = self.reader.index(path, skips, "moma_kitchen")
+        recs = self.reader.index(path, skips, "moma_kitchen", text)
         return recs[: self.max_samples] if self.max_samples else recs
 
     def _split_val(self, train: list[SampleRecord]) -> tuple[list[SampleRecord], list[SampleRecord]]:
