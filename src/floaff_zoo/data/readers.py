@@ -291,11 +291,12 @@ class GeneratedReader(FloAffReader):
         if rec["task"] not in TASKS:
             raise ValueError(f"task {rec['task']!r} is not one of {list(TASKS)}")
         views: list[ViewEntry] = []
+        seen: dict[Any, ViewEntry] = {}  # ("id", view_id) and ("file", path) of the views kept so far
         for v in rec["views"]:
             if v["view"] not in VIEWS:  # else filtered out later by the data module's `views`, without a count
                 raise ValueError(f"view {v['view_id']!r}: kind {v['view']!r} is not one of {list(VIEWS)}")
             vf = d / v["file"]
-            again = next((w for w in views if w.view_id == v["view_id"] or Path(w.file) == vf), None)
+            again = seen.get(("id", v["view_id"])) or seen.get(("file", vf))
             if again is not None:  # one view twice: twice in the metrics, and one more under max_views_per_scene
                 why = f"view {v['view_id']!r} ({v['file']}) repeats view {again.view_id!r} ({Path(again.file).name})"
                 self.skips.add("duplicate_view", d / ff.SCENE_JSON, why)
@@ -307,6 +308,7 @@ class GeneratedReader(FloAffReader):
             if len(pose) != 3 or not all(math.isfinite(x) for x in pose):  # the SR rollout parks the robot from it
                 raise ValueError(f"view {v['view_id']!r}: base_pose_world must be 3 finite numbers, got {pose}")
             views.append(ViewEntry(v["view_id"], v["view"], str(vf), pose))
+            seen[("id", v["view_id"])] = seen[("file", vf)] = views[-1]
         spec = rec["spec"]
         return SceneEntry(
             scene_id=str(rec.get("scene_id", d.name)),
