@@ -263,14 +263,22 @@ axisnet_longer() {
   mv "$out.tmp" "$out"
 }
 
+# pfal_crop_radius BENCH: CFAR's crop radius in the preset's PFAL config of BENCH (its top-level overrides)
+pfal_crop_radius() {
+  python3 -c "import sys, yaml; c = yaml.safe_load(open(sys.argv[1]))
+r = (c.get('overrides') or {}).get('model.init_args.crop_radius')
+sys.exit(sys.argv[1] + ': no model.init_args.crop_radius override') if r is None else print(r)" \
+    "configs/experiments/pfal_${PRESET}_$1.yaml"
+}
+
 # single_task JOB: the paper's Table 3 protocol, one model per task and no PFAL (docs/results.md, "One model per
 # task"). JOB = [styles_]st_<task>_<model>_s<seed>, task pnp | osd | drawer | cdd, model cfar (the paper's CFAR path
 # without PFAL), cfar_best (the best configuration's network without PFAL: zoo recipe + footprint occupancy + failed
 # cells 0), pointnet2 | navaff | votenet | h3dnet | n2m. Whole training pool, 1,000 samples each: PFAL's per-task
 # share of the equal budget (stage 1 gives PnPCounterToCab 1,000, stage 2 each door or drawer task 1,000), so
-# `st_pnp_cfar_s<n>` is PFAL's stage 1 on the whole pool. Tested on its own task. CFAR takes the frozen AxisNet of
-# the curriculum pool_cfar_pfal_s<seed> (cfar) or pool_succ_occ_recipe_s<seed> (cfar_best) under AXIS_RUNS
-# (default RUNS): run that job first.
+# `st_pnp_cfar_s<n>` is PFAL's stage 1 on the whole pool. Tested on its own task. CFAR takes the benchmark's crop
+# radius from its PFAL config and the frozen AxisNet of the curriculum pool_cfar_pfal_s<seed> (cfar) or
+# pool_succ_occ_recipe_s<seed> (cfar_best) under AXIS_RUNS (default RUNS): run that job first.
 single_task() {
   local b j; split_job
   local rest=${j#st_} short model seed task
@@ -293,8 +301,10 @@ single_task() {
           --config "configs/experiments/recipe/success_labels_$b.yaml")
       fi
       axis=$(stage_ckpt "${AXIS_RUNS:-$RUNS}/$b/$src" 0) || { echo "$job: run $src first (its AxisNet)" >&2; return 1; }
+      # the curriculum's radius for this benchmark (Layouts 1.2 m, Styles 1.3 m, as the paper), not the demo config's
+      local radius; radius=$(pfal_crop_radius "$b") || return 1
       baseline "$j" "$b" "$seed" configs/demo/cfar_demo.yaml "$label" --model.init_args.axisnet "$axis" \
-        "${extra[@]}" "${one[@]}" ;;
+        --model.init_args.crop_radius "$radius" "${extra[@]}" "${one[@]}" ;;
     pointnet2|navaff|votenet|h3dnet|n2m)
       baseline "$j" "$b" "$seed" "configs/demo/${model}_demo.yaml" "$(label_of "$model"), single task" "${one[@]}" ;;
     *) echo "$job: unknown model '$model' (cfar, cfar_best, pointnet2, navaff, votenet, h3dnet, n2m)" >&2; return 2 ;;

@@ -140,6 +140,8 @@ def test_single_task_job_trains_and_tests_its_own_task_only(tmp_path):
         assert last["--data.init_args.val_scenes"] == "0"
         assert last["--trainer.max_steps"] == "250"
     assert _value(cfar, "--model.init_args.axisnet") == str(axis)
+    # the Styles curriculum's crop radius (configs/experiments/pfal_dense_styles.yaml), not the demo config's 1.2 m
+    assert _value(cfar, "--model.init_args.crop_radius") == "1.3"
     assert _value(cfar, "--seed_everything") == "1"
     assert "configs/data/floaff_dense_styles.yaml" in cfar
     assert sorted(_value(t, "--data.init_args.tasks") for t in tests) == ['["CloseDoubleDoor"]', '["OpenSingleDoor"]']
