@@ -188,13 +188,13 @@ def _small_cloud(n: int, seed: int = 1) -> tuple[torch.Tensor, torch.Tensor, tor
     return torch.rand(2, n, 3) * 0.6, torch.rand(2, n, 1), torch.ones(2, n, dtype=torch.bool)
 
 
-@pytest.mark.parametrize("train", [False, True])
-def test_pointnet2_seg_logits_do_not_depend_on_surplus_centres(train):
-    """PointNet2Seg with as many level-1 centres as points, or more (the surplus repeats the first): same per-point
-    logits and statistics: the decoder's FP layers keep the repeats out of their batch statistics (fails in training
-    without the centre masks). The encoder's next-level mask changes no ball-query level: a ball that holds a repeat
-    holds its first occurrence, the lowest index, which is also what the query pads with; the group-all test above
-    covers it."""
+def test_pointnet2_seg_logits_do_not_depend_on_surplus_centres():
+    """PointNet2Seg in training with as many level-1 centres as points, or more (the surplus repeats the first): same
+    per-point logits and statistics: the decoder's FP layers keep the repeats out of their batch statistics (fails
+    without the centre masks). In eval the masks change nothing here (every input point is a level-1 centre, its own
+    nearest neighbour), so eval is not tested. The encoder's next-level mask changes no ball-query level: a ball
+    that holds a repeat holds its first occurrence, the lowest index, which is also what the query pads with; the
+    group-all test above covers it."""
     from floaff_zoo.nn.pointnet2 import PointNet2Seg
 
     n = 12
@@ -202,7 +202,7 @@ def test_pointnet2_seg_logits_do_not_depend_on_surplus_centres(train):
     exact = PointNet2Seg(1, [n, 8], [[0.15], [0.25]], [[4], [4]], [[[8]], [[16]]], [[16], [16]], head=[8])
     _randomise_statistics(exact)
     nn.init.normal_(exact.out.weight)
-    exact.train(train)
+    exact.train()
     more = copy.deepcopy(exact)
     more.encoder.levels[0].npoint = n + 9
     xyz, feat, mask = _small_cloud(n)
@@ -212,16 +212,16 @@ def test_pointnet2_seg_logits_do_not_depend_on_surplus_centres(train):
         torch.testing.assert_close(_stats(more)[key], value, atol=1e-5, rtol=1e-4, msg=key)
 
 
-@pytest.mark.parametrize("train", [False, True])
-def test_scene_decoder_rows_do_not_depend_on_surplus_centres(train):
-    """SceneEncoderDecoder (PointNet++, VoteNet- and H3DNet-style nets) decoded to level 1: its first n rows, and
-    its statistics, are the same with exactly n level-1 centres or with a surplus that repeats the first."""
+def test_scene_decoder_rows_do_not_depend_on_surplus_centres():
+    """SceneEncoderDecoder (PointNet++, VoteNet- and H3DNet-style nets) decoded to level 1, in training: its first n
+    rows, and its statistics, are the same with exactly n level-1 centres or with a surplus that repeats the first
+    (fails without the centre masks; in eval they change nothing here, as above)."""
     n = 12
     torch.manual_seed(0)
     args = (1, 2, 8, [n, 8, 3], [[0.15], [0.25], [0.8]], [[4], [4], [4]], [[[8]], [[16]], [[16]]], [[16], [16]], True)
     exact = SceneEncoderDecoder(*args)
     _randomise_statistics(exact)
-    exact.train(train)
+    exact.train()
     more = copy.deepcopy(exact)
     more.encoder.levels[0].npoint = n + 9
     xyz, feat, mask = _small_cloud(n)
