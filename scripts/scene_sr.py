@@ -1,7 +1,7 @@
 """Success rate per test scene, and error bars that resample scenes instead of views.
 
     python scripts/scene_sr.py --root data/floaff_dense --benchmark layouts [--split test] [--json out.json] \
-        recipe=<ckpt or hub name> recipe=<another seed> prior=canonical-prior.floaff-dense-layouts.v5 ...
+        recipe=<ckpt or hub name> recipe=<another seed> prior=canonical-prior.floaff-dense-layouts.v9 ...
 
 Every view of a test scene asks the same question about one kitchen, and a model tends to choose the same
 target-relative cell in most of them, so one scene's 200 views are not 200 independent trials: a scene adds

@@ -33,27 +33,40 @@ def test_the_package_ships_checkpoints():
 
 
 def test_a_retired_name_names_its_successor_and_where_it_is_kept():
-    commit, retired = read_retired()
+    retired = read_retired()
     assert retired and not set(retired) & set(SHIPPED)  # retired names are gone from the index ...
-    assert set(retired.values()) <= set(SHIPPED)  # ... and each successor ships
+    assert {r.successor for r in retired.values()} <= set(SHIPPED)  # ... and each successor ships
     packaged = {p.name for p in SHIPPED_INDEX.parent.iterdir() if p.is_dir()}
     assert not set(retired) & packaged  # no retired weights left in the package
-    name = "cfar-pfal.floaff-dense-layouts.v4"
-    with pytest.raises(RetiredEntryError, match=r"superseded by 'cfar-pfal\.floaff-dense-layouts\.v8'") as err:
-        load_model(name, allow_download=False)
-    assert f"git archive {commit} src/floaff_zoo/hub/{name}" in str(err.value)
+    assert len({r.commit for r in retired.values()}) >= 2  # retired in two batches, each kept at its own commit
+    for name in ("cfar-pfal.floaff-dense-layouts.v4", "cfar-pfal.floaff-dense-layouts.v8"):
+        with pytest.raises(RetiredEntryError, match=r"superseded by 'cfar-pfal\.floaff-dense-layouts\.v12'") as err:
+            load_model(name, allow_download=False)
+        assert f"git archive {retired[name].commit} src/floaff_zoo/hub/{name}" in str(err.value)
+    assert retired["cfar-pfal.floaff-dense-layouts.v4"].commit != retired["cfar-pfal.floaff-dense-layouts.v8"].commit
     with pytest.raises(UnknownWeightsError, match="did you mean") as err:  # a typo is not reported as retired
         load_model("cfar-pfal.floaff-dense-layuots.v9", allow_download=False)
     assert not isinstance(err.value, RetiredEntryError)
 
 
-def test_a_malformed_retired_file_is_named(tmp_path):
+@pytest.mark.parametrize(
+    "text, field",
+    [
+        ("{not json", "not a readable JSON file"),
+        ('{"commit": "' + "a" * 40 + '", "entries": {}}', "batches"),  # the one-batch form of before
+        ('{"batches": [{"commit": "abc", "entries": {}}]}', r"batches\[0\]"),
+        ('{"batches": [{"commit": "' + "a" * 40 + '", "entries": {"m.d.v1": 3}}]}', r"entries\['m.d.v1'\]"),
+        (
+            '{"batches": [{"commit": "' + "a" * 40 + '", "entries": {"m.d.v1": "m.d.v2"}}, '
+            '{"commit": "' + "b" * 40 + '", "entries": {"m.d.v1": "m.d.v3"}}]}',
+            r"batches\[1\]: 'm.d.v1' is retired in an earlier batch",
+        ),
+    ],
+)
+def test_a_malformed_retired_file_is_named(tmp_path, text, field):
     bad = tmp_path / "retired.json"
-    bad.write_text('{"commit": "abc", "entries": {}}')
-    with pytest.raises(RegistryFormatError, match="retired.json"):
-        read_retired(bad)
-    bad.write_text("{not json")
-    with pytest.raises(RegistryFormatError, match="retired.json"):
+    bad.write_text(text)
+    with pytest.raises(RegistryFormatError, match=rf"retired\.json: .*{field}"):
         read_retired(bad)
 
 
@@ -123,4 +136,4 @@ def test_every_entry_is_listed_by_the_cli(capsys):
     assert main(["hub", "list"]) == 0
     out = capsys.readouterr().out
     assert all(name in out for name in SHIPPED)
-    assert f"({len(read_retired()[1])} earlier versions retired from the package" in out
+    assert f"({len(read_retired())} earlier versions retired from the package" in out

@@ -102,7 +102,7 @@ def cmd_list(args: argparse.Namespace) -> int:
     widths = [max(len(r[i]) for r in [head, *rows]) for i in range(len(head))]
     for r in [head, *rows]:
         print("  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip())
-    retired = [n for n in read_retired()[1] if n not in reg]
+    retired = [n for n in read_retired() if n not in reg]
     if retired:
         print(f"({len(retired)} earlier versions retired from the package; `floaff-zoo hub info NAME` says where)")
     return 0

@@ -415,7 +415,7 @@ def check_name_free(name: str, directory: str | os.PathLike[str] | None = None) 
             f"{name!r} is registered already ({index}): a push would replace it and delete its weights; push a new "
             "version (vN+1) or pass --replace"
         )
-    shipped = {e.name for e in read_index(SHIPPED_INDEX)} | set(read_retired()[1])
+    shipped = {e.name for e in read_index(SHIPPED_INDEX)} | set(read_retired())
     if name in shipped:
         raise HubError(
             f"{name!r} names a checkpoint shipped with the package ({SHIPPED_INDEX.parent}): a push would hide it from "

@@ -15,8 +15,9 @@ An index file is JSON ``{"version": 1, "entries": [ENTRY, ...]}``. One entry::
     }
 
 Entries superseded by a newer version leave the package (its size is kept to the current tables' checkpoints);
-``floaff_zoo/hub/retired.json`` maps each retired name to its successor and names the commit whose tree still holds
-its exported directory, so asking for a retired name says where to find it.
+``floaff_zoo/hub/retired.json`` lists them in batches, one per retirement: each batch names the commit whose tree
+still holds its entries' exported directories and maps each retired name to its successor, so asking for a retired
+name says where to find it.
 
 The shipped index (``floaff_zoo/hub/index.json``) is read first; ``<hub dir>/index.json`` (the user
 index, written by ``floaff-zoo hub push``) is merged over it by name. The hub directory is
@@ -264,18 +265,39 @@ def load_registry(directory: str | os.PathLike[str] | None = None) -> dict[str, 
     return merged
 
 
-def read_retired(path: Path = RETIRED_INDEX) -> tuple[str, dict[str, str]]:
-    """The commit that last shipped the retired entries, and retired name -> successor (empty without the file)."""
+@dataclass(frozen=True)
+class RetiredEntry:
+    """A checkpoint that left the package: the entry that supersedes it and the commit whose tree still holds it."""
+
+    successor: str
+    commit: str
+
+
+def read_retired(path: Path = RETIRED_INDEX) -> dict[str, RetiredEntry]:
+    """Retired name -> its successor and commit, over every batch of ``retired.json`` (empty without the file)."""
     if not path.is_file():
-        return "", {}
+        return {}
     try:
         raw = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, json.JSONDecodeError) as exc:
         raise RegistryFormatError(f"{path}: not a readable JSON file ({exc})") from exc
-    commit = raw.get("commit") if isinstance(raw, dict) else None
-    if not isinstance(commit, str) or not _COMMIT_RE.match(commit) or not isinstance(raw.get("entries"), dict):
-        raise RegistryFormatError(f"{path}: expected {{'commit': '<40 hex>', 'entries': {{name: successor}}}}")
-    return commit, raw["entries"]
+    form = "{'batches': [{'commit': '<40 hex>', 'entries': {name: successor}}, ...]}"
+    batches = raw.get("batches") if isinstance(raw, dict) else None
+    if not isinstance(batches, list) or not batches:
+        raise RegistryFormatError(f"{path}: expected {form}")
+    out: dict[str, RetiredEntry] = {}
+    for k, batch in enumerate(batches):
+        commit = batch.get("commit") if isinstance(batch, dict) else None
+        entries = batch.get("entries") if isinstance(batch, dict) else None
+        if not isinstance(commit, str) or not _COMMIT_RE.match(commit) or not isinstance(entries, dict):
+            raise RegistryFormatError(f"{path}: batches[{k}]: expected {{'commit': '<40 hex>', 'entries': {{...}}}}")
+        for name, successor in entries.items():
+            if not isinstance(successor, str):
+                raise RegistryFormatError(f"{path}: batches[{k}].entries[{name!r}]: the successor must be a name")
+            if name in out:  # two commits for one name: which tree holds it would be a guess
+                raise RegistryFormatError(f"{path}: batches[{k}]: {name!r} is retired in an earlier batch already")
+            out[name] = RetiredEntry(successor, commit)
+    return out
 
 
 def get_entry(name: str, directory: str | os.PathLike[str] | None = None) -> HubEntry:
@@ -283,12 +305,12 @@ def get_entry(name: str, directory: str | os.PathLike[str] | None = None) -> Hub
     reg = load_registry(directory)
     if name in reg:
         return reg[name]
-    commit, retired = read_retired()
-    if name in retired:
+    retired = read_retired().get(name)
+    if retired is not None:
         folder = f"src/floaff_zoo/hub/{name}"
         raise RetiredEntryError(
-            f"{name!r} is no longer shipped: it was superseded by {retired[name]!r}. Its exported directory is in "
-            f"the floaff-zoo git history; from a clone: `git archive {commit} {folder} | tar -x -C <dir>`, "
+            f"{name!r} is no longer shipped: it was superseded by {retired.successor!r}. Its exported directory is in "
+            f"the floaff-zoo git history; from a clone: `git archive {retired.commit} {folder} | tar -x -C <dir>`, "
             f"then load <dir>/{folder} (a directory loads like a name)"
         )
     close = difflib.get_close_matches(name, list(reg), n=5, cutoff=0.5)
