@@ -329,3 +329,21 @@ def test_a_split_file_that_is_no_utf8_text_or_repeats_a_line(moma_root):
     split.mkdir()
     with pytest.raises(MisconfigurationException, match=r"kitchen_test\.txt is not a file"):
         _dm(root).setup("test")
+
+
+def test_a_target_away_from_the_scene_cloud_is_skipped_and_counted(moma_root):
+    """A target no scene point lies within flag_radius of flagged no point +1, silently: the model trained on that
+    sample without its target. It is now a counted ``target_not_in_scene`` skip naming the file (strict raises)."""
+    from tests.data.moma_kitchen.data import _write_ply
+
+    root, exp = moma_root
+    far = exp["kept"]["test"][0]
+    target = root / "rgbd" / far / "point_cloud_transformed" / "target_pcd_transformed.ply"
+    _write_ply(target, np.array([[50.0, 50.0, 1.0], [50.1, 50.0, 1.0]]))
+    dm = _dm(root)
+    dm.setup("test")
+    assert [r.key for r in dm.datasets["test"].records] == exp["kept"]["test"][1:]
+    assert dict(dm.skips["test"].counts) == {"target_not_in_scene": 1}
+    assert str(target) in dm.skips["test"].summary()
+    with pytest.raises(DataError, match="target_pcd_transformed.ply: no point of world_pcd_transformed.ply"):
+        _dm(root, strict=True).setup("test")

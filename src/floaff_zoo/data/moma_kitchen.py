@@ -34,7 +34,8 @@ Deliberate differences (documented):
   points (where successful bases stand; uses labels, so never feed it to a model at test time:
   setting up the test split with it warns).
 * The official release is incomplete (MoMaKitchen/MoMaKitchen#2): samples with missing or
-  unreadable files are skipped and counted; setup prints one summary (``strict: true`` raises).
+  unreadable files are skipped and counted, as is a sample whose flags mark no scene point as the target
+  (``target_not_in_scene``); setup prints one summary (``strict: true`` raises).
 """
 
 from __future__ import annotations
@@ -256,6 +257,20 @@ def target_flags(scene: np.ndarray, target: np.ndarray, barriers: list[np.ndarra
     return flag
 
 
+def _no_target_problem(pcd: Path, scene: np.ndarray, target: np.ndarray, radius: float) -> str:
+    """Why no scene point of a sample is flagged +1: its target lies away from the scene cloud, or barriers cover
+    every scene point near it (barriers override the target)."""
+    from scipy.spatial import cKDTree
+
+    nearest = float(cKDTree(scene).query(target, k=1)[0].min())
+    if nearest > radius:
+        return (
+            f"{pcd / TARGET_PLY}: no point of {GLOBAL_PLY} lies within flag_radius {radius} m of the "
+            f"{target.shape[0]} target points (nearest {nearest:.3f} m), so no scene point is flagged as the target"
+        )
+    return f"{pcd / TARGET_PLY}: every scene point within flag_radius {radius} m of the target is flagged as a barrier"
+
+
 def estimate_target_yaw(
     method: str, target_c: np.ndarray, floor: np.ndarray, label: np.ndarray, view_xy: tuple[float, float] | None
 ) -> float:
@@ -419,6 +434,8 @@ class MoMaKitchenReader:
         if label.min() < 0 or label.max() > 1:
             raise LoadError("label_range", f"{d / LABEL_TXT}: labels outside [0, 1] ({label.min()}, {label.max()})")
         flag = target_flags(scene, target, barriers, self.flag_radius)
+        if not (flag > 0).any():  # no +1 point: the model would train on this sample without its target, silently
+            raise LoadError("target_not_in_scene", _no_target_problem(pcd, scene, target, self.flag_radius))
         tc = target.mean(0)
         view_xy = tuple(rec.payload["view_xy"]) if rec.payload.get("view_xy") else None
         yaw = estimate_target_yaw(self.yaw_estimator, tc, floor, label, view_xy)
