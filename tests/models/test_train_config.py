@@ -348,3 +348,43 @@ def test_navaff_evaluation_loss_repeats_and_draws_nothing():
         state = torch.get_rng_state()
         model.model_step(batch)
         assert not torch.equal(state, torch.get_rng_state())
+
+
+class _FloorsOfSeveralSizes(torch.utils.data.Dataset):
+    """Synthetic samples whose floors keep 64, 52, 40, ... points: padded batches mix maps of different sizes."""
+
+    def __init__(self, dataset: torch.utils.data.Dataset) -> None:
+        self.dataset = dataset
+
+    def __len__(self) -> int:
+        return len(self.dataset)
+
+    def __getitem__(self, i: int) -> dict:
+        s, k = self.dataset[i], 64 - 12 * i
+        return {**s, "floor_xyz": s["floor_xyz"][:k], "floor_label": s["floor_label"][:k]}
+
+
+@pytest.mark.parametrize("loss", ["mse", "aff"])
+def test_eval_loss_does_not_depend_on_the_eval_batch_size(loss):
+    """The eval loss was the MSE pooled over a batch's valid points, which Lightning then averaged over batches by
+    sample count: the same five maps gave another val_loss/test_loss (and checkpoint choice) at another eval batch
+    size. It is now the mean over maps of each map's loss."""
+    from floaff_zoo.data.synthetic import SyntheticDataModule
+
+    class Data(SyntheticDataModule):
+        def setup(self, stage: str | None = None) -> None:
+            super().setup(stage)
+            for split in ("val", "test"):
+                self.datasets[split] = _FloorsOfSeveralSizes(self.datasets[split])
+
+    lightning.seed_everything(0)
+    model = TinyPointNetModule(width=16, train={"loss": loss})
+    losses = []
+    for eval_batch_size in (1, 4):
+        data = Data(2, 5, 5, 128, 8, batch_size=2, eval_batch_size=eval_batch_size, num_points=128, collate_mode="pad")
+        trainer = lightning.Trainer(
+            accelerator="cpu", logger=False, enable_progress_bar=False, enable_model_summary=False
+        )
+        val = trainer.validate(model, data, verbose=False)[0]["val_loss"]
+        losses.append((val, trainer.test(model, data, verbose=False)[0]["test_loss"]))
+    assert losses[1] == pytest.approx(losses[0], rel=1e-6)

@@ -643,9 +643,20 @@ class FloAffModule(ZooModule):
         raise MisconfigurationException(f"{type(self).__name__} must implement forward(batch)")
 
     def affordance_loss(self, scores: Tensor, batch: Batch) -> Tensor:
-        """Masked affordance loss of ``scores`` [B, M] against ``batch['floor_label']``."""
-        criterion = self.criterion if self.training else self.eval_criterion
-        return criterion(scores, batch["floor_label"], batch["floor_mask"])
+        """Masked affordance loss of ``scores`` [B, M] against ``batch['floor_label']``.
+
+        Training: the loss of the batch (the MSE pooled over its valid points, docs/method.md "The loss"). Evaluation:
+        the mean over maps of each map's own loss. Lightning averages ``val_loss``/``test_loss`` over batches weighted
+        by their sample count, so a batch-pooled MSE made the epoch value depend on the eval batch size whenever maps
+        hold different numbers of valid points (padded floors); a per-map mean does not.
+        """
+        label, mask = batch["floor_label"], batch["floor_mask"]
+        if self.training:
+            return self.criterion(scores, label, mask)
+        per_map = [
+            self.eval_criterion(scores[i : i + 1], label[i : i + 1], mask[i : i + 1]) for i in range(len(scores))
+        ]
+        return torch.stack(per_map).mean()
 
     def model_step(self, batch: Batch) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
         """Forward + loss. Returns (loss, scores [B, M], extra scalars to log)."""
