@@ -145,6 +145,20 @@ def test_validation_every_n_epochs_logs_val_rollout_success():
     assert len(FakeService.instances) == n0 + 1  # one service for the whole fit (its cache persists)
 
 
+def test_validation_summary_counts_the_samples_the_cap_left_out():
+    """Past max_val_samples the callback stopped looking: the sim samples the cap left out and the samples without sim
+    after it were counted nowhere (n_skipped 0, no n_capped), so a capped SR read as the whole split's."""
+    samples = make_samples(8)
+    for s in samples[5:]:  # the last 3 cannot be rolled out (no sim metadata), all after the cap
+        s["meta"].pop("sim")
+    cb = RolloutSuccessRate(service=FakeService, progress=False, every_n_val_epochs=1, max_val_samples=2, on_test=False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        _trainer(cb).validate(LabelModule(), dataloaders=loader(samples, 2), verbose=False)
+    summary = cb.summaries["val"]
+    assert (summary["n_evaluated"], summary["n_capped"], summary["n_skipped"]) == (2, 3, 3)
+
+
 def test_samples_without_sim_are_skipped_with_one_warning():
     samples = make_samples(6)
     for s in samples:

@@ -26,7 +26,9 @@ Logged through Lightning (no ``/`` in names): ``test_sr_front``, ``test_sr_side`
 ``test_oracle_sr_<task>``, ``test_rollout_seconds``; on validation (every ``every_n_val_epochs``
 epochs, never in the sanity check) ``val_rollout_success``, ``val_oracle_rollout_success``,
 ``val_sr_front``, ``val_sr_side``, ``val_rollout_seconds``. The summary and the per-episode
-records are kept on the callback (``summaries[stage]``, ``episodes[stage]``) for ``TestReport``.
+records are kept on the callback (``summaries[stage]``, ``episodes[stage]``) for ``TestReport``; on validation it also
+says how many samples with sim metadata were not rolled out because of ``max_val_samples`` (``n_capped``, apart from
+``n_skipped``: those without sim metadata, counted over the whole split whatever the cap).
 
 Under DDP the episodes of every rank are gathered on rank 0, which rolls them out; a sample counts once (by
 ``meta['index']`` and dataloader: ``DistributedSampler`` pads the last batches with repeats, which the map metrics drop
@@ -352,6 +354,8 @@ class RolloutSuccessRate(L.Callback):
         self._scenes: dict[str, Any] = {}
         self._pending: dict[str, list[dict[str, Any]]] = {}
         self._skipped: dict[str, list[tuple[int, int] | None]] = {}  # stage -> key of every skipped sample
+        # stage -> key of every sim sample left out because the validation cap was full (for the summary's n_capped)
+        self._capped: dict[str, list[tuple[int, int] | None]] = {}
         self._seen: dict[str, set[tuple[int, int]]] = {}  # stage -> keys of the samples collected on this rank
         self._active: dict[str, bool] = {}
         self._warned: set[str] = set()
@@ -383,6 +387,7 @@ class RolloutSuccessRate(L.Callback):
         self._active[stage] = active
         self._pending[stage] = []
         self._skipped[stage] = []
+        self._capped[stage] = []
         self._seen[stage] = set()
         # an inactive run must not leave the previous run's results to be read as its own (the test report does)
         self.summaries.pop(stage, None)
@@ -410,8 +415,9 @@ class RolloutSuccessRate(L.Callback):
         target = batch["target_xyz"].detach().cpu().numpy()
         pred = scores.detach().float().cpu().numpy()
         by_cloud = self.top_k > 1 and self.free_space in _CLOUD_KEYS
+        full = cap is not None and len(pending) >= cap
         # the view's own cloud decides which poses are free (only samples with sim metadata are rolled out)
-        if by_cloud and any((m or {}).get("sim") for m in batch["meta"]):
+        if by_cloud and not full and any((m or {}).get("sim") for m in batch["meta"]):
             cloud, cloud_mask = check_clouds(batch, self.free_space)
         for i, meta in enumerate(batch["meta"]):
             sim = (meta or {}).get("sim")
@@ -425,7 +431,9 @@ class RolloutSuccessRate(L.Callback):
             if key is not None and key in seen:
                 continue
             if cap is not None and len(pending) >= cap:
-                return
+                # keep going: the summary counts what the cap left out (and the samples without sim after it)
+                self._capped[stage].append(key)
+                continue
             try:
                 spec = self._spec_factory(sim)
             except (ValueError, KeyError, TypeError) as exc:
@@ -531,9 +539,13 @@ class RolloutSuccessRate(L.Callback):
         episodes = self._gather(trainer, self._pending.pop(stage, []))
         skipped_keys = self._gather(trainer, self._skipped.get(stage, []))
         skipped = len(_first_per_key(skipped_keys, skipped_keys))
+        capped_keys = self._gather(trainer, self._capped.get(stage, []))
         summary: dict[str, Any] | None = None
         failure: Exception | None = None
         if trainer.is_global_zero:
+            # every distinct sim sample of the split, collected or left out by a rank's cap (before _pool drops keys)
+            sim_keys = [e["_key"] for e in episodes] + capped_keys
+            n_sim = len(_first_per_key(sim_keys, sim_keys))
             episodes = self._pool(stage, episodes, self._distributed(trainer))
             summary = {
                 "available": bool(episodes),
@@ -545,6 +557,8 @@ class RolloutSuccessRate(L.Callback):
                 "free_space": self.free_space,
                 "pose_source": self.pose_source,
             }
+            if stage == "val":  # sim samples not rolled out because of max_val_samples (not a bad-input skip)
+                summary["n_capped"] = n_sim - len(episodes)
             if skipped and stage not in self._warned:
                 self._warned.add(stage)
                 rank_zero_warn(
@@ -612,8 +626,6 @@ class RolloutSuccessRate(L.Callback):
 
     def on_validation_batch_end(self, trainer, pl_module, outputs, batch, batch_idx, dataloader_idx=0) -> None:
         if not self._active.get("val"):
-            return
-        if self.max_val_samples is not None and len(self._pending["val"]) >= self.max_val_samples:
             return
         scores = outputs.get("scores") if isinstance(outputs, dict) else None
         if scores is not None:  # validation_step returns the scores it computed: no second forward
