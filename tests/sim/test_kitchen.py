@@ -39,6 +39,26 @@ def test_every_layout_builds_with_all_targets(layout):
         assert sc.footprint_free(p[0], p[1], sc.target.yaw + math.pi), (layout, task)
 
 
+def test_compiled_kitchen_cache_keeps_only_the_most_recently_used(monkeypatch):
+    """The per-process cache of compiled kitchens kept every kitchen it ever compiled (~70 MB each), so a long
+    rollout service over many scenes grew without bound; it keeps the last CACHE_SIZE, and a kitchen compiled again
+    is the same model."""
+    from floaff_zoo.sim import kitchen
+
+    monkeypatch.setattr(kitchen, "_CACHE", {})
+    monkeypatch.setattr(kitchen, "CACHE_SIZE", 2, raising=False)
+    first = build_scene(SceneSpec(0, 0, 1, "CloseDrawer"))
+    build_scene(SceneSpec(0, 0, 2, "CloseDrawer"))
+    build_scene(SceneSpec(0, 0, 1, "OpenSingleDoor"))  # the same kitchen, another task: a hit, now the most recent
+    build_scene(SceneSpec(0, 0, 3, "CloseDrawer"))
+    assert list(kitchen._CACHE) == [(0, 0, 1), (0, 0, 3)]  # (0, 0, 2), used longest ago, was dropped
+    build_scene(SceneSpec(0, 0, 2, "CloseDrawer"))
+    assert list(kitchen._CACHE) == [(0, 0, 3), (0, 0, 2)]
+    again = build_scene(SceneSpec(0, 0, 1, "CloseDrawer"))  # compiled again after it was dropped
+    np.testing.assert_array_equal(first.model.geom_pos, again.model.geom_pos)
+    np.testing.assert_array_equal(first.target.pos, again.target.pos)
+
+
 def test_build_is_deterministic():
     a = build_scene(SceneSpec(3, 2, 5, "CloseDrawer"))
     from floaff_zoo.sim import kitchen

@@ -209,6 +209,19 @@ def test_pool_workers_start_with_one_blas_thread(monkeypatch):
     assert not any(k in os.environ for k in THREAD_ENV)  # this process's environment is as it was
 
 
+def test_a_rollout_process_keeps_only_its_most_recent_scenes(monkeypatch):
+    """A rollout worker (or the training process with workers=1) kept every scene it built, each with its compiled
+    kitchen (~80 MB), for its whole life; it keeps the last WORKER_SCENES_SIZE."""
+    import floaff_zoo.sim.rollout as ro
+
+    monkeypatch.setattr(ro, "_WORKER_SCENES", {})
+    monkeypatch.setattr(ro, "WORKER_SCENES_SIZE", 2, raising=False)
+    specs = [SceneSpec(0, 0, s, "CloseDrawer") for s in (11, 12, 13)]
+    for spec in specs:  # a pose off the floor: refused by the pose filter, the scene is built all the same
+        ro._run_job((spec.to_dict(), (9.0, 9.0, 0.0), 0))
+    assert list(ro._WORKER_SCENES) == specs[1:]
+
+
 def test_close_releases_the_scenes_built_for_rollouts_in_this_process():
     """With workers=1 (the callback's default) the scenes were built in the training process and kept for its
     life (~80 MB each), close() or not."""

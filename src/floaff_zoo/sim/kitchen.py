@@ -21,6 +21,7 @@ from __future__ import annotations
 import math
 import threading
 from dataclasses import dataclass
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -1034,12 +1035,24 @@ def _sat_overlap(a: np.ndarray, b: np.ndarray) -> bool:
     return True
 
 
+#: compiled kitchens kept per process (least recently used dropped first): each holds ~70 MB and compiles again in
+#: ~0.1 s to the same model, so a long rollout service over many scenes must not keep every one it ever built
+CACHE_SIZE = 8
 _CACHE: dict[tuple[int, int, int], tuple[mujoco.MjModel, dict, list[_Rect], dict]] = {}
 _LOCK = threading.Lock()
 
 
+def lru_put(cache: dict[Any, Any], key: Any, value: Any, size: int) -> None:
+    """``cache[key] = value`` as its most recently used entry; the least recently used ones beyond ``size`` are
+    dropped (a dict keeps insertion order, so its first key is the one used longest ago)."""
+    cache.pop(key, None)
+    cache[key] = value
+    while len(cache) > max(1, size):
+        del cache[next(iter(cache))]
+
+
 def compile_scene(spec: SceneSpec) -> tuple[mujoco.MjModel, dict, list[_Rect], dict]:
-    """Compiled model + fixture info for a spec (cached per process)."""
+    """Compiled model + fixture info for a spec (cached per process, the last ``CACHE_SIZE`` kitchens)."""
     with _LOCK:
         # the kitchen does not depend on the task (only target + reset do): share one model
         key = (int(spec.layout_id), int(spec.style_id), int(spec.seed))
@@ -1048,7 +1061,7 @@ def compile_scene(spec: SceneSpec) -> tuple[mujoco.MjModel, dict, list[_Rect], d
             mspec, fixtures, rects, meta = _build_spec(SceneSpec(key[0], key[1], key[2], TASKS[0]))
             model = mspec.compile()
             hit = (model, fixtures, rects, meta)
-            _CACHE[key] = hit
+        lru_put(_CACHE, key, hit, CACHE_SIZE)
         return hit
 
 
