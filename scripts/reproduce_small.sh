@@ -154,15 +154,24 @@ cv_score() {
 }
 
 # success_labels BENCH: the train labels with failed cells set to 0 (configs/experiments/recipe/success_labels_BENCH.yaml
-# reads them), made once from the annotation (no rollout); written aside and moved, so jobs running beside it never
-# read half a file. The file's name holds no data copy: delete it before training on another DATA_ROOT
+# reads them), made from the annotation (no rollout, seconds); written aside and moved, so jobs running beside it never
+# read half a file. The file's name holds no data copy, so every call makes the labels of DATA_ROOT aside and keeps
+# the file only if it holds the same ones: a file of another copy was silently trained on before; it is refused (not
+# replaced: jobs beside this one may be reading it)
 success_labels() {
-  local f=runs/labels/success_train_$1.npz
-  [ -f "$f" ] && return 0
+  local f=runs/labels/success_train_$1.npz root=${DATA_ROOT:-data/floaff_$PRESET}
   mkdir -p runs/labels
-  python3 scripts/fresh_labels.py --root "${DATA_ROOT:-data/floaff_$PRESET}" --benchmark "$1" --episodes 0 \
-    --zero-failures --out "$f.$$.npz"
-  mv "$f.$$.npz" "$f"
+  python3 scripts/fresh_labels.py --root "$root" --benchmark "$1" --episodes 0 --zero-failures --out "$f.$$.npz" || return 1
+  # (each step checks its status: run_job runs inside an `if`, where set -e does not stop a failed command)
+  if [ ! -f "$f" ]; then mv "$f.$$.npz" "$f"; return; fi
+  if python3 -c 'import sys, numpy as np
+a, b = np.load(sys.argv[1]), np.load(sys.argv[2])
+sys.exit(sorted(a.files) != sorted(b.files) or not all(np.array_equal(a[k], b[k]) for k in a.files))' "$f" "$f.$$.npz"
+  then rm -f "$f.$$.npz"; return 0; fi
+  rm -f "$f.$$.npz"
+  echo "$f holds labels of another copy of the data than $root: delete it (with no job reading it) to make it" \
+    "from $root, or run one copy at a time" >&2
+  return 1
 }
 
 # curriculum JOB BENCH SEED LABEL [--extra-config FILE]: PFAL, then test the last stage's best
@@ -295,7 +304,7 @@ single_task() {
     cfar|cfar_best)
       local src=pool_cfar_pfal_s$seed label="CFAR (no PFAL), single task" extra=() axis
       if [ "$model" = cfar_best ]; then
-        success_labels "$b"
+        success_labels "$b" || return 1
         src=pool_succ_occ_recipe_s$seed label="CFAR, best configuration without PFAL, single task"
         extra=(--config "$RECIPE" --config configs/experiments/recipe/occupancy.yaml
           --config "configs/experiments/recipe/success_labels_$b.yaml")
@@ -359,7 +368,7 @@ run_job() {
       case $abl in *_s[0-9]) seed=${abl##*_s} abl=${abl%_s*} ;; esac
       case $abl in no_crop|no_align|no_sdl|no_fd) ;; *) echo "unknown ablation '$abl'" >&2; return 2 ;; esac
       if [ "${j#pool_succ_}" != "$j" ]; then
-        success_labels "$b"; label="whole-pool configuration"
+        success_labels "$b" || return 1; label="whole-pool configuration"
         pre=(--set data.init_args.val_scenes=0) post=(--extra-config "configs/experiments/recipe/success_labels_$b.yaml")
       fi
       curriculum "$j" "$b" "$seed" "$label w/o ${abl#no_}" "${pre[@]}" --extra-config "$RECIPE" \
@@ -375,7 +384,7 @@ run_job() {
       case $j in
         occ_*) label="occupancy recipe" post=(--extra-config configs/experiments/recipe/occupancy.yaml) ;;
         pool_succ_occ_*)
-          success_labels "$b"; label="whole-pool configuration" pre=(--set data.init_args.val_scenes=0)
+          success_labels "$b" || return 1; label="whole-pool configuration" pre=(--set data.init_args.val_scenes=0)
           post=(--extra-config configs/experiments/recipe/occupancy.yaml
             --extra-config "configs/experiments/recipe/success_labels_$b.yaml") ;;
       esac
@@ -400,23 +409,23 @@ run_job() {
     # docs/results.md): the best configuration, and the canonical prior filled from them
     succ_occ_recipe_s[0-9]|styles_succ_occ_recipe_s[0-9])
       local b j; split_job
-      success_labels "$b"
+      success_labels "$b" || return 1
       curriculum "$j" "$b" "${j#succ_occ_recipe_s}" "occupancy recipe, failed cells 0 in training" --extra-config "$RECIPE" \
         --extra-config configs/experiments/recipe/occupancy.yaml --extra-config "configs/experiments/recipe/success_labels_$b.yaml" ;;
     succ_prior|styles_succ_prior)
       local b j; split_job
-      success_labels "$b"; prior succ_prior "$b" "Canonical prior, failed cells 0" ;;
+      success_labels "$b" || return 1; prior succ_prior "$b" "Canonical prior, failed cells 0" ;;
     # the best configuration and its prior refit on the whole training pool: every train scene trains (val_scenes 0,
     # every stage, AxisNet included), no validation, each stage's last checkpoint (docs/results.md)
     pool_succ_occ_recipe_s[0-9]|styles_pool_succ_occ_recipe_s[0-9])
       local b j; split_job
-      success_labels "$b"
+      success_labels "$b" || return 1
       curriculum "$j" "$b" "${j#pool_succ_occ_recipe_s}" "occupancy recipe, failed cells 0, whole training pool" \
         --set data.init_args.val_scenes=0 --extra-config "$RECIPE" --extra-config configs/experiments/recipe/occupancy.yaml \
         --extra-config "configs/experiments/recipe/success_labels_$b.yaml" ;;
     pool_succ_prior|styles_pool_succ_prior)  # with the AxisNet of pool_succ_occ_recipe_s0 (waited for)
       local b j; split_job
-      success_labels "$b"
+      success_labels "$b" || return 1
       AXIS_JOB=pool_succ_occ_recipe_s0 prior pool_succ_prior "$b" "Canonical prior, failed cells 0, whole training pool" ;;
     # trained on views and their mirror images (configs/experiments/recipe/mirror.yaml; docs/results.md)
     mirror_recipe_s[0-9]|styles_mirror_recipe_s[0-9])
@@ -454,7 +463,7 @@ run_job() {
       f=${j:2:1}
       [ "${j#*_}" = rank ] && extra=(--extra-config configs/experiments/recipe/rank.yaml)
       if [ "${j#*_}" = succ ] || [ "${j#*_}" = cov ] || [ "${j#*_}" = cos ]; then
-        success_labels "$b"; extra=(--extra-config "configs/experiments/recipe/success_labels_$b.yaml")
+        success_labels "$b" || return 1; extra=(--extra-config "configs/experiments/recipe/success_labels_$b.yaml")
       fi
       [ "${j#*_}" = cov ] && extra+=(--extra-config configs/experiments/recipe/coverage.yaml)
       [ "${j#*_}" = cos ] && extra+=(--extra-config configs/experiments/recipe/cosine.yaml)
@@ -472,7 +481,7 @@ run_job() {
       local b j f axis fit=(); split_job
       f=${j:2:1}
       if [ "${j#*_}" = sprior ]; then
-        success_labels "$b"; fit=(--config "configs/experiments/recipe/success_labels_$b.yaml")
+        success_labels "$b" || return 1; fit=(--config "configs/experiments/recipe/success_labels_$b.yaml")
       fi
       axis=$(wait_axisnet "$RUNS/$b/cv${f}_occ" "$job") || return 1
       if [ "$RETEST" = 0 ] && [ -z "$(find "$RUNS/$b/$j" -name last.ckpt 2>/dev/null)" ]; then

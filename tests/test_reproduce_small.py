@@ -167,3 +167,68 @@ def test_single_task_job_names_what_is_wrong(tmp_path, job, message):
     log = (tmp_path / "runs" / "logs" / f"{job}.log").read_text()
     assert message in log, log
     assert not _calls(tmp_path, "fit")
+
+
+#: a stand-in for scripts/fresh_labels.py: the "labels" of a data copy are the numbers in its labels.txt
+FAKE_FRESH_LABELS = textwrap.dedent(
+    """\
+    import argparse
+    from pathlib import Path
+
+    import numpy as np
+
+    p = argparse.ArgumentParser()
+    for flag in ("--root", "--benchmark", "--episodes", "--out"):
+        p.add_argument(flag)
+    p.add_argument("--zero-failures", action="store_true")
+    a = p.parse_args()
+    np.savez(a.out, setting="{}", **{"L0_scene/label": np.loadtxt(Path(a.root) / "labels.txt")})
+    """
+)
+
+
+def test_success_labels_of_another_data_copy_are_refused(tmp_path):
+    """runs/labels/success_train_<bench>.npz was made once and reused whatever DATA_ROOT said: a job on another copy
+    of the data trained on the first copy's labels without a word. It is kept for a copy with the same labels (at any
+    path) and refused, untouched, for a copy with others."""
+    import sys
+
+    import numpy as np
+
+    repo = tmp_path / "repo"  # the script works in the folder above its own: runs/labels lands here, not in ROOT
+    (repo / "scripts").mkdir(parents=True)
+    (repo / "scripts" / "reproduce_small.sh").write_bytes((ROOT / "scripts" / "reproduce_small.sh").read_bytes())
+    (repo / "scripts" / "reproduce_small.sh").chmod(0o755)
+    (repo / "scripts" / "fresh_labels.py").write_text(FAKE_FRESH_LABELS)
+    (repo / "configs").symlink_to(ROOT / "configs")
+    copies = {"a": "1 2 3", "a_again": "1 2 3", "b": "1 2 4"}
+    for name, labels in copies.items():
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "labels.txt").write_text(labels)
+    env = _single_task_env(tmp_path)
+    env["PATH"] = f"{Path(sys.executable).parent}{os.pathsep}{env['PATH']}"  # a python3 with numpy
+    axis = tmp_path / "runs" / "layouts" / "pool_succ_occ_recipe_s0" / "axisnet.ckpt"
+    axis.parent.mkdir(parents=True)
+    axis.write_text("")
+    (axis.parent / "lineage.json").write_text(json.dumps({"complete": True, "stages": [{"checkpoint": str(axis)}]}))
+    job, labels = "st_drawer_cfar_best_s0", repo / "runs" / "labels" / "success_train_layouts.npz"
+
+    def run(copy: str) -> subprocess.CompletedProcess:
+        env.update(DATA_ROOT=str(tmp_path / copy), OUT=str(tmp_path / f"out_{copy}"))
+        cmd = [str(repo / "scripts" / "reproduce_small.sh"), job]
+        return subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=120)
+
+    done = run("a")
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert np.load(labels)["L0_scene/label"].tolist() == [1, 2, 3]
+    done = run("a_again")  # another path, the same labels: kept
+    assert done.returncode == 0, done.stdout + done.stderr
+    n_fits = len(_calls(tmp_path, "fit"))
+    assert n_fits >= 1  # the job ran through to its fit
+    done = run("b")
+    assert done.returncode != 0
+    log = (tmp_path / "runs" / "logs" / f"{job}.log").read_text()
+    assert "holds labels of another copy of the data" in log, log
+    assert len(_calls(tmp_path, "fit")) == n_fits  # nothing trained on them
+    assert np.load(labels)["L0_scene/label"].tolist() == [1, 2, 3]
+    assert sorted(p.name for p in labels.parent.iterdir()) == [labels.name]  # no file made aside is left
