@@ -141,6 +141,36 @@ def test_a_config_typo_is_one_line_naming_the_field(tmp_path, root, monkeypatch,
     assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and named in proc.stderr, proc.stderr
 
 
+@pytest.mark.parametrize(
+    "text, named",
+    [
+        ("model:\n  init_args:\n    widht: 8\n", "(did you mean 'width' or 'weights'?; 'widht' is set in {f})"),
+        ("model:\n  init_args:\n    train:\n      lrr: 0.1\n", "(did you mean 'lr'?; 'lrr' is set in {f})"),
+        (
+            "trainer:\n  max_epoch: 3\n",
+            "(did you mean 'max_epochs' or 'min_epochs' or 'max_steps'?; 'max_epoch' is set in {f})",
+        ),
+        ("data:\n  init_args:\n    batchsize: 2\n", "did you mean 'batch_size' or 'eval_batch_size'?"),
+    ],
+)
+def test_a_config_file_typo_names_close_keys_and_the_file(tmp_path, root, monkeypatch, text, named):
+    """The parser names an unknown key but neither the file among several ``--config`` files that set it nor the
+    key meant; a model's, its ``train`` group's, the trainer's and the data module's keys each get both."""
+    monkeypatch.chdir(root)
+    typo = tmp_path / "typo.yaml"
+    typo.write_text(text)
+    with pytest.raises(CLIError, match=re.escape(named.format(f=typo))):
+        main(["fit", "--config", DATA, "--config", MODEL, "--config", str(typo), *quiet_trainer_args(tmp_path)])
+
+
+def test_a_flag_typo_names_close_keys_and_no_file(tmp_path, root, monkeypatch):
+    monkeypatch.chdir(root)
+    with pytest.raises(CLIError, match=r"\(did you mean 'width' or 'weights'\?\) \(`floaff-zoo fit --help`"):
+        main(
+            ["fit", "--config", DATA, "--config", MODEL, "--model.init_args.widht", "8", *quiet_trainer_args(tmp_path)]
+        )
+
+
 def test_unknown_command():
     with pytest.raises(CLIError, match="unknown command"):
         main(["fitt"])

@@ -9,9 +9,11 @@ modules' ``main`` before LightningCLI sees the arguments.
 from __future__ import annotations
 
 import argparse
+import difflib
 import importlib
 import inspect
 import math
+import re
 import sys
 from pathlib import Path
 from types import FrameType, TracebackType
@@ -715,6 +717,49 @@ class _ParseOnlyCLI(FloAffCLI):
         pass
 
 
+#: jsonargparse's words for a key no class takes: (class path, group or None, the key)
+_UNKNOWN_OPTION = re.compile(
+    r"class_path '(?P<cls>[\w.]+)': (?:Group '(?P<group>\w+)' does not accept option|Option) '(?P<key>\w+)'"
+)
+#: ... and for a key the parser has no place for (``trainer.max_epoch``, a typo at the top level)
+_UNKNOWN_KEY = re.compile(r"(?:does not accept option '|unrecognized arguments: --)(?P<key>[\w.]+)")
+
+
+def _accepted_keys(cls_path: str | None, group: str | None) -> list[str]:
+    """The keys a class's ``__init__`` takes, or those of its dataclass argument ``group`` ([] when unknown)."""
+    import dataclasses
+    import typing
+
+    try:
+        module, _, name = (cls_path or "").rpartition(".")
+        init = getattr(importlib.import_module(module), name).__init__
+        if group is None:
+            return [k for k in inspect.signature(init).parameters if k != "self"]
+        kind = typing.get_type_hints(init).get(group)
+        return [f.name for f in dataclasses.fields(kind)] if dataclasses.is_dataclass(kind) else []
+    except (ImportError, AttributeError, ValueError, TypeError, NameError):
+        return []
+
+
+def _key_hint(message: str, args: list[str]) -> str:
+    """For a parse error over an unknown key: the close names it may be a typo of, and the ``--config`` files that
+    set it ('' when there is nothing to add). jsonargparse names the key, not the file it came from."""
+    message = _one_line(message)
+    m = _UNKNOWN_OPTION.search(message)
+    if m:
+        key, accepted = m["key"], _accepted_keys(m["cls"], m["group"])
+    elif (m := _UNKNOWN_KEY.search(message)) and m["key"].startswith("trainer."):
+        key, accepted = m["key"].removeprefix("trainer."), _accepted_keys("lightning.Trainer", None)
+    else:
+        return ""
+    close = difflib.get_close_matches(key, accepted, n=3, cutoff=0.6)
+    pattern = re.compile(rf"^\s*{re.escape(key)}\s*:", re.MULTILINE)
+    files = [f for f in config_files(args) if pattern.search(Path(f).read_text(encoding="utf-8", errors="replace"))]
+    parts = [f"did you mean {' or '.join(map(repr, close))}?"] if close else []
+    parts += [f"{key!r} is set in {', '.join(files)}"] if files else []
+    return f" ({'; '.join(parts)})" if parts else ""
+
+
 def check_trainer_args(args: list[str]) -> None:
     """Parse a trainer command (``["fit", "--config", ...]``) without running it: an unknown key, a value of the
     wrong type or a missing config file raises a one-line ``CLIError`` (``floaff-zoo curriculum`` checks every
@@ -722,7 +767,7 @@ def check_trainer_args(args: list[str]) -> None:
     try:
         _build_cli(_ParseOnlyCLI, args, {"exit_on_error": False})
     except argparse.ArgumentError as exc:
-        raise CLIError(_one_line(str(exc))) from exc
+        raise CLIError(_one_line(str(exc)) + _key_hint(str(exc), args)) from exc
 
 
 def run_lightning(args: list[str]) -> FloAffCLI:
@@ -736,7 +781,8 @@ def run_lightning(args: list[str]) -> FloAffCLI:
         return _build_cli(FloAffCLI, args, {"version": __version__, "exit_on_error": False})
     except argparse.ArgumentError as exc:
         command = args[0] if args and args[0] in TRAINER_COMMANDS else "<command>"
-        raise CLIError(f"{_one_line(str(exc))} (`floaff-zoo {command} --help` lists the options)") from exc
+        hint = _key_hint(str(exc), args)
+        raise CLIError(f"{_one_line(str(exc))}{hint} (`floaff-zoo {command} --help` lists the options)") from exc
 
 
 def _build_cli(cls: type[FloAffCLI], args: list[str], parser_kwargs: dict[str, Any]) -> FloAffCLI:
