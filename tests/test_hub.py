@@ -92,6 +92,7 @@ def test_push_list_from_pretrained_round_trip(run_dir, batch, capsys):
     assert zoo_main(["hub", "list"]) == 0
     out = capsys.readouterr().out
     assert NAME in out and "TinyPointNetModule" in out
+    assert next(x for x in out.splitlines() if x.startswith(NAME)).split()[2:5] == ["-", "-", "-"]  # no test report
     entry = load_registry()[NAME]
     assert entry.filename == unique_filename(NAME, entry.sha256, ".safetensors")
     assert entry.meta["metrics"] == pytest.approx({"val_rmse": 0.12})  # best score from the checkpoint

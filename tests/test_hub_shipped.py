@@ -136,4 +136,10 @@ def test_every_entry_is_listed_by_the_cli(capsys):
     assert main(["hub", "list"]) == 0
     out = capsys.readouterr().out
     assert all(name in out for name in SHIPPED)
+    # a user picks by benchmark and test score; versions in numeric order
+    entry = load_registry()["cfar-pfal.floaff-dense-layouts.v12"]
+    line = next(x for x in out.splitlines() if x.startswith(entry.name + " "))
+    sr, pcc = entry.meta["metrics"]["test_sr_all"], entry.meta["metrics"]["test_pcc"]
+    assert line.split()[2:5] == ["layouts", f"{sr:.3f}", f"{pcc:.3f}"]
+    assert out.index("cfar-pfal.floaff-dense-layouts.v9 ") < out.index("cfar-pfal.floaff-dense-layouts.v10 ")
     assert f"({len(read_retired())} earlier versions retired from the package" in out

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
 from pathlib import Path
 from typing import Any
@@ -80,6 +81,18 @@ def _source_text(entry: HubEntry) -> str:
     return "local"
 
 
+def _version_order(entry: HubEntry) -> tuple[str, int, str]:
+    """Sort key: by name, versions in numeric order (``.v9`` before ``.v10``)."""
+    m = re.fullmatch(r"(.*)\.v(\d+)", entry.name)
+    return (m[1], int(m[2]), "") if m else (entry.name, -1, entry.name)
+
+
+def _metric_text(entry: HubEntry, key: str) -> str:
+    """``key`` of the entry's recorded metrics to 3 decimals, or '-' (a push without a test report has none)."""
+    value = (entry.meta.get("metrics") or {}).get(key)
+    return f"{value:.3f}" if isinstance(value, (int, float)) and not isinstance(value, bool) else "-"
+
+
 def cmd_list(args: argparse.Namespace) -> int:
     reg = load_registry(args.hub_dir)
     if args.json:
@@ -88,20 +101,24 @@ def cmd_list(args: argparse.Namespace) -> int:
     if not reg:
         print(f"no checkpoints registered (shipped index empty; user index {user_index_path(args.hub_dir)})")
         return 0
+    # what a user picks a checkpoint by: its benchmark and test scores (the file name is in `hub info`)
     rows = [
         (
             e.name,
             e.class_path.rsplit(".", 1)[-1],
-            e.filename,
+            str(e.meta.get("benchmark") or "-"),
+            _metric_text(e, "test_sr_all"),
+            _metric_text(e, "test_pcc"),
             _source_text(e),
             "yes" if _where(e, args.hub_dir) != "-" else "no",
         )
-        for e in sorted(reg.values(), key=lambda e: e.name)
+        for e in sorted(reg.values(), key=_version_order)
     ]
-    head = ("name", "class", "file", "source", "local")
+    head = ("name", "class", "benchmark", "test SR_all", "test PCC", "source", "local")
     widths = [max(len(r[i]) for r in [head, *rows]) for i in range(len(head))]
     for r in [head, *rows]:
         print("  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip())
+    print("(test scores are each entry's own, on the data copy its model card names: `floaff-zoo hub info NAME`)")
     retired = [n for n in read_retired() if n not in reg]
     if retired:
         print(f"({len(retired)} earlier versions retired from the package; `floaff-zoo hub info NAME` says where)")
