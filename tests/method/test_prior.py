@@ -258,8 +258,12 @@ def test_a_checkpoints_axisnet_is_kept_when_the_configured_one_was_only_rebuilt(
     keep_configured_axisnet(checkpoint, rebuilt, arch)
     for k, v in trained.state_dict().items():
         assert torch.equal(checkpoint["state_dict"][f"axisnet.{k}"], v), k
-    # one loaded from a file of its own (a sha256) still replaces the checkpoint's
-    keep_configured_axisnet(checkpoint, rebuilt, dict(arch, sha256="ab" * 32))
+    # one loaded from a file of its own (a sha256) still replaces the checkpoint's, and says so: an AxisNet retrained
+    # at the configured path is swapped in as silently as one named on purpose
+    with pytest.warns(
+        UserWarning, match=r"checkpoint's AxisNet \(sha256 None.*replaced by the configured one \(sha256 abab"
+    ):
+        keep_configured_axisnet(checkpoint, rebuilt, dict(arch, sha256="ab" * 32))
     for k, v in rebuilt.state_dict().items():
         assert torch.equal(checkpoint["state_dict"][f"axisnet.{k}"], v), k
 

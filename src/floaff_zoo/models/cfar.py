@@ -26,7 +26,8 @@ AxisNet (``axisnet``: checkpoint path or hub name) is loaded frozen (eval, no gr
 sha256 are recorded in the ``axisnet_arch`` hparam, which is filled automatically so the student
 checkpoint rebuilds the AxisNet without the original file. Training uses the simulator's yaw, so the
 AxisNet of a trained model can be swapped: when ``axisnet`` names another AxisNet than the recorded
-``axisnet_arch['source']``, that one is loaded and its weights replace the checkpoint's ``axisnet.*``.
+``axisnet_arch['source']`` (or a file of another sha256 at that path, such as an AxisNet retrained there), that one is
+loaded and its weights replace the checkpoint's ``axisnet.*``, with a warning naming both.
 
 Departures from the paper (switches, off by default; docs/method.md): ``prior_residual`` predicts a residual
 logit over the canonical prior (a per-task label average on a canonical grid, filled from the training data at

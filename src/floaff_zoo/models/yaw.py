@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 import torch
+from lightning.pytorch.utilities import rank_zero_warn
 from lightning.pytorch.utilities.exceptions import MisconfigurationException
 from torch import Tensor
 
@@ -144,6 +145,13 @@ def keep_configured_axisnet(
     # the checkpoint: only one loaded from a file of its own (a sha256) replaces the checkpoint's
     if has_keys and (not own or stored == own):
         return
+    if has_keys:  # meant for a swap, but an AxisNet retrained at the configured path is swapped in just the same
+        was = hp.get("axisnet_arch") or {}
+        rank_zero_warn(
+            f"the checkpoint's AxisNet (sha256 {str(stored)[:12]}, trained as {was.get('source')}) is replaced by the "
+            f"configured one (sha256 {str(own)[:12]}, {arch.get('source')}): the configured AxisNet wins",
+            category=UserWarning,
+        )
     for k in [k for k in checkpoint["state_dict"] if k.startswith(prefix)]:
         del checkpoint["state_dict"][k]
     for k, v in axisnet.state_dict().items():
