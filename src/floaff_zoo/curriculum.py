@@ -61,7 +61,7 @@ from typing import Any
 
 import yaml
 
-from floaff_zoo.runs import config_values, is_config_file
+from floaff_zoo.runs import RunError, config_values, is_config_file, load_checkpoint
 
 __all__ = ["CurriculumError", "build_stage_args", "load_experiment", "main", "read_lineage", "run_curriculum"]
 
@@ -612,6 +612,13 @@ def _resume(
             file=out,
         )
         return None, []
+    try:  # a kill while Lightning wrote it can leave it truncated: say how to go on, not only that it does not load
+        load_checkpoint(last, keys=("state_dict",))
+    except RunError as exc:
+        raise CurriculumError(
+            f"stage {name}: cannot resume the killed fit: {exc}. Delete that file to start the stage again (its "
+            "run folder's other files are kept), or put a readable copy in its place"
+        ) from exc
     flags = _same_dir_flags(_run_dir(last).resolve())
     if flags is None:
         print(

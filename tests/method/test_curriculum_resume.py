@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import json
+import re
 import shutil
 from pathlib import Path
 
@@ -13,7 +14,7 @@ import torch
 import yaml
 
 from floaff_zoo.cli import run_lightning
-from floaff_zoo.curriculum import run_curriculum
+from floaff_zoo.curriculum import CurriculumError, run_curriculum
 from floaff_zoo.hub.registry import sha256_file
 from floaff_zoo.runs import resolve_ckpt_alias
 
@@ -87,6 +88,22 @@ def test_resumed_stage_records_the_best_over_the_whole_stage(tmp_path, capsys):
     (metrics,) = sdir.rglob("metrics.csv")
     epochs = {int(r["epoch"]) for r in csv.DictReader(metrics.open())}
     assert epochs == {0, 1, 2, 3} and Path(rec["checkpoint"]).parents[1] == metrics.parent
+
+
+def test_a_truncated_last_checkpoint_says_how_to_go_on(tmp_path, capsys):
+    """A kill while the checkpoint was written leaves a truncated ``last.ckpt``: the stage names it and says that
+    deleting it starts the stage again, which then works."""
+    exp = _experiment(tmp_path, max_epochs=2)
+    with pytest.raises(KeyboardInterrupt):
+        run_curriculum(exp, runner=_killed_after(1))
+    (last,) = (tmp_path / "run" / "s1").rglob("last.ckpt")
+    last.write_bytes(last.read_bytes()[: last.stat().st_size // 2])
+    with pytest.raises(CurriculumError, match=rf"stage s1: cannot resume the killed fit: {re.escape(str(last))}: not a "
+                       r"readable checkpoint .*Delete that file to start the stage again"):  # fmt: skip
+        run_curriculum(exp)
+    last.unlink()
+    (rec,) = run_curriculum(exp)
+    assert rec["resumed_from"] is None and Path(rec["checkpoint"]).is_file()
 
 
 def test_changed_arguments_never_resume_an_older_run(tmp_path, capsys):
