@@ -238,3 +238,17 @@ def test_close_releases_the_scenes_built_for_rollouts_in_this_process():
     assert other in ro._WORKER_SCENES  # a service beside it keeps its scenes until it closes
     beside.close()
     assert other not in ro._WORKER_SCENES
+
+
+def test_close_releases_the_kitchens_of_scenes_the_lru_dropped(monkeypatch):
+    """A scene the worker LRU dropped left its compiled kitchen in the kitchen cache, which close() then kept."""
+    import floaff_zoo.sim.kitchen as kitchen
+    import floaff_zoo.sim.rollout as ro
+
+    monkeypatch.setattr(ro, "WORKER_SCENES_SIZE", 1)
+    first, second = SceneSpec(0, 0, 21, "CloseDrawer"), SceneSpec(0, 0, 22, "CloseDrawer")
+    svc = RolloutService(workers=1)
+    svc.run([(first, (9.0, 9.0, 0.0)), (second, (9.0, 9.0, 0.0))])
+    assert first not in ro._WORKER_SCENES and (0, 0, 21) in kitchen._CACHE  # dropped scene, kitchen still cached
+    svc.close()
+    assert (0, 0, 21) not in kitchen._CACHE and (0, 0, 22) not in kitchen._CACHE

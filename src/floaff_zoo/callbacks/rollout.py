@@ -409,13 +409,14 @@ class RolloutSuccessRate(L.Callback):
         which then replaces the map's choice); rollouts run at epoch end."""
         pending, seen = self._pending[stage], self._seen[stage]
         cap = self.max_val_samples if stage == "val" else None
-        floor = batch["floor_xyz"].detach().cpu().numpy()
-        mask = batch["floor_mask"].detach().cpu().numpy()
-        label = batch["floor_label"].detach().cpu().numpy()
-        target = batch["target_xyz"].detach().cpu().numpy()
-        pred = scores.detach().float().cpu().numpy()
-        by_cloud = self.top_k > 1 and self.free_space in _CLOUD_KEYS
         full = cap is not None and len(pending) >= cap
+        if not full:  # past the cap a batch is only counted: nothing of it is copied to the host
+            floor = batch["floor_xyz"].detach().cpu().numpy()
+            mask = batch["floor_mask"].detach().cpu().numpy()
+            label = batch["floor_label"].detach().cpu().numpy()
+            target = batch["target_xyz"].detach().cpu().numpy()
+            pred = scores.detach().float().cpu().numpy()
+        by_cloud = self.top_k > 1 and self.free_space in _CLOUD_KEYS
         # the view's own cloud decides which poses are free (only samples with sim metadata are rolled out)
         if by_cloud and not full and any((m or {}).get("sim") for m in batch["meta"]):
             cloud, cloud_mask = check_clouds(batch, self.free_space)

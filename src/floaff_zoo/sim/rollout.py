@@ -419,8 +419,8 @@ class RolloutService:
             self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = None
         for spec in self._built_here:  # ~80 MB each, for the life of a training process; another service's stay
-            if _WORKER_SCENES.pop(spec, None) is not None:
-                release_scene(spec)
+            _WORKER_SCENES.pop(spec, None)
+            release_scene(spec)  # its compiled kitchen too, also where the scene LRU dropped the scene already
         self._built_here.clear()
         if self._ray_started:
             import ray
