@@ -144,13 +144,22 @@ def test_a_config_typo_is_one_line_naming_the_field(tmp_path, root, monkeypatch,
 @pytest.mark.parametrize(
     "text, named",
     [
-        ("model:\n  init_args:\n    widht: 8\n", "(did you mean 'width' or 'weights'?; 'widht' is set in {f})"),
-        ("model:\n  init_args:\n    train:\n      lrr: 0.1\n", "(did you mean 'lr'?; 'lrr' is set in {f})"),
+        (
+            "model:\n  init_args:\n    widht: 8\n",
+            "(did you mean 'width' or 'weights'?; model.init_args.widht is set in {f})",
+        ),
+        (
+            "model:\n  init_args:\n    train:\n      lrr: 0.1\n",
+            "(did you mean 'lr'?; model.init_args.train.lrr is set in {f})",
+        ),
         (
             "trainer:\n  max_epoch: 3\n",
-            "(did you mean 'max_epochs' or 'min_epochs' or 'max_steps'?; 'max_epoch' is set in {f})",
+            "(did you mean 'max_epochs' or 'min_epochs' or 'max_steps'?; trainer.max_epoch is set in {f})",
         ),
         ("data:\n  init_args:\n    batchsize: 2\n", "did you mean 'batch_size' or 'eval_batch_size'?"),
+        # a key the model config sets rightly, set under data by mistake: only the file that misplaced it is named
+        ("data:\n  init_args:\n    width: 8\n", "(data.init_args.width is set in {f})"),
+        ("data: {init_args: {width: 8}}\n", "(data.init_args.width is set in {f})"),  # flow style too
     ],
 )
 def test_a_config_file_typo_names_close_keys_and_the_file(tmp_path, root, monkeypatch, text, named):

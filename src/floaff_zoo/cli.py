@@ -741,22 +741,37 @@ def _accepted_keys(cls_path: str | None, group: str | None) -> list[str]:
         return []
 
 
+def _sets(config: dict[str, Any], path: list[str]) -> bool:
+    """Whether a config file's mapping sets ``path`` (e.g. ``["model", "init_args", "train", "lrr"]``); a class's
+    settings count also where the file gives them without ``init_args``, as jsonargparse takes them."""
+    node: Any = config
+    for i, part in enumerate(path):
+        if not isinstance(node, dict):
+            return False
+        if part not in node:
+            return part == "init_args" and _sets(node, path[i + 1 :])
+        node = node[part]
+    return True
+
+
 def _key_hint(message: str, args: list[str]) -> str:
     """For a parse error over an unknown key: the close names it may be a typo of, and the ``--config`` files that
     set it ('' when there is nothing to add). jsonargparse names the key, not the file it came from."""
     message = _one_line(message)
+    section = re.search(r'Parser key "(\w+)"', message)
     m = _UNKNOWN_OPTION.search(message)
-    if m:
+    if m and section:
         key, accepted = m["key"], _accepted_keys(m["cls"], m["group"])
+        path = [section[1], "init_args", *([m["group"]] if m["group"] else []), key]
     elif (m := _UNKNOWN_KEY.search(message)) and m["key"].startswith("trainer."):
         key, accepted = m["key"].removeprefix("trainer."), _accepted_keys("lightning.Trainer", None)
+        path = ["trainer", key]
     else:
         return ""
     close = difflib.get_close_matches(key, accepted, n=3, cutoff=0.6)
-    pattern = re.compile(rf"^\s*{re.escape(key)}\s*:", re.MULTILINE)
-    files = [f for f in config_files(args) if pattern.search(Path(f).read_text(encoding="utf-8", errors="replace"))]
+    files = [f for f in config_files(args) if _sets(_yaml_mapping(f), path)]
     parts = [f"did you mean {' or '.join(map(repr, close))}?"] if close else []
-    parts += [f"{key!r} is set in {', '.join(files)}"] if files else []
+    parts += [f"{'.'.join(path)} is set in {', '.join(files)}"] if files else []
     return f" ({'; '.join(parts)})" if parts else ""
 
 
