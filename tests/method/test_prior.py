@@ -261,7 +261,7 @@ def test_a_checkpoints_axisnet_is_kept_when_the_configured_one_was_only_rebuilt(
     # one loaded from a file of its own (a sha256) still replaces the checkpoint's, and says so: an AxisNet retrained
     # at the configured path is swapped in as silently as one named on purpose
     with pytest.warns(
-        UserWarning, match=r"checkpoint's AxisNet \(sha256 None.*replaced by the configured one \(sha256 abab"
+        UserWarning, match=r"checkpoint's AxisNet \(sha256 unrecorded.*replaced by the configured one \(sha256 abab"
     ):
         keep_configured_axisnet(checkpoint, rebuilt, dict(arch, sha256="ab" * 32))
     for k, v in rebuilt.state_dict().items():

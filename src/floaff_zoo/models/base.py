@@ -648,7 +648,8 @@ class FloAffModule(ZooModule):
         Training: the loss of the batch (the MSE pooled over its valid points, docs/method.md "The loss"). Evaluation:
         the mean over maps of each map's own loss. Lightning averages ``val_loss``/``test_loss`` over batches weighted
         by their sample count, so a batch-pooled MSE made the epoch value depend on the eval batch size whenever maps
-        hold different numbers of valid points (padded floors); a per-map mean does not.
+        hold different numbers of valid points (padded floors); a per-map mean does not. (Every map has a valid point:
+        ``check_batch`` refuses a batch with an empty one.)
         """
         label, mask = batch["floor_label"], batch["floor_mask"]
         if self.training:

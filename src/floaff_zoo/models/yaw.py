@@ -148,7 +148,8 @@ def keep_configured_axisnet(
     if has_keys:  # meant for a swap, but an AxisNet retrained at the configured path is swapped in just the same
         was = hp.get("axisnet_arch") or {}
         rank_zero_warn(
-            f"the checkpoint's AxisNet (sha256 {str(stored)[:12]}, trained as {was.get('source')}) is replaced by the "
+            f"the checkpoint's AxisNet (sha256 {str(stored)[:12] if stored else 'unrecorded'}, trained as "
+            f"{was.get('source') or 'unrecorded'}) is replaced by the "
             f"configured one (sha256 {str(own)[:12]}, {arch.get('source')}): the configured AxisNet wins",
             category=UserWarning,
         )
