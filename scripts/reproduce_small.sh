@@ -163,14 +163,15 @@ success_labels() {
   mkdir -p runs/labels
   python3 scripts/fresh_labels.py --root "$root" --benchmark "$1" --episodes 0 --zero-failures --out "$f.$$.npz" || return 1
   # (each step checks its status: run_job runs inside an `if`, where set -e does not stop a failed command)
-  if [ ! -f "$f" ]; then mv "$f.$$.npz" "$f"; return; fi
+  # -n: of two jobs starting at once, the first keeps its file and the second compares against it
+  mv -n "$f.$$.npz" "$f"; [ -f "$f.$$.npz" ] || return 0
   if python3 -c 'import sys, numpy as np
 a, b = np.load(sys.argv[1]), np.load(sys.argv[2])
 sys.exit(sorted(a.files) != sorted(b.files) or not all(np.array_equal(a[k], b[k]) for k in a.files))' "$f" "$f.$$.npz"
   then rm -f "$f.$$.npz"; return 0; fi
   rm -f "$f.$$.npz"
-  echo "$f holds labels of another copy of the data than $root: delete it (with no job reading it) to make it" \
-    "from $root, or run one copy at a time" >&2
+  echo "$f holds other labels than $root gives now (another copy of the data, or labels made by other code):" \
+    "delete it (with no job reading it) to make it from $root, or run one copy at a time" >&2
   return 1
 }
 
