@@ -9,12 +9,14 @@ modules' ``main`` before LightningCLI sees the arguments.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import difflib
 import importlib
 import inspect
 import math
 import re
 import sys
+import typing
 from pathlib import Path
 from types import FrameType, TracebackType
 from typing import Any
@@ -727,9 +729,6 @@ _UNKNOWN_KEY = re.compile(r"(?:does not accept option '|unrecognized arguments: 
 
 def _accepted_keys(cls_path: str | None, group: str | None) -> list[str]:
     """The keys a class's ``__init__`` takes, or those of its dataclass argument ``group`` ([] when unknown)."""
-    import dataclasses
-    import typing
-
     try:
         module, _, name = (cls_path or "").rpartition(".")
         init = getattr(importlib.import_module(module), name).__init__
