@@ -41,7 +41,8 @@ Each run directory a stage's fit writes gets ``curriculum_run.json`` (the digest
 the newest ``last.ckpt`` of a run with its digest whose input files are unchanged since it started, and that no fit
 with other arguments wrote into (``trainer.logger: false`` puts every fit of a stage in one folder), else a fresh
 fit, logging into that run's own directory so its ModelCheckpoint keeps the best of the epochs before the kill: the
-recorded checkpoint is the best of the whole stage, as ``--ckpt_path best`` finds it.
+recorded checkpoint is the best of the whole stage, as ``--ckpt_path best`` finds it. A ``last.ckpt`` that does not
+load (a kill while it was written) stops the stage with its path and what to do, instead of failing inside the fit.
 """
 
 from __future__ import annotations
@@ -616,8 +617,9 @@ def _resume(
         load_checkpoint(last, keys=("state_dict",))
     except RunError as exc:
         raise CurriculumError(
-            f"stage {name}: cannot resume the killed fit: {exc}. Delete that file to start the stage again (its "
-            "run folder's other files are kept), or put a readable copy in its place"
+            f"stage {name}: cannot resume the killed fit: {exc}. Delete that file (its run folder's other files are "
+            "kept) and run again: the stage then resumes an earlier killed run of the same arguments if one is left, "
+            "else starts afresh; or put a readable copy in its place"
         ) from exc
     flags = _same_dir_flags(_run_dir(last).resolve())
     if flags is None:
