@@ -92,21 +92,34 @@ def test_a_scene_job_leaves_no_compiled_kitchen_behind(monkeypatch):
     assert set(kitchen._CACHE) == before
 
 
-def test_a_scene_whose_regions_give_no_view_is_dropped_not_committed(monkeypatch, tmp_path):
+@pytest.mark.parametrize("forced_by", ["sampler", "acceptance"])
+def test_a_scene_whose_regions_give_no_view_is_dropped_not_committed(monkeypatch, tmp_path, forced_by):
     """A scene whose view regions yielded no acceptable view was committed with no view (no sample, counted nowhere);
-    it is now an attempt dropped for want of a view, and the slot tries the next seed's kitchen."""
+    it is now an attempt dropped for want of a view, listed in the manifest's drops, and the slot tries the next
+    seed's kitchen. Forced by a sampler that finds nothing, or by the real sampler whose every rendered view the
+    generator's acceptance test (view_rejection) refuses."""
     from floaff_zoo.sim import fileformat as ff
     from floaff_zoo.sim import views
 
-    monkeypatch.setattr(views, "sample_view_poses", lambda *args, **kw: [])
+    refused = []
+    if forced_by == "sampler":
+        monkeypatch.setattr(views, "sample_view_poses", lambda *args, **kw: [])
+    else:
+        monkeypatch.setattr(gen, "view_rejection", lambda *args: refused.append(1) or "no_floor_cell")
     preset = get_preset("tiny", tasks=("CloseDrawer",), n_test=0)
     (job, *_) = gen.plan_jobs(preset, 0, list(range(6)), list(range(8)))
     job = dataclasses.replace(job, seeds=job.seeds[:1])
     res = gen.run_job(job, str(tmp_path), preset.to_dict(), False)
     assert res["status"] == "dropped" and [a["outcome"] for a in res["attempts"]] == ["dropped_no_view"]
     assert "kept view" in res["reason"]
+    assert (forced_by == "acceptance") == bool(refused)  # rendered views reached the acceptance test
     assert not list(ff.iter_scenes(tmp_path, benchmark=job.benchmark))
     assert not any((tmp_path / job.benchmark / ff.STAGING).glob("*"))  # the staged files went too
+    entry = {"benchmark": job.benchmark, "task": job.task, "split": job.split}
+    manifest = {"scenes": {job.key: {**res, **entry, "status": "dropped"}}}
+    gen._summarise(manifest)
+    assert [d["reason"] for d in manifest["drops"]][0] == "no view kept"
+    assert manifest["counts"]["scenes_dropped"] == 1 and manifest["counts"]["views_total"] == 0
 
 
 def test_a_kitchen_whose_reset_is_blocked_is_dropped_before_annotation(monkeypatch, tmp_path):
