@@ -616,3 +616,22 @@ def test_a_view_whose_npz_pose_disagrees_with_scene_json_is_skipped(floaff_root,
         ff.read_sample(rec, rec["views"][0])
     view = json.loads(sj.read_text())["views"][0]["view_id"]
     assert all(not r.key.endswith(f"{sj.parent.name}/{view}") for s in ("train", "val") for r in dm.datasets[s].records)
+
+
+def test_a_scene_without_views_is_a_counted_skip_naming_it(floaff_root, tmp_path):
+    """A committed scene.json listing no view (generators up to 2.2.0 wrote such scenes) was read silently: a scene
+    holding no sample took a place in the validation draw, so a split shrank (or emptied) without a word."""
+    root, exp = floaff_root
+
+    def no_views(rec):
+        rec["views"] = []
+
+    copy, sj = _edit_first_train_scene(root, tmp_path, no_views)
+    dm = _dm(copy, tasks=["CloseDrawer"])
+    dm.setup("fit")
+    assert dm.skips.counts["scene_without_views"] == 1
+    assert str(sj) in dm.skips.summary() and sj.parent.name in dm.skips.summary()
+    assert all(sj.parent.name not in s for split in dm.split_scenes.values() for s in split)
+    assert len(dm.datasets["val"]) > 0  # the remaining train scenes give the draw its validation scene
+    with pytest.raises(DataError, match=rf"{sj.parent.name} lists no view.*strict=True"):
+        _dm(copy, tasks=["CloseDrawer"], strict=True).setup("fit")

@@ -239,7 +239,8 @@ class GeneratedReader(FloAffReader):
 
     Both format versions (docs/data_format.md): 1 (every view holds the scene's filtered candidate cells) and 2
     (every view holds the label-grid cells it observes as ground). Samples carry the extra key ``floor_known``
-    [M] bool (all true in version 1); a scene of an unknown version is skipped as ``corrupt_scene_json``.
+    [M] bool (all true in version 1); a scene of an unknown version is skipped as ``corrupt_scene_json``, one whose
+    scene.json lists no view as ``scene_without_views``.
     """
 
     def scenes(self, benchmark: str) -> list[SceneEntry]:
@@ -261,6 +262,11 @@ class GeneratedReader(FloAffReader):
                 continue
             if rec.get("status") != "ok":
                 self.skips.add("scene_not_ok", sj, f"status {rec.get('status')!r}")
+                continue
+            if isinstance(rec["views"], list) and not rec["views"]:
+                # kept, it holds no sample yet takes a place in the validation draw (a split shrinks unseen)
+                why = f"scene {rec.get('scene_id', d.name)} lists no view (generators up to 2.2.0 committed some)"
+                self.skips.add("scene_without_views", sj, why)
                 continue
             try:
                 entry = self._entry(rec, d, benchmark)
