@@ -388,3 +388,39 @@ def test_eval_loss_does_not_depend_on_the_eval_batch_size(loss):
         val = trainer.validate(model, data, verbose=False)[0]["val_loss"]
         losses.append((val, trainer.test(model, data, verbose=False)[0]["test_loss"]))
     assert losses[1] == pytest.approx(losses[0], rel=1e-6)
+
+
+class _SomeWithoutTarget(_FloorsOfSeveralSizes):
+    """As :class:`_FloorsOfSeveralSizes`, and samples 1 and 3 have every label 0: no good position to vote for and no
+    positive pose, so a batch mixes samples with and without a target."""
+
+    def __getitem__(self, i: int) -> dict:
+        s = super().__getitem__(i)
+        return {**s, "floor_label": s["floor_label"] * 0} if i in (1, 3) else s
+
+
+@pytest.mark.parametrize("name", ["votenet", "h3dnet", "n2m"])
+def test_extra_eval_loss_terms_do_not_depend_on_the_eval_batch_size(name):
+    """VoteNet's and H3DNet's vote terms and N2M's likelihood were means over a batch's samples with a target, which
+    Lightning then averaged over batches by sample count: val/test losses moved with the eval batch size. In
+    evaluation every term is now a mean over samples of each sample's own value."""
+    from floaff_zoo.data.synthetic import SyntheticDataModule
+
+    class Data(SyntheticDataModule):
+        def setup(self, stage: str | None = None) -> None:
+            super().setup(stage)
+            for split in ("val", "test"):
+                self.datasets[split] = _SomeWithoutTarget(self.datasets[split])
+
+    lightning.seed_everything(0)
+    model = build(ROOT / f"tests/configs/models/{name}_tiny.yaml")
+    losses = []
+    for eval_batch_size in (1, 4):
+        data = Data(2, 5, 5, 128, 8, batch_size=2, eval_batch_size=eval_batch_size, num_points=128, collate_mode="pad")
+        trainer = lightning.Trainer(
+            accelerator="cpu", logger=False, enable_progress_bar=False, enable_model_summary=False
+        )
+        logged = {**trainer.validate(model, data, verbose=False)[0], **trainer.test(model, data, verbose=False)[0]}
+        losses.append({k: v for k, v in logged.items() if k.endswith("_loss")})
+    assert {"val_loss", "test_loss"} <= losses[0].keys()
+    assert losses[1] == pytest.approx(losses[0], rel=1e-5, abs=1e-7)

@@ -91,7 +91,11 @@ class H3DNetModule(SeedVotingModule):
         maybe_compile(self.net, h["compile"])
 
     def vote_loss(self, batch: Batch, aux: dict[str, Tensor]) -> Tensor:
-        """Mean L1 vote error to the target primitives (votes [B,4,S,3]) over the voting seeds."""
+        """Mean L1 vote error to the target primitives (votes [B,4,S,3]) over the voting seeds.
+
+        Every sample has a target, and each one's error is a mean over its own seeds: the batch mean is a mean over
+        samples in training and evaluation alike (the eval batch size does not move the epoch value).
+        """
         h = self.hparams
         gt = target_primitives(
             batch["target_xyz"].float(), batch["target_yaw"].float().reshape(-1), h["face_offset"], h["edge_half_width"]

@@ -146,13 +146,20 @@ class N2MModule(FloAffModule):
         return self.density_map(self.gmm(batch), batch)
 
     def nll(self, gmm: tuple[Tensor, Tensor, Tensor], batch: Batch) -> Tensor:
-        """Mean over the samples with a positive pose of their weighted NLL (+ optional entropy terms); 0 with a graph
-        when no sample has one."""
+        """Weighted NLL of the positive poses (+ optional entropy terms, means over every sample).
+
+        Training: the mean over the samples with a positive pose (0 with a graph when none has one). Evaluation: the
+        mean over every sample, 0 for one without a positive pose, so that Lightning's sample-weighted epoch mean of
+        ``val_loss``/``test_loss`` does not depend on the eval batch size.
+        """
         poses, w = positive_poses(batch, self.hparams["positive_threshold"])
         logp = gmm_log_prob(poses, *gmm)
         keep = w.sum(1) > 0
-        per_sample = -(torch.where(w > 0, logp, 0.0) * w).sum(1) / w.sum(1).clamp_min(1.0)
-        nll = per_sample[keep].mean() if bool(keep.any()) else gmm[0].sum() * 0.0
+        per_sample = -(torch.where(w > 0, logp, 0.0) * w).sum(1) / w.sum(1).clamp_min(1.0)  # [B], 0 where not keep
+        if self.training:
+            nll = per_sample[keep].mean() if bool(keep.any()) else gmm[0].sum() * 0.0
+        else:
+            nll = per_sample.mean()
         means, cov, logw = gmm
         h = self.hparams
         if h["lambda_weights"]:

@@ -27,6 +27,13 @@ def good_floor_points(batch: Batch, rel_threshold: float) -> tuple[Tensor, Tenso
     return batch["floor_xyz"].float(), sel & (best > 0)
 
 
+def vote_distances(votes: Tensor, gt_xyz: Tensor, gt_sel: Tensor) -> Tensor:
+    """L1 distance of every vote to its nearest selected GT position: [B,S,3], [B,M,3], [B,M] bool -> [B, S]
+    (inf in a sample with no selected position)."""
+    d = (votes[:, :, None, :] - gt_xyz[:, None, :, :]).abs().sum(-1)  # [B, S, M]
+    return d.masked_fill(~gt_sel[:, None, :], float("inf")).amin(dim=-1)
+
+
 def vote_loss(votes: Tensor, gt_xyz: Tensor, gt_sel: Tensor) -> Tensor:
     """Min-over-GT L1 distance of every vote (VoteNet's vote loss with a set of GT positions).
 
@@ -38,9 +45,19 @@ def vote_loss(votes: Tensor, gt_xyz: Tensor, gt_sel: Tensor) -> Tensor:
     has = gt_sel.any(dim=1)  # [B]
     if not bool(has.any()):
         return votes.sum() * 0.0
-    d = (votes[has][:, :, None, :] - gt_xyz[has][:, None, :, :]).abs().sum(-1)  # [B', S, M]
-    d = d.masked_fill(~gt_sel[has][:, None, :], float("inf"))
-    return d.amin(dim=-1).mean()
+    return vote_distances(votes[has], gt_xyz[has], gt_sel[has]).mean()
+
+
+def vote_loss_per_sample(votes: Tensor, gt_xyz: Tensor, gt_sel: Tensor) -> Tensor:
+    """Each sample's mean vote distance (as :func:`vote_loss`): [B,S,3], [B,M,3], [B,M] bool -> [B].
+
+    A sample with no target gets 0 (it has no vote term), so the mean over a batch of these is a mean over samples,
+    which Lightning's sample-weighted epoch average keeps whatever the batch size.
+    """
+    has = gt_sel.any(dim=1)  # [B]
+    per_sample = votes.new_zeros(len(votes))
+    per_sample[has] = vote_distances(votes[has], gt_xyz[has], gt_sel[has]).mean(dim=-1)
+    return per_sample
 
 
 class SeedVotingModule(FloAffModule, abc.ABC):
@@ -57,7 +74,12 @@ class SeedVotingModule(FloAffModule, abc.ABC):
 
     @abc.abstractmethod
     def vote_loss(self, batch: Batch, aux: dict[str, Tensor]) -> Tensor:
-        """Scalar vote loss from the vote geometry (each subclass supervises its own votes)."""
+        """Scalar vote loss from the vote geometry (each subclass supervises its own votes).
+
+        In evaluation it must be the mean over the batch's samples of each sample's own vote loss: Lightning weighs
+        each batch's ``val_loss``/``test_loss`` by its sample count, so only then is the epoch value independent of
+        the eval batch size (as the per-map affordance loss is, ``FloAffModule.affordance_loss``).
+        """
 
     def model_step(self, batch: Batch) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
         scores, aux = self.forward_with_aux(batch)
@@ -138,6 +160,10 @@ class VoteNetModule(SeedVotingModule):
         maybe_compile(self.net, h["compile"])
 
     def vote_loss(self, batch: Batch, aux: dict[str, Tensor]) -> Tensor:
-        """Min-over-GT L1 distance of the votes to the good floor points."""
+        """Min-over-GT L1 distance of the votes to the good floor points: training, the mean over the votes of the
+        samples with a target; evaluation, the mean over samples (0 for one without a target)."""
         gt_xyz, gt_sel = good_floor_points(batch, self.hparams["vote_label_threshold"])
-        return vote_loss(aux["vote_xyz"].float(), gt_xyz, gt_sel)
+        votes = aux["vote_xyz"].float()
+        if self.training:
+            return vote_loss(votes, gt_xyz, gt_sel)
+        return vote_loss_per_sample(votes, gt_xyz, gt_sel).mean()
