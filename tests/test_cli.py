@@ -172,6 +172,38 @@ def test_a_config_file_typo_names_close_keys_and_the_file(tmp_path, root, monkey
         main(["fit", "--config", DATA, "--config", MODEL, "--config", str(typo), *quiet_trainer_args(tmp_path)])
 
 
+@pytest.mark.parametrize(
+    "command, text, field",
+    [
+        ("fit", 'trainer:\n  max_epochs: "x"\n', "trainer.max_epochs"),
+        ("test", 'trainer:\n  max_epochs: "x"\n', "trainer.max_epochs"),
+        ("fit", "model:\n  init_args:\n    train:\n      lr: notanumber\n", "model.init_args.train.lr"),
+        ("predict", "data:\n  init_args:\n    batch_size: x\n", "data.init_args.batch_size"),
+    ],
+)
+def test_a_wrong_type_in_a_config_file_names_the_field_and_the_file(tmp_path, root, command, text, field):
+    """A value of the wrong type is one line (exit 2, no usage) naming the key; among several ``--config`` files
+    jsonargparse did not say which one set it."""
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(text)
+    args = [command, "--config", DATA, "--config", MODEL, "--config", str(bad), *quiet_trainer_args(tmp_path)]
+    proc = subprocess.run([sys.executable, "-m", "floaff_zoo", *args], capture_output=True, text=True, cwd=root)
+    err = proc.stderr
+    assert proc.returncode == 2 and "usage:" not in err and err.count("\n") == 1, err
+    assert f"({field} is set in {bad}) (`floaff-zoo {command} --help` lists the options)" in err, err
+
+
+def test_a_wrong_type_on_the_command_line_names_the_field_and_no_file(tmp_path, root):
+    """The refused value came from a flag: a file setting the same key to a good value is not named."""
+    good = tmp_path / "good.yaml"
+    good.write_text("trainer:\n  max_epochs: 3\n")
+    args = ["fit", "--config", DATA, "--config", MODEL, "--config", str(good), "--trainer.max_epochs", "abc"]
+    proc = subprocess.run([sys.executable, "-m", "floaff_zoo", *args], capture_output=True, text=True, cwd=root)
+    err = proc.stderr
+    assert proc.returncode == 2 and "usage:" not in err and err.count("\n") == 1, err
+    assert 'Parser key "trainer.max_epochs"' in err and "is set in" not in err, err
+
+
 def test_a_flag_typo_names_close_keys_and_no_file(tmp_path, root, monkeypatch):
     monkeypatch.chdir(root)
     with pytest.raises(CLIError, match=r"\(did you mean 'width' or 'weights'\?\) \(`floaff-zoo fit --help`"):

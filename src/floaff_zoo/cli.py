@@ -740,17 +740,23 @@ def _accepted_keys(cls_path: str | None, group: str | None) -> list[str]:
         return []
 
 
-def _sets(config: dict[str, Any], path: list[str]) -> bool:
-    """Whether a config file's mapping sets ``path`` (e.g. ``["model", "init_args", "train", "lrr"]``); a class's
-    settings count also where the file gives them without ``init_args``, as jsonargparse takes them."""
+def _lookup(config: dict[str, Any], path: list[str]) -> tuple[bool, Any]:
+    """Whether a config file's mapping sets ``path`` (e.g. ``["model", "init_args", "train", "lrr"]``), and the
+    value it sets; a class's settings count also where the file gives them without ``init_args``, as jsonargparse
+    takes them."""
     node: Any = config
     for i, part in enumerate(path):
         if not isinstance(node, dict):
-            return False
+            return False, None
         if part not in node:
-            return part == "init_args" and _sets(node, path[i + 1 :])
+            return _lookup(node, path[i + 1 :]) if part == "init_args" else (False, None)
         node = node[part]
-    return True
+    return True, node
+
+
+def _sets(config: dict[str, Any], path: list[str]) -> bool:
+    """Whether a config file's mapping sets ``path`` (see :func:`_lookup`)."""
+    return _lookup(config, path)[0]
 
 
 def _key_hint(message: str, args: list[str]) -> str:
@@ -774,6 +780,34 @@ def _key_hint(message: str, args: list[str]) -> str:
     return f" ({'; '.join(parts)})" if parts else ""
 
 
+#: jsonargparse's words for a value of the wrong type: the key of its section (``trainer.max_epochs``, ``model``)
+_SECTION_KEY = re.compile(r'^Parser key "(?P<key>[\w.]+)"')
+#: ... and, inside a class's settings, the nested key (``train.lr`` of ``model``)
+_NESTED_KEY = re.compile(r"class_path '[\w.]+': Parser key \"(?P<key>[\w.]+)\"")
+
+
+def _value_hint(message: str, args: list[str]) -> str:
+    """For a parse error over a value of the wrong type: the ``--config`` file that set it ('' when the value came
+    from a flag or no file is found). jsonargparse checks each file as it loads it, so the first file whose value
+    at the key is the refused one (its text is what the message quotes) is the one it refused."""
+    message = _one_line(message)
+    section, nested = _SECTION_KEY.search(message), _NESTED_KEY.search(message)
+    if section is None:
+        return ""
+    path = section["key"].split(".") + (["init_args", *nested["key"].split(".")] if nested else [])
+    for f in config_files(args):
+        found, value = _lookup(_yaml_mapping(f), path)
+        quoted = re.escape(str(value))
+        if found and re.search(rf"(?:Given|Got) value: {quoted}(?: - | Given value|$)", message):
+            return f" ({'.'.join(path)} is set in {f})"
+    return ""
+
+
+def _parse_hint(message: str, args: list[str]) -> str:
+    """What a parse error leaves out: close names of an unknown key, the file that set a key or a refused value."""
+    return _key_hint(message, args) or _value_hint(message, args)
+
+
 def check_trainer_args(args: list[str]) -> None:
     """Parse a trainer command (``["fit", "--config", ...]``) without running it: an unknown key, a value of the
     wrong type or a missing config file raises a one-line ``CLIError`` (``floaff-zoo curriculum`` checks every
@@ -781,21 +815,21 @@ def check_trainer_args(args: list[str]) -> None:
     try:
         _build_cli(_ParseOnlyCLI, args, {"exit_on_error": False})
     except argparse.ArgumentError as exc:
-        raise CLIError(_one_line(str(exc)) + _key_hint(str(exc), args)) from exc
+        raise CLIError(_one_line(str(exc)) + _parse_hint(str(exc), args)) from exc
 
 
 def run_lightning(args: list[str]) -> FloAffCLI:
     """Run a trainer command; returns the CLI object (tests read ``cli.trainer``/``cli.model``).
 
     Raises:
-        CLIError: the arguments do not parse (an unknown key, a value of the wrong type), in one line: jsonargparse
-            printed its 50-line usage before the error.
+        CLIError: the arguments do not parse (an unknown key, a value of the wrong type), in one line naming the key
+            and, where a ``--config`` file set it, the file: jsonargparse printed its 50-line usage before the error.
     """
     try:
         return _build_cli(FloAffCLI, args, {"version": __version__, "exit_on_error": False})
     except argparse.ArgumentError as exc:
         command = args[0] if args and args[0] in TRAINER_COMMANDS else "<command>"
-        hint = _key_hint(str(exc), args)
+        hint = _parse_hint(str(exc), args)
         raise CLIError(f"{_one_line(str(exc))}{hint} (`floaff-zoo {command} --help` lists the options)") from exc
 
 
