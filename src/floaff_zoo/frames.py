@@ -3,7 +3,8 @@
 A generated view stores its robot's base pose in the world as ``(x, y, yaw)``
 (``meta['sim']['base_pose_world']``); points and poses of the sample contract are in that base
 frame. The rollout callback (to run the task) and the report figures (to draw over the kitchen) both
-need the world pose, so the conversion lives here, below both of them.
+need the world pose, so the conversion lives here, below both of them. So do the yaw sources that read the
+simulator's target yaw (``PRIVILEGED_YAW``): the models offer them, the tables mark the runs that used one.
 """
 
 from __future__ import annotations
@@ -19,6 +20,10 @@ Pose = tuple[float, float, float]
 #: annotation's and the evaluation's. Coarser rounding changes outcomes: some CloseDoubleDoor rollouts flip
 #: when the pose moves by 3e-5 m / 4e-6 rad (docs/background.md §5, "How exact a pose must be").
 ROLLOUT_POSE_DECIMALS = 6
+
+#: yaw sources (``floaff_zoo.models.yaw.YawSource``) that read a simulator field: allowed in training; at test time
+#: ``floaff-zoo table`` marks the rows of runs that used one "(simulator yaw)"
+PRIVILEGED_YAW = frozenset({"gt"})
 
 
 def facing_pose(pose: Pose, target_world: Sequence[float]) -> Pose:

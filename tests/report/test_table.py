@@ -165,9 +165,9 @@ def test_a_non_finite_value_takes_its_own_std_with_it(tmp_path):
     """aggregate() dropped a NaN run's value but kept its bootstrap std, which the remaining run then showed."""
     from floaff_zoo.report.table import aggregate
 
-    cell = aggregate([float("nan"), 0.458], [0.999, 0.013])
+    cell = aggregate([(float("nan"), 0.999), (0.458, 0.013)])
     assert cell.n == 1 and cell.mean == 0.458 and cell.std == 0.013
-    assert aggregate([0.4, None], [0.01]).std == 0.01  # a shorter std list reads as missing stds
+    assert aggregate([(0.4, 0.01), (None, None)]).std == 0.01  # a run without a value is left out
 
 
 def test_equal_group_values_of_different_types_share_a_row(tmp_path):

@@ -29,6 +29,7 @@ from lightning.pytorch.utilities.exceptions import MisconfigurationException
 from torch import Tensor
 
 from floaff_zoo.contract import Batch
+from floaff_zoo.frames import PRIVILEGED_YAW  # kept in __all__: its home is frames.py, below models and report
 from floaff_zoo.hub.io import resolve_state_dict
 from floaff_zoo.hub.registry import sha256_file
 from floaff_zoo.models.base import sample_names
@@ -48,9 +49,6 @@ __all__ = [
 ]
 
 YawSource = Literal["gt", "axisnet", "axisnet_manhattan", "manhattan", "heading", "none"]
-#: sources that read a simulator field: allowed in training; at test time ``floaff-zoo table`` marks the rows of
-#: runs that used one "(simulator yaw)"
-PRIVILEGED_YAW = frozenset({"gt"})
 #: sources that need an AxisNet
 AXISNET_YAW = frozenset({"axisnet", "axisnet_manhattan"})
 

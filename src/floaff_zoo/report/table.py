@@ -51,10 +51,12 @@ import json
 import math
 import statistics
 import sys
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+from floaff_zoo.frames import PRIVILEGED_YAW
 
 PRESETS = ("map", "sr_views", "sr_tasks", "ablation", "sweep")
 FORMATS = ("md", "latex", "csv")
@@ -284,28 +286,31 @@ class Table:
     mixed: str = ""  # how the rows' protocols differ (``mixed_protocols``), named under the table and on stderr
 
 
-def aggregate(values: list[float], inner_std: list[float | None]) -> Cell | None:
-    """Mean ± std over runs (ddof=1); a single run keeps its own std (SR bootstrap) if any. Values that are missing
-    or not finite are left out together with their own std."""
-    stds = list(inner_std) + [None] * (len(values) - len(inner_std))
-    kept = [(float(v), s) for v, s in zip(values, stds) if v is not None and math.isfinite(float(v))]
-    vals = [v for v, _ in kept]
-    if not vals:
+#: one run's value in a cell and its own std (an SR's bootstrap std; None for a map metric); value None: n/a
+RunValue = tuple[float | None, float | None]
+#: reads a report's ``RunValue`` for one column
+Getter = Callable[[dict[str, Any]], RunValue]
+
+
+def aggregate(runs: Sequence[RunValue]) -> Cell | None:
+    """Mean ± std over runs (ddof=1); a single run keeps its own std (SR bootstrap) if any. Runs whose value is
+    missing or not finite are left out, their own std with them."""
+    kept = [(float(v), s) for v, s in runs if v is not None and math.isfinite(float(v))]
+    if not kept:
         return None
-    if len(vals) == 1:
-        return Cell(vals[0], kept[0][1], 1)
+    if len(kept) == 1:
+        return Cell(kept[0][0], kept[0][1], 1)
+    vals = [v for v, _ in kept]
     return Cell(statistics.fmean(vals), statistics.stdev(vals), len(vals))
 
 
-def _metric(report: dict[str, Any], key: str) -> tuple[float | None, float | None]:
+def _metric(report: dict[str, Any], key: str) -> RunValue:
     """(value, None) of a map metric; null (``test_pcc`` where no map has a Pearson r) is n/a and never ranked."""
     v = (report.get("metrics") or {}).get(f"test_{key}")
     return (float(v) if v is not None else None), None
 
 
-def _sr(
-    report: dict[str, Any], who: str, view: str | None = None, task: str | None = None
-) -> tuple[float | None, float | None]:
+def _sr(report: dict[str, Any], who: str, view: str | None = None, task: str | None = None) -> RunValue:
     sr = report.get("sr") or {}
     if not sr.get("available"):
         return None, None
@@ -314,25 +319,23 @@ def _sr(
     return (cell.get("mean"), cell.get("std")) if isinstance(cell, dict) else (None, None)
 
 
-def _cell(reports: list[dict[str, Any]], getter) -> Cell | None:
+def _cell(reports: list[dict[str, Any]], getter: Getter) -> Cell | None:
     """The cell of a row's ``reports`` (one section): mean ± std of ``getter``'s (value, std) over the runs that
     have a value, recording how many runs the row holds there (``of``)."""
-    pairs = [getter(r) for r in reports]
-    pairs = [p for p in pairs if p[0] is not None]
-    cell = aggregate([p[0] for p in pairs], [p[1] for p in pairs])
+    cell = aggregate([getter(r) for r in reports])
     if cell is not None:
         cell.of = len(reports)
     return cell
 
 
-def _oracle_cell(reports: list[dict[str, Any]], getter) -> Cell | None:
+def _oracle_cell(reports: list[dict[str, Any]], getter: Getter) -> Cell | None:
     """The Oracle does not depend on the model: runs on one test split report the same episodes, so identical
     values are shown once with their bootstrap std (a std over runs would read 0); differing ones (several
     test splits) are pooled like a model row."""
-    pairs = [p for p in (getter(r) for r in reports) if p[0] is not None]
-    if pairs and max(p[0] for p in pairs) - min(p[0] for p in pairs) < 1e-9:
-        pairs = pairs[:1]
-    return aggregate([p[0] for p in pairs], [p[1] for p in pairs])
+    runs = [r for r in map(getter, reports) if r[0] is not None]
+    if runs and max(v for v, _ in runs) - min(v for v, _ in runs) < 1e-9:
+        runs = runs[:1]
+    return aggregate(runs)
 
 
 def _group_rows(
@@ -522,10 +525,8 @@ SIMULATOR_YAW = "simulator yaw"
 
 
 def privileged_yaw(report: dict[str, Any]) -> bool:
-    """Whether a report's model read the simulator's target yaw at test time (``floaff_zoo.models.yaw``'s
-    ``PRIVILEGED_YAW`` sources), which a robot does not have."""
-    from floaff_zoo.models.yaw import PRIVILEGED_YAW
-
+    """Whether a report's model read the simulator's target yaw at test time (a ``PRIVILEGED_YAW`` source),
+    which a robot does not have."""
     model = report.get("model") or {}
     hparams = model.get("hparams") or {}
     return hparams.get(_EVAL_YAW_FIELD.get(str(model.get("name")), "eval_yaw_source")) in PRIVILEGED_YAW
