@@ -199,3 +199,30 @@ def test_grown_footprint_adds_the_margin_on_every_side():
     for bad in (-0.1, float("nan"), float("inf")):
         with pytest.raises(ValueError, match="margin"):
             grown_footprint(bad)
+
+
+def test_floor_queries_refuse_clouds_that_are_not_n_by_3_and_poses_that_are_not_finite():
+    """observed_cells / ground_mask reshaped any array to [-1, 3]: a [3, N] or [N, 2] cloud gave other cells without a
+    word; a NaN pose put no point inside the footprint, so footprint_blocked called it free."""
+    from floaff_zoo.floor import footprint_blocked, footprint_coverage
+
+    rng = np.random.default_rng(0)
+    xyz = np.c_[rng.uniform(-1, 1, (300, 2)), np.zeros(300)]
+    lat = FloorLattice.around(np.zeros(2), 0.0, 0.2, 1.0)
+    assert observed_cells(xyz, lat).sum() > 0
+    for bad in (xyz.T, xyz[:, :2], xyz.ravel()):
+        with pytest.raises(ValueError, match=r"observed_cells: xyz must be \[N, 3\]"):
+            observed_cells(bad, lat)
+        with pytest.raises(ValueError, match=r"ground_mask: xyz must be \[N, 3\]"):
+            ground_mask(bad)
+    from floaff_zoo.predict import default_floor_grid  # its observed cells come from observed_cells
+
+    with pytest.raises(ValueError, match=r"observed_cells: xyz must be \[N, 3\]"):
+        default_floor_grid(np.array([0.5, 0.0, 0.8]), xyz.T)
+    box = np.array([[0.0, 0.0, 0.3], [0.1, 0.1, 0.3], [-0.2, 0.1, 0.5]])
+    assert footprint_blocked(box, (0.0, 0.0, 0.0))
+    for pose in ((float("nan"), 0.0, 0.0), (0.0, 0.0), (0.0, 0.0, float("inf"))):
+        with pytest.raises(ValueError, match=r"footprint_blocked: pose must be 3 finite values"):
+            footprint_blocked(box, pose)
+        with pytest.raises(ValueError, match=r"footprint_coverage: pose must be 3 finite values"):
+            footprint_coverage(box, pose)

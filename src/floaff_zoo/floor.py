@@ -117,9 +117,27 @@ class FloorLattice:
         return np.hypot(d[:, 0], d[:, 1]) <= radius + 1e-9
 
 
+def points_n3(xyz: np.ndarray, who: str) -> np.ndarray:
+    """``xyz`` as float64 [N, 3]; ValueError naming ``who`` otherwise (a reshape read a [3, N] or [N, 2] array as
+    other points without a word)."""
+    p = np.asarray(xyz, dtype=np.float64)
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise ValueError(f"{who}: xyz must be [N, 3], got {list(p.shape)}")
+    return p
+
+
+def check_pose(pose: tuple[float, float, float], who: str) -> tuple[float, float, float]:
+    """``pose`` as three finite floats (x, y, yaw); ValueError naming ``who`` otherwise: a NaN pose put no point
+    inside the footprint, i.e. called it free."""
+    p = np.asarray(pose, dtype=np.float64).reshape(-1)
+    if p.size != 3 or not np.isfinite(p).all():
+        raise ValueError(f"{who}: pose must be 3 finite values (x, y, yaw), got {pose!r}")
+    return float(p[0]), float(p[1]), float(p[2])
+
+
 def ground_mask(xyz: np.ndarray, z_max: float = FLOOR_Z_MAX) -> np.ndarray:
     """Points [N, 3] (floor at z = 0) -> bool [N]: ground points (z < z_max, finite)."""
-    p = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+    p = points_n3(xyz, "ground_mask")
     return np.isfinite(p).all(axis=1) & (p[:, 2] < z_max)
 
 
@@ -136,7 +154,7 @@ def observed_cells(
     """
     if min_points < 1:
         raise ValueError(f"observed_cells: min_points must be >= 1, got {min_points}")
-    p = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+    p = points_n3(xyz, "observed_cells")
     flat, inside = lattice.index_of(p[ground_mask(p, z_max)])
     h, w = lattice.shape
     return np.bincount(flat[inside], minlength=h * w) >= min_points
@@ -170,9 +188,8 @@ def footprint_blocked(
         True when at least ``min_points`` distinct points with z in ``z_range`` lie inside the footprint. Unseen
         (occluded) space counts as free: the cloud can only rule a pose out.
     """
-    p = np.asarray(xyz, dtype=np.float64)
-    if p.ndim != 2 or p.shape[1] != 3:
-        raise ValueError(f"footprint_blocked: xyz must be [N, 3], got {list(p.shape)}")
+    p = points_n3(xyz, "footprint_blocked")
+    pose = check_pose(pose, "footprint_blocked")
     if min_points < 1:
         raise ValueError(f"footprint_blocked: min_points must be >= 1, got {min_points}")
     p = p[np.isfinite(p).all(axis=1) & (p[:, 2] > z_range[0]) & (p[:, 2] <= z_range[1])]
@@ -221,9 +238,8 @@ def footprint_coverage(
     Returns:
         Share in [0, 1] of the ceil(length / cell) x ceil(width / cell) sub-squares with at least one point.
     """
-    p = np.asarray(xyz, dtype=np.float64)
-    if p.ndim != 2 or p.shape[1] != 3:
-        raise ValueError(f"footprint_coverage: xyz must be [N, 3], got {list(p.shape)}")
+    p = points_n3(xyz, "footprint_coverage")
+    pose = check_pose(pose, "footprint_coverage")
     if not (cell > 0 and math.isfinite(cell)):
         raise ValueError(f"footprint_coverage: cell must be finite and > 0, got {cell!r}")
     local = _in_footprint(p[np.isfinite(p).all(axis=1)], pose, footprint)

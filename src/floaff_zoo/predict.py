@@ -342,7 +342,7 @@ def default_floor_grid(
     yaw = default_target_yaw(t) if target_yaw is None else float(target_yaw)
     lattice = FloorLattice.target_window(t[:2], yaw, float(cell), float(window[0]), float(window[1]))
     check_raster_size(lattice.shape, float(cell), f"the default grid's window {window}", "a smaller window")
-    seen = observed_cells(np.asarray(scene_xyz, dtype=np.float64).reshape(-1, 3), lattice, z_max, min_points)
+    seen = observed_cells(scene_xyz, lattice, z_max, min_points)  # refuses a cloud that is not [N, 3]
     if radius is not None:
         seen &= lattice.within(float(radius))
     if not seen.any():
