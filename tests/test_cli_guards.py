@@ -175,7 +175,9 @@ def test_predict_names_the_task_a_prior_needs():
     rng = np.random.default_rng(0)
     xyz = rng.uniform(-1, 2, (200, 3)).astype(np.float32)
     xyz[:100, 2] = 0
+    xyz[100:110] = [1.0, 0.0, 0.5] + rng.normal(scale=0.02, size=(10, 3))  # the target's points, flagged +1
     feat = np.zeros((200, 1), np.float32)
+    feat[100:110] = 1.0
     args = (model, xyz, feat, None, [0.85, 1.03], [1.0, 0.0, 0.5])
     with pytest.raises(ValueError, match=r"pass task= one of \['CloseDrawer'\].*got ''"):
         predict_from_points(*args, cell=0.2)

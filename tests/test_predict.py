@@ -218,3 +218,49 @@ def test_the_device_of_a_model_without_parameters_is_its_buffers():
     assert not list(prior.parameters()) and module_device(prior) == torch.device("cpu")
     assert module_device(prior.to("meta")) == torch.device("meta")
     assert module_device(torch.nn.Module()) == torch.device("cpu")
+
+
+def test_predict_refuses_a_cloud_without_its_target_and_a_target_elsewhere(tiny_model):
+    """A cloud that flags no point as the target, or a target_xyz in another unit or frame than the cloud, ran and
+    returned a pose about nothing (predict() refused a mask without depth; both data readers refuse such samples)."""
+    import numpy as np
+
+    from floaff_zoo.predict import predict_from_points
+
+    xyz, flag, t = _cloud()
+    floor = np.c_[np.linspace(0.4, 1.0, 7), np.zeros(7), np.zeros(7)]
+    with pytest.raises(ValueError, match=r"scene_feat flags no point of the cloud as the target .*none of 440"):
+        predict_from_points(tiny_model, xyz, np.where(flag > 0, 0.0, flag), floor, [0.85, 1.03], t, num_points=64)
+    for far in (t * 1000, t + [3.0, 0.0, 0.0]):  # millimetres; 3 m off
+        with pytest.raises(ValueError, match=r"target_xyz .* m from the nearest of the 40 target-flagged points"):
+            predict_from_points(tiny_model, xyz, flag, floor, [0.85, 1.03], far, num_points=64)
+    near = t + [0.0, 0.3, -0.2]  # the front's centre, off the flagged points: still this target
+    assert predict_from_points(tiny_model, xyz, flag, floor, [0.85, 1.03], near, num_points=64).scores.size == 7
+
+
+def test_predict_refuses_candidates_off_the_floor(tiny_model):
+    """Candidates are base positions at z = 0; the models read their z, so candidates given in a frame whose origin
+    is above the floor were scored as other points without a word."""
+    import numpy as np
+
+    from floaff_zoo.predict import predict_from_points
+
+    xyz, flag, t = _cloud()
+    floor = np.c_[np.linspace(0.4, 1.0, 7), np.zeros(7), np.zeros(7)]
+    on = predict_from_points(tiny_model, xyz, flag, floor, [0.85, 1.03], t, num_points=64)
+    flat = predict_from_points(tiny_model, xyz, flag, floor[:, :2], [0.85, 1.03], t, num_points=64)
+    assert np.array_equal(on.scores, flat.scores)
+    with pytest.raises(ValueError, match=r"floor_xyz holds 7 of 7 candidates off the floor \(\|z\| up to 0\.3 m"):
+        predict_from_points(tiny_model, xyz, flag, floor + [0.0, 0.0, -0.3], [0.85, 1.03], t, num_points=64)
+
+
+def test_a_robot_descriptor_of_the_wrong_size_names_the_argument(tiny_model):
+    """The model's own check said 'the data gives robot descriptors of size 3; set model.init_args.robot_dim: 3',
+    naming no argument of predict and advising a config change a pretrained model cannot take."""
+    from floaff_zoo.contract import SampleError
+    from floaff_zoo.predict import predict_from_points
+
+    xyz, flag, t = _cloud()
+    for robot in ([0.85, 1.03, 0.5], [0.85], []):
+        with pytest.raises(SampleError, match=rf"predict: robot must be the 2 values .* got {len(robot)}"):
+            predict_from_points(tiny_model, xyz, flag, None, robot, t, num_points=64)

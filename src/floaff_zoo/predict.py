@@ -61,6 +61,10 @@ RIGID_TOLERANCE = 1e-3
 #: most cells of the default grid's lattice or of the returned raster (2000 x 2000: 20 m x 20 m at 1 cm); a finer
 #: cell or candidates spread wider are refused instead of allocating gigabytes for one map
 MAX_RASTER_CELLS = 4_000_000
+#: m: farthest the target point may lie from the nearest target-flagged point. The generated fixtures keep every
+#: target pixel within about 1 m of the front's centre (the widest, a 0.9 m double door, swung open), MoMa-Kitchen's
+#: target is its points' centroid; a target farther off is in another frame or unit (millimetres, the world frame)
+TARGET_MAX_OFFSET = 2.0
 
 
 @dataclass
@@ -243,6 +247,59 @@ def check_scene(scene_xyz: Any, scene_feat: Any) -> tuple[np.ndarray, np.ndarray
             f"hold other values (e.g. {seen}): divide 8-bit colours by 255"
         )
     return xyz, feat
+
+
+def check_target(xyz: np.ndarray, feat: np.ndarray, target: np.ndarray) -> None:
+    """ValueError naming the argument when the cloud flags no point as the target (channel 0 = +1), or when
+    ``target`` [3] lies more than TARGET_MAX_OFFSET from every flagged point: the models were trained on views that
+    always show their target (the generator keeps >= 4 target points, both readers refuse a sample without one) and
+    read the target point as a point of it; such input ran and returned a pose about nothing."""
+    flagged = xyz[feat[:, 0] > 0]
+    if len(flagged) == 0:
+        raise ValueError(
+            f"predict: scene_feat flags no point of the cloud as the target (channel 0 = +1 on none of {len(xyz)} "
+            "points); flag the target's points (predict(): target_mask)"
+        )
+    gap = float(np.linalg.norm(flagged - target, axis=1).min())
+    if gap > TARGET_MAX_OFFSET:
+        raise ValueError(
+            f"predict: target_xyz {np.round(target, 3).tolist()} lies {gap:.3g} m from the nearest of the "
+            f"{len(flagged)} target-flagged points (at most {TARGET_MAX_OFFSET} m): give it in the cloud's frame "
+            "(robot base, metres)"
+        )
+
+
+def check_floor_height(floor: np.ndarray) -> None:
+    """ValueError naming ``floor_xyz`` when a candidate [M, 3] lies off the floor (|z| > FLOOR_Z_MAX): candidates
+    are base positions at z = 0 (the contract); the models read their z, so the same cells at another height
+    (another frame's origin, e.g. a base link above the floor) scored differently without a word."""
+    z = np.abs(floor[:, 2]) if floor.ndim == 2 and floor.shape[1] == 3 else np.zeros(0)
+    off = z > FLOOR_Z_MAX
+    if off.any():
+        raise ValueError(
+            f"predict: floor_xyz holds {int(off.sum())} of {len(floor)} candidates off the floor (|z| up to "
+            f"{float(z.max()):.3g} m > {FLOOR_Z_MAX} m): candidates are base positions at z = 0 in the robot base "
+            "frame (floor at z = 0); pass [M, 2] x, y or set z to 0"
+        )
+
+
+def check_model_inputs(net: torch.nn.Module, channels: int, robot: np.ndarray) -> None:
+    """SampleError (a ValueError, as the model's own check raised) naming ``robot`` / ``scene_feat`` when they do not
+    fit the model's ``robot_dim`` / ``feat_channels`` (its hparams): the model's check speaks of the training data
+    and asks to change its config, which a pretrained model cannot."""
+    hp = getattr(net, "hparams", {})
+    want, size = hp.get("robot_dim"), int(np.asarray(robot).size)
+    if want is not None and size != int(want):
+        raise SampleError(
+            f"predict: robot must be the {want} values of {type(net).__name__}'s robot descriptor (MoMa-Kitchen style: "
+            f"[arm reach m, base height m]), got {size}: {np.asarray(robot).reshape(-1).tolist()}"
+        )
+    need = int(hp.get("feat_channels", 1))
+    if channels < need:
+        raise SampleError(
+            f"predict: {type(net).__name__} reads {need} scene_feat channels (target flag, then RGB in [0, 1]), got "
+            f"{channels} (predict(): pass rgb)"
+        )
 
 
 # ------------------------------------------------------------------------------------------ geometry
@@ -477,8 +534,10 @@ def predict_from_points(
             when none is; what ``floaff-zoo test`` stands on with ``top_k`` and ``free_space: full_cloud`` (the
             benchmark's protocol, ``configs/trainer/eval_sr_top10_full.yaml``, uses 10). 1: the top-scored pose.
     Raises:
-        ValueError: bad shapes, a channel 0 that is not the target flag or a bad cell (checked before the model
-            is loaded), too large a grid or raster (before it runs), each naming the argument.
+        ValueError: bad shapes, a channel 0 that is not the target flag or flags no point, a target_xyz more than
+            TARGET_MAX_OFFSET from the flagged points, candidates off the floor or a bad cell (checked before the
+            model is loaded), too large a grid or raster, a robot descriptor or scene_feat that does not fit the
+            model (before it runs), each naming the argument.
         TypeError: a model that predicts no floor map (AxisNet).
     """
     xyz, feat = check_scene(scene_xyz, scene_feat)
@@ -496,6 +555,7 @@ def predict_from_points(
     t = np.asarray(target_xyz, dtype=np.float32).reshape(-1)
     if t.size != 3 or not np.isfinite(t).all():
         raise ValueError(f"predict: target_xyz must be 3 finite values, got {target_xyz!r}")
+    check_target(xyz, feat, t)
     if target_yaw is None:
         target_yaw = default_target_yaw(t)
     if floor_xyz is None:
@@ -504,13 +564,15 @@ def predict_from_points(
     floor = np.asarray(floor_xyz, dtype=np.float32)
     if floor.ndim == 2 and floor.shape[1] == 2:
         floor = np.c_[floor, np.zeros(len(floor), np.float32)]
+    check_floor_height(floor)
+    robot = np.asarray(robot, dtype=np.float32)
     sample = validate_sample(
         {
             "scene_xyz": xyz,
             "scene_feat": feat,
             "floor_xyz": floor,
             "floor_label": np.zeros(len(floor), np.float32),  # unknown at inference; never read
-            "robot": np.asarray(robot, dtype=np.float32),
+            "robot": robot,
             "target_xyz": t,
             "target_yaw": np.float32(target_yaw),
             "meta": {"dataset": "predict", "task": task, "view": "", "sample_id": "predict"},
@@ -527,6 +589,7 @@ def predict_from_points(
         net = resolve_model(model, model_class, device)
         check_floor_model(net)
         check_task(net, task)
+        check_model_inputs(net, feat.shape[1], robot)
         scores = run_model(net, batch)
     finally:
         restore()
