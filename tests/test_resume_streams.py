@@ -61,6 +61,19 @@ def test_a_resumed_fit_draws_the_next_epochs_not_the_first_again(tmp_path, root,
     assert _epoch(resumed, 2) != _epoch(whole, 0)  # it used to replay the first
 
 
+def test_a_resumed_fit_with_loader_workers_draws_the_next_epochs_too(tmp_path, root, monkeypatch):
+    """Persistent train workers took their seeds once per fit from the shuffle generator: a fit resumed with
+    num_workers > 0 took them again from the restored state, so its next epochs drew another order and other noise
+    (configs/data/floaff_layouts.yaml runs 2 workers)."""
+    monkeypatch.chdir(root)
+    workers = ("--data.init_args.num_workers", "2")
+    _, _, whole = _fit(tmp_path / "whole", 3, *workers)
+    cli, _, _ = _fit(tmp_path / "cut", 2, *workers)
+    last = Path(cli.trainer.checkpoint_callback.last_model_path)
+    _, _, resumed = _fit(tmp_path / "cut", 3, "--ckpt_path", str(last), *workers)
+    assert _epoch(resumed, 2) == _epoch(whole, 2)
+
+
 def test_validation_does_not_move_the_training_stream(tmp_path, root, monkeypatch):
     """Each validation's loader iterator drew its base seed from torch's global generator, which the augmentation
     draws from: validating every epoch or every other one gave different training noise from the second epoch on."""

@@ -207,12 +207,15 @@ class FloAffDataModule(L.LightningDataModule):
             elif self._train_generator_state is not None:  # a resumed fit's first train loader
                 generator.set_state(self._train_generator_state)
             self._train_generator, self._train_generator_state = generator, None
+        # train workers are started anew every epoch: their seeds then come from the shuffle generator at each epoch's
+        # start, which a checkpoint restores; persistent ones took them once per fit, so a fit resumed with workers
+        # drew other seeds (other noise) and, one draw later in the stream, another order than an uninterrupted one
         return DataLoader(
             ds,
             batch_size=self.batch_size if split == "train" else self.eval_batch_size,
             shuffle=split == "train",
             num_workers=self.num_workers,
-            persistent_workers=self.num_workers > 0,
+            persistent_workers=self.num_workers > 0 and split != "train",  # eval streams are seeded per sample
             collate_fn=self.collate_fn(split),
             generator=generator,
         )
