@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import lightning as L
+import pytest
 import torch
 
 from floaff_zoo.cli import run_lightning
@@ -72,6 +73,55 @@ def test_a_resumed_fit_with_loader_workers_draws_the_next_epochs_too(tmp_path, r
     last = Path(cli.trainer.checkpoint_callback.last_model_path)
     _, _, resumed = _fit(tmp_path / "cut", 3, "--ckpt_path", str(last), *workers)
     assert _epoch(resumed, 2) == _epoch(whole, 2)
+
+
+class KilledFit(Exception):
+    """Stands for a kill (Lightning re-raises it after its own exception hooks)."""
+
+
+class StepRecorder(L.Callback):
+    """Records (global step, the batch's scene ids, its first cloud coordinate) of every training batch; ``kill_at``
+    kills the fit at the start of that step, after the checkpoint of the validation before it."""
+
+    def __init__(self, kill_at: int = -1) -> None:
+        super().__init__()
+        self.kill_at = kill_at
+        self.seen: list[tuple[int, tuple[str, ...], float]] = []
+
+    def on_train_batch_start(self, trainer, pl_module, batch, batch_idx) -> None:
+        if trainer.global_step == self.kill_at:
+            raise KilledFit
+        ids = tuple(m["scene_id"] for m in batch["meta"])
+        self.seen.append((trainer.global_step, ids, round(float(batch["scene_xyz"][0, 0, 0]), 6)))
+
+
+@pytest.mark.parametrize("workers", [0, 2])
+def test_a_fit_resumed_mid_epoch_trains_the_rest_of_that_epochs_order(tmp_path, root, monkeypatch, workers):
+    """Lightning restarts a fit resumed from a checkpoint written mid-epoch (a validation every 2 of the 4 batches of
+    an epoch, as the dense budget's max_steps runs write them) with a new loader iterator and takes the epoch's
+    remaining batch count from it: they were the first batches of a new permutation, so the resumed fit trained
+    some samples of that epoch twice and others not at all, and every later epoch had another order."""
+    monkeypatch.chdir(root)
+
+    def steps(out: Path, kill_at: int = -1, *extra: str) -> list[tuple[int, tuple[str, ...], float]]:
+        args = ["fit", "--config", DATA, "--config", MODEL, "--data.init_args.train_transforms", JITTER]
+        args += ["--data.init_args.num_workers", str(workers), "--trainer.max_epochs", "-1"]
+        args += ["--trainer.max_steps", "8", "--trainer.val_check_interval", "2"]
+        args += ["--trainer.callbacks+=tests.test_resume_streams.StepRecorder", "--trainer.callbacks.kill_at"]
+        cli = run_lightning([*args, str(kill_at), *quiet_trainer_args(out), *extra])
+        (rec,) = [c for c in cli.trainer.callbacks if isinstance(c, StepRecorder)]
+        return rec.seen
+
+    whole = steps(tmp_path / "whole")
+    with pytest.raises(KilledFit):
+        steps(tmp_path / "cut", 3)  # killed in step 3: last.ckpt holds step 2, half-way through epoch 0
+    (last,) = (tmp_path / "cut").rglob("last.ckpt")
+    resumed = steps(tmp_path / "cut", -1, "--ckpt_path", str(last))
+    assert [ids for _, ids, _ in resumed] == [ids for _, ids, _ in whole[2:]]  # steps 2 to 7, same samples
+    if workers == 0:
+        assert resumed == whole[2:]  # and the same augmentation noise
+    else:  # workers take their seeds at the epoch's start: the next epoch's noise is the uninterrupted one's again
+        assert resumed[2:] == whole[4:]
 
 
 def test_validation_does_not_move_the_training_stream(tmp_path, root, monkeypatch):

@@ -2,15 +2,17 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+import itertools
+from collections.abc import Callable, Iterator, Sequence
 from functools import partial
 from typing import Any, Literal
 
 import lightning as L
 import numpy as np
 import torch
+from lightning.pytorch.trainer.states import TrainerFn
 from lightning.pytorch.utilities.exceptions import MisconfigurationException
-from torch.utils.data import DataLoader, Dataset
+from torch.utils.data import DataLoader, Dataset, RandomSampler
 
 from floaff_zoo.contract import Sample, collate_samples, validate_sample
 from floaff_zoo.data.transforms import SampleTransform, apply_transforms
@@ -36,6 +38,37 @@ def check_size(field: str, value: Any, minimum: int, none_means: str | None = No
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
         alt = f" or null ({none_means})" if none_means else ""
         raise DataConfigError(f"data.{field} must be an integer >= {minimum}{alt}, got {value!r}")
+
+
+class EpochSampler(RandomSampler):
+    """The train loader's shuffle: ``RandomSampler`` on the loader's generator, drawing each epoch's permutation exactly
+    as it does, that also keeps the generator state the running epoch's permutation was drawn from.
+
+    :meth:`resume_at` makes the next epoch that permutation again, without the samples already trained: Lightning
+    restarts a fit resumed from a checkpoint written mid-epoch (``val_check_interval``, ``max_steps``) with a new
+    loader iterator and takes only the epoch's remaining batch count from it, which were the first batches of a new
+    permutation (samples of the epoch trained twice, others not at all). A ``RandomSampler`` still, so under DDP
+    Lightning replaces it by its ``DistributedSampler`` as before.
+    """
+
+    def __init__(self, data_source: Dataset, generator: torch.Generator) -> None:
+        super().__init__(data_source, generator=generator)  # type: ignore[arg-type]
+        self.shuffle_generator = generator
+        #: the generator state the running epoch's permutation was drawn from (None before the first epoch)
+        self.epoch_state: torch.Tensor | None = None
+        self._resume: tuple[torch.Tensor, int] | None = None
+
+    def resume_at(self, epoch_state: torch.Tensor, samples_done: int) -> None:
+        """Make the next epoch the permutation drawn from ``epoch_state``, past its first ``samples_done`` samples."""
+        self._resume = (epoch_state, samples_done)
+
+    def __iter__(self) -> Iterator[int]:
+        skip = 0
+        if self._resume is not None:
+            (state, skip), self._resume = self._resume, None
+            self.shuffle_generator.set_state(state)
+        self.epoch_state = self.shuffle_generator.get_state()
+        return itertools.islice(super().__iter__(), skip, None)
 
 
 class TransformedDataset(Dataset):
@@ -143,12 +176,32 @@ class FloAffDataModule(L.LightningDataModule):
         #: the train loader's shuffle generator, and a state a resumed fit's checkpoint gave it before it was made
         self._train_generator: torch.Generator | None = None
         self._train_generator_state: torch.Tensor | None = None
+        #: the train loader's sampler, and where a resumed fit's checkpoint stood in an epoch (``_epoch_position``)
+        self._train_sampler: EpochSampler | None = None
+        self._train_epoch_position: dict[str, Any] | None = None
 
     def state_dict(self) -> dict[str, Any]:
         """Saved in every checkpoint: the train shuffle's generator state, so a resumed fit goes on with the next
-        epochs' orders instead of drawing the first epoch's again."""
+        epochs' orders instead of drawing the first epoch's again, and, written mid-epoch, where the fit stood in the
+        running epoch's permutation (``train_epoch``), so it trains the rest of that permutation first."""
         gen = self._train_generator
-        return {"train_generator": gen.get_state()} if gen is not None else {}
+        if gen is None:
+            return {}
+        position = self._epoch_position()
+        return {"train_generator": gen.get_state(), **({"train_epoch": position} if position else {})}
+
+    def _epoch_position(self) -> dict[str, Any] | None:
+        """``{"generator": state, "samples_done": n, "size": split size}`` of the running training epoch when a fit
+        writes a checkpoint before that epoch's end; None at an epoch's end, outside a fit, or when the loader trains
+        with another sampler (DDP's)."""
+        sampler, trainer = self._train_sampler, self.trainer
+        if sampler is None or sampler.epoch_state is None or trainer is None or trainer.state.fn != TrainerFn.FITTING:
+            return None
+        done = trainer.fit_loop.epoch_loop.batch_progress.current.ready  # the batches this epoch handed to training
+        if not 0 < done < trainer.num_training_batches:
+            return None
+        size = len(sampler.data_source)  # type: ignore[arg-type]
+        return {"generator": sampler.epoch_state, "samples_done": min(done * self.batch_size, size), "size": size}
 
     def load_state_dict(self, state_dict: dict[str, Any]) -> None:
         """A resumed fit's saved state (applied when the train loader is made, after Lightning restores it)."""
@@ -156,6 +209,8 @@ class FloAffDataModule(L.LightningDataModule):
         self._train_generator_state = state if isinstance(state, torch.Tensor) else None
         if self._train_generator is not None and self._train_generator_state is not None:
             self._train_generator.set_state(self._train_generator_state)
+        position = state_dict.get("train_epoch")
+        self._train_epoch_position = position if isinstance(position, dict) else None
 
     def collate_fn(self, split: str) -> Callable[[Sequence[Sample]], dict[str, Any]]:
         # eval splits resample each sample from its own seeded stream, so metrics repeat across epochs and worker
@@ -207,13 +262,19 @@ class FloAffDataModule(L.LightningDataModule):
             elif self._train_generator_state is not None:  # a resumed fit's first train loader
                 generator.set_state(self._train_generator_state)
             self._train_generator, self._train_generator_state = generator, None
+            sampler = EpochSampler(ds, generator)
+            position, self._train_epoch_position = self._train_epoch_position, None
+            # a split of another size (other data) has another permutation: its epoch starts afresh
+            if position is not None and position.get("size") == len(ds) and torch.is_tensor(position.get("generator")):
+                sampler.resume_at(position["generator"], int(position["samples_done"]))
+            self._train_sampler = sampler
         # train workers are started anew every epoch: their seeds then come from the shuffle generator at each epoch's
         # start, which a checkpoint restores; persistent ones took them once per fit, so a fit resumed with workers
         # drew other seeds (other noise) and, one draw later in the stream, another order than an uninterrupted one
         return DataLoader(
             ds,
             batch_size=self.batch_size if split == "train" else self.eval_batch_size,
-            shuffle=split == "train",
+            sampler=self._train_sampler if split == "train" else None,  # the shuffle of shuffle=True, resumable
             num_workers=self.num_workers,
             persistent_workers=self.num_workers > 0 and split != "train",  # eval streams are seeded per sample
             collate_fn=self.collate_fn(split),
