@@ -95,33 +95,37 @@ class StepRecorder(L.Callback):
         self.seen.append((trainer.global_step, ids, round(float(batch["scene_xyz"][0, 0, 0]), 6)))
 
 
-@pytest.mark.parametrize("workers", [0, 2])
-def test_a_fit_resumed_mid_epoch_trains_the_rest_of_that_epochs_order(tmp_path, root, monkeypatch, workers):
-    """Lightning restarts a fit resumed from a checkpoint written mid-epoch (a validation every 2 of the 4 batches of
-    an epoch, as the dense budget's max_steps runs write them) with a new loader iterator and takes the epoch's
-    remaining batch count from it: they were the first batches of a new permutation, so the resumed fit trained
-    some samples of that epoch twice and others not at all, and every later epoch had another order."""
+@pytest.mark.parametrize(("workers", "kill_at"), [(0, 3), (0, 4), (2, 3), (2, 4)])
+def test_a_fit_resumed_from_any_validation_goes_on_with_the_uninterrupted_order(
+    tmp_path, root, monkeypatch, workers, kill_at
+):
+    """A validation every 2 of the 4 batches of an epoch (as the dense budget's max_steps runs validate), killed in
+    step 3 (last.ckpt half-way through epoch 0) or 4 (last.ckpt from the validation at epoch 0's last batch).
+    Lightning restarts the first with a new loader iterator and takes the epoch's remaining batch count from it: the
+    first batches of a new permutation (samples trained twice, others not at all); it restarts the second with two
+    iterators, and the second one's seed draw moved every later permutation."""
     monkeypatch.chdir(root)
 
-    def steps(out: Path, kill_at: int = -1, *extra: str) -> list[tuple[int, tuple[str, ...], float]]:
+    def steps(out: Path, kill: int = -1, *extra: str) -> list[tuple[int, tuple[str, ...], float]]:
         args = ["fit", "--config", DATA, "--config", MODEL, "--data.init_args.train_transforms", JITTER]
         args += ["--data.init_args.num_workers", str(workers), "--trainer.max_epochs", "-1"]
-        args += ["--trainer.max_steps", "8", "--trainer.val_check_interval", "2"]
+        args += ["--trainer.max_steps", "12", "--trainer.val_check_interval", "2"]
         args += ["--trainer.callbacks+=tests.test_resume_streams.StepRecorder", "--trainer.callbacks.kill_at"]
-        cli = run_lightning([*args, str(kill_at), *quiet_trainer_args(out), *extra])
+        cli = run_lightning([*args, str(kill), *quiet_trainer_args(out), *extra])
         (rec,) = [c for c in cli.trainer.callbacks if isinstance(c, StepRecorder)]
         return rec.seen
 
     whole = steps(tmp_path / "whole")
     with pytest.raises(KilledFit):
-        steps(tmp_path / "cut", 3)  # killed in step 3: last.ckpt holds step 2, half-way through epoch 0
+        steps(tmp_path / "cut", kill_at)
     (last,) = (tmp_path / "cut").rglob("last.ckpt")
     resumed = steps(tmp_path / "cut", -1, "--ckpt_path", str(last))
-    assert [ids for _, ids, _ in resumed] == [ids for _, ids, _ in whole[2:]]  # steps 2 to 7, same samples
+    saved = kill_at - kill_at % 2  # the step of the last validation (and last.ckpt) before the kill
+    assert [ids for _, ids, _ in resumed] == [ids for _, ids, _ in whole[saved:]]  # the same samples, step by step
     if workers == 0:
-        assert resumed == whole[2:]  # and the same augmentation noise
-    else:  # workers take their seeds at the epoch's start: the next epoch's noise is the uninterrupted one's again
-        assert resumed[2:] == whole[4:]
+        assert resumed == whole[saved:]  # and the same augmentation noise
+    else:  # workers take their seeds when an epoch starts: from the next epoch on, the uninterrupted fit's noise
+        assert resumed[8 - saved :] == whole[8:]
 
 
 def test_validation_does_not_move_the_training_stream(tmp_path, root, monkeypatch):

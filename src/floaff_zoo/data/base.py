@@ -40,15 +40,26 @@ def check_size(field: str, value: Any, minimum: int, none_means: str | None = No
         raise DataConfigError(f"data.{field} must be an integer >= {minimum}{alt}, got {value!r}")
 
 
+def after_base_seed(state: torch.Tensor) -> torch.Tensor:
+    """A generator's state after a loader iterator drew its workers' base seed from ``state``, as torch's
+    ``_BaseDataLoaderIter`` draws it (one int64): where the next epoch's permutation is drawn from."""
+    gen = torch.Generator()
+    gen.set_state(state)
+    torch.empty((), dtype=torch.int64).random_(generator=gen)
+    return gen.get_state()
+
+
 class EpochSampler(RandomSampler):
     """The train loader's shuffle: ``RandomSampler`` on the loader's generator, drawing each epoch's permutation exactly
     as it does, that also keeps the generator state the running epoch's permutation was drawn from.
 
-    :meth:`resume_at` makes the next epoch that permutation again, without the samples already trained: Lightning
-    restarts a fit resumed from a checkpoint written mid-epoch (``val_check_interval``, ``max_steps``) with a new
-    loader iterator and takes only the epoch's remaining batch count from it, which were the first batches of a new
-    permutation (samples of the epoch trained twice, others not at all). A ``RandomSampler`` still, so under DDP
-    Lightning replaces it by its ``DistributedSampler`` as before.
+    :meth:`resume_at` pins the permutation a resumed fit's first epoch draws, whatever Lightning does before it: a fit
+    resumed from a checkpoint written mid-epoch (``val_check_interval``, ``max_steps``) is restarted with a new loader
+    iterator from which Lightning takes the epoch's remaining batch count, which were the first batches of a new
+    permutation (samples of the epoch trained twice, others not at all); one resumed from the validation at an
+    epoch's last batch makes two iterators (with workers, both draw from the sampler), and the second one's seed
+    draw moved every later permutation. A ``RandomSampler`` still, so under DDP Lightning replaces it by its
+    ``DistributedSampler`` as before.
     """
 
     def __init__(self, data_source: Dataset, generator: torch.Generator) -> None:
@@ -59,13 +70,18 @@ class EpochSampler(RandomSampler):
         self._resume: tuple[torch.Tensor, int] | None = None
 
     def resume_at(self, epoch_state: torch.Tensor, samples_done: int) -> None:
-        """Make the next epoch the permutation drawn from ``epoch_state``, past its first ``samples_done`` samples."""
+        """Make every epoch started until :meth:`resumed` the permutation drawn from ``epoch_state``, past its first
+        ``samples_done`` samples (Lightning may start, and drop, iterators before the resumed fit trains)."""
         self._resume = (epoch_state, samples_done)
+
+    def resumed(self) -> None:
+        """The resumed fit trains: later epochs draw on from the generator."""
+        self._resume = None
 
     def __iter__(self) -> Iterator[int]:
         skip = 0
         if self._resume is not None:
-            (state, skip), self._resume = self._resume, None
+            state, skip = self._resume
             self.shuffle_generator.set_state(state)
         self.epoch_state = self.shuffle_generator.get_state()
         return itertools.islice(super().__iter__(), skip, None)
@@ -191,17 +207,22 @@ class FloAffDataModule(L.LightningDataModule):
         return {"train_generator": gen.get_state(), **({"train_epoch": position} if position else {})}
 
     def _epoch_position(self) -> dict[str, Any] | None:
-        """``{"generator": state, "samples_done": n, "size": split size}`` of the running training epoch when a fit
-        writes a checkpoint before that epoch's end; None at an epoch's end, outside a fit, or when the loader trains
-        with another sampler (DDP's)."""
-        sampler, trainer = self._train_sampler, self.trainer
-        if sampler is None or sampler.epoch_state is None or trainer is None or trainer.state.fn != TrainerFn.FITTING:
+        """``{"generator": state, "samples_done": n, "size": split size}``: the generator state the permutation a fit
+        resumed from this checkpoint trains next is drawn from, and how many of its samples were trained (those of
+        the running epoch, or 0 at an epoch's end: the next epoch's); None outside a fit, before the first batch of an
+        epoch, or when the loader trains with another sampler (DDP's)."""
+        sampler, gen, trainer = self._train_sampler, self._train_generator, self.trainer
+        if sampler is None or sampler.epoch_state is None or gen is None:
+            return None
+        if trainer is None or trainer.state.fn != TrainerFn.FITTING:
             return None
         done = trainer.fit_loop.epoch_loop.batch_progress.current.ready  # the batches this epoch handed to training
-        if not 0 < done < trainer.num_training_batches:
-            return None
         size = len(sampler.data_source)  # type: ignore[arg-type]
-        return {"generator": sampler.epoch_state, "samples_done": min(done * self.batch_size, size), "size": size}
+        if 0 < done < trainer.num_training_batches:
+            return {"generator": sampler.epoch_state, "samples_done": min(done * self.batch_size, size), "size": size}
+        if done == 0:
+            return None
+        return {"generator": after_base_seed(gen.get_state()), "samples_done": 0, "size": size}
 
     def load_state_dict(self, state_dict: dict[str, Any]) -> None:
         """A resumed fit's saved state (applied when the train loader is made, after Lightning restores it)."""
@@ -283,7 +304,10 @@ class FloAffDataModule(L.LightningDataModule):
 
     def on_after_batch_transfer(self, batch: Any, dataloader_idx: int) -> Any:
         """Count the samples a dataset replaced because they failed at load time (files changed after setup):
-        in the main process, as loader workers keep their own counters."""
+        in the main process, as loader workers keep their own counters. A training batch also ends the pinned
+        permutation of a resumed fit (:meth:`EpochSampler.resume_at`)."""
+        if self._train_sampler is not None and self._running_split() == "train":
+            self._train_sampler.resumed()
         metas = batch.get("meta") if isinstance(batch, dict) else None
         replaced = [str(m["replaces"]) for m in metas or [] if isinstance(m, dict) and m.get("replaces")]
         if replaced:
