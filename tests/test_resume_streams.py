@@ -128,6 +128,20 @@ def test_a_fit_resumed_from_any_validation_goes_on_with_the_uninterrupted_order(
         assert resumed[8 - saved :] == whole[8:]
 
 
+def test_a_resumed_fit_of_the_recipe_prior_draws_the_next_epochs(tmp_path, root, monkeypatch):
+    """CFAR's prior residual (the recipe) averages the training labels in a pass over a train loader when a fit starts;
+    a resumed fit made that pass again (adding nothing: its prior is the checkpoint's), and it drew an epoch from the
+    restored shuffle generator and augmentation stream, so the resumed stage trained another order and noise."""
+    monkeypatch.chdir(root)
+    recipe = ("--config", "tests/configs/cfar_tiny.yaml", "--model.init_args.prior_residual", "true")
+    cli_whole, _, whole = _fit(tmp_path / "whole", 3, *recipe)
+    cli, _, _ = _fit(tmp_path / "cut", 2, *recipe)
+    last = Path(cli.trainer.checkpoint_callback.last_model_path)
+    cli_resumed, _, resumed = _fit(tmp_path / "cut", 3, "--ckpt_path", str(last), *recipe)
+    assert _epoch(resumed, 2) == _epoch(whole, 2)
+    assert torch.equal(cli_resumed.model.prior.sums, cli_whole.model.prior.sums)  # the checkpoint's prior, whole
+
+
 def test_validation_does_not_move_the_training_stream(tmp_path, root, monkeypatch):
     """Each validation's loader iterator drew its base seed from torch's global generator, which the augmentation
     draws from: validating every epoch or every other one gave different training noise from the second epoch on."""

@@ -430,15 +430,18 @@ class CFARModule(FloAffModule):
     # ----------------------------------------------------------------- prior
     def on_fit_start(self) -> None:
         super().on_fit_start()
-        if self.prior is not None:
+        # a fit resumed from a checkpoint has the prior its first start filled: a second pass added nothing, but it drew
+        # an epoch from the restored shuffle generator and augmentation stream (another order and noise than an
+        # uninterrupted fit trains)
+        if self.prior is not None and self.trainer.ckpt_path is None:
             self.fill_prior()
 
     @torch.no_grad()
     def fill_prior(self) -> None:
         """Average the training labels of tasks the prior has not seen yet (one pass, training yaw, no jitter).
 
-        Tasks already in the prior (a resumed fit, or stage 1's task when stage 2 starts from its weights)
-        keep their grid.
+        Tasks already in the prior (stage 1's task when stage 2 starts from its weights) keep their grid; a fit resumed
+        from a checkpoint makes no pass (:meth:`on_fit_start`).
         """
         assert self.prior is not None
         dm = getattr(self.trainer, "datamodule", None)
