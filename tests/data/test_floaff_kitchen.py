@@ -635,3 +635,24 @@ def test_a_scene_without_views_is_a_counted_skip_naming_it(floaff_root, tmp_path
     assert len(dm.datasets["val"]) > 0  # the remaining train scenes give the draw its validation scene
     with pytest.raises(DataError, match=rf"{sj.parent.name} lists no view.*strict=True"):
         _dm(copy, tasks=["CloseDrawer"], strict=True).setup("fit")
+
+
+def test_a_scene_whose_view_files_are_all_missing_takes_no_validation_place(floaff_root, tmp_path):
+    """A scene.json whose every listed view file is missing (a copy cut short) holds no sample, yet it stayed in the
+    validation draw: held out, it left its task without a validation sample in a run of several tasks, silently (its
+    views were counted as missing, not the emptied split)."""
+    root, exp = floaff_root
+    tasks = ["CloseDrawer", "PnPCounterToCab"]
+    dm = _dm(root, tasks=tasks)
+    dm.setup("fit")
+    (held,) = [s for s in dm.split_scenes["val"] if s.startswith("CloseDrawer")]
+    copy = tmp_path / "data"
+    shutil.copytree(root, copy, ignore=shutil.ignore_patterns(".cache"))
+    for view in (copy / "styles" / held / "views").glob("*.npz"):
+        view.unlink()
+    dm = _dm(copy, tasks=tasks)
+    dm.setup("fit")
+    assert dm.skips.counts["scene_without_views"] == 1 and f"scene {held}" in dm.skips.summary()
+    assert dm.skips.counts["missing_view"] == exp["skips"]["missing_view"] + 4  # its views are still named
+    assert all(held not in s for split in dm.split_scenes.values() for s in split)
+    assert any(r.meta["task"] == "CloseDrawer" for r in dm.datasets["val"].records)

@@ -240,7 +240,7 @@ class GeneratedReader(FloAffReader):
     Both format versions (docs/data_format.md): 1 (every view holds the scene's filtered candidate cells) and 2
     (every view holds the label-grid cells it observes as ground). Samples carry the extra key ``floor_known``
     [M] bool (all true in version 1); a scene of an unknown version is skipped as ``corrupt_scene_json``, one whose
-    scene.json lists no view as ``scene_without_views``.
+    scene.json lists no view, or only view files that are missing, as ``scene_without_views``.
     """
 
     def scenes(self, benchmark: str) -> list[SceneEntry]:
@@ -275,6 +275,10 @@ class GeneratedReader(FloAffReader):
             except (KeyError, TypeError, ValueError, AttributeError) as exc:  # a field of the wrong kind or missing
                 why = f"missing field {exc}" if isinstance(exc, KeyError) else str(exc)
                 self.skips.add("corrupt_scene_json", sj, why)
+                continue
+            if not entry.views:  # every view file it lists is missing (each counted): no sample, like a scene with none
+                why = f"scene {entry.scene_id}: none of the {len(rec['views'])} view file(s) it lists is there"
+                self.skips.add("scene_without_views", sj, why)
                 continue
             first = next((e for e in out if e.scene_id == entry.scene_id), None)
             if first is not None:  # a copied folder (X.bak) would count its views twice under one sample id
