@@ -118,8 +118,12 @@ print(next((f for f in files if label_of(f) == label), ""))' "$label")
 copy_report() {
   [ -n "$1" ] || { echo "no report.json written for $3" >&2; return 1; }
   mkdir -p "$OUT/$2/$3"
-  sed "s#$PWD/##g" "$1" > "$OUT/$2/$3/report.json"
-  sed "s#$PWD/##g" "$(dirname "$1")/report.md" > "$OUT/$2/$3/report.md"
+  # paths relative to this checkout and to the one OUT lies in: run from a git worktree with DATA_ROOT, RUNS and OUT
+  # in the main checkout, the reports named that machine's folders
+  local dest strip=(-e "s#$PWD/##g")
+  dest=$(git -C "$OUT" rev-parse --show-toplevel 2> /dev/null) && [ "$dest" != "$PWD" ] && strip+=(-e "s#$dest/##g")
+  sed "${strip[@]}" "$1" > "$OUT/$2/$3/report.json"
+  sed "${strip[@]}" "$(dirname "$1")/report.md" > "$OUT/$2/$3/report.md"
 }
 
 # newest fit run (the directory holding checkpoints/last.ckpt) under a root

@@ -51,6 +51,25 @@ def test_nothing_points_outside_the_repository():
     assert not fixed, f"no stale pointer left in {fixed}: remove them from PENDING in tests/test_docs.py"
 
 
+def _absolute_paths(value: object) -> list[str]:
+    """The string values of a JSON document that are absolute paths (a folder of the machine that wrote it)."""
+    if isinstance(value, str):
+        return [value] if re.match(r"/[^/\s]+/", value) else []
+    items = value.values() if isinstance(value, dict) else value if isinstance(value, list) else []
+    return [p for v in items for p in _absolute_paths(v)]
+
+
+def test_committed_json_names_no_folder_of_a_machine():
+    """Reports and tables are committed: a path in them is relative to the checkout (reports copied from a run in a
+    git worktree once kept the main checkout's absolute paths)."""
+    bad = []
+    for f in _repo_files():
+        if f.startswith("docs/") and f.endswith(".json"):
+            found = _absolute_paths(json.loads((ROOT / f).read_text(encoding="utf-8")))
+            bad += [f"{f}: {p[:80]}" for p in found[:1]]
+    assert not bad, "absolute paths in committed JSON files:\n" + "\n".join(bad[:20])
+
+
 def test_background_sections_that_code_cites_exist():
     text = (ROOT / "docs/background.md").read_text(encoding="utf-8")
     sections = set(re.findall(r"^#+ (§\d+(?:\.\d+)?)", text, flags=re.M))

@@ -66,6 +66,35 @@ def test_two_jobs_testing_one_run_at_once_copy_their_own_reports(tmp_path, slow)
         assert report["residual_scale"] == scale, (slow, report)
 
 
+def test_reports_name_no_folder_of_the_checkout_they_are_copied_into(tmp_path):
+    """Run from a git worktree with RUNS and OUT in the main checkout, the copied reports kept that checkout's absolute
+    paths (the machine's folders): they are made relative to it, as to the checkout the script runs from."""
+    main = tmp_path / "main"
+    subprocess.run(["git", "init", "-q", str(main)], check=True)
+    run = main / "runs" / "layouts" / "occ_recipe_s0" / "stage2" / "cfarmodule" / "version_0"
+    (run / "checkpoints").mkdir(parents=True)
+    (run / "config.yaml").write_text("")
+    ckpt = run / "checkpoints" / "last.ckpt"
+    ckpt.write_text("")
+    lineage = {"complete": True, "stages": [{"checkpoint": str(ckpt)}]}
+    (main / "runs" / "layouts" / "occ_recipe_s0" / "lineage.json").write_text(json.dumps(lineage))
+    fz = tmp_path / "fakefz"
+    fz.write_text(FAKE_FZ.replace('"residual_scale": "%s"}', f'"residual_scale": "%s", "data": "{main}/data/x"}}'))
+    fz.chmod(0o755)
+    env = {**os.environ, "FZ": str(fz), "PRESET": "dense", "RUNS": str(main / "runs"), "DELAY_0": "0"}
+    env["OUT"] = str(main / "docs" / "results" / "x")
+    done = subprocess.run(
+        [str(ROOT / "scripts" / "reproduce_small.sh"), "occ_recipe_rs0_s0"],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert done.returncode == 0, done.stdout + done.stderr
+    report = json.loads((main / "docs" / "results" / "x" / "layouts" / "occ_recipe_rs0_s0" / "report.json").read_text())
+    assert report["data"] == "data/x", report
+
+
 #: a stand-in for `floaff-zoo fit` and `test` that logs each call's arguments, one per line, to $LOG: fit makes the run
 #: folder (config.yaml, checkpoints/last.ckpt), test writes a labelled report beside it
 FAKE_FZ_LOGGING = textwrap.dedent(
