@@ -128,6 +128,33 @@ def test_a_fit_resumed_from_any_validation_goes_on_with_the_uninterrupted_order(
         assert resumed[8 - saved :] == whole[8:]
 
 
+@pytest.mark.parametrize("workers", [0, 2])
+def test_a_fit_killed_again_before_it_trains_keeps_the_uninterrupted_order(tmp_path, root, monkeypatch, workers):
+    """Resumed from the validation at epoch 0's last batch, Lightning ends that epoch again and writes last.ckpt again
+    at the same step, before the resumed fit trains: it saved the position the pinned epoch had not reached, so a
+    second kill there and a second resume drew another order for every later step."""
+    monkeypatch.chdir(root)
+
+    def steps(out: Path, kill: int = -1, *extra: str) -> list[tuple[int, tuple[str, ...], float]]:
+        args = ["fit", "--config", DATA, "--config", MODEL, "--data.init_args.train_transforms", JITTER]
+        args += ["--data.init_args.num_workers", str(workers), "--trainer.max_epochs", "-1"]
+        args += ["--trainer.max_steps", "12", "--trainer.val_check_interval", "2"]
+        args += ["--trainer.callbacks+=tests.test_resume_streams.StepRecorder", "--trainer.callbacks.kill_at"]
+        cli = run_lightning([*args, str(kill), *quiet_trainer_args(out), *extra])
+        (rec,) = [c for c in cli.trainer.callbacks if isinstance(c, StepRecorder)]
+        return rec.seen
+
+    whole = steps(tmp_path / "whole")
+    with pytest.raises(KilledFit):
+        steps(tmp_path / "cut", 4)
+    (last,) = (tmp_path / "cut").rglob("last.ckpt")
+    with pytest.raises(KilledFit):  # killed in its first step, after last.ckpt was written again
+        steps(tmp_path / "cut", 5, "--ckpt_path", str(last))
+    (again,) = set((tmp_path / "cut").rglob("last.ckpt")) - {last}  # the second run's (the curriculum pins one folder)
+    resumed = steps(tmp_path / "cut", -1, "--ckpt_path", str(again))
+    assert [ids for _, ids, _ in resumed] == [ids for _, ids, _ in whole[4:]]
+
+
 def test_a_resumed_fit_of_the_recipe_prior_draws_the_next_epochs(tmp_path, root, monkeypatch):
     """CFAR's prior residual (the recipe) averages the training labels in a pass over a train loader when a fit starts;
     a resumed fit made that pass again (adding nothing: its prior is the checkpoint's), and it drew an epoch from the

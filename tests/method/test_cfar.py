@@ -376,3 +376,25 @@ def test_the_alignment_jitter_is_within_its_degrees_in_training_and_off_in_evalu
     jittered.eval()
     plain.eval()
     assert torch.equal(jittered.canonicalize(b)[0].angle, plain.canonicalize(b)[0].angle)
+
+
+def test_a_resumed_fit_averages_only_tasks_its_prior_lacks(root):
+    """A resumed fit skips the prior's pass over the training data (it drew an epoch of the shuffle and augmentation
+    streams for nothing), unless its data holds a task the checkpoint's prior has no labels of: skipping then left
+    that task's prior empty."""
+    from types import SimpleNamespace
+
+    b = _batch(2)
+    m = CFARModule(**tiny_args(root), prior_residual=True).eval()
+    canon, _ = m.canonicalize(b)
+    seen = [str(x.get("task")) for x in b["meta"]]
+    m.prior.add(m.prior.task_index(seen), canon.floor_xyz[..., :2], b["floor_label"], b["floor_mask"])
+    other = next(t for t in m.prior.tasks if t not in seen)
+
+    def needs(ckpt_path, tasks):
+        m._trainer = SimpleNamespace(ckpt_path=ckpt_path, datamodule=SimpleNamespace(tasks=tasks))
+        return m.prior_needs_pass()
+
+    assert needs(None, seen)  # a fresh fit makes its pass, as before
+    assert not needs("last.ckpt", seen)  # resumed, every task in the prior
+    assert needs("last.ckpt", [*seen, other])  # resumed on data with a task the prior lacks

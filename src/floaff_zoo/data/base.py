@@ -78,6 +78,11 @@ class EpochSampler(RandomSampler):
         """The resumed fit trains: later epochs draw on from the generator."""
         self._resume = None
 
+    @property
+    def pinned(self) -> tuple[torch.Tensor, int] | None:
+        """``(epoch_state, samples_done)`` given to :meth:`resume_at` while the resumed fit has trained nothing yet."""
+        return self._resume
+
     def __iter__(self) -> Iterator[int]:
         skip = 0
         if self._resume is not None:
@@ -212,6 +217,11 @@ class FloAffDataModule(L.LightningDataModule):
         the running epoch, or 0 at an epoch's end: the next epoch's); None outside a fit, before the first batch of an
         epoch, or when the loader trains with another sampler (DDP's)."""
         sampler, gen, trainer = self._train_sampler, self._train_generator, self.trainer
+        if sampler is not None and sampler.pinned is not None:
+            # nothing trained since the checkpoint the fit resumed from: its position stands (Lightning writes
+            # last.ckpt again at that step before training, and a kill then lost the position)
+            state, done = sampler.pinned
+            return {"generator": state, "samples_done": done, "size": len(sampler.data_source)}  # type: ignore[arg-type]
         if sampler is None or sampler.epoch_state is None or gen is None:
             return None
         if trainer is None or trainer.state.fn != TrainerFn.FITTING:

@@ -430,18 +430,29 @@ class CFARModule(FloAffModule):
     # ----------------------------------------------------------------- prior
     def on_fit_start(self) -> None:
         super().on_fit_start()
-        # a fit resumed from a checkpoint has the prior its first start filled: a second pass added nothing, but it drew
-        # an epoch from the restored shuffle generator and augmentation stream (another order and noise than an
-        # uninterrupted fit trains)
-        if self.prior is not None and self.trainer.ckpt_path is None:
+        if self.prior is not None and self.prior_needs_pass():
             self.fill_prior()
+
+    def prior_needs_pass(self) -> bool:
+        """Whether this fit averages training labels into the prior: a fresh fit always does (as before); a fit resumed
+        from a checkpoint only when its data holds a task the checkpoint's prior has no labels of. For a resumed
+        stage the pass added nothing, but it drew an epoch from the restored shuffle generator and augmentation stream
+        (another order and noise than an uninterrupted fit trains)."""
+        assert self.prior is not None
+        if self.trainer.ckpt_path is None:
+            return True
+        tasks = getattr(getattr(self.trainer, "datamodule", None), "tasks", None)
+        if not tasks:  # a data module that does not list its tasks: the checkpoint's prior is its first start's
+            return False
+        seen = {t for t, c in zip(self.prior.tasks, self.prior.counts.sum((1, 2)).tolist(), strict=True) if c > 0}
+        return any(str(t) not in seen for t in tasks)
 
     @torch.no_grad()
     def fill_prior(self) -> None:
         """Average the training labels of tasks the prior has not seen yet (one pass, training yaw, no jitter).
 
         Tasks already in the prior (stage 1's task when stage 2 starts from its weights) keep their grid; a fit resumed
-        from a checkpoint makes no pass (:meth:`on_fit_start`).
+        from a checkpoint makes a pass only for a task its prior lacks (:meth:`prior_needs_pass`).
         """
         assert self.prior is not None
         dm = getattr(self.trainer, "datamodule", None)
