@@ -32,17 +32,22 @@ FAKE_FZ = textwrap.dedent(
 )
 
 
-@pytest.mark.parametrize("slow", ["0", "2"])
-def test_two_jobs_testing_one_run_at_once_copy_their_own_reports(tmp_path, slow):
-    """Each test found its report as the first report.json written beside the run since it started: the slower of
-    two jobs testing one run (occ_recipe_rs0_s0 and occ_recipe_rs2_s0) could copy the faster one's report."""
-    run = tmp_path / "runs" / "layouts" / "occ_recipe_s0" / "stage2" / "cfarmodule" / "version_0"
+def _finished_curriculum(runs: Path) -> None:
+    """``runs/layouts/occ_recipe_s0``: a curriculum whose last stage finished (lineage.json, config, last.ckpt)."""
+    run = runs / "layouts" / "occ_recipe_s0" / "stage2" / "cfarmodule" / "version_0"
     (run / "checkpoints").mkdir(parents=True)
     (run / "config.yaml").write_text("")
     ckpt = run / "checkpoints" / "last.ckpt"
     ckpt.write_text("")
     lineage = {"complete": True, "stages": [{"checkpoint": str(ckpt)}]}
-    (tmp_path / "runs" / "layouts" / "occ_recipe_s0" / "lineage.json").write_text(json.dumps(lineage))
+    (runs / "layouts" / "occ_recipe_s0" / "lineage.json").write_text(json.dumps(lineage))
+
+
+@pytest.mark.parametrize("slow", ["0", "2"])
+def test_two_jobs_testing_one_run_at_once_copy_their_own_reports(tmp_path, slow):
+    """Each test found its report as the first report.json written beside the run since it started: the slower of
+    two jobs testing one run (occ_recipe_rs0_s0 and occ_recipe_rs2_s0) could copy the faster one's report."""
+    _finished_curriculum(tmp_path / "runs")
     fz = tmp_path / "fakefz"
     fz.write_text(FAKE_FZ)
     fz.chmod(0o755)
@@ -71,13 +76,7 @@ def test_reports_name_no_folder_of_the_checkout_they_are_copied_into(tmp_path):
     paths (the machine's folders): they are made relative to it, as to the checkout the script runs from."""
     main = tmp_path / "main"
     subprocess.run(["git", "init", "-q", str(main)], check=True)
-    run = main / "runs" / "layouts" / "occ_recipe_s0" / "stage2" / "cfarmodule" / "version_0"
-    (run / "checkpoints").mkdir(parents=True)
-    (run / "config.yaml").write_text("")
-    ckpt = run / "checkpoints" / "last.ckpt"
-    ckpt.write_text("")
-    lineage = {"complete": True, "stages": [{"checkpoint": str(ckpt)}]}
-    (main / "runs" / "layouts" / "occ_recipe_s0" / "lineage.json").write_text(json.dumps(lineage))
+    _finished_curriculum(main / "runs")
     fz = tmp_path / "fakefz"
     fz.write_text(FAKE_FZ.replace('"residual_scale": "%s"}', f'"residual_scale": "%s", "data": "{main}/data/x"}}'))
     fz.chmod(0o755)

@@ -95,6 +95,17 @@ class StepRecorder(L.Callback):
         self.seen.append((trainer.global_step, ids, round(float(batch["scene_xyz"][0, 0, 0]), 6)))
 
 
+def _steps(out: Path, workers: int, kill: int, *extra: str) -> list[tuple[int, tuple[str, ...], float]]:
+    """The steps a fit of 12 steps trains (3 epochs of 4 batches, a validation every 2), killed at step ``kill``."""
+    args = ["fit", "--config", DATA, "--config", MODEL, "--data.init_args.train_transforms", JITTER]
+    args += ["--data.init_args.num_workers", str(workers), "--trainer.max_epochs", "-1"]
+    args += ["--trainer.max_steps", "12", "--trainer.val_check_interval", "2"]
+    args += ["--trainer.callbacks+=tests.test_resume_streams.StepRecorder", "--trainer.callbacks.kill_at"]
+    cli = run_lightning([*args, str(kill), *quiet_trainer_args(out), *extra])
+    (rec,) = [c for c in cli.trainer.callbacks if isinstance(c, StepRecorder)]
+    return rec.seen
+
+
 @pytest.mark.parametrize(("workers", "kill_at"), [(0, 3), (0, 4), (2, 3), (2, 4)])
 def test_a_fit_resumed_from_any_validation_goes_on_with_the_uninterrupted_order(
     tmp_path, root, monkeypatch, workers, kill_at
@@ -107,13 +118,7 @@ def test_a_fit_resumed_from_any_validation_goes_on_with_the_uninterrupted_order(
     monkeypatch.chdir(root)
 
     def steps(out: Path, kill: int = -1, *extra: str) -> list[tuple[int, tuple[str, ...], float]]:
-        args = ["fit", "--config", DATA, "--config", MODEL, "--data.init_args.train_transforms", JITTER]
-        args += ["--data.init_args.num_workers", str(workers), "--trainer.max_epochs", "-1"]
-        args += ["--trainer.max_steps", "12", "--trainer.val_check_interval", "2"]
-        args += ["--trainer.callbacks+=tests.test_resume_streams.StepRecorder", "--trainer.callbacks.kill_at"]
-        cli = run_lightning([*args, str(kill), *quiet_trainer_args(out), *extra])
-        (rec,) = [c for c in cli.trainer.callbacks if isinstance(c, StepRecorder)]
-        return rec.seen
+        return _steps(out, workers, kill, *extra)
 
     whole = steps(tmp_path / "whole")
     with pytest.raises(KilledFit):
@@ -136,13 +141,7 @@ def test_a_fit_killed_again_before_it_trains_keeps_the_uninterrupted_order(tmp_p
     monkeypatch.chdir(root)
 
     def steps(out: Path, kill: int = -1, *extra: str) -> list[tuple[int, tuple[str, ...], float]]:
-        args = ["fit", "--config", DATA, "--config", MODEL, "--data.init_args.train_transforms", JITTER]
-        args += ["--data.init_args.num_workers", str(workers), "--trainer.max_epochs", "-1"]
-        args += ["--trainer.max_steps", "12", "--trainer.val_check_interval", "2"]
-        args += ["--trainer.callbacks+=tests.test_resume_streams.StepRecorder", "--trainer.callbacks.kill_at"]
-        cli = run_lightning([*args, str(kill), *quiet_trainer_args(out), *extra])
-        (rec,) = [c for c in cli.trainer.callbacks if isinstance(c, StepRecorder)]
-        return rec.seen
+        return _steps(out, workers, kill, *extra)
 
     whole = steps(tmp_path / "whole")
     with pytest.raises(KilledFit):
