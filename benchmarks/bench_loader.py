@@ -30,7 +30,8 @@ import torch
 
 
 def write_moma_like(root: Path, n: int, seed: int = 0) -> None:
-    """n samples (n // 4 configurations x 4 views) in the official layout, official cloud sizes."""
+    """n samples (n // 4 configurations x 4 views) in the official layout, official cloud sizes; the test split lists
+    them again under other scene ids."""
     import open3d as o3d
 
     from floaff_zoo.data import moma_kitchen as mk
@@ -63,9 +64,15 @@ def write_moma_like(root: Path, n: int, seed: int = 0) -> None:
         info.parent.mkdir(parents=True, exist_ok=True)
         info.write_text(json.dumps({"robot_name": "panda"}))
         lines.append(rel)
+    # the test split lists the same samples under other scene ids (links to the train folders): it is parsed as its
+    # own split, and the data module refuses a test split that shares a scene with the train split
+    test = [rel.replace("RGBD-1", "RGBD-2", 1) for rel in lines]
+    for cfg in sorted({rel.split("/")[0] for rel in lines}):
+        (root / "rgbd" / cfg.replace("RGBD-1", "RGBD-2", 1)).symlink_to(cfg)
+        (root / "info" / ("2" + cfg[6:])).symlink_to(cfg[5:])
     (root / "data_split").mkdir(parents=True, exist_ok=True)
-    for split in ("train", "test"):
-        (root / "data_split" / f"kitchen_{split}.txt").write_text("\n".join(lines) + "\n")
+    for split, rels in (("train", lines), ("test", test)):
+        (root / "data_split" / f"kitchen_{split}.txt").write_text("\n".join(rels) + "\n")
 
 
 def make_dm(args: argparse.Namespace, root: Path, cache_dir: Path):

@@ -12,7 +12,7 @@ def test_the_loader_benchmark_parses_cold_every_run_and_counts_every_split(tmp_p
     faster); and the rate divided by the train samples while the setup parsed the test split too."""
     bl = load_benchmark("bench_loader")
     root = tmp_path / "moma"
-    bl.write_moma_like(root, 4)  # the same 4 samples in the train and the test split file
+    bl.write_moma_like(root, 4)  # the same 4 samples in the train and (as other scenes) the test split file
     args = ["--root", str(root), "--num-points", "64", "--batch-size", "2", "--epochs", "1", "--steps", "1"]
     for _ in range(2):
         bl.main(args)

@@ -347,3 +347,17 @@ def test_a_target_away_from_the_scene_cloud_is_skipped_and_counted(moma_root):
     assert str(target) in dm.skips["test"].summary()
     with pytest.raises(DataError, match="target_pcd_transformed.ply: no point of world_pcd_transformed.ply"):
         _dm(root, strict=True).setup("test")
+
+
+def test_train_and_test_split_files_that_share_a_scene_are_refused(moma_root):
+    """The test split is unseen scenes: a test line from a training scene (a split file edited or mixed up) tested
+    the model on a kitchen it trained on, without a word."""
+    root, _ = moma_root
+    train = (root / "data_split" / "kitchen_train.txt").read_text().split()
+    test = root / "data_split" / "kitchen_test.txt"
+    test.write_text(test.read_text() + train[0] + "\n")
+    for stage in ("fit", "test"):
+        with pytest.raises(
+            MisconfigurationException, match=r"kitchen_train\.txt and .*kitchen_test\.txt share 1 scene"
+        ):
+            _dm(root).setup(stage)

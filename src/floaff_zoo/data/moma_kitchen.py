@@ -289,6 +289,13 @@ def estimate_target_yaw(
     return math.atan2(float(d[1]), float(d[0])) if np.hypot(*d) > 1e-9 else 0.0
 
 
+def split_scenes(text: str) -> set[str]:
+    """The scene ids (6 digits of ``RGBD-<scene6>-...``; the config folder when it does not parse) of a split file's
+    sample lines."""
+    folders = {Path(line.strip()).parts[0] for line in text.splitlines() if line.strip()}
+    return {m["scene"] if (m := CONFIG_RE.match(f)) else f for f in folders}
+
+
 def read_split_file(path: Path) -> str:
     """The text of a split file; ValueError naming it when it is not UTF-8 text or cannot be read."""
     try:
@@ -565,6 +572,22 @@ class MoMaKitchenDataModule(FloAffDataModule):
         recs = self.reader.index(path, skips, "moma_kitchen", text)
         return recs[: self.max_samples] if self.max_samples else recs
 
+    def _check_unseen_test(self) -> None:
+        """MisconfigurationException naming both files when the train and test split files share a scene: the test
+        split holds unseen scenes (docs/background.md), so a shared one tests the model on a kitchen it trained on.
+        Checked only when both files are there and readable (``_records`` names a file that is not)."""
+        paths = [self.split_dir / self.split_files[s] for s in ("train", "test")]
+        try:
+            train, test = (split_scenes(read_split_file(p)) for p in paths if p.is_file())
+        except ValueError:  # a file missing (unpacking) or not UTF-8 text: named where its split is set up
+            return
+        shared = sorted(train & test)
+        if shared:
+            raise MisconfigurationException(
+                f"MoMaKitchenDataModule: {paths[0]} and {paths[1]} share {len(shared)} scene(s) "
+                f"({', '.join(shared[:3])}{', ...' if len(shared) > 3 else ''}): the test split must hold unseen scenes"
+            )
+
     def _split_val(self, train: list[SampleRecord]) -> tuple[list[SampleRecord], list[SampleRecord]]:
         """Scene-level seeded hold-out: (train, val) records, each in split-file order.
 
@@ -617,6 +640,7 @@ class MoMaKitchenDataModule(FloAffDataModule):
         todo = [s for s in want if s not in self.datasets]
         if not todo:
             return
+        self._check_unseen_test()
         if "test" in todo and self.reader.yaw_estimator == "label_centroid":
             rank_zero_warn(
                 "MoMaKitchenDataModule: yaw_estimator label_centroid estimates the test samples' target_yaw from "
