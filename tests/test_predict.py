@@ -267,3 +267,8 @@ def test_a_robot_descriptor_of_the_wrong_size_names_the_argument(tiny_model):
     for robot in ([0.85, 1.03, 0.5], [0.85], []):
         with pytest.raises(SampleError, match=rf"predict: robot must be the 2 values .* got {len(robot)}"):
             predict_from_points(tiny_model, xyz, flag, None, robot, t, num_points=64)
+    from floaff_zoo.models.tiny import TinyPointNetModule
+
+    rgb_model = TinyPointNetModule(feat_channels=4, width=8).eval()  # reads the flag and RGB
+    with pytest.raises(SampleError, match=r"predict: TinyPointNetModule reads 4 scene_feat channels .* got 1"):
+        predict_from_points(rgb_model, xyz, flag, None, [0.85, 1.03], t, num_points=64)
