@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 
 import lightning as L
+import pytest
 
 from floaff_zoo.callbacks.report import TestReport
 from floaff_zoo.callbacks.rollout import RolloutSuccessRate
@@ -86,3 +87,73 @@ def test_a_new_report_in_the_folder_removes_the_earlier_figures_and_says_so(tmp_
     assert sorted(f"figures/{f.name}" for f in (tmp_path / "figures").glob("*.png")) == sorted(rep["figures"])
     assert len(rep["figures"]) == 2
     assert f"replaced the earlier report in {tmp_path} (4 figure(s) removed)" in capsys.readouterr().out
+
+
+def test_a_reader_of_the_earlier_report_never_meets_half_of_the_new_one(tmp_path):
+    """report.json was rewritten in place: a table reading it while a second test wrote got the start of one report
+    and the end of the other (unreadable, skipped), or an empty file where the writer was killed."""
+    samples = make_samples(4)
+    trainer = quiet_trainer([TestReport(out_dir=str(tmp_path), figures=False)])
+    trainer.test(ConstantModule(), dataloaders=loader(samples), verbose=False)
+    first = (tmp_path / "report.json").read_bytes()
+    with open(tmp_path / "report.json", "rb", buffering=0) as reader:  # unbuffered: the rest is read from the file
+        head = reader.read(len(first) // 2)
+        trainer.test(LabelModule(), dataloaders=loader(samples), verbose=False)
+        assert head + reader.read() == first
+    assert json.loads((tmp_path / "report.json").read_text())["metrics"]["test_pcc"] == 1.0
+
+
+def test_a_report_that_cannot_be_written_leaves_the_earlier_one(tmp_path, monkeypatch):
+    """report.json was written before report.md was rendered: a failure there left the new report.json beside the
+    earlier report.md (and the new sr_episodes.json beside the earlier report.json, had the first write failed)."""
+    import floaff_zoo.callbacks.report as report_module
+
+    samples = make_samples(4)
+    rollout = RolloutSuccessRate(service=FakeService, progress=False)
+    trainer = quiet_trainer([rollout, TestReport(out_dir=str(tmp_path), figures=False)])
+    trainer.test(ConstantModule(), dataloaders=loader(samples), verbose=False)
+    before = {name: (tmp_path / name).read_bytes() for name in ("report.json", "report.md", "sr_episodes.json")}
+
+    def fails(report):
+        raise RuntimeError("cannot render")
+
+    monkeypatch.setattr(report_module, "render_markdown", fails)
+    with pytest.raises(RuntimeError, match="cannot render"):
+        trainer.test(LabelModule(), dataloaders=loader(samples), verbose=False)
+    assert {name: (tmp_path / name).read_bytes() for name in before} == before
+
+
+def test_two_tests_into_one_folder_write_one_after_the_other(tmp_path):
+    """Two tests writing into one folder at once interleaved their figures and reports (one report listing the
+    other's figures): a test writes while it holds the folder's lock."""
+    import threading
+
+    from floaff_zoo.atomic import folder_lock
+
+    samples = make_samples(4)
+    for s in samples:
+        s["meta"].pop("sim")
+    ended = threading.Event()
+
+    class Ended(L.Callback):
+        def on_test_end(self, trainer, pl_module) -> None:
+            ended.set()
+
+    trainer = quiet_trainer([Ended(), TestReport(out_dir=str(tmp_path), figures=False)])
+    errors: list[BaseException] = []
+
+    def test() -> None:
+        try:
+            trainer.test(ConstantModule(), dataloaders=loader(samples), verbose=False)
+        except BaseException as exc:  # noqa: BLE001 - re-raised below, in the test's thread
+            errors.append(exc)
+            ended.set()
+
+    with folder_lock(tmp_path / ".report.lock"):  # another test is writing its report here
+        thread = threading.Thread(target=test)
+        thread.start()
+        assert ended.wait(120)
+        thread.join(1.0)
+        assert thread.is_alive() and not (tmp_path / "report.json").exists()
+    thread.join(120)
+    assert not errors and not thread.is_alive() and (tmp_path / "report.json").is_file()

@@ -12,6 +12,10 @@ hparams, the seed, the checkpoint path and sha256, dataset/benchmark/tasks/views
 metric_reduction, package versions, an optional ``label`` (row name for ablation tables) and the
 figure paths. ``test_pcc`` is null ("n/a") when no map has a Pearson r (all constant or empty): the metric's 0.0
 there is no value. ``floaff-zoo table`` reads only these files.
+
+Each file is written whole (a temp file renamed over it), every text rendered before the first is written, and the
+folder is locked (``.report.lock``) while one test writes its figures and report: a table or montage reading meanwhile
+never meets half a file, and two tests into one folder leave one test's files, not a mix.
 """
 
 from __future__ import annotations
@@ -30,11 +34,14 @@ import lightning as L
 import numpy as np
 import torch
 
+from floaff_zoo.atomic import atomic_write, folder_lock
 from floaff_zoo.data.base import FloAffDataModule
 from floaff_zoo.report.figures import FigureSample, write_figures
 
 SCHEMA = "floaff-zoo/report"
 SCHEMA_VERSION = 1
+#: held in the run directory while a test writes its figures and report files there
+REPORT_LOCK = ".report.lock"
 PACKAGES = ("floaff-zoo", "torch", "lightning", "torchmetrics", "numpy", "scipy", "mujoco", "robosuite", "jsonargparse")
 #: metric display names and decimals (paper: RMSE/PCC/SIM 3, logMSE 4, SR 2)
 MAP_METRICS = (
@@ -251,24 +258,20 @@ class TestReport(L.Callback):
         rollout = next((c for c in trainer.callbacks if type(c).__name__ == "RolloutSuccessRate"), None)
         report = self.build_report(trainer, pl_module, run_dir, rollout, log_dir)
         episodes = rollout.episodes.get("test", []) if rollout is not None else []
-        earlier = remove_earlier_figures(run_dir)
-        if self.figures and self._samples:
-            by_id = {e["sample_id"]: e for e in episodes}
-            for s in self._samples:
-                ep = by_id.get(str(s.meta.get("sample_id", "")))
-                if ep is not None:  # draw the pose that was actually rolled out (top-k may differ from argmax)
-                    s.chosen, s.success = tuple(ep["pose"]), ep.get("success")
-                    s.oracle = tuple(ep["oracle_pose"]) if "oracle_pose" in ep else None
-                    s.oracle_success = ep.get("oracle_success")
-            paths = write_figures(self._samples, run_dir / "figures")
-            report["figures"] = [p.relative_to(run_dir).as_posix() for p in paths]
-        if self.write_episodes and episodes:
-            (run_dir / "sr_episodes.json").write_text(json.dumps(jsonable(episodes), indent=1))
-        elif (run_dir / "sr_episodes.json").is_file():  # an earlier run's episodes would sit beside this report
-            (run_dir / "sr_episodes.json").unlink()
-        report = jsonable(report)
-        (run_dir / "report.json").write_text(json.dumps(report, indent=2, sort_keys=False))
-        (run_dir / "report.md").write_text(render_markdown(report))
+        with folder_lock(run_dir / REPORT_LOCK):  # another test into this folder writes before or after, not between
+            earlier = remove_earlier_figures(run_dir)
+            if self.figures and self._samples:
+                by_id = {e["sample_id"]: e for e in episodes}
+                for s in self._samples:
+                    ep = by_id.get(str(s.meta.get("sample_id", "")))
+                    if ep is not None:  # draw the pose that was actually rolled out (top-k may differ from argmax)
+                        s.chosen, s.success = tuple(ep["pose"]), ep.get("success")
+                        s.oracle = tuple(ep["oracle_pose"]) if "oracle_pose" in ep else None
+                        s.oracle_success = ep.get("oracle_success")
+                paths = write_figures(self._samples, run_dir / "figures")
+                report["figures"] = [p.relative_to(run_dir).as_posix() for p in paths]
+            report = jsonable(report)
+            write_report_files(run_dir, report, episodes if self.write_episodes else [])
         if earlier is not None:
             print(
                 f"floaff-zoo test: replaced the earlier report in {run_dir} ({earlier} figure(s) removed)", flush=True
@@ -362,6 +365,20 @@ class TestReport(L.Callback):
             "versions": package_versions(),
             "figures": [],
         }
+
+
+def write_report_files(run_dir: Path, report: dict[str, Any], episodes: list[dict[str, Any]]) -> None:
+    """Write ``sr_episodes.json`` (or remove an earlier run's: it would sit beside this report), ``report.md`` and
+    ``report.json`` into ``run_dir``, each whole: every text is rendered before the first file is written (a failure
+    leaves the earlier report) and each lands by a rename (a reader holding the earlier file keeps reading it whole).
+    ``report.json``, the file ``floaff-zoo table`` reads, comes last."""
+    texts = {"report.md": render_markdown(report), "report.json": json.dumps(report, indent=2, sort_keys=False)}
+    if episodes:
+        texts = {"sr_episodes.json": json.dumps(jsonable(episodes), indent=1), **texts}
+    elif (run_dir / "sr_episodes.json").is_file():
+        (run_dir / "sr_episodes.json").unlink()
+    for name, text in texts.items():
+        atomic_write(run_dir / name, lambda f, text=text: f.write(text.encode("utf-8")))
 
 
 def remove_earlier_figures(run_dir: Path) -> int | None:

@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from floaff_zoo.atomic import atomic_write
 from floaff_zoo.contract import best_pose
 from floaff_zoo.frames import base_to_world, pose_to_base, pose_to_world
 
@@ -154,8 +155,8 @@ def draw_sample(
                 ax.set_title(name + _outcome(ok), fontsize=9)
             fig.colorbar(sc, ax=list(axes), fraction=0.03, pad=0.02)
         path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fig.savefig(path, format="png")
+        # whole or not at all (a temp file renamed over it): a montage reading meanwhile never meets half a PNG
+        atomic_write(path, lambda f: fig.savefig(f, format="png"))
         return path
     finally:
         plt.close(fig)
