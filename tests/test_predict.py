@@ -1,5 +1,7 @@
 """Command-line model specs of the scripts (predict.named_models)."""
 
+import json
+
 import pytest
 
 
@@ -169,6 +171,26 @@ def test_the_prediction_writer_removes_another_runs_files_and_says_so(tmp_path, 
     quiet_trainer([writer]).predict(ConstantModule(), dataloaders=loader(make_samples(2)))
     assert sorted(f.name for f in tmp_path.iterdir()) == ["notes.json", "predictions.json", "predictions.npz"]
     assert f"replaced the earlier predictions in {tmp_path}" in capsys.readouterr().out
+
+
+def test_a_reader_of_the_earlier_predictions_never_meets_half_of_the_new_ones(tmp_path):
+    """predictions.json and .npz were rewritten in place: a reader of the earlier files got the start of one run's and
+    the end of the other's (a killed run left a truncated file)."""
+    from floaff_zoo.callbacks.predictions import PredictionWriter
+    from tests.report._fake_world import ConstantModule, LabelModule, loader, make_samples, quiet_trainer
+
+    trainer = quiet_trainer([PredictionWriter(out_dir=str(tmp_path))])
+    trainer.predict(ConstantModule(), dataloaders=loader(make_samples(2)))
+    first = {name: (tmp_path / name).read_bytes() for name in ("predictions.json", "predictions.npz")}
+    readers = {name: open(tmp_path / name, "rb", buffering=0) for name in first}  # unbuffered: read from the file
+    try:
+        heads = {name: readers[name].read(len(data) // 2) for name, data in first.items()}
+        trainer.predict(LabelModule(), dataloaders=loader(make_samples(3)))
+        assert {name: heads[name] + readers[name].read() for name in first} == first
+    finally:
+        for reader in readers.values():
+            reader.close()
+    assert json.loads((tmp_path / "predictions.json").read_text())["n"] == 3
 
 
 def test_resolve_model_uses_the_class_given_and_refuses_a_half_loaded_model(tmp_path):

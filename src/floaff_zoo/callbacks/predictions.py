@@ -25,6 +25,7 @@ import numpy as np
 import torch
 from lightning.pytorch.callbacks import BasePredictionWriter
 
+from floaff_zoo.atomic import atomic_write
 from floaff_zoo.callbacks.report import jsonable
 from floaff_zoo.contract import NonFiniteError
 
@@ -136,9 +137,12 @@ class PredictionWriter(BasePredictionWriter):
         replaced = npz.is_file() or js.is_file()
         if trainer.is_global_zero:
             replaced = remove_stale_predictions(run_dir, trainer.world_size) or replaced
-        np.savez_compressed(npz, **arrays)
         shapes = {k: list(v.shape) for k, v in arrays.items()}
-        js.write_text(json.dumps({"n": len(meta), "arrays": shapes, "meta": jsonable(meta)}, indent=1))
+        text = json.dumps({"n": len(meta), "arrays": shapes, "meta": jsonable(meta)}, indent=1)
+        # each file whole (a temp file renamed over it): a reader of the earlier pair never meets half a file, and a
+        # killed run leaves the earlier file, not a truncated one
+        atomic_write(npz, lambda f: np.savez_compressed(f, **arrays))
+        atomic_write(js, lambda f: f.write(text.encode("utf-8")))
         self.written = {"npz": str(npz), "json": str(js)}
         print(f"floaff-zoo predict: {len(meta)} samples -> {npz} (+ {js.name})", flush=True)
         if replaced:
