@@ -110,9 +110,12 @@ def test_a_report_that_cannot_be_written_leaves_the_earlier_one(tmp_path, monkey
 
     samples = make_samples(4)
     rollout = RolloutSuccessRate(service=FakeService, progress=False)
-    trainer = quiet_trainer([rollout, TestReport(out_dir=str(tmp_path), figures=False)])
+    trainer = quiet_trainer([rollout, TestReport(out_dir=str(tmp_path), figures=True)])
     trainer.test(ConstantModule(), dataloaders=loader(samples), verbose=False)
-    before = {name: (tmp_path / name).read_bytes() for name in ("report.json", "report.md", "sr_episodes.json")}
+    figures = json.loads((tmp_path / "report.json").read_text())["figures"]  # redrawn before the render: the
+    assert figures  # earlier report listed PNGs of the failed run
+    names = ("report.json", "report.md", "sr_episodes.json", *figures)
+    before = {name: (tmp_path / name).read_bytes() for name in names}
 
     def fails(report):
         raise RuntimeError("cannot render")

@@ -258,6 +258,8 @@ class TestReport(L.Callback):
         rollout = next((c for c in trainer.callbacks if type(c).__name__ == "RolloutSuccessRate"), None)
         report = self.build_report(trainer, pl_module, run_dir, rollout, log_dir)
         episodes = rollout.episodes.get("test", []) if rollout is not None else []
+        # a report that cannot be rendered fails here, before the earlier report's figures are replaced
+        render_markdown(jsonable(report))
         with folder_lock(run_dir / REPORT_LOCK):  # another test into this folder writes before or after, not between
             earlier = remove_earlier_figures(run_dir)
             if self.figures and self._samples:
