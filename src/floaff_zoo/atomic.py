@@ -27,18 +27,25 @@ class LockedError(RuntimeError):
 
 
 @contextlib.contextmanager
-def folder_lock(lock_file: str | os.PathLike[str], wait: bool = True) -> Iterator[None]:
+def folder_lock(
+    lock_file: str | os.PathLike[str], wait: bool = True, on_wait: Callable[[], None] | None = None
+) -> Iterator[None]:
     """Hold an exclusive lock on ``lock_file`` (created if missing; released when the process dies).
 
-    ``wait``: block until the lock is free, else raise ``LockedError`` at once."""
+    ``wait``: block until the lock is free, else raise ``LockedError`` at once; ``on_wait`` is called once before
+    blocking, when another process holds the lock (to say why nothing happens)."""
     path = Path(lock_file)
     path.parent.mkdir(parents=True, exist_ok=True)
     with open(path, "a") as f:
         if fcntl is not None:
             try:
-                fcntl.flock(f, fcntl.LOCK_EX | (0 if wait else fcntl.LOCK_NB))
+                fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except BlockingIOError as exc:
-                raise LockedError(f"{path} is locked by another process") from exc
+                if not wait:
+                    raise LockedError(f"{path} is locked by another process") from exc
+                if on_wait is not None:
+                    on_wait()
+                fcntl.flock(f, fcntl.LOCK_EX)
         try:
             yield
         finally:

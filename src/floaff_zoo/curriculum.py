@@ -878,15 +878,10 @@ def _stage_lock(name: str, sdir: Path, out: Any) -> Iterator[None]:
     if any(int(os.environ.get(k, "0") or 0) > 0 for k in ("LOCAL_RANK", "NODE_RANK")):
         yield
         return
-    from floaff_zoo.atomic import LockedError, folder_lock
+    from floaff_zoo.atomic import folder_lock
 
-    lock, held = sdir / STAGE_LOCK, contextlib.ExitStack()
-    try:
-        held.enter_context(folder_lock(lock, wait=False))
-    except LockedError:
-        print(f"[curriculum] stage {name}: another curriculum is working on {sdir}; waiting for it", file=out)
-        held.enter_context(folder_lock(lock))
-    with held:
+    message = f"[curriculum] stage {name}: another curriculum is working on {sdir}; waiting for it"
+    with folder_lock(sdir / STAGE_LOCK, on_wait=lambda: print(message, file=out)):
         yield
 
 

@@ -126,9 +126,9 @@ def test_a_report_that_cannot_be_written_leaves_the_earlier_one(tmp_path, monkey
     assert {name: (tmp_path / name).read_bytes() for name in before} == before
 
 
-def test_two_tests_into_one_folder_write_one_after_the_other(tmp_path):
+def test_two_tests_into_one_folder_write_one_after_the_other(tmp_path, capsys):
     """Two tests writing into one folder at once interleaved their figures and reports (one report listing the
-    other's figures): a test writes while it holds the folder's lock."""
+    other's figures): a test writes while it holds the folder's lock, and says why it waits for it."""
     import threading
 
     from floaff_zoo.atomic import folder_lock
@@ -160,3 +160,4 @@ def test_two_tests_into_one_folder_write_one_after_the_other(tmp_path):
         assert thread.is_alive() and not (tmp_path / "report.json").exists()
     thread.join(120)
     assert not errors and not thread.is_alive() and (tmp_path / "report.json").is_file()
+    assert f"another test is writing its report into {tmp_path}; waiting" in capsys.readouterr().out

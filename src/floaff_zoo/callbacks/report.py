@@ -26,6 +26,7 @@ import json
 import math
 import os
 import warnings
+from functools import partial
 from importlib import metadata
 from pathlib import Path
 from typing import Any
@@ -260,7 +261,11 @@ class TestReport(L.Callback):
         episodes = rollout.episodes.get("test", []) if rollout is not None else []
         # a report that cannot be rendered fails here, before the earlier report's figures are replaced
         render_markdown(jsonable(report))
-        with folder_lock(run_dir / REPORT_LOCK):  # another test into this folder writes before or after, not between
+        waiting = partial(
+            print, f"floaff-zoo test: another test is writing its report into {run_dir}; waiting", flush=True
+        )
+        # another test into this folder writes before or after, not between
+        with folder_lock(run_dir / REPORT_LOCK, on_wait=waiting):
             earlier = remove_earlier_figures(run_dir)
             if self.figures and self._samples:
                 by_id = {e["sample_id"]: e for e in episodes}
