@@ -108,3 +108,24 @@ def test_each_scene_closes_its_service_when_done_or_failed(monkeypatch):
     with pytest.raises(RuntimeError, match="worker died"):
         repeat.scene_probabilities(scenes, setting)
     assert events == ["open0", "close0", "open1", "close1", "open2", "close2"]
+
+
+@pytest.mark.parametrize("value", [np.nan, 1.5, -0.25])
+def test_a_cached_probability_outside_0_1_names_the_file_and_scene(tmp_path, value):
+    """read_probs checked a cached scene's shape only: a NaN or 1.5 was handed on as a probability (fresh_sr averaged
+    it into its SR; fresh_labels stopped in probability_label naming neither the cache nor the scene)."""
+    path = tmp_path / "probs.npz"
+    repeat.write_probs(path, SETTING, {"a": np.array([0.0, value, 1.0]), "other": np.array([0.5])})
+    with pytest.raises(ValueError, match=r"probs\.npz: scene a has 1 probabilities that are not in \[0, 1\]"):
+        repeat.read_probs(path, SETTING, SCENES)
+    repeat.write_probs(path, SETTING, {"a": np.array([0.0, 0.5, 1.0]), "other": np.array([value])})
+    with pytest.raises(ValueError, match="scene other has 1 probabilities"):  # a scene this run does not read too
+        repeat.read_probs(path, SETTING, SCENES)
+
+
+def test_a_runner_giving_another_number_of_outcomes_is_an_error():
+    """One outcome for every rollout of an episode: a single one was broadcast over every valid cell."""
+    scene = _scene("a", "2.0.0")
+    scene["candidates"] = {"xy": [[0, 0], [1, 0], [2, 0]], "yaw": [0.0] * 3, "valid": [True, True, False]}
+    with pytest.raises(RuntimeError, match="scene a, episode 0: the runner gave 1 outcomes for 2 rollouts"):
+        repeat.fresh_probability(scene, lambda seed, jobs: [True], 1, 0.0, 0.0, 0)

@@ -79,8 +79,13 @@ def fresh_probability(
     wins = np.zeros(len(xy))
     for k, task_seed in enumerate(task_seeds):
         poses = perturbed_poses(xy[valid], yaw[valid], k, sigma_xy, sigma_yaw, scene_seed)
-        ok = run(task_seed, [(spec, tuple(float(v) for v in p)) for p in poses])
-        wins[valid] += np.asarray(ok, float)
+        ok = np.asarray(run(task_seed, [(spec, tuple(float(v) for v in p)) for p in poses]), float).reshape(-1)
+        if ok.size != len(poses):  # one outcome broadcast over every cell, or a short list, miscounted the wins
+            raise RuntimeError(
+                f"fresh_probability: scene {scene['scene_id']}, episode {k}: the runner gave {ok.size} outcomes "
+                f"for {len(poses)} rollouts"
+            )
+        wins[valid] += ok
     return wins / len(task_seeds)
 
 
@@ -93,9 +98,9 @@ def read_probs(
 ) -> dict[str, np.ndarray]:
     """Cached fresh probabilities (scene id -> [M]) made with ``setting``; a mismatch, a scene cached from data of
     another generator minor version (a scene id names its kitchen, not its rollouts: 2.1 changed the double-door push;
-    a patch release such as 2.3.1 changes no rollout) or a corrupt file is an error. Caches written before the
-    versions were recorded are not checked for them. ``versions_out``: filled with the recorded {scene id: generator
-    version} (a rewrite keeps them for the cached scenes a run does not read)."""
+    a patch release such as 2.3.1 changes no rollout), a probability outside [0, 1] or NaN, or a corrupt file is an
+    error. Caches written before the versions were recorded are not checked for them. ``versions_out``: filled with the
+    recorded {scene id: generator version} (a rewrite keeps them for the cached scenes a run does not read)."""
     try:
         with np.load(path) as z:
             made = json.loads(str(z["setting"]))
@@ -108,6 +113,7 @@ def read_probs(
     for sid, p in probs.items():
         if sid in scenes and p.shape != (len(scenes[sid]["candidates"]["xy"]),):
             raise ValueError(f"{path}: scene {sid} has {p.shape} probabilities for its candidates")
+        _check_probability_values(path, sid, p)
         now = scenes.get(sid, {}).get("generator_version")
         if sid in versions and now is not None and labels_version(versions[sid]) != labels_version(now):
             raise ValueError(
@@ -116,6 +122,20 @@ def read_probs(
     if versions_out is not None:
         versions_out.update(versions)
     return probs
+
+
+def _check_probability_values(path: Path, sid: str, p: np.ndarray) -> None:
+    """Refuse a cached scene whose probabilities are not success fractions: [M] finite numbers in [0, 1]. A NaN
+    (the 0 / 0 of an episode-less run) or a value outside was read as a probability: ``fresh_sr`` averaged it into
+    its SR and ``fresh_labels`` stopped in ``probability_label`` with no word of the cache or the scene."""
+    if p.ndim != 1 or p.dtype.kind not in "biuf":
+        raise ValueError(f"{path}: scene {sid} has {p.dtype} probabilities of shape {p.shape}, not [M] numbers")
+    bad = ~np.isfinite(p) | (p < 0) | (p > 1)
+    if bad.any():
+        raise ValueError(
+            f"{path}: scene {sid} has {int(bad.sum())} probabilities that are not in [0, 1] "
+            f"(first at cell {int(np.flatnonzero(bad)[0])}: {p[bad][0]}); delete it"
+        )
 
 
 def write_probs(
