@@ -129,6 +129,10 @@ def test_probability_label_smooths_rates_like_the_binary_map():
     bad[2] = np.nan
     with pytest.raises(ValueError, match="1 not finite"):
         probability_label(bad, status, shape)
+    skipped = status.copy()
+    skipped[3] = SKIPPED  # a status of another length failed in the smoothing's reshape, naming neither argument
+    with pytest.raises(ValueError, match=r"status has 13 cells, prob has 12 \(grid \(3, 4\)\)"):
+        probability_label(prob, np.append(skipped, ROLLED_OUT), shape)
 
 
 def test_a_reach_other_than_the_tasks_is_refused(scene_factory):

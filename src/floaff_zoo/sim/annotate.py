@@ -73,7 +73,10 @@ def probability_label(
             f"probability_label: need {int(np.prod(shape))} finite probabilities in [0, 1] for grid {tuple(shape)}, "
             f"got {p.size} ({p.size - finite.size} not finite, {span})"
         )
-    return cell_labels(_smooth(p, shape, sigma_cells, np.asarray(status).reshape(-1) != SKIPPED), status)[0]
+    st = np.asarray(status).reshape(-1)
+    if st.size != p.size:  # else _smooth's reshape of the known mask failed, naming neither argument
+        raise ValueError(f"probability_label: status has {st.size} cells, prob has {p.size} (grid {tuple(shape)})")
+    return cell_labels(_smooth(p, shape, sigma_cells, st != SKIPPED), st)[0]
 
 
 @dataclass
