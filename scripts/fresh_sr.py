@@ -211,8 +211,20 @@ def pool_runs(sr: dict[str, dict[str, dict[str, float]]], groups: dict[str, list
     return out
 
 
+def annotated_failures(scene: dict) -> np.ndarray:
+    """[M] bool: the cells of a scene record whose annotation failed: rolled out without success, or refused by the IK
+    pre-filter (the rollout's own t = 0 check). Not a cell over the rollout budget (status ``SKIPPED``): it was never
+    rolled out, so its outcome is unknown, and counting it mixed the fresh successes of unknown cells in."""
+    from floaff_zoo.sim.annotate import SKIPPED
+
+    cand = scene["candidates"]
+    failed = np.asarray(cand["valid"], bool) & ~(np.asarray(scene["labels"]["success"]) > 0)
+    return failed & (np.asarray(cand["status"]) != SKIPPED) if "status" in cand else failed
+
+
 def cell_stats(scenes: dict[str, dict], probs: dict[str, np.ndarray]) -> dict[str, dict[str, float]]:
-    """Per task: annotated successful cells per scene, their mean fresh probability, and cells with p >= 0.5."""
+    """Per task: annotated successful cells per scene, their mean fresh probability, the mean fresh probability of the
+    annotated failures (:func:`annotated_failures`), and cells with p >= 0.5."""
     out: dict[str, dict[str, float]] = {}
     for t in TASKS:
         ids = [s for s in scenes if scenes[s]["task"] == t]
@@ -224,11 +236,7 @@ def cell_stats(scenes: dict[str, dict], probs: dict[str, np.ndarray]) -> dict[st
             "annotated_success_cells": float(np.mean([m.sum() for m in succ])),
             "fresh_p_of_annotated_successes": float(np.mean(np.concatenate([probs[s][m] for s, m in zip(ids, succ)]))),
             "fresh_p_of_annotated_failures": float(
-                np.mean(
-                    np.concatenate(
-                        [probs[s][~m & np.asarray(scenes[s]["candidates"]["valid"], bool)] for s, m in zip(ids, succ)]
-                    )
-                )
+                np.mean(np.concatenate([probs[s][annotated_failures(scenes[s])] for s in ids]))
             ),
             "cells_p_ge_half": float(np.mean([(probs[s] >= 0.5).sum() for s in ids])),
         }

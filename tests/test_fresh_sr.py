@@ -262,3 +262,69 @@ def test_the_label_oracle_stands_on_its_argmax_under_top_k(drawer_root):
         top1 = fs.view_choices(batch, scores, scenes, probs, top_k=1)
         topk = fs.view_choices(batch, scores, scenes, probs, top_k=batch["floor_xyz"].shape[1])
         assert [r["label"] for r in topk] == [r["label"] for r in top1]
+
+
+def _load_fresh_labels():
+    spec = importlib.util.spec_from_file_location(
+        "fresh_labels", Path(__file__).resolve().parents[1] / "scripts" / "fresh_labels.py"
+    )
+    fl = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(fl)
+    return fl
+
+
+def _hole_scene(task: str = "CloseDrawer") -> dict:
+    """A 3 x 3 scene whose centre the IK pre-filter refused amid 8 successes: the smoothed map (labels.label) peaks
+    on that filtered cell, which every per-cell label (labels.cell_label) sets to 0."""
+    from floaff_zoo.sim.annotate import FILTERED, ROLLED_OUT, _smooth, cell_labels
+
+    status = np.full(9, ROLLED_OUT)
+    status[4] = FILTERED
+    success = (status == ROLLED_OUT).astype(float)
+    label = _smooth(success, (3, 3), 1.0)
+    cell_label, known = cell_labels(label, status)
+    xy = np.stack(np.meshgrid(np.arange(3) * 0.1, np.arange(3) * 0.1, indexing="ij"), -1).reshape(-1, 2)
+    return {
+        "scene_id": "hole",
+        "task": task,
+        "sigma": 1.0,
+        "candidates": {
+            "xy": xy.tolist(),
+            "status": status.tolist(),
+            "grid_shape": [3, 3],
+            "cell": 0.1,
+            "valid": [True] * 9,
+        },
+        "labels": {"success": success.tolist(), "label": label.tolist(), "cell_label": cell_label.tolist()},
+    }
+
+
+def test_fresh_labels_summary_compares_peaks_with_the_generated_per_cell_labels(tmp_path, monkeypatch, capsys):
+    """The 'same peak cell' summary took the generated peak from labels.label, the map before filtered cells are
+    zeroed: with --episodes 0, whose labels equal the generated ones, it printed 0.00 for a scene whose map peaked on
+    a filtered cell."""
+    fl = _load_fresh_labels()
+    scene = _hole_scene()
+    assert int(np.argmax(scene["labels"]["label"])) == 4  # the smoothed map peaks on the filtered centre
+    monkeypatch.setattr(ff, "iter_scenes", lambda root, benchmark=None, split=None: iter([scene]))
+    out = tmp_path / "labels.npz"
+    assert fl.main(["--root", str(tmp_path), "--benchmark", "styles", "--episodes", "0", "--out", str(out)]) == 0
+    assert "CloseDrawer: 1 scenes, same peak cell 1.00" in capsys.readouterr().out
+    assert np.array_equal(fl.generated_label(scene), np.asarray(scene["labels"]["cell_label"]))
+
+
+def test_cell_stats_leaves_cells_over_the_budget_out_of_the_annotated_failures():
+    """A cell over the rollout budget (SKIPPED) was never rolled out, yet counted as an annotated failure: its fresh
+    successes raised fresh_p_of_annotated_failures."""
+    from floaff_zoo.sim.annotate import SKIPPED
+
+    scene = _hole_scene()
+    scene["candidates"]["status"][0] = SKIPPED
+    scene["labels"]["success"][0] = 0.0
+    scene["labels"]["success"][1] = 0.0  # a rolled-out failure
+    probs = np.zeros(9)
+    probs[0], probs[1], probs[2] = 1.0, 0.25, 0.5
+    stats = fs.cell_stats({"hole": scene}, {"hole": probs})["CloseDrawer"]
+    # failures: cell 1 (rolled out) and the IK-refused centre 4; not the skipped cell 0
+    assert stats["fresh_p_of_annotated_failures"] == pytest.approx((0.25 + 0.0) / 2)
+    assert fs.annotated_failures(scene).tolist() == [i in (1, 4) for i in range(9)]
