@@ -364,29 +364,32 @@ class _FloorsOfSeveralSizes(torch.utils.data.Dataset):
         return {**s, "floor_xyz": s["floor_xyz"][:k], "floor_label": s["floor_label"][:k]}
 
 
-@pytest.mark.parametrize("loss", ["mse", "aff"])
-def test_eval_loss_does_not_depend_on_the_eval_batch_size(loss):
-    """The eval loss was the MSE pooled over a batch's valid points, which Lightning then averaged over batches by
-    sample count: the same five maps gave another val_loss/test_loss (and checkpoint choice) at another eval batch
-    size. It is now the mean over maps of each map's loss."""
+def _eval_losses(model: lightning.LightningModule, wrap: type, eval_batch_size: int) -> dict[str, float]:
+    """Every ``*_loss`` that validating and testing ``model`` logs on synthetic val/test splits seen through ``wrap``
+    (a dataset wrapper), at ``eval_batch_size``."""
     from floaff_zoo.data.synthetic import SyntheticDataModule
 
     class Data(SyntheticDataModule):
         def setup(self, stage: str | None = None) -> None:
             super().setup(stage)
             for split in ("val", "test"):
-                self.datasets[split] = _FloorsOfSeveralSizes(self.datasets[split])
+                self.datasets[split] = wrap(self.datasets[split])
 
+    data = Data(2, 5, 5, 128, 8, batch_size=2, eval_batch_size=eval_batch_size, num_points=128, collate_mode="pad")
+    trainer = lightning.Trainer(accelerator="cpu", logger=False, enable_progress_bar=False, enable_model_summary=False)
+    logged = {**trainer.validate(model, data, verbose=False)[0], **trainer.test(model, data, verbose=False)[0]}
+    return {key: value for key, value in logged.items() if key.endswith("_loss")}
+
+
+@pytest.mark.parametrize("loss", ["mse", "aff"])
+def test_eval_loss_does_not_depend_on_the_eval_batch_size(loss):
+    """The eval loss was the MSE pooled over a batch's valid points, which Lightning then averaged over batches by
+    sample count: the same five maps gave another val_loss/test_loss (and checkpoint choice) at another eval batch
+    size. It is now the mean over maps of each map's loss."""
     lightning.seed_everything(0)
     model = TinyPointNetModule(width=16, train={"loss": loss})
-    losses = []
-    for eval_batch_size in (1, 4):
-        data = Data(2, 5, 5, 128, 8, batch_size=2, eval_batch_size=eval_batch_size, num_points=128, collate_mode="pad")
-        trainer = lightning.Trainer(
-            accelerator="cpu", logger=False, enable_progress_bar=False, enable_model_summary=False
-        )
-        val = trainer.validate(model, data, verbose=False)[0]["val_loss"]
-        losses.append((val, trainer.test(model, data, verbose=False)[0]["test_loss"]))
+    losses = [_eval_losses(model, _FloorsOfSeveralSizes, b) for b in (1, 4)]
+    assert {"val_loss", "test_loss"} <= losses[0].keys()
     assert losses[1] == pytest.approx(losses[0], rel=1e-6)
 
 
@@ -404,23 +407,8 @@ def test_extra_eval_loss_terms_do_not_depend_on_the_eval_batch_size(name):
     """VoteNet's vote term and N2M's likelihood were means over a batch's samples with a target, which Lightning then
     averaged over batches by sample count: val/test losses moved with the eval batch size. In evaluation every term
     is now a mean over samples of each sample's own value (H3DNet's vote term already was one: checked alike)."""
-    from floaff_zoo.data.synthetic import SyntheticDataModule
-
-    class Data(SyntheticDataModule):
-        def setup(self, stage: str | None = None) -> None:
-            super().setup(stage)
-            for split in ("val", "test"):
-                self.datasets[split] = _SomeWithoutTarget(self.datasets[split])
-
     lightning.seed_everything(0)
     model = build(ROOT / f"tests/configs/models/{name}_tiny.yaml")
-    losses = []
-    for eval_batch_size in (1, 4):
-        data = Data(2, 5, 5, 128, 8, batch_size=2, eval_batch_size=eval_batch_size, num_points=128, collate_mode="pad")
-        trainer = lightning.Trainer(
-            accelerator="cpu", logger=False, enable_progress_bar=False, enable_model_summary=False
-        )
-        logged = {**trainer.validate(model, data, verbose=False)[0], **trainer.test(model, data, verbose=False)[0]}
-        losses.append({k: v for k, v in logged.items() if k.endswith("_loss")})
+    losses = [_eval_losses(model, _SomeWithoutTarget, b) for b in (1, 4)]
     assert {"val_loss", "test_loss"} <= losses[0].keys()
     assert losses[1] == pytest.approx(losses[0], rel=1e-5, abs=1e-7)
