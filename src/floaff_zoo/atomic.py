@@ -92,3 +92,9 @@ def atomic_write(path: str | os.PathLike[str], write: Callable[[BinaryIO], None]
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def atomic_write_text(path: str | os.PathLike[str], text: str, durable: bool = False) -> None:
+    """``text`` (UTF-8) written whole or not at all, as :func:`atomic_write`."""
+    data = text.encode("utf-8")
+    atomic_write(path, lambda f: f.write(data), durable=durable)

@@ -30,7 +30,7 @@ from lightning.pytorch.utilities.exceptions import MisconfigurationException
 
 from floaff_zoo import quiet, runtime
 from floaff_zoo._version import __version__
-from floaff_zoo.atomic import atomic_write
+from floaff_zoo.atomic import atomic_write_text
 from floaff_zoo.contract import NonFiniteError, SampleError
 from floaff_zoo.data.base import FloAffDataModule
 from floaff_zoo.models.base import WEIGHTS_FAILURE_NOTE, ZooModule
@@ -309,7 +309,7 @@ class SaveConfig(SaveConfigCallback):
         if not changed:
             return
         text = yaml.safe_dump(data, sort_keys=False)
-        atomic_write(path, lambda f: f.write(text.encode()))
+        atomic_write_text(path, text)
 
 
 class FloAffCLI(LightningCLI):

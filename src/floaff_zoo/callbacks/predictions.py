@@ -25,7 +25,7 @@ import numpy as np
 import torch
 from lightning.pytorch.callbacks import BasePredictionWriter
 
-from floaff_zoo.atomic import atomic_write
+from floaff_zoo.atomic import atomic_write, atomic_write_text
 from floaff_zoo.callbacks.report import jsonable
 from floaff_zoo.contract import NonFiniteError
 
@@ -142,7 +142,7 @@ class PredictionWriter(BasePredictionWriter):
         # each file whole (a temp file renamed over it): a reader of the earlier pair never meets half a file, and a
         # killed run leaves the earlier file, not a truncated one
         atomic_write(npz, lambda f: np.savez_compressed(f, **arrays))
-        atomic_write(js, lambda f: f.write(text.encode("utf-8")))
+        atomic_write_text(js, text)
         self.written = {"npz": str(npz), "json": str(js)}
         print(f"floaff-zoo predict: {len(meta)} samples -> {npz} (+ {js.name})", flush=True)
         if replaced:

@@ -35,7 +35,7 @@ import lightning as L
 import numpy as np
 import torch
 
-from floaff_zoo.atomic import atomic_write, folder_lock
+from floaff_zoo.atomic import atomic_write_text, folder_lock
 from floaff_zoo.data.base import FloAffDataModule
 from floaff_zoo.report.figures import FigureSample, write_figures
 
@@ -385,7 +385,7 @@ def write_report_files(run_dir: Path, report: dict[str, Any], episodes: list[dic
     elif (run_dir / "sr_episodes.json").is_file():
         (run_dir / "sr_episodes.json").unlink()
     for name, text in texts.items():
-        atomic_write(run_dir / name, lambda f, text=text: f.write(text.encode("utf-8")))
+        atomic_write_text(run_dir / name, text)
 
 
 def remove_earlier_figures(run_dir: Path) -> int | None:

@@ -289,11 +289,15 @@ def estimate_target_yaw(
     return math.atan2(float(d[1]), float(d[0])) if np.hypot(*d) > 1e-9 else 0.0
 
 
+def scene_of(config_dir: str) -> str:
+    """A sample's scene id: the digits of ``RGBD-<scene>-target_...``, or the config folder when it does not parse."""
+    m = CONFIG_RE.match(config_dir)
+    return m["scene"] if m else config_dir
+
+
 def split_scenes(text: str) -> set[str]:
-    """The scene ids (6 digits of ``RGBD-<scene6>-...``; the config folder when it does not parse) of a split file's
-    sample lines."""
-    folders = {Path(line.strip()).parts[0] for line in text.splitlines() if line.strip()}
-    return {m["scene"] if (m := CONFIG_RE.match(f)) else f for f in folders}
+    """The scene ids (:func:`scene_of`) of a split file's sample lines."""
+    return {scene_of(Path(line.strip()).parts[0]) for line in text.splitlines() if line.strip()}
 
 
 def read_split_file(path: Path) -> str:
@@ -407,8 +411,8 @@ class MoMaKitchenReader:
                 "dataset": dataset,
                 "task": "",
                 "view": "",
-                "scene_id": m["scene"] if m else config_dir,
-                "layout_id": m["scene"] if m else config_dir,
+                "scene_id": scene_of(config_dir),
+                "layout_id": scene_of(config_dir),
                 "style_id": -1,
                 "sample_id": rel,
                 "config_id": config_dir,
@@ -577,9 +581,11 @@ class MoMaKitchenDataModule(FloAffDataModule):
         split holds unseen scenes (docs/background.md), so a shared one tests the model on a kitchen it trained on.
         Checked only when both files are there and readable (``_records`` names a file that is not)."""
         paths = [self.split_dir / self.split_files[s] for s in ("train", "test")]
+        if not all(p.is_file() for p in paths):
+            return
         try:
-            train, test = (split_scenes(read_split_file(p)) for p in paths if p.is_file())
-        except ValueError:  # a file missing (unpacking) or not UTF-8 text: named where its split is set up
+            train, test = (split_scenes(read_split_file(p)) for p in paths)
+        except ValueError:  # not UTF-8 text: named where its split is set up
             return
         shared = sorted(train & test)
         if shared:

@@ -27,7 +27,7 @@ from typing import Any
 
 import torch
 
-from floaff_zoo.atomic import atomic_write, publish
+from floaff_zoo.atomic import atomic_write_text, publish
 from floaff_zoo.hub.io import (
     CONFIG_NAME,
     DEFAULT_WEIGHTS_NAME,
@@ -279,7 +279,7 @@ def save_model_dir(model: torch.nn.Module, directory: str | os.PathLike[str]) ->
     filename, sha = _write_weights(out, state, {"class_path": class_path, "init_args": init_args}, DEFAULT_WEIGHTS_NAME)
     config = {"class_path": class_path, "init_args": init_args, "weights": filename, "sha256": sha}
     # whole or not at all: a save over an earlier one that was killed here left a half config.json
-    atomic_write(out / CONFIG_NAME, lambda f: f.write((json.dumps(config, indent=2) + "\n").encode()))
+    atomic_write_text(out / CONFIG_NAME, json.dumps(config, indent=2) + "\n")
     return out
 
 

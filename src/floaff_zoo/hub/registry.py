@@ -35,7 +35,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from floaff_zoo.atomic import atomic_write, folder_lock
+from floaff_zoo.atomic import atomic_write_text, folder_lock
 
 INDEX_VERSION = 1
 SHIPPED_INDEX = Path(__file__).with_name("index.json")
@@ -251,7 +251,7 @@ def write_index(path: Path, entries: list[HubEntry]) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     payload = {"version": INDEX_VERSION, "entries": [e.to_json() for e in sorted(entries, key=lambda e: e.name)]}
     text = json.dumps(payload, indent=2, sort_keys=False) + "\n"
-    atomic_write(path, lambda f: f.write(text.encode()), durable=True)  # after a power loss: old or new, never empty
+    atomic_write_text(path, text, durable=True)  # after a power loss: old or new, never empty
 
 
 def user_index_path(directory: str | os.PathLike[str] | None = None) -> Path:
