@@ -398,3 +398,13 @@ def test_a_resumed_fit_averages_only_tasks_its_prior_lacks(root):
     assert needs(None, seen)  # a fresh fit makes its pass, as before
     assert not needs("last.ckpt", seen)  # resumed, every task in the prior
     assert needs("last.ckpt", [*seen, other])  # resumed on data with a task the prior lacks
+    # that pass fills the missing task and leaves the tasks the prior has
+    kept, counts = m.prior.sums.clone(), m.prior.counts.sum((1, 2)).clone()
+    new = _batch(2, seed=1)
+    for meta in new["meta"]:
+        meta["task"] = other
+    m._trainer.datamodule.train_dataloader = lambda: [new]
+    m.fill_prior()
+    o = m.prior.tasks.index(other)
+    assert counts[o] == 0 and m.prior.counts[o].sum() > 0
+    assert all(torch.equal(m.prior.sums[i], kept[i]) for i in range(len(m.prior.tasks)) if i != o)
