@@ -80,7 +80,7 @@ def main(argv: list[str] | None = None) -> int:
         if v is not None and not v.endswith(".npz"):
             p.error(f"--{name} must name a .npz file, got {v!r}")
 
-    from floaff_zoo.data.scene_labels import write_scene_labels
+    from floaff_zoo.data.scene_labels import MADE_FROM, write_scene_labels
     from floaff_zoo.sim import fileformat as ff
     from floaff_zoo.sim.repeat import scene_probabilities
 
@@ -102,7 +102,10 @@ def main(argv: list[str] | None = None) -> int:
         labels[sid] = (np.asarray(scene["candidates"]["xy"], float), label, float(scene["candidates"]["cell"]))
     source = "annotated + fresh episodes" if a.episodes else "annotated"
     setting = {**setting, "zero_failures": a.zero_failures}
-    write_scene_labels(a.out, labels, {**setting, "benchmark": a.benchmark, "source": source})
+    made_from = {sid: ff.labels_digest(scene) for sid, scene in scenes.items()}  # the data module checks it
+    write_scene_labels(
+        a.out, labels, {**setting, "benchmark": a.benchmark, "source": source, MADE_FROM: made_from}
+    )
     print(f"{a.out}: labels of {len(labels)} train scenes of {a.benchmark} ({setting})")
     for t in TASKS:
         ids = [s for s in scenes if scenes[s]["task"] == t]

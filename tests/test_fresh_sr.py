@@ -124,6 +124,8 @@ def test_fresh_labels_train_the_datamodule_and_val_split_scores(drawer_root, tmp
     table, setting = read_scene_labels(out)
     train = {s["scene_id"]: s for s in ff.iter_scenes(drawer_root, benchmark="styles", split="train")}
     assert set(table) == set(train) and setting["episodes"] == 1
+    # the data module checks a file against the generated labels it was made from (data.scene_labels)
+    assert setting["made_from"] == {sid: ff.labels_digest(scene) for sid, scene in train.items()}
     for sid, scene in train.items():
         xy, label, cell = table[sid]
         assert np.allclose(xy, scene["candidates"]["xy"]) and cell == scene["candidates"]["cell"]

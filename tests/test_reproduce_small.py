@@ -201,6 +201,7 @@ def test_single_task_job_names_what_is_wrong(tmp_path, job, message):
 FAKE_FRESH_LABELS = textwrap.dedent(
     """\
     import argparse
+    import json
     from pathlib import Path
 
     import numpy as np
@@ -210,7 +211,9 @@ FAKE_FRESH_LABELS = textwrap.dedent(
         p.add_argument(flag)
     p.add_argument("--zero-failures", action="store_true")
     a = p.parse_args()
-    np.savez(a.out, setting="{}", **{"L0_scene/label": np.loadtxt(Path(a.root) / "labels.txt")})
+    label = np.loadtxt(Path(a.root) / "labels.txt")
+    setting = json.dumps({"made_from": {"L0_scene": str(label.tolist())}})
+    np.savez(a.out, setting=setting, **{"L0_scene/label": label})
     """
 )
 
@@ -249,8 +252,11 @@ def test_success_labels_of_another_data_copy_are_refused(tmp_path):
     done = run("a")
     assert done.returncode == 0, done.stdout + done.stderr
     assert np.load(labels)["L0_scene/label"].tolist() == [1, 2, 3]
-    done = run("a_again")  # another path, the same labels: kept
+    setting = str(np.load(labels)["setting"])
+    np.savez(labels, setting="{}", **{"L0_scene/label": np.load(labels)["L0_scene/label"]})  # written before made_from
+    done = run("a_again")  # another path, the same labels: kept, and a file without made_from gets it
     assert done.returncode == 0, done.stdout + done.stderr
+    assert str(np.load(labels)["setting"]) == setting and np.load(labels)["L0_scene/label"].tolist() == [1, 2, 3]
     n_fits = len(_calls(tmp_path, "fit"))
     assert n_fits == 2  # both jobs ran through to their fits
     done = run("b")

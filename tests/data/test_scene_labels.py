@@ -10,7 +10,7 @@ from lightning.pytorch.utilities.exceptions import MisconfigurationException
 from floaff_zoo.cli import run_lightning
 from floaff_zoo.contract import SampleError
 from floaff_zoo.data.floaff_kitchen import FloAffKitchenDataModule
-from floaff_zoo.data.scene_labels import SceneLabels, read_scene_labels, write_scene_labels
+from floaff_zoo.data.scene_labels import MADE_FROM, SceneLabels, read_scene_labels, write_scene_labels
 from floaff_zoo.frames import base_to_world
 from floaff_zoo.sim import fileformat as ff
 from tests.conftest import quiet_trainer_args
@@ -109,7 +109,8 @@ def test_fit_with_train_labels_through_the_cli(tmp_path, root, monkeypatch, floa
     ids = [s["scene_id"] for s in ff.iter_scenes(data_root, benchmark="layouts", split="train")]
     table, want = _labels_of_views(data_root, "layouts", ids)
     labels = tmp_path / "train_labels.npz"
-    write_scene_labels(labels, table, {"source": "test"})
+    made_from = {sid: ff.labels_digest(ff.read_scene(ff.scene_dir(data_root, "layouts", sid))) for sid in ids}
+    write_scene_labels(labels, table, {"source": "test", MADE_FROM: made_from})
     args = [
         "fit",
         "--config",
@@ -146,6 +147,22 @@ def test_fit_with_train_labels_through_the_cli(tmp_path, root, monkeypatch, floa
     write_scene_labels(labels, {k: v for k, v in table.items() if k != train_id}, {})
     with pytest.raises(MisconfigurationException, match=f"train_labels .*train_labels.npz has no labels .*{train_id}"):
         run_lightning(args)
+    # a file made from another copy of the data (one train scene's generated labels differ) fails before training,
+    # naming the file and the scene: it was trained on without a word
+    write_scene_labels(labels, table, {MADE_FROM: {**made_from, train_id: "0" * 16}})
+    with pytest.raises(MisconfigurationException, match=f"train_labels.npz was made from other .*{train_id}"):
+        run_lightning(args)
+
+
+def test_a_label_file_without_its_source_digests_is_used_with_a_warning(tmp_path, floaff_root):
+    data_root = floaff_root[0]
+    ids = [s["scene_id"] for s in ff.iter_scenes(data_root, benchmark="layouts", split="train")]
+    labels = tmp_path / "old.npz"
+    write_scene_labels(labels, _labels_of_views(data_root, "layouts", ids)[0], {"source": "written before digests"})
+    dm = FloAffKitchenDataModule(root=str(data_root), benchmark="layouts", train_labels=str(labels), num_points=64)
+    dm.setup("fit")
+    with pytest.warns(UserWarning, match="old.npz does not record which generated labels"):
+        assert len(dm.train_dataloader().dataset)
 
 
 def test_datamodule_names_a_missing_label_file(floaff_root, tmp_path):

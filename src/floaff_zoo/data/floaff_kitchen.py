@@ -416,6 +416,7 @@ class FloAffKitchenDataModule(FloAffDataModule):
                 f"FloAffKitchenDataModule: train_labels {self.train_labels.path} has no labels for the train "
                 f"scene(s) {missing}"
             )
+        self._check_made_from(self.split_scenes.get("train", []))
         ds = self.datasets["train"]
         rng = np.random.default_rng(0)
         for i in range(len(ds)):
@@ -423,6 +424,29 @@ class FloAffKitchenDataModule(FloAffDataModule):
                 self.train_labels(ds[i], rng)
             except SampleError as exc:
                 raise MisconfigurationException(f"FloAffKitchenDataModule: train_labels: {exc}") from exc
+
+    def _check_made_from(self, train: list[str]) -> None:
+        """The train scenes' labels in ``train_labels`` must be made from this data copy's generated labels: a file
+        made from another copy (a few cells differ across CPUs) was trained on without a word. Files written before
+        the digest was kept are used unchecked, with a warning."""
+        assert self.train_labels is not None
+        made = self.train_labels.made_from()
+        if made is None:
+            warnings.warn(
+                f"FloAffKitchenDataModule: train_labels {self.train_labels.path} does not record which generated "
+                f"labels it was made from (written before that was kept), so it is not checked against {self.root}; "
+                "make it again with scripts/fresh_labels.py to have it checked",
+                stacklevel=2,
+            )
+            return
+        other = [s for s in train if made.get(s) != self.labels_digests.get(s)]
+        if other:
+            shown = ", ".join(other[:5]) + (f" and {len(other) - 5} more" if len(other) > 5 else "")
+            raise MisconfigurationException(
+                f"FloAffKitchenDataModule: train_labels {self.train_labels.path} was made from other generated "
+                f"labels than {self.root} holds for the train scene(s) {shown} (another copy of the data, or data "
+                "generated again): make it again from this copy with scripts/fresh_labels.py"
+            )
 
     def describe(self) -> dict[str, Any]:
         """Scene ids per split (after setup): for logs and reports."""

@@ -6,7 +6,11 @@ file format, which ``FloAffKitchenDataModule(train_labels=...)`` reads for its t
 keep the benchmark's labels, so checkpoint choice and every reported number stay on the benchmark).
 
 File (``.npz``): ``setting`` (JSON text: how the labels were made) and, per scene id, ``<id>/xy`` [M, 2] (world xy
-of the scene's candidate cells), ``<id>/label`` [M] in [0, 1] and ``<id>/cell`` (grid spacing, m).
+of the scene's candidate cells), ``<id>/label`` [M] in [0, 1] and ``<id>/cell`` (grid spacing, m). The setting's
+``made_from`` maps each scene id to the ``labels_digest`` of the generated scene the labels were made from
+(:func:`floaff_zoo.sim.fileformat.labels_digest`): copies of a preset differ in a few cells across CPUs, and the
+file's name names no copy, so the data module refuses a file made from another copy (files written before the digest
+was kept have none, and are used unchecked with a warning).
 """
 
 from __future__ import annotations
@@ -23,7 +27,10 @@ from floaff_zoo.contract import Sample, SampleError
 from floaff_zoo.data.transforms import SampleTransform
 from floaff_zoo.frames import base_to_world
 
-__all__ = ["SceneLabels", "read_scene_labels", "write_scene_labels"]
+__all__ = ["MADE_FROM", "SceneLabels", "read_scene_labels", "write_scene_labels"]
+
+#: the setting key holding {scene id: labels_digest of the generated scene the labels were made from}
+MADE_FROM = "made_from"
 
 #: a view's floor point belongs to a cell when it lies within this fraction of the spacing of the cell's centre
 ON_GRID = 0.25
@@ -97,15 +104,23 @@ class SceneLabels(SampleTransform):
     def __init__(self, path: str) -> None:
         self.path = str(path)
         self._table: dict[str, tuple[np.ndarray, np.ndarray, float]] | None = None
+        self._setting: dict[str, Any] = {}
 
     def table(self) -> dict[str, tuple[np.ndarray, np.ndarray, float]]:
         """The file's {scene id: (xy, label, cell)}, read once per process."""
         if self._table is None:
-            self._table = read_scene_labels(self.path)[0]
+            self._table, self._setting = read_scene_labels(self.path)
         return self._table
 
+    def made_from(self) -> dict[str, str] | None:
+        """{scene id: labels_digest of the generated scene the labels were made from}; None for files written before
+        it was kept (module doc)."""
+        self.table()
+        made = self._setting.get(MADE_FROM)
+        return {str(k): str(v) for k, v in made.items()} if isinstance(made, dict) else None
+
     def __getstate__(self) -> dict[str, Any]:  # worker processes read the file themselves
-        return {"path": self.path, "_table": None}
+        return {"path": self.path, "_table": None, "_setting": {}}
 
     def __call__(self, sample: Sample, rng: np.random.Generator) -> Sample:
         meta = sample.get("meta") or {}
