@@ -35,7 +35,9 @@ Resuming: every finished stage writes ``<stage dir>/stage.json`` and the run wri
 A rerun skips stages whose record is ``done`` with the same fit arguments, the same ``--config`` file contents
 (the stage digest below; any edit, a comment too, means a fresh fit), the same input files (a checkpoint or label
 file, ``INPUT_SUFFIXES``, that a fit argument or a value in a ``--config`` file names, such as an earlier stage's
-checkpoint or ``data.init_args.train_labels``; sha256 checked) and an intact checkpoint (sha256 checked).
+checkpoint or ``data.init_args.train_labels``; sha256 checked), the same data folder (``data.init_args.root``: its
+files' names and sizes and its metadata files' contents, hidden files such as the sample cache aside; records written
+before it was kept are compared without it) and an intact checkpoint (sha256 checked).
 Each run directory a stage's fit writes gets ``curriculum_run.json`` (the digest of the stage's fit arguments and
 ``--config`` file contents, and its input files' sha256 when the fit started); a stage that was killed resumes from
 the newest ``last.ckpt`` of a run with its digest whose input files are unchanged since it started, and that no fit
@@ -62,7 +64,7 @@ from typing import Any
 
 import yaml
 
-from floaff_zoo.runs import RunError, config_values, is_config_file, load_checkpoint
+from floaff_zoo.runs import RunError, config_value, config_values, is_config_file, load_checkpoint
 
 __all__ = ["CurriculumError", "build_stage_args", "load_experiment", "main", "read_lineage", "run_curriculum"]
 
@@ -390,7 +392,7 @@ def _finished(record: dict[str, Any] | None, args: list[str]) -> tuple[bool, str
     # records written before input files were kept have none: their arguments and --config files decide, as they did
     changed = record.get("inputs") is not None and _changed_input(record["inputs"], _input_files(args))
     if changed:
-        return False, f"a file its arguments name changed since it finished ({changed})"
+        return False, f"{_input_text(changed)} changed since it finished"
     ckpt = record.get("checkpoint")
     if not ckpt or not Path(ckpt).is_file():
         return False, f"its checkpoint {ckpt} is missing"
@@ -406,18 +408,84 @@ INPUT_SUFFIXES = (".ckpt", ".safetensors", ".pt", ".pth", ".npz")
 
 def _input_files(args: list[str]) -> dict[str, str]:
     """{path: sha256} of every existing file of an ``INPUT_SUFFIXES`` kind that a fit argument names, or that a value
-    in one of its ``--config`` files names (e.g. ``data.init_args.train_labels``, an ``.npz`` a script regenerates)."""
+    in one of its ``--config`` files names (e.g. ``data.init_args.train_labels``, an ``.npz`` a script regenerates),
+    and {``<data root>/``: fingerprint} of the data folder the fit reads (:func:`_data_fingerprint`)."""
     named = list(args) + [v for f in config_values(args) for v in _yaml_strings(f)]
-    return {a: _sha256(a) for a in dict.fromkeys(named) if a.endswith(INPUT_SUFFIXES) and Path(a).is_file()}
+    files = {a: _sha256(a) for a in dict.fromkeys(named) if a.endswith(INPUT_SUFFIXES) and Path(a).is_file()}
+    root = _data_root(args)
+    if root is not None and Path(root).is_dir():
+        files[root.rstrip("/") + "/"] = _data_fingerprint(Path(root))
+    return files
 
 
 def _changed_input(recorded: dict[str, str] | None, now: dict[str, str]) -> str | None:
     """The first input file whose sha256 differs between ``recorded`` and ``now`` (None: none, or nothing was
-    recorded, as by older runners)."""
+    recorded, as by older runners). Records written before data folders were kept (no key ending in ``/``) are
+    compared on their files only, as they were."""
     if recorded is None:
         return None
+    if not any(k.endswith("/") for k in recorded):
+        now = {k: v for k, v in now.items() if not k.endswith("/")}
     changed = sorted(f for f in set(now) | set(recorded) if now.get(f) != recorded.get(f))
     return changed[0] if changed else None
+
+
+def _input_text(key: str) -> str:
+    """How a changed input of :func:`_input_files` is named in a message."""
+    return f"its data folder ({key})" if key.endswith("/") else f"a file its arguments name ({key})"
+
+
+def _data_root(args: list[str]) -> str | None:
+    """The ``data.init_args.root`` a fit's arguments give, the last setting winning as in the CLI: a ``--config``
+    file's ``data: {init_args: {root: ...}}`` (or ``data: {root: ...}``) or a ``--data.init_args.root`` flag."""
+    root = None
+    for i, arg in enumerate(args):
+        value = config_value(args, i)
+        if value is not None and is_config_file(value):
+            root = _yaml_root(value) or root
+        for flag in ("--data.init_args.root", "--data.root"):
+            if arg == flag and i + 1 < len(args):
+                root = args[i + 1]
+            elif arg.startswith(flag + "="):
+                root = arg.partition("=")[2]
+    return root
+
+
+def _yaml_root(path: str) -> str | None:
+    """The data root a ``--config`` file sets (None: it sets none, or it does not parse: the fit reports that)."""
+    try:
+        data = (yaml.safe_load(Path(path).read_text()) or {}).get("data")
+    except (OSError, yaml.YAMLError, AttributeError):
+        return None
+    if not isinstance(data, dict):
+        return None
+    init = data.get("init_args") if isinstance(data.get("init_args"), dict) else data
+    return init.get("root") if isinstance(init.get("root"), str) else None
+
+
+#: files under a data folder whose content the fingerprint reads: the small metadata a generator or a public format
+#: writes per scene and per dataset (scene.json, manifest.json, split lists); other files count by path and size
+_DATA_TEXT_SUFFIXES = (".json", ".txt", ".yaml", ".yml", ".csv")
+
+
+def _data_fingerprint(root: Path) -> str:
+    """sha256 over every file of a data folder, but hidden ones (the sample cache ``.cache``, lock files, which fits
+    write there): each file's relative path and size, and the content of its metadata files. A finished stage is
+    reused only while the data it trained on is unchanged: regenerated data (new manifest and scene records), another
+    copy in the same folder or scenes added or removed give another fingerprint."""
+    h = hashlib.sha256()
+    for dirpath, dirnames, filenames in os.walk(root):
+        dirnames[:] = sorted(d for d in dirnames if not d.startswith("."))
+        for name in sorted(f for f in filenames if not f.startswith(".")):
+            path = Path(dirpath, name)
+            rel = path.relative_to(root).as_posix()
+            try:
+                size = path.stat().st_size
+                text = _sha256(path) if name.endswith(_DATA_TEXT_SUFFIXES) else ""
+            except OSError:  # removed meanwhile (a generator running beside us): counted as missing
+                size, text = -1, ""
+            h.update(f"{rel}\0{size}\0{text}\n".encode())
+    return h.hexdigest()
 
 
 def _yaml_strings(path: str) -> list[str]:
@@ -608,8 +676,8 @@ def _resume(
     changed = _changed_input(mark.get("inputs"), running["inputs"])
     if changed:
         print(
-            f"[curriculum] stage {name}: not resuming {last}: a file its arguments name changed since the killed run "
-            f"started ({changed}); starting a fresh fit",
+            f"[curriculum] stage {name}: not resuming {last}: {_input_text(changed)} changed since the killed run "
+            "started; starting a fresh fit",
             file=out,
         )
         return None, []

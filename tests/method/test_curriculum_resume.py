@@ -198,7 +198,7 @@ def test_a_later_stage_reruns_when_its_teacher_was_refit_into_the_same_path(tmp_
     seen: list = []
     new1, new2 = run_curriculum(exp, runner=_spy(seen))
     assert new1["checkpoint"] == s1["checkpoint"] and new1["sha256"] != s1["sha256"]  # same path, new weights
-    assert len(seen) == 2 and "a file its arguments name changed" in capsys.readouterr().out
+    assert len(seen) == 2 and f"a file its arguments name ({s1['checkpoint']}) changed" in capsys.readouterr().out
     assert new2["inputs"] == {new1["checkpoint"]: new1["sha256"]}
 
 
@@ -219,7 +219,7 @@ def test_a_finished_stage_reruns_when_a_file_its_config_file_names_changed(tmp_p
     seen: list = []
     (new,) = run_curriculum(exp, extra_configs=[str(extra)], runner=_spy(seen))
     assert (
-        len(seen) == 1 and f"a file its arguments name changed since it finished ({weights})" in capsys.readouterr().out
+        len(seen) == 1 and f"a file its arguments name ({weights}) changed since it finished" in capsys.readouterr().out
     )
     assert new["inputs"] == {str(weights): sha256_file(weights)}
 
@@ -240,7 +240,7 @@ def test_a_killed_stage_whose_input_file_changed_starts_afresh(tmp_path, capsys)
     seen: list = []
     (new,) = run_curriculum(exp, sets=sets, runner=_spy(seen))
     assert "--ckpt_path" not in seen[0] and new["resumed_from"] is None
-    assert f"changed since the killed run started ({weights}); starting a fresh fit" in capsys.readouterr().out
+    assert f"({weights}) changed since the killed run started; starting a fresh fit" in capsys.readouterr().out
     assert new["inputs"] == {str(weights): sha256_file(weights)}
 
 
@@ -437,7 +437,7 @@ def test_a_weights_file_rewritten_during_the_fit_is_not_recorded_as_its_input(tm
     run_curriculum(exp, sets=sets, runner=rewrites)
     capsys.readouterr()
     run_curriculum(exp, sets=sets)
-    assert "rerunning, a file its arguments name changed" in capsys.readouterr().out
+    assert f"rerunning, a file its arguments name ({init}) changed" in capsys.readouterr().out
 
 
 def test_a_run_marked_by_an_older_runner_stays_resumable_after_its_resumed_fit_writes(tmp_path):
@@ -484,3 +484,45 @@ def test_a_stage_digest_takes_a_config_given_as_yaml_text():
 
     long_text = "{trainer: {max_epochs: 1}}" + " " * 5000
     assert _digest(["fit", "--config", long_text]) == _digest(["fit", "--config", long_text])
+
+
+def test_a_finished_stage_reruns_when_its_data_folder_changed(tmp_path, capsys):
+    """The data a stage trained on was not among its inputs: after the data was generated again into the same folder,
+    a rerun skipped the stage trained on the old data. The sample cache its fit writes into the folder changes
+    nothing, and a record written before data folders were kept is compared on its files, as it was."""
+    from tests.data.floaff_fixture import make_floaff_dataset
+
+    data = tmp_path / "floaff"
+    make_floaff_dataset(data, problems=False)
+    exp = tmp_path / "exp.yaml"
+    overrides = {**OVERRIDES, "trainer.max_epochs": 1, "data.init_args.root": str(data)}
+    overrides |= {"data.init_args.num_points": 256, "data.init_args.batch_size": 2}
+    exp.write_text(
+        yaml.safe_dump(
+            {
+                "root": str(tmp_path / "run"),
+                "data": [str(ROOT / "configs/data/floaff_layouts.yaml")],
+                "model": [str(ROOT / "configs/models/tiny_pointnet.yaml")],
+                "overrides": overrides,
+                "stages": [{"name": "s1"}],
+            }
+        )
+    )
+    (first,) = run_curriculum(exp)
+    assert list(first["inputs"]) == [f"{data}/"] and (data / ".cache").is_dir()  # the fit cached samples there
+    seen: list = []
+    capsys.readouterr()
+    run_curriculum(exp, runner=_spy(seen))
+    assert not seen and "already finished" in capsys.readouterr().out
+    stage_file = tmp_path / "run" / "s1" / "stage.json"
+    record = json.loads(stage_file.read_text())
+    stage_file.write_text(json.dumps({**record, "inputs": {}}))  # as written before data folders were kept
+    run_curriculum(exp, runner=_spy(seen))
+    assert not seen
+    stage_file.write_text(json.dumps(record))
+    scene = next(data.rglob("scene.json"))  # the data generated again: other scene records
+    scene.write_text(scene.read_text() + "\n")
+    capsys.readouterr()
+    (new,) = run_curriculum(exp, runner=_spy(seen))
+    assert len(seen) == 1 and f"rerunning, its data folder ({data}/) changed" in capsys.readouterr().out
+    assert new["inputs"][f"{data}/"] != first["inputs"][f"{data}/"]
