@@ -253,3 +253,29 @@ def test_predict_reads_the_inputs_that_test_scored():
     test, predict = next(iter(dm.test_dataloader())), next(iter(dm.predict_dataloader()))
     for key in ("scene_xyz", "target_yaw", "floor_xyz"):
         assert torch.equal(test[key], predict[key]), key
+
+
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [
+        ("num_train", -1),
+        ("num_val", 2.5),
+        ("floor_per_sample", 0),
+        ("points_per_sample", 0),
+        ("max_yaw_deg", float("nan")),
+        ("max_yaw_deg", float("inf")),
+        ("max_yaw_deg", -10.0),
+    ],
+)
+def test_the_learnability_probes_settings_are_named_up_front(field, value):
+    """The probe checked none of its sizes: a negative split size failed in the DataLoader (``__len__() should
+    return >= 0``), floor_per_sample 0 at the first batch (``floor_xyz is empty``), a NaN or infinite
+    max_yaw_deg in numpy at the first sample, each naming no field; a negative max_yaw_deg drew the positive range."""
+    from lightning.pytorch.utilities.exceptions import MisconfigurationException
+
+    from floaff_zoo.data.learnability import CanonicalProbeDataModule
+
+    with pytest.raises(ValueError, match=rf"data\.{field} must be") as err:
+        CanonicalProbeDataModule(**{field: value})
+    assert isinstance(err.value, MisconfigurationException)
+    CanonicalProbeDataModule(num_train=0, floor_per_sample=1, max_yaw_deg=0.0)  # the edges stay allowed
