@@ -294,3 +294,29 @@ def test_a_robot_descriptor_of_the_wrong_size_names_the_argument(tiny_model):
     rgb_model = TinyPointNetModule(feat_channels=4, width=8).eval()  # reads the flag and RGB
     with pytest.raises(SampleError, match=r"predict: TinyPointNetModule reads 4 scene_feat channels .* got 1"):
         predict_from_points(rgb_model, xyz, flag, None, [0.85, 1.03], t, num_points=64)
+
+
+def test_the_prediction_writer_writes_bf16_mixed_outputs_as_float32(tmp_path):
+    """Under `--trainer.precision bf16-mixed` AxisNet's yaw (and angle error) come out of autocast as bfloat16, which
+    numpy has no type for: `floaff-zoo predict` ran every batch, then lost them all to 'Got unsupported ScalarType
+    BFloat16' in the writer."""
+    import lightning as L
+    import numpy as np
+
+    from floaff_zoo.callbacks.predictions import PredictionWriter
+    from floaff_zoo.data.synthetic import SyntheticDataModule
+    from floaff_zoo.models.axisnet import AxisNetModule
+
+    dm = SyntheticDataModule(num_train=2, num_val=2, num_test=3, batch_size=2, points_per_sample=128, num_points=128)
+    trainer = L.Trainer(
+        accelerator="cpu",
+        precision="bf16-mixed",
+        logger=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        callbacks=[PredictionWriter(out_dir=str(tmp_path))],
+    )
+    trainer.predict(AxisNetModule(), datamodule=dm)
+    with np.load(tmp_path / "predictions.npz") as z:
+        assert z["yaw"].shape == (3,) and z["yaw"].dtype == np.float32
+        assert np.isfinite(z["yaw"]).all()

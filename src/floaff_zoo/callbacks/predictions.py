@@ -1,7 +1,8 @@
 """What ``floaff-zoo predict`` computes, written into the run's folder.
 
 ``predictions.npz`` holds one array per tensor the model's ``predict_step`` returns, the batches concatenated
-in the loader's order: ``[N, ...]`` (N samples); a per-point array ``[N, M, ...]`` is padded to the largest view
+in the loader's order: ``[N, ...]`` (N samples; a bfloat16 tensor, as ``bf16-mixed`` autocast gives, as float32:
+numpy has no bfloat16); a per-point array ``[N, M, ...]`` is padded to the largest view
 (NaN for floats, False for masks, 0 for integers, so ``floor_mask`` says which entries are real; a floor-map
 model's ``scores`` and ``floor_xyz`` are NaN on every padded point, its batch's padding included; a NaN/Inf score on
 a real floor point is refused with the samples named, as ``predict()`` refuses it). A floor-map
@@ -53,6 +54,13 @@ def stack_batches(parts: list[np.ndarray], key: str) -> np.ndarray:
     return np.concatenate(out, axis=0)
 
 
+def _to_numpy(t: torch.Tensor) -> np.ndarray:
+    """A record's tensor as numpy; bfloat16 (an output computed under ``bf16-mixed`` autocast, e.g. AxisNet's yaw),
+    which numpy has no type for, as float32."""
+    t = t.detach().cpu()
+    return (t.float() if t.dtype == torch.bfloat16 else t).numpy()
+
+
 def gather_predictions(records: list[dict[str, Any]]) -> tuple[dict[str, np.ndarray], list[dict[str, Any]]]:
     """Batch records of ``predict_step`` -> (arrays {key: [N, ...]}, meta [N]); a key missing from a batch is an
     error."""
@@ -65,7 +73,7 @@ def gather_predictions(records: list[dict[str, Any]]) -> tuple[dict[str, np.ndar
         missing = [i for i, r in enumerate(records) if not torch.is_tensor(r.get(k))]
         if missing:
             raise ValueError(f"predict: batch {missing[0]} has no tensor {k!r} (batch 0 has)")
-        arrays[k] = stack_batches([r[k].detach().cpu().numpy() for r in records], k)
+        arrays[k] = stack_batches([_to_numpy(r[k]) for r in records], k)
     meta: list[dict[str, Any]] = []
     for r in records:
         meta.extend(r.get("meta") or [{}] * (len(r[keys[0]]) if keys else 0))
