@@ -2,6 +2,7 @@
 
 import io
 import json
+import re
 import sys
 import types
 from pathlib import Path
@@ -449,6 +450,31 @@ def test_unknown_name_and_missing_path():
         resolve_state_dict("cfar-pfal.floaff-sim-layout.v1")
     with pytest.raises(FileNotFoundError, match="nowhere/model.ckpt"):
         resolve_state_dict("nowhere/model.ckpt")
+
+
+def test_an_unknown_name_suggests_the_entries_it_begins_newest_version_first(monkeypatch):
+    """A model's name alone ('alpha') suggested none of its entries (too short for difflib) but the index's first ten
+    names, all of other models; a name without its version listed an old version first (v2 before v10); a name
+    typed in capitals ranked another model's entry above the one it spells."""
+    from floaff_zoo.hub import get_entry, registry
+
+    monkeypatch.setattr(registry, "SHIPPED_INDEX", hub_dir() / "no-shipped-index.json")
+    layouts, styles = "floaff-dense-layouts", "floaff-dense-styles"
+    names = [f"aaa-{i}.{layouts}.v1" for i in range(12)] + [f"beta.{layouts}.v1", f"alpha-x.{layouts}.v1"]
+    names += [f"alpha.{layouts}.v1", f"alpha.{layouts}.v2", f"alpha.{layouts}.v10", f"alpha.{styles}.v3"]
+    for name in names:
+        register(HubEntry(name=name, class_path=TINY, sha256="0" * 64, filename=f"{name}-00000000.safetensors"))
+
+    def suggested(name: str) -> list[str]:
+        with pytest.raises(UnknownWeightsError) as err:
+            get_entry(name)
+        message = str(err.value)
+        assert repr(name) in message and "did you mean" in message, message
+        return re.findall(r"'([a-z0-9.-]+)'", message.split("did you mean", 1)[1].split("?", 1)[0])
+
+    assert suggested("alpha")[:3] == [f"alpha.{layouts}.v10", f"alpha.{styles}.v3", f"alpha-x.{layouts}.v1"]
+    assert suggested(f"alpha.{layouts}")[0] == f"alpha.{layouts}.v10"
+    assert suggested(f"ALPHA.{layouts}.v2")[0] == f"alpha.{layouts}.v2"
 
 
 @pytest.mark.parametrize(

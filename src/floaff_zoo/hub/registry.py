@@ -53,6 +53,7 @@ _NAME_RE = re.compile(r"^[a-z0-9][a-z0-9_\-]*(\.[a-z0-9_\-]+)*$")
 _SHA_RE = re.compile(r"^[0-9a-f]{64}$")
 _COMMIT_RE = re.compile(r"^[0-9a-f]{40}$")
 _HF_RESOLVE_RE = re.compile(r"huggingface\.co/.+/resolve/([^/]+)/")
+_VERSION_RE = re.compile(r"(.*)\.v(\d+)")
 SOURCE_KINDS = ("local", "url", "hf")
 
 
@@ -300,6 +301,30 @@ def read_retired(path: Path = RETIRED_INDEX) -> dict[str, RetiredEntry]:
     return out
 
 
+def _version_of(name: str) -> tuple[str, int]:
+    """(``model.dataset``, N) of a ``model.dataset.vN`` name; (name, -1) for a name without a version."""
+    m = _VERSION_RE.fullmatch(name)
+    return (m[1], int(m[2])) if m else (name, -1)
+
+
+def close_names(name: str, names: list[str], n: int = 5) -> list[str]:
+    """The registered ``names`` a mistyped or partial ``name`` may mean, at most ``n``: the newest version of each
+    entry that ``name`` begins (a model alone, ``votenet``, or a name without its version; difflib finds none for a
+    short prefix of a long name, and ranks v9 above v12), then difflib's close matches. Case is ignored: names are
+    lower-case."""
+    key = name.strip().lower()
+    newest: dict[str, str] = {}
+    for candidate in names:
+        if candidate.startswith(key):
+            base, version = _version_of(candidate)
+            if base not in newest or version > _version_of(newest[base])[1]:
+                newest[base] = candidate
+    # the entries of the model (or model.dataset) typed before those of a longer name it begins (cfar before cfar-x)
+    begun = sorted(newest.values(), key=lambda c: (c[len(key) : len(key) + 1] not in ("", "."), c))
+    close = difflib.get_close_matches(key, names, n=n, cutoff=0.5)
+    return list(dict.fromkeys([*begun, *close]))[:n]
+
+
 def get_entry(name: str, directory: str | os.PathLike[str] | None = None) -> HubEntry:
     """The entry called ``name``; a retired name says where it went, an unknown one lists close matches."""
     reg = load_registry(directory)
@@ -313,7 +338,7 @@ def get_entry(name: str, directory: str | os.PathLike[str] | None = None) -> Hub
             f"the floaff-zoo git history; from a clone: `git archive {retired.commit} {folder} | tar -x -C <dir>`, "
             f"then load <dir>/{folder} (a directory loads like a name)"
         )
-    close = difflib.get_close_matches(name, list(reg), n=5, cutoff=0.5)
+    close = close_names(name, list(reg))
     if close:
         hint = f"; did you mean {close}?"
     else:
