@@ -560,6 +560,17 @@ def test_push_upload_pins_the_commit(run_dir, monkeypatch):
     assert uploads == [sorted(["README.md", "config.json", entry.filename])]
 
 
+@pytest.mark.parametrize("flags", [["--repo", "org/tiny"], ["--private"]], ids=["repo", "private"])
+def test_push_refuses_upload_options_without_upload(run_dir, capsys, flags):
+    """--repo and --private say where and how to upload: without --upload they were ignored without a word, and a push
+    meant to publish a checkpoint exported it locally only."""
+    run, _, _ = run_dir
+    assert _push(run, NAME, *flags) == 2
+    err = capsys.readouterr().err
+    assert flags[0] in err and "--upload" in err
+    assert NAME not in load_registry() and not (hub_dir() / NAME).exists()  # refused before exporting
+
+
 def test_a_failed_download_is_one_hub_error_naming_the_file_and_the_folder(tmp_path, monkeypatch, capsys):
     """No network, a refused connection, a 404: the loader says which file to put where (a bare URLError named
     neither), and `hub pull` prints one line (exit 2), not a traceback."""

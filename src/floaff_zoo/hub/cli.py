@@ -144,6 +144,11 @@ def cmd_push(args: argparse.Namespace) -> int:
 
     if args.upload and not args.repo:
         raise HubError("--upload needs --repo org/name")
+    given = [flag for flag, value in (("--repo", args.repo), ("--private", args.private)) if value]
+    if given and not args.upload:  # they were ignored: a push meant to publish exported locally only
+        raise HubError(
+            f"{' and '.join(given)} only apply to --upload; add --upload to upload the export, or leave them out"
+        )
     if args.upload and is_offline():  # fail before exporting anything
         raise HubError("refusing to --upload: FLOAFF_ZOO_OFFLINE is set (unset it or set it to 0)")
     meta = {k: getattr(args, k) for k in ("dataset", "benchmark", "license", "description") if getattr(args, k)}
