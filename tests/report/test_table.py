@@ -231,6 +231,17 @@ def test_runs_on_different_copies_of_the_data_are_not_mixed(tmp_path, capsys):
     assert main(["--runs", str(tmp_path / "a"), str(tmp_path / "a2"), str(tmp_path / "old")]) == 0
 
 
+@pytest.mark.parametrize(
+    ("typed", "meant"), [("lable", "label"), ("model.hparams.feat_channel", "model.hparams.feat_channels")]
+)
+def test_a_mistyped_group_by_names_the_field_it_may_mean(capsys, typed, meant):
+    """A --group-by that no report has said only "has no such field": the dotted path of a field the reports do
+    have, a letter away, was left for the reader to find in report.json."""
+    assert main(["--runs", str(RUNS / "cfar_styles_s0"), str(RUNS / "cfar_styles_s1"), "--group-by", typed]) == 2
+    err = capsys.readouterr().err
+    assert f"--group-by {typed}:" in err and "has no such field" in err and f"did you mean {meant!r}?" in err
+
+
 def test_a_cell_from_fewer_runs_than_its_row_says_so(tmp_path):
     """A two-run row where one run has no SR showed the other run's bootstrap std as if it were a spread over both
     seeds; only the CSV's n column told them apart."""

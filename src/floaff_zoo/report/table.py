@@ -46,6 +46,7 @@ written before the hash was recorded are not checked.
 from __future__ import annotations
 
 import argparse
+import difflib
 import glob
 import json
 import math
@@ -355,7 +356,8 @@ def _group_rows(
     values = [lookup(r, group_by) for r in reports]
     for r, v in zip(reports, values):
         if v is None:
-            raise TableError(f"--group-by {group_by}: report {_where(r)} has no such field")
+            hint = _field_hint(group_by, reports, values)
+            raise TableError(f"--group-by {group_by}: report {_where(r)} has no such field{hint}")
     # where some runs give a float, an int is the same number (crop_radius 1 and 1.0 are one row)
     if floats is None:
         floats = any(isinstance(v, float) for v in values)
@@ -374,6 +376,32 @@ def _group_rows(
     for n in names:
         check_row(n, groups[n], section, protocol_keys)
     return [(n, groups[n]) for n in names]
+
+
+#: the ``--group-by`` keys that are no dotted path into a report (``lookup``)
+GROUP_NAMES = ("model", "label", "benchmark")
+
+
+def _dotted_fields(value: Any, prefix: str = "") -> Iterator[str]:
+    """The dotted path of every field of a report (objects are walked into, lists are not)."""
+    for key, item in value.items() if isinstance(value, dict) else ():
+        if key != PATH_KEY:
+            yield f"{prefix}{key}"
+            yield from _dotted_fields(item, f"{prefix}{key}.")
+
+
+def _field_hint(group_by: str, reports: list[dict[str, Any]], values: list[Any]) -> str:
+    """``"; did you mean 'label'?"`` when no report has the ``--group-by`` field (a typo, not a field some runs lack)
+    and the reports have a field close to it (a field beside it whose name is close, else a close dotted path: the
+    shared ``model.hparams.`` of two paths made every field of a model close); else ``""``."""
+    if any(v is not None for v in values):
+        return ""
+    fields = {*GROUP_NAMES, *(f for r in reports for f in _dotted_fields(r))}
+    parent, _, name = group_by.rpartition(".")
+    beside = {f.rpartition(".")[2]: f for f in fields if f.rpartition(".")[0] == parent}
+    close = [beside[k] for k in difflib.get_close_matches(name, sorted(beside), n=3, cutoff=0.75)]
+    close = close or difflib.get_close_matches(group_by, sorted(fields), n=3, cutoff=0.85)
+    return f"; did you mean {' or '.join(map(repr, close))}?" if close else ""
 
 
 def _fmt_key(v: Any) -> str:
