@@ -67,6 +67,26 @@ def test_montage_names_the_missing_case_and_report(tmp_path, capsys):
     assert "nope: no report.json" in capsys.readouterr().err
 
 
+def test_montage_refuses_runs_of_different_benchmarks(tmp_path, capsys):
+    """The k-th figure of a case is the same view only within one test split: a Styles run beside a Layouts run put
+    two different kitchens side by side as if one method had drawn each, without a word."""
+    runs = {}
+    for name, bench in (("styles_a", "styles"), ("styles_b", "styles"), ("layouts_a", "layouts"), ("old", None)):
+        runs[name] = _run(tmp_path, name, 0.5)
+        report = json.loads((runs[name] / "report.json").read_text())
+        if bench is not None:  # a report of before the field names no benchmark: not compared
+            report["data"] = {"benchmark": bench}
+        (runs[name] / "report.json").write_text(json.dumps(report))
+    args = ["--cases", "CloseDrawer_front_0", "--out", str(tmp_path / "x.png")]
+    with pytest.raises(SystemExit) as ex:
+        zoo_main(["montage", "--runs", str(runs["styles_a"]), str(runs["layouts_a"]), *args])
+    assert ex.value.code == 2
+    err = capsys.readouterr().err
+    assert "styles" in err and "layouts" in err and str(runs["layouts_a"] / "report.json") in err
+    assert not (tmp_path / "x.png").exists()
+    assert zoo_main(["montage", "--runs", *(str(runs[n]) for n in ("styles_a", "styles_b", "old")), *args]) == 0
+
+
 def test_montage_out_names_the_file_it_writes(tmp_path, capsys):
     """--out without a suffix wrote <out>.png and printed <out>; a folder wrote <folder>.png beside it; an unknown
     suffix gave matplotlib's traceback."""

@@ -3,7 +3,8 @@
 Every ``floaff-zoo test`` draws the ground truth beside its prediction for the first samples of each
 (task, view) (``<run>/figures/<task>_<view>_<k>.png``, listed in ``report.json``). The test loader's
 order is fixed, so the k-th figure of a (task, view) shows the same scene and view in every run of the
-same test split. This command puts those figures side by side: one row per case, one column per run::
+same test split. This command puts those figures side by side: one row per case, one column per run (runs of
+different benchmarks are refused: their figures of a case show different kitchens)::
 
     floaff-zoo montage --runs docs/results/small/layouts/{cfar_pfal_s0,pointnet2_s0,c2f_exp} \\
         --cases CloseDrawer_front_0 OpenSingleDoor_side_0 --out docs/results/small/fig4_layouts.png
@@ -19,7 +20,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-__all__ = ["MontageError", "find_figure", "main", "montage"]
+__all__ = ["MontageError", "check_one_benchmark", "find_figure", "main", "montage"]
 
 
 def _read_image(path: Path):
@@ -56,6 +57,7 @@ FIELDS = {
     "run_dir": ("a string", str),
     "label": ("a string", str),
     "model": ("an object", dict),
+    "data": ("an object", dict),
 }
 
 
@@ -71,6 +73,22 @@ def check_report(path: Path, report: Any) -> None:
     bad = next((f for f in report.get("figures") or [] if not isinstance(f, str)), None)
     if bad is not None:
         raise MontageError(f"{path}: field 'figures' holds {json.dumps(bad)[:40]}, not a figure path")
+
+
+def check_one_benchmark(reports: list[tuple[Path, dict[str, Any]]]) -> None:
+    """MontageError naming the reports of each benchmark when the runs were tested on different benchmarks (their
+    k-th figure of a case shows another kitchen); a report that records no benchmark is not compared."""
+    benches: dict[str, list[str]] = {}
+    for path, report in reports:
+        bench = (report.get("data") or {}).get("benchmark")
+        if bench is not None:
+            benches.setdefault(str(bench), []).append(str(path))
+    if len(benches) > 1:
+        which = "; ".join(f"{bench}: {', '.join(paths)}" for bench, paths in benches.items())
+        raise MontageError(
+            f"the runs were tested on different benchmarks ({which}): the k-th figure of a case shows another scene "
+            "in each; draw one benchmark's runs per montage"
+        )
 
 
 def find_figure(report_path: Path, report: dict[str, Any], case: str) -> Path:
@@ -106,6 +124,7 @@ def montage(
 
     out = montage_path(out, FigureCanvasBase.get_supported_filetypes())
     reports = [_load_report(r) for r in runs]
+    check_one_benchmark(reports)
     if labels is not None and len(labels) != len(runs):
         raise MontageError(f"--labels: {len(labels)} given for {len(runs)} runs")
     titles = labels or [
