@@ -231,3 +231,26 @@ def test_scene_decoder_rows_do_not_depend_on_surplus_centres():
     torch.testing.assert_close(b[:, :n], a, atol=1e-5, rtol=1e-4)
     for key, value in _stats(exact).items():
         torch.testing.assert_close(_stats(more)[key], value, atol=1e-5, rtol=1e-4, msg=key)
+
+
+@pytest.mark.parametrize("train", [False, True])
+def test_pointnet2_floor_scores_do_not_depend_on_surplus_scene_centres(train):
+    """PointNet2Net interpolates its floor points from the scene decoder's stop-level centres: with a surplus of
+    level-1 centres (the small presets' 1,024-point clouds under SSG's 1,024 centres) the repeats of the first centre
+    filled the floor points' 3-NN next to it, so the scores moved with the surplus, in eval as in training."""
+    from floaff_zoo.nn.nets import PointNet2Net
+
+    n = 12
+    torch.manual_seed(0)
+    sizes = ([n, 8, 3], [[0.15], [0.25], [0.8]], [[4], [4], [4]], [[[8]], [[16]], [[16]]], [[16], [16], [16]])
+    exact = PointNet2Net("ssg", 1, 2, *sizes, robot_width=8, head_width=8, dropout=0.0)
+    _randomise_statistics(exact)
+    exact.train(train)
+    more = copy.deepcopy(exact)
+    more.scene.encoder.levels[0].npoint = n + 9
+    xyz, feat, mask = _small_cloud(n)
+    floor = torch.rand(2, 20, 3) * 0.6
+    floor[..., 2] = 0.0
+    args = (floor, torch.ones(2, 20, dtype=torch.bool), torch.rand(2, 2), torch.rand(2, 3))
+    a, b = exact(xyz, feat, mask, *args), more(xyz, feat, mask, *args)
+    torch.testing.assert_close(b, a, atol=1e-6, rtol=1e-5)

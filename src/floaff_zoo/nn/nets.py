@@ -28,6 +28,7 @@ from floaff_zoo.nn.pointnet2 import (
     SetAbstraction,
     SharedMLP,
     copy_to_repeats,
+    kept_centres,
     on_valid_rows,
     one_row_batch_norm,
     repeat_sources,
@@ -228,8 +229,13 @@ class PointNet2Net(nn.Module):
         skip = floor_local_features(floor_xyz, target_xyz)
         if floor_feat is not None:
             skip = torch.cat([skip, floor_feat.to(skip.dtype)], dim=-1)
+        if fps is None:
+            fps = self.scene.sample(scene_xyz, scene_mask)
         sxyz, sfeat, _ = self.scene(scene_xyz, scene_feat, scene_mask, robot, fps)
-        h = self.floor_fp(floor_xyz, sxyz, skip, sfeat, mask_dense=floor_mask)
+        # a cloud with fewer points than the stop level's centres repeats its first centre: the repeats stay out of the
+        # floor points' 3-NN (they would fill two or three of the neighbours with one point)
+        kept = kept_centres(repeat_sources(fps[self.scene.stop_level - 1]))
+        h = self.floor_fp(floor_xyz, sxyz, skip, sfeat, mask_sparse=kept, mask_dense=floor_mask)
         return torch.sigmoid(self.head(h, floor_mask).float())
 
 
