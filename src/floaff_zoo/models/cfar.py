@@ -55,6 +55,7 @@ the start of a stage (L_shared = 0 at the first step) and the term measures drif
 from __future__ import annotations
 
 import copy
+import inspect
 import math
 from collections.abc import Iterator
 from contextlib import contextmanager, nullcontext
@@ -82,6 +83,9 @@ from floaff_zoo.nn.placement import OCCUPANCY_CHANNELS, footprint_occupancy, foo
 from floaff_zoo.nn.prior import CanonicalLabelGrid
 
 TEACHER_PREFIX = "teacher."
+#: the local encoder's arguments that shape its function without shaping its weights: a teacher is rebuilt with the
+#: student's (a copy of its encoder), so they must agree
+TEACHER_SAMPLING_ARGS = ("local_npoints", "local_radii", "local_nsamples")
 #: the prior is clamped to [eps, 1 - eps] before its logit
 PRIOR_EPS = 1e-3
 DISTILLED_PREFIX = "net.local_encoder."
@@ -99,6 +103,14 @@ def batch_statistics(module: nn.Module) -> Iterator[None]:
     finally:
         for m, (tr, track) in zip(bns, saved):
             m.training, m.track_running_stats = tr, track
+
+
+def _local_sampling(args: Any, name: str) -> list[float]:
+    """A local-encoder sampling argument of a CFAR's init args, ``None`` resolved to ``CFARNet``'s default."""
+    value = args.get(name)
+    if value is None:
+        value = inspect.signature(CFARNet.__init__).parameters[name].default
+    return [float(v) for v in value]
 
 
 def _sha256(path: str) -> str | None:
@@ -305,7 +317,8 @@ class CFARModule(FloAffModule):
 
         Raises:
             ValueError: listing missing / unexpected / shape-mismatched keys when the teacher's
-                encoder does not match the student's.
+                encoder does not match the student's, or naming the sampling arguments
+                (``TEACHER_SAMPLING_ARGS``) the teacher was trained with when they differ from the student's.
         """
         state, info = resolve_state_dict(name)
         t_state = {k[len(DISTILLED_PREFIX) :]: v for k, v in state.items() if k.startswith(DISTILLED_PREFIX)}
@@ -322,6 +335,19 @@ class CFARModule(FloAffModule):
                 f"teacher {name!r} ({info.get('class_path') or 'unknown class'}) does not match the student's "
                 f"canonical-cloud encoder ({DISTILLED_PREFIX}*): missing {[DISTILLED_PREFIX + k for k in missing]}, "
                 f"unexpected {[DISTILLED_PREFIX + k for k in unexpected]}, shape mismatches {shapes}"
+            )
+        # same weights' shapes but other centres, radii or neighbour counts: the copy would run the teacher's weights
+        # with the student's sampling, a function the teacher never computed (a file without its arguments: unchecked)
+        saved = info.get("init_args") or {}
+        differ = [
+            f"{k}: teacher {_local_sampling(saved, k)} vs student {_local_sampling(self.hparams, k)}"
+            for k in TEACHER_SAMPLING_ARGS
+            if k in saved and _local_sampling(saved, k) != _local_sampling(self.hparams, k)
+        ]
+        if differ:
+            raise ValueError(
+                f"teacher {name!r} was trained with another canonical-cloud sampling than the student's: "
+                f"{'; '.join(differ)}; give the student the teacher's values"
             )
         teacher = copy.deepcopy(self.net.local_encoder)
         teacher.load_state_dict(t_state, strict=True)
