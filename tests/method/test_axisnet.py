@@ -163,3 +163,11 @@ def test_axisnet_learns_yaw_in_a_short_fit(tmp_path, root, monkeypatch):
     cli_t = run_lightning(["test", "--config", str(cfg), *quiet_trainer_args(tmp_path), "--ckpt_path", "best"])
     report = json.loads((Path(cli_t.trainer.log_dir) / "report.json").read_text())
     assert report["metrics"]["test_angle_error_deg"] < 10.0 and not report.get("figures")
+
+
+@pytest.mark.parametrize("radius", [float("nan"), float("inf")])
+def test_a_crop_radius_that_is_not_a_finite_positive_number_is_refused(radius):
+    """NaN passed the > 0 check and cropped every point away (a SampleError blaming the samples); inf kept every
+    point and divided every coordinate to 0, so the yaw was the same for any scene."""
+    with pytest.raises(ValueError, match=r"crop_radius must be a finite number > 0"):
+        AxisNetModule(crop_radius=radius)

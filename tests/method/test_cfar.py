@@ -422,3 +422,14 @@ def test_a_teacher_trained_with_other_local_sampling_is_refused(tmp_path, root):
     with pytest.raises(ValueError, match=r"local_radii: teacher \[0\.2, 0\.4\] vs student \[0\.25, 0\.5\]"):
         other.setup("fit")
     assert other.teacher is None
+
+
+@pytest.mark.parametrize("radius", [float("nan"), float("inf")])
+def test_a_crop_radius_that_is_not_a_finite_positive_number_is_refused(root, radius):
+    """A NaN crop radius passed the > 0 check, cropped every point away and raised a SampleError telling to check the
+    samples' target_xyz / scene_xyz; the radius is now refused where it is given, by name."""
+    with pytest.raises(MisconfigurationException, match=r"crop_radius must be a finite number > 0"):
+        CFARModule(**{**tiny_args(root), "crop_radius": radius})
+    xyz = torch.rand(1, 8, 3)
+    with pytest.raises(ValueError, match=r"crop radius must be a finite number > 0"):
+        crop_mask(xyz, torch.ones(1, 8, dtype=torch.bool), xyz[:, 0], radius)

@@ -109,8 +109,9 @@ class AxisNetModule(ZooModule):
     # ----------------------------------------------------------------- hooks
     def configure_models(self) -> None:
         h = self.hparams
-        if h["crop_radius"] <= 0:
-            raise ValueError(f"AxisNetModule: crop_radius must be > 0, got {h['crop_radius']}")
+        # NaN cropped every point away and blamed the samples; inf divided every coordinate down to 0
+        if not (math.isfinite(h["crop_radius"]) and h["crop_radius"] > 0):
+            raise ValueError(f"AxisNetModule: crop_radius must be a finite number > 0, got {h['crop_radius']}")
         self.net = AxisNet(4, h["widths"] or [64, 128, 256], h["head"] if h["head"] is not None else [128, 64])
 
     def configure_losses(self) -> None:

@@ -212,8 +212,11 @@ class CFARModule(FloAffModule):
     # ----------------------------------------------------------------- hooks
     def configure_models(self) -> None:
         h = self.hparams
-        if h["crop_radius"] <= 0:
-            raise MisconfigurationException(f"CFARModule: crop_radius must be > 0, got {h['crop_radius']}")
+        if not (math.isfinite(h["crop_radius"]) and h["crop_radius"] > 0):  # NaN passed and blamed the data
+            raise MisconfigurationException(
+                f"CFARModule: crop_radius must be a finite number > 0 (use_crop: false for no crop), got "
+                f"{h['crop_radius']}"
+            )
         if h["distill_weight"] < 0:
             raise MisconfigurationException(f"CFARModule: distill_weight must be >= 0, got {h['distill_weight']}")
         if not (math.isfinite(h["residual_scale"]) and h["residual_scale"] >= 0):

@@ -94,8 +94,8 @@ def crop_mask(
         if empty.any():
             raise SampleError(f"CFAR crop: sample(s) {_names(empty, names)} have no valid scene point")
         return mask, torch.full((b,), float("inf"), device=xyz.device)
-    if radius <= 0:
-        raise ValueError(f"crop radius must be > 0, got {radius}")
+    if not (math.isfinite(radius) and radius > 0):  # NaN kept no point and blamed the samples; None = no crop
+        raise ValueError(f"crop radius must be a finite number > 0, got {radius}")
     d2 = ((xyz - centre[:, None, :]) ** 2).sum(-1)  # [B, N]
     used = torch.full((b,), float(radius), device=xyz.device, dtype=xyz.dtype)
     keep = mask & (d2 <= used[:, None] ** 2)
