@@ -453,3 +453,22 @@ def test_proposed_poses_reach_the_predictions_file(name, batch):
     assert arrays["poses"].shape == (4, 3) and np.isfinite(arrays["poses"]).all()
     with pytest.warns(UserWarning, match=r"\['notes'\] are not tensors"):
         gather_predictions([{**record, "notes": ["a", "b"]}])
+
+
+@pytest.mark.parametrize(
+    ("arg", "value"),
+    [
+        ("sigma_dist", 0.0),  # an all-zero map
+        ("sigma_bias", 0.0),
+        ("sigma_decay", 0.0),
+        ("cell", 0.0),  # an occupancy grid of overflowed indices: every candidate free
+        ("max_alpha", 2.0),  # a negative exponent on the semantic term
+        ("clearance", float("nan")),
+        ("r_max", float("inf")),
+        ("manhattan_radius", -1.0),
+    ],
+)
+def test_c2f_exp_refuses_sizes_that_break_its_search_by_name(arg, value):
+    """These passed the constructor and ran: most gave a map of zeros or of garbage, no error at all."""
+    with pytest.raises(ValueError, match=rf"C2FExpModule: .*{arg}"):
+        C2FExpModule(**{arg: value})

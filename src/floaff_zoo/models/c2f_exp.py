@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from typing import Any, ClassVar, Literal
 
 import torch
@@ -80,8 +81,21 @@ class C2FExpModule(FloAffModule):
                 "C2FExpModule: rounds, candidates, top_k must be >= 1 "
                 f"(got {h['rounds']}, {h['candidates']}, {h['top_k']})"
             )
-        if not 0 <= h["r_min"] < h["r_max"]:
-            raise ValueError(f"C2FExpModule: need 0 <= r_min < r_max, got {h['r_min']}, {h['r_max']}")
+        if not 0 <= h["r_min"] < h["r_max"] < math.inf:
+            raise ValueError(f"C2FExpModule: need 0 <= r_min < r_max (finite), got {h['r_min']}, {h['r_max']}")
+        # sizes that passed unchecked and silently broke the search: a zero sigma_dist, sigma_bias or sigma_decay gave
+        # an all-zero map, a zero cell an occupancy grid of overflowed indices (every candidate free), a max_alpha
+        # above 1 a negative exponent on the semantic term, a NaN anywhere NaN weights
+        for name in ("sigma_dist", "sigma_bias", "sigma_decay", "cell", "manhattan_radius", "r_star", "clearance"):
+            v, strict = h[name], name not in ("r_star", "clearance")
+            if not (math.isfinite(v) and (v > 0 if strict else v >= 0)):
+                raise ValueError(f"C2FExpModule: {name} must be a finite number {'>' if strict else '>='} 0, got {v}")
+        if not h["max_drift"] >= 0:  # inf: no cap
+            raise ValueError(f"C2FExpModule: max_drift must be >= 0, got {h['max_drift']}")
+        if not 0 <= h["max_alpha"] <= 1:
+            raise ValueError(f"C2FExpModule: max_alpha must be in [0, 1], got {h['max_alpha']}")
+        if not math.isfinite(h["z_min"]):
+            raise ValueError(f"C2FExpModule: z_min must be a finite number, got {h['z_min']}")
         fields = C2FConfig.__dataclass_fields__
         cfg = C2FConfig(**{k: h[k] for k in fields})
         self.net = C2FPlanner(cfg, resolve_scorer(h["scorer"]))
