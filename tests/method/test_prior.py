@@ -117,6 +117,21 @@ def test_grid_geometry_is_checked():
     CanonicalLabelGrid(["A"], cell=0.05, extent=3.0).load_state_dict(older)
 
 
+@pytest.mark.parametrize(
+    ("kwargs", "named"),
+    [
+        ({"cell": float("nan")}, "cell"),  # failed converting NaN to an integer, naming nothing
+        ({"extent": float("inf")}, "extent"),  # an OverflowError naming nothing
+        ({"smooth_sigma_cells": float("inf")}, "smooth_sigma_cells"),  # the same, at the first read
+        ({"smooth_sigma_cells": -1.0}, "smooth_sigma_cells"),  # smoothing silently off
+        ({"fill": float("nan")}, "fill"),  # unseen cells read NaN
+    ],
+)
+def test_grid_sizes_that_break_it_later_are_refused_by_name(kwargs, named):
+    with pytest.raises(ValueError, match=rf"CanonicalLabelGrid: .*{named}"):
+        CanonicalLabelGrid(["A"], **kwargs).read(torch.zeros(1, dtype=torch.long), torch.zeros(1, 1, 2))
+
+
 def _box_scene(yaw: float, n: int = 1500, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
     """Points on the vertical faces and top of a 2 x 0.6 m counter whose front normal has ``yaw``; target in front."""
     g = torch.Generator().manual_seed(seed)
