@@ -171,3 +171,11 @@ def test_a_crop_radius_that_is_not_a_finite_positive_number_is_refused(radius):
     point and divided every coordinate to 0, so the yaw was the same for any scene."""
     with pytest.raises(ValueError, match=r"crop_radius must be a finite number > 0"):
         AxisNetModule(crop_radius=radius)
+
+
+@pytest.mark.parametrize(
+    ("arg", "value"), [("rot_aug_deg", -90.0), ("rot_aug_deg", float("nan")), ("jitter_sigma", -0.01)]
+)
+def test_an_augmentation_size_that_switches_it_off_silently_is_refused(arg, value):
+    with pytest.raises(ValueError, match=rf"AxisNetModule: {arg} must be a finite number >= 0"):
+        AxisNetModule(**{arg: value})

@@ -433,3 +433,17 @@ def test_a_crop_radius_that_is_not_a_finite_positive_number_is_refused(root, rad
     xyz = torch.rand(1, 8, 3)
     with pytest.raises(ValueError, match=r"crop radius must be a finite number > 0"):
         crop_mask(xyz, torch.ones(1, 8, dtype=torch.bool), xyz[:, 0], radius)
+
+
+@pytest.mark.parametrize(
+    ("arg", "value"),
+    [
+        ("distill_weight", float("nan")),  # passed '< 0': no distillation, silently
+        ("yaw_jitter_deg", -5.0),  # no jitter, silently
+        ("yaw_jitter_deg", float("inf")),  # NaN angles, then a NaN loss naming samples
+        ("manhattan_radius", -1.0),  # no face found: every sample kept its reference yaw
+    ],
+)
+def test_scalar_arguments_that_switch_a_part_off_silently_are_refused(root, arg, value):
+    with pytest.raises(MisconfigurationException, match=rf"CFARModule: {arg} must be a finite number"):
+        CFARModule(**{**tiny_args(root), arg: value})

@@ -4,6 +4,7 @@ import math
 
 import pytest
 import torch
+from lightning.pytorch.utilities.exceptions import MisconfigurationException
 
 from floaff_zoo.cli import run_lightning
 from floaff_zoo.models.prior import CanonicalPriorModule
@@ -130,6 +131,12 @@ def test_grid_geometry_is_checked():
 def test_grid_sizes_that_break_it_later_are_refused_by_name(kwargs, named):
     with pytest.raises(ValueError, match=rf"CanonicalLabelGrid: .*{named}"):
         CanonicalLabelGrid(["A"], **kwargs).read(torch.zeros(1, dtype=torch.long), torch.zeros(1, 1, 2))
+
+
+def test_a_manhattan_radius_that_finds_no_face_is_refused():
+    """A radius <= 0 (or NaN) found no point: every sample kept its reference yaw, without a word."""
+    with pytest.raises(MisconfigurationException, match=r"CanonicalPriorModule: manhattan_radius must be a finite"):
+        CanonicalPriorModule(manhattan_radius=0.0)
 
 
 def _box_scene(yaw: float, n: int = 1500, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor]:

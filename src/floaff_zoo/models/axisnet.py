@@ -112,6 +112,9 @@ class AxisNetModule(ZooModule):
         # NaN cropped every point away and blamed the samples; inf divided every coordinate down to 0
         if not (math.isfinite(h["crop_radius"]) and h["crop_radius"] > 0):
             raise ValueError(f"AxisNetModule: crop_radius must be a finite number > 0, got {h['crop_radius']}")
+        for name in ("rot_aug_deg", "jitter_sigma"):  # negative or NaN turned the augmentation off silently
+            if not (math.isfinite(h[name]) and h[name] >= 0):
+                raise ValueError(f"AxisNetModule: {name} must be a finite number >= 0, got {h[name]}")
         self.net = AxisNet(4, h["widths"] or [64, 128, 256], h["head"] if h["head"] is not None else [128, 64])
 
     def configure_losses(self) -> None:

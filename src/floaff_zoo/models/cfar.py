@@ -71,6 +71,7 @@ from floaff_zoo.hub.registry import sha256_file
 from floaff_zoo.models.base import FloAffModule, FloAffTrainConfig, sample_names
 from floaff_zoo.models.yaw import (
     YawSource,
+    check_manhattan_radius,
     check_yaw_sources,
     configured_axisnet,
     estimate_yaw,
@@ -217,8 +218,11 @@ class CFARModule(FloAffModule):
                 f"CFARModule: crop_radius must be a finite number > 0 (use_crop: false for no crop), got "
                 f"{h['crop_radius']}"
             )
-        if h["distill_weight"] < 0:
-            raise MisconfigurationException(f"CFARModule: distill_weight must be >= 0, got {h['distill_weight']}")
+        # NaN passed '< 0' and turned the term off silently (as a negative jitter or Manhattan radius turned those off)
+        for name in ("distill_weight", "yaw_jitter_deg"):
+            if not (math.isfinite(h[name]) and h[name] >= 0):
+                raise MisconfigurationException(f"CFARModule: {name} must be a finite number >= 0, got {h[name]}")
+        check_manhattan_radius(h["manhattan_radius"], type(self).__name__)
         if not (math.isfinite(h["residual_scale"]) and h["residual_scale"] >= 0):
             raise MisconfigurationException(
                 f"CFARModule: residual_scale must be a finite number >= 0, got {h['residual_scale']}"

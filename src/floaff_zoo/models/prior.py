@@ -24,6 +24,7 @@ from floaff_zoo.contract import TASKS, Batch
 from floaff_zoo.models.base import FloAffModule, FloAffTrainConfig
 from floaff_zoo.models.yaw import (
     YawSource,
+    check_manhattan_radius,
     check_yaw_sources,
     configured_axisnet,
     estimate_yaw,
@@ -81,6 +82,7 @@ class CanonicalPriorModule(FloAffModule):
         if unknown:
             raise MisconfigurationException(f"CanonicalPriorModule: unknown task(s) {unknown}; known: {list(TASKS)}")
         self.net = CanonicalLabelGrid(tasks, h["cell"], h["extent"], h["smooth_sigma_cells"], h["fill"], h["centred"])
+        check_manhattan_radius(h["manhattan_radius"], type(self).__name__)
         self.axisnet, self.axis_radius, arch = configured_axisnet(h["axisnet"], h["axisnet_arch"], type(self).__name__)
         self.hparams["axisnet_arch"] = arch  # saved with the checkpoint: rebuilds without the file
         sources = {"yaw_source": self.yaw_source, "eval_yaw_source": self.eval_yaw_source}

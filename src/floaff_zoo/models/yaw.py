@@ -20,6 +20,7 @@ are returned as ``arch`` so a model can rebuild the AxisNet from its own checkpo
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any, Literal
 
@@ -40,6 +41,7 @@ __all__ = [
     "PRIVILEGED_YAW",
     "YawSource",
     "build_axisnet",
+    "check_manhattan_radius",
     "check_yaw_sources",
     "configured_axisnet",
     "estimate_yaw",
@@ -112,6 +114,13 @@ def configured_axisnet(
     if axisnet:
         return load_axisnet(axisnet, owner)
     return None, 0.0, None
+
+
+def check_manhattan_radius(radius: float, owner: str) -> None:
+    """Refuse a ``manhattan_radius`` that is not a finite number > 0: the face estimate found no point within it, and
+    every sample kept its reference yaw without a word."""
+    if not (math.isfinite(radius) and radius > 0):
+        raise MisconfigurationException(f"{owner}: manhattan_radius must be a finite number > 0, got {radius}")
 
 
 def check_yaw_sources(sources: dict[str, str], axisnet: AxisNet | None, owner: str) -> None:
