@@ -29,10 +29,7 @@ def yaw_to_vector(yaw: Tensor) -> Tensor:
 
 
 def yaw_from_vector(q: Tensor) -> Tensor:
-    """[..., 2] (sin, cos) -> yaw [...] in (-pi, pi], at least float32: a half-precision vector (AxisNet's head under
-    ``bf16-mixed`` autocast) gave a bfloat16 yaw, steps of 0.9 degrees near pi, which CFAR rotated its frame by."""
-    if q.dtype in (torch.float16, torch.bfloat16):
-        q = q.float()
+    """[..., 2] (sin, cos) -> yaw [...] in (-pi, pi]."""
     return torch.atan2(q[..., 0], q[..., 1])
 
 
