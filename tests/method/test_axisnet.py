@@ -168,3 +168,23 @@ def test_a_crop_radius_that_is_not_a_finite_positive_number_is_refused(radius):
 def test_an_augmentation_size_that_switches_it_off_silently_is_refused(arg, value):
     with pytest.raises(ValueError, match=rf"AxisNetModule: {arg} must be a finite number >= 0"):
         AxisNetModule(**{arg: value})
+
+
+def test_the_yaw_is_float32_under_bf16_autocast_and_reaches_the_predictions_file():
+    """Under bf16-mixed the yaw came out in bfloat16 (AxisNet's last Linear and atan2 ran in it): rounded to ~1 deg,
+    and the prediction writer's .numpy() refused the record (AxisNet's predict, and CFAR's with an AxisNet yaw)."""
+    from floaff_zoo.callbacks.predictions import gather_predictions
+    from floaff_zoo.models.cfar import CFARModule
+
+    torch.manual_seed(0)
+    batch = _batch()
+    arch = {"widths": [8, 8], "head": [8], "crop_radius": 1.3, "source": "random", "sha256": None}
+    cfar = CFARModule(
+        local_npoints=[32, 8], local_nsamples=[8, 8], floor_npoints=[8, 4], floor_nsamples=[4, 4], axisnet_arch=arch
+    )
+    for model in (AxisNetModule(widths=[8, 8], head=[8]).eval(), cfar.eval()):
+        with torch.no_grad(), torch.autocast("cpu", dtype=torch.bfloat16):
+            record = model.predict_step(batch, 0)
+        assert record["yaw"].dtype == torch.float32, type(model).__name__
+        arrays, _ = gather_predictions([record])
+        assert arrays["yaw"].shape == (4,)

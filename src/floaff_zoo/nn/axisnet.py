@@ -83,13 +83,14 @@ class AxisNet(nn.Module):
         self.out = nn.Linear(head[-1] if head else self.point_mlp.out_channels, 2)
 
     def forward(self, x: Tensor, mask: Tensor) -> Tensor:
-        """x [B, N, in_channels], mask [B, N] -> q [B, 2] unit (sin, cos)."""
+        """x [B, N, in_channels], mask [B, N] -> q [B, 2] unit (sin, cos), float32."""
         if not torch.is_grad_enabled() and self.point_mlp.rowwise():
             h = self._pool_rowwise(x, mask)
         else:
             # padding/cropped points never touch BatchNorm statistics (SharedMLP runs the valid rows only)
             h = masked_max(self.point_mlp(x, mask), mask, dim=1)
-        return F.normalize(self.out(self.head(h)), dim=-1, eps=1e-6)
+        # float32 whatever the autocast: in bfloat16 the yaw read off q was rounded to ~1 deg and left the model in it
+        return F.normalize(self.out(self.head(h)).float(), dim=-1, eps=1e-6)
 
     def _pool_rowwise(self, x: Tensor, mask: Tensor) -> Tensor:
         """``masked_max(point_mlp(x), mask, 1)`` [B, C] for an MLP without batch statistics: each cloud's valid
