@@ -472,3 +472,23 @@ def test_c2f_exp_refuses_sizes_that_break_its_search_by_name(arg, value):
     """These passed the constructor and ran: most gave a map of zeros or of garbage, no error at all."""
     with pytest.raises(ValueError, match=rf"C2FExpModule: .*{arg}"):
         C2FExpModule(**{arg: value})
+
+
+@pytest.mark.parametrize(
+    ("name", "arg", "value"),
+    [
+        ("votenet", "vote_weight", -1.0),  # trained the votes away from the good positions, silently
+        ("votenet", "vote_label_threshold", float("nan")),  # every vote target but the argmax dropped
+        ("h3dnet", "vote_weight", float("nan")),  # a NaN loss naming only samples
+        ("h3dnet", "face_offset", float("inf")),
+        ("n2m", "occupancy_cell", 0.0),  # occupancy on overflowed cells: no candidate ever collided
+        ("n2m", "footprint_width", -0.5),  # the same: an empty footprint
+        ("n2m", "num_pose_samples", 0),  # torch's 'cannot sample n_sample <= 0 samples' at predict
+        ("n2m", "lambda_weights", float("nan")),
+    ],
+)
+def test_loss_weights_and_sizes_that_break_later_are_refused_by_name(name, arg, value):
+    cfg = yaml.safe_load((TINY / f"{name}_tiny.yaml").read_text())["model"]
+    cls = CLASSES[cfg["class_path"].rsplit(".", 1)[1]]
+    with pytest.raises(ValueError, match=rf"{cls.__name__}: {arg} must be"):
+        cls(**{**cfg.get("init_args", {}), arg: value})

@@ -69,6 +69,23 @@ def check_layer_sizes(module: torch.nn.Module) -> None:
             )
 
 
+def check_numbers(
+    owner: str, values: Mapping[str, float], low: float = 0.0, high: float = math.inf, strict: bool = False
+) -> None:
+    """Refuse a scalar argument that is not a finite number in [low, high] ((low, high] when ``strict``): loss weights
+    and sizes that would otherwise run, silently wrong (a negative weight maximising its term, a zero cell or a negative
+    footprint switching a check off) or NaN.
+
+    Raises:
+        ValueError: naming the first such argument of ``values`` ({name: value}).
+    """
+    for name, v in values.items():
+        if not (math.isfinite(v) and (v > low if strict else v >= low) and v <= high):
+            bounds = [f"{'>' if strict else '>='} {low:g}"] * math.isfinite(low)
+            bounds += [f"<= {high:g}"] * math.isfinite(high)
+            raise ValueError(f"{owner}: {name} must be a finite number {' and '.join(bounds)}".rstrip() + f", got {v}")
+
+
 # ----------------------------------------------------------------------------- training recipe
 @dataclass(frozen=True)
 class TrainConfig:
