@@ -319,14 +319,40 @@ def batch_item(batch: Batch, i: int) -> Batch:
     return {k: (v[i : i + 1] if torch.is_tensor(v) else [v[i]]) for k, v in batch.items()}
 
 
+#: the batch tensors every model reads, with the mask of their valid rows (None: every row); padding is not checked
+_FINITE_FIELDS = {
+    "scene_xyz": "scene_mask",
+    "scene_feat": "scene_mask",
+    "floor_xyz": "floor_mask",
+    "target_xyz": None,
+    "robot": None,
+}
+
+
 def check_batch(batch: Batch) -> None:
-    """Raise a clear error for an empty batch or one whose samples have no valid floor point."""
+    """Raise a clear error for an empty batch, one whose samples have no valid floor point, or one with NaN/Inf on a
+    valid point of the inputs every model reads (the readers refuse such files; a user's data module or a batch built
+    by hand does not pass through them), naming the field and the samples. Every model of the zoo calls this before
+    its step: CFAR, the prior and AxisNet cropped NaN points away without a word, the other models named them."""
     if batch["scene_xyz"].shape[0] == 0:
         raise SampleError("empty batch (0 samples)")
     no_floor = (~batch["floor_mask"].any(dim=1)).nonzero().squeeze(1).tolist()
     if no_floor:
         names = [_where(batch["meta"][i]) for i in no_floor[:3]]
         raise SampleError(f"{len(no_floor)} sample(s) in the batch have no valid floor point: {names}")
+    for key, mask_key in _FINITE_FIELDS.items():
+        t = batch.get(key)
+        if not torch.is_tensor(t) or not t.is_floating_point():
+            continue
+        bad = ~torch.isfinite(t)
+        bad = bad.reshape(*bad.shape[: 2 if t.dim() > 2 else 1], -1).any(dim=-1)  # [B, N] per point, or [B]
+        if mask_key is not None and bad.dim() == 2 and torch.is_tensor(batch.get(mask_key)):
+            bad = bad & batch[mask_key].bool()
+        rows = bad.reshape(bad.shape[0], -1).any(dim=1).nonzero().squeeze(1).tolist()
+        if rows:
+            meta = batch.get("meta") or []
+            names = [_where(meta[i] if i < len(meta) else None) for i in rows[:3]]
+            raise SampleError(f"{key} holds NaN/Inf values in {len(rows)} sample(s) of the batch: {names}")
 
 
 def yaw_matrix(yaw: Tensor | float) -> Tensor:

@@ -447,3 +447,19 @@ def test_a_crop_radius_that_is_not_a_finite_positive_number_is_refused(root, rad
 def test_scalar_arguments_that_switch_a_part_off_silently_are_refused(root, arg, value):
     with pytest.raises(MisconfigurationException, match=rf"CFARModule: {arg} must be a finite number"):
         CFARModule(**{**tiny_args(root), arg: value})
+
+
+@pytest.mark.parametrize("key", ["scene_xyz", "floor_xyz", "target_xyz"])
+def test_a_nan_input_is_named_not_cropped_away(root, key):
+    """CFAR's crop dropped a NaN scene point without a word (the other models named it); a NaN on padding is not
+    an input and passes."""
+    m = CFARModule(**tiny_args(root))
+    b = _batch(2)
+    b[key][1].view(-1)[0] = float("nan")
+    with pytest.raises(SampleError, match=f"{key} holds NaN/Inf values in 1 sample.*syn1"):
+        m.training_step(b, 0)
+    b = _batch(2, points=256)
+    b["scene_mask"] = torch.ones(b["scene_xyz"].shape[:2], dtype=torch.bool)
+    b["scene_mask"][0, -1] = False
+    b["scene_xyz"][0, -1] = float("nan")  # padding
+    m.check_inputs(b)
