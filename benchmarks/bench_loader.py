@@ -158,7 +158,7 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--root", default=None, help="dataset root (default: write MoMa-sized samples to a temp dir)")
     p.add_argument("--benchmark", default="styles")
     p.add_argument("--samples", type=int, default=32, help="samples to write when --root is not given")
-    p.add_argument("--max-samples", type=int, default=None)
+    p.add_argument("--max-samples", type=int, default=None, help="first N records of each split (--dataset moma)")
     p.add_argument("--num-points", type=int, default=4096)
     p.add_argument("--batch-size", type=int, default=8)
     p.add_argument("--workers", type=int, default=0)
@@ -172,6 +172,8 @@ def main(argv: list[str] | None = None) -> None:
             p.error(f"--{flag.replace('_', '-')} must be >= 1, got {value}")
     if args.workers < 0:
         p.error(f"--workers must be >= 0, got {args.workers}")
+    if args.dataset == "floaff" and args.max_samples is not None:  # FloAffKitchenDataModule has no such option
+        p.error("--max-samples applies to --dataset moma only (the FloAff data module reads every sample)")
     torch.set_num_threads(int(os.environ.get("OMP_NUM_THREADS", torch.get_num_threads())))
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(args.root) if args.root else Path(tmp) / "moma"

@@ -21,6 +21,15 @@ def test_the_loader_benchmark_parses_cold_every_run_and_counts_every_split(tmp_p
         assert sorted(p.name for p in root.iterdir()) == ["data_split", "info", "rgbd"]  # nothing left behind
 
 
+def test_the_loader_benchmark_refuses_max_samples_it_would_ignore(tmp_path, capsys):
+    """FloAffKitchenDataModule takes no max_samples: --dataset floaff --max-samples N timed every sample of the
+    benchmark (or failed later on the data) while the run looked limited to N."""
+    bl = load_benchmark("bench_loader")
+    with pytest.raises(SystemExit) as exc:
+        bl.main(["--dataset", "floaff", "--root", str(tmp_path), "--max-samples", "4"])
+    assert exc.value.code == 2 and "--max-samples applies to --dataset moma only" in capsys.readouterr().err
+
+
 def test_the_generate_benchmark_refuses_a_folder_it_would_resume(tmp_path):
     """A second run with the same --out resumed the first one's scenes and printed that as the preset's wall time."""
     bg = load_benchmark("bench_generate")
