@@ -21,6 +21,36 @@ def test_the_loader_benchmark_parses_cold_every_run_and_counts_every_split(tmp_p
         assert sorted(p.name for p in root.iterdir()) == ["data_split", "info", "rgbd"]  # nothing left behind
 
 
+def test_the_loader_benchmarks_cold_setup_times_no_first_import(tmp_path):
+    """With --root (nothing written first) the cold setup imported open3d and scipy's KD-tree on its first sample,
+    a one-off of the process timed as parsing (about 0.6 s: a quarter of a 16-sample setup)."""
+    import json
+    import subprocess
+    import sys
+
+    from tests.conftest import ROOT
+
+    root = tmp_path / "moma"
+    load_benchmark("bench_loader").write_moma_like(root, 4)
+    driver = f"""
+import json, sys
+sys.path.insert(0, {str(ROOT / "benchmarks")!r})
+import bench_loader
+from floaff_zoo.data.moma_kitchen import MoMaKitchenDataModule
+seen = []
+setup = MoMaKitchenDataModule.setup
+def spy(self, stage=None):
+    seen.append(all(m in sys.modules for m in ("open3d", "scipy.spatial")))
+    return setup(self, stage)
+MoMaKitchenDataModule.setup = spy
+bench_loader.main(["--root", {str(root)!r}, "--num-points", "64", "--batch-size", "2", "--epochs", "1", "--steps", "1"])
+print(json.dumps(seen))
+"""
+    proc = subprocess.run([sys.executable, "-c", driver], capture_output=True, text=True, cwd=ROOT)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert json.loads(proc.stdout.strip().splitlines()[-1]) == [True, True]  # the cold setup, then the warm one
+
+
 def test_the_loader_benchmark_refuses_max_samples_it_would_ignore(tmp_path, capsys):
     """FloAffKitchenDataModule takes no max_samples: --dataset floaff --max-samples N timed every sample of the
     benchmark (or failed later on the data) while the run looked limited to N."""
