@@ -18,6 +18,8 @@ import sys
 import time
 from pathlib import Path
 
+from floaff_zoo.atomic import atomic_write_text
+
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 
@@ -143,8 +145,9 @@ def main(argv: list[str] | None = None) -> int:
     elif out_path.is_file():  # a full run keeps the hand-written reading
         old = out_path.read_text().split("\n## ")
         sections += ["## " + part.rstrip("\n") + "\n" for part in old[1:] if ("## " + part).startswith(_KEPT)]
-    out_path.parent.mkdir(parents=True, exist_ok=True)
-    out_path.write_text("\n".join(sections))
+    # whole or not at all: a write that fails (a full disk) or is killed kept nothing of the old report, whose
+    # hand-written reading exists nowhere else
+    atomic_write_text(out_path, "\n".join(sections))
     print(f"[run_all] wrote {args.out}")
     return 1 if failed else 0
 

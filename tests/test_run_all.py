@@ -32,3 +32,31 @@ def test_an_unknown_only_name_is_refused_before_anything_runs_or_is_written(tmp_
         assert exc.value.code == 2
     assert "unknown script(s) ['bench_predcit.py']" in capsys.readouterr().err
     assert out.read_text() == "# Performance\n\nold head\n"
+
+
+def test_a_report_write_that_fails_leaves_the_old_report_whole(tmp_path):
+    """The report was rewritten in place: a write that failed part way (here a file-size limit, as a full disk
+    would) left the first bytes of the new one and nothing of the old one's hand-written reading."""
+    import subprocess
+    import sys
+
+    out = tmp_path / "perf.md"
+    old = "# Performance\n\nold head\n\n## Reading (by hand)\n\nmine\n"
+    out.write_text(old)
+    driver = f"""
+import importlib.util, resource, signal, subprocess
+spec = importlib.util.spec_from_file_location("run_all", {str(Path(run_all.__file__))!r})
+run_all = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(run_all)
+run_all.subprocess.run = lambda cmd, **kw: subprocess.CompletedProcess(cmd, 0, stdout="x" * 100000, stderr="")
+signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # a write past the limit fails with EFBIG instead of killing
+resource.setrlimit(resource.RLIMIT_FSIZE, (4096, 4096))
+try:
+    run_all.main(["--only", "bench_predict", "--out", {str(out)!r}])
+except OSError as exc:
+    print("write failed", exc.errno)
+"""
+    proc = subprocess.run([sys.executable, "-c", driver], capture_output=True, text=True)
+    assert "write failed" in proc.stdout, proc.stderr[-2000:]
+    assert out.read_text() == old
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["perf.md"]  # no temp file left either
