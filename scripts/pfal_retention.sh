@@ -11,8 +11,14 @@ for root in "$@"; do
   row="| $(basename "$root") |"
   pccs=()
   for idx in -2 -1; do
-    ckpt=$(python3 -c "import json,sys; print(json.load(open(sys.argv[1]))['stages'][int(sys.argv[2])]['checkpoint'])" \
-      "$root/lineage.json" "$idx")
+    # a curriculum killed in its last stage leaves the earlier ones, marked "complete": false (read_lineage): their
+    # last two are not stage 1 and stage 2 (the small recipe's are its AxisNet stage and stage 1)
+    ckpt=$(python3 -c "
+import json, sys
+lineage = json.load(open(sys.argv[1]))
+if lineage.get('complete') is False:
+    sys.exit(f'pfal_retention.sh: {sys.argv[1]}: the curriculum did not finish; run it again to finish it')
+print(lineage['stages'][int(sys.argv[2])]['checkpoint'])" "$root/lineage.json" "$idx")
     out=$(floaff-zoo validate --config "$(dirname "$(dirname "$ckpt")")/config.yaml" --ckpt_path "$ckpt" \
       --data.init_args.tasks '[PnPCounterToCab]' --trainer.enable_progress_bar false \
       --trainer.logger.init_args.save_dir "$root/retention" 2>/dev/null)

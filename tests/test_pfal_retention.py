@@ -1,0 +1,46 @@
+"""scripts/pfal_retention.sh: the rows come from the curriculum's last two stages, only of a finished curriculum."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+#: a stand-in for `floaff-zoo validate`: val_pcc 0.5 and val_sim 0.6, as Lightning's plain results table prints them
+FAKE_FZ = "#!/usr/bin/env bash\nprintf '      val_pcc      0.5\\n      val_sim      0.6\\n'\n"
+
+
+def _run(tmp_path: Path, lineage: dict) -> subprocess.CompletedProcess:
+    root = tmp_path / "recipe_s0"
+    root.mkdir()
+    (root / "lineage.json").write_text(json.dumps(lineage))
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    (bin_dir / "floaff-zoo").write_text(FAKE_FZ)
+    (bin_dir / "floaff-zoo").chmod(0o755)
+    env = dict(os.environ, PATH=f"{bin_dir}{os.pathsep}{os.environ['PATH']}")
+    return subprocess.run(
+        ["bash", str(ROOT / "scripts" / "pfal_retention.sh"), str(root)], capture_output=True, text=True, env=env
+    )
+
+
+def _stage(name: str) -> dict:
+    return {"stage": name, "checkpoint": f"/runs/{name}/version_0/checkpoints/best.ckpt"}
+
+
+def test_a_finished_curriculum_gets_a_row(tmp_path):
+    stages = [_stage("axisnet"), _stage("stage1_pnp"), _stage("stage2_door_drawer")]
+    proc = _run(tmp_path, {"stages": stages, "complete": True})
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.splitlines()[-1] == "| recipe_s0 | 0.500 / 0.600 | 0.500 / 0.600 | +0.000 |"
+
+
+def test_an_unfinished_curriculum_is_refused(tmp_path):
+    """A curriculum killed in stage 2 keeps its AxisNet stage and stage 1 in lineage.json (complete: false): those
+    were printed as "stage 1" and "stage 2"."""
+    proc = _run(tmp_path, {"stages": [_stage("axisnet"), _stage("stage1_pnp")], "complete": False})
+    assert proc.returncode != 0
+    assert "the curriculum did not finish" in proc.stderr and "| recipe_s0 |" not in proc.stdout
