@@ -466,19 +466,26 @@ def _yaml_root(path: str) -> str | None:
 #: files under a data folder whose content the fingerprint reads: the small metadata a generator or a public format
 #: writes per scene and per dataset (scene.json, manifest.json, split lists); other files count by path and size
 _DATA_TEXT_SUFFIXES = (".json", ".txt", ".yaml", ".yml", ".csv")
+#: files at a data folder's top that the fingerprint leaves out: the generator's log of its runs (wall times, workers,
+#: package versions), rewritten by every `floaff-zoo generate` resume, the demo's included, that makes nothing; the
+#: scene records it lists say what was generated
+_DATA_RUN_LOGS = ("manifest.json",)
 
 
 def _data_fingerprint(root: Path) -> str:
     """sha256 over every file of a data folder, but hidden ones (the sample cache ``.cache``, lock files, which fits
     write there): each file's relative path and size, and the content of its metadata files. A finished stage is
     reused only while the data it trained on is unchanged: regenerated data (new manifest and scene records), another
-    copy in the same folder or scenes added or removed give another fingerprint."""
+    copy in the same folder or scenes added or removed give another fingerprint; a generator run that made nothing
+    (it rewrites its ``manifest.json`` log) does not."""
     h = hashlib.sha256()
     for dirpath, dirnames, filenames in os.walk(root):
         dirnames[:] = sorted(d for d in dirnames if not d.startswith("."))
         for name in sorted(f for f in filenames if not f.startswith(".")):
             path = Path(dirpath, name)
             rel = path.relative_to(root).as_posix()
+            if rel in _DATA_RUN_LOGS:
+                continue
             try:
                 size = path.stat().st_size
                 text = _sha256(path) if name.endswith(_DATA_TEXT_SUFFIXES) else ""

@@ -488,8 +488,9 @@ def test_a_stage_digest_takes_a_config_given_as_yaml_text():
 
 def test_a_finished_stage_reruns_when_its_data_folder_changed(tmp_path, capsys):
     """The data a stage trained on was not among its inputs: after the data was generated again into the same folder,
-    a rerun skipped the stage trained on the old data. The sample cache its fit writes into the folder changes
-    nothing, and a record written before data folders were kept is compared on its files, as it was."""
+    a rerun skipped the stage trained on the old data. The sample cache its fit writes into the folder and a generator
+    run that made nothing (it rewrites manifest.json, as every demo run does) change nothing, and a record written
+    before data folders were kept is compared on its files, as it was."""
     from tests.data.floaff_fixture import make_floaff_dataset
 
     data = tmp_path / "floaff"
@@ -520,6 +521,9 @@ def test_a_finished_stage_reruns_when_its_data_folder_changed(tmp_path, capsys):
     run_curriculum(exp, runner=_spy(seen))
     assert not seen
     stage_file.write_text(json.dumps(record))
+    (data / "manifest.json").write_text(json.dumps({"wall_s": 1.5}))  # a generate resume that made nothing
+    run_curriculum(exp, runner=_spy(seen))
+    assert not seen
     scene = next(data.rglob("scene.json"))  # the data generated again: other scene records
     scene.write_text(scene.read_text() + "\n")
     capsys.readouterr()
