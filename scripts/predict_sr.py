@@ -28,15 +28,18 @@ from floaff_zoo.sim.rollout import RolloutService
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--root", required=True)
-    p.add_argument("--benchmark", default="layouts")
+    p.add_argument("--benchmark", default="layouts", choices=["layouts", "styles"])
     p.add_argument("--model", required=True)
     p.add_argument("--cell", type=float, default=0.1, help="grid cell of the model's training data (m)")
     p.add_argument("--json", default=None)
     a = p.parse_args(argv)
+    scenes = list(ff.iter_scenes(a.root, benchmark=a.benchmark, split="test"))
+    if not scenes:  # else every SR read nan (the mean of no rollout) and the script exited 0
+        raise SystemExit(f"predict_sr: no finished test scene under {Path(a.root) / a.benchmark}")
     model = resolve_model(a.model)
     jobs: dict[str, list] = {"default": [], "dataset": []}
     tasks: list[str] = []
-    for scene in ff.iter_scenes(a.root, benchmark=a.benchmark, split="test"):
+    for scene in scenes:
         for view in scene["views"]:
             s = ff.read_sample(scene, view)
             sim, task = s["meta"]["sim"], s["meta"]["task"]

@@ -1,0 +1,23 @@
+"""scripts/predict_sr.py: SR of the predict API's default floor vs the dataset's floor points, on test views."""
+
+import importlib.util
+from pathlib import Path
+
+import pytest
+
+_SPEC = importlib.util.spec_from_file_location(
+    "predict_sr", Path(__file__).resolve().parents[1] / "scripts" / "predict_sr.py"
+)
+ps = importlib.util.module_from_spec(_SPEC)
+_SPEC.loader.exec_module(ps)
+
+
+def test_a_benchmark_without_test_scenes_exits_naming_it(tmp_path, monkeypatch):
+    """No test scene (a benchmark not generated, a typo) printed a table of nan and exited 0."""
+    monkeypatch.setattr(ps, "resolve_model", lambda name: object())  # the model is never run
+    (tmp_path / "layouts").mkdir()
+    with pytest.raises(SystemExit, match=r"no finished test scene under .*styles"):
+        ps.main(["--root", str(tmp_path), "--benchmark", "styles", "--model", "m"])
+    with pytest.raises(SystemExit) as exc:  # a typo: argparse names the choices
+        ps.main(["--root", str(tmp_path), "--benchmark", "layout", "--model", "m"])
+    assert exc.value.code == 2
