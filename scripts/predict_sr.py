@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from floaff_zoo.frames import facing_pose, pose_to_world
-from floaff_zoo.predict import predict_from_points, resolve_model
+from floaff_zoo.predict import check_floor_model, predict_from_points, resolve_model
 from floaff_zoo.sim import fileformat as ff
 from floaff_zoo.sim.kitchen import SceneSpec
 from floaff_zoo.sim.rollout import RolloutService
@@ -37,6 +37,10 @@ def main(argv: list[str] | None = None) -> int:
     if not scenes:  # else every SR read nan (the mean of no rollout) and the script exited 0
         raise SystemExit(f"predict_sr: no finished test scene under {Path(a.root) / a.benchmark}")
     model = resolve_model(a.model)
+    try:  # predict_from_points refuses it too, but as a TypeError traceback, after the first view's checks
+        check_floor_model(model)
+    except TypeError as exc:
+        raise SystemExit(f"predict_sr: --model {a.model}: {exc}") from exc
     jobs: dict[str, list] = {"default": [], "dataset": []}
     tasks: list[str] = []
     for scene in scenes:

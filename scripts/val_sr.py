@@ -25,8 +25,19 @@ from floaff_zoo.callbacks.rollout import choose_pose, cloud_free, default_servic
 from floaff_zoo.contract import TASKS
 from floaff_zoo.data.floaff_kitchen import FloAffKitchenDataModule
 from floaff_zoo.data.transforms import TargetCrop
-from floaff_zoo.predict import resolve_model
+from floaff_zoo.predict import check_floor_model, resolve_model
 from floaff_zoo.sim.kitchen import SceneSpec
+
+
+def floor_model(name: str) -> torch.nn.Module:
+    """The model of a MODEL argument in eval mode; exits naming it when it predicts no floor map (an AxisNet
+    checkpoint: its output was read as floor scores and failed in the pose choice)."""
+    net = resolve_model(name)
+    try:
+        check_floor_model(net)
+    except TypeError as exc:
+        raise SystemExit(f"val_sr: {name}: {exc}") from exc
+    return net.eval()
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -42,6 +53,7 @@ def main(argv: list[str] | None = None) -> int:
     a = p.parse_args(argv)
     if a.top_k < 1:
         p.error(f"--top-k must be >= 1, got {a.top_k}")
+    models = {m: floor_model(m) for m in a.models}  # a bad model fails before the data are set up
     dm = FloAffKitchenDataModule(
         root=a.root,
         benchmark=a.benchmark,
@@ -54,7 +66,6 @@ def main(argv: list[str] | None = None) -> int:
     if a.crop_first is not None:
         dm.eval_transforms = [TargetCrop(a.crop_first)]
     dm.setup("fit")
-    models = {m: resolve_model(m).eval() for m in a.models}
     jobs: dict[str, list] = {m: [] for m in a.models}
     tasks: list[str] = []
     with torch.no_grad():

@@ -1,6 +1,7 @@
 """scripts/predict_sr.py: SR of the predict API's default floor vs the dataset's floor points, on test views."""
 
 import importlib.util
+import re
 from pathlib import Path
 
 import pytest
@@ -21,3 +22,15 @@ def test_a_benchmark_without_test_scenes_exits_naming_it(tmp_path, monkeypatch):
     with pytest.raises(SystemExit) as exc:  # a typo: argparse names the choices
         ps.main(["--root", str(tmp_path), "--benchmark", "layout", "--model", "m"])
     assert exc.value.code == 2
+
+
+def test_a_model_without_a_floor_map_exits_naming_it(tmp_path):
+    """An AxisNet checkpoint reached predict_from_points, whose TypeError (or an earlier check's) was a traceback."""
+    from tests.data.floaff_fixture import make_floaff_dataset
+    from tests.test_val_sr import axisnet_ckpt
+
+    make_floaff_dataset(tmp_path / "data", problems=False, version=2)
+    ckpt = axisnet_ckpt(tmp_path / "axisnet.ckpt")
+    match = rf"predict_sr: --model {re.escape(str(ckpt))}: .*AxisNetModule predicts no floor map"
+    with pytest.raises(SystemExit, match=match):
+        ps.main(["--root", str(tmp_path / "data"), "--benchmark", "layouts", "--model", str(ckpt)])

@@ -1,0 +1,32 @@
+"""scripts/val_sr.py: rollout SR of several models on the validation scenes."""
+
+import importlib.util
+import re
+from pathlib import Path
+
+import pytest
+import torch
+
+_SPEC = importlib.util.spec_from_file_location("val_sr", Path(__file__).resolve().parents[1] / "scripts" / "val_sr.py")
+vs = importlib.util.module_from_spec(_SPEC)
+_SPEC.loader.exec_module(vs)
+
+
+def axisnet_ckpt(path: Path) -> Path:
+    """An AxisNetModule checkpoint as LightningCLI writes it: a zoo model that predicts no floor map."""
+    from floaff_zoo.models.axisnet import AxisNetModule
+
+    net = AxisNetModule()
+    hp = {**dict(net.hparams), "_class_path": "floaff_zoo.models.axisnet.AxisNetModule"}
+    torch.save({"state_dict": net.state_dict(), "hyper_parameters": hp, "callbacks": {}, "epoch": 1}, path)
+    return path
+
+
+def test_a_model_without_a_floor_map_exits_naming_it(tmp_path):
+    """An AxisNet checkpoint's output was read as floor scores: an IndexError in the pose choice, after the setup."""
+    from tests.data.floaff_fixture import make_floaff_dataset
+
+    make_floaff_dataset(tmp_path / "data", problems=False, version=2)
+    ckpt = axisnet_ckpt(tmp_path / "axisnet.ckpt")
+    with pytest.raises(SystemExit, match=rf"val_sr: {re.escape(str(ckpt))}: .*AxisNetModule predicts no floor map"):
+        vs.main(["--root", str(tmp_path / "data"), "--benchmark", "styles", str(ckpt)])
