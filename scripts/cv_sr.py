@@ -35,7 +35,10 @@ def fold_files(paths: list[str]) -> list[tuple[Path, str]]:
         path, _, tag = item.rpartition("@") if "@" in item and not Path(item).exists() else (item, "", "")
         p = Path(path)
         if p.is_dir():
-            out += [(f, tag) for f in sorted(p.glob("*.json"))]
+            found = sorted(p.glob("*.json"))
+            if not found:  # one run's folder empty (its jobs not run): the others were pooled without it
+                raise SystemExit(f"cv_sr: no fold JSON in {p}")
+            out += [(f, tag) for f in found]
         elif p.is_file():
             out.append((p, tag))
         else:

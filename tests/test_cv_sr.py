@@ -80,6 +80,11 @@ def test_missing_or_empty_inputs_exit(tmp_path):
     (tmp_path / "empty").mkdir()
     with pytest.raises(SystemExit, match="no fold JSON"):
         cv.fold_files([str(tmp_path / "empty")])
+    (tmp_path / "full").mkdir()
+    (tmp_path / "full" / "cv0_occ.json").write_text("{}")
+    # one empty input among others: the comparison it was named for silently lacked its models
+    with pytest.raises(SystemExit, match=r"no fold JSON in .*empty"):
+        cv.fold_files([f"{tmp_path / 'full'}@old", f"{tmp_path / 'empty'}@new"])
 
 
 def test_tagged_inputs_compare_one_model_from_two_runs(tmp_path):
