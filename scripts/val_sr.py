@@ -53,6 +53,8 @@ def main(argv: list[str] | None = None) -> int:
     a = p.parse_args(argv)
     if a.top_k < 1:
         p.error(f"--top-k must be >= 1, got {a.top_k}")
+    if a.crop_first is not None and not a.crop_first > 0:  # TargetCrop's ValueError was a traceback after the models
+        p.error(f"--crop-first must be a radius > 0 (m), got {a.crop_first}")
     models = {m: floor_model(m) for m in a.models}  # a bad model fails before the data are set up
     dm = FloAffKitchenDataModule(
         root=a.root,

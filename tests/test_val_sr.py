@@ -30,3 +30,11 @@ def test_a_model_without_a_floor_map_exits_naming_it(tmp_path):
     ckpt = axisnet_ckpt(tmp_path / "axisnet.ckpt")
     with pytest.raises(SystemExit, match=rf"val_sr: {re.escape(str(ckpt))}: .*AxisNetModule predicts no floor map"):
         vs.main(["--root", str(tmp_path / "data"), "--benchmark", "styles", str(ckpt)])
+
+
+@pytest.mark.parametrize("radius", ["0", "-1", "nan"])
+def test_a_crop_radius_that_is_no_radius_is_named(radius, capsys):
+    """TargetCrop refused it with a ValueError traceback, after the models were loaded."""
+    with pytest.raises(SystemExit) as exc:
+        vs.main(["--root", "nowhere", "m", "--crop-first", radius])
+    assert exc.value.code == 2 and "--crop-first must be a radius > 0" in capsys.readouterr().err
