@@ -60,3 +60,11 @@ def test_the_views_a_one_scene_task_holds_out_are_validation_views(tmp_path):
     splits = [split for t, split, *_ in views if t == pnp]
     assert splits.count("val") == len(dm.datasets["val"]) > 0 and "train" in splits
     assert pc.main(["--root", str(tmp_path), "--benchmarks", "styles"]) == 0  # tasks without views print n/a
+
+
+def test_an_unknown_benchmark_is_named_before_the_table(tmp_path, capsys):
+    """A typo printed the table's header, then the DataModule's ValueError traceback."""
+    with pytest.raises(SystemExit) as exc:
+        pc.main(["--root", str(tmp_path), "--benchmarks", "layouts", "layout"])
+    out = capsys.readouterr()
+    assert exc.value.code == 2 and "--benchmarks: invalid choice: 'layout'" in out.err and "| Benchmark" not in out.out
