@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from floaff_zoo.frames import facing_pose, pose_to_world
-from floaff_zoo.predict import check_floor_model, predict_from_points, resolve_model
+from floaff_zoo.predict import check_cell, check_floor_model, predict_from_points, resolve_model
 from floaff_zoo.sim import fileformat as ff
 from floaff_zoo.sim.kitchen import SceneSpec
 from floaff_zoo.sim.rollout import RolloutService
@@ -33,6 +33,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--cell", type=float, default=0.1, help="grid cell of the model's training data (m)")
     p.add_argument("--json", default=None)
     a = p.parse_args(argv)
+    try:  # else predict's ValueError, naming no option, was a traceback at the first view, after the model loaded
+        check_cell(a.cell)
+    except ValueError as exc:
+        p.error(f"--cell: {exc}")
     scenes = list(ff.iter_scenes(a.root, benchmark=a.benchmark, split="test"))
     if not scenes:  # else every SR read nan (the mean of no rollout) and the script exited 0
         raise SystemExit(f"predict_sr: no finished test scene under {Path(a.root) / a.benchmark}")

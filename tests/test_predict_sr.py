@@ -34,3 +34,11 @@ def test_a_model_without_a_floor_map_exits_naming_it(tmp_path):
     match = rf"predict_sr: --model {re.escape(str(ckpt))}: .*AxisNetModule predicts no floor map"
     with pytest.raises(SystemExit, match=match):
         ps.main(["--root", str(tmp_path / "data"), "--benchmark", "layouts", "--model", str(ckpt)])
+
+
+@pytest.mark.parametrize("cell", ["0", "-0.1", "nan", "inf"])
+def test_a_cell_that_is_no_size_is_named(cell, tmp_path, capsys):
+    """predict refused it with a ValueError traceback at the first view, after the model was loaded."""
+    with pytest.raises(SystemExit) as exc:
+        ps.main(["--root", str(tmp_path), "--model", "m", "--cell", cell])
+    assert exc.value.code == 2 and "--cell: predict: cell must be a finite size > 0 m" in capsys.readouterr().err
