@@ -65,24 +65,34 @@ def test_demo_outside_the_repository_is_one_line(tmp_path, monkeypatch, capsys):
 
 def test_demo_reuses_a_baseline_only_when_fitted_with_the_same_data_and_epochs(tmp_path, monkeypatch, capsys):
     """A baseline finished by `demo --epochs 1 --data A` was reused by `demo --epochs 30 --data B` (and its report
-    then compared with a model trained on B)."""
+    then compared with a model trained on B), and by a demo on data generated again into A (beside a curriculum
+    re-fitted on the new data)."""
     import floaff_zoo.cli
     from floaff_zoo import demo
-    from floaff_zoo.runs import mark_finished
+    from floaff_zoo.runs import data_fingerprint, mark_finished
 
     def fit(*args, **kwargs):
         raise RuntimeError("fitting")
 
     monkeypatch.setattr(floaff_zoo.cli, "run_lightning", fit)
+    monkeypatch.chdir(tmp_path)
+    for name in ("a", "b"):
+        (tmp_path / "data" / name / "s0").mkdir(parents=True)
+        (tmp_path / "data" / name / "s0" / "scene.json").write_text("{}")
     run = tmp_path / "pointnet2" / "version_0"
     (run / "checkpoints").mkdir(parents=True)
     (run / "checkpoints" / "last.ckpt").write_bytes(b"x")
-    args = {"data": str(Path("data/a").resolve()), "max_epochs": 1}  # what `demo --data data/a --epochs 1` records
+    folder = (tmp_path / "data" / "a").resolve()  # what `demo --data data/a --epochs 1` records
+    args = {"data": str(folder), "data_fingerprint": data_fingerprint(folder), "max_epochs": 1}
     mark_finished(run, run / "checkpoints" / "last.ckpt", {"epochs": 1, "args": args})
+    (folder / ".cache").mkdir()  # the fit's sample cache changes nothing
     assert demo._fit_baseline("data/a", tmp_path / "pointnet2", 1) == run
     for data, epochs in (("data/b", 1), ("data/a", 30)):
         with pytest.raises(RuntimeError, match="fitting"):
             demo._fit_baseline(data, tmp_path / "pointnet2", epochs)
+    (folder / "s0" / "scene.json").write_text('{"generated": "again"}')
+    with pytest.raises(RuntimeError, match="fitting"):
+        demo._fit_baseline("data/a", tmp_path / "pointnet2", 1)
     assert "was fitted with" in capsys.readouterr().out
 
 

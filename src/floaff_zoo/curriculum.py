@@ -64,7 +64,7 @@ from typing import Any
 
 import yaml
 
-from floaff_zoo.runs import RunError, config_value, config_values, is_config_file, load_checkpoint
+from floaff_zoo.runs import RunError, config_value, config_values, data_fingerprint, is_config_file, load_checkpoint
 
 __all__ = ["CurriculumError", "build_stage_args", "load_experiment", "main", "read_lineage", "run_curriculum"]
 
@@ -409,12 +409,12 @@ INPUT_SUFFIXES = (".ckpt", ".safetensors", ".pt", ".pth", ".npz")
 def _input_files(args: list[str]) -> dict[str, str]:
     """{path: sha256} of every existing file of an ``INPUT_SUFFIXES`` kind that a fit argument names, or that a value
     in one of its ``--config`` files names (e.g. ``data.init_args.train_labels``, an ``.npz`` a script regenerates),
-    and {``<data root>/``: fingerprint} of the data folder the fit reads (:func:`_data_fingerprint`)."""
+    and {``<data root>/``: fingerprint} of the data folder the fit reads (:func:`floaff_zoo.runs.data_fingerprint`)."""
     named = list(args) + [v for f in config_values(args) for v in _yaml_strings(f)]
     files = {a: _sha256(a) for a in dict.fromkeys(named) if a.endswith(INPUT_SUFFIXES) and Path(a).is_file()}
     root = _data_root(args)
     if root is not None and Path(root).is_dir():
-        files[root.rstrip("/") + "/"] = _data_fingerprint(Path(root))
+        files[root.rstrip("/") + "/"] = data_fingerprint(root)
     return files
 
 
@@ -461,38 +461,6 @@ def _yaml_root(path: str) -> str | None:
         return None
     init = data.get("init_args") if isinstance(data.get("init_args"), dict) else data
     return init.get("root") if isinstance(init.get("root"), str) else None
-
-
-#: files under a data folder whose content the fingerprint reads: the small metadata a generator or a public format
-#: writes per scene and per dataset (scene.json, manifest.json, split lists); other files count by path and size
-_DATA_TEXT_SUFFIXES = (".json", ".txt", ".yaml", ".yml", ".csv")
-#: files at a data folder's top that the fingerprint leaves out: the generator's log of its runs (wall times, workers,
-#: package versions), rewritten by every `floaff-zoo generate` resume, the demo's included, that makes nothing; the
-#: scene records it lists say what was generated
-_DATA_RUN_LOGS = ("manifest.json",)
-
-
-def _data_fingerprint(root: Path) -> str:
-    """sha256 over every file of a data folder, but hidden ones (the sample cache ``.cache``, lock files, which fits
-    write there): each file's relative path and size, and the content of its metadata files. A finished stage is
-    reused only while the data it trained on is unchanged: regenerated data (new manifest and scene records), another
-    copy in the same folder or scenes added or removed give another fingerprint; a generator run that made nothing
-    (it rewrites its ``manifest.json`` log) does not."""
-    h = hashlib.sha256()
-    for dirpath, dirnames, filenames in os.walk(root):
-        dirnames[:] = sorted(d for d in dirnames if not d.startswith("."))
-        for name in sorted(f for f in filenames if not f.startswith(".")):
-            path = Path(dirpath, name)
-            rel = path.relative_to(root).as_posix()
-            if rel in _DATA_RUN_LOGS:
-                continue
-            try:
-                size = path.stat().st_size
-                text = _sha256(path) if name.endswith(_DATA_TEXT_SUFFIXES) else ""
-            except OSError:  # removed meanwhile (a generator running beside us): counted as missing
-                size, text = -1, ""
-            h.update(f"{rel}\0{size}\0{text}\n".encode())
-    return h.hexdigest()
 
 
 def _yaml_strings(path: str) -> list[str]:

@@ -45,8 +45,13 @@ def _check_configs() -> None:
 
 
 def baseline_args(data: str, epochs: int) -> dict[str, Any]:
-    """What a baseline fit was asked for, recorded in its ``finished.json``: a run reused must match it."""
-    return {"data": str(Path(data).resolve()), "max_epochs": int(epochs)}
+    """What a baseline fit was asked for, recorded in its ``finished.json``: a run reused must match it. The data
+    folder's fingerprint (``runs.data_fingerprint``) is part of it: data generated again into the same folder gave a
+    baseline trained on the old data beside a curriculum re-fit on the new."""
+    from floaff_zoo.runs import data_fingerprint
+
+    folder = Path(data).resolve()
+    return {"data": str(folder), "data_fingerprint": data_fingerprint(folder), "max_epochs": int(epochs)}
 
 
 def _fit_baseline(data: str, root: Path, epochs: int) -> Path:
