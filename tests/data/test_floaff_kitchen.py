@@ -656,3 +656,40 @@ def test_a_scene_whose_view_files_are_all_missing_takes_no_validation_place(floa
     assert dm.skips.counts["missing_view"] == exp["skips"]["missing_view"] + 4  # its views are still named
     assert all(held not in s for split in dm.split_scenes.values() for s in split)
     assert any(r.meta["task"] == "CloseDrawer" for r in dm.datasets["val"].records)
+
+
+def test_a_split_without_any_sample_of_a_loaded_task_is_said(floaff_root, tmp_path):
+    """A task the data has scenes of but a split the stage uses has no sample of (its train scenes all failed or were
+    skipped, the scene the seeded draw held out has only corrupt views) was left out of training or of the
+    validation that chooses the checkpoint without a word; a task without any scene was printed."""
+    import warnings
+
+    root, _ = floaff_root
+    tasks = ["CloseDrawer", "PnPCounterToCab"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", UserWarning)  # the fixture's splits hold every task: nothing to say
+        _dm(root, tasks=tasks).setup("fit")
+        _dm(root, tasks=tasks, val_scene_ids=["CloseDrawer-train1-s002"]).setup("fit")  # pinned: PnP not validated
+    ref = _dm(root, tasks=tasks)
+    ref.setup("fit")
+    (held,) = [s for s in ref.split_scenes["val"] if s.startswith("CloseDrawer")]
+    copy = tmp_path / "data"
+    shutil.copytree(root, copy, ignore=shutil.ignore_patterns(".cache"))
+    for view in (copy / "styles" / held / "views").glob("*.npz"):
+        view.write_bytes(b"not an npz")  # corrupt: skipped when the split is built, after the draw
+    dm = _dm(copy, tasks=tasks)
+    with pytest.warns(UserWarning, match=r"'val' split holds no sample of task\(s\) \['CloseDrawer'\]"):
+        dm.setup("fit")
+    other = tmp_path / "other"
+    shutil.copytree(root, other, ignore=shutil.ignore_patterns(".cache"))
+    for d in (other / "styles").glob("PnPCounterToCab-train*"):
+        shutil.rmtree(d)  # PnP keeps its test scene only
+    dm = _dm(other, tasks=tasks)
+    with pytest.warns(
+        UserWarning, match=r"'train' split holds no sample of task\(s\) \['PnPCounterToCab'\].*trains"
+    ) as got:
+        dm.setup("fit")
+    assert len([w for w in got if "holds no sample" in str(w.message)]) == 1  # not again for its validation
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", UserWarning)
+        dm.setup("test")  # the test split holds both tasks

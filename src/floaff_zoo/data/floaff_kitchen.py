@@ -176,6 +176,9 @@ class FloAffKitchenDataModule(FloAffDataModule):
         self.full_cloud = full_cloud
         self.skips: SkipLog | None = None
         self.split_scenes: dict[str, list[str]] = {}
+        #: the tasks the data has scenes of, and the splits a missing task was warned about (``_warn_missing_tasks``)
+        self._scene_tasks: set[str] = set()
+        self._warned_splits: set[str] = set()
         #: scene id -> short hash of its labels, for every scene of this run's tasks (after setup; reports record it)
         self.labels_digests: dict[str, str] = {}
 
@@ -315,6 +318,7 @@ class FloAffKitchenDataModule(FloAffDataModule):
     # ------------------------------------------------------------------ setup
     def setup(self, stage: str | None = None) -> None:
         if self.datasets:
+            self._warn_missing_tasks(stage)
             return
         if self.root.exists() and not self.root.is_dir():  # "does not exist, generate into it" misled
             raise MisconfigurationException(f"FloAffKitchenDataModule: root {self.root} is a file, not a data folder")
@@ -349,6 +353,7 @@ class FloAffKitchenDataModule(FloAffDataModule):
         self.datasets["predict"] = self.datasets["test"]
         self.skips = skips
         empty = [t for t in self.tasks if not any(s.task == t for s in scenes)]
+        self._scene_tasks = {s.task for s in scenes}
         if empty:
             print(f"FloAffKitchenDataModule: no '{self.benchmark}' scene for task(s) {empty} under {self.root}")
         old = sum(s.format_version == 1 for s in scenes)
@@ -371,6 +376,38 @@ class FloAffKitchenDataModule(FloAffDataModule):
                 raise MisconfigurationException(
                     f"FloAffKitchenDataModule: the '{split}' split is empty{why} for tasks {self.tasks}, views "
                     f"{self.views} under {self.root}/{self.benchmark} (scenes per split: {self.split_scenes})"
+                )
+        self._warn_missing_tasks(stage)
+
+    def _warn_missing_tasks(self, stage: str | None) -> None:
+        """Warn, once per split, when a split ``stage`` uses holds no sample of a task this run loads although the
+        data has scenes of it (a task without any scene is printed at setup): e.g. every train scene of the task
+        failed or was skipped, so a fit trained the other tasks only and its test scored one it never trained, or
+        the seeded validation draw left it out (a single train scene of one view, views skipped at setup), so no
+        checkpoint choice saw it. A pinned hold-out (``val_scene_ids``, ``val_layout``) leaves tasks out of
+        validation by design and is not checked here."""
+        pinned = self.val_scene_ids is not None or self.val_layout is not None
+        fit = ["train"] + (["val"] if self.validates and not pinned else [])
+        splits = {"fit": fit, "test": ["test"], "predict": ["test"]}.get(stage or "", [])
+        tasks = {split: {r.meta.get("task") for r in getattr(ds, "records", [])} for split, ds in self.datasets.items()}
+        for split in splits:
+            if split not in tasks or split in self._warned_splits:
+                continue
+            # a task without a train sample is said once, for train: its validation is empty too
+            known = tasks.get("train", set()) if split == "val" else self._scene_tasks
+            missing = [t for t in self.tasks if t in known and t not in tasks[split]]
+            if missing:
+                self._warned_splits.add(split)
+                what = {
+                    "train": "a fit trains the other tasks only",
+                    "val": "the validation that chooses the checkpoint sees the other tasks only",
+                    "test": "the test scores the other tasks only",
+                }[split]
+                warnings.warn(
+                    f"FloAffKitchenDataModule: the '{split}' split holds no sample of task(s) {missing} under "
+                    f"{self.root}/{self.benchmark} (views {self.views}; scenes per split: {self.split_scenes}; "
+                    f"{self.skips.total if self.skips is not None else 0} skipped at setup): {what}",
+                    stacklevel=2,
                 )
 
     def skip_log(self, split: str) -> SkipLog | None:
