@@ -6,9 +6,9 @@ depth image with the pinhole model into the robot base frame, flags the target p
 
 Conventions:
 
-* ``intrinsics`` = (fx, fy, cx, cy) in pixels (pixel centres at +0.5); ``depth`` [H, W] metres
-  along the optical axis (<= 0, NaN/Inf or >= ``max_depth`` = invalid, e.g. the far plane; default
-  :data:`MAX_DEPTH`, the generator's cut, 4 m).
+* ``intrinsics`` = (fx, fy, cx, cy) in pixels (pixel centres at +0.5), or a 3x3 K (its skew applied);
+  ``depth`` [H, W] metres along the optical axis (<= 0, NaN/Inf or >= ``max_depth`` = invalid, e.g. the far
+  plane; default :data:`MAX_DEPTH`, the generator's cut, 4 m).
 * ``camera_pose`` = 4x4 camera-to-base transform. ``convention="opengl"`` (default, MuJoCo):
   the camera looks along its -z, x right, y up; ``"opencv"``: looks along +z, x right, y down.
 * The base frame is the contract's: x forward, y left, z up, floor at z = 0.
@@ -322,19 +322,23 @@ def backproject_depth(
     convention: Literal["opengl", "opencv"] = "opengl",
     max_depth: float = MAX_DEPTH,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Depth [H, W] -> base-frame points [H*W, 3] (row-major pixels) and valid [H*W] bool."""
+    """Depth [H, W] -> base-frame points [H*W, 3] (row-major pixels) and valid [H*W] bool.
+
+    ``intrinsics``: (fx, fy, cx, cy), or a 3x3 K ``[[fx, s, cx], [0, fy, cy], [0, 0, 1]]`` whose skew ``s`` is applied.
+    """
     d = np.asarray(depth, dtype=np.float64)
     if d.ndim != 2:
         raise ValueError(f"predict: depth must be [H, W], got shape {d.shape}")
     k = np.asarray(intrinsics, dtype=np.float64).reshape(-1)
+    skew = 0.0
     if k.size == 9:  # a 3x3 K matrix
         if np.isfinite(k).all() and not np.allclose(k[[3, 6, 7, 8]], [0.0, 0.0, 0.0, 1.0]):  # a transposed K
             raise ValueError(
                 f"predict: a 3x3 intrinsics K must be [[fx, s, cx], [0, fy, cy], [0, 0, 1]], got rows "
                 f"{np.asarray(intrinsics, dtype=np.float64).reshape(3, 3).tolist()} (transposed?)"
             )
-        k = np.array([k[0], k[4], k[2], k[5]])
-    if k.size != 4 or not np.isfinite(k).all() or k[0] <= 0 or k[1] <= 0:
+        k, skew = np.array([k[0], k[4], k[2], k[5]]), float(k[1])
+    if k.size != 4 or not np.isfinite(k).all() or not math.isfinite(skew) or k[0] <= 0 or k[1] <= 0:
         raise ValueError(
             f"predict: intrinsics must be finite (fx, fy, cx, cy) with fx, fy > 0 or a 3x3 K, got {intrinsics!r}"
         )
@@ -359,7 +363,8 @@ def backproject_depth(
     fx, fy, cx, cy = k
     h, w = d.shape
     uu, vv = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
-    x = (uu - cx) * d / fx
+    # K's skew s (u = fx x / z + s y / z + cx): a camera with one was read as without it, every point off sideways
+    x = (uu - cx) * d / fx if skew == 0.0 else (uu - cx - skew * (vv - cy) / fy) * d / fx
     y = (vv - cy) * d / fy
     if convention == "opengl":
         pc = np.stack([x, -y, -d], axis=-1)

@@ -399,3 +399,25 @@ def test_a_transposed_k_a_non_rigid_pose_and_millimetre_depth_are_named():
             predict_from_points("no-such-model-is-loaded", xyz, feat, None, [0.85, 1.03], t, seed=seed)
     with pytest.raises(ValueError, match="intrinsics must be finite"):  # NaN is named as such, not as transposed
         backproject_depth(depth, np.full((3, 3), np.nan), pose)
+
+
+def test_a_k_with_skew_back_projects_through_its_skew():
+    """A 3x3 K [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with a skew s != 0 was read as (fx, fy, cx, cy): every point
+    moved sideways by s * (v - cy) / fy * depth / fx without a word."""
+    h, w, f, s = 48, 64, 50.0, 4.0
+    cx, cy = w / 2, h / 2
+    K = np.array([[f, s, cx], [0.0, f, cy], [0.0, 0.0, 1.0]])
+    pose = _cam_pose() @ np.diag([1.0, -1.0, -1.0, 1.0])  # OpenCV axes
+    uu, vv = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
+    y = (vv - cy) / f
+    rays = np.stack([(uu - cx - s * y) / f, y, np.ones_like(uu)], -1) @ pose[:3, :3].T  # K^-1 [u, v, 1], depth 1
+    down = rays[..., 2] < 0
+    depth = np.zeros((h, w))
+    depth[down] = -pose[2, 3] / rays[down][:, 2]  # where each pixel's ray meets the floor
+    truth = (pose[:3, 3] + rays * depth[..., None]).reshape(-1, 3)
+    pts, valid = backproject_depth(depth, K, pose, "opencv", max_depth=20.0)
+    assert valid.sum() > 1000 and np.allclose(pts[valid], truth[valid], atol=1e-9)
+    plain, _ = backproject_depth(depth, (f, f, cx, cy), pose, "opencv", max_depth=20.0)
+    no_skew = K.copy()
+    no_skew[0, 1] = 0.0
+    assert np.array_equal(backproject_depth(depth, no_skew, pose, "opencv", max_depth=20.0)[0], plain)
