@@ -226,3 +226,17 @@ def test_floor_queries_refuse_clouds_that_are_not_n_by_3_and_poses_that_are_not_
             footprint_blocked(box, pose)
         with pytest.raises(ValueError, match=r"footprint_coverage: pose must be 3 finite values"):
             footprint_coverage(box, pose)
+
+
+def test_a_lattice_refuses_a_half_size_that_is_no_integer_and_a_centre_that_is_not_two_values():
+    """FloorLattice took half (1.5, 2) as a lattice of 4.0 rows whose centres sat half a cell off its centre, and a
+    centre of one value as (c, c), both without a word."""
+    assert FloorLattice((0.5, -0.2), 0.3, 0.1, (np.int64(1), 2)).shape == (3, 5)  # numpy ints are integers
+    for half in ((1.5, 2), (1.0, 2.0), (1, 2, 3), 2):
+        with pytest.raises(ValueError, match=r"FloorLattice: half must be two integers \(ny, nx\)"):
+            FloorLattice((0.0, 0.0), 0.0, 0.1, half)
+    for centre in ((0.5,), (0.5, 0.0, 0.8), np.zeros((1, 2))):
+        with pytest.raises(ValueError, match=r"FloorLattice: centre must be two values \(x, y\)"):
+            FloorLattice(centre, 0.0, 0.1, (1, 2))
+    with pytest.raises(ValueError, match=r"half sizes \(ny, nx\) must be >= 0"):
+        FloorLattice((0.0, 0.0), 0.0, 0.1, (-1, 2))

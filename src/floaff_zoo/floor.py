@@ -60,8 +60,14 @@ class FloorLattice:
     def __post_init__(self) -> None:
         if not (self.cell > 0 and math.isfinite(self.cell)):
             raise ValueError(f"FloorLattice: cell must be a finite value > 0, got {self.cell}")
-        if min(self.half) < 0:
+        half = np.asarray(self.half)
+        if half.shape != (2,) or half.dtype.kind not in "iu":
+            # (1.5, 2) made a lattice of 4.0 rows whose centres sat half a cell off its centre, without a word
+            raise ValueError(f"FloorLattice: half must be two integers (ny, nx), got {self.half!r}")
+        if half.min() < 0:
             raise ValueError(f"FloorLattice: half sizes (ny, nx) must be >= 0, got {self.half}")
+        if np.shape(self.centre) != (2,):  # one value broadcast as (c, c), three failed far off in centers()
+            raise ValueError(f"FloorLattice: centre must be two values (x, y), got {self.centre!r}")
         if not (np.isfinite(self.centre).all() and math.isfinite(self.angle)):
             raise ValueError(f"FloorLattice: centre {self.centre} and angle {self.angle} must be finite")
 
