@@ -744,6 +744,31 @@ def test_an_interrupted_rerun_does_not_leave_a_stale_scene_readable(mini_run, tm
     assert victim["scene_id"] in [s.get("retired") for s in man["scenes"].values()]
 
 
+def test_a_resumed_slot_leaves_no_earlier_scene_of_it_readable(mini_run, tmp_path):
+    """A rerun killed after committing a slot's new scene but before moving the slot's earlier scene (another seed's,
+    by an older generator) aside left both; the next rerun resumed the new one and left the old one for the readers,
+    one slot read twice and two generators in one dataset. The resume now retires it as a regeneration does."""
+    from floaff_zoo.sim.kitchen import LAYOUTS, STYLES
+
+    src, _ = mini_run
+    out = tmp_path / "copy"
+    shutil.copytree(src, out)
+    before = {s["scene_id"] for s in ff.iter_scenes(out)}
+    keep = sorted(ff.iter_scenes(out), key=lambda s: s["scene_id"])[0]
+    (job,) = [
+        j for j in gen.plan_jobs(get_preset("tiny", **MINI), 0, list(LAYOUTS), list(STYLES)) if j.key == keep["slot"]
+    ]
+    old_id = [sid for sid in (gen._scene_id(gen._spec(job, s)) for s in job.seeds) if sid != keep["scene_id"]][-1]
+    shutil.copytree(keep["dir"], ff.scene_dir(out, job.benchmark, old_id))
+    path = ff.scene_dir(out, job.benchmark, old_id) / ff.SCENE_JSON
+    path.write_text(json.dumps({**json.loads(path.read_text()), "scene_id": old_id, "generator_version": "2.2.0"}))
+    man = gen.generate(out, get_preset("tiny", **MINI), seed=0, workers=0, quiet=True)
+    assert all(s.get("resumed") for s in man["scenes"].values())
+    assert {s["scene_id"] for s in ff.iter_scenes(out)} == before
+    assert man["scenes"][job.key]["retired"] == old_id
+    assert (out / job.benchmark / ff.RETIRED / old_id / ff.SCENE_JSON).is_file()
+
+
 @pytest.mark.parametrize("damage", ["missing", "corrupt"])
 def test_a_rerun_into_scenes_without_a_readable_manifest_is_refused(mini_run, tmp_path, damage):
     """Without a readable manifest the settings went unchecked: a rerun with another grid cell kept the old scenes

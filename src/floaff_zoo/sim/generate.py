@@ -921,6 +921,16 @@ def _generate(
             "restore manifest.json"
         )
     todo: list[SceneJob] = []
+    # a slot's committed scenes by the slot their scene.json names (read once: slot_scenes reads every scene.json)
+    by_slot: dict[tuple[str, str], list[str]] = {}
+    for d in committed_scene_dirs(outp):
+        try:
+            slot = ff.read_json(d / ff.SCENE_JSON)
+        except ff.FormatError:
+            continue
+        if isinstance(slot, dict) and isinstance(slot.get("slot"), str):
+            by_slot.setdefault((d.parent.name, slot["slot"]), []).append(d.name)
+    retire: dict[str, list[str]] = {}  # resumed slot -> its other scenes, moved aside once the run is not refused
     for job in jobs:
         base = {
             "benchmark": job.benchmark,
@@ -934,6 +944,13 @@ def _generate(
         if sid is not None:
             prev = (old or {}).get("scenes", {}).get(job.key, {})
             rec = ff.read_scene(ff.scene_dir(outp, job.benchmark, sid))
+            # a rerun killed between committing this scene and moving the slot's earlier one aside left both
+            others = set(by_slot.get((job.benchmark, job.key), [])) | (
+                {prev["scene_id"]} if prev.get("scene_id") else set()
+            )
+            others.discard(sid)
+            if others:
+                retire[job.key] = sorted(others)
             manifest["scenes"][job.key] = {
                 **base,
                 "status": "ok",
@@ -964,6 +981,12 @@ def _generate(
             f"recorded --tasks, --n-train, --n-test: manifest.json 'config') so they are regenerated, or generate "
             f"into another --out"
         )
+    kept = {(s["benchmark"], s.get("scene_id")) for s in manifest["scenes"].values() if s["status"] == "ok"}
+    for key, ids in retire.items():  # readers list folders: a slot's scene that is not the resumed one must go
+        bench = manifest["scenes"][key]["benchmark"]
+        retired = [sid for sid in ids if (bench, sid) not in kept and ff.retire_scene(outp, bench, sid) is not None]
+        if retired:
+            manifest["scenes"][key]["retired"] = retired[0] if len(retired) == 1 else retired
     _summarise(manifest)
     ff.atomic_write_json(outp / ff.MANIFEST, manifest)
     prog = _Progress(len(todo), quiet)
