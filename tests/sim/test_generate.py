@@ -283,6 +283,23 @@ def test_fileformat_roundtrip_and_errors(tmp_path):
         ff.read_json(tmp_path / "s.json")
 
 
+def test_iter_scenes_refuses_a_filter_no_scene_can_match(tmp_path):
+    """A misspelt benchmark, split or task (``--benchmark Layouts`` of scripts/predict_sr.py) yielded no scene and no
+    word: the scripts then reported an empty split."""
+    (tmp_path / "layouts").mkdir()
+    for kw, named in (
+        (
+            {"benchmark": "Layouts"},
+            r"benchmark 'Layouts'.*'layouts', 'styles'|benchmark 'Layouts'.*'styles', 'layouts'",
+        ),
+        ({"split": "val"}, r"split 'val'.*'train', 'test'"),
+        ({"task": "CloseDrawers"}, r"task 'CloseDrawers'.*CloseDrawer"),
+    ):
+        with pytest.raises(ValueError, match=named):
+            list(ff.iter_scenes(tmp_path, **kw))
+    assert not list(ff.iter_scenes(tmp_path, benchmark="layouts", split="test", task="CloseDrawer"))
+
+
 def test_failing_job_is_retried_once_then_reported(tmp_path, monkeypatch):
     calls = []
 

@@ -72,6 +72,7 @@ SCENE_JSON = "scene.json"
 STAGING = ".staging"
 RETIRED = ".retired"  # scene folders a rerun replaced or could not replace (kept, never read)
 BENCHMARKS = ("styles", "layouts")
+SPLITS = ("train", "test")  # scene.json's "split"
 
 # name -> (dtype, shape pattern); "N"/"M"/"H"/"W" are free sizes shared across fields of one view
 VIEW_FIELDS: dict[str, tuple[str, tuple[Any, ...]]] = {
@@ -374,7 +375,21 @@ def iter_scenes(
     split: str | None = None,
     task: str | None = None,
 ) -> Iterator[dict[str, Any]]:
-    """Yield committed scenes (status "ok") under root, sorted by benchmark then scene_id, optionally filtered."""
+    """Yield committed scenes (status "ok") under root, sorted by benchmark then scene_id, optionally filtered.
+
+    Raises:
+        ValueError: a benchmark, split or task filter that no generated scene can have (a misspelt name matched
+            nothing without a word).
+    """
+    from floaff_zoo.sim.presets import ALL_TASKS
+
+    for what, value, known in (
+        ("benchmark", benchmark, BENCHMARKS),
+        ("split", split, SPLITS),
+        ("task", task, ALL_TASKS),
+    ):
+        if value and value not in known:
+            raise ValueError(f"iter_scenes: unknown {what} {value!r}; choose from {list(known)}")
     root = Path(root)
     if not root.is_dir():
         raise FormatError(f"{root}: dataset root not found")
