@@ -52,6 +52,28 @@ def test_repeated_or_unsupported_settings_are_refused():
         get_preset("tiny", r_arm=1.0).validate()
 
 
+@pytest.mark.parametrize(
+    ("field", "value", "message"),
+    [
+        ("sigma_cells", float("nan"), "sigma_cells must be a finite number >= 0, got nan"),
+        ("sigma_cells", -1.0, "sigma_cells must be a finite number >= 0, got -1.0"),
+        ("front_rx", float("nan"), "front_rx must be a finite number >= 0, got nan"),
+        ("side_ry", -0.5, "side_ry must be a finite number >= 0, got -0.5"),
+        ("max_dist", 0.0, "max_dist must be a finite number > 0, got 0.0"),
+        ("max_dist", float("inf"), "max_dist must be a finite number > 0, got inf"),
+        ("views_per_scene", (2,), r"views_per_scene must be \(front, side\), got \(2,\)"),
+        ("views_per_scene", (2, 2, 2), r"views_per_scene must be \(front, side\), got \(2, 2, 2\)"),
+    ],
+)
+def test_sizes_that_would_be_ignored_or_fail_each_scene_are_refused_by_name(field, value, message):
+    """A NaN or negative sigma_cells skipped the label smoothing without a word (annotate smooths when sigma > 0); a
+    NaN or negative view region gave none of its views, and such a max_dist none at all (every slot dropped after its
+    annotation), without naming the setting; a views_per_scene of one number failed the plan with an IndexError and
+    a third number was ignored."""
+    with pytest.raises(ValueError, match=message):
+        get_preset("tiny", **{field: value})
+
+
 def test_a_slots_scenes_are_found_whatever_kitchen_they_hold(tmp_path):
     """Every committed scene whose scene.json names the slot, found by the slot and not by the slot's seeds; a scene
     drawn with other per-scene view counts (the paper preset under another --n-train) is not resumed."""

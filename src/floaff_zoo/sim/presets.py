@@ -116,6 +116,16 @@ class GenPreset:
             raise ValueError(f"cell must be a finite number > 0, got {self.cell}")
         if self.max_seed_attempts < 1:
             raise ValueError("max_seed_attempts must be >= 1")
+        # annotate smooths only when sigma > 0: a NaN or negative one left the labels unsmoothed without a word
+        # (0 = no smoothing); a NaN or negative view region gives none of its views, found only after each annotation
+        for name in ("sigma_cells", "front_rx", "front_ry", "side_rx", "side_ry"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"{name} must be a finite number >= 0, got {value}")
+        if not (math.isfinite(self.max_dist) and self.max_dist > 0):
+            raise ValueError(f"max_dist must be a finite number > 0, got {self.max_dist}")
+        if len(self.views_per_scene) != 2:  # view_counts reads two numbers: one failed the plan, a third was ignored
+            raise ValueError(f"views_per_scene must be (front, side), got {tuple(self.views_per_scene)}")
         if min(self.views_per_scene) < 0:
             raise ValueError(f"views_per_scene must be >= 0, got {self.views_per_scene}")
         if self.min_views < 0:
