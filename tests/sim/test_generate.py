@@ -858,6 +858,38 @@ def test_a_rerun_leaving_out_a_slot_of_an_older_generator_is_refused(mini_run, t
     gen.generate(out, get_preset("tiny", **{**MINI, "n_test": 0}), seed=0, workers=0, quiet=True)
 
 
+def test_a_left_out_slot_an_interrupted_rerun_did_not_record_is_still_checked_and_listed(mini_run, tmp_path):
+    """A rerun that was to regenerate a slot wrote its manifest without the slot's scene id and was interrupted; the
+    next rerun leaving that slot out looked for left-out scenes in that manifest only: a 2.2 test scene stayed beside
+    the 2.3 training scenes, read but neither refused nor listed. The left-out slots' scenes are now also found by
+    the slot their scene.json names."""
+    sys.path.insert(0, str(Path(__file__).parent))
+    import _crash_job
+
+    src, _ = mini_run
+    out = tmp_path / "copy"
+    shutil.copytree(src, out)
+    (test_scene,) = [s for s in ff.iter_scenes(out) if s["split"] == "test"]
+    sj = ff.scene_dir(out, test_scene["benchmark"], test_scene["scene_id"]) / ff.SCENE_JSON
+    rec = json.loads(sj.read_text())
+    sj.write_text(json.dumps({**rec, "generator_version": "2.2.0"}))
+    with pytest.raises(KeyboardInterrupt):  # the rerun that was to regenerate the test slot
+        gen.generate(out, get_preset("tiny", **MINI), seed=0, workers=0, quiet=True, job_fn=_crash_job.interrupted)
+    assert "scene_id" not in json.loads((out / ff.MANIFEST).read_text())["scenes"][test_scene["slot"]]
+    with pytest.raises(
+        ValueError, match=rf"holds 1 scene\(s\) of another generator version .*{test_scene['scene_id']}"
+    ):
+        gen.generate(out, get_preset("tiny", **{**MINI, "n_test": 0}), seed=0, workers=0, quiet=True)
+    # a scene of this generator (a run killed after committing it, before recording it) stays, listed as left out
+    sj.write_text(json.dumps(rec))
+    man = gen.generate(out, get_preset("tiny", **{**MINI, "n_test": 0}), seed=0, workers=0, quiet=True)
+    listed = {s["scene_id"] for s in man["scenes"].values() if s["status"] == "ok"}
+    assert listed == {s["scene_id"] for s in ff.iter_scenes(out)} and test_scene["scene_id"] in listed
+    entry = man["scenes"][test_scene["slot"]]
+    assert entry["in_plan"] is False and entry["split"] == "test" and entry["slot"] == 0
+    assert entry["n_views"] == rec["n_views"] and man["counts"]["scenes_ok"] == 2
+
+
 def test_workers_exit_when_the_driver_is_killed(tmp_path):
     """Pool workers outlived a killed `generate`: they finished their queued scenes into --out (beside the rerun the
     docs tell the user to start) and then waited forever."""

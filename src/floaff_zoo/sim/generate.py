@@ -966,14 +966,35 @@ def _generate(
             todo.append(job)
     # slots of an earlier run that this run leaves out (fewer tasks, scenes or benchmarks): their scenes stay and
     # are read, so the manifest keeps describing them
-    stale = []
+    stale: list[str] = []
+    checked: set[tuple[str, str]] = set()
+
+    def left_out(bench: str, sid: str) -> dict[str, Any]:
+        """The scene.json of a left-out slot's scene, its generator checked once."""
+        rec = ff.read_json(ff.scene_dir(outp, bench, sid) / ff.SCENE_JSON)
+        if (bench, sid) not in checked and not same_generator(rec):
+            stale.append(f"{bench}/{sid} (generator {rec.get('generator_version') or '1.x'})")
+        checked.add((bench, sid))
+        return rec
+
     for key, s in sorted((old or {}).get("scenes", {}).items()):
         sid = s.get("scene_id")
         if key not in manifest["scenes"] and sid and ff.scene_is_done(outp, s["benchmark"], sid):
             manifest["scenes"][key] = {**s, "in_plan": False}
-            rec = ff.read_json(ff.scene_dir(outp, s["benchmark"], sid) / ff.SCENE_JSON)
-            if not same_generator(rec):
-                stale.append(f"{s['benchmark']}/{sid} (generator {rec.get('generator_version') or '1.x'})")
+            left_out(s["benchmark"], sid)
+    # and those the previous manifest does not name (a run killed after committing a slot's scene but before
+    # recording it, or an interrupted rerun's manifest, written without the id of a scene it was to regenerate): by
+    # the slot their scene.json names
+    planned = {job.key for job in jobs}
+    for (bench, key), ids in sorted(by_slot.items()):
+        if key in planned:  # resumed (its other scenes retired) or regenerated
+            continue
+        for sid in ids:
+            if not ff.scene_is_done(outp, bench, sid):
+                continue
+            rec = left_out(bench, sid)
+            if key not in manifest["scenes"]:
+                manifest["scenes"][key] = _left_out_entry(bench, key, sid, rec)
     if stale:  # kept beside this run's scenes, they would mix generator versions in one dataset
         raise ValueError(
             f"{outp}: holds {len(stale)} scene(s) of another generator version outside this run's plan (e.g. "
@@ -1037,6 +1058,30 @@ def _generate(
     _summarise(manifest)
     ff.atomic_write_json(outp / ff.MANIFEST, manifest)
     return manifest
+
+
+def _left_out_entry(bench: str, key: str, sid: str, rec: dict[str, Any]) -> dict[str, Any]:
+    """The manifest entry of a committed scene of slot ``key`` (``<benchmark>/<task>/<split><index>``) that this
+    run's plan leaves out, made from its scene.json ``rec`` (the previous manifest does not name it)."""
+    split = rec.get("split")
+    index = key.rsplit("/", 1)[-1][len(split) :] if isinstance(split, str) else ""
+    spec = rec.get("spec") if isinstance(rec.get("spec"), dict) else {}
+    return {
+        "benchmark": bench,
+        "task": rec.get("task"),
+        "split": split,
+        "slot": int(index) if index.isdigit() else None,
+        "layout_id": spec.get("layout_id"),
+        "style_id": spec.get("style_id"),
+        "status": "ok",
+        "scene_id": sid,
+        "resumed": True,
+        "n_views": rec.get("n_views", {}),
+        "attempts": [],
+        "views_rejected": rec.get("views_rejected", {}),
+        "wall_s": None,
+        "in_plan": False,
+    }
 
 
 #: preset fields a rerun into the same folder may change: which slots exist and how many views a scene is topped up
