@@ -808,21 +808,33 @@ def test_a_resumed_slot_leaves_no_earlier_scene_of_it_readable(mini_run, tmp_pat
     assert (out / job.benchmark / ff.RETIRED / old_id / ff.SCENE_JSON).is_file()
 
 
-@pytest.mark.parametrize("damage", ["missing", "corrupt"])
+@pytest.mark.parametrize("damage", ["missing", "corrupt", "scenes_list", "entry_not_a_record"])
 def test_a_rerun_into_scenes_without_a_readable_manifest_is_refused(mini_run, tmp_path, damage):
     """Without a readable manifest the settings went unchecked: a rerun with another grid cell kept the old scenes
-    and wrote a manifest recording settings they were not made with."""
+    and wrote a manifest recording settings they were not made with. A manifest.json that parses but whose 'scenes'
+    is not a table of slot records (another tool's file, a hand edit) failed with a bare AttributeError naming no
+    file."""
     src, _ = mini_run
     out = tmp_path / "copy"
     shutil.copytree(src, out)
+    man = json.loads((out / ff.MANIFEST).read_text())
+    key = sorted(man["scenes"])[0]
     if damage == "missing":
         (out / ff.MANIFEST).unlink()
         why = "missing"
-    else:
+    elif damage == "corrupt":
         (out / ff.MANIFEST).write_text("{not json")
         why = "unreadable .*corrupt JSON"
+    else:
+        if damage == "scenes_list":
+            man["scenes"] = list(man["scenes"].values())
+        else:
+            man["scenes"][key] = man["scenes"][key]["scene_id"]
+        (out / ff.MANIFEST).write_text(json.dumps(man))
+        why = "unreadable .*manifest.json: .*scenes"
+    cell = 0.5 if damage in ("missing", "corrupt") else MINI["cell"]  # the others failed even with the same settings
     with pytest.raises(ValueError, match=f"{out}: holds 2 generated scene.*manifest.json is {why}"):
-        gen.generate(out, get_preset("tiny", **{**MINI, "cell": 0.5}), seed=0, workers=0, quiet=True)
+        gen.generate(out, get_preset("tiny", **{**MINI, "cell": cell}), seed=0, workers=0, quiet=True)
 
 
 def test_a_rerun_with_fewer_slots_keeps_the_others_in_the_manifest(mini_run, tmp_path):

@@ -512,8 +512,15 @@ def read_sample(scene: dict[str, Any], view: dict[str, Any], root: str | Path | 
 
 
 def read_manifest(root: str | Path) -> dict[str, Any]:
-    """Load <root>/manifest.json (FormatError when missing or corrupt)."""
+    """Load <root>/manifest.json (FormatError when missing or corrupt, or when its 'scenes' is not a table of slot
+    records)."""
     man = read_json(Path(root) / MANIFEST)
     if not isinstance(man, dict) or "scenes" not in man:
         raise FormatError(f"{Path(root) / MANIFEST}: not a FloAff manifest (no 'scenes')")
+    scenes = man["scenes"]
+    if not isinstance(scenes, dict):
+        raise FormatError(f"{Path(root) / MANIFEST}: 'scenes' must map slots to records, got a {type(scenes).__name__}")
+    bad = [k for k, s in scenes.items() if not isinstance(s, dict)]
+    if bad:
+        raise FormatError(f"{Path(root) / MANIFEST}: 'scenes' entry {bad[0]!r} is not a record")
     return man
