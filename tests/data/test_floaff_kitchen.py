@@ -7,6 +7,7 @@ import pytest
 from lightning.pytorch.utilities.exceptions import MisconfigurationException
 
 from floaff_zoo.data import transforms
+from floaff_zoo.data.base import DataConfigError
 from floaff_zoo.data.floaff_kitchen import FloAffKitchenDataModule
 from floaff_zoo.data.readers import READERS, DataError, GeneratedReader, get_reader, register_reader
 from floaff_zoo.sim import fileformat as ff
@@ -75,7 +76,7 @@ def test_val_scene_ids_pin_the_validation_scenes(floaff_root):
     assert val_scenes == {other} and other not in {r.meta["scene_id"] for r in dm.datasets["train"].records}
     # a task with no listed scene keeps all of its train views in train (no seeded view split)
     assert not [r for r in dm.datasets["val"].records if r.meta["task"] == "PnPCounterToCab"]
-    with pytest.raises(ValueError, match="val_scene_ids.*nope"):
+    with pytest.raises(DataConfigError, match="val_scene_ids.*nope"):  # one line from the CLI and the scripts
         _dm(root, val_scene_ids=["nope"]).setup("fit")
     # a pinned hold-out may take every train scene of a task: said, since the fit then never trains it
     drawer = sorted({*drawn.split_scenes["train"], *drawn.split_scenes["val"]})
@@ -98,9 +99,9 @@ def test_val_layout_holds_out_every_train_scene_of_one_layout(floaff_root):
     train = {r.meta["scene_id"] for r in dm.datasets["train"].records}
     assert val == {sid for sid, lay in layout.items() if lay == fold} and val
     assert train and all(layout[sid] != fold for sid in train) and not val & train
-    with pytest.raises(ValueError, match="val_layout 99 has no train scene"):
+    with pytest.raises(DataConfigError, match="val_layout 99 has no train scene"):  # a traceback in every script
         _dm(root, val_layout=99).setup("fit")
-    with pytest.raises(ValueError, match="val_scene_ids or val_layout, not both"):
+    with pytest.raises(DataConfigError, match="val_scene_ids or data.val_layout, not both"):
         _dm(root, val_layout=0, val_scene_ids=["x"])
 
 

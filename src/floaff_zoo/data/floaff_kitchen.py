@@ -159,7 +159,7 @@ class FloAffKitchenDataModule(FloAffDataModule):
         self.val_scenes = val_scenes
         self.val_scene_ids = None if val_scene_ids is None else list(val_scene_ids)
         if val_layout is not None and val_scene_ids is not None:
-            raise ValueError("FloAffKitchenDataModule: give val_scene_ids or val_layout, not both")
+            raise DataConfigError("FloAffKitchenDataModule: give data.val_scene_ids or data.val_layout, not both")
         self.val_layout = val_layout
         # val_scenes 0 alone means no validation at all (module docstring)
         self.validates = not (val_scenes == 0 and val_scene_ids is None and val_layout is None)
@@ -292,8 +292,8 @@ class FloAffKitchenDataModule(FloAffDataModule):
             layouts = {str(s.layout_id) for s in scenes if s.split == "train"}
             ids = {s.scene_id for s in scenes if s.split == "train" and str(s.layout_id) == str(self.val_layout)}
             if not ids:
-                raise ValueError(
-                    f"FloAffKitchenDataModule: val_layout {self.val_layout} has no train scene under "
+                raise DataConfigError(
+                    f"FloAffKitchenDataModule: data.val_layout {self.val_layout} has no train scene under "
                     f"{self.root}/{self.benchmark} (train layouts: {sorted(layouts)})"
                 )
             return ids
@@ -302,8 +302,8 @@ class FloAffKitchenDataModule(FloAffDataModule):
         known = {s.scene_id for s in scenes if s.split == "train"}
         unknown = sorted(set(self.val_scene_ids) - known)
         if unknown:
-            raise ValueError(
-                f"FloAffKitchenDataModule: val_scene_ids {unknown} are not train scenes "
+            raise DataConfigError(
+                f"FloAffKitchenDataModule: data.val_scene_ids {unknown} are not train scenes "
                 f"under {self.root}/{self.benchmark} (train scenes: {sorted(known)})"
             )
         return set(self.val_scene_ids)
