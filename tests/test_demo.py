@@ -90,10 +90,11 @@ def test_demo_reuses_a_baseline_only_when_fitted_with_the_same_data_and_epochs(t
     for data, epochs in (("data/b", 1), ("data/a", 30)):
         with pytest.raises(RuntimeError, match="fitting"):
             demo._fit_baseline(data, tmp_path / "pointnet2", epochs)
+    assert "was fitted with" in capsys.readouterr().out
     (folder / "s0" / "scene.json").write_text('{"generated": "again"}')
     with pytest.raises(RuntimeError, match="fitting"):
         demo._fit_baseline("data/a", tmp_path / "pointnet2", 1)
-    assert "was fitted with" in capsys.readouterr().out
+    assert "the data in data/a changed since" in capsys.readouterr().out
 
 
 def test_a_failing_comparison_table_fails_the_demo(root, tmp_path, monkeypatch, capsys):

@@ -191,3 +191,25 @@ def test_another_models_unreadable_last_ckpt_does_not_block_best(truncated_run):
     mine.unlink()
     with pytest.raises(RunError, match=rf"--ckpt_path best: {cut}: not a readable checkpoint"):  # maybe its own
         resolve_ckpt_alias("best", root, model_class="TinyPointNetModule")
+
+
+def test_the_data_fingerprint_reads_what_a_fit_trains_on_and_not_what_it_writes(tmp_path):
+    """What decides whether a finished stage or demo baseline is reused (runs.data_fingerprint)."""
+    from floaff_zoo.runs import data_fingerprint
+
+    data, other = tmp_path / "data", tmp_path / "other"
+    (data / "s0").mkdir(parents=True)
+    (data / "s0" / "scene.json").write_text('{"labels": [1]}')
+    (other / "s1").mkdir(parents=True)
+    (other / "s1" / "scene.json").write_text('{"labels": [0]}')
+    (data / "linked").symlink_to(other, target_is_directory=True)
+    (data / "linked_again").symlink_to(data, target_is_directory=True)  # a cycle is walked once
+    (data / "labels.txt").write_text("1" * ((1 << 20) + 1))  # large tables count by size, not content
+    first = data_fingerprint(data)
+    (data / ".cache").mkdir()  # what fits write there, and the generator's run log
+    (data / ".cache" / "x.pt").write_bytes(b"x")
+    (data / "manifest.json").write_text('{"wall_s": 1}')
+    (data / "labels.txt").write_text("2" * ((1 << 20) + 1))
+    assert data_fingerprint(data) == first
+    (other / "s1" / "scene.json").write_text('{"labels": [1]}')  # a linked folder generated again
+    assert data_fingerprint(data) != first

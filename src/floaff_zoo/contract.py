@@ -340,6 +340,7 @@ def check_batch(batch: Batch) -> None:
     if no_floor:
         names = [_where(batch["meta"][i]) for i in no_floor[:3]]
         raise SampleError(f"{len(no_floor)} sample(s) in the batch have no valid floor point: {names}")
+    rows_of: dict[str, Tensor] = {}
     for key, mask_key in _FINITE_FIELDS.items():
         t = batch.get(key)
         if not torch.is_tensor(t) or not t.is_floating_point():
@@ -348,11 +349,15 @@ def check_batch(batch: Batch) -> None:
         bad = bad.reshape(*bad.shape[: 2 if t.dim() > 2 else 1], -1).any(dim=-1)  # [B, N] per point, or [B]
         if mask_key is not None and bad.dim() == 2 and torch.is_tensor(batch.get(mask_key)):
             bad = bad & batch[mask_key].bool()
-        rows = bad.reshape(bad.shape[0], -1).any(dim=1).nonzero().squeeze(1).tolist()
-        if rows:
+        rows_of[key] = bad.reshape(bad.shape[0], -1).any(dim=1)  # [B]
+    if not rows_of or not bool(torch.stack(list(rows_of.values())).any()):  # one host sync per step
+        return
+    for key, rows in rows_of.items():
+        bad_rows = rows.nonzero().squeeze(1).tolist()
+        if bad_rows:
             meta = batch.get("meta") or []
-            names = [_where(meta[i] if i < len(meta) else None) for i in rows[:3]]
-            raise SampleError(f"{key} holds NaN/Inf values in {len(rows)} sample(s) of the batch: {names}")
+            names = [_where(meta[i] if i < len(meta) else None) for i in bad_rows[:3]]
+            raise SampleError(f"{key} holds NaN/Inf values in {len(bad_rows)} sample(s) of the batch: {names}")
 
 
 def yaw_matrix(yaw: Tensor | float) -> Tensor:

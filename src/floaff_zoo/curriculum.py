@@ -35,9 +35,9 @@ Resuming: every finished stage writes ``<stage dir>/stage.json`` and the run wri
 A rerun skips stages whose record is ``done`` with the same fit arguments, the same ``--config`` file contents
 (the stage digest below; any edit, a comment too, means a fresh fit), the same input files (a checkpoint or label
 file, ``INPUT_SUFFIXES``, that a fit argument or a value in a ``--config`` file names, such as an earlier stage's
-checkpoint or ``data.init_args.train_labels``; sha256 checked), the same data folder (``data.init_args.root``: its
-files' names and sizes and its metadata files' contents, hidden files such as the sample cache aside; records written
-before it was kept are compared without it) and an intact checkpoint (sha256 checked).
+checkpoint or ``data.init_args.train_labels``; sha256 checked), the same data (``data.init_args.root``, or its
+``<benchmark>`` folder when the arguments name one: ``floaff_zoo.runs.data_fingerprint``; records written before it
+was kept are compared without it) and an intact checkpoint (sha256 checked).
 Each run directory a stage's fit writes gets ``curriculum_run.json`` (the digest of the stage's fit arguments and
 ``--config`` file contents, and its input files' sha256 when the fit started); a stage that was killed resumes from
 the newest ``last.ckpt`` of a run with its digest whose input files are unchanged since it started, and that no fit
@@ -412,9 +412,12 @@ def _input_files(args: list[str]) -> dict[str, str]:
     and {``<data root>/``: fingerprint} of the data folder the fit reads (:func:`floaff_zoo.runs.data_fingerprint`)."""
     named = list(args) + [v for f in config_values(args) for v in _yaml_strings(f)]
     files = {a: _sha256(a) for a in dict.fromkeys(named) if a.endswith(INPUT_SUFFIXES) and Path(a).is_file()}
-    root = _data_root(args)
+    root, bench = _data_value(args, "root"), _data_value(args, "benchmark")
     if root is not None and Path(root).is_dir():
-        files[root.rstrip("/") + "/"] = data_fingerprint(root)
+        # the benchmark's folder when the arguments name one there: the other benchmark generated into the same
+        # root is not what the stage trains on
+        folder = Path(root, bench) if bench and Path(root, bench).is_dir() else Path(root)
+        files[folder.as_posix().rstrip("/") + "/"] = data_fingerprint(folder)
     return files
 
 
@@ -435,24 +438,26 @@ def _input_text(key: str) -> str:
     return f"its data folder ({key})" if key.endswith("/") else f"a file its arguments name ({key})"
 
 
-def _data_root(args: list[str]) -> str | None:
-    """The ``data.init_args.root`` a fit's arguments give, the last setting winning as in the CLI: a ``--config``
-    file's ``data: {init_args: {root: ...}}`` (or ``data: {root: ...}``) or a ``--data.init_args.root`` flag."""
-    root = None
+def _data_value(args: list[str], key: str) -> str | None:
+    """The ``data.init_args.<key>`` a fit's arguments give (a text value), the last setting winning as in the CLI:
+    a ``--config`` file's ``data: {init_args: {<key>: ...}}`` (or ``data: {<key>: ...}``) or a
+    ``--data.init_args.<key>`` flag."""
+    value = None
     for i, arg in enumerate(args):
-        value = config_value(args, i)
-        if value is not None and is_config_file(value):
-            root = _yaml_root(value) or root
-        for flag in ("--data.init_args.root", "--data.root"):
+        config = config_value(args, i)
+        if config is not None and is_config_file(config):
+            value = _yaml_data_value(config, key) or value
+        for flag in (f"--data.init_args.{key}", f"--data.{key}"):
             if arg == flag and i + 1 < len(args):
-                root = args[i + 1]
+                value = args[i + 1]
             elif arg.startswith(flag + "="):
-                root = arg.partition("=")[2]
-    return root
+                value = arg.partition("=")[2]
+    return value
 
 
-def _yaml_root(path: str) -> str | None:
-    """The data root a ``--config`` file sets (None: it sets none, or it does not parse: the fit reports that)."""
+def _yaml_data_value(path: str, key: str) -> str | None:
+    """The data setting ``key`` a ``--config`` file sets (None: it sets none, or it does not parse: the fit reports
+    that)."""
     try:
         data = (yaml.safe_load(Path(path).read_text()) or {}).get("data")
     except (OSError, yaml.YAMLError, AttributeError):
@@ -460,7 +465,7 @@ def _yaml_root(path: str) -> str | None:
     if not isinstance(data, dict):
         return None
     init = data.get("init_args") if isinstance(data.get("init_args"), dict) else data
-    return init.get("root") if isinstance(init.get("root"), str) else None
+    return init.get(key) if isinstance(init.get(key), str) else None
 
 
 def _yaml_strings(path: str) -> list[str]:

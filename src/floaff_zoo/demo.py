@@ -72,9 +72,16 @@ def _fit_baseline(data: str, root: Path, epochs: int) -> Path:
         print(f"  reusing {matching[-1][0]} (finished {matching[-1][1]['finished']})")
         return matching[-1][0]
     if done:
-        print(
-            f"  {done[-1][0]} was fitted with {done[-1][1].get('args', 'unrecorded arguments')}, not {wanted}; fitting"
+        got = done[-1][1].get("args")
+        same = isinstance(got, dict) and {k: v for k, v in got.items() if k != "data_fingerprint"} == {
+            k: v for k, v in wanted.items() if k != "data_fingerprint"
+        }
+        why = (
+            f"the data in {data} changed since (or its run predates the data record)"
+            if same
+            else f"was fitted with {got or 'unrecorded arguments'}, not {wanted}"
         )
+        print(f"  {done[-1][0]} {why}; fitting")
     unfinished = sorted({p.parents[1] for p in root.rglob("last*.ckpt")} - {run for run, _ in done})
     if unfinished:
         print(f"  {', '.join(map(str, unfinished))}: fit did not finish (no finished.json); fitting again")

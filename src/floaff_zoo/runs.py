@@ -163,35 +163,40 @@ def finished_runs(root: str | Path) -> list[tuple[Path, dict[str, Any]]]:
 
 
 #: files under a data folder whose content the fingerprint reads: the small metadata a generator or a public format
-#: writes per scene and per dataset (scene.json, split lists); other files count by path and size
+#: writes per scene and per dataset (scene.json, split lists); larger ones (MoMa-Kitchen's per-sample label tables)
+#: and other files count by path and size
 _DATA_TEXT_SUFFIXES = (".json", ".txt", ".yaml", ".yml", ".csv")
-#: files at a data folder's top that the fingerprint leaves out: the generator's log of its runs (wall times, workers,
-#: package versions), rewritten by every `floaff-zoo generate` resume, the demo's included, that makes nothing; the
-#: scene records it lists say what was generated
+_DATA_TEXT_MAX_BYTES = 1 << 20
+#: files that the fingerprint leaves out: the generator's log of its runs (wall times, workers, package versions),
+#: rewritten by every `floaff-zoo generate` resume, the demo's included, that makes nothing; the scene records it lists
+#: say what was generated
 _DATA_RUN_LOGS = ("manifest.json",)
 
 
 def data_fingerprint(root: str | Path) -> str:
     """sha256 over every file of a data folder but hidden ones (the sample cache ``.cache``, lock files, which fits
-    write there) and ``_DATA_RUN_LOGS``: each file's relative path and size, and the content of its metadata files.
-    The curriculum reuses a finished stage, and the demo a finished baseline, only while it is unchanged: data
-    generated again (new scene records), another copy in the same folder, or scenes added or removed give another
-    fingerprint; a generator run that made nothing does not."""
+    write there) and ``_DATA_RUN_LOGS``: each file's relative path and size, and the content of its small metadata
+    files; symbolic links to folders are followed (each real folder once). The curriculum reuses a finished stage,
+    and the demo a finished baseline, only while it is unchanged: data generated again (new scene records), another
+    copy in the same folder, or scenes added or removed (test scenes too) give another fingerprint; a generator run
+    that made nothing does not."""
     root = Path(root)
     h = hashlib.sha256()
-    for dirpath, dirnames, filenames in os.walk(root):
-        dirnames[:] = sorted(d for d in dirnames if not d.startswith("."))
-        for name in sorted(f for f in filenames if not f.startswith(".")):
+    seen: set[str] = set()
+    for dirpath, dirnames, filenames in os.walk(root, followlinks=True):
+        seen.add(os.path.realpath(dirpath))  # a link cycle, or two links to one folder, is walked once
+        dirnames[:] = sorted(
+            d for d in dirnames if not d.startswith(".") and os.path.realpath(os.path.join(dirpath, d)) not in seen
+        )
+        for name in sorted(f for f in filenames if not f.startswith(".") and f not in _DATA_RUN_LOGS):
             path = Path(dirpath, name)
-            rel = path.relative_to(root).as_posix()
-            if rel in _DATA_RUN_LOGS:
-                continue
             try:
                 size = path.stat().st_size
-                text = hashlib.sha256(path.read_bytes()).hexdigest() if name.endswith(_DATA_TEXT_SUFFIXES) else ""
+                small = name.endswith(_DATA_TEXT_SUFFIXES) and size <= _DATA_TEXT_MAX_BYTES
+                text = hashlib.sha256(path.read_bytes()).hexdigest() if small else ""
             except OSError:  # removed meanwhile (a generator running beside us): counted as missing
                 size, text = -1, ""
-            h.update(f"{rel}\0{size}\0{text}\n".encode())
+            h.update(f"{path.relative_to(root).as_posix()}\0{size}\0{text}\n".encode())
     return h.hexdigest()
 
 

@@ -488,9 +488,9 @@ def test_a_stage_digest_takes_a_config_given_as_yaml_text():
 
 def test_a_finished_stage_reruns_when_its_data_folder_changed(tmp_path, capsys):
     """The data a stage trained on was not among its inputs: after the data was generated again into the same folder,
-    a rerun skipped the stage trained on the old data. The sample cache its fit writes into the folder and a generator
-    run that made nothing (it rewrites manifest.json, as every demo run does) change nothing, and a record written
-    before data folders were kept is compared on its files, as it was."""
+    a rerun skipped the stage trained on the old data. The sample cache its fit writes into the folder, a generator
+    run that made nothing (it rewrites manifest.json, as every demo run does) and the other benchmark's scenes change
+    nothing, and a record written before data folders were kept is compared on its files, as it was."""
     from tests.data.floaff_fixture import make_floaff_dataset
 
     data = tmp_path / "floaff"
@@ -510,7 +510,8 @@ def test_a_finished_stage_reruns_when_its_data_folder_changed(tmp_path, capsys):
         )
     )
     (first,) = run_curriculum(exp)
-    assert list(first["inputs"]) == [f"{data}/"] and (data / ".cache").is_dir()  # the fit cached samples there
+    key = f"{data}/layouts/"  # the benchmark's folder the stage reads
+    assert list(first["inputs"]) == [key] and (data / ".cache").is_dir()  # the fit cached samples there
     seen: list = []
     capsys.readouterr()
     run_curriculum(exp, runner=_spy(seen))
@@ -522,11 +523,13 @@ def test_a_finished_stage_reruns_when_its_data_folder_changed(tmp_path, capsys):
     assert not seen
     stage_file.write_text(json.dumps(record))
     (data / "manifest.json").write_text(json.dumps({"wall_s": 1.5}))  # a generate resume that made nothing
+    (data / "styles" / "s_new").mkdir(parents=True)  # the other benchmark generated into the same root
+    (data / "styles" / "s_new" / "scene.json").write_text("{}")
     run_curriculum(exp, runner=_spy(seen))
     assert not seen
     scene = next(data.rglob("scene.json"))  # the data generated again: other scene records
     scene.write_text(scene.read_text() + "\n")
     capsys.readouterr()
     (new,) = run_curriculum(exp, runner=_spy(seen))
-    assert len(seen) == 1 and f"rerunning, its data folder ({data}/) changed" in capsys.readouterr().out
-    assert new["inputs"][f"{data}/"] != first["inputs"][f"{data}/"]
+    assert len(seen) == 1 and f"rerunning, its data folder ({key}) changed" in capsys.readouterr().out
+    assert new["inputs"][key] != first["inputs"][key]
