@@ -170,7 +170,8 @@ success_labels() {
   # -n: of two jobs starting at once, the first keeps its file and the second compares against it
   mv -n "$f.$$.npz" "$f"; [ -f "$f.$$.npz" ] || return 0
   # 0: the same labels; 2: the same labels in a file written before it recorded the data it was made from
-  # (setting.made_from), which the new file replaces (jobs reading the old one keep it open); 1: other labels
+  # (setting.made_from), kept as it is: a new file would change its sha256, which every finished stage that trained
+  # on it records, and re-fit them all (the fits warn that it is unchecked); 1: other labels
   local same=0
   python3 -c 'import json, sys, numpy as np
 a, b = np.load(sys.argv[1]), np.load(sys.argv[2])
@@ -181,8 +182,7 @@ if sa == sb:
     sys.exit(0)
 sb.pop("made_from", None)
 sys.exit(2 if "made_from" not in sa and sa == sb else 1)' "$f" "$f.$$.npz" || same=$?
-  if [ "$same" = 2 ]; then mv -f "$f.$$.npz" "$f"; return 0; fi
-  if [ "$same" = 0 ]; then rm -f "$f.$$.npz"; return 0; fi
+  if [ "$same" = 0 ] || [ "$same" = 2 ]; then rm -f "$f.$$.npz"; return 0; fi
   rm -f "$f.$$.npz"
   echo "$f holds other labels than $root gives now (another copy of the data, or labels made by other code):" \
     "delete it (with no job reading it) to make it from $root, or run one copy at a time" >&2
