@@ -103,3 +103,10 @@ def test_reads_a_dataset_and_names_a_corrupt_view(tmp_path):
     (test / "views" / "front_0001.npz").write_bytes(b"not a zip")
     with pytest.raises(ff.FormatError, match="front_0001.npz"):
         fcc.read_views(tmp_path, "layouts")
+
+
+def test_an_unknown_benchmark_is_a_usage_error_naming_the_argument(tmp_path, capsys):
+    """--benchmarks took any name and the reader's ValueError ended the script with a traceback."""
+    with pytest.raises(SystemExit) as done:
+        fcc.main(["--root", str(tmp_path), "--benchmarks", "layout"])
+    assert done.value.code == 2 and "--benchmarks: invalid choice: 'layout'" in capsys.readouterr().err
