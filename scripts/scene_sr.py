@@ -107,11 +107,20 @@ def parse_scales(text: str | None) -> list[float]:
 
 
 def with_residual_scales(nets: dict[str, list], scales: list[float]) -> dict[str, list]:
-    """Add NAME@s (copies of NAME's runs with ``residual_scale = s``) for every NAME whose runs have a prior."""
+    """Add NAME@s (copies of NAME's runs with ``residual_scale = s``) for every NAME whose runs have a prior.
+
+    Raises:
+        ValueError: scales are given but no NAME's runs all have a prior (the option would add no row).
+    """
     out = dict(nets)
-    for name, runs in nets.items():
-        if not all(getattr(r, "prior", None) is not None for r in runs):
-            continue
+    scaled = [name for name, runs in nets.items() if all(getattr(r, "prior", None) is not None for r in runs)]
+    if scales and not scaled:
+        raise ValueError(
+            "--residual-scales scales the residual of prior-residual models (CFARModule with prior_residual): "
+            f"no NAME's runs all have one ({', '.join(nets)})"
+        )
+    for name in scaled:
+        runs = nets[name]
         for s in scales:
             copies = [copy.deepcopy(r) for r in runs]
             for c in copies:

@@ -116,6 +116,17 @@ def test_residual_scales_parse_and_copy_only_prior_residual_runs():
     assert list(out) == ["recipe", "plain", "recipe@0", "recipe@0.5"]
     assert [r.hparams["residual_scale"] for r in out["recipe@0.5"]] == [0.5, 0.5]
     assert nets["recipe"][0].hparams["residual_scale"] == 1.0  # the originals are untouched
+    assert ssr.with_residual_scales({"plain": nets["plain"]}, []) == {"plain": nets["plain"]}
+
+
+def test_residual_scales_without_a_prior_residual_name_are_refused(monkeypatch, tmp_path, capsys):
+    """--residual-scales with no NAME whose runs predict a residual added no row and said nothing (the JSON still
+    listed the scales); it is refused naming the option, before any data is read."""
+    import floaff_zoo.predict as pr
+
+    monkeypatch.setattr(pr, "resolve_model", lambda name: torch.nn.Identity())
+    with pytest.raises(SystemExit, match="scene_sr: --residual-scales .*no NAME's runs all have one"):
+        ssr.main(["--root", str(tmp_path / "missing"), "--residual-scales", "0,0.5", "a=x.ckpt", "a=y.ckpt"])
 
 
 def test_ensemble_averages_the_maps_of_a_name_with_several_runs():
