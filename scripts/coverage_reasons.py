@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from floaff_zoo.atomic import atomic_write_text
 from floaff_zoo.floor import footprint_blocked, footprint_coverage
 from floaff_zoo.frames import base_to_world
 from floaff_zoo.sim import fileformat as ff
@@ -92,9 +93,8 @@ def main(argv: list[str] | None = None) -> int:
                 n = c["n"]
                 print(f"| {key} | {b} | {n} | {c['filtered_collision'] / n:.2f} | {c['success'] / n:.2f} |")
     if a.json:
-        Path(a.json).parent.mkdir(parents=True, exist_ok=True)
         doc = {"root": a.root, "split": a.split, "every": a.every, "bins": list(BINS), "counts": table}
-        Path(a.json).write_text(json.dumps(doc, indent=1) + "\n")
+        atomic_write_text(a.json, json.dumps(doc, indent=1) + "\n")
     return 0
 
 

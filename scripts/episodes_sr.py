@@ -18,6 +18,8 @@ from collections import defaultdict
 from pathlib import Path
 from typing import Any
 
+from floaff_zoo.atomic import atomic_write_text
+
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from sr_json import sr_all  # noqa: E402
 
@@ -79,8 +81,7 @@ def main(argv: list[str] | None = None) -> int:
         runs[name], paths[name] = read_episodes(path), path
     table = scene_table(runs)
     out = {"runs": dict(paths), "scenes": table}
-    Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.json).write_text(json.dumps(out, indent=1) + "\n")
+    atomic_write_text(args.json, json.dumps(out, indent=1) + "\n")
     views = sum(r["views"] for r in table.values())
     for n in runs:
         print(f"{n}: SR_all {sr_all(table, list(table), n):.3f} over {views} views of {len(table)} scenes")

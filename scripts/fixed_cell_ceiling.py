@@ -31,6 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
+from floaff_zoo.atomic import atomic_write_text
 from floaff_zoo.contract import TASKS
 from floaff_zoo.sim import fileformat as ff
 from floaff_zoo.sim.views import candidates_in_target_frame
@@ -168,7 +169,7 @@ def main(argv: list[str] | None = None) -> int:
     out = {b: ceiling(*read_views(Path(a.root), b)) for b in a.benchmarks}
     print(markdown(out))
     if a.json:
-        Path(a.json).write_text(json.dumps(out, indent=1) + "\n")
+        atomic_write_text(a.json, json.dumps(out, indent=1) + "\n")
     return 0
 
 

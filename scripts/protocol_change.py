@@ -21,6 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
+from floaff_zoo.atomic import atomic_write_text
+
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from sr_json import checked_scenes, sr_all  # noqa: E402
 
@@ -93,7 +95,9 @@ def main(argv: list[str] | None = None) -> int:
     for pair, d in res["differences"].items():
         print(f"change of {pair}: {d['diff']:+.3f} (90 %: {d['p05']:+.3f} to {d['p95']:+.3f})")
     if args.json:
-        Path(args.json).write_text(json.dumps({"a": args.a, "b": args.b, "draws": args.draws, **res}, indent=1) + "\n")
+        atomic_write_text(
+            args.json, json.dumps({"a": args.a, "b": args.b, "draws": args.draws, **res}, indent=1) + "\n"
+        )
     return 0
 
 

@@ -73,6 +73,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from fresh_sr import nearest_cells, split_data  # noqa: E402
 from sr_json import sr_all  # noqa: E402
 
+from floaff_zoo.atomic import atomic_write_text  # noqa: E402
 from floaff_zoo.callbacks.rollout import check_clouds, choose_pose, cloud_free, cloud_observed  # noqa: E402
 from floaff_zoo.contract import TASKS  # noqa: E402
 from floaff_zoo.predict import named_models  # noqa: E402
@@ -475,7 +476,6 @@ def main(argv: list[str] | None = None) -> int:
         for t, by_kind in by_task.items():
             print(f"| {n} | {t} | " + " | ".join(f"{by_kind.get(k, 0.0):.2f}" for k in kinds) + " |")
     if a.json:
-        Path(a.json).parent.mkdir(parents=True, exist_ok=True)
         runs = {n: groups[n] if n in groups else groups[n.rpartition("@")[0]] for n in nets}
         runs.update({n: runs[n.removesuffix("+ens")] for n in names if n not in runs})
         out = {
@@ -497,7 +497,7 @@ def main(argv: list[str] | None = None) -> int:
             **res,
             "reasons": shares,
         }
-        Path(a.json).write_text(json.dumps(out, indent=1) + "\n")
+        atomic_write_text(a.json, json.dumps(out, indent=1) + "\n")
     return 0
 
 

@@ -27,6 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
+from floaff_zoo.atomic import atomic_write_text
+
 BANDS = (0.03, 0.05, 0.10)
 
 
@@ -110,7 +112,7 @@ def main(argv: list[str] | None = None) -> int:
         cells = ", ".join(f"{t} {s['median']:.3f}" for t, s in by.items())
         print(f"{a.benchmark} {a.split} {n}: median xy offset {np.median(every):.3f} m ({cells})")
     if a.json:
-        Path(a.json).write_text(json.dumps(res, indent=1) + "\n")
+        atomic_write_text(a.json, json.dumps(res, indent=1) + "\n")
     return 0
 
 

@@ -55,3 +55,32 @@ def test_a_malformed_scene_table_is_named(tmp_path, doc, match):
     (tmp_path / "x.json").write_text(json.dumps(doc))
     with pytest.raises(SystemExit, match=match):
         pc.load(str(tmp_path / "x.json"))
+
+
+def test_a_json_write_that_fails_leaves_the_old_file_whole(tmp_path):
+    """--json was rewritten in place: a write that failed part way (here a file-size limit, as a full disk would)
+    left the first bytes of the new table and nothing of the old one; it is written whole or not at all."""
+    import subprocess
+    import sys
+
+    a = _scenes({"m": [1.0, 0.5, 0.5, 0.0]})
+    for name in ("a.json", "b.json"):
+        (tmp_path / name).write_text(json.dumps({"scenes": a}))
+    out = tmp_path / "out.json"
+    out.write_text('{"old": true}\n')
+    driver = f"""
+import importlib.util, resource, signal
+spec = importlib.util.spec_from_file_location("protocol_change", {str(_PATH)!r})
+pc = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(pc)
+signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # a write past the limit fails with EFBIG instead of killing
+resource.setrlimit(resource.RLIMIT_FSIZE, (256, 256))
+try:
+    pc.main([{str(tmp_path / "a.json")!r}, {str(tmp_path / "b.json")!r}, "--draws", "5", "--json", {str(out)!r}])
+except OSError as exc:
+    print("write failed", exc.errno)
+"""
+    proc = subprocess.run([sys.executable, "-c", driver], capture_output=True, text=True)
+    assert "write failed" in proc.stdout, proc.stderr[-2000:]
+    assert out.read_text() == '{"old": true}\n'
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.json", "b.json", "out.json"]  # no temp file left
