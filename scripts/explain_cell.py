@@ -139,6 +139,8 @@ def main(argv: list[str] | None = None) -> int:
     a = p.parse_args(argv)
     if not a.cell and not a.grid:
         p.error("give --cell x,y (repeatable) and/or --grid")
+    if a.seed < 0:  # numpy's episode generator takes no negative seed: a ValueError traceback mid-way
+        p.error(f"--seed must be >= 0, got {a.seed}")
     try:
         scene = ff.read_scene(a.scene)
         if "reasons" not in scene["labels"] or "yaw" not in scene["candidates"]:

@@ -96,3 +96,11 @@ def test_step_by_step_verdict_agrees_with_the_annotation_filter(record):
         yaw = scene["candidates"]["yaw"][i]
         steps = dict(ec.check_pose(sim, x, y, yaw, 0))
         assert steps["verdict"] == (pose_filter(sim, x, y, yaw, 0) or "feasible"), (xo, yo, steps)
+
+
+def test_a_negative_seed_is_a_usage_error(record, capsys):
+    """--seed -1 reached numpy's generator after the map was printed and ended the script with a ValueError
+    traceback."""
+    with pytest.raises(SystemExit) as done:
+        ec.main([str(record), "--cell", "0,-0.7", "--seed", "-1"])
+    assert done.value.code == 2 and "--seed must be >= 0, got -1" in capsys.readouterr().err
