@@ -87,6 +87,8 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     if args.draws < 1:
         p.error("--draws must be >= 1")
+    if args.seed < 0:  # numpy's generator takes no negative seed
+        p.error(f"--seed must be >= 0, got {args.seed}")
     res = changes(load(args.a), load(args.b), args.draws, args.seed)
     print("| name | SR_all A | SR_all B | B - A | 90 % scene bootstrap |")
     print("|---|---:|---:|---:|---|")

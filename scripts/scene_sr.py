@@ -399,6 +399,8 @@ def main(argv: list[str] | None = None) -> int:
     a = p.parse_args(argv)
     if a.draws < 1:
         p.error("--draws must be >= 1")
+    if a.seed < 0:  # numpy's generator takes no negative seed: a traceback after every model had been scored
+        p.error(f"--seed must be >= 0, got {a.seed}")
     if a.val_layout is not None and a.split != "val":
         p.error("--val-layout chooses the validation scenes: give --split val")
     if a.top_k < 1:

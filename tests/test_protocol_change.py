@@ -84,3 +84,11 @@ except OSError as exc:
     assert "write failed" in proc.stdout, proc.stderr[-2000:]
     assert out.read_text() == '{"old": true}\n'
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.json", "b.json", "out.json"]  # no temp file left
+
+
+def test_a_negative_seed_is_a_usage_error(tmp_path, capsys):
+    """--seed -1 reached numpy's generator and ended the script with a ValueError traceback."""
+    (tmp_path / "a.json").write_text(json.dumps({"scenes": _scenes({"m": [1.0, 0.5, 0.5, 0.0]})}))
+    with pytest.raises(SystemExit) as done:
+        pc.main([str(tmp_path / "a.json"), str(tmp_path / "a.json"), "--seed", "-1"])
+    assert done.value.code == 2 and "--seed must be >= 0, got -1" in capsys.readouterr().err

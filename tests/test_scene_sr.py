@@ -82,6 +82,9 @@ def test_bad_arguments_exit_with_a_message(tmp_path, capsys):
     with pytest.raises(SystemExit):
         ssr.main(["--draws", "0", "a=x"])
     assert "--draws must be >= 1" in capsys.readouterr().err
+    with pytest.raises(SystemExit):  # numpy's generator refused it after every model had been scored
+        ssr.main(["--seed", "-1", "a=x"])
+    assert "--seed must be >= 0, got -1" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         ssr.main(["--top-k", "0", "a=x"])
     assert "--top-k must be >= 1" in capsys.readouterr().err
