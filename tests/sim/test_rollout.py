@@ -105,6 +105,27 @@ def test_bad_pose_rejected(scene_factory):
         rollout(sc, (0.0, float("nan"), 0.0))
 
 
+@pytest.mark.parametrize("bad", [0, 1, 2])
+def test_non_finite_pose_is_refused_not_filtered(scene_factory, bad):
+    """pose_filter, footprint_free and wall_between reported a NaN pose as a collision, a blocked footprint and a wall
+    (no comparison with a NaN finds a separating axis): a broken pose read as an infeasible one; they now refuse it."""
+    sc = scene_factory("CloseDrawer")
+    pose = list(_front_pose(sc, 0.65, 0.3))
+    assert pose_filter(sc, *pose) == ""
+    pose[bad] = float("nan")
+    with pytest.raises(ValueError, match="finite"):
+        pose_filter(sc, *pose)
+    with pytest.raises(ValueError, match="finite"):
+        sc.footprint_free(*pose)
+    with pytest.raises(ValueError, match="finite"):
+        sc.set_base_pose(*pose)
+    if bad < 2:
+        with pytest.raises(ValueError, match="finite"):
+            sc.wall_between(pose[0], pose[1], sc.target.pos)
+    with pytest.raises(ValueError, match="finite"):
+        sc.wall_between(0.0, -3.0, (float("inf"), 0.0))
+
+
 def test_service_cache_and_workers(scene_factory):
     sc = scene_factory("CloseDrawer")
     spec = SceneSpec(0, 0, 0, "CloseDrawer")

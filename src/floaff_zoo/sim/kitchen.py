@@ -932,7 +932,9 @@ class SimScene:
         mujoco.mj_forward(self.model, self.data)
 
     def set_base_pose(self, x: float, y: float, yaw: float) -> None:
-        """Teleport the base origin to (x, y, yaw) (yaw pivot compensated); runs mj_kinematics."""
+        """Teleport the base origin to (x, y, yaw) (yaw pivot compensated); runs mj_kinematics. A non-finite pose raises
+        ``ValueError`` (it was written into qpos: the robot and its ego camera were posed at NaN)."""
+        _check_finite("set_base_pose", x, y, yaw)
         self.robot.set_base_pose(self.data, float(x), float(y), float(yaw))
         mujoco.mj_kinematics(self.model, self.data)
 
@@ -995,7 +997,10 @@ class SimScene:
         return sorted(out, key=lambda c: c[2])
 
     def footprint_free(self, x: float, y: float, yaw: float) -> bool:
-        """N2M footprint (0.63 x 0.5 m, 0.83 L behind / 0.17 L in front of the origin) vs furniture/wall footprints."""
+        """N2M footprint (0.63 x 0.5 m, 0.83 L behind / 0.17 L in front of the origin) vs furniture/wall footprints.
+
+        A non-finite pose raises ``ValueError`` (the overlap test found no separating axis for it: "not free")."""
+        _check_finite("footprint_free", x, y, yaw)
         c, s = math.cos(yaw), math.sin(yaw)
         cx = 0.5 * (_robot.FOOTPRINT_FRONT - _robot.FOOTPRINT_BACK)
         fp = _Rect(
@@ -1009,15 +1014,21 @@ class SimScene:
 
     def wall_between(self, x: float, y: float, point_xy) -> bool:
         """True if the floor segment from (x, y) to point_xy [2] crosses a wall footprint (the pose is outside the
-        room)."""
+        room). A non-finite point raises ``ValueError`` (the overlap test found no separating axis for it: a wall)."""
         a = np.array([float(x), float(y)])
         b = np.asarray(point_xy, dtype=np.float64)[:2]
+        _check_finite("wall_between", *a, *b)
         seg = np.stack([a, b, b, a])  # degenerate quad: the SAT test works on the segment
         return any(_sat_overlap(seg, rc) for rc in self._wall_corners)
 
     def floor_outline(self) -> list[np.ndarray]:
         """Furniture/wall footprints as [4,2] world polygons (for top-down pictures / occupancy)."""
         return [c.copy() for c in self._rect_corners]
+
+
+def _check_finite(what: str, *values: float) -> None:
+    if not all(math.isfinite(float(v)) for v in values):
+        raise ValueError(f"{what}: the pose must be finite, got {tuple(float(v) for v in values)}")
 
 
 def _sat_overlap(a: np.ndarray, b: np.ndarray) -> bool:

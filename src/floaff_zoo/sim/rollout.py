@@ -55,7 +55,9 @@ def pose_filter(scene: SimScene, x: float, y: float, yaw: float, seed: int = 0, 
     N2M footprint over a furniture footprint, or the tucked robot touching the scene in the task's reset state
     for ``seed``). The robot check, when reached, leaves the scene in that reset state with the base at the pose.
     ``rollout`` passes no ``r_arm``: a dataset generated with a preset's own ``r_arm`` is evaluated with the task's.
+    A non-finite pose raises ``ValueError`` (it was reported ``filtered_collision``: every comparison with a NaN fails).
     """
+    x, y, yaw = _check_pose((x, y, yaw))
     task, c = scene.task, scene.target.pos[:2]
     r_arm = task.r_arm if r_arm is None else float(r_arm)
     if float(np.hypot(x - c[0], y - c[1])) >= r_arm:
