@@ -21,6 +21,18 @@ def test_spec_roundtrip_and_id():
     assert SceneSpec.from_dict(s.to_dict()) == s
     with pytest.raises(ValueError, match="missing"):
         SceneSpec.from_dict({"layout_id": 1})
+    assert SceneSpec.from_dict({**s.to_dict(), "seed": 17.0, "layout_id": np.int64(2), "style_id": "5"}) == s
+
+
+@pytest.mark.parametrize(
+    "field,value", [("seed", 17.5), ("layout_id", True), ("style_id", float("nan")), ("seed", "x")]
+)
+def test_spec_from_dict_refuses_a_value_that_is_not_a_whole_number(field, value):
+    """from_dict cut a record's seed 17.5 to 17 (another scene's kitchen, without a word) and read true as layout 1; a
+    NaN or a word failed inside int() naming neither the field nor the record."""
+    d = {**SceneSpec(2, 5, 17, "CloseDrawer").to_dict(), field: value}
+    with pytest.raises(ValueError, match=f"{field} must be a whole number"):
+        SceneSpec.from_dict(d)
 
 
 def test_variety_counts():

@@ -97,7 +97,20 @@ class SceneSpec:
         missing = [k for k in ("layout_id", "style_id", "seed", "task") if k not in d]
         if missing:
             raise ValueError(f"SceneSpec.from_dict: missing field(s) {missing} in {d!r}")
-        return cls(int(d["layout_id"]), int(d["style_id"]), int(d["seed"]), str(d["task"]))
+        return cls(*(_spec_int(d, k) for k in ("layout_id", "style_id", "seed")), str(d["task"]))
+
+
+def _spec_int(d: dict, key: str) -> int:
+    """``d[key]`` as an int; a value that is not a whole number (``int`` cut 17.5 to seed 17's kitchen and read ``true``
+    as 1) or not a number at all is a ValueError naming the field and the record."""
+    v = d[key]
+    try:
+        i = int(v)
+    except (TypeError, ValueError, OverflowError):
+        i = None
+    if i is None or isinstance(v, bool) or (not isinstance(v, str) and i != v):
+        raise ValueError(f"SceneSpec.from_dict: {key} must be a whole number, got {v!r} in {d!r}")
+    return i
 
 
 # ----------------------------------------------------------------------------------------------
