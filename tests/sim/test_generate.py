@@ -850,16 +850,22 @@ def test_a_rerun_with_fewer_slots_keeps_the_others_in_the_manifest(mini_run, tmp
     assert man["counts"]["scenes_ok"] == 2
 
 
-def test_a_rerun_leaving_out_a_slot_of_an_older_generator_is_refused(mini_run, tmp_path):
-    """A rerun with fewer slots kept the left-out slots' scenes whatever generator made them: a 2.2 test scene stayed
-    beside the 2.3 training scenes, one dataset of two generators (docs/data_format.md: resume never mixes them)."""
-    src, _ = mini_run
+def _copy_with_an_older_test_scene(mini_run, tmp_path: Path) -> tuple[Path, dict, Path, dict]:
+    """A copy of the mini run whose test scene says generator 2.2 -> (copy, the scene, its scene.json path, its
+    record as generated)."""
     out = tmp_path / "copy"
-    shutil.copytree(src, out)
+    shutil.copytree(mini_run[0], out)
     (test_scene,) = [s for s in ff.iter_scenes(out) if s["split"] == "test"]
     sj = ff.scene_dir(out, test_scene["benchmark"], test_scene["scene_id"]) / ff.SCENE_JSON
     rec = json.loads(sj.read_text())
     sj.write_text(json.dumps({**rec, "generator_version": "2.2.0"}))
+    return out, test_scene, sj, rec
+
+
+def test_a_rerun_leaving_out_a_slot_of_an_older_generator_is_refused(mini_run, tmp_path):
+    """A rerun with fewer slots kept the left-out slots' scenes whatever generator made them: a 2.2 test scene stayed
+    beside the 2.3 training scenes, one dataset of two generators (docs/data_format.md: resume never mixes them)."""
+    out, test_scene, sj, rec = _copy_with_an_older_test_scene(mini_run, tmp_path)
     before = sorted(str(p) for p in out.rglob("*"))
     with pytest.raises(
         ValueError, match=rf"holds 1 scene\(s\) of another generator version .*{test_scene['scene_id']}"
@@ -878,13 +884,7 @@ def test_a_left_out_slot_an_interrupted_rerun_did_not_record_is_still_checked_an
     sys.path.insert(0, str(Path(__file__).parent))
     import _crash_job
 
-    src, _ = mini_run
-    out = tmp_path / "copy"
-    shutil.copytree(src, out)
-    (test_scene,) = [s for s in ff.iter_scenes(out) if s["split"] == "test"]
-    sj = ff.scene_dir(out, test_scene["benchmark"], test_scene["scene_id"]) / ff.SCENE_JSON
-    rec = json.loads(sj.read_text())
-    sj.write_text(json.dumps({**rec, "generator_version": "2.2.0"}))
+    out, test_scene, sj, rec = _copy_with_an_older_test_scene(mini_run, tmp_path)
     with pytest.raises(KeyboardInterrupt):  # the rerun that was to regenerate the test slot
         gen.generate(out, get_preset("tiny", **MINI), seed=0, workers=0, quiet=True, job_fn=_crash_job.interrupted)
     assert "scene_id" not in json.loads((out / ff.MANIFEST).read_text())["scenes"][test_scene["slot"]]
