@@ -84,6 +84,8 @@ Row = tuple[str, str, dict[str, list[bool]], dict[str, list[str]]]
 REASONS = ("success", "filtered_collision", "filtered_reach", "ik_unreachable")
 #: ``--deploy-queries``: a chosen cell with no label cell within half a cell's diagonal (outside the label window)
 OFF_GRID = "off_grid"
+#: a cell a budgeted preset (``tiny``, CI) never rolled out: labelled a failure, but no rollout failed there
+SKIPPED = "skipped_budget"
 
 
 def parse_models(specs: list[str]) -> dict[str, list[str]]:
@@ -248,8 +250,9 @@ def view_outcomes(
 
 
 def failure_kind(reason: str) -> str:
-    """An annotation reason as a column of the breakdown: one of ``REASONS`` or ``rollout``."""
-    return reason if reason in REASONS else "rollout"
+    """An annotation reason as a column of the breakdown: one of ``REASONS``, ``SKIPPED`` (counted as a failed
+    rollout before) or ``rollout``."""
+    return reason if reason in (*REASONS, SKIPPED) else "rollout"
 
 
 def reason_shares(rows: list[Row], names: list[str]) -> dict[str, dict[str, dict[str, float]]]:
@@ -469,7 +472,8 @@ def main(argv: list[str] | None = None) -> int:
     print()
     print_summary(res)
     shares = reason_shares(rows, names)
-    kinds = [*REASONS, "rollout"] + [k for k in ("unknown", OFF_GRID) if any(k in t["all"] for t in shares.values())]
+    extra = ("unknown", OFF_GRID, SKIPPED)
+    kinds = [*REASONS, "rollout"] + [k for k in extra if any(k in t["all"] for t in shares.values())]
     print()
     print("Share of views by the annotation's verdict on the chosen cell:")
     print("| name | task | " + " | ".join(kinds) + " |")
@@ -495,6 +499,7 @@ def main(argv: list[str] | None = None) -> int:
             "target_from_mask": a.target_from_mask,
             "views_keeping_the_target": kept_targets if a.target_from_mask else None,
             "draws": a.draws,
+            "seed": a.seed,  # the bootstrap's: its intervals repeat only with it
             "scenes": table,
             **res,
             "reasons": shares,
