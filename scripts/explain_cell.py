@@ -13,7 +13,8 @@ annotation simulated): its outcome, the task's state and the robot's contacts wi
 
 ``--grid`` prints the reasons as a map, one character per cell, far rows first, the target's front below the last
 row of the map: ``O`` success, ``c`` failed in rollout (collision or another rollout failure), ``i`` refused by the
-IK pre-check, ``#`` infeasible (filtered_collision), blank out of reach. Needs MuJoCo (the scene is rebuilt).
+IK pre-check, ``#`` infeasible (filtered_collision), ``-`` never rolled out (a budgeted preset's skipped_budget),
+blank out of reach. Needs MuJoCo (the scene is rebuilt).
 """
 
 from __future__ import annotations
@@ -28,7 +29,13 @@ from floaff_zoo.sim import fileformat as ff
 from floaff_zoo.sim.views import candidates_in_target_frame
 
 #: one character per annotation reason in the ``--grid`` map (any other rollout failure prints ``c``)
-GRID_CHARS = {"success": "O", "filtered_collision": "#", "filtered_reach": " ", "ik_unreachable": "i"}
+GRID_CHARS = {
+    "success": "O",
+    "filtered_collision": "#",
+    "filtered_reach": " ",
+    "ik_unreachable": "i",
+    "skipped_budget": "-",  # never rolled out: drawn as a failed rollout before
+}
 
 
 def nearest_candidate(scene: dict, xo: float, yo: float) -> int:

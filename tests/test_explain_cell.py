@@ -78,6 +78,9 @@ def test_reason_map_and_errors(record, capsys):
     h, w = scene["candidates"]["grid_shape"]
     assert len(rows) == (h - 1) // 2 and all(len(r) == w for r in rows)  # only rows in front of the target
     assert rows[0][0] == "#" and set("".join(rows)) == {"#", "O"}
+    front = next(i for i, yo in enumerate(ec.candidates_in_target_frame(scene)[:, 1]) if yo < -1e-6)
+    scene["labels"]["reasons"][front] = "skipped_budget"  # a budgeted preset's cell, never rolled out
+    assert "-" in "".join(ec.reason_map(scene)) and "c" not in "".join(ec.reason_map(scene))
     with pytest.raises(ValueError, match="no candidate cell near"):
         ec.nearest_candidate(scene, 5.0, -5.0)
     with pytest.raises(SystemExit, match="explain_cell: .*missing"):
