@@ -649,7 +649,8 @@ def predict(
 
     Args:
         rgb [H, W, 3] uint8 or float in [0, 1] (None: no colour channels); depth [H, W] metres;
-        target_mask [H, W] bool: the target's pixels (its points get flag +1, others 0);
+        target_mask [H, W] bool: the target's pixels (its points get flag +1, others 0); any one nonzero value
+            marks them (0/255 masks), several different ones are refused (a label map, a soft mask);
         target_xyz [3] (base frame): the task's target point as the models learnt it, the centre of the fixture's
             front face on the generated benchmark (the middle of a drawer's or a door's front, the front of the
             cabinet a pick-and-place fills).
@@ -660,7 +661,14 @@ def predict(
     """
     check_cell(cell)  # before back-projecting: a bad cell fails at once
     d = np.asarray(depth)
-    mask = np.asarray(target_mask).astype(bool)
+    raw = np.asarray(target_mask)
+    marks = np.unique(raw[raw != 0]) if raw.dtype != bool else ()
+    if len(marks) > 1:  # a label map or a soft mask: every object, every faint pixel was read as the target
+        raise ValueError(
+            f"predict: target_mask holds {len(marks)} different nonzero values ({marks[:5].tolist()}...), as a label "
+            "map or a soft mask does; pass the target's pixels only (e.g. labels == target_id, probs > 0.5)"
+        )
+    mask = raw.astype(bool)
     if mask.shape != d.shape:
         raise ValueError(f"predict: target_mask {mask.shape} and depth {d.shape} must have the same shape")
     xyz, valid = backproject_depth(d, intrinsics, camera_pose, convention, max_depth)

@@ -139,6 +139,14 @@ def test_predict_from_rgbd(tmp_path):
         predict(model, rgb, depth, k, pose, mask[:-1], [0.85, 1.03])
     with pytest.raises(Exception, match="no pixel"):
         predict(model, rgb, depth, k, pose, np.zeros_like(mask), [0.85, 1.03])
+    # a 0/255 mask marks the same pixels; a label map (several objects) was read as one target without a word
+    byte_mask = mask.astype(np.uint8) * 255
+    again = predict(model, rgb, depth, k, pose, byte_mask, [0.85, 1.03], num_points=512, max_depth=20.0)
+    assert np.array_equal(again.target_xyz, out.target_xyz)
+    labels = mask.astype(np.uint8) * 3
+    labels[0:4, 0:4] = 7  # another object
+    with pytest.raises(ValueError, match="target_mask holds 2 different nonzero values"):
+        predict(model, rgb, depth, k, pose, labels, [0.85, 1.03])
 
 
 def test_checkpoint_of_another_model_class_is_a_clear_error(tmp_path):
