@@ -169,10 +169,17 @@ def check_cell(cell: float | None) -> float | None:
     return c
 
 
+def _is_number(value: Any) -> bool:
+    """A real scalar (a Python or numpy number, or a 0-d array), not a bool, a text or an array of several values."""
+    a = np.asarray(value) if not isinstance(value, (str, bytes)) else None
+    return a is not None and a.shape == () and a.dtype.kind in "iuf"
+
+
 def check_window(target_yaw: float | None, window: Any, grid_radius: float | None) -> None:
     """ValueError naming the argument for a non-finite ``target_yaw``, a ``window`` that is not two finite sizes
     > 0 m, or a ``grid_radius`` that is not a finite size > 0 m (None: none); checked before the model is loaded."""
-    if target_yaw is not None and not math.isfinite(float(target_yaw)):
+    if target_yaw is not None and not (_is_number(target_yaw) and math.isfinite(float(target_yaw))):
+        # a text or an array failed in float() naming no argument
         raise ValueError(f"predict: target_yaw must be a finite angle (rad) or None, got {target_yaw!r}")
     w = np.asarray(window, dtype=np.float64).reshape(-1)
     if w.size != 2 or not (np.isfinite(w).all() and (w > 0).all()):
@@ -572,7 +579,10 @@ def predict_from_points(
     if floor.ndim == 2 and floor.shape[1] == 2:
         floor = np.c_[floor, np.zeros(len(floor), np.float32)]
     check_floor_height(floor)
-    robot = np.asarray(robot, dtype=np.float32)
+    try:
+        robot = np.asarray(robot, dtype=np.float32)
+    except (TypeError, ValueError) as exc:  # a robot's name, or ragged values: numpy's message named no argument
+        raise ValueError(f"predict: robot must be the robot's descriptor numbers, got {robot!r}") from exc
     sample = validate_sample(
         {
             "scene_xyz": xyz,

@@ -226,6 +226,9 @@ def test_bad_arguments_are_named_before_the_model_loads():
     robot = [0.85, 1.03]
     cases = [
         ({"target_yaw": float("nan")}, "target_yaw must be a finite angle"),
+        # a text or two values failed in float() naming no argument
+        ({"target_yaw": "a"}, "target_yaw must be a finite angle"),
+        ({"target_yaw": [0.1, 0.2]}, "target_yaw must be a finite angle"),
         ({"window": (1.0, -1.2)}, "window must be two finite half-sizes"),
         ({"grid_radius": 0.0}, "grid_radius must be a finite radius"),
         ({"device": "cuda:99"}, "device 'cuda:99' is not available"),
@@ -239,6 +242,8 @@ def test_bad_arguments_are_named_before_the_model_loads():
     for kwargs, message in cases:
         with pytest.raises(ValueError, match=message):
             predict_from_points("no-such-model-is-loaded", xyz, feat, None, robot, t, **kwargs)
+    with pytest.raises(ValueError, match="robot must be the robot's descriptor numbers, got 'ur5e'"):
+        predict_from_points("no-such-model-is-loaded", xyz, feat, None, "ur5e", t)
     bad = xyz.copy()
     bad[:3] = np.nan
     with pytest.raises(ValueError, match="3 of .* points with NaN/Inf coordinates"):
