@@ -434,3 +434,18 @@ def test_three_nn_returns_its_picks_distances_never_below_zero():
     dist, idx = ops.three_nn(u, known)
     assert (dist >= 0).all()
     torch.testing.assert_close(dist, ((u[:, :, None] - ops.index_points(known, idx)) ** 2).sum(-1))
+
+
+@pytest.mark.parametrize("path", ["fast", "portable"])
+def test_ball_query_refuses_a_negative_or_nan_radius_and_an_empty_sample(monkeypatch, path):
+    """A negative radius was squared into the ball of its absolute value and a NaN one held no point: both
+    returned neighbours without a word; nsample 0 gave [B, S, 0] on the torch path and a kernel error on the CPU."""
+    monkeypatch.setenv(ops.CPU_PATHS_ENV, path)
+    xyz = torch.rand(1, 6, 3)
+    for radius in (-0.5, float("nan")):
+        with pytest.raises(ValueError, match="radius must be >= 0"):
+            ops.ball_query(radius, 3, xyz, xyz[:, :2])
+    with pytest.raises(ValueError, match="nsample must be >= 1"):
+        ops.ball_query_multi([0.5, 0.5], [3, 0], xyz, xyz[:, :2])
+    # radius 0 stays valid: the centre itself (drawn from xyz), else its nearest valid point
+    assert ops.ball_query(0.0, 2, xyz, xyz[:, :2]).tolist() == [[[0, 0], [1, 1]]]

@@ -307,11 +307,18 @@ def ball_query_multi(
 
     Returns:
         one [B, S, K_i] int64 tensor per scale.
+    Raises:
+        ValueError: for a radius that is negative or NaN or a K below 1, a cloud without a valid point, bad shapes.
     """
     _check_points("xyz", xyz)
     _check_points("new_xyz", new_xyz)
     if len(radii) != len(nsamples):
         raise ValueError(f"radii {radii} and nsamples {nsamples} differ in length")
+    # squared, a negative radius was the ball of its absolute value; a NaN one held no point (nearest fallback)
+    if not all(float(r) >= 0 for r in radii):
+        raise ValueError(f"ball_query: every radius must be >= 0, got {list(radii)}")
+    if any(int(k) < 1 for k in nsamples):  # K = 0: [B, S, 0] on the torch path, an error in the C++ kernel
+        raise ValueError(f"ball_query: every nsample must be >= 1, got {list(nsamples)}")
     mask = _full_mask(xyz, mask, "mask")
     if not mask.any(dim=1).all():
         raise ValueError("ball_query: a cloud of the batch has no valid point")
