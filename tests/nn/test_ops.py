@@ -449,3 +449,21 @@ def test_ball_query_refuses_a_negative_or_nan_radius_and_an_empty_sample(monkeyp
         ops.ball_query_multi([0.5, 0.5], [3, 0], xyz, xyz[:, :2])
     # radius 0 stays valid: the centre itself (drawn from xyz), else its nearest valid point
     assert ops.ball_query(0.0, 2, xyz, xyz[:, :2]).tolist() == [[[0, 0], [1, 1]]]
+
+
+@pytest.mark.parametrize("path", ["fast", "portable"])
+def test_neighbour_searches_refuse_queries_or_masks_of_another_batch(monkeypatch, path):
+    """The torch path (CUDA, portable) broadcast centres or a known_mask of batch 1 over a batch of 2 and answered,
+    where the C++ kernels refused with 'dst must be float [B, N, 3]'; every path now names the argument."""
+    monkeypatch.setenv(ops.CPU_PATHS_ENV, path)
+    xyz = torch.rand(2, 6, 3)
+    with pytest.raises(ValueError, match="new_xyz must be"):
+        ops.ball_query(0.3, 3, xyz, xyz[:1, :2])
+    with pytest.raises(ValueError, match="new_xyz must be"):
+        ops.knn(2, xyz, xyz[:1, :2])
+    with pytest.raises(ValueError, match="unknown must be"):
+        ops.three_nn(xyz[:1, :2], xyz)
+    with pytest.raises(ValueError, match="known_mask must be"):
+        ops.three_nn(xyz[:, :2], xyz, torch.ones(1, 6, dtype=torch.bool))
+    with pytest.raises(ValueError, match="known_mask must be"):
+        ops.three_interpolate(xyz[:, :2], xyz, torch.rand(2, 6, 1), torch.ones(2, 3, dtype=torch.bool))

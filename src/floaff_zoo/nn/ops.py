@@ -68,6 +68,16 @@ def _check_points(name: str, xyz: Tensor) -> None:
         raise ValueError(f"{name} must be [B, N, 3], got {list(xyz.shape)}")
 
 
+def _check_queries(name: str, queries: Tensor, cloud: Tensor) -> None:
+    """``queries`` [B, S, 3] for the cloud [B, N, 3]: the same batch (the torch path broadcast a batch of 1 over B,
+    the C++ kernels refused it)."""
+    _check_points(name, queries)
+    if queries.shape[0] != cloud.shape[0]:
+        raise ValueError(
+            f"{name} must be [{cloud.shape[0]}, S, 3] for a batch of {cloud.shape[0]}, got {list(queries.shape)}"
+        )
+
+
 def _full_mask(xyz: Tensor, mask: Tensor | None, name: str) -> Tensor:
     if mask is None:
         return torch.ones(xyz.shape[:2], dtype=torch.bool, device=xyz.device)
@@ -311,7 +321,7 @@ def ball_query_multi(
         ValueError: for a radius that is negative or NaN or a K below 1, a cloud without a valid point, bad shapes.
     """
     _check_points("xyz", xyz)
-    _check_points("new_xyz", new_xyz)
+    _check_queries("new_xyz", new_xyz, xyz)
     if len(radii) != len(nsamples):
         raise ValueError(f"radii {radii} and nsamples {nsamples} differ in length")
     # squared, a negative radius was the ball of its absolute value; a NaN one held no point (nearest fallback)
@@ -364,7 +374,7 @@ def knn(k: int, xyz: Tensor, new_xyz: Tensor, mask: Tensor | None = None) -> tup
         tail repeats the nearest neighbour (distance repeated too).
     """
     _check_points("xyz", xyz)
-    _check_points("new_xyz", new_xyz)
+    _check_queries("new_xyz", new_xyz, xyz)
     mask = _full_mask(xyz, mask, "mask")
     if not mask.any(dim=1).all():
         raise ValueError("knn: a cloud of the batch has no valid point")
@@ -402,6 +412,10 @@ def three_nn(unknown: Tensor, known: Tensor, known_mask: Tensor | None = None) -
 
 def _three_nn_search(unknown: Tensor, known: Tensor, known_mask: Tensor | None) -> tuple[Tensor, Tensor]:
     """``three_nn``'s picks by the expanded distance (C++ kernel or torch): (sq_dist [B, n, 3], idx [B, n, 3])."""
+    _check_points("known", known)
+    _check_queries("unknown", unknown, known)
+    if known_mask is not None:
+        _full_mask(known, known_mask, "known_mask")  # a [1, m] mask was broadcast on the torch path
     kernel = point_kernel(unknown.device)
     if kernel is not None:
         if known_mask is None:
