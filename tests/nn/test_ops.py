@@ -467,3 +467,13 @@ def test_neighbour_searches_refuse_queries_or_masks_of_another_batch(monkeypatch
         ops.three_nn(xyz[:, :2], xyz, torch.ones(1, 6, dtype=torch.bool))
     with pytest.raises(ValueError, match="known_mask must be"):
         ops.three_interpolate(xyz[:, :2], xyz, torch.rand(2, 6, 1), torch.ones(2, 3, dtype=torch.bool))
+
+
+def test_fps_backend_names_the_torch_loop_on_the_portable_path(monkeypatch):
+    """Under FLOAFF_ZOO_CPU_PATHS=portable farthest_point_sample runs the torch loop, but fps_backend (printed by the
+    benchmarks beside their timings) still said ``cpp`` wherever the kernel built."""
+    monkeypatch.setenv(ops.CPU_PATHS_ENV, "portable")
+    monkeypatch.setattr(_fps_ext, "load_kernel", lambda: object())  # a kernel that would be taken on the fast path
+    assert ops.fps_backend("cpu") == "torch"
+    monkeypatch.setenv(ops.CPU_PATHS_ENV, "fast")
+    assert ops.fps_backend("cpu") == "cpp"

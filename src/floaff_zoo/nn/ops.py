@@ -206,7 +206,8 @@ def fps_backend(device: str | torch.device = "cpu") -> str:
     device = torch.device(device)
     if device.type != "cpu":
         return "triton" if gpu_fps_kernel(torch.empty(1, 1, 3, device=device)) is not None else "torch"
-    return "cpp" if _fps_ext.load_kernel() is not None else "torch"
+    # farthest_point_sample skips the kernel under FLOAFF_ZOO_CPU_PATHS=portable
+    return "cpp" if not portable_requested() and _fps_ext.load_kernel() is not None else "torch"
 
 
 def gpu_fps_kernel(xyz: Tensor):
