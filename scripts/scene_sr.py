@@ -255,6 +255,13 @@ def failure_kind(reason: str) -> str:
     return reason if reason in (*REASONS, SKIPPED) else "rollout"
 
 
+def breakdown_columns(shares: dict[str, dict[str, dict[str, float]]]) -> list[str]:
+    """The columns of the printed breakdown: ``REASONS`` and ``rollout``, then ``unknown``, ``off_grid`` and
+    ``skipped_budget`` where some name's views have them."""
+    extra = ("unknown", OFF_GRID, SKIPPED)
+    return [*REASONS, "rollout"] + [k for k in extra if any(k in t["all"] for t in shares.values())]
+
+
 def reason_shares(rows: list[Row], names: list[str]) -> dict[str, dict[str, dict[str, float]]]:
     """name -> task (and ``all``) -> {kind: share of views}, runs averaged; kinds: ``REASONS``, ``rollout``
     (and ``unknown`` for scenes written before the annotation kept its reasons)."""
@@ -472,8 +479,7 @@ def main(argv: list[str] | None = None) -> int:
     print()
     print_summary(res)
     shares = reason_shares(rows, names)
-    extra = ("unknown", OFF_GRID, SKIPPED)
-    kinds = [*REASONS, "rollout"] + [k for k in extra if any(k in t["all"] for t in shares.values())]
+    kinds = breakdown_columns(shares)
     print()
     print("Share of views by the annotation's verdict on the chosen cell:")
     print("| name | task | " + " | ".join(kinds) + " |")

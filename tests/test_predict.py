@@ -320,3 +320,10 @@ def test_the_prediction_writer_writes_bf16_mixed_outputs_as_float32(tmp_path):
     with np.load(tmp_path / "predictions.npz") as z:
         assert z["yaw"].shape == (3,) and z["yaw"].dtype == np.float32
         assert np.isfinite(z["yaw"]).all()
+    # AxisNet now returns float32 itself: the writer must take any model's bfloat16 output
+    import torch
+
+    from floaff_zoo.callbacks.predictions import gather_predictions
+
+    arrays, _ = gather_predictions([{"yaw": torch.tensor([0.5, -1.25], dtype=torch.bfloat16)}])
+    assert arrays["yaw"].dtype == np.float32 and arrays["yaw"].tolist() == [0.5, -1.25]

@@ -15,7 +15,11 @@ _SPEC.loader.exec_module(ps)
 
 def test_a_benchmark_without_test_scenes_exits_naming_it(tmp_path, monkeypatch):
     """No test scene (a benchmark not generated, a typo) printed a table of nan and exited 0."""
-    monkeypatch.setattr(ps, "resolve_model", lambda name: object())  # the model is never run
+
+    def never(name):
+        raise AssertionError("the model was loaded before the data were checked")
+
+    monkeypatch.setattr(ps, "resolve_model", never)
     (tmp_path / "layouts").mkdir()
     with pytest.raises(SystemExit, match=r"no finished test scene under .*styles"):
         ps.main(["--root", str(tmp_path), "--benchmark", "styles", "--model", "m"])

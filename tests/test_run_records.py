@@ -204,6 +204,7 @@ def test_the_data_fingerprint_reads_what_a_fit_trains_on_and_not_what_it_writes(
     (other / "s1" / "scene.json").write_text('{"labels": [0]}')
     (data / "linked").symlink_to(other, target_is_directory=True)
     (data / "linked_again").symlink_to(data, target_is_directory=True)  # a cycle is walked once
+    (data / "linked_twice").symlink_to(other, target_is_directory=True)  # so is a folder linked twice
     (data / "labels.txt").write_text("1" * ((1 << 20) + 1))  # large tables count by size, not content
     first = data_fingerprint(data)
     (data / ".cache").mkdir()  # what fits write there, and the generator's run log

@@ -67,8 +67,11 @@ def test_reason_shares_average_runs_per_task_and_overall():
     assert shares["t1"] == pytest.approx({"filtered_collision": 0.25, "rollout": 0.5, "success": 0.25})
     assert shares["t2"] == {"ik_unreachable": 1.0}
     assert sum(shares["all"].values()) == pytest.approx(1.0) and shares["all"]["rollout"] == pytest.approx(1 / 3)
-    # a cell a budgeted preset never rolled out is no failed rollout
+    # a cell a budgeted preset never rolled out is no failed rollout, and has its own column when it occurs
     assert ssr.failure_kind("skipped_budget") == "skipped_budget" and ssr.failure_kind("not_open") == "rollout"
+    assert "skipped_budget" not in ssr.breakdown_columns({"a": shares})
+    skipped = ssr.reason_shares([("t1", "s", {"a": [False]}, {"a": [ssr.failure_kind("skipped_budget")]})], ["a"])
+    assert ssr.breakdown_columns(skipped)[-1] == "skipped_budget"
 
 
 def test_paired_difference_of_a_constant_shift_has_no_spread():

@@ -184,10 +184,12 @@ def data_fingerprint(root: str | Path) -> str:
     h = hashlib.sha256()
     seen: set[str] = set()
     for dirpath, dirnames, filenames in os.walk(root, followlinks=True):
-        seen.add(os.path.realpath(dirpath))  # a link cycle, or two links to one folder, is walked once
-        dirnames[:] = sorted(
-            d for d in dirnames if not d.startswith(".") and os.path.realpath(os.path.join(dirpath, d)) not in seen
-        )
+        real = os.path.realpath(dirpath)
+        if real in seen:  # a link cycle, or a second link to one folder: walked once
+            dirnames[:] = []
+            continue
+        seen.add(real)
+        dirnames[:] = sorted(d for d in dirnames if not d.startswith("."))
         for name in sorted(f for f in filenames if not f.startswith(".") and f not in _DATA_RUN_LOGS):
             path = Path(dirpath, name)
             try:

@@ -527,7 +527,7 @@ def test_a_finished_stage_reruns_when_its_data_folder_changed(tmp_path, capsys):
     (data / "styles" / "s_new" / "scene.json").write_text("{}")
     run_curriculum(exp, runner=_spy(seen))
     assert not seen
-    scene = next(data.rglob("scene.json"))  # the data generated again: other scene records
+    scene = next((data / "layouts").rglob("scene.json"))  # the data generated again: other scene records
     scene.write_text(scene.read_text() + "\n")
     capsys.readouterr()
     (new,) = run_curriculum(exp, runner=_spy(seen))
