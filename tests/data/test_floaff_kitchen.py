@@ -2,6 +2,8 @@
 
 import json
 import shutil
+from collections.abc import Callable
+from pathlib import Path
 
 import pytest
 from lightning.pytorch.utilities.exceptions import MisconfigurationException
@@ -639,19 +641,28 @@ def test_a_scene_without_views_is_a_counted_skip_naming_it(floaff_root, tmp_path
         _dm(copy, tasks=["CloseDrawer"], strict=True).setup("fit")
 
 
+def _copy_damaging_the_held_drawer_scene(
+    root: Path, tmp_path: Path, tasks: list[str], damage: Callable[[Path], object]
+) -> tuple[Path, str]:
+    """A copy of the fixture (without its cache) in which ``damage`` was applied to every view file of the CloseDrawer
+    scene the seeded draw holds out for validation -> (the copy, that scene's id)."""
+    ref = _dm(root, tasks=tasks)
+    ref.setup("fit")
+    (held,) = [s for s in ref.split_scenes["val"] if s.startswith("CloseDrawer")]
+    copy = tmp_path / "data"
+    shutil.copytree(root, copy, ignore=shutil.ignore_patterns(".cache"))
+    for view in (copy / "styles" / held / "views").glob("*.npz"):
+        damage(view)
+    return copy, held
+
+
 def test_a_scene_whose_view_files_are_all_missing_takes_no_validation_place(floaff_root, tmp_path):
     """A scene.json whose every listed view file is missing (a copy cut short) holds no sample, yet it stayed in the
     validation draw: held out, it left its task without a validation sample in a run of several tasks, silently (its
     views were counted as missing, not the emptied split)."""
     root, exp = floaff_root
     tasks = ["CloseDrawer", "PnPCounterToCab"]
-    dm = _dm(root, tasks=tasks)
-    dm.setup("fit")
-    (held,) = [s for s in dm.split_scenes["val"] if s.startswith("CloseDrawer")]
-    copy = tmp_path / "data"
-    shutil.copytree(root, copy, ignore=shutil.ignore_patterns(".cache"))
-    for view in (copy / "styles" / held / "views").glob("*.npz"):
-        view.unlink()
+    copy, held = _copy_damaging_the_held_drawer_scene(root, tmp_path, tasks, Path.unlink)
     dm = _dm(copy, tasks=tasks)
     dm.setup("fit")
     assert dm.skips.counts["scene_without_views"] == 1 and f"scene {held}" in dm.skips.summary()
@@ -672,13 +683,8 @@ def test_a_split_without_any_sample_of_a_loaded_task_is_said(floaff_root, tmp_pa
         warnings.simplefilter("error", UserWarning)  # the fixture's splits hold every task: nothing to say
         _dm(root, tasks=tasks).setup("fit")
         _dm(root, tasks=tasks, val_scene_ids=["CloseDrawer-train1-s002"]).setup("fit")  # pinned: PnP not validated
-    ref = _dm(root, tasks=tasks)
-    ref.setup("fit")
-    (held,) = [s for s in ref.split_scenes["val"] if s.startswith("CloseDrawer")]
-    copy = tmp_path / "data"
-    shutil.copytree(root, copy, ignore=shutil.ignore_patterns(".cache"))
-    for view in (copy / "styles" / held / "views").glob("*.npz"):
-        view.write_bytes(b"not an npz")  # corrupt: skipped when the split is built, after the draw
+    # corrupt views: skipped when the split is built, after the draw
+    copy, _ = _copy_damaging_the_held_drawer_scene(root, tmp_path, tasks, lambda v: v.write_bytes(b"not an npz"))
     dm = _dm(copy, tasks=tasks)
     with pytest.warns(UserWarning, match=r"'val' split holds no sample of task\(s\) \['CloseDrawer'\]"):
         dm.setup("fit")
