@@ -381,7 +381,9 @@ def _write_json(path: Path, data: dict[str, Any]) -> None:
     tmp.replace(path)  # atomic: a kill never leaves half a record
 
 
-def _finished(record: dict[str, Any] | None, args: list[str]) -> tuple[bool, str]:
+def _finished(record: dict[str, Any] | None, args: list[str], inputs: dict[str, str]) -> tuple[bool, str]:
+    """Whether ``record`` is a finished fit of ``args`` whose ``inputs`` (:func:`_input_files`, computed once per
+    stage: it walks the data folder) and checkpoint are unchanged; (False, why) otherwise."""
     if not record or record.get("status") != "done":
         return False, "not finished"
     if record.get("args") != args:
@@ -390,7 +392,7 @@ def _finished(record: dict[str, Any] | None, args: list[str]) -> tuple[bool, str
     if record.get("digest") and record["digest"] != _digest(args):
         return False, "a --config file it reads changed since it finished"
     # records written before input files were kept have none: their arguments and --config files decide, as they did
-    changed = record.get("inputs") is not None and _changed_input(record["inputs"], _input_files(args))
+    changed = record.get("inputs") is not None and _changed_input(record["inputs"], inputs)
     if changed:
         return False, f"{_input_text(changed)} changed since it finished"
     ckpt = record.get("checkpoint")
@@ -517,7 +519,7 @@ def _run_dirs(sdir: Path) -> set[Path]:
     return {_run_dir(p).resolve() for p in sdir.rglob("*.ckpt")} if sdir.is_dir() else set()
 
 
-def _running_record(name: str, args: list[str], sdir: Path) -> dict[str, Any]:
+def _running_record(name: str, args: list[str], sdir: Path, inputs: dict[str, str]) -> dict[str, Any]:
     """The ``running`` stage record written before a fit: its digest, its input files' sha256 (a killed run is
     resumed only while they are unchanged) and the run directories that existed then (any other one found later was
     written by this fit, see :func:`_claim_runs`)."""
@@ -527,7 +529,7 @@ def _running_record(name: str, args: list[str], sdir: Path) -> dict[str, Any]:
         "status": "running",
         "args": args,
         "digest": _digest(args),
-        "inputs": _input_files(args),
+        "inputs": inputs,
         "before": before,
     }
 
@@ -720,6 +722,7 @@ def _fit_stage(
     stage: dict[str, Any],
     sdir: Path,
     args: list[str],
+    inputs: dict[str, str],
     record: dict[str, Any] | None,
     best: dict[str, str],
     runner: Callable[[list[str]], Any],
@@ -727,7 +730,7 @@ def _fit_stage(
 ) -> tuple[dict[str, Any], Any]:
     """Fit one stage (resuming its killed run when there is one) and write its ``done`` record; returns
     (record, cli)."""
-    running = _running_record(name, args, sdir)
+    running = _running_record(name, args, sdir, inputs)
     resume, pin = _resume(name, sdir, record, running, out)
     fit_args = args + pin + (["--ckpt_path", str(resume)] if resume else [])
     print(f"[curriculum] stage {name}: floaff-zoo {shlex.join(fit_args)}", file=out)
@@ -781,17 +784,19 @@ def _digest_file(digest: str) -> str:
     return f"stage.{digest[:16]}.json"
 
 
-def _reusable(sdir: Path, args: list[str], record: dict[str, Any] | None) -> tuple[dict[str, Any] | None, str]:
+def _reusable(
+    sdir: Path, args: list[str], record: dict[str, Any] | None, inputs: dict[str, str]
+) -> tuple[dict[str, Any] | None, str]:
     """The finished record of a stage with these fit arguments: ``STAGE_FILE``'s, or else one kept by its digest.
 
     A stage folder shared by experiments (``root:``, e.g. one AxisNet for several curricula) holds one
     ``STAGE_FILE``, the last fit's; a fit made with other arguments (another experiment's ``--set``) replaced it, and
     the earlier fit, still on disk, would be re-fit. Returns (record, "") when one is finished, else (None, why)."""
-    done, why = _finished(record, args)
+    done, why = _finished(record, args, inputs)
     if done:
         return record, ""
     kept = _read_json(sdir / _digest_file(_digest(args)), _RECORD_FIELDS)
-    if kept is not None and _finished(kept, args)[0]:
+    if kept is not None and kept != record and _finished(kept, args, inputs)[0]:
         return kept, ""
     return None, why
 
@@ -888,7 +893,8 @@ def run_curriculum(
         with _stage_lock(name, sdir, out):
             record = _read_json(sdir / STAGE_FILE, _RECORD_FIELDS)
             _finish_runs(record)  # a kill right after writing it left its runs unmarked
-            finished, why = _reusable(sdir, args, record)
+            inputs = _input_files(args)  # once per stage: it hashes the input files and walks the data folder
+            finished, why = _reusable(sdir, args, record, inputs)
             if finished is not None:
                 if finished is not record:  # an earlier fit with these arguments: it becomes the folder's record
                     _finish_runs(finished)  # (the runner that replaced its record marked them; an older one did not)
@@ -900,7 +906,7 @@ def run_curriculum(
                 if record and record.get("status") == "done":
                     print(f"[curriculum] stage {name}: rerunning, {why}", file=out)
                 try:
-                    record, cli = _fit_stage(name, stage, sdir, args, record, best, runner, out)
+                    record, cli = _fit_stage(name, stage, sdir, args, inputs, record, best, runner, out)
                 except Exception as exc:
                     exc.curriculum_stage = name  # main names the stage in its one-line error
                     raise
