@@ -85,7 +85,8 @@ def test_demo_reuses_a_baseline_only_when_fitted_with_the_same_data_and_epochs(t
     folder = (tmp_path / "data" / "a").resolve()  # what `demo --data data/a --epochs 1` records
     args = {"data": str(folder), "data_fingerprint": data_fingerprint(folder), "max_epochs": 1}
     mark_finished(run, run / "checkpoints" / "last.ckpt", {"epochs": 1, "args": args})
-    (folder / ".cache").mkdir()  # the fit's sample cache changes nothing
+    (folder / ".cache").mkdir()  # the fit's sample cache and the generator's run log, which every demo run
+    (folder / "manifest.json").write_text('{"wall_s": 2.0}')  # rewrites, change nothing
     assert demo._fit_baseline("data/a", tmp_path / "pointnet2", 1) == run
     for data, epochs in (("data/b", 1), ("data/a", 30)):
         with pytest.raises(RuntimeError, match="fitting"):

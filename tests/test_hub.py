@@ -567,7 +567,7 @@ def test_push_refuses_upload_options_without_upload(run_dir, capsys, flags):
     run, _, _ = run_dir
     assert _push(run, NAME, *flags) == 2
     err = capsys.readouterr().err
-    assert flags[0] in err and "--upload" in err
+    assert flags[0] in err and "only apply to --upload" in err
     assert NAME not in load_registry() and not (hub_dir() / NAME).exists()  # refused before exporting
 
 

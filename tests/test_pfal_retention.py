@@ -9,8 +9,12 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 
-#: a stand-in for `floaff-zoo validate`: val_pcc 0.5 and val_sim 0.6, as Lightning's plain results table prints them
-FAKE_FZ = "#!/usr/bin/env bash\nprintf '      val_pcc      0.5\\n      val_sim      0.6\\n'\n"
+#: a stand-in for `floaff-zoo validate`, as Lightning's plain results table prints: val_pcc by the stage its
+#: checkpoint comes from (AxisNet 0.9, stage 1 0.5, stage 2 0.4), val_sim 0.6
+FAKE_FZ = """#!/usr/bin/env bash
+for a in "$@"; do case "$a" in *axisnet*) p=0.9 ;; *stage1*) p=0.5 ;; *stage2*) p=0.4 ;; esac; done
+printf '      val_pcc      %s\n      val_sim      0.6\n' "$p"
+"""
 
 
 def _run(tmp_path: Path, lineage: dict) -> subprocess.CompletedProcess:
@@ -35,7 +39,8 @@ def test_a_finished_curriculum_gets_a_row(tmp_path):
     stages = [_stage("axisnet"), _stage("stage1_pnp"), _stage("stage2_door_drawer")]
     proc = _run(tmp_path, {"stages": stages, "complete": True})
     assert proc.returncode == 0, proc.stderr
-    assert proc.stdout.splitlines()[-1] == "| recipe_s0 | 0.500 / 0.600 | 0.500 / 0.600 | +0.000 |"
+    # stage 1's and stage 2's scores and the change between them, not the AxisNet stage's
+    assert proc.stdout.splitlines()[-1] == "| recipe_s0 | 0.500 / 0.600 | 0.400 / 0.600 | -0.100 |"
 
 
 def test_an_unfinished_curriculum_is_refused(tmp_path):
