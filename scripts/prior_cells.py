@@ -102,6 +102,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", default=None)
     a = p.parse_args(argv)
+    if a.seed < 0:  # numpy's generator takes no negative seed: a traceback after the table's header
+        p.error(f"--seed must be >= 0, got {a.seed}")
     rows = []
     print("| Benchmark | cells | query yaw | split | " + " | ".join(TASKS) + " | all |")
     print("|---|---|---|---|" + "---:|" * (len(TASKS) + 1))

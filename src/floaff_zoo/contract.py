@@ -336,11 +336,7 @@ def check_batch(batch: Batch) -> None:
     its step: CFAR, the prior and AxisNet cropped NaN points away without a word, the other models named them."""
     if batch["scene_xyz"].shape[0] == 0:
         raise SampleError("empty batch (0 samples)")
-    no_floor = (~batch["floor_mask"].any(dim=1)).nonzero().squeeze(1).tolist()
-    if no_floor:
-        names = [_where(batch["meta"][i]) for i in no_floor[:3]]
-        raise SampleError(f"{len(no_floor)} sample(s) in the batch have no valid floor point: {names}")
-    rows_of: dict[str, Tensor] = {}
+    rows_of: dict[str, Tensor] = {"floor": ~batch["floor_mask"].any(dim=1)}  # [B] per check
     for key, mask_key in _FINITE_FIELDS.items():
         t = batch.get(key)
         if not torch.is_tensor(t) or not t.is_floating_point():
@@ -350,13 +346,15 @@ def check_batch(batch: Batch) -> None:
         if mask_key is not None and bad.dim() == 2 and torch.is_tensor(batch.get(mask_key)):
             bad = bad & batch[mask_key].bool()
         rows_of[key] = bad.reshape(bad.shape[0], -1).any(dim=1)  # [B]
-    if not rows_of or not bool(torch.stack(list(rows_of.values())).any()):  # one host sync per step
+    if not bool(torch.stack(list(rows_of.values())).any()):  # one host sync per step; the details only on failure
         return
+    meta = batch.get("meta") or []
     for key, rows in rows_of.items():
         bad_rows = rows.nonzero().squeeze(1).tolist()
         if bad_rows:
-            meta = batch.get("meta") or []
             names = [_where(meta[i] if i < len(meta) else None) for i in bad_rows[:3]]
+            if key == "floor":
+                raise SampleError(f"{len(bad_rows)} sample(s) in the batch have no valid floor point: {names}")
             raise SampleError(f"{key} holds NaN/Inf values in {len(bad_rows)} sample(s) of the batch: {names}")
 
 

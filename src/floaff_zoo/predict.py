@@ -156,12 +156,21 @@ def named_models(specs: list[str]) -> dict[str, list[str]]:
 
 
 # ------------------------------------------------------------------------------------------ inputs
+def _finite(value: Any) -> float | None:
+    """``value`` as a float when it is one finite real number (a Python or numpy number, a 0-d array), else None
+    (a bool, a text, an array of several values, NaN or Inf): the checks name their argument instead of float()."""
+    a = np.asarray(value) if not isinstance(value, (str, bytes)) else None
+    if a is None or a.shape != () or a.dtype.kind not in "iuf" or not math.isfinite(float(a)):
+        return None
+    return float(a)
+
+
 def check_cell(cell: float | None) -> float | None:
     """``cell`` (m) as a float, or None (the default); a ValueError for 0, negative, NaN or Inf sizes."""
     if cell is None:
         return None
-    c = float(cell)
-    if not (math.isfinite(c) and c > 0):
+    c = _finite(cell)
+    if c is None or c <= 0:  # a text or an array failed in float() naming no argument
         raise ValueError(
             f"predict: cell must be a finite size > 0 m (None: {DEFAULT_FLOOR_CELL} m for the default grid, "
             f"else the candidates' spacing), got {cell!r}"
@@ -169,24 +178,20 @@ def check_cell(cell: float | None) -> float | None:
     return c
 
 
-def _is_number(value: Any) -> bool:
-    """A real scalar (a Python or numpy number, or a 0-d array), not a bool, a text or an array of several values."""
-    a = np.asarray(value) if not isinstance(value, (str, bytes)) else None
-    return a is not None and a.shape == () and a.dtype.kind in "iuf"
-
-
 def check_window(target_yaw: float | None, window: Any, grid_radius: float | None) -> None:
     """ValueError naming the argument for a non-finite ``target_yaw``, a ``window`` that is not two finite sizes
     > 0 m, or a ``grid_radius`` that is not a finite size > 0 m (None: none); checked before the model is loaded."""
-    if target_yaw is not None and not (_is_number(target_yaw) and math.isfinite(float(target_yaw))):
-        # a text or an array failed in float() naming no argument
+    if target_yaw is not None and _finite(target_yaw) is None:
         raise ValueError(f"predict: target_yaw must be a finite angle (rad) or None, got {target_yaw!r}")
-    w = np.asarray(window, dtype=np.float64).reshape(-1)
+    try:
+        w = np.asarray(window, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):  # a text: numpy's message named no argument
+        w = np.array([])
     if w.size != 2 or not (np.isfinite(w).all() and (w > 0).all()):
         raise ValueError(
             f"predict: window must be two finite half-sizes > 0 m (along the front, its normal), got {window!r}"
         )
-    if grid_radius is not None and not (math.isfinite(float(grid_radius)) and float(grid_radius) > 0):
+    if grid_radius is not None and not (_finite(grid_radius) or 0) > 0:
         raise ValueError(f"predict: grid_radius must be a finite radius > 0 m or None, got {grid_radius!r}")
 
 

@@ -231,6 +231,10 @@ def test_bad_arguments_are_named_before_the_model_loads():
         ({"target_yaw": [0.1, 0.2]}, "target_yaw must be a finite angle"),
         ({"window": (1.0, -1.2)}, "window must be two finite half-sizes"),
         ({"grid_radius": 0.0}, "grid_radius must be a finite radius"),
+        # texts and several values failed in float() or numpy naming no argument
+        ({"grid_radius": "x"}, "grid_radius must be a finite radius"),
+        ({"window": "ab"}, "window must be two finite half-sizes"),
+        ({"cell": [0.1, 0.2]}, "cell must be a finite size > 0 m"),
         ({"device": "cuda:99"}, "device 'cuda:99' is not available"),
         # k 0 or -1 returned one pose, 2.5 failed as a slice index; num_points -5 failed inside torch, 0 fed all
         ({"k": 0}, r"k \(top poses returned\) must be an int >= 1, got 0"),

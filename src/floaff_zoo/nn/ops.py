@@ -415,16 +415,14 @@ def _three_nn_search(unknown: Tensor, known: Tensor, known_mask: Tensor | None) 
     """``three_nn``'s picks by the expanded distance (C++ kernel or torch): (sq_dist [B, n, 3], idx [B, n, 3])."""
     _check_points("known", known)
     _check_queries("unknown", unknown, known)
-    if known_mask is not None:
-        _full_mask(known, known_mask, "known_mask")  # a [1, m] mask was broadcast on the torch path
+    masked = known_mask is not None
+    known_mask = _full_mask(known, known_mask, "known_mask")  # checked: a [1, m] mask was broadcast on the torch path
     kernel = point_kernel(unknown.device)
     if kernel is not None:
-        if known_mask is None:
-            known_mask = torch.ones(known.shape[:2], dtype=torch.bool, device=known.device)
-        return tuple(kernel.three_nn_direct(*_direct_parts(unknown, known), known_mask.bool().contiguous()))
+        return tuple(kernel.three_nn_direct(*_direct_parts(unknown, known), known_mask.contiguous()))
     sqr = square_distance(unknown.detach(), known.detach())  # no gradient, as in the C++ kernel
-    if known_mask is not None:
-        sqr = sqr.masked_fill(~known_mask[:, None, :].bool(), float("inf"))
+    if masked:
+        sqr = sqr.masked_fill(~known_mask[:, None, :], float("inf"))
     k = min(3, known.shape[1])
     # three passes of min, each taking the lowest index among equal distances as the C++ kernel does (topk orders
     # ties arbitrarily: on a regular floor grid ~9 % of points got other neighbours on CUDA than on the CPU)
