@@ -485,6 +485,7 @@ def test_c2f_exp_refuses_sizes_that_break_its_search_by_name(arg, value):
         ("n2m", "footprint_width", -0.5),  # the same: an empty footprint
         ("n2m", "num_pose_samples", 0),  # torch's 'cannot sample n_sample <= 0 samples' at predict
         ("n2m", "lambda_weights", float("nan")),
+        ("votenet", "vote_weight", None),  # the comparison's TypeError named no argument
     ],
 )
 def test_loss_weights_and_sizes_that_break_later_are_refused_by_name(name, arg, value):

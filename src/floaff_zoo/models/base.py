@@ -24,6 +24,7 @@ from __future__ import annotations
 import dataclasses
 import inspect
 import math
+import numbers
 import os
 import random
 import typing
@@ -80,7 +81,8 @@ def check_numbers(
         ValueError: naming the first such argument of ``values`` ({name: value}).
     """
     for name, v in values.items():
-        if not (math.isfinite(v) and (v > low if strict else v >= low) and v <= high):
+        number = isinstance(v, numbers.Real) and not isinstance(v, bool)  # None or a text: the comparison named nothing
+        if not (number and math.isfinite(v) and (v > low if strict else v >= low) and v <= high):
             bounds = [f"{'>' if strict else '>='} {low:g}"] * math.isfinite(low)
             bounds += [f"<= {high:g}"] * math.isfinite(high)
             raise ValueError(f"{owner}: {name} must be a finite number {' and '.join(bounds)}".rstrip() + f", got {v}")

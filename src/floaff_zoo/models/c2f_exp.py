@@ -9,7 +9,7 @@ import torch
 from torch import Tensor
 
 from floaff_zoo.contract import Batch
-from floaff_zoo.models.base import FloAffModule, FloAffTrainConfig
+from floaff_zoo.models.base import FloAffModule, FloAffTrainConfig, check_numbers
 from floaff_zoo.models.pointnet2 import floor_inputs, scene_inputs
 from floaff_zoo.models.yaw import estimate_yaw
 from floaff_zoo.nn.c2f import C2FConfig, C2FPlanner, resolve_scorer
@@ -86,16 +86,14 @@ class C2FExpModule(FloAffModule):
         # sizes that passed unchecked and silently broke the search: a zero sigma_dist, sigma_bias or sigma_decay gave
         # an all-zero map, a zero cell an occupancy grid of overflowed indices (every candidate free), a max_alpha
         # above 1 a negative exponent on the semantic term, a NaN anywhere NaN weights
-        for name in ("sigma_dist", "sigma_bias", "sigma_decay", "cell", "manhattan_radius", "r_star", "clearance"):
-            v, strict = h[name], name not in ("r_star", "clearance")
-            if not (math.isfinite(v) and (v > 0 if strict else v >= 0)):
-                raise ValueError(f"C2FExpModule: {name} must be a finite number {'>' if strict else '>='} 0, got {v}")
+        owner = type(self).__name__
+        sizes = ("sigma_dist", "sigma_bias", "sigma_decay", "cell", "manhattan_radius")
+        check_numbers(owner, {k: h[k] for k in sizes}, strict=True)
+        check_numbers(owner, {k: h[k] for k in ("r_star", "clearance")})
+        check_numbers(owner, {"max_alpha": h["max_alpha"]}, high=1.0)
+        check_numbers(owner, {"z_min": h["z_min"]}, low=-math.inf)
         if not h["max_drift"] >= 0:  # inf: no cap
-            raise ValueError(f"C2FExpModule: max_drift must be >= 0, got {h['max_drift']}")
-        if not 0 <= h["max_alpha"] <= 1:
-            raise ValueError(f"C2FExpModule: max_alpha must be in [0, 1], got {h['max_alpha']}")
-        if not math.isfinite(h["z_min"]):
-            raise ValueError(f"C2FExpModule: z_min must be a finite number, got {h['z_min']}")
+            raise ValueError(f"{owner}: max_drift must be >= 0, got {h['max_drift']}")
         fields = C2FConfig.__dataclass_fields__
         cfg = C2FConfig(**{k: h[k] for k in fields})
         self.net = C2FPlanner(cfg, resolve_scorer(h["scorer"]))
