@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from floaff_zoo.sim import fileformat as ff
+from floaff_zoo.sim.annotate import SKIPPED_REASON
 from floaff_zoo.sim.views import candidates_in_target_frame
 
 #: one character per annotation reason in the ``--grid`` map (any other rollout failure prints ``c``)
@@ -34,7 +35,7 @@ GRID_CHARS = {
     "filtered_collision": "#",
     "filtered_reach": " ",
     "ik_unreachable": "i",
-    "skipped_budget": "-",  # never rolled out: drawn as a failed rollout before
+    SKIPPED_REASON: "-",  # never rolled out: drawn as a failed rollout before
 }
 
 

@@ -77,6 +77,7 @@ from floaff_zoo.atomic import atomic_write_text  # noqa: E402
 from floaff_zoo.callbacks.rollout import check_clouds, choose_pose, cloud_free, cloud_observed  # noqa: E402
 from floaff_zoo.contract import TASKS  # noqa: E402
 from floaff_zoo.predict import named_models  # noqa: E402
+from floaff_zoo.sim.annotate import SKIPPED_REASON  # noqa: E402
 
 # per view: (task, scene id, {name: [outcome per run]}, {name: [annotation reason of the chosen cell per run]})
 Row = tuple[str, str, dict[str, list[bool]], dict[str, list[str]]]
@@ -85,7 +86,7 @@ REASONS = ("success", "filtered_collision", "filtered_reach", "ik_unreachable")
 #: ``--deploy-queries``: a chosen cell with no label cell within half a cell's diagonal (outside the label window)
 OFF_GRID = "off_grid"
 #: a cell a budgeted preset (``tiny``, CI) never rolled out: labelled a failure, but no rollout failed there
-SKIPPED = "skipped_budget"
+SKIPPED = SKIPPED_REASON
 
 
 def parse_models(specs: list[str]) -> dict[str, list[str]]:

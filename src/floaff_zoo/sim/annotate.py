@@ -39,6 +39,8 @@ from floaff_zoo.sim.tasks import target_frame_to_world
 
 #: Annotation.status codes: filtered as infeasible (collision / wall / reach / IK), rolled out, skipped (budget)
 FILTERED, ROLLED_OUT, SKIPPED = 0, 1, 2
+#: the reason recorded for a cell over the ``max_candidates`` budget (status ``SKIPPED``)
+SKIPPED_REASON = "skipped_budget"
 
 
 def cell_labels(label: np.ndarray, status: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -205,8 +207,8 @@ def annotate_scene(
         keep = set(np.linspace(0, len(todo) - 1, max_candidates).round().astype(int).tolist())
         for k, i in enumerate(todo):
             if k not in keep:
-                reasons[i] = "skipped_budget"
-                counts["skipped_budget"] += 1
+                reasons[i] = SKIPPED_REASON
+                counts[SKIPPED_REASON] += 1
         todo = [i for k, i in enumerate(todo) if k in keep]
     success = np.zeros(M, dtype=bool)
     if workers > 1 and todo:
@@ -218,7 +220,7 @@ def annotate_scene(
     else:
         res = [rollout(scene, (float(xy[i, 0]), float(xy[i, 1]), float(yaws[i])), None, seed, False) for i in todo]
     status = np.full(M, FILTERED, dtype=np.int8)
-    status[[i for i, r in enumerate(reasons) if r == "skipped_budget"]] = SKIPPED
+    status[[i for i, r in enumerate(reasons) if r == SKIPPED_REASON]] = SKIPPED
     status[todo] = ROLLED_OUT
     for i, r in zip(todo, res):
         success[i] = r.success
