@@ -5,6 +5,7 @@ Usage::
     python benchmarks/bench_loader.py                      # synthetic MoMa-Kitchen-sized data in a temp dir
     python benchmarks/bench_loader.py --root data/moma_kitchen --max-samples 512
     python benchmarks/bench_loader.py --dataset floaff --root data/floaff_sim
+    python benchmarks/bench_loader.py --epoch-start        # the cost of restarting the train workers each epoch
 
 Without ``--root`` it writes ``--samples`` samples in the official MoMa-Kitchen layout with the
 official cloud sizes (16,647 global / 10,701 floor points) into a temp dir. It reports:
@@ -14,13 +15,20 @@ official cloud sizes (16,647 global / 10,701 floor points) into a temp dir. It r
    ``floaff_zoo.models.pointnet2.PointNet2Module`` when it exists, else the SSG
    ``floaff_zoo.nn.pointnet2.PointNet2Seg`` per-point regressor on the scene cloud (printed).
 The target is loader >= 5x the train step.
+
+With ``--epoch-start`` it times instead the start of a train epoch (creating the iterator and getting its first
+batch) over ``--epoch-start-epochs`` epochs, with ``--epoch-start-workers`` workers started anew every epoch (as the
+data modules' train loader does, for an exact resume) and persistent ones, under the ``fork`` and ``spawn`` start
+methods, in interleaved epochs; it prints the medians, their ratio and each epoch's whole loading time.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import multiprocessing
 import os
+import statistics
 import tempfile
 import time
 from pathlib import Path
@@ -118,6 +126,77 @@ def loader_rate(dm, epochs: int) -> tuple[float, list]:
     return n / (time.perf_counter() - t), batches
 
 
+def _timed_epoch(loader) -> tuple[float, float]:
+    """(seconds to the first batch, seconds to the end) of one epoch of ``loader``, from the iterator's creation."""
+    t = time.perf_counter()
+    it = iter(loader)
+    next(it)
+    first = time.perf_counter() - t
+    for _ in it:
+        pass
+    return first, time.perf_counter() - t
+
+
+def epoch_start_times(dm, workers: int, epochs: int, method: str) -> dict[str, list[tuple[float, float]]]:
+    """``_timed_epoch`` of each epoch for the data module's train loader with its workers started anew every epoch
+    (``restarted``, as shipped) and with ``persistent`` ones, under the start method ``method``; the two alternate
+    epoch by epoch, so a change of machine load reaches both. Both loaders are the shipped one with only the
+    workers, their persistence and the start method set (the same dataset, sampler, collate and generator)."""
+    from torch.utils.data import DataLoader
+
+    base = dm.train_dataloader()
+    loaders = {
+        mode: DataLoader(
+            base.dataset,
+            batch_size=base.batch_size,
+            sampler=base.sampler,
+            num_workers=workers,
+            persistent_workers=mode == "persistent",
+            collate_fn=base.collate_fn,
+            generator=base.generator,
+            multiprocessing_context=method,
+        )
+        for mode in ("restarted", "persistent")
+    }
+    times: dict[str, list[tuple[float, float]]] = {mode: [] for mode in loaders}
+    for _ in range(epochs):
+        for mode, loader in loaders.items():
+            times[mode].append(_timed_epoch(loader))
+    del loaders  # the persistent workers end with their loader
+    return times
+
+
+def report_epoch_start(dm, workers: int, epochs: int, methods: list[str]) -> None:
+    """Print, per start method, the epoch-start medians (epochs after the first: the persistent loader's first one
+    starts its workers, once per fit, printed apart), their ratio restarted / persistent, and the medians of the
+    epoch's whole loading time, whose difference is the restart's cost per epoch (the first batch waits for one
+    worker only: the others' start falls in the rest of the epoch)."""
+    n = len(dm.datasets["train"])
+    batches = -(-n // dm.batch_size)
+    print(
+        f"\nepoch start (iterator + first batch), {workers} workers, batch {dm.batch_size}, {n} train samples "
+        f"({batches} batches); medians over epochs 2-{epochs}, restarted and persistent epochs interleaved"
+    )
+    for method in methods:
+        if method not in multiprocessing.get_all_start_methods():
+            print(f"{method:5s}: not available on this platform")
+            continue
+        times = epoch_start_times(dm, workers, epochs, method)
+        start = {m: statistics.median(t[0] for t in ts[1:]) for m, ts in times.items()}
+        whole = {m: statistics.median(t[1] for t in ts[1:]) for m, ts in times.items()}
+        cost = whole["restarted"] - whole["persistent"]
+        print(
+            f"{method:5s}: start restarted {start['restarted']:7.3f} s, persistent {start['persistent']:7.3f} s "
+            f"(its first epoch {times['persistent'][0][0]:.3f} s, once per fit), "
+            f"restarted / persistent = {start['restarted'] / start['persistent']:.1f}x"
+        )
+        print(
+            f"       epoch loading restarted {whole['restarted']:7.3f} s, persistent {whole['persistent']:7.3f} s, "
+            f"restarted / persistent = {whole['restarted'] / whole['persistent']:.1f}x; the restart costs "
+            f"{cost:.3f} s per epoch, {100 * cost / whole['restarted']:.0f}% of the restarted epoch's loading"
+        )
+
+
 def train_step_rate(batches: list, steps: int) -> tuple[float, str]:
     try:
         from floaff_zoo.models.pointnet2 import PointNet2Module  # type: ignore[import-not-found]
@@ -172,9 +251,25 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--workers", type=int, default=0)
     p.add_argument("--epochs", type=int, default=3)
     p.add_argument("--steps", type=int, default=3)
+    p.add_argument(
+        "--epoch-start",
+        action="store_true",
+        help="time the start of a train epoch instead: workers restarted each epoch vs persistent, fork vs spawn",
+    )
+    p.add_argument("--epoch-start-workers", type=int, default=2, help="loader workers of --epoch-start")
+    p.add_argument("--epoch-start-epochs", type=int, default=6, help="epochs per loader of --epoch-start")
+    p.add_argument(
+        "--epoch-start-methods",
+        nargs="+",
+        choices=["fork", "spawn"],
+        default=["fork", "spawn"],
+        help="worker start methods of --epoch-start (spawn: the default on macOS and Windows)",
+    )
     args = p.parse_args(argv)
     if args.epochs < 1 or args.steps < 1:
         p.error("--epochs and --steps must be >= 1")
+    if args.epoch_start_workers < 1 or args.epoch_start_epochs < 2:  # the medians leave the first epoch out
+        p.error("--epoch-start-workers must be >= 1 and --epoch-start-epochs >= 2")
     for flag in ("samples", "num_points", "batch_size", "max_samples"):
         if (value := getattr(args, flag)) is not None and value < 1:
             p.error(f"--{flag.replace('_', '-')} must be >= 1, got {value}")
@@ -193,6 +288,10 @@ def main(argv: list[str] | None = None) -> None:
             print(f"wrote {args.samples} MoMa-sized samples in {time.perf_counter() - t:.1f} s")
         cache = Path(tmp) / "cache"
         dm = make_dm(args, root, cache)
+        if args.epoch_start:
+            dm.setup("fit")
+            report_epoch_start(dm, args.epoch_start_workers, args.epoch_start_epochs, args.epoch_start_methods)
+            return
         preload_readers()  # the cold setup times parsing and the cache, not the first import of the readers' modules
         t = time.perf_counter()
         dm.setup("fit")

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import pytest
 
 from tests.conftest import load_benchmark
@@ -64,6 +66,50 @@ def test_the_loader_benchmark_refuses_max_samples_it_would_ignore(tmp_path, caps
     with pytest.raises(SystemExit) as exc:
         bl.main(["--dataset", "floaff", "--root", str(tmp_path), "--max-samples", "4"])
     assert exc.value.code == 2 and "--max-samples applies to --dataset moma only" in capsys.readouterr().err
+
+
+def _epoch_start_lines(bl, root, capsys, methods: list[str], workers: int) -> list[str]:
+    args = ["--root", str(root), "--num-points", "64", "--batch-size", "2", "--epoch-start"]
+    bl.main(
+        [*args, "--epoch-start-workers", str(workers), "--epoch-start-epochs", "2", "--epoch-start-methods", *methods]
+    )
+    out = capsys.readouterr().out
+    assert "loader (cached" not in out and "train step" not in out  # the throughput figures are not measured
+    head = out.index("epoch start (iterator + first batch)")
+    return out[head:].strip().splitlines()
+
+
+def _check_method_lines(lines: list[str], method: str) -> None:
+    at = next(i for i, line in enumerate(lines) if line.startswith(f"{method:5s}: start restarted "))
+    start, epoch = lines[at], lines[at + 1]
+    assert "persistent" in start and "once per fit" in start and re.search(r"restarted / persistent = [\d.]+x", start)
+    assert re.search(r"epoch loading restarted +[\d.]+ s, persistent +[\d.]+ s, restarted / persistent = ", epoch)
+    assert re.search(r"the restart costs -?[\d.]+ s per epoch, -?\d+% of the restarted epoch's loading$", epoch)
+
+
+def test_the_loader_benchmark_times_an_epoch_start_with_workers_restarted_and_persistent(tmp_path, capsys):
+    """--epoch-start (new): the cost of starting the train loader's workers anew each epoch (as the data modules do,
+    for an exact resume) against persistent ones, as medians, their ratio and a share of the epoch's loading."""
+    bl = load_benchmark("bench_loader")
+    root = tmp_path / "moma"
+    bl.write_moma_like(root, 4)
+    lines = _epoch_start_lines(bl, root, capsys, ["fork"], 2)
+    assert lines[0].startswith("epoch start (iterator + first batch), 2 workers, batch 2, 4 train samples (2 batches)")
+    assert "medians over epochs 2-2" in lines[0]
+    _check_method_lines(lines, "fork")
+    assert not any(line.startswith("spawn") for line in lines)
+    with pytest.raises(SystemExit):
+        bl.main(["--root", str(root), "--epoch-start", "--epoch-start-epochs", "1"])  # no epoch after the first
+    assert "--epoch-start-epochs >= 2" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_the_loader_benchmarks_epoch_start_runs_under_spawn(tmp_path, capsys):
+    """Under spawn every worker unpickles the dataset and imports the package anew (about 10 s of CPU each: slow)."""
+    bl = load_benchmark("bench_loader")
+    root = tmp_path / "moma"
+    bl.write_moma_like(root, 4)
+    _check_method_lines(_epoch_start_lines(bl, root, capsys, ["spawn"], 1), "spawn")
 
 
 def test_the_generate_benchmark_refuses_a_folder_it_would_resume(tmp_path):
