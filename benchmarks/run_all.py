@@ -39,6 +39,12 @@ SUITE: list[tuple[str, str, list[str], list[str]]] = [
     ("Generator: render ms per view, wall time per preset, growth with scenes", "bench_generate.py", [], ["--small"]),
     ("Loader: samples/s vs a PointNet++ training step", "bench_loader.py", ["--samples", "16"], []),
     (
+        "Loader: a train epoch's start, workers restarted each epoch (as shipped) vs persistent, fork vs spawn",
+        "bench_loader.py",
+        ["--epoch-start", "--samples", "16", "--epoch-start-epochs", "4"],
+        ["--epoch-start"],
+    ),
+    (
         "Models: train samples/s, predict latency, growth with points, PointNet++ vs the reference-style port",
         "bench_models.py",
         ["--quick", "--points-sweep", "1024", "2048", "4096", "8192", "--vs-reference", *_LEARNED],

@@ -119,3 +119,27 @@ def test_the_generate_benchmark_refuses_a_folder_it_would_resume(tmp_path):
     (tmp_path / "tiny" / "manifest.json").write_text("{}")
     with pytest.raises(SystemExit, match="holds an earlier run, which generate would resume"):
         bg.bench_preset("tiny", 1, tmp_path)
+
+
+def test_run_all_refreshes_both_loader_sections(tmp_path, monkeypatch):
+    """bench_loader.py has two sections in docs/performance.md (its throughput, and its --epoch-start timing):
+    ``run_all.py --only bench_loader`` runs both commands and replaces both sections in place."""
+    import subprocess
+
+    run_all = load_benchmark("run_all")
+    titles = [title for title, script, _, _ in run_all.SUITE if script == "bench_loader.py"]
+    assert len(titles) == 2
+    out = tmp_path / "perf.md"
+    out.write_text("# Performance\n\nold\n\n" + "".join(f"## {t}\n\nold {i}\n\n" for i, t in enumerate(titles)))
+    ran = []
+
+    def fake(cmd, **kw):
+        ran.append(cmd[2:])
+        return subprocess.CompletedProcess(cmd, 0, stdout=f"new {len(ran)}", stderr="")
+
+    monkeypatch.setattr(run_all.subprocess, "run", fake)
+    assert run_all.main(["--only", "bench_loader", "--out", str(out)]) == 0
+    assert ran == [["--samples", "16"], ["--epoch-start", "--samples", "16", "--epoch-start-epochs", "4"]]
+    text = out.read_text()
+    assert "old 0" not in text and "old 1" not in text
+    assert text.index(titles[0]) < text.index("new 1") < text.index(titles[1]) < text.index("new 2")
