@@ -41,7 +41,7 @@ SUITE: list[tuple[str, str, list[str], list[str]]] = [
     (
         "Loader: a train epoch's start, workers restarted each epoch (as shipped) vs persistent, fork vs spawn",
         "bench_loader.py",
-        ["--epoch-start", "--samples", "16", "--epoch-start-epochs", "4"],
+        ["--epoch-start", "--epoch-start-epochs", "4"],
         ["--epoch-start"],
     ),
     (

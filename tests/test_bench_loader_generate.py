@@ -139,7 +139,7 @@ def test_run_all_refreshes_both_loader_sections(tmp_path, monkeypatch):
 
     monkeypatch.setattr(run_all.subprocess, "run", fake)
     assert run_all.main(["--only", "bench_loader", "--out", str(out)]) == 0
-    assert ran == [["--samples", "16"], ["--epoch-start", "--samples", "16", "--epoch-start-epochs", "4"]]
+    assert ran == [["--samples", "16"], ["--epoch-start", "--epoch-start-epochs", "4"]]
     text = out.read_text()
     assert "old 0" not in text and "old 1" not in text
     assert text.index(titles[0]) < text.index("new 1") < text.index(titles[1]) < text.index("new 2")
