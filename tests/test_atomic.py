@@ -54,3 +54,25 @@ def test_the_umask_is_read_without_changing_it(umask_022, monkeypatch):
     real = os.umask
     monkeypatch.setattr(os, "umask", lambda m: calls.append(m) or real(m))
     assert atomic._umask() == 0o022 and calls == []
+
+
+def test_each_json_kind_keeps_its_layout(tmp_path):
+    """One JSON writer for the benchmark's files and the curriculum's records: each keeps the bytes it wrote before
+    (``runs.data_fingerprint`` hashes scene records; old run folders are read back as they are)."""
+    from floaff_zoo import curriculum
+
+    rec = {"b": np.float32(0.5), "a": np.arange(2)}
+    ff.atomic_write_json(tmp_path / "scene.json", rec)
+    assert (tmp_path / "scene.json").read_bytes() == b'{\n "a": [\n  0,\n  1\n ],\n "b": 0.5\n}'
+    curriculum._write_json(tmp_path / "stage.json", {"status": "done", "args": ["a"]})
+    assert (tmp_path / "stage.json").read_bytes() == b'{\n  "status": "done",\n  "args": [\n    "a"\n  ]\n}'
+
+
+def test_a_failed_curriculum_record_write_leaves_no_temp(tmp_path):
+    """The curriculum's own writer left ``stage.<pid>.tmp`` behind when the rename failed."""
+    from floaff_zoo import curriculum
+
+    (tmp_path / "stage.json" / "x").mkdir(parents=True)  # a folder in the record's place: the rename fails
+    with pytest.raises(OSError):
+        curriculum._write_json(tmp_path / "stage.json", {"status": "done"})
+    assert os.listdir(tmp_path) == ["stage.json"]

@@ -10,11 +10,12 @@ several processes update (a hub index, a generated benchmark) is locked while on
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import tempfile
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import BinaryIO
+from typing import Any, BinaryIO
 
 try:  # POSIX advisory locks (elsewhere the lock is a no-op: writers must not overlap)
     import fcntl
@@ -97,4 +98,19 @@ def atomic_write(path: str | os.PathLike[str], write: Callable[[BinaryIO], None]
 def atomic_write_text(path: str | os.PathLike[str], text: str, durable: bool = False) -> None:
     """``text`` (UTF-8) written whole or not at all, as :func:`atomic_write`."""
     data = text.encode("utf-8")
+    atomic_write(path, lambda f: f.write(data), durable=durable)
+
+
+def atomic_write_json(
+    path: str | os.PathLike[str],
+    obj: Any,
+    indent: int | None = 1,
+    sort_keys: bool = True,
+    default: Callable[[Any], Any] | None = None,
+    durable: bool = False,
+) -> None:
+    """``obj`` as JSON (``json.dumps`` with ``indent``, ``sort_keys`` and ``default``; ASCII, no final newline),
+    written whole or not at all, as :func:`atomic_write`. Each kind of file keeps its own layout: readers that hash
+    a file's bytes (``runs.data_fingerprint`` over scene records) see the bytes they saw before."""
+    data = json.dumps(obj, indent=indent, sort_keys=sort_keys, default=default).encode()
     atomic_write(path, lambda f: f.write(data), durable=durable)

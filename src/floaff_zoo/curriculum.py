@@ -64,6 +64,7 @@ from typing import Any
 
 import yaml
 
+from floaff_zoo.atomic import atomic_write_json, folder_lock
 from floaff_zoo.runs import RunError, config_value, config_values, data_fingerprint, is_config_file, load_checkpoint
 
 __all__ = ["CurriculumError", "build_stage_args", "load_experiment", "main", "read_lineage", "run_curriculum"]
@@ -375,10 +376,10 @@ def read_lineage(root: str | Path, finished: bool = True) -> dict[str, Any]:
 
 
 def _write_json(path: Path, data: dict[str, Any]) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(f".{os.getpid()}.tmp")  # per process: two runners writing one record never share it
-    tmp.write_text(json.dumps(data, indent=2, sort_keys=False))
-    tmp.replace(path)  # atomic: a kill never leaves half a record
+    """A curriculum record (indent 2, keys in the order written) replaced whole: a kill never leaves half a record,
+    and two runners writing one record never share a temp file. Not fsynced, as before: a record a power cut
+    empties is named as corrupt by :func:`_read_json`."""
+    atomic_write_json(path, data, indent=2, sort_keys=False)
 
 
 def _finished(record: dict[str, Any] | None, args: list[str], inputs: dict[str, str]) -> tuple[bool, str]:
@@ -932,8 +933,6 @@ def _stage_lock(name: str, sdir: Path, out: Any) -> Iterator[None]:
     if any(int(os.environ.get(k, "0") or 0) > 0 for k in ("LOCAL_RANK", "NODE_RANK")):
         yield
         return
-    from floaff_zoo.atomic import folder_lock
-
     message = f"[curriculum] stage {name}: another curriculum is working on {sdir}; waiting for it"
     with folder_lock(sdir / STAGE_LOCK, on_wait=lambda: print(message, file=out)):
         yield
