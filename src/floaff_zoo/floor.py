@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -132,12 +133,17 @@ def points_n3(xyz: np.ndarray, who: str) -> np.ndarray:
     return p
 
 
-def check_pose(pose: tuple[float, float, float], who: str) -> tuple[float, float, float]:
-    """``pose`` as three finite floats (x, y, yaw); ValueError naming ``who`` otherwise: a NaN pose put no point
-    inside the footprint, i.e. called it free."""
-    p = np.asarray(pose, dtype=np.float64).reshape(-1)
+def check_pose(pose: Any, who: str, what: str = "pose") -> tuple[float, float, float]:
+    """A robot base pose ``pose`` as three finite floats (x, y, yaw); ValueError naming ``who`` (the caller) and
+    ``what`` (its argument) otherwise. The one check of a base pose, the simulator's included: a NaN pose put no
+    point inside the footprint (called it free), was reported ``filtered_collision`` by the rollout's filter, and
+    was written into the robot's qpos."""
+    try:
+        p = np.asarray(pose, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):  # not numbers (a string, a ragged list): named like any other bad pose
+        p = np.empty(0)
     if p.size != 3 or not np.isfinite(p).all():
-        raise ValueError(f"{who}: pose must be 3 finite values (x, y, yaw), got {pose!r}")
+        raise ValueError(f"{who}: {what} must be 3 finite values (x, y, yaw), got {pose!r}")
     return float(p[0]), float(p[1]), float(p[2])
 
 

@@ -100,9 +100,14 @@ def test_heading_faces_target(scene_factory):
 
 
 def test_bad_pose_rejected(scene_factory):
+    """A bad base pose is refused naming the function and argument that got it (the rollout said only "base_pose
+    must be finite", the service's cache nothing, and a pose that is no numbers gave float()'s bare error)."""
     sc = scene_factory("CloseDrawer")
-    with pytest.raises(ValueError):
-        rollout(sc, (0.0, float("nan"), 0.0))
+    for bad in ((0.0, float("nan"), 0.0), ("x", 0.0, 0.0), (0.0, 0.0)):
+        with pytest.raises(ValueError, match=r"^rollout: base_pose must be 3 finite values \(x, y, yaw\)"):
+            rollout(sc, bad)
+    with pytest.raises(ValueError, match=r"^RolloutService.run: the job's pose must be 3 finite values"):
+        RolloutService().run([(SceneSpec(0, 0, 0, "CloseDrawer"), ("x", 0.0, 0.0))])
 
 
 @pytest.mark.parametrize("bad", [0, 1, 2])

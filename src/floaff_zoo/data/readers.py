@@ -25,7 +25,6 @@ from __future__ import annotations
 import abc
 import hashlib
 import importlib
-import math
 import os
 from collections import Counter
 from dataclasses import dataclass, field
@@ -35,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from floaff_zoo.contract import TASKS, VIEWS, Sample, SampleError
+from floaff_zoo.floor import check_pose
 
 
 class DataError(SampleError):
@@ -314,9 +314,8 @@ class GeneratedReader(FloAffReader):
             if not vf.is_file():
                 self.skips.add("missing_view", vf, "view file listed in scene.json is missing")
                 continue
-            pose = [float(x) for x in v["base_pose_world"]]
-            if len(pose) != 3 or not all(math.isfinite(x) for x in pose):  # the SR rollout parks the robot from it
-                raise ValueError(f"view {v['view_id']!r}: base_pose_world must be 3 finite numbers, got {pose}")
+            # the SR rollout parks the robot from it
+            pose = list(check_pose(v["base_pose_world"], f"view {v['view_id']!r}", "base_pose_world"))
             views.append(ViewEntry(v["view_id"], v["view"], str(vf), pose))
             seen[("id", v["view_id"])] = seen[("file", vf)] = views[-1]
         spec = rec["spec"]

@@ -26,6 +26,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from floaff_zoo.floor import check_pose
 from floaff_zoo.sim import robot as _robot
 from floaff_zoo.sim.tasks import TASK_REGISTRY
 from floaff_zoo.sim.tasks import TargetInfo as TargetInfo  # defined with the tasks; re-exported here
@@ -947,8 +948,8 @@ class SimScene:
     def set_base_pose(self, x: float, y: float, yaw: float) -> None:
         """Teleport the base origin to (x, y, yaw) (yaw pivot compensated); runs mj_kinematics. A non-finite pose raises
         ``ValueError`` (it was written into qpos: the robot and its ego camera were posed at NaN)."""
-        _check_finite("set_base_pose", x, y, yaw)
-        self.robot.set_base_pose(self.data, float(x), float(y), float(yaw))
+        x, y, yaw = check_pose((x, y, yaw), "set_base_pose")
+        self.robot.set_base_pose(self.data, x, y, yaw)
         mujoco.mj_kinematics(self.model, self.data)
 
     def base_pose(self) -> tuple[float, float, float]:
@@ -1013,7 +1014,7 @@ class SimScene:
         """N2M footprint (0.63 x 0.5 m, 0.83 L behind / 0.17 L in front of the origin) vs furniture/wall footprints.
 
         A non-finite pose raises ``ValueError`` (the overlap test found no separating axis for it: "not free")."""
-        _check_finite("footprint_free", x, y, yaw)
+        x, y, yaw = check_pose((x, y, yaw), "footprint_free")
         c, s = math.cos(yaw), math.sin(yaw)
         cx = 0.5 * (_robot.FOOTPRINT_FRONT - _robot.FOOTPRINT_BACK)
         fp = _Rect(
@@ -1030,18 +1031,14 @@ class SimScene:
         room). A non-finite point raises ``ValueError`` (the overlap test found no separating axis for it: a wall)."""
         a = np.array([float(x), float(y)])
         b = np.asarray(point_xy, dtype=np.float64)[:2]
-        _check_finite("wall_between", *a, *b)
+        if not (np.isfinite(a).all() and np.isfinite(b).all()):
+            raise ValueError(f"wall_between: the segment must be finite, got {a.tolist()} -> {b.tolist()}")
         seg = np.stack([a, b, b, a])  # degenerate quad: the SAT test works on the segment
         return any(_sat_overlap(seg, rc) for rc in self._wall_corners)
 
     def floor_outline(self) -> list[np.ndarray]:
         """Furniture/wall footprints as [4,2] world polygons (for top-down pictures / occupancy)."""
         return [c.copy() for c in self._rect_corners]
-
-
-def _check_finite(what: str, *values: float) -> None:
-    if not all(math.isfinite(float(v)) for v in values):
-        raise ValueError(f"{what}: the pose must be finite, got {tuple(float(v) for v in values)}")
 
 
 def _sat_overlap(a: np.ndarray, b: np.ndarray) -> bool:

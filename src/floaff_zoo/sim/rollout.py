@@ -12,7 +12,6 @@ Results are deterministic: the same (scene spec, pose, seed) gives the same resu
 from __future__ import annotations
 
 import concurrent.futures as cf
-import math
 import os
 import time
 from collections.abc import Callable
@@ -21,6 +20,7 @@ from dataclasses import dataclass, field
 import mujoco
 import numpy as np
 
+from floaff_zoo import floor
 from floaff_zoo.frames import ROLLOUT_POSE_DECIMALS, heading_to
 from floaff_zoo.runtime import THREAD_ENV, exit_with_parent, one_thread_children
 from floaff_zoo.sim.controllers import CTRL_DT, Policy, default_policy
@@ -57,7 +57,7 @@ def pose_filter(scene: SimScene, x: float, y: float, yaw: float, seed: int = 0, 
     ``rollout`` passes no ``r_arm``: a dataset generated with a preset's own ``r_arm`` is evaluated with the task's.
     A non-finite pose raises ``ValueError`` (it was reported ``filtered_collision``: every comparison with a NaN fails).
     """
-    x, y, yaw = _check_pose((x, y, yaw))
+    x, y, yaw = floor.check_pose((x, y, yaw), "pose_filter")
     task, c = scene.task, scene.target.pos[:2]
     r_arm = task.r_arm if r_arm is None else float(r_arm)
     if float(np.hypot(x - c[0], y - c[1])) >= r_arm:
@@ -70,18 +70,9 @@ def pose_filter(scene: SimScene, x: float, y: float, yaw: float, seed: int = 0, 
     return "filtered_collision" if scene.robot_collides() else ""
 
 
-def _check_pose(pose) -> tuple[float, float, float]:
-    if len(pose) != 3:
-        raise ValueError(f"base_pose must be (x, y, yaw), got {pose!r}")
-    x, y, yaw = (float(v) for v in pose)
-    if not all(math.isfinite(v) for v in (x, y, yaw)):
-        raise ValueError(f"base_pose must be finite, got {pose!r}")
-    return x, y, yaw
-
-
 def start_rollout(scene: SimScene, base_pose, policy: Policy, seed: int = 0) -> None:
     """Reset the task with rng(seed), teleport the base, tuck the arm, reset the policy (may set policy.reason)."""
-    x, y, yaw = _check_pose(base_pose)
+    x, y, yaw = floor.check_pose(base_pose, "start_rollout", "base_pose")
     scene.robot.set_base_pose(scene.data, x, y, yaw)
     scene.reset_task(np.random.default_rng(int(seed)))
     mujoco.mj_forward(scene.model, scene.data)
@@ -106,7 +97,7 @@ def rollout(
         policy = default_policy(scene.spec.task)
     task = scene.task
     if check_pose:
-        refused = pose_filter(scene, *_check_pose(base_pose), seed=seed)
+        refused = pose_filter(scene, *floor.check_pose(base_pose, "rollout", "base_pose"), seed=seed)
         if refused:
             return RolloutResult(False, refused, 0.0, time.perf_counter() - t0)  # nothing simulated, no state
     m, d = scene.model, scene.data
@@ -286,7 +277,7 @@ class RolloutService:
         self._built_here: set[SceneSpec] = set()  # scenes of rollouts this service ran in this process
 
     def _key(self, spec: SceneSpec, pose, seed: int) -> tuple:
-        x, y, yaw = _check_pose(pose)
+        x, y, yaw = floor.check_pose(pose, "RolloutService.run", "the job's pose")
         r = self.cache_decimals
         return (spec, round(x, r), round(y, r), round(yaw, r), seed)
 
