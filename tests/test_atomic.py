@@ -76,3 +76,27 @@ def test_a_failed_curriculum_record_write_leaves_no_temp(tmp_path):
     with pytest.raises(OSError):
         curriculum._write_json(tmp_path / "stage.json", {"status": "done"})
     assert os.listdir(tmp_path) == ["stage.json"]
+
+
+def test_a_failed_finished_marker_or_metrics_write_leaves_no_temp(tmp_path):
+    """``runs.mark_finished`` and the curriculum's kept-metrics writer had temp files of their own (a fixed
+    ``<name>.tmp`` for the metrics, shared by two runners), left behind when the rename failed."""
+    from floaff_zoo import curriculum
+    from floaff_zoo.runs import FINISHED_FILE, mark_finished
+
+    (tmp_path / FINISHED_FILE / "x").mkdir(parents=True)  # a folder in each file's place: the rename fails
+    (tmp_path / "kept.csv" / "x").mkdir(parents=True)
+    with pytest.raises(OSError):
+        mark_finished(tmp_path, tmp_path / "last.ckpt")
+    with pytest.raises(OSError):
+        curriculum._write_rows(tmp_path / "kept.csv", [{"epoch": "0", "val_loss": "1.0"}])
+    assert sorted(os.listdir(tmp_path)) == ["finished.json", "kept.csv"]
+
+
+def test_the_kept_metrics_keep_their_csv_bytes(tmp_path):
+    """Rows deduplicated, columns sorted, CSV's own line ends: what the curriculum's ``open(newline="")`` wrote."""
+    from floaff_zoo import curriculum
+
+    rows = [{"val_loss": "1.0", "epoch": "0"}, {"epoch": "0", "val_loss": "1.0"}, {"epoch": "1", "step": "9"}]
+    curriculum._write_rows(tmp_path / "kept.csv", rows)
+    assert (tmp_path / "kept.csv").read_bytes() == b"epoch,step,val_loss\r\n0,,1.0\r\n1,9,\r\n"

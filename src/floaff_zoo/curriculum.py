@@ -53,6 +53,7 @@ import argparse
 import contextlib
 import csv
 import hashlib
+import io
 import json
 import os
 import shlex
@@ -64,7 +65,7 @@ from typing import Any
 
 import yaml
 
-from floaff_zoo.atomic import atomic_write_json, folder_lock
+from floaff_zoo.atomic import atomic_write_json, atomic_write_text, folder_lock
 from floaff_zoo.runs import RunError, config_value, config_values, data_fingerprint, is_config_file, load_checkpoint
 
 __all__ = ["CurriculumError", "build_stage_args", "load_experiment", "main", "read_lineage", "run_curriculum"]
@@ -694,12 +695,11 @@ def _write_rows(path: Path, rows: list[dict[str, str]]) -> None:
     """Write rows (duplicates dropped, columns sorted like Lightning's CSVLogger) atomically."""
     unique = list({tuple(sorted(r.items())): r for r in rows}.values())
     keys = sorted({k for r in unique for k in r})
-    tmp = path.with_suffix(".tmp")
-    with tmp.open("w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=keys)
-        writer.writeheader()
-        writer.writerows(unique)
-    tmp.replace(path)
+    text = io.StringIO(newline="")
+    writer = csv.DictWriter(text, fieldnames=keys)
+    writer.writeheader()
+    writer.writerows(unique)
+    atomic_write_text(path, text.getvalue())  # a temp file of its own: two runners never share one
 
 
 def _keep_metrics(run: Path) -> None:

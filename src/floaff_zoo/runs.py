@@ -20,6 +20,8 @@ import zipfile
 from pathlib import Path
 from typing import Any
 
+from floaff_zoo.atomic import atomic_write_text
+
 FINISHED_FILE = "finished.json"
 #: keys of every checkpoint a Lightning ``Trainer`` writes (``--ckpt_path`` fails without them)
 CHECKPOINT_KEYS = ("state_dict", "pytorch-lightning_version")
@@ -128,9 +130,7 @@ def mark_finished(run_dir: str | Path, checkpoint: str | Path, extra: dict[str, 
         "checkpoint": str(checkpoint),
         **(extra or {}),
     }
-    tmp = path.with_name(f".{FINISHED_FILE}.{os.getpid()}.tmp")
-    tmp.write_text(json.dumps(record, indent=2) + "\n", encoding="utf-8")
-    tmp.replace(path)  # a kill never leaves half a marker
+    atomic_write_text(path, json.dumps(record, indent=2) + "\n")  # a kill never leaves half a marker
     return path
 
 

@@ -34,7 +34,7 @@ from typing import IO, Any
 
 import torch
 
-from floaff_zoo.atomic import publish
+from floaff_zoo.atomic import atomic_write, publish
 from floaff_zoo.hub.registry import (
     NON_PORTABLE_ARGS,
     WEIGHT_EXTS,
@@ -203,23 +203,19 @@ def _download_url(url: str, dest: Path, sha256: str) -> Path:
     """Stream ``url`` to a temp file next to ``dest``, hashing; keep it only if the hash matches."""
     import hashlib
 
-    dest.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{dest.name}.", suffix=".part", dir=dest.parent)
-    h = hashlib.sha256()
-    try:
-        with os.fdopen(fd, "wb") as out, _open_url(url) as stream:
+    def stream_checked(out: IO[bytes]) -> None:
+        h = hashlib.sha256()
+        with _open_url(url) as stream:
             while block := stream.read(1 << 20):
                 h.update(block)
                 out.write(block)
-        if h.hexdigest() != sha256:
+        if h.hexdigest() != sha256:  # raised inside the write: atomic_write discards the temp file
             raise ChecksumError(
                 f"download of {url} for {dest.name}: sha256 {h.hexdigest()} != registered {sha256}; "
                 "the file was discarded"
             )
-        publish(tmp, dest)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+
+    atomic_write(dest, stream_checked)
     return dest
 
 
@@ -248,7 +244,7 @@ def _download_hf(source: dict[str, Any], dest: Path, sha256: str, default_path: 
                 f"download of {source['repo']}@{source['revision']}/{got.name} for {dest.name}: sha256 "
                 f"{digest} != registered {sha256}; the file was discarded"
             )
-        os.replace(got, dest)
+        publish(got, dest)  # the mode a plain open would give, as every other file the hub writes
     finally:
         shutil.rmtree(tmpdir, ignore_errors=True)
     return dest
