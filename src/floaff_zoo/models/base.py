@@ -24,7 +24,6 @@ from __future__ import annotations
 import dataclasses
 import inspect
 import math
-import numbers
 import os
 import random
 import typing
@@ -40,6 +39,7 @@ from lightning.pytorch.utilities.exceptions import MisconfigurationException
 from torch import Tensor
 from torchmetrics import MetricCollection
 
+from floaff_zoo import checks
 from floaff_zoo.contract import Batch, NonFiniteError, SampleError, best_pose, check_batch
 from floaff_zoo.losses import build_loss
 from floaff_zoo.metrics import affordance_metrics
@@ -75,17 +75,12 @@ def check_numbers(
 ) -> None:
     """Refuse a scalar argument that is not a finite number in [low, high] ((low, high] when ``strict``): loss weights
     and sizes that would otherwise run, silently wrong (a negative weight maximising its term, a zero cell or a negative
-    footprint switching a check off) or NaN.
+    footprint switching a check off) or NaN. :func:`floaff_zoo.checks.check_numbers` with the model's ``owner``.
 
     Raises:
         ValueError: naming the first such argument of ``values`` ({name: value}).
     """
-    for name, v in values.items():
-        number = isinstance(v, numbers.Real) and not isinstance(v, bool)  # None or a text: the comparison named nothing
-        if not (number and math.isfinite(v) and (v > low if strict else v >= low) and v <= high):
-            bounds = [f"{'>' if strict else '>='} {low:g}"] * math.isfinite(low)
-            bounds += [f"<= {high:g}"] * math.isfinite(high)
-            raise ValueError(f"{owner}: {name} must be a finite number {' and '.join(bounds)}".rstrip() + f", got {v}")
+    checks.check_numbers(values, low, high, strict, owner, ValueError)
 
 
 # ----------------------------------------------------------------------------- training recipe
