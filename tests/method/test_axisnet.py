@@ -154,10 +154,11 @@ def test_axisnet_learns_yaw_in_a_short_fit(tmp_path, root, monkeypatch):
     assert report["metrics"]["test_angle_error_deg"] < 10.0 and not report.get("figures")
 
 
-@pytest.mark.parametrize("radius", [float("nan"), float("inf")])
+@pytest.mark.parametrize("radius", [float("nan"), float("inf"), "1.3", None])
 def test_a_crop_radius_that_is_not_a_finite_positive_number_is_refused(radius):
     """NaN passed the > 0 check and cropped every point away (a SampleError blaming the samples); inf kept every
-    point and divided every coordinate to 0, so the yaw was the same for any scene."""
+    point and divided every coordinate to 0, so the yaw was the same for any scene; a text or None raised a TypeError
+    naming no argument."""
     with pytest.raises(ValueError, match=r"crop_radius must be a finite number > 0"):
         AxisNetModule(crop_radius=radius)
 

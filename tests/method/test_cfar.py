@@ -442,6 +442,8 @@ def test_a_crop_radius_that_is_not_a_finite_positive_number_is_refused(root, rad
         ("yaw_jitter_deg", -5.0),  # no jitter, silently
         ("yaw_jitter_deg", float("inf")),  # NaN angles, then a NaN loss naming samples
         ("manhattan_radius", -1.0),  # no face found: every sample kept its reference yaw
+        ("residual_scale", "1.0"),  # a text (a quoted YAML value): a TypeError naming no argument
+        ("distill_weight", True),  # a bool is no weight
     ],
 )
 def test_scalar_arguments_that_switch_a_part_off_silently_are_refused(root, arg, value):

@@ -126,6 +126,8 @@ def test_grid_geometry_is_checked():
         ({"smooth_sigma_cells": float("inf")}, "smooth_sigma_cells"),  # the same, at the first read
         ({"smooth_sigma_cells": -1.0}, "smooth_sigma_cells"),  # smoothing silently off
         ({"fill": float("nan")}, "fill"),  # unseen cells read NaN
+        ({"cell": None}, "cell"),  # a TypeError naming nothing
+        ({"fill": "0"}, "fill"),  # the same
     ],
 )
 def test_grid_sizes_that_break_it_later_are_refused_by_name(kwargs, named):

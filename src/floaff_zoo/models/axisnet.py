@@ -22,6 +22,7 @@ from torch import Tensor
 from torchmetrics import Metric, MetricCollection
 from torchmetrics.utilities.distributed import gather_all_tensors
 
+from floaff_zoo.checks import check_number, check_numbers
 from floaff_zoo.contract import Batch
 from floaff_zoo.metrics import _cat_or_empty, _first_occurrence, fill_empty_cat_states
 from floaff_zoo.models.base import TrainConfig, ZooModule, batch_index, sample_names
@@ -110,11 +111,9 @@ class AxisNetModule(ZooModule):
     def configure_models(self) -> None:
         h = self.hparams
         # NaN cropped every point away and blamed the samples; inf divided every coordinate down to 0
-        if not (math.isfinite(h["crop_radius"]) and h["crop_radius"] > 0):
-            raise ValueError(f"AxisNetModule: crop_radius must be a finite number > 0, got {h['crop_radius']}")
-        for name in ("rot_aug_deg", "jitter_sigma"):  # negative or NaN turned the augmentation off silently
-            if not (math.isfinite(h[name]) and h[name] >= 0):
-                raise ValueError(f"AxisNetModule: {name} must be a finite number >= 0, got {h[name]}")
+        check_number("crop_radius", h["crop_radius"], strict=True, owner=type(self).__name__)
+        # negative or NaN turned the augmentation off silently
+        check_numbers({k: h[k] for k in ("rot_aug_deg", "jitter_sigma")}, owner=type(self).__name__)
         self.net = AxisNet(4, h["widths"] or [64, 128, 256], h["head"] if h["head"] is not None else [128, 64])
 
     def configure_losses(self) -> None:

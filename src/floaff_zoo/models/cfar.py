@@ -65,6 +65,7 @@ import torch
 from lightning.pytorch.utilities.exceptions import MisconfigurationException
 from torch import Tensor, nn
 
+from floaff_zoo.checks import check_number, check_numbers
 from floaff_zoo.contract import TASKS, Batch
 from floaff_zoo.hub.io import resolve_state_dict
 from floaff_zoo.hub.registry import sha256_file
@@ -213,20 +214,13 @@ class CFARModule(FloAffModule):
     # ----------------------------------------------------------------- hooks
     def configure_models(self) -> None:
         h = self.hparams
-        if not (math.isfinite(h["crop_radius"]) and h["crop_radius"] > 0):  # NaN passed and blamed the data
-            raise MisconfigurationException(
-                f"CFARModule: crop_radius must be a finite number > 0 (use_crop: false for no crop), got "
-                f"{h['crop_radius']}"
-            )
+        owner, error = type(self).__name__, MisconfigurationException
+        no_crop = "use_crop: false for no crop"  # NaN passed and blamed the data
+        check_number("crop_radius", h["crop_radius"], strict=True, owner=owner, error=error, note=no_crop)
         # NaN passed '< 0' and turned the term off silently (as a negative jitter or Manhattan radius turned those off)
-        for name in ("distill_weight", "yaw_jitter_deg"):
-            if not (math.isfinite(h[name]) and h[name] >= 0):
-                raise MisconfigurationException(f"CFARModule: {name} must be a finite number >= 0, got {h[name]}")
-        check_manhattan_radius(h["manhattan_radius"], type(self).__name__)
-        if not (math.isfinite(h["residual_scale"]) and h["residual_scale"] >= 0):
-            raise MisconfigurationException(
-                f"CFARModule: residual_scale must be a finite number >= 0, got {h['residual_scale']}"
-            )
+        check_numbers({k: h[k] for k in ("distill_weight", "yaw_jitter_deg")}, owner=owner, error=error)
+        check_manhattan_radius(h["manhattan_radius"], owner)
+        check_number("residual_scale", h["residual_scale"], owner=owner, error=error)
         if h["distill_bn"] not in ("batch", "running"):  # a typo ran the teacher on its running statistics
             raise MisconfigurationException(
                 f"CFARModule: distill_bn must be 'batch' or 'running', got {h['distill_bn']!r}"

@@ -20,7 +20,6 @@ are returned as ``arch`` so a model can rebuild the AxisNet from its own checkpo
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 from typing import Any, Literal
 
@@ -29,6 +28,7 @@ from lightning.pytorch.utilities import rank_zero_warn
 from lightning.pytorch.utilities.exceptions import MisconfigurationException
 from torch import Tensor
 
+from floaff_zoo.checks import check_number
 from floaff_zoo.contract import Batch
 from floaff_zoo.frames import PRIVILEGED_YAW  # kept in __all__: its home is frames.py, below models and report
 from floaff_zoo.hub.io import resolve_state_dict
@@ -119,8 +119,7 @@ def configured_axisnet(
 def check_manhattan_radius(radius: float, owner: str) -> None:
     """Refuse a ``manhattan_radius`` that is not a finite number > 0: the face estimate found no point within it, and
     every sample kept its reference yaw without a word."""
-    if not (math.isfinite(radius) and radius > 0):
-        raise MisconfigurationException(f"{owner}: manhattan_radius must be a finite number > 0, got {radius}")
+    check_number("manhattan_radius", radius, strict=True, owner=owner, error=MisconfigurationException)
 
 
 def check_yaw_sources(sources: dict[str, str], axisnet: AxisNet | None, owner: str) -> None:

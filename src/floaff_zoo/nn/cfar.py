@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor, nn
 
+from floaff_zoo.checks import check_number
 from floaff_zoo.contract import SampleError
 from floaff_zoo.nn.ops import check_floor_feat, gpu_fps_kernel, point_kernel, weighted_gather3
 from floaff_zoo.nn.pointnet2 import FeaturePropagation, PointNet2Encoder, SharedMLP
@@ -94,8 +95,7 @@ def crop_mask(
         if empty.any():
             raise SampleError(f"CFAR crop: sample(s) {_names(empty, names)} have no valid scene point")
         return mask, torch.full((b,), float("inf"), device=xyz.device)
-    if not (math.isfinite(radius) and radius > 0):  # NaN kept no point and blamed the samples; None = no crop
-        raise ValueError(f"crop radius must be a finite number > 0, got {radius}")
+    check_number("crop radius", radius, strict=True)  # NaN kept no point and blamed the samples; None = no crop
     d2 = ((xyz - centre[:, None, :]) ** 2).sum(-1)  # [B, N]
     used = torch.full((b,), float(radius), device=xyz.device, dtype=xyz.dtype)
     keep = mask & (d2 <= used[:, None] ** 2)

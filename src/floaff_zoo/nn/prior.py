@@ -23,6 +23,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from floaff_zoo.checks import check_number, check_numbers
+
 __all__ = ["CanonicalLabelGrid"]
 
 
@@ -62,15 +64,12 @@ class CanonicalLabelGrid(nn.Module):
         super().__init__()
         # NaN passed these comparisons (and inf the next ones) and failed later in float-to-int conversions naming
         # no argument; a negative or NaN sigma silently turned the smoothing off, a NaN fill made unseen cells NaN
-        if not (math.isfinite(cell) and math.isfinite(extent) and 0 < cell < extent):
-            raise ValueError(f"CanonicalLabelGrid: need 0 < cell < extent (finite), got cell={cell}, extent={extent}")
-        if not (math.isfinite(smooth_sigma_cells) and smooth_sigma_cells >= 0):
-            raise ValueError(
-                f"CanonicalLabelGrid: smooth_sigma_cells must be a finite number >= 0 (0 = no smoothing), got "
-                f"{smooth_sigma_cells}"
-            )
-        if not 0 <= fill <= 1:
-            raise ValueError(f"CanonicalLabelGrid: fill must be a label value in [0, 1], got {fill}")
+        owner = type(self).__name__
+        check_numbers({"cell": cell, "extent": extent}, strict=True, owner=owner)
+        if not cell < extent:
+            raise ValueError(f"{owner}: need cell < extent, got cell={cell}, extent={extent}")
+        check_number("smooth_sigma_cells", smooth_sigma_cells, owner=owner, note="0 = no smoothing")
+        check_number("fill", fill, high=1.0, owner=owner)  # a label value
         if centred and abs(extent / cell - round(extent / cell)) > 1e-6:
             # centres sit at -extent + k cell: off the lattice's multiples of cell, labels fall on edges again
             raise ValueError(
