@@ -182,7 +182,7 @@ def test_a_negative_seed_or_a_non_positive_max_samples_is_named(field, value):
 @pytest.mark.parametrize("radius", [0.0, -0.031, float("nan"), float("inf"), True, "0.031"])
 def test_a_flag_radius_that_flags_nothing_is_named(radius):
     """0, a negative or a NaN flag radius flagged no point as target or obstacle, silently, in every sample."""
-    with pytest.raises(ValueError, match="data.flag_radius must be a positive distance in metres"):
+    with pytest.raises(ValueError, match=r"data.flag_radius must be a finite number > 0 \(a distance in metres\)"):
         _dm("unused", flag_radius=radius)
 
 

@@ -141,6 +141,21 @@ def test_lateral_mirror_flips_the_canonical_frame_laterally():
         LateralMirror(p=1.5)
 
 
+@pytest.mark.parametrize(
+    ("make", "message"),
+    [
+        (lambda: YawPerturb(True), r"YawPerturb: max_deg must be a finite number >= 0, got True"),  # ran as 1 degree
+        (lambda: YawPerturb(float("nan")), r"YawPerturb: max_deg must be a finite number >= 0, got nan"),
+        (lambda: Jitter("0.005"), r"Jitter: sigma must be a finite number >= 0, got '0.005'"),  # a TypeError
+        (lambda: Jitter(0.005, clip="0.01"), r"Jitter: clip must be a finite number > 0 or null \(no clipping\)"),
+        (lambda: Jitter(0.005, clip=0.0), r"Jitter: clip must be a finite number > 0 or null \(no clipping\)"),
+    ],
+)
+def test_transform_sizes_are_refused_by_name(make, message):
+    with pytest.raises(ValueError, match=message):
+        make()
+
+
 def test_jitter_and_official_normalize():
     s = _sample()
     out = Jitter(0.005)(s, np.random.default_rng(0))

@@ -14,6 +14,7 @@ from lightning.pytorch.trainer.states import TrainerFn
 from lightning.pytorch.utilities.exceptions import MisconfigurationException
 from torch.utils.data import DataLoader, Dataset, RandomSampler
 
+from floaff_zoo.checks import check_integer
 from floaff_zoo.contract import Sample, collate_samples, validate_sample
 from floaff_zoo.data.transforms import SampleTransform, apply_transforms
 
@@ -33,11 +34,7 @@ class DataConfigError(MisconfigurationException, ValueError):
 def check_size(field: str, value: Any, minimum: int, none_means: str | None = None) -> None:
     """Raise DataConfigError unless ``value`` is an int >= ``minimum`` (or None where ``none_means`` says what
     None does); ``field`` is the DataModule argument's name."""
-    if value is None and none_means is not None:
-        return
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
-        alt = f" or null ({none_means})" if none_means else ""
-        raise DataConfigError(f"data.{field} must be an integer >= {minimum}{alt}, got {value!r}")
+    check_integer(f"data.{field}", value, minimum, error=DataConfigError, none_means=none_means)
 
 
 def after_base_seed(state: torch.Tensor) -> torch.Tensor:

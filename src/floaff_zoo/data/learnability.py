@@ -23,6 +23,7 @@ from typing import Literal
 import numpy as np
 from torch.utils.data import Dataset
 
+from floaff_zoo.checks import check_number
 from floaff_zoo.contract import Sample, validate_sample
 from floaff_zoo.data.base import DataConfigError, FloAffDataModule, check_size
 from floaff_zoo.data.transforms import SampleTransform
@@ -166,10 +167,8 @@ class CanonicalProbeDataModule(FloAffDataModule):
             ("floor_per_sample", floor_per_sample, 1),
         ):  # failed in the first batch (a negative __len__, an empty floor) naming no field
             check_size(name, value, least)
-        if isinstance(max_yaw_deg, bool) or not (
-            isinstance(max_yaw_deg, (int, float)) and math.isfinite(max_yaw_deg) and max_yaw_deg >= 0
-        ):  # NaN / inf failed in numpy at the first sample; a negative range drew from the positive one
-            raise DataConfigError(f"data.max_yaw_deg must be a finite number >= 0, got {max_yaw_deg!r}")
+        # NaN / inf failed in numpy at the first sample; a negative range drew from the positive one
+        check_number("data.max_yaw_deg", max_yaw_deg, error=DataConfigError)
         self.sizes = {"train": num_train, "val": num_val, "test": num_test}
         self.points_per_sample, self.floor_per_sample, self.max_yaw_deg = (
             points_per_sample,

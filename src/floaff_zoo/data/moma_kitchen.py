@@ -52,6 +52,7 @@ import numpy as np
 from lightning.pytorch.utilities import rank_zero_warn
 from lightning.pytorch.utilities.exceptions import MisconfigurationException
 
+from floaff_zoo.checks import check_number
 from floaff_zoo.contract import Sample
 from floaff_zoo.data.base import DataConfigError, FloAffDataModule, check_size
 from floaff_zoo.data.cache import RecordDataset, SampleCache, code_digest
@@ -548,9 +549,8 @@ class MoMaKitchenDataModule(FloAffDataModule):
         table = dict(OFFICIAL_ROBOTS if robots is None else robots)
         table.update(extra_robots or {})
         _check_robot_table(table, "robots" if extra_robots is None else "robots / extra_robots")
-        if isinstance(flag_radius, bool) or not (isinstance(flag_radius, (int, float)) and 0 < flag_radius < math.inf):
-            # 0, a negative or a NaN radius flagged no point at all, silently: every sample lost its target
-            raise DataConfigError(f"data.flag_radius must be a positive distance in metres, got {flag_radius!r}")
+        # 0, a negative or a NaN radius flagged no point at all, silently: every sample lost its target
+        check_number("data.flag_radius", flag_radius, strict=True, error=DataConfigError, note="a distance in metres")
         self.reader = MoMaKitchenReader(self.rgbd_root, self.info_root, table, flag_radius, yaw_estimator)
         check_size("max_samples", max_samples, 1, "every record")  # 0 kept all, a negative one dropped the last
         self.max_samples = max_samples

@@ -27,6 +27,7 @@ from typing import Any, Literal
 import numpy as np
 import torch
 
+from floaff_zoo.checks import check_number
 from floaff_zoo.contract import FULL_CLOUD_KEY, Sample, SampleError, yaw_matrix
 
 
@@ -194,8 +195,7 @@ class YawPerturb(SampleTransform):
     """
 
     def __init__(self, max_deg: float = 5.0) -> None:
-        if not (math.isfinite(max_deg) and max_deg >= 0):  # NaN / inf failed in numpy mid-epoch
-            raise ValueError(f"YawPerturb: max_deg must be a finite number >= 0, got {max_deg}")
+        check_number("max_deg", max_deg, owner=type(self).__name__)  # NaN / inf failed in numpy mid-epoch
         self.max_deg = max_deg
 
     def __call__(self, sample: Sample, rng: np.random.Generator) -> Sample:
@@ -211,10 +211,9 @@ class Jitter(SampleTransform):
     """
 
     def __init__(self, sigma: float = 0.005, clip: float | None = None) -> None:
-        if not (math.isfinite(sigma) and sigma >= 0):  # NaN made every point NaN, silently
-            raise ValueError(f"Jitter: sigma must be a finite number >= 0, got {sigma}")
-        if clip is not None and not clip > 0:  # clamp(c, -c) with c < 0 moved every point by -c
-            raise ValueError(f"Jitter: clip must be > 0 or None, got {clip}")
+        check_number("sigma", sigma, owner=type(self).__name__)  # NaN made every point NaN, silently
+        # clamp(c, -c) with c < 0 moved every point by -c
+        check_number("clip", clip, strict=True, owner=type(self).__name__, none_means="no clipping")
         self.sigma = sigma
         self.clip = clip
 
