@@ -61,6 +61,9 @@ def test_repeated_or_unsupported_settings_are_refused():
         ("side_ry", -0.5, "side_ry must be a finite number >= 0, got -0.5"),
         ("max_dist", 0.0, "max_dist must be a finite number > 0, got 0.0"),
         ("max_dist", float("inf"), "max_dist must be a finite number > 0, got inf"),
+        ("cell", "0.05", "cell must be a finite number > 0, got '0.05'"),  # a TypeError naming nothing
+        ("image_size", 64.0, "image_size must be an integer >= 1, got 64.0"),  # the renderer takes whole pixels
+        ("views_per_scene", (1.5, 2), r"views_per_scene \(front\) must be an integer >= 0, got 1.5"),
         ("views_per_scene", (2,), r"views_per_scene must be \(front, side\), got \(2,\)"),
         ("views_per_scene", (2, 2, 2), r"views_per_scene must be \(front, side\), got \(2, 2, 2\)"),
     ],
@@ -385,11 +388,11 @@ def _error_job(job, out, preset_dict, save_images):
     [
         (["--cell", "0"], "cell must be a finite number > 0, got 0.0"),
         (["--cell", "inf"], "cell must be a finite number > 0, got inf"),
-        (["--views", "-1", "2"], r"views_per_scene must be >= 0, got \(-1, 2\)"),
+        (["--views", "-1", "2"], r"views_per_scene \(front\) must be an integer >= 0, got -1"),
         (["--views", "0", "0"], r"views_per_scene: at least one front or side view per scene"),
         (["--n-train", "0", "--n-test", "0"], "at least one scene, got 0/0"),
-        (["--image-size", "0"], "image_size must be >= 1, got 0"),
-        (["--max-candidates", "-3"], "max_candidates must be >= 1"),
+        (["--image-size", "0"], "image_size must be an integer >= 1, got 0"),
+        (["--max-candidates", "-3"], r"max_candidates must be an integer >= 1 or null \(no cap\), got -3"),
     ],
 )
 def test_cli_refuses_bad_settings_in_one_line_before_any_scene(tmp_path, capsys, monkeypatch, flags, message):

@@ -7,9 +7,10 @@ train side, test front, test side); they are spread over the scenes of a split (
 
 from __future__ import annotations
 
-import math
 from dataclasses import asdict, dataclass, fields, replace
 from typing import Any
+
+from floaff_zoo.checks import check_integer, check_number, check_numbers
 
 __all__ = ["PAPER_VIEW_TOTALS", "PRESETS", "GenPreset", "get_preset", "view_counts"]
 
@@ -110,37 +111,29 @@ class GenPreset:
             raise ValueError(
                 f"r_arm must be None (each task's own reach; the evaluation refuses by it), got {self.r_arm}"
             )
-        if self.n_train < 0 or self.n_test < 0 or self.n_train + self.n_test == 0:
-            raise ValueError(f"need n_train >= 0, n_test >= 0 and at least one scene, got {self.n_train}/{self.n_test}")
-        if not (math.isfinite(self.cell) and self.cell > 0):
-            raise ValueError(f"cell must be a finite number > 0, got {self.cell}")
-        if self.max_seed_attempts < 1:
-            raise ValueError("max_seed_attempts must be >= 1")
+        check_integer("n_train", self.n_train, 0)
+        check_integer("n_test", self.n_test, 0)
+        if self.n_train + self.n_test == 0:
+            raise ValueError(f"need at least one scene, got {self.n_train}/{self.n_test} (n_train/n_test)")
+        check_number("cell", self.cell, strict=True)
+        check_integer("max_seed_attempts", self.max_seed_attempts, 1)
         # annotate smooths only when sigma > 0: a NaN or negative one left the labels unsmoothed without a word
         # (0 = no smoothing); a NaN or negative view region gives none of its views, found only after each annotation
-        for name in ("sigma_cells", "front_rx", "front_ry", "side_rx", "side_ry"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0):
-                raise ValueError(f"{name} must be a finite number >= 0, got {value}")
-        if not (math.isfinite(self.max_dist) and self.max_dist > 0):
-            raise ValueError(f"max_dist must be a finite number > 0, got {self.max_dist}")
+        check_numbers({k: getattr(self, k) for k in ("sigma_cells", "front_rx", "front_ry", "side_rx", "side_ry")})
+        check_number("max_dist", self.max_dist, strict=True)
         if len(self.views_per_scene) != 2:  # view_counts reads two numbers: one failed the plan, a third was ignored
             raise ValueError(f"views_per_scene must be (front, side), got {tuple(self.views_per_scene)}")
-        if min(self.views_per_scene) < 0:
-            raise ValueError(f"views_per_scene must be >= 0, got {self.views_per_scene}")
-        if self.min_views < 0:
-            raise ValueError(f"min_views must be >= 0, got {self.min_views}")
+        for side, n in zip(("front", "side"), self.views_per_scene, strict=True):
+            check_integer(f"views_per_scene ({side})", n, 0)
+        check_integer("min_views", self.min_views, 0)
         if not self.use_paper_view_counts and sum(self.views_per_scene) == 0 and self.min_views == 0:
             # every scene would be built and rolled out, and no DataModule could read a view of it
             raise ValueError("views_per_scene: at least one front or side view per scene, got (0, 0)")
         # rendering and rollout sizes: a bad one would otherwise fail each scene only after its annotation
         for name in ("image_size", "max_points", "picture_size", "max_tries_per_view"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
-        if self.max_candidates is not None and self.max_candidates < 1:
-            raise ValueError(f"max_candidates must be >= 1 (None = no cap), got {self.max_candidates}")
-        if not (math.isfinite(self.depth_max) and self.depth_max > 0):
-            raise ValueError(f"depth_max must be a finite number > 0, got {self.depth_max}")
+            check_integer(name, getattr(self, name), 1)
+        check_integer("max_candidates", self.max_candidates, 1, none_means="no cap")
+        check_number("depth_max", self.depth_max, strict=True)
         return self
 
 
