@@ -243,7 +243,12 @@ def test_ckpt_best_with_a_truncated_last_ckpt_names_it(width16_run, tmp_path, ro
 @pytest.mark.parametrize(
     ("command", "config", "flags", "expected"),
     [
-        ("fit", DATA, ["--model.init_args.train.lr", "-1"], "model (TinyPointNetModule): train.lr must be > 0"),
+        (
+            "fit",
+            DATA,
+            ["--model.init_args.train.lr", "-1"],
+            "model (TinyPointNetModule): train.lr must be a finite number > 0",
+        ),
         (
             "fit",
             "configs/data/floaff_tiny.yaml",  # the task names are checked before any data is read
@@ -299,7 +304,8 @@ def test_init_error_exits_2_at_the_console_and_a_bug_keeps_its_traceback(tmp_pat
     monkeypatch.chdir(root)
     args = ["fit", "--config", DATA, "--config", MODEL, *quiet_trainer_args(tmp_path)]
     rc, lines = _console(monkeypatch, capsys, [*args, "--model.init_args.train.lr", "-1"])
-    assert rc == 2 and lines[-1] == "floaff-zoo: error: model (TinyPointNetModule): train.lr must be > 0, got -1.0"
+    expected = "floaff-zoo: error: model (TinyPointNetModule): train.lr must be a finite number > 0, got -1.0"
+    assert rc == 2 and lines[-1] == expected
 
     def bug(self):
         raise TypeError("a bug, not a configuration error")
@@ -320,7 +326,7 @@ def test_init_error_stays_one_line_when_jsonargparse_does_not_show_the_part(tmp_
     args = ["fit", "--config", DATA, "--config", MODEL, *quiet_trainer_args(tmp_path)]
     with pytest.raises(CLIError) as info:
         main([*args, "--model.init_args.train.lr", "-1"])
-    assert str(info.value) == "train.lr must be > 0, got -1.0"
+    assert str(info.value) == "train.lr must be a finite number > 0, got -1.0"
 
 
 @pytest.mark.parametrize(
@@ -438,7 +444,7 @@ def test_a_seed_out_of_range_and_an_infinite_rate_are_named(tmp_path, root, monk
     monkeypatch.chdir(root)
     with pytest.raises(CLIError, match=r"seed_everything: -1 is not a seed"):
         main(_fit(tmp_path, "--seed_everything", "-1"))
-    with pytest.raises(CLIError, match=r"model \(TinyPointNetModule\): train\.lr must be finite, got inf"):
+    with pytest.raises(CLIError, match=r"model \(TinyPointNetModule\): train\.lr must be a finite number > 0, got inf"):
         main(_fit(tmp_path, "--model.init_args.train.lr", ".inf"))
 
 

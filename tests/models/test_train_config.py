@@ -99,7 +99,10 @@ def test_train_defaults_are_per_model_and_partial_dicts_keep_them():
     ("train", "match"),
     [
         ({"lrr": 0.1}, r"TinyPointNetModule: train has no field\(s\) \['lrr'\]"),
-        ({"lr": 0.0}, "train.lr must be > 0"),
+        ({"lr": 0.0}, "train.lr must be a finite number > 0, got 0.0"),
+        ({"lr": True}, "train.lr must be a finite number > 0, got True"),  # trained at lr 1
+        ({"weight_decay": "0.1"}, r"train.weight_decay must be a finite number >= 0, got '0.1'"),  # a TypeError
+        ({"sdl_beta": None}, "train.sdl_beta must be a finite number >= 0, got None"),  # a TypeError
         ({"optimizer": "sgd"}, "train.optimizer: 'sgd' is not one of"),
         ({"loss": "bce"}, "train.loss: 'bce' is not one of"),
         ({"rank_weight": -0.5}, "train.rank_weight must be a finite number >= 0"),

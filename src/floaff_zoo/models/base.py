@@ -108,13 +108,9 @@ class TrainConfig:
             choices = typing.get_args(hint) if typing.get_origin(hint) is Literal else ()
             if choices and getattr(self, name) not in choices:
                 raise ValueError(f"train.{name}: {getattr(self, name)!r} is not one of {list(choices)}")
-        if not self.lr > 0:
-            raise ValueError(f"train.lr must be > 0, got {self.lr}")
-        if not self.weight_decay >= 0:
-            raise ValueError(f"train.weight_decay must be >= 0, got {self.weight_decay}")
-        for name in ("lr", "weight_decay"):  # inf passed the bounds, and every step's loss was then NaN
-            if not math.isfinite(getattr(self, name)):
-                raise ValueError(f"train.{name} must be finite, got {getattr(self, name)}")
+        # inf passed the bounds, and every step's loss was then NaN
+        checks.check_number("train.lr", self.lr, strict=True)
+        checks.check_number("train.weight_decay", self.weight_decay)
 
 
 @dataclass(frozen=True)
@@ -142,14 +138,8 @@ class FloAffTrainConfig(TrainConfig):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        if not self.sdl_beta >= 0:
-            raise ValueError(f"train.sdl_beta must be >= 0, got {self.sdl_beta}")
-        if not math.isfinite(self.sdl_beta):
-            raise ValueError(f"train.sdl_beta must be finite, got {self.sdl_beta}")
-        if not (math.isfinite(self.rank_weight) and self.rank_weight >= 0):
-            raise ValueError(f"train.rank_weight must be a finite number >= 0, got {self.rank_weight}")
-        if not (math.isfinite(self.rank_temperature) and self.rank_temperature > 0):
-            raise ValueError(f"train.rank_temperature must be a finite number > 0, got {self.rank_temperature}")
+        checks.check_numbers({"train.sdl_beta": self.sdl_beta, "train.rank_weight": self.rank_weight})
+        checks.check_number("train.rank_temperature", self.rank_temperature, strict=True)
 
 
 #: the arguments every model took flat before the ``train`` group (older checkpoints and hub configs)
