@@ -361,3 +361,16 @@ def test_train_and_test_split_files_that_share_a_scene_are_refused(moma_root):
             MisconfigurationException, match=r"kitchen_train\.txt and .*kitchen_test\.txt share 1 scene"
         ):
             _dm(root).setup(stage)
+
+
+@pytest.mark.parametrize("stage", [None, "fit", "test"])
+def test_a_setup_reads_each_split_file_once(moma_root, monkeypatch, stage):
+    """The unseen-scene check read both split files, then indexing read them again: each setup read a file twice."""
+    import floaff_zoo.data.moma_kitchen as mk
+
+    root, _ = moma_root
+    reads = []
+    real = mk.read_split_file
+    monkeypatch.setattr(mk, "read_split_file", lambda p: reads.append(p.name) or real(p))
+    _dm(root).setup(stage)
+    assert sorted(reads) == ["kitchen_test.txt", "kitchen_train.txt"]

@@ -562,7 +562,9 @@ class MoMaKitchenDataModule(FloAffDataModule):
         self.pre_transforms = list(pre_transforms or [])
         self.skips: dict[str, SkipLog] = {}
 
-    def _records(self, split: str, skips: SkipLog) -> list[SampleRecord]:
+    def _split_text(self, split: str) -> str:
+        """The text of ``split``'s split file; MisconfigurationException naming it when it is not a file, not UTF-8
+        text or empty."""
         path = self.split_dir / self.split_files[split]
         if not path.is_file():
             what = "is not a file" if path.exists() else "not found"
@@ -573,21 +575,35 @@ class MoMaKitchenDataModule(FloAffDataModule):
             raise MisconfigurationException(f"MoMaKitchenDataModule: {exc}") from exc
         if not text.strip():
             raise MisconfigurationException(f"MoMaKitchenDataModule: split file {path} is empty")
-        recs = self.reader.index(path, skips, "moma_kitchen", text)
+        return text
+
+    def _split_texts(self) -> dict[str, str]:
+        """Split name -> text of each split file that is usable (:meth:`_split_text`), read once per setup: the
+        unseen-scene check and the indexing share it (each read both files again). A file left out is named by
+        :meth:`_records` when its split is set up."""
+        texts: dict[str, str] = {}
+        for split in self.split_files:
+            try:
+                texts[split] = self._split_text(split)
+            except MisconfigurationException:
+                continue
+        return texts
+
+    def _records(self, split: str, skips: SkipLog, texts: dict[str, str]) -> list[SampleRecord]:
+        """``split``'s records from its text in ``texts`` (:meth:`_split_texts`); a split missing there is read
+        again, for the exception that names its file."""
+        text = texts[split] if split in texts else self._split_text(split)
+        recs = self.reader.index(self.split_dir / self.split_files[split], skips, "moma_kitchen", text)
         return recs[: self.max_samples] if self.max_samples else recs
 
-    def _check_unseen_test(self) -> None:
+    def _check_unseen_test(self, texts: dict[str, str]) -> None:
         """MisconfigurationException naming both files when the train and test split files share a scene: the test
         split holds unseen scenes (docs/background.md), so a shared one tests the model on a kitchen it trained on.
-        Checked only when both files are there and readable (``_records`` names a file that is not)."""
+        Checked only when both files' texts are in ``texts`` (``_records`` names a file that is not)."""
+        if not all(s in texts for s in ("train", "test")):
+            return
         paths = [self.split_dir / self.split_files[s] for s in ("train", "test")]
-        if not all(p.is_file() for p in paths):
-            return
-        try:
-            train, test = (split_scenes(read_split_file(p)) for p in paths)
-        except ValueError:  # not UTF-8 text: named where its split is set up
-            return
-        shared = sorted(train & test)
+        shared = sorted(split_scenes(texts["train"]) & split_scenes(texts["test"]))
         if shared:
             raise MisconfigurationException(
                 f"MoMaKitchenDataModule: {paths[0]} and {paths[1]} share {len(shared)} scene(s) "
@@ -646,7 +662,8 @@ class MoMaKitchenDataModule(FloAffDataModule):
         todo = [s for s in want if s not in self.datasets]
         if not todo:
             return
-        self._check_unseen_test()
+        texts = self._split_texts()
+        self._check_unseen_test(texts)
         if "test" in todo and self.reader.yaw_estimator == "label_centroid":
             rank_zero_warn(
                 "MoMaKitchenDataModule: yaw_estimator label_centroid estimates the test samples' target_yaw from "
@@ -654,19 +671,19 @@ class MoMaKitchenDataModule(FloAffDataModule):
             )
         if ("train" in todo or "val" in todo) and self.val_fraction > 0:
             skips = SkipLog("moma_kitchen train+val", self.strict)
-            tr, va = self._split_val(self._records("train", skips))
+            tr, va = self._split_val(self._records("train", skips, texts))
             self.datasets["train"] = self._dataset("train", tr, skips)
             self.datasets["val"] = self._dataset("val", va, skips)
             self.skips["train"] = self.skips["val"] = skips
             self._report(skips, ["train", "val"])
         elif "train" in todo:
             skips = SkipLog("moma_kitchen train", self.strict)
-            self.datasets["train"] = self._dataset("train", self._records("train", skips), skips)
+            self.datasets["train"] = self._dataset("train", self._records("train", skips, texts), skips)
             self.skips["train"] = skips
             self._report(skips, ["train"])
         if "test" in todo or (self.val_fraction == 0 and "val" in want and "test" not in self.datasets):
             skips = SkipLog("moma_kitchen test", self.strict)
-            self.datasets["test"] = self._dataset("test", self._records("test", skips), skips)
+            self.datasets["test"] = self._dataset("test", self._records("test", skips, texts), skips)
             self.skips["test"] = skips
             self._report(skips, ["test"])
         if self.val_fraction == 0 and "test" in self.datasets:
