@@ -463,6 +463,64 @@ def test_a_dead_worker_fails_only_its_own_slot(tmp_path):
     assert set(status.values()) == {("dropped", 1)} and len(status) == 3
 
 
+def _commit_first_seed(job, out, preset_dict, save_images, status="ok", attempt=0):
+    """A run_job stand-in: commits a bare scene of its slot (the ``attempt``-th seed's id), returns ``status``."""
+    sid = gen._scene_id(gen._spec(job, job.seeds[attempt]))
+    rec = {
+        "format_version": ff.FORMAT_VERSION,
+        "generator_version": gen.GENERATOR_VERSION,
+        "benchmark": job.benchmark,
+        "split": job.split,
+        "slot": job.key,
+        "spec": {},
+        "task": job.task,
+        "target": {},
+        "candidates": {"xy": []},
+        "labels": {"success": [], "label": []},
+        "views": [],
+        "n_views": {"front": 0, "side": 0},
+        "min_views": preset_dict["min_views"],
+        "views_requested": [job.n_front, job.n_side],
+        "views_rejected": {},
+        "status": "ok",
+    }
+    ff.atomic_write_json(ff.scene_dir(out, job.benchmark, sid) / ff.SCENE_JSON, rec)
+    ok = status == "ok"
+    return {"key": job.key, "status": status, "scene_id": sid if ok else None, "attempts": [], "wall_s": 0.0}
+
+
+def test_a_run_reads_each_scene_json_once_where_it_can(tmp_path, monkeypatch):
+    """After each job the driver read every committed scene.json again to find the slot's earlier scenes (a run of n
+    scenes read the first one n + 1 times), and a resumed slot's scene.json was read four times. A scene committed by
+    a job that then failed (a worker that died after the commit) is still found and retired."""
+    import collections
+    import functools
+
+    reads = collections.Counter()
+    real = Path.read_text
+
+    def counted(self, *args, **kw):
+        if self.name == ff.SCENE_JSON and self.is_file():
+            reads[self.parent.name] += 1
+        return real(self, *args, **kw)
+
+    monkeypatch.setattr(Path, "read_text", counted)
+    p = get_preset("tiny", tasks=("CloseDrawer",), n_train=4, n_test=0)
+    man = gen.generate(tmp_path, p, seed=0, workers=0, quiet=True, job_fn=_commit_first_seed)
+    assert man["counts"]["scenes_ok"] == 4
+    assert len(reads) == 4 and set(reads.values()) == {1}  # the check of what the job committed
+    reads.clear()
+    man = gen.generate(tmp_path, p, seed=0, workers=0, quiet=True, job_fn=_commit_first_seed)
+    assert all(s["resumed"] for s in man["scenes"].values())
+    # the start's slot map, the resume's find_done, the resumed scene's checked read
+    assert len(reads) == 4 and set(reads.values()) == {3}
+    topped = dataclasses.replace(p, min_views=1)  # no scene resumes: each slot's job runs again, and fails
+    fail = functools.partial(_commit_first_seed, status="error", attempt=1)
+    man = gen.generate(tmp_path, topped, seed=0, workers=0, quiet=True, job_fn=fail)
+    assert man["counts"]["scenes_failed"] == 4 and not list(ff.iter_scenes(tmp_path))
+    assert {len(s["retired"]) for s in man["scenes"].values()} == {2}
+
+
 def test_ray_backend_without_ray_says_pip_install(tmp_path, monkeypatch):
     monkeypatch.setitem(sys.modules, "ray", None)  # ray is a dev dependency: simulate a user without it
     p = get_preset("tiny", tasks=("CloseDrawer",), n_test=0)

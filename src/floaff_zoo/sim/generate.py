@@ -150,10 +150,9 @@ def find_done(out: Path, job: SceneJob, min_views: int = 0) -> str | None:
     Nor is a scene drawn with another top-up (``min_views`` in its scene.json; a scene written before the field
     existed counts as topped up when it holds at least ``min_views`` views).
     """
-    for s in job.seeds:
-        sid = _scene_id(_spec(job, s))
-        if ff.scene_is_done(out, job.benchmark, sid):
-            rec = ff.read_json(ff.scene_dir(out, job.benchmark, sid) / ff.SCENE_JSON)
+    for sid in _seed_scene_ids(job):
+        rec = _committed_record(out, job.benchmark, sid)
+        if rec is not None:
             if rec.get("slot") != job.key or not same_generator(rec):
                 continue
             if rec.get("views_requested", [job.n_front, job.n_side]) != [job.n_front, job.n_side]:
@@ -167,15 +166,38 @@ def find_done(out: Path, job: SceneJob, min_views: int = 0) -> str | None:
     return None
 
 
-def slot_scenes(out: Path, job: SceneJob) -> list[str]:
+def _seed_scene_ids(job: SceneJob) -> list[str]:
+    """The scene_ids the slot's seed attempts draw, in attempt order: the only scenes a job of it commits."""
+    return [_scene_id(_spec(job, s)) for s in job.seeds]
+
+
+def _committed_record(out: Path, benchmark: str, sid: str) -> dict[str, Any] | None:
+    """The scene.json of a committed scene (one that parses with status "ok", as ``ff.scene_is_done``), read once;
+    None for any other."""
+    try:
+        rec = ff.read_json(ff.scene_dir(out, benchmark, sid) / ff.SCENE_JSON)
+    except ff.FormatError:
+        return None
+    return rec if isinstance(rec, dict) and rec.get("status") == "ok" else None
+
+
+def slot_scenes(out: Path, job: SceneJob, ids: list[str] | None = None) -> list[str]:
     """scene_ids of the committed scenes of this slot (any format or generator version, any kitchen: a scene drawn
     when the slot had another layout or style, by an older generator, is found too), by the slot in their scene.json.
 
     What a rerun that regenerates the slot must move out of the readers' way; found without the previous manifest,
-    which an interrupted rerun leaves without the slot's scene_id.
+    which an interrupted rerun leaves without the slot's scene_id. ``ids``: the scenes of the benchmark to look at
+    (default every one; a run that read them all at its start passes the slot's scenes then and
+    :func:`_seed_scene_ids`, instead of reading every scene.json again after each job).
     """
-    ids = []
-    for d in committed_scene_dirs(out):
+    if ids is None:
+        dirs = committed_scene_dirs(out)
+    else:
+        dirs = [
+            d for d in (ff.scene_dir(out, job.benchmark, s) for s in sorted(set(ids))) if (d / ff.SCENE_JSON).is_file()
+        ]
+    found = []
+    for d in dirs:
         if d.parent.name != job.benchmark:
             continue
         try:
@@ -183,8 +205,8 @@ def slot_scenes(out: Path, job: SceneJob) -> list[str]:
         except ff.FormatError:
             continue
         if isinstance(rec, dict) and rec.get("slot") == job.key:
-            ids.append(d.name)
-    return ids
+            found.append(d.name)
+    return found
 
 
 def committed_scene_dirs(out: Path) -> list[Path]:
@@ -969,9 +991,11 @@ def _generate(
     stale: list[str] = []
     checked: set[tuple[str, str]] = set()
 
-    def left_out(bench: str, sid: str) -> dict[str, Any]:
-        """The scene.json of a left-out slot's scene, its generator checked once."""
-        rec = ff.read_json(ff.scene_dir(outp, bench, sid) / ff.SCENE_JSON)
+    def left_out(bench: str, sid: str) -> dict[str, Any] | None:
+        """The scene.json of a left-out slot's scene, its generator checked once; None when it is not committed."""
+        rec = _committed_record(outp, bench, sid)
+        if rec is None:
+            return None
         if (bench, sid) not in checked and not same_generator(rec):
             stale.append(f"{bench}/{sid} (generator {rec.get('generator_version') or '1.x'})")
         checked.add((bench, sid))
@@ -979,9 +1003,8 @@ def _generate(
 
     for key, s in sorted((old or {}).get("scenes", {}).items()):
         sid = s.get("scene_id")
-        if key not in manifest["scenes"] and sid and ff.scene_is_done(outp, s["benchmark"], sid):
+        if key not in manifest["scenes"] and sid and left_out(s["benchmark"], sid) is not None:
             manifest["scenes"][key] = {**s, "in_plan": False}
-            left_out(s["benchmark"], sid)
     # and those the previous manifest does not name (a run killed after committing a slot's scene but before
     # recording it, or an interrupted rerun's manifest, written without the id of a scene it was to regenerate): by
     # the slot their scene.json names
@@ -990,10 +1013,8 @@ def _generate(
         if key in planned:  # resumed (its other scenes retired) or regenerated
             continue
         for sid in ids:
-            if not ff.scene_is_done(outp, bench, sid):
-                continue
             rec = left_out(bench, sid)
-            if key not in manifest["scenes"]:
+            if rec is not None and key not in manifest["scenes"]:
                 manifest["scenes"][key] = _left_out_entry(bench, key, sid, rec)
     if stale:  # kept beside this run's scenes, they would mix generator versions in one dataset
         raise ValueError(
@@ -1025,7 +1046,11 @@ def _generate(
         }
         # the slot's earlier scenes are not this run's result, so readers must not see them
         prev = (old or {}).get("scenes", {}).get(job.key, {}).get("scene_id")
-        stale = ({prev} if prev else set()) | set(slot_scenes(outp, job))
+        # the slot's scenes at the start of the run and those its seeds drew since (a worker that died after
+        # committing one), not every scene.json again after each job
+        looked = set(by_slot.get((job.benchmark, job.key), [])) | set(_seed_scene_ids(job))
+        looked.discard(res.get("scene_id"))
+        stale = ({prev} if prev else set()) | set(slot_scenes(outp, job, sorted(looked)))
         stale.discard(res.get("scene_id"))
         retired = [sid for sid in sorted(stale) if ff.retire_scene(outp, job.benchmark, sid) is not None]
         if retired:
