@@ -254,3 +254,77 @@ def test_pointnet2_floor_scores_do_not_depend_on_surplus_scene_centres(train):
     args = (floor, torch.ones(2, 20, dtype=torch.bool), torch.rand(2, 2), torch.rand(2, 3))
     a, b = exact(xyz, feat, mask, *args), more(xyz, feat, mask, *args)
     torch.testing.assert_close(b, a, atol=1e-6, rtol=1e-5)
+
+
+def _floor(n: int = 30) -> tuple[torch.Tensor, torch.Tensor]:
+    torch.manual_seed(2)
+    return torch.cat([torch.rand(2, n, 2) * 0.6, torch.zeros(2, n, 1)], dim=-1), torch.ones(2, n, dtype=torch.bool)
+
+
+def _seed_voting_pair(cls: type, train: bool, n: int) -> tuple[nn.Module, nn.Module]:
+    """A VoteNet- or H3DNet-style net with as many seeds and proposals as a cloud of ``n`` points has distinct
+    points, and a copy with more of both (FPS repeats the first seed, then the first proposal)."""
+    torch.manual_seed(0)
+    extra = {"floor_fp": (8, 8)} if cls.__name__ == "VoteNetNet" else {"fuse_width": 8}
+    exact = cls(
+        1, 2, [n, n, 4], [[0.2], [0.4], [0.8]], [[4], [4], [4]], [[[8]], [[16]], [[16]]], [[16]],
+        num_proposals=n, proposal_radius=0.3, proposal_nsample=4, proposal_width=8, robot_width=8, head_width=8,
+        dropout=0.0, **extra,
+    )  # fmt: skip
+    _randomise_statistics(exact)
+    nn.init.normal_(exact.head.out.weight)  # scores that move with the head's inputs
+    exact.train(train)
+    more = copy.deepcopy(exact)
+    more.backbone.encoder.levels[0].npoint = n + 8
+    more.backbone.encoder.levels[1].npoint = n + 4  # the seed level
+    for agg in more.aggregate if isinstance(more.aggregate, nn.ModuleList) else [more.aggregate]:
+        agg.num_proposals = agg.sa.npoint = n + 5
+    return exact, more
+
+
+@pytest.mark.parametrize("train", [False, True])
+@pytest.mark.parametrize("name", ["VoteNetNet", "H3DNetNet"])
+def test_seed_voting_scores_do_not_depend_on_surplus_seeds_or_proposals(name, train):
+    """A cloud with fewer distinct points than seeds (256 by default) repeats the first seed, and fewer distinct votes
+    than proposals repeat the first proposal: H3DNet's primitive (a softmax-weighted mean over the seeds) counted the
+    first seed's vote once per repeat, the floor's 3-NN from the proposals took a repeated proposal two or three
+    times, and in training the repeats entered the vote and proposal heads' batch statistics."""
+    from floaff_zoo.nn import nets
+
+    n = 12
+    exact, more = _seed_voting_pair(getattr(nets, name), train, n)
+    xyz, feat, mask = _small_cloud(n)
+    floor, fmask = _floor()
+    robot, target = torch.rand(2, 2), torch.rand(2, 3) * 0.6
+    # floor points beside the first proposals (the first one is what FPS repeats), whose 3-NN it would fill
+    _, probe = copy.deepcopy(exact)(xyz, feat, mask, floor, fmask, robot, target)
+    near = probe["proposal_xyz"] if "proposal_xyz" in probe else probe["vote_xyz"][:, 0]
+    floor = torch.cat([floor, near[:, :3].detach() + 0.2], dim=1)
+    fmask = torch.ones(floor.shape[:2], dtype=torch.bool)
+    a, aux_a = exact(xyz, feat, mask, floor, fmask, robot, target)
+    b, aux_b = more(xyz, feat, mask, floor, fmask, robot, target)
+    torch.testing.assert_close(b, a, atol=1e-5, rtol=1e-4)
+    if "primitive_xyz" in aux_a:
+        torch.testing.assert_close(aux_b["primitive_xyz"], aux_a["primitive_xyz"], atol=1e-5, rtol=1e-4)
+    for key, value in _stats(exact).items():
+        torch.testing.assert_close(_stats(more)[key], value, atol=1e-5, rtol=1e-4, msg=key)
+
+
+@pytest.mark.parametrize("train", [False, True])
+def test_n2m_pooled_code_does_not_depend_on_surplus_last_level_centres(train):
+    """N2M pools its last level max ⊕ mean: the mean counted the first centre once per repeat."""
+    from floaff_zoo.nn.nets import N2MNet
+
+    n = 5
+    torch.manual_seed(0)
+    exact = N2MNet(1, [n, n], [[0.3], [0.6]], [[4], [4]], [[[8]], [[16]]], decoder=(16,), dropout=0.0)
+    _randomise_statistics(exact)
+    exact.train(train)
+    more = copy.deepcopy(exact)
+    more.encoder.levels[0].npoint = n + 3
+    more.encoder.levels[1].npoint = n + 2
+    xyz, feat, mask = _small_cloud(n)
+    for got, want in zip(more(xyz, feat, mask), exact(xyz, feat, mask)):
+        torch.testing.assert_close(got, want, atol=1e-5, rtol=1e-4)
+    for key, value in _stats(exact).items():
+        torch.testing.assert_close(_stats(more)[key], value, atol=1e-5, rtol=1e-4, msg=key)

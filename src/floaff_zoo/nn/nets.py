@@ -424,9 +424,12 @@ class VoteModule(nn.Module):
         self.mlp = SharedMLP(channels, [channels, channels])
         self.out = nn.Linear(channels, 3 + channels)
 
-    def forward(self, seed_xyz: Tensor, seed_feat: Tensor) -> tuple[Tensor, Tensor]:
-        """seed_xyz [B,S,3], seed_feat [B,S,C] -> (vote_xyz [B,S,3], vote_feat [B,S,C])."""
-        o = self.out(self.mlp(seed_feat))
+    def forward(self, seed_xyz: Tensor, seed_feat: Tensor, seed_src: Tensor | None = None) -> tuple[Tensor, Tensor]:
+        """seed_xyz [B,S,3], seed_feat [B,S,C] -> (vote_xyz [B,S,3], vote_feat [B,S,C]).
+
+        ``seed_src`` [B,S] (``repeat_sources`` of the seeds, None when none repeats): a repeated seed stays out of
+        the training-mode batch statistics and takes its first occurrence's vote."""
+        o = copy_to_repeats(self.out(self.mlp(seed_feat, kept_centres(seed_src))), seed_src)
         vote_xyz = seed_xyz + o[..., :3].float()
         vote_feat = F.normalize(seed_feat + o[..., 3:], dim=-1)
         return vote_xyz, vote_feat
@@ -446,17 +449,26 @@ class VoteAggregation(nn.Module):
         self.score = nn.Linear(width, 1)
         self.out_channels = width + 1
 
-    def sample(self, vote_xyz: Tensor) -> Tensor:
-        return farthest_point_sample(vote_xyz.detach().float(), None, self.num_proposals)
+    def sample(self, vote_xyz: Tensor, vote_mask: Tensor | None = None) -> Tensor:
+        return farthest_point_sample(vote_xyz.detach().float(), vote_mask, self.num_proposals)
 
-    def forward(self, vote_xyz: Tensor, vote_feat: Tensor, fps_idx: Tensor | None = None) -> tuple[Tensor, Tensor]:
-        """-> (proposal_xyz [B,P,3], proposal features [B,P,width+1] incl. the sigmoid score last)."""
+    def forward(
+        self, vote_xyz: Tensor, vote_feat: Tensor, fps_idx: Tensor | None = None, vote_mask: Tensor | None = None
+    ) -> tuple[Tensor, Tensor, Tensor | None]:
+        """-> (proposal_xyz [B,P,3], proposal features [B,P,width+1] incl. the sigmoid score last, proposal mask
+        [B,P] bool: False on repeated proposals, None when none repeats).
+
+        ``vote_mask`` [B,S] (False on the votes of repeated seeds) keeps those copies out of the proposals' groups,
+        as the encoder keeps repeated centres out of the next level's; fewer distinct votes than proposals repeat
+        the first proposal, which then stays out of the head's batch statistics and of the caller's 3-NN."""
         if fps_idx is None:
-            fps_idx = self.sample(vote_xyz)
-        pxyz, pfeat = self.sa(vote_xyz, vote_feat, None, fps_idx)
-        h = self.head(pfeat)
+            fps_idx = self.sample(vote_xyz, vote_mask)
+        pxyz, pfeat = self.sa(vote_xyz, vote_feat, vote_mask, fps_idx)
+        src = repeat_sources(fps_idx)
+        kept = kept_centres(src)
+        h = copy_to_repeats(self.head(pfeat, kept), src)
         s = torch.sigmoid(self.score(h))
-        return pxyz, torch.cat([h, s.to(h.dtype)], dim=-1)
+        return pxyz, torch.cat([h, s.to(h.dtype)], dim=-1), kept
 
 
 def _proposal_distance(floor_xyz: Tensor, prop_xyz: Tensor) -> Tensor:
@@ -502,11 +514,19 @@ class SeedVotingNet(nn.Module, abc.ABC):
 
     @abc.abstractmethod
     def decode(
-        self, seed_xyz: Tensor, seed_feat: Tensor, floor_xyz: Tensor, floor_mask: Tensor, target_xyz: Tensor
+        self,
+        seed_xyz: Tensor,
+        seed_feat: Tensor,
+        floor_xyz: Tensor,
+        floor_mask: Tensor,
+        target_xyz: Tensor,
+        seed_src: Tensor | None = None,
     ) -> tuple[Tensor, dict[str, Tensor]]:
         """Seeds [B,S,3]/[B,S,C], floor [B,M,3]/[B,M], target [B,3] -> (floor logits [B,M], vote geometry).
 
-        Padded floor points (``floor_mask`` False) stay out of the per-point layers' batch statistics."""
+        Padded floor points (``floor_mask`` False) stay out of the per-point layers' batch statistics.
+        ``seed_src`` [B,S] (``repeat_sources``, None when no seed repeats): a cloud with fewer distinct points than
+        seeds repeats the first seed, which must count once wherever the seeds are a set."""
 
     def forward(
         self,
@@ -521,8 +541,11 @@ class SeedVotingNet(nn.Module, abc.ABC):
     ) -> tuple[Tensor, dict[str, Tensor]]:
         """Scene [B,N,3]/[B,N,C]/[B,N], floor [B,M,3]/[B,M], robot [B,R], target [B,3] ->
         (scores [B,M] in [0,1], aux {seed_xyz [B,S,3], + the subclass's vote geometry})."""
+        if fps is None:
+            fps = self.sample(scene_xyz, scene_mask)
         seed_xyz, seed_feat, _ = self.backbone(scene_xyz, scene_feat, scene_mask, robot, fps)
-        logits, aux = self.decode(seed_xyz, seed_feat, floor_xyz, floor_mask, target_xyz)
+        seed_src = repeat_sources(fps[self.backbone.stop_level - 1])
+        logits, aux = self.decode(seed_xyz, seed_feat, floor_xyz, floor_mask, target_xyz, seed_src)
         return torch.sigmoid(logits.float()), {"seed_xyz": seed_xyz, **aux}
 
 
@@ -560,13 +583,19 @@ class VoteNetNet(SeedVotingNet):
         self.head = PerPointHead(self.floor_fp.out_channels, head_width, dropout)
 
     def decode(
-        self, seed_xyz: Tensor, seed_feat: Tensor, floor_xyz: Tensor, floor_mask: Tensor, target_xyz: Tensor
+        self,
+        seed_xyz: Tensor,
+        seed_feat: Tensor,
+        floor_xyz: Tensor,
+        floor_mask: Tensor,
+        target_xyz: Tensor,
+        seed_src: Tensor | None = None,
     ) -> tuple[Tensor, dict[str, Tensor]]:
         """-> (floor logits [B,M], {vote_xyz [B,S,3], proposal_xyz [B,P,3]})."""
-        vote_xyz, vote_feat = self.vote(seed_xyz, seed_feat)
-        pxyz, pfeat = self.aggregate(vote_xyz, vote_feat)
+        vote_xyz, vote_feat = self.vote(seed_xyz, seed_feat, seed_src)
+        pxyz, pfeat, pkept = self.aggregate(vote_xyz, vote_feat, vote_mask=kept_centres(seed_src))
         skip = torch.cat([floor_local_features(floor_xyz, target_xyz), _proposal_distance(floor_xyz, pxyz)], dim=-1)
-        h = self.floor_fp(floor_xyz, pxyz, skip, pfeat, mask_dense=floor_mask)
+        h = self.floor_fp(floor_xyz, pxyz, skip, pfeat, mask_sparse=pkept, mask_dense=floor_mask)
         return self.head(h, floor_mask), {"vote_xyz": vote_xyz, "proposal_xyz": pxyz}
 
 
@@ -632,17 +661,27 @@ class H3DNetNet(SeedVotingNet):
         self.head = PerPointHead(fuse_width, head_width, dropout)
 
     def decode(
-        self, seed_xyz: Tensor, seed_feat: Tensor, floor_xyz: Tensor, floor_mask: Tensor, target_xyz: Tensor
+        self,
+        seed_xyz: Tensor,
+        seed_feat: Tensor,
+        floor_xyz: Tensor,
+        floor_mask: Tensor,
+        target_xyz: Tensor,
+        seed_src: Tensor | None = None,
     ) -> tuple[Tensor, dict[str, Tensor]]:
         """-> (floor logits [B,M], {vote_xyz [B,4,S,3], primitive_xyz [B,4,3]})."""
         parts = [floor_local_features(floor_xyz, target_xyz)]
         votes, prims = [], []
+        kept = kept_centres(seed_src)
         for vote, logit, agg in zip(self.votes, self.seed_logit, self.aggregate):
-            vxyz, vfeat = vote(seed_xyz, seed_feat)
-            w = torch.softmax(logit(seed_feat).float().squeeze(-1), dim=1)  # [B, S]
+            vxyz, vfeat = vote(seed_xyz, seed_feat, seed_src)
+            seed_logit = logit(seed_feat).float().squeeze(-1)  # [B, S]
+            if kept is not None:  # a repeated seed's vote counts once in the primitive's weighted mean
+                seed_logit = seed_logit.masked_fill(~kept, float("-inf"))
+            w = torch.softmax(seed_logit, dim=1)
             prim = (w[..., None] * vxyz).sum(dim=1)  # [B, 3]
-            pxyz, pfeat = agg(vxyz, vfeat)
-            f = three_interpolate(floor_xyz, pxyz, pfeat)
+            pxyz, pfeat, pkept = agg(vxyz, vfeat, vote_mask=kept)
+            f = three_interpolate(floor_xyz, pxyz, pfeat, pkept)
             off = floor_xyz[..., :2] - prim[:, None, :2]
             parts += [
                 f,
@@ -733,8 +772,14 @@ class N2MNet(nn.Module):
         self, scene_xyz: Tensor, scene_feat: Tensor, scene_mask: Tensor, fps: list[Tensor | None] | None = None
     ) -> tuple[Tensor, Tensor, Tensor]:
         """-> GMM (means [B,K,3], cov [B,K,3,3], log-weights [B,K])."""
+        if fps is None:
+            fps = self.sample(scene_xyz, scene_mask)
         levels = self.encoder(scene_xyz, scene_feat, scene_mask, fps)
         f = levels[-1][1]
-        code = torch.cat([f.amax(dim=1), f.mean(dim=1)], dim=-1)
+        kept = self.encoder.centre_masks(fps)[-1]
+        # a repeated centre (a cloud with fewer distinct points than the last level's) counts once in the mean; the
+        # max is the same either way (a repeat copies its first occurrence's row)
+        mean = f.mean(dim=1) if kept is None else (f * kept[..., None]).sum(dim=1) / kept.sum(dim=1, keepdim=True)
+        code = torch.cat([f.amax(dim=1), mean], dim=-1)
         code = self.drop(self.act(self.decoder(code)))
         return self.gmm(code)
