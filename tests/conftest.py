@@ -8,8 +8,6 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 # a local Ray cluster binds to loopback only (tests never use the network)
 os.environ.setdefault("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "0")
 
-import importlib.util  # noqa: E402
-import sys  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import pytest  # noqa: E402
@@ -63,16 +61,3 @@ def block_first_footprint(batch: dict, n: int = 10) -> dict:
     blocked["scene_mask"] = batch["scene_mask"].clone()
     blocked["scene_mask"][0, :n] = True
     return blocked
-
-
-def load_benchmark(name: str):
-    """The module of ``benchmarks/<name>.py``, loaded with its folder on the path (for its ``bench_models`` import)."""
-    folder = ROOT / "benchmarks"
-    sys.path.insert(0, str(folder))
-    try:
-        spec = importlib.util.spec_from_file_location(name, folder / f"{name}.py")
-        mod = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(mod)
-        return mod
-    finally:
-        sys.path.remove(str(folder))

@@ -6,7 +6,7 @@ import re
 
 import pytest
 
-from tests.conftest import load_benchmark
+from tests._scripts import load_benchmark
 
 
 def test_the_loader_benchmark_parses_cold_every_run_and_counts_every_split(tmp_path, capsys):
@@ -30,14 +30,14 @@ def test_the_loader_benchmarks_cold_setup_times_no_first_import(tmp_path):
     import subprocess
     import sys
 
-    from tests.conftest import ROOT
+    from tests._scripts import ROOT
 
     root = tmp_path / "moma"
     load_benchmark("bench_loader").write_moma_like(root, 4)
     driver = f"""
 import json, sys
-sys.path.insert(0, {str(ROOT / "benchmarks")!r})
-import bench_loader
+from tests._scripts import load_benchmark
+bench_loader = load_benchmark("bench_loader")
 from floaff_zoo.data.moma_kitchen import MoMaKitchenDataModule
 import time, types
 seen, clock = [], []  # at each setup: were the readers' modules imported when the timer last started?

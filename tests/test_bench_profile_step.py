@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from tests.conftest import load_benchmark
+from tests._scripts import load_benchmark
 
 
 def _load():

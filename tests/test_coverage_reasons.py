@@ -1,6 +1,5 @@
 """scripts/coverage_reasons.py: free cells binned by how much of their footprint the view shows, on a handmade scene."""
 
-import importlib.util
 import json
 import math
 from pathlib import Path
@@ -9,12 +8,9 @@ import numpy as np
 import pytest
 
 from floaff_zoo.sim import fileformat as ff
+from tests._scripts import load_script
 
-_SPEC = importlib.util.spec_from_file_location(
-    "coverage_reasons", Path(__file__).resolve().parents[1] / "scripts" / "coverage_reasons.py"
-)
-cr = importlib.util.module_from_spec(_SPEC)
-_SPEC.loader.exec_module(cr)
+cr = load_script("coverage_reasons")
 
 
 def _scene(root: Path, cloud: np.ndarray) -> Path:

@@ -1,17 +1,12 @@
 """scripts/cv_sr.py: leave-one-layout-out folds of scene_sr.py pooled into one validation table."""
 
-import importlib.util
 import json
-import sys
-from pathlib import Path
 
 import pytest
 
-_SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
-sys.path.insert(0, str(_SCRIPTS))  # cv_sr imports its neighbour scene_sr
-_SPEC = importlib.util.spec_from_file_location("cv_sr", _SCRIPTS / "cv_sr.py")
-cv = importlib.util.module_from_spec(_SPEC)
-_SPEC.loader.exec_module(cv)
+from tests._scripts import load_script
+
+cv = load_script("cv_sr")
 
 
 def fold(layout, name, srs, split="val", bench="layouts"):

@@ -1,22 +1,12 @@
 """scripts/episodes_sr.py: per-scene SR from `floaff-zoo test` episode files, in scene_sr's scene table."""
 
-import importlib.util
 import json
-from pathlib import Path
 
 import pytest
 
-_DIR = Path(__file__).resolve().parents[1] / "scripts"
+from tests._scripts import load_script
 
-
-def _load(name: str):
-    spec = importlib.util.spec_from_file_location(name, _DIR / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-es = _load("episodes_sr")
+es = load_script("episodes_sr")
 
 
 def _episodes(wins: dict[str, list[bool]]) -> list[dict]:
@@ -41,7 +31,7 @@ def test_scene_table_counts_each_views_success(tmp_path, capsys):
     printed = capsys.readouterr().out
     assert "map: SR_all 0.500 over 6 views of 2 scenes" in printed and "own: SR_all 0.500" in printed
     # the table is what protocol_change.py reads (one name per file there)
-    pc = _load("protocol_change")
+    pc = load_script("protocol_change")
     for name, src in (("x.json", a), ("y.json", b)):
         assert es.main([f"m={src}", "--json", str(tmp_path / name)]) == 0
     res = pc.changes(pc.load(str(tmp_path / "x.json")), pc.load(str(tmp_path / "y.json")), draws=20, seed=0)

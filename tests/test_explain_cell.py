@@ -1,6 +1,5 @@
 """scripts/explain_cell.py: a cell's verdict checked again filter by filter, and a rollout of a feasible cell."""
 
-import importlib.util
 import json
 from pathlib import Path
 
@@ -10,12 +9,9 @@ import pytest
 from floaff_zoo.sim.annotate import candidate_grid
 from floaff_zoo.sim.kitchen import SceneSpec, build_scene
 from floaff_zoo.sim.rollout import heading_to_target, pose_filter
+from tests._scripts import load_script
 
-_SPEC = importlib.util.spec_from_file_location(
-    "explain_cell", Path(__file__).resolve().parents[1] / "scripts" / "explain_cell.py"
-)
-ec = importlib.util.module_from_spec(_SPEC)
-_SPEC.loader.exec_module(ec)
+ec = load_script("explain_cell")
 
 
 @pytest.fixture(scope="module")

@@ -1,19 +1,14 @@
 """scripts/fixed_cell_ceiling.py: the ranking rule, the target-frame cells, and reading a dataset in the format."""
 
-import importlib.util
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from floaff_zoo.sim import fileformat as ff
+from tests._scripts import load_script
 
-_SPEC = importlib.util.spec_from_file_location(
-    "fixed_cell_ceiling", Path(__file__).resolve().parents[1] / "scripts" / "fixed_cell_ceiling.py"
-)
-fcc = importlib.util.module_from_spec(_SPEC)
-_SPEC.loader.exec_module(fcc)
+fcc = load_script("fixed_cell_ceiling")
 
 A, B, C = (5, 0), (6, 0), (4, 1)
 

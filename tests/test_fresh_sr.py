@@ -1,8 +1,6 @@
 """scripts/fresh_sr.py: fresh-episode success probabilities of the candidate cells, and the SR of chosen cells."""
 
-import importlib.util
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,12 +9,9 @@ pytest.importorskip("mujoco")
 gen = pytest.importorskip("floaff_zoo.sim.generate")
 from floaff_zoo.sim import fileformat as ff  # noqa: E402
 from floaff_zoo.sim.presets import get_preset  # noqa: E402
+from tests._scripts import load_script  # noqa: E402
 
-_SPEC = importlib.util.spec_from_file_location(
-    "fresh_sr", Path(__file__).resolve().parents[1] / "scripts" / "fresh_sr.py"
-)
-fs = importlib.util.module_from_spec(_SPEC)
-_SPEC.loader.exec_module(fs)
+fs = load_script("fresh_sr")
 
 
 @pytest.fixture(scope="module")
@@ -110,11 +105,7 @@ def test_cli_names_bad_arguments_and_a_corrupt_cache(drawer_root, tmp_path):
 
 def test_fresh_labels_train_the_datamodule_and_val_split_scores(drawer_root, tmp_path):
     """scripts/fresh_labels.py labels every train scene; the DataModule trains on them; fresh_sr scores val."""
-    spec = importlib.util.spec_from_file_location(
-        "fresh_labels", Path(__file__).resolve().parents[1] / "scripts" / "fresh_labels.py"
-    )
-    fl = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(fl)
+    fl = load_script("fresh_labels")
     from floaff_zoo.data.floaff_kitchen import FloAffKitchenDataModule
     from floaff_zoo.data.scene_labels import read_scene_labels
 
@@ -151,11 +142,7 @@ def test_fresh_labels_train_the_datamodule_and_val_split_scores(drawer_root, tmp
 
 def test_fresh_labels_without_episodes_zero_the_failed_cells(drawer_root, tmp_path):
     """--episodes 0 gives back the generated labels (no rollout); --zero-failures keeps them on successes only."""
-    spec = importlib.util.spec_from_file_location(
-        "fresh_labels", Path(__file__).resolve().parents[1] / "scripts" / "fresh_labels.py"
-    )
-    fl = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(fl)
+    fl = load_script("fresh_labels")
     from floaff_zoo.data.scene_labels import read_scene_labels
 
     base = ["--root", str(drawer_root), "--benchmark", "styles", "--episodes", "0", "--probs", str(tmp_path / "p.npz")]
@@ -266,15 +253,6 @@ def test_the_label_oracle_stands_on_its_argmax_under_top_k(drawer_root):
         assert [r["label"] for r in topk] == [r["label"] for r in top1]
 
 
-def _load_fresh_labels():
-    spec = importlib.util.spec_from_file_location(
-        "fresh_labels", Path(__file__).resolve().parents[1] / "scripts" / "fresh_labels.py"
-    )
-    fl = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(fl)
-    return fl
-
-
 def _hole_scene(task: str = "CloseDrawer") -> dict:
     """A 3 x 3 scene whose centre the IK pre-filter refused amid 8 successes: the smoothed map (labels.label) peaks
     on that filtered cell, which every per-cell label (labels.cell_label) sets to 0."""
@@ -305,7 +283,7 @@ def test_fresh_labels_summary_compares_peaks_with_the_generated_per_cell_labels(
     """The 'same peak cell' summary took the generated peak from labels.label, the map before filtered cells are
     zeroed: with --episodes 0, whose labels equal the generated ones, it printed 0.00 for a scene whose map peaked on
     a filtered cell."""
-    fl = _load_fresh_labels()
+    fl = load_script("fresh_labels")
     scene = _hole_scene()
     assert int(np.argmax(scene["labels"]["label"])) == 4  # the smoothed map peaks on the filtered centre
     monkeypatch.setattr(ff, "iter_scenes", lambda root, benchmark=None, split=None: iter([scene]))

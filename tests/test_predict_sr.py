@@ -1,16 +1,12 @@
 """scripts/predict_sr.py: SR of the predict API's default floor vs the dataset's floor points, on test views."""
 
-import importlib.util
 import re
-from pathlib import Path
 
 import pytest
 
-_SPEC = importlib.util.spec_from_file_location(
-    "predict_sr", Path(__file__).resolve().parents[1] / "scripts" / "predict_sr.py"
-)
-ps = importlib.util.module_from_spec(_SPEC)
-_SPEC.loader.exec_module(ps)
+from tests._scripts import load_script
+
+ps = load_script("predict_sr")
 
 
 def test_a_benchmark_without_test_scenes_exits_naming_it(tmp_path, monkeypatch):

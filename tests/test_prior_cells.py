@@ -1,16 +1,11 @@
 """scripts/prior_cells.py: the prior filled from label-lattice views, scored with and without a small yaw error."""
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
 import pytest
 
-_SPEC = importlib.util.spec_from_file_location(
-    "prior_cells", Path(__file__).resolve().parents[1] / "scripts" / "prior_cells.py"
-)
-pc = importlib.util.module_from_spec(_SPEC)
-_SPEC.loader.exec_module(pc)
+from tests._scripts import load_script
+
+pc = load_script("prior_cells")
 
 
 def _views(split: str, n: int) -> list:

@@ -1,15 +1,12 @@
 """scripts/protocol_change.py: SR changes between two scene_sr outputs, with paired scene-bootstrap intervals."""
 
-import importlib.util
 import json
-from pathlib import Path
 
 import pytest
 
-_PATH = Path(__file__).resolve().parents[1] / "scripts" / "protocol_change.py"
-_SPEC = importlib.util.spec_from_file_location("protocol_change", _PATH)
-pc = importlib.util.module_from_spec(_SPEC)
-_SPEC.loader.exec_module(pc)
+from tests._scripts import ROOT, load_script
+
+pc = load_script("protocol_change")
 
 
 def _scenes(sr: dict[str, list[float]]) -> dict:
@@ -69,10 +66,9 @@ def test_a_json_write_that_fails_leaves_the_old_file_whole(tmp_path):
     out = tmp_path / "out.json"
     out.write_text('{"old": true}\n')
     driver = f"""
-import importlib.util, resource, signal
-spec = importlib.util.spec_from_file_location("protocol_change", {str(_PATH)!r})
-pc = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(pc)
+import resource, signal
+from tests._scripts import load_script
+pc = load_script("protocol_change")
 signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # a write past the limit fails with EFBIG instead of killing
 resource.setrlimit(resource.RLIMIT_FSIZE, (256, 256))
 try:
@@ -80,7 +76,7 @@ try:
 except OSError as exc:
     print("write failed", exc.errno)
 """
-    proc = subprocess.run([sys.executable, "-c", driver], capture_output=True, text=True)
+    proc = subprocess.run([sys.executable, "-c", driver], capture_output=True, text=True, cwd=ROOT)
     assert "write failed" in proc.stdout, proc.stderr[-2000:]
     assert out.read_text() == '{"old": true}\n'
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.json", "b.json", "out.json"]  # no temp file left

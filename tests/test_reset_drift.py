@@ -1,18 +1,14 @@
 """scripts/reset_drift.py: a scene's doors stay where the reset put them (the corner-layout defect of generator 2.2)."""
 
-import importlib.util
 import json
 from pathlib import Path
 
 import pytest
 
 from floaff_zoo.sim import fileformat as ff
+from tests._scripts import load_script
 
-_SPEC = importlib.util.spec_from_file_location(
-    "reset_drift", Path(__file__).resolve().parents[1] / "scripts" / "reset_drift.py"
-)
-rd = importlib.util.module_from_spec(_SPEC)
-_SPEC.loader.exec_module(rd)
+rd = load_script("reset_drift")
 
 
 def _scene_json(root: Path, name: str, spec: dict) -> None:
@@ -61,8 +57,7 @@ def test_runs_with_a_simulator_from_before_hold_still(tmp_path, monkeypatch, cap
     import floaff_zoo.sim.rollout as rollout
 
     monkeypatch.delattr(rollout, "hold_still")
-    old = importlib.util.module_from_spec(_SPEC)
-    _SPEC.loader.exec_module(old)
+    old = load_script("reset_drift")
     spec = {"layout_id": 5, "style_id": 3, "seed": 1443886777, "task": "CloseDoubleDoor"}
     _scene_json(tmp_path, "L5_S3_s1443886777_CloseDoubleDoor", spec)
     assert old.main(["--root", str(tmp_path), "--seconds", "0.5"]) == 0

@@ -2,14 +2,11 @@
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import pytest
 
-_SPEC = importlib.util.spec_from_file_location("run_all", Path(__file__).parents[1] / "benchmarks" / "run_all.py")
-run_all = importlib.util.module_from_spec(_SPEC)
-_SPEC.loader.exec_module(run_all)
+from tests._scripts import ROOT, load_benchmark
+
+run_all = load_benchmark("run_all")
 
 
 def test_merge_replaces_same_titles_and_inserts_new_sections_before_the_reading():
@@ -44,10 +41,9 @@ def test_a_report_write_that_fails_leaves_the_old_report_whole(tmp_path):
     old = "# Performance\n\nold head\n\n## Reading (by hand)\n\nmine\n"
     out.write_text(old)
     driver = f"""
-import importlib.util, resource, signal, subprocess
-spec = importlib.util.spec_from_file_location("run_all", {str(Path(run_all.__file__))!r})
-run_all = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(run_all)
+import resource, signal, subprocess
+from tests._scripts import load_benchmark
+run_all = load_benchmark("run_all")
 run_all.subprocess.run = lambda cmd, **kw: subprocess.CompletedProcess(cmd, 0, stdout="x" * 100000, stderr="")
 signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # a write past the limit fails with EFBIG instead of killing
 resource.setrlimit(resource.RLIMIT_FSIZE, (4096, 4096))
@@ -56,7 +52,7 @@ try:
 except OSError as exc:
     print("write failed", exc.errno)
 """
-    proc = subprocess.run([sys.executable, "-c", driver], capture_output=True, text=True)
+    proc = subprocess.run([sys.executable, "-c", driver], capture_output=True, text=True, cwd=ROOT)
     assert "write failed" in proc.stdout, proc.stderr[-2000:]
     assert out.read_text() == old
     assert sorted(p.name for p in tmp_path.iterdir()) == ["perf.md"]  # no temp file left either

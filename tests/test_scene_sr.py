@@ -1,18 +1,12 @@
 """scripts/scene_sr.py: runs pooled per name, SR per scene, and the scene bootstrap's paired differences."""
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 import torch
 
-_SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
-sys.path.insert(0, str(_SCRIPTS))  # scene_sr imports its neighbour fresh_sr
-_SPEC = importlib.util.spec_from_file_location("scene_sr", _SCRIPTS / "scene_sr.py")
-ssr = importlib.util.module_from_spec(_SPEC)
-_SPEC.loader.exec_module(ssr)
+from tests._scripts import load_script
+
+ssr = load_script("scene_sr")
 
 
 def test_parse_models_pools_runs_under_one_name():

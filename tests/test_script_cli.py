@@ -1,17 +1,14 @@
 """scripts/script_cli.py: the research scripts end on bad input with one line and exit code 2, on a bug with its
 traceback."""
 
-import importlib.util
 import subprocess
 import sys
-from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
-_SPEC = importlib.util.spec_from_file_location("script_cli", ROOT / "scripts" / "script_cli.py")
-sc = importlib.util.module_from_spec(_SPEC)
-_SPEC.loader.exec_module(sc)
+from tests._scripts import ROOT, load_script
+
+sc = load_script("script_cli")
 
 
 def test_bad_input_is_one_line_and_a_bug_keeps_its_traceback(capsys):

@@ -1,16 +1,13 @@
 """scripts/target_inputs.py: the floor queries' lattice angle and the target point's estimates."""
 
-import importlib.util
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-_PATH = Path(__file__).resolve().parents[1] / "scripts" / "target_inputs.py"
-_SPEC = importlib.util.spec_from_file_location("target_inputs", _PATH)
-ti = importlib.util.module_from_spec(_SPEC)
-_SPEC.loader.exec_module(ti)
+from tests._scripts import load_script
+
+ti = load_script("target_inputs")
 
 
 @pytest.mark.parametrize("deg", [0.0, 17.0, 63.0, 100.0, -30.0])

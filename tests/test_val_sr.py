@@ -1,15 +1,14 @@
 """scripts/val_sr.py: rollout SR of several models on the validation scenes."""
 
-import importlib.util
 import re
 from pathlib import Path
 
 import pytest
 import torch
 
-_SPEC = importlib.util.spec_from_file_location("val_sr", Path(__file__).resolve().parents[1] / "scripts" / "val_sr.py")
-vs = importlib.util.module_from_spec(_SPEC)
-_SPEC.loader.exec_module(vs)
+from tests._scripts import load_script
+
+vs = load_script("val_sr")
 
 
 def axisnet_ckpt(path: Path) -> Path:

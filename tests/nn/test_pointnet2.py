@@ -2,24 +2,12 @@
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import pytest
 import torch
 
 from floaff_zoo.nn import ops
 from floaff_zoo.nn.pointnet2 import PointNet2Encoder, PointNet2Seg, SetAbstraction
-
-_REF = Path(__file__).resolve().parents[2] / "benchmarks" / "reference_pointnet2.py"
-
-
-def _load_ref():
-    spec = importlib.util.spec_from_file_location("reference_pointnet2", _REF)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
+from tests._scripts import load_benchmark
 
 SSG = dict(
     in_channels=1,
@@ -46,7 +34,7 @@ MSG = dict(
 @pytest.mark.parametrize("cfg", [SSG, MSG], ids=["ssg", "msg"])
 @pytest.mark.parametrize("train", [True, False], ids=["train", "eval"])
 def test_matches_reference_port(cfg, train):
-    ref_mod = _load_ref()
+    ref_mod = load_benchmark("reference_pointnet2")
     torch.manual_seed(0)
     ref = ref_mod.RefPointNet2Seg(**cfg)
     ours = PointNet2Seg(**cfg)
@@ -74,7 +62,7 @@ def test_matches_reference_port(cfg, train):
 
 
 def test_ball_query_same_as_reference_sort():
-    ref_mod = _load_ref()
+    ref_mod = load_benchmark("reference_pointnet2")
     xyz = torch.rand(2, 300, 3)
     centres = xyz[:, :40]
     assert torch.equal(ops.ball_query(0.2, 16, xyz, centres), ref_mod.query_ball_point(0.2, 16, xyz, centres))
@@ -131,7 +119,7 @@ def test_training_gradients_match_reference_port(cfg):
     In float64: max pooling routes each gradient to one winner, so float32 rounding (which differs
     between any two implementations) can flip a near-tie and move a weight gradient by a percent.
     """
-    ref_mod = _load_ref()
+    ref_mod = load_benchmark("reference_pointnet2")
     torch.manual_seed(0)
     ref = ref_mod.RefPointNet2Seg(**cfg)
     ours = PointNet2Seg(**cfg)
@@ -224,7 +212,7 @@ def test_reference_ops_run_a_zoo_model_with_the_same_outputs_and_restore():
     from floaff_zoo.data.synthetic import make_synthetic_sample
     from floaff_zoo.models.pointnet2 import PointNet2Module
 
-    ref_mod = _load_ref()
+    ref_mod = load_benchmark("reference_pointnet2")
     torch.manual_seed(0)
     model = PointNet2Module(
         npoints=[64, 16], radii=[[0.4], [0.8]], nsamples=[[8], [8]], mlps=[[[8, 16]], [[16, 32]]], fp_mlps=[[32], [16]]
