@@ -469,11 +469,39 @@ def test_neighbour_searches_refuse_queries_or_masks_of_another_batch(monkeypatch
         ops.three_interpolate(xyz[:, :2], xyz, torch.rand(2, 6, 1), torch.ones(2, 3, dtype=torch.bool))
 
 
-def test_fps_backend_names_the_torch_loop_on_the_portable_path(monkeypatch):
-    """Under FLOAFF_ZOO_CPU_PATHS=portable farthest_point_sample runs the torch loop, but fps_backend (printed by the
-    benchmarks beside their timings) still said ``cpp`` wherever the kernel built."""
-    monkeypatch.setenv(ops.CPU_PATHS_ENV, "portable")
-    monkeypatch.setattr(_fps_ext, "load_kernel", lambda: object())  # a kernel that would be taken on the fast path
-    assert ops.fps_backend("cpu") == "torch"
-    monkeypatch.setenv(ops.CPU_PATHS_ENV, "fast")
-    assert ops.fps_backend("cpu") == "cpp"
+#: the torch loop itself, for the stand-in kernel below (the tests replace ``ops.farthest_point_sample_torch``)
+_TORCH_FPS = ops.farthest_point_sample_torch
+
+
+class _CountingKernel:
+    """Stands in for the built C++ kernel: counts its FPS calls and answers with the torch loop's indices."""
+
+    def __init__(self) -> None:
+        self.calls = 0
+
+    def fps_forward(self, xyz: torch.Tensor, mask: torch.Tensor, npoint: int) -> torch.Tensor:
+        self.calls += 1
+        return _TORCH_FPS(xyz, mask, npoint)
+
+
+@pytest.mark.parametrize(
+    ("want", "built"),  # FLOAFF_ZOO_FPS_BACKEND=cpp without a kernel is an error (test_fps_force_fallback_env)
+    [("auto", True), ("auto", False), ("cpp", True), ("torch", True), ("torch", False)],
+    ids=["auto-kernel", "auto-no_kernel", "cpp-kernel", "torch-kernel", "torch-no_kernel"],
+)
+@pytest.mark.parametrize("paths", ["fast", "portable"])
+def test_fps_backend_names_the_implementation_that_ran(paths, want, built, cloud, monkeypatch):
+    """fps_backend is printed beside the benchmarks' timings: it must name the FPS that farthest_point_sample
+    dispatches to. Under FLOAFF_ZOO_CPU_PATHS=portable the torch loop ran while it said ``cpp``."""
+    monkeypatch.setenv(ops.CPU_PATHS_ENV, paths)
+    monkeypatch.setenv("FLOAFF_ZOO_FPS_BACKEND", want)
+    kernel = _CountingKernel()  # load_kernel hands it out as the built kernel; None with an error: the build failed
+    monkeypatch.setitem(_fps_ext._state, "module", kernel if built else None)
+    monkeypatch.setitem(_fps_ext._state, "error", None if built else "RuntimeError: no compiler")
+    loops = []
+    monkeypatch.setattr(ops, "farthest_point_sample_torch", lambda *a: loops.append(a) or _TORCH_FPS(*a))
+    xyz, mask = cloud
+    assert torch.equal(ops.farthest_point_sample(xyz, mask, 8), _TORCH_FPS(xyz, mask, 8))
+    ran = {"cpp": kernel.calls, "torch": len(loops)}
+    assert sorted(ran.values()) == [0, 1], ran
+    assert ops.fps_backend("cpu") == max(ran, key=ran.get)
