@@ -163,7 +163,7 @@ def markdown(bench_rows: dict[str, list[dict]]) -> str:
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--root", default="data/floaff_dense")
-    p.add_argument("--benchmarks", nargs="+", default=["layouts", "styles"], choices=["layouts", "styles"])
+    p.add_argument("--benchmarks", nargs="+", default=sorted(ff.BENCHMARKS), choices=ff.BENCHMARKS)  # layouts first
     p.add_argument("--json", default=None, help="also write the rows here")
     a = p.parse_args(argv)
     out = {b: ceiling(*read_views(Path(a.root), b)) for b in a.benchmarks}

@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from floaff_zoo.contract import TASKS
+from floaff_zoo.sim.fileformat import BENCHMARKS
 
 
 def scene_label(scene: dict, fresh: np.ndarray, episodes: int, zero_failures: bool = False) -> np.ndarray:
@@ -59,7 +60,7 @@ def generated_label(scene: dict) -> np.ndarray:
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--root", default="data/floaff_dense")
-    p.add_argument("--benchmark", default="layouts", choices=["layouts", "styles"])
+    p.add_argument("--benchmark", default="layouts", choices=BENCHMARKS)
     p.add_argument("--episodes", type=int, default=4, help="fresh episodes per cell (0: the annotated outcome only)")
     p.add_argument("--sigma-xy", type=float, default=0.02, help="parking noise per axis (m)")
     p.add_argument("--sigma-yaw-deg", type=float, default=2.0, help="parking heading noise (deg)")

@@ -45,6 +45,7 @@ from floaff_zoo.callbacks.rollout import check_clouds, choose_pose, cloud_free
 from floaff_zoo.contract import TASKS
 from floaff_zoo.frames import base_to_world
 from floaff_zoo.predict import named_models
+from floaff_zoo.sim.fileformat import BENCHMARKS
 from floaff_zoo.sim.repeat import fresh_probability, perturbed_poses, scene_probabilities, service_runner
 
 __all__ = [
@@ -247,7 +248,7 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("models", nargs="*", help="[NAME=]MODEL: hub name or checkpoint; repeat a NAME to pool runs")
     p.add_argument("--root", default="data/floaff_dense")
-    p.add_argument("--benchmark", default="layouts", choices=["layouts", "styles"])
+    p.add_argument("--benchmark", default="layouts", choices=BENCHMARKS)
     p.add_argument(
         "--split",
         default="test",

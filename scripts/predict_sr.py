@@ -28,7 +28,7 @@ from floaff_zoo.sim.rollout import RolloutService
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--root", required=True)
-    p.add_argument("--benchmark", default="layouts", choices=["layouts", "styles"])
+    p.add_argument("--benchmark", default="layouts", choices=ff.BENCHMARKS)
     p.add_argument("--model", required=True)
     p.add_argument("--cell", type=float, default=0.1, help="grid cell of the model's training data (m)")
     p.add_argument("--json", default=None)

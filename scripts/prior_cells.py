@@ -97,7 +97,7 @@ def success_rates(grid: CanonicalLabelGrid, views: list[View], split: str, noise
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--root", default="data/floaff_dense")
-    p.add_argument("--benchmarks", nargs="+", default=["layouts", "styles"], choices=["layouts", "styles"])
+    p.add_argument("--benchmarks", nargs="+", default=sorted(ff.BENCHMARKS), choices=ff.BENCHMARKS)  # layouts first
     p.add_argument("--noise-deg", type=float, default=0.3)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", default=None)

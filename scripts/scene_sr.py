@@ -78,6 +78,7 @@ from floaff_zoo.callbacks.rollout import check_clouds, choose_pose, cloud_free, 
 from floaff_zoo.contract import TASKS  # noqa: E402
 from floaff_zoo.predict import named_models  # noqa: E402
 from floaff_zoo.sim.annotate import SKIPPED_REASON  # noqa: E402
+from floaff_zoo.sim.fileformat import BENCHMARKS  # noqa: E402
 
 # per view: (task, scene id, {name: [outcome per run]}, {name: [annotation reason of the chosen cell per run]})
 Row = tuple[str, str, dict[str, list[bool]], dict[str, list[str]]]
@@ -363,7 +364,7 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("models", nargs="+", help="NAME=MODEL (hub name or checkpoint); repeat a NAME to pool runs")
     p.add_argument("--root", default="data/floaff_dense")
-    p.add_argument("--benchmark", default="layouts", choices=["layouts", "styles"])
+    p.add_argument("--benchmark", default="layouts", choices=BENCHMARKS)
     p.add_argument("--split", default="test", choices=["test", "val"])
     p.add_argument(
         "--val-layout",

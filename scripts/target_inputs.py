@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from floaff_zoo.atomic import atomic_write_text
+from floaff_zoo.sim.fileformat import BENCHMARKS
 
 BANDS = (0.03, 0.05, 0.10)
 
@@ -72,7 +73,7 @@ def summary(values: list[float]) -> dict[str, float]:
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--root", default="data/floaff_dense")
-    p.add_argument("--benchmark", default="layouts", choices=["layouts", "styles"])
+    p.add_argument("--benchmark", default="layouts", choices=BENCHMARKS)
     p.add_argument("--split", default="test", choices=["train", "test"])
     p.add_argument("--every", type=int, default=1, help="use every n-th view of each scene")
     p.add_argument("--json", default=None)

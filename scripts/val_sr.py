@@ -26,6 +26,7 @@ from floaff_zoo.contract import TASKS
 from floaff_zoo.data.floaff_kitchen import FloAffKitchenDataModule
 from floaff_zoo.data.transforms import TargetCrop
 from floaff_zoo.predict import check_floor_model, resolve_model
+from floaff_zoo.sim.fileformat import BENCHMARKS
 from floaff_zoo.sim.kitchen import SceneSpec
 
 
@@ -44,7 +45,7 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("models", nargs="+", help="hub names or checkpoint paths")
     p.add_argument("--root", default="data/floaff_dense")
-    p.add_argument("--benchmark", default="layouts", choices=["layouts", "styles"])
+    p.add_argument("--benchmark", default="layouts", choices=BENCHMARKS)
     p.add_argument("--num-points", type=int, default=1024)
     p.add_argument("--val-scene-ids", nargs="+", default=None, help="pinned validation scenes (as in training)")
     p.add_argument("--crop-first", type=float, default=None, metavar="R", help="TargetCrop radius (m)")

@@ -21,6 +21,7 @@ import torch
 from floaff_zoo.data.floaff_kitchen import FloAffKitchenDataModule
 from floaff_zoo.models.yaw import estimate_yaw, load_axisnet
 from floaff_zoo.nn.axisnet import angle_error_deg
+from floaff_zoo.sim.fileformat import BENCHMARKS
 
 
 def collect(dm: FloAffKitchenDataModule, split: str, sources: list[str], axisnet, radius: float) -> dict:
@@ -58,7 +59,7 @@ def table(errors: dict) -> str:
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--root", required=True)
-    p.add_argument("--benchmark", default="layouts", choices=["layouts", "styles"])
+    p.add_argument("--benchmark", default="layouts", choices=BENCHMARKS)
     p.add_argument("--split", default="val", choices=["train", "val", "test"])
     p.add_argument("--axisnet", default=None, help="AxisNetModule checkpoint or hub name")
     p.add_argument("--points", type=int, default=1024)
