@@ -18,8 +18,11 @@ from pathlib import Path
 
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from script_cli import floor_model  # noqa: E402
+
 from floaff_zoo.frames import facing_pose, pose_to_world
-from floaff_zoo.predict import check_cell, check_floor_model, predict_from_points, resolve_model
+from floaff_zoo.predict import check_cell, predict_from_points
 from floaff_zoo.sim import fileformat as ff
 from floaff_zoo.sim.kitchen import SceneSpec
 from floaff_zoo.sim.rollout import RolloutService
@@ -40,11 +43,8 @@ def main(argv: list[str] | None = None) -> int:
     scenes = list(ff.iter_scenes(a.root, benchmark=a.benchmark, split="test"))
     if not scenes:  # else every SR read nan (the mean of no rollout) and the script exited 0
         raise SystemExit(f"predict_sr: no finished test scene under {Path(a.root) / a.benchmark}")
-    model = resolve_model(a.model)
-    try:  # predict_from_points refuses it too, but as a TypeError traceback, after the first view's checks
-        check_floor_model(model)
-    except TypeError as exc:
-        raise SystemExit(f"predict_sr: --model {a.model}: {exc}") from exc
+    # predict_from_points refuses a model without a floor map too, but as a TypeError traceback after the first view
+    model = floor_model(a.model, f"predict_sr: --model {a.model}")
     jobs: dict[str, list] = {"default": [], "dataset": []}
     tasks: list[str] = []
     for scene in scenes:

@@ -4,6 +4,10 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Callable
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import torch
 
 #: the package's errors for bad input (a missing or corrupt file, an unknown name, data a module refuses), by module:
 #: looked up only in modules already imported, so a light script does not import torch to catch them
@@ -33,3 +37,19 @@ def run(main: Callable[[], int | None], prog: str) -> int:
             raise
         print(f"{prog}: error: {' '.join(str(exc).split())}", file=sys.stderr)
         return 2
+
+
+def floor_model(model: str, where: str) -> torch.nn.Module:
+    """The module of a MODEL argument (a hub name or a checkpoint path), in eval mode; exits with ``<where>: <why>``
+    when it predicts no floor map (an AxisNet checkpoint: its output was read as floor scores and failed later).
+
+    Imports the predict API on call, so that the scripts that never load a model keep this module light.
+    """
+    from floaff_zoo.predict import check_floor_model, resolve_model
+
+    net = resolve_model(model)
+    try:
+        check_floor_model(net)
+    except TypeError as exc:
+        raise SystemExit(f"{where}: {exc}") from exc
+    return net.eval()

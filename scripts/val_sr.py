@@ -21,24 +21,15 @@ from pathlib import Path
 import numpy as np
 import torch
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from script_cli import floor_model  # noqa: E402
+
 from floaff_zoo.callbacks.rollout import choose_pose, cloud_free, default_service
 from floaff_zoo.contract import TASKS
 from floaff_zoo.data.floaff_kitchen import FloAffKitchenDataModule
 from floaff_zoo.data.transforms import TargetCrop
-from floaff_zoo.predict import check_floor_model, resolve_model
 from floaff_zoo.sim.fileformat import BENCHMARKS
 from floaff_zoo.sim.kitchen import SceneSpec
-
-
-def floor_model(name: str) -> torch.nn.Module:
-    """The model of a MODEL argument in eval mode; exits naming it when it predicts no floor map (an AxisNet
-    checkpoint: its output was read as floor scores and failed in the pose choice)."""
-    net = resolve_model(name)
-    try:
-        check_floor_model(net)
-    except TypeError as exc:
-        raise SystemExit(f"val_sr: {name}: {exc}") from exc
-    return net.eval()
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -56,7 +47,7 @@ def main(argv: list[str] | None = None) -> int:
         p.error(f"--top-k must be >= 1, got {a.top_k}")
     if a.crop_first is not None and not a.crop_first > 0:  # TargetCrop's ValueError was a traceback after the models
         p.error(f"--crop-first must be a radius > 0 (m), got {a.crop_first}")
-    models = {m: floor_model(m) for m in a.models}  # a bad model fails before the data are set up
+    models = {m: floor_model(m, f"val_sr: {m}") for m in a.models}  # a bad model fails before the data are set up
     dm = FloAffKitchenDataModule(
         root=a.root,
         benchmark=a.benchmark,

@@ -12,10 +12,10 @@ ps = load_script("predict_sr")
 def test_a_benchmark_without_test_scenes_exits_naming_it(tmp_path, monkeypatch):
     """No test scene (a benchmark not generated, a typo) printed a table of nan and exited 0."""
 
-    def never(name):
+    def never(model, where):
         raise AssertionError("the model was loaded before the data were checked")
 
-    monkeypatch.setattr(ps, "resolve_model", never)
+    monkeypatch.setattr(ps, "floor_model", never)
     (tmp_path / "layouts").mkdir()
     with pytest.raises(SystemExit, match=r"no finished test scene under .*styles"):
         ps.main(["--root", str(tmp_path), "--benchmark", "styles", "--model", "m"])
