@@ -266,3 +266,27 @@ def test_a_fit_on_a_gpu_saves_and_restores_each_devices_generator(tmp_path, root
     model.on_save_checkpoint(ddp)
     model.on_load_checkpoint(checkpoint)
     assert "cuda" not in ddp[RNG_KEY] and restored == saved[:1]
+
+
+def test_persistent_train_workers_live_across_epochs_and_a_resume_with_them_warns(tmp_path, root, monkeypatch):
+    """``data.persistent_train_workers`` keeps the train workers (no restart per epoch, costly under ``spawn``): the
+    first epoch is the restarted workers' one, the next are not (no new worker seeds drawn from the shuffle stream);
+    a fit resumed with them is not the uninterrupted one, and says so."""
+    monkeypatch.chdir(root)
+    workers = ("--data.init_args.num_workers", "1")
+    keep = (*workers, "--data.init_args.persistent_train_workers", "true")
+    _, _, restarted = _fit(tmp_path / "restarted", 2, *workers)
+    cli, _, kept = _fit(tmp_path / "kept", 2, *keep)
+    assert cli.datamodule.train_dataloader().persistent_workers
+    assert _epoch(kept, 0) == _epoch(restarted, 0) and _epoch(kept, 1) != _epoch(restarted, 1)
+    last = Path(cli.trainer.checkpoint_callback.last_model_path)
+    with pytest.warns(UserWarning, match="persistent_train_workers: the resumed fit"):
+        _fit(tmp_path / "kept", 3, "--ckpt_path", str(last), *keep)
+
+
+def test_persistent_train_workers_must_be_a_bool(tmp_path, root, monkeypatch):
+    from floaff_zoo.data.base import DataConfigError
+    from floaff_zoo.data.synthetic import SyntheticDataModule
+
+    with pytest.raises(DataConfigError, match="data.persistent_train_workers must be true or false, got 'false'"):
+        SyntheticDataModule(persistent_train_workers="false")

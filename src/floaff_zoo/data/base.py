@@ -11,6 +11,7 @@ import lightning as L
 import numpy as np
 import torch
 from lightning.pytorch.trainer.states import TrainerFn
+from lightning.pytorch.utilities import rank_zero_warn
 from lightning.pytorch.utilities.exceptions import MisconfigurationException
 from torch.utils.data import DataLoader, Dataset, RandomSampler
 
@@ -144,6 +145,13 @@ class FloAffDataModule(L.LightningDataModule):
             ``YawPerturb``, ``Jitter``; any :class:`~floaff_zoo.data.transforms.SampleTransform`
             subclass by ``class_path``).
         eval_transforms: per-sample transforms of val/test/predict (seeded per sample index).
+        persistent_train_workers: keep the train loader's workers from one epoch to the next. By default they are
+            started anew every epoch, so that a fit resumed from a checkpoint draws the same worker seeds (the same
+            augmentation noise) as an uninterrupted one; the restart is cheap under Linux's ``fork`` but re-imports
+            the package in every worker and epoch under ``spawn`` (macOS, Windows), longer than a CPU training epoch
+            (``docs/performance.md``). With True a resumed fit is not the uninterrupted one (other worker seeds, so
+            other augmentation noise, and the shuffle stream one draw apart; warned). The eval loaders always keep
+            theirs.
 
     Subclasses (or a method's code) may override :meth:`sample_transform`, a hook applied to every
     sample after the configured transforms. A subclass configured to train without any validation split sets
@@ -163,6 +171,7 @@ class FloAffDataModule(L.LightningDataModule):
         seed: int = 0,
         train_transforms: list[SampleTransform] | None = None,
         eval_transforms: list[SampleTransform] | None = None,
+        persistent_train_workers: bool = False,
     ) -> None:
         super().__init__()
         if type(self) is FloAffDataModule:  # a data config without class_path builds the base, which reads nothing
@@ -179,11 +188,16 @@ class FloAffDataModule(L.LightningDataModule):
         check_size("seed", seed, 0)  # numpy's seeded streams refuse a negative seed only at setup, per sample
         if collate_mode not in ("pad", "resample"):
             raise DataConfigError(f"data.collate_mode must be 'pad' or 'resample', got {collate_mode!r}")
+        if not isinstance(persistent_train_workers, bool):  # "false" from a hand-written config is a true text
+            raise DataConfigError(
+                f"data.persistent_train_workers must be true or false, got {persistent_train_workers!r}"
+            )
         self.train_transforms = list(train_transforms or [])
         self.eval_transforms = list(eval_transforms or [])
         self.batch_size = batch_size
         self.eval_batch_size = batch_size if eval_batch_size is None else eval_batch_size
         self.num_workers = num_workers
+        self.persistent_train_workers = persistent_train_workers
         self.num_points = num_points
         self.num_floor = num_floor
         self.collate_mode = collate_mode
@@ -239,6 +253,12 @@ class FloAffDataModule(L.LightningDataModule):
             self._train_generator.set_state(self._train_generator_state)
         position = state_dict.get("train_epoch")
         self._train_epoch_position = position if isinstance(position, dict) else None
+        if self.persistent_train_workers and self.num_workers > 0 and self._train_generator_state is not None:
+            rank_zero_warn(
+                f"{type(self).__name__}: persistent_train_workers: the resumed fit's loader workers draw their seeds "
+                "once, at its start, not where the interrupted fit stood: other augmentation noise and, from its next "
+                "epoch, other sample orders than an uninterrupted fit (set it false for an exact resume)"
+            )
 
     def collate_fn(self, split: str) -> Callable[[Sequence[Sample]], dict[str, Any]]:
         # eval splits resample each sample from its own seeded stream, so metrics repeat across epochs and worker
@@ -296,15 +316,16 @@ class FloAffDataModule(L.LightningDataModule):
             if position is not None and position.get("size") == len(ds) and torch.is_tensor(position.get("generator")):
                 sampler.resume_at(position["generator"], int(position["samples_done"]))
             self._train_sampler = sampler
-        # train workers are started anew every epoch: their seeds then come from the shuffle generator at each epoch's
-        # start, which a checkpoint restores; persistent ones took them once per fit, so a fit resumed with workers
-        # drew other seeds (other noise) and, one draw later in the stream, another order than an uninterrupted one
+        # train workers are started anew every epoch (unless persistent_train_workers): their seeds then come from the
+        # shuffle generator at each epoch's start, which a checkpoint restores; persistent ones take them once per fit,
+        # so a fit resumed with them draws other seeds (other noise) and, one draw later in the stream, other orders
         return DataLoader(
             ds,
             batch_size=self.batch_size if split == "train" else self.eval_batch_size,
             sampler=self._train_sampler if split == "train" else None,  # the shuffle of shuffle=True, resumable
             num_workers=self.num_workers,
-            persistent_workers=self.num_workers > 0 and split != "train",  # eval streams are seeded per sample
+            # eval streams are seeded per sample
+            persistent_workers=self.num_workers > 0 and (split != "train" or self.persistent_train_workers),
             collate_fn=self.collate_fn(split),
             generator=generator,
         )

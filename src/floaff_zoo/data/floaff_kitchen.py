@@ -135,6 +135,7 @@ class FloAffKitchenDataModule(FloAffDataModule):
         seed: int = 0,
         train_transforms: list[SampleTransform] | None = None,
         eval_transforms: list[SampleTransform] | None = None,
+        persistent_train_workers: bool = False,
     ) -> None:
         super().__init__(
             batch_size,
@@ -146,6 +147,7 @@ class FloAffKitchenDataModule(FloAffDataModule):
             seed,
             train_transforms,
             eval_transforms,
+            persistent_train_workers,
         )
         self.benchmark = check_names("benchmark", [benchmark], BENCHMARKS)[0]
         self.tasks = check_names("tasks", list(TASKS) if tasks is None else list(tasks), TASKS)

@@ -147,6 +147,7 @@ class CanonicalProbeDataModule(FloAffDataModule):
         seed: int = 0,
         train_transforms: list[SampleTransform] | None = None,
         eval_transforms: list[SampleTransform] | None = None,
+        persistent_train_workers: bool = False,
     ) -> None:
         super().__init__(
             batch_size,
@@ -158,6 +159,7 @@ class CanonicalProbeDataModule(FloAffDataModule):
             seed,
             train_transforms,
             eval_transforms,
+            persistent_train_workers,
         )
         for name, value, least in (
             ("num_train", num_train, 0),

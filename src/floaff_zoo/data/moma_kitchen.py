@@ -522,6 +522,7 @@ class MoMaKitchenDataModule(FloAffDataModule):
         seed: int = 0,
         train_transforms: list[SampleTransform] | None = None,
         eval_transforms: list[SampleTransform] | None = None,
+        persistent_train_workers: bool = False,
     ) -> None:
         super().__init__(
             batch_size,
@@ -533,6 +534,7 @@ class MoMaKitchenDataModule(FloAffDataModule):
             seed,
             train_transforms,
             eval_transforms,
+            persistent_train_workers,
         )
         if not 0.0 <= val_fraction < 1.0:
             raise ValueError(f"val_fraction must be in [0, 1), got {val_fraction}")
