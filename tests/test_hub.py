@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 import torch
 
+from floaff_zoo import atomic
 from floaff_zoo.cli import main as zoo_main
 from floaff_zoo.contract import collate_samples
 from floaff_zoo.data.synthetic import make_synthetic_sample
@@ -357,6 +358,7 @@ def test_hf_download_pinned_revision(tmp_path, monkeypatch, batch):
         seen.append((repo_id, filename, revision))
         dst = Path(local_dir) / filename
         dst.write_bytes(payload)
+        dst.chmod(0o600)  # owner-only, as a client's temp file may be
         return str(dst)
 
     fake = types.ModuleType("huggingface_hub")
@@ -375,6 +377,8 @@ def test_hf_download_pinned_revision(tmp_path, monkeypatch, batch):
     with torch.no_grad():
         assert torch.equal(TinyPointNetModule.from_pretrained("tiny.hf.v1")(batch), model(batch))
     assert seen[-1] == ("org/tiny", "model.safetensors", rev)
+    # kept with the mode a plain open gives, as every other file of the hub (others sharing it can read it)
+    assert (hub_dir() / e.filename).stat().st_mode & 0o777 == 0o666 & ~atomic._umask()
     (hub_dir() / e.filename).unlink()
     monkeypatch.setitem(sys.modules, "huggingface_hub", None)  # not installed
     with pytest.raises(HubError, match="pip install huggingface_hub"):

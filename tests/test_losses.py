@@ -199,6 +199,13 @@ def test_bad_input():
         build_loss("aff", rank_weight=0.1, rank_temperature=0.0)
     with pytest.raises(ValueError, match="temperature"):
         listwise_rank_loss(torch.zeros(2, 3), torch.zeros(2, 3), None, temperature=float("nan"))
+    # a text or None failed a comparison naming nothing
+    with pytest.raises(ValueError, match="build_loss: rank_weight must be a finite number >= 0, got '0.1'"):
+        build_loss("aff", rank_weight="0.1")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="build_loss: rank_temperature must be a finite number > 0, got None"):
+        build_loss("aff", rank_weight=0.1, rank_temperature=None)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="listwise_rank_loss: temperature must be a finite number > 0, got '1'"):
+        listwise_rank_loss(torch.zeros(2, 3), torch.zeros(2, 3), None, temperature="1")  # type: ignore[arg-type]
     with pytest.raises(ValueError, match=r"\[B, M\]"):
         masked_mse(torch.zeros(2, 3), torch.zeros(3, 2), None)
     with pytest.raises(ValueError, match="mask"):

@@ -28,6 +28,8 @@ from typing import Literal
 import torch
 from torch import Tensor
 
+from floaff_zoo.checks import check_number
+
 __all__ = [
     "affordance_loss",
     "build_loss",
@@ -130,8 +132,7 @@ def listwise_rank_loss(pred: Tensor, target: Tensor, mask: Tensor | None, temper
     sample's valid points. 0 when the softmax equals q; samples whose labels are all 0 (nothing to rank first) are
     left out of the mean (0 with a graph if none is left).
     """
-    if not (math.isfinite(temperature) and temperature > 0):
-        raise ValueError(f"listwise_rank_loss: temperature must be a finite number > 0, got {temperature}")
+    check_number("temperature", temperature, strict=True, owner="listwise_rank_loss")
     p, g, m = _prepare("listwise_rank_loss", pred, target, mask)
     z = torch.logit(p.clamp(LOGIT_EPS, 1.0 - LOGIT_EPS)) / temperature
     # padding sits 1e4 below the lowest valid log-odds at any temperature (a fixed -1e4 outranked them below T ~1e-3)
@@ -161,8 +162,7 @@ def build_loss(
     ``rank_weight > 0`` plus ``rank_weight * listwise_rank_loss(..., rank_temperature)``. ``deterministic``:
     no random draw (NavAff's weights at their expectation), for validation and test.
     """
-    if not (math.isfinite(rank_weight) and rank_weight >= 0):
-        raise ValueError(f"build_loss: rank_weight must be a finite number >= 0, got {rank_weight}")
+    check_number("rank_weight", rank_weight, owner="build_loss")  # a text or None failed the comparison unnamed
     if name == "mse":
         base: LossFn = masked_mse
     elif name == "aff":
@@ -179,8 +179,7 @@ def build_loss(
         raise ValueError(f"build_loss: unknown loss {name!r}; expected one of 'mse', 'aff', 'navaff'")
     if rank_weight == 0:
         return base
-    if not (math.isfinite(rank_temperature) and rank_temperature > 0):
-        raise ValueError(f"build_loss: rank_temperature must be a finite number > 0, got {rank_temperature}")
+    check_number("rank_temperature", rank_temperature, strict=True, owner="build_loss")
 
     def ranked(pred: Tensor, target: Tensor, mask: Tensor) -> Tensor:
         return base(pred, target, mask) + rank_weight * listwise_rank_loss(pred, target, mask, rank_temperature)

@@ -256,8 +256,8 @@ class FloAffDataModule(L.LightningDataModule):
         if self.persistent_train_workers and self.num_workers > 0 and self._train_generator_state is not None:
             rank_zero_warn(
                 f"{type(self).__name__}: persistent_train_workers: the resumed fit's loader workers draw their seeds "
-                "once, at its start, not where the interrupted fit stood: other augmentation noise and, from its next "
-                "epoch, other sample orders than an uninterrupted fit (set it false for an exact resume)"
+                "once, at its start, not where the interrupted fit stood: other augmentation noise and other sample "
+                "orders than an uninterrupted fit, from its first epoch (set it false for an exact resume)"
             )
 
     def collate_fn(self, split: str) -> Callable[[Sequence[Sample]], dict[str, Any]]:
