@@ -46,6 +46,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from floaff_zoo.names import TASKS as TASKS  # defined once there (sim reads it without torch); re-exported
+
 TENSOR_KEYS: tuple[str, ...] = (
     "scene_xyz",
     "scene_feat",
@@ -79,7 +81,6 @@ META_KEYS: tuple[str, ...] = (
     "style_id",
     "sample_id",
 )
-TASKS: tuple[str, ...] = ("PnPCounterToCab", "OpenSingleDoor", "CloseDrawer", "CloseDoubleDoor")
 VIEWS: tuple[str, ...] = ("front", "side")
 
 Sample = dict[str, Any]

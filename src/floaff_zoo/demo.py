@@ -22,12 +22,12 @@ import time
 from pathlib import Path
 from typing import Any
 
+from floaff_zoo.names import TASKS as ALL_TASKS  # the final model and the baseline are tested on every task
+
 EXPERIMENT = "configs/demo/pfal_demo.yaml"
 DATA_CONFIG = "configs/demo/data_demo.yaml"
 BASELINE_CONFIG = "configs/demo/pointnet2_demo.yaml"
 EVAL_CONFIG = "configs/trainer/eval_sr.yaml"
-#: the final PFAL model and the baseline are both tested on every task (multi-task SR, paper Table 2)
-ALL_TASKS = ("PnPCounterToCab", "OpenSingleDoor", "CloseDrawer", "CloseDoubleDoor")
 
 
 def _step(i: int, n: int, text: str) -> None:
@@ -182,7 +182,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         p.error(f"--epochs must be >= 1, got {args.epochs}")
     if args.workers < 0:
         p.error(f"--workers must be >= 0, got {args.workers}")
-    from floaff_zoo.sim.presets import ALL_TASKS, PRESETS
+    from floaff_zoo.sim.presets import PRESETS
 
     preset = PRESETS.get(args.preset)
     if preset is None:

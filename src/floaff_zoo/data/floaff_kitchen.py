@@ -40,8 +40,7 @@ from floaff_zoo.data.readers import (
 )
 from floaff_zoo.data.scene_labels import SceneLabels
 from floaff_zoo.data.transforms import SampleTransform, transforms_config
-
-BENCHMARKS: tuple[str, ...] = ("styles", "layouts")
+from floaff_zoo.names import BENCHMARKS as BENCHMARKS  # defined once there; re-exported
 
 
 def view_sample_id(benchmark: str, scene_id: str, view_id: str) -> str:

@@ -34,6 +34,8 @@ import numpy as np
 
 from floaff_zoo import atomic
 from floaff_zoo.atomic import atomic_write
+from floaff_zoo.names import BENCHMARKS as BENCHMARKS  # defined once there; re-exported (the scripts read it here)
+from floaff_zoo.names import TASKS
 
 __all__ = [
     "FORMAT_VERSION",
@@ -72,7 +74,6 @@ MANIFEST = "manifest.json"
 SCENE_JSON = "scene.json"
 STAGING = ".staging"
 RETIRED = ".retired"  # scene folders a rerun replaced or could not replace (kept, never read)
-BENCHMARKS = ("styles", "layouts")
 SPLITS = ("train", "test")  # scene.json's "split"
 
 # name -> (dtype, shape pattern); "N"/"M"/"H"/"W" are free sizes shared across fields of one view
@@ -383,12 +384,10 @@ def iter_scenes(
         ValueError: a benchmark, split or task filter that no generated scene can have (a misspelt name matched
             nothing without a word).
     """
-    from floaff_zoo.sim.presets import ALL_TASKS
-
     for what, value, known in (
         ("benchmark", benchmark, BENCHMARKS),
         ("split", split, SPLITS),
-        ("task", task, ALL_TASKS),
+        ("task", task, TASKS),
     ):
         if value and value not in known:
             raise ValueError(f"iter_scenes: unknown {what} {value!r}; choose from {list(known)}")

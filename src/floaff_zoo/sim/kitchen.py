@@ -27,11 +27,11 @@ import mujoco
 import numpy as np
 
 from floaff_zoo.floor import check_pose
+from floaff_zoo.names import TASKS as TASKS  # defined once there; re-exported here
 from floaff_zoo.sim import robot as _robot
 from floaff_zoo.sim.tasks import TASK_REGISTRY
 from floaff_zoo.sim.tasks import TargetInfo as TargetInfo  # defined with the tasks; re-exported here
 
-TASKS: tuple[str, ...] = ("PnPCounterToCab", "OpenSingleDoor", "CloseDrawer", "CloseDoubleDoor")
 LAYOUTS: dict[int, str] = {
     0: "one_wall",
     1: "l_shaped",

@@ -11,11 +11,11 @@ from dataclasses import asdict, dataclass, fields, replace
 from typing import Any
 
 from floaff_zoo.checks import check_integer, check_number, check_numbers
+from floaff_zoo.names import BENCHMARKS as ALL_BENCHMARKS  # defined once there; the old names re-exported
+from floaff_zoo.names import TASKS as ALL_TASKS
 
 __all__ = ["PAPER_VIEW_TOTALS", "PRESETS", "GenPreset", "get_preset", "view_counts"]
 
-ALL_TASKS = ("PnPCounterToCab", "OpenSingleDoor", "CloseDrawer", "CloseDoubleDoor")
-ALL_BENCHMARKS = ("styles", "layouts")
 
 # benchmark -> task -> (train front, train side, test front, test side); totals 13,610 (Styles) + 11,172 (Layouts)
 PAPER_VIEW_TOTALS: dict[str, dict[str, tuple[int, int, int, int]]] = {
