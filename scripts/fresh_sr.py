@@ -41,12 +41,15 @@ from typing import Any
 import numpy as np
 import torch
 
-from floaff_zoo.callbacks.rollout import check_clouds, choose_pose, cloud_free
-from floaff_zoo.contract import TASKS
-from floaff_zoo.frames import base_to_world
-from floaff_zoo.predict import named_models
-from floaff_zoo.sim.fileformat import BENCHMARKS
-from floaff_zoo.sim.repeat import fresh_probability, perturbed_poses, scene_probabilities, service_runner
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from script_cli import floor_model  # noqa: E402
+
+from floaff_zoo.callbacks.rollout import check_clouds, choose_pose, cloud_free  # noqa: E402
+from floaff_zoo.contract import TASKS  # noqa: E402
+from floaff_zoo.frames import base_to_world  # noqa: E402
+from floaff_zoo.predict import named_models  # noqa: E402
+from floaff_zoo.sim.fileformat import BENCHMARKS  # noqa: E402
+from floaff_zoo.sim.repeat import fresh_probability, perturbed_poses, scene_probabilities, service_runner  # noqa: E402
 
 __all__ = [
     "fresh_probability",
@@ -282,16 +285,15 @@ def main(argv: list[str] | None = None) -> int:
     if a.probs and not a.probs.endswith(".npz"):
         p.error(f"--probs must name a .npz file, got {a.probs!r}")
 
-    from floaff_zoo.predict import resolve_model
     from floaff_zoo.sim.generate import ANNOTATE_SEED
 
+    keys, groups = parse_models(a.models)
+    models = {k: floor_model(m, f"fresh_sr: {m}") for k, m in keys.items()}  # a bad model fails before the data
     dm, scenes = split_data("fresh_sr", a.root, a.benchmark, a.split, a.num_points, a.full_cloud, a.batch_size)
     setting = dict(episodes=a.episodes, sigma_xy=a.sigma_xy, sigma_yaw_deg=a.sigma_yaw_deg, seed=a.seed)
     if a.annotation_seed:
         setting["task_seed"] = "annotation"
     seeds = [ANNOTATE_SEED] * a.episodes if a.annotation_seed else []
-    keys, groups = parse_models(a.models)
-    models = {k: resolve_model(m).eval() for k, m in keys.items()}  # a bad name fails before any rollout
     try:
         probs = scene_probabilities(scenes, setting, Path(a.probs) if a.probs else None, a.workers, seeds)
     except ValueError as exc:

@@ -71,6 +71,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from fresh_sr import nearest_cells, split_data  # noqa: E402
+from script_cli import floor_model  # noqa: E402
 from sr_json import sr_all  # noqa: E402
 
 from floaff_zoo.atomic import atomic_write_text  # noqa: E402
@@ -434,10 +435,9 @@ def main(argv: list[str] | None = None) -> int:
     if a.ensemble and not ensembled(groups):
         p.error("--ensemble averages the runs of one NAME: give some NAME two runs or more (NAME=a.ckpt NAME=b.ckpt)")
 
-    from floaff_zoo.predict import resolve_model
-
-    try:  # a bad model name ends here with its message, before any data is read
-        nets = with_residual_scales({n: [resolve_model(m).eval() for m in ms] for n, ms in groups.items()}, scales)
+    try:  # a bad model name, or one without a floor map, ends here with its message, before any data is read
+        runs = {n: [floor_model(m, f"scene_sr: {m}") for m in ms] for n, ms in groups.items()}
+        nets = with_residual_scales(runs, scales)
     except (OSError, ValueError, LookupError) as exc:
         raise SystemExit(f"scene_sr: {exc}") from exc
     stored = a.full_cloud or a.deploy_queries  # the deployment grid reads every stored point, as predict does

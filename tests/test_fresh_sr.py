@@ -103,6 +103,17 @@ def test_cli_names_bad_arguments_and_a_corrupt_cache(drawer_root, tmp_path):
     assert not (tmp_path / "never.npz").exists()
 
 
+def test_a_model_without_a_floor_map_exits_naming_it(tmp_path):
+    """An AxisNet checkpoint was resolved without a check and its output read as floor scores, after the data."""
+    import re
+
+    from tests.test_val_sr import axisnet_ckpt
+
+    ckpt = axisnet_ckpt(tmp_path / "axisnet.ckpt")
+    with pytest.raises(SystemExit, match=rf"fresh_sr: {re.escape(str(ckpt))}: .*AxisNetModule predicts no floor map"):
+        fs.main(["--root", str(tmp_path / "missing"), "--benchmark", "styles", str(ckpt)])
+
+
 def test_fresh_labels_train_the_datamodule_and_val_split_scores(drawer_root, tmp_path):
     """scripts/fresh_labels.py labels every train scene; the DataModule trains on them; fresh_sr scores val."""
     fl = load_script("fresh_labels")

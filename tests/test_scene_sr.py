@@ -331,3 +331,14 @@ def test_mask_centroid_targets_is_the_mean_of_the_flagged_points(tmp_path, capsy
     with pytest.raises(SystemExit):
         ssr.main(["--root", str(tmp_path), "--target-from-mask", "a=x.ckpt"])
     assert "give --deploy-queries" in capsys.readouterr().err
+
+
+def test_a_model_without_a_floor_map_exits_naming_it(tmp_path):
+    """An AxisNet checkpoint was scored as floor maps: the script went on to the data and failed somewhere unrelated."""
+    import re
+
+    from tests.test_val_sr import axisnet_ckpt
+
+    ckpt = axisnet_ckpt(tmp_path / "axisnet.ckpt")
+    with pytest.raises(SystemExit, match=rf"scene_sr: {re.escape(str(ckpt))}: .*AxisNetModule predicts no floor map"):
+        ssr.main(["--root", str(tmp_path / "missing"), f"a={ckpt}"])
