@@ -66,6 +66,8 @@ def test_repeated_or_unsupported_settings_are_refused():
         ("views_per_scene", (1.5, 2), r"views_per_scene \(front\) must be an integer >= 0, got 1.5"),
         ("views_per_scene", (2,), r"views_per_scene must be \(front, side\), got \(2,\)"),
         ("views_per_scene", (2, 2, 2), r"views_per_scene must be \(front, side\), got \(2, 2, 2\)"),
+        ("min_target_pixels", 0, "min_target_pixels must be an integer >= 1, got 0"),  # views without their target
+        ("min_target_pixels", 2.5, "min_target_pixels must be an integer >= 1, got 2.5"),
     ],
 )
 def test_sizes_that_would_be_ignored_or_fail_each_scene_are_refused_by_name(field, value, message):

@@ -133,6 +133,8 @@ class GenPreset:
         for name in ("image_size", "max_points", "picture_size", "max_tries_per_view"):
             check_integer(name, getattr(self, name), 1)
         check_integer("max_candidates", self.max_candidates, 1, none_means="no cap")
+        # 0 stored views whose cloud shows no target point: the models read the target from it, predict refuses one
+        check_integer("min_target_pixels", self.min_target_pixels, 1)
         check_number("depth_max", self.depth_max, strict=True)
         return self
 
