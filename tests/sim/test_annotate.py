@@ -156,3 +156,12 @@ def test_cells_skipped_for_the_budget_do_not_count_as_failures_in_the_smoothing(
     assert np.allclose(capped[known], full[known], atol=1e-6)
     values = rng.random(63)  # and a scene without skipped cells keeps its map exactly
     assert np.array_equal(_smooth(values, shape, 1.0, np.ones(63, bool)), _smooth(values, shape, 1.0))
+
+
+@pytest.mark.parametrize(("cell", "shown"), [(True, "True"), (float("nan"), "nan"), (0.0, "0.0"), ("0.1", "'0.1'")])
+def test_a_cell_that_is_no_size_is_refused_by_name(cell, shown):
+    """True was a cell of 1 m; a text met the comparison as a TypeError naming nothing."""
+    from floaff_zoo.sim.annotate import candidate_grid
+
+    with pytest.raises(ValueError, match=rf"candidate_grid: cell must be a finite number > 0, got {shown}"):
+        candidate_grid(None, cell, 1.0, 1.0)  # refused before the scene is read

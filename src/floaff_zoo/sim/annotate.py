@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from floaff_zoo.checks import check_number
 from floaff_zoo.frames import ROLLOUT_POSE_DECIMALS
 from floaff_zoo.sim.controllers import default_policy
 from floaff_zoo.sim.kitchen import SimScene
@@ -104,8 +105,7 @@ def candidate_grid(
     scene: SimScene, cell: float, r_x: float, r_y: float
 ) -> tuple[np.ndarray, tuple[int, int], np.ndarray]:
     """Target-frame lattice -> (world xy [M,2], (H, W), target-frame xy [M,2])."""
-    if not (cell > 0 and math.isfinite(cell)):
-        raise ValueError(f"cell must be > 0, got {cell}")
+    check_number("cell", cell, strict=True, owner="candidate_grid")
     nx = int(math.floor(r_x / cell + 1e-9))
     ny = int(math.floor(r_y / cell + 1e-9))
     xs = np.arange(-nx, nx + 1) * cell
