@@ -13,7 +13,6 @@ import dataclasses
 import difflib
 import importlib
 import inspect
-import math
 import re
 import sys
 import typing
@@ -31,6 +30,7 @@ from lightning.pytorch.utilities.exceptions import MisconfigurationException
 from floaff_zoo import quiet, runtime
 from floaff_zoo._version import __version__
 from floaff_zoo.atomic import atomic_write_text
+from floaff_zoo.checks import check_integer, check_number
 from floaff_zoo.contract import NonFiniteError, SampleError
 from floaff_zoo.data.base import FloAffDataModule
 from floaff_zoo.models.base import WEIGHTS_FAILURE_NOTE, ZooModule
@@ -248,14 +248,11 @@ def _plain(value: Any) -> Any:
 
 def _check_schedule_values(trainer: Namespace) -> None:
     """Trainer settings whose 0 Lightning meets as a ZeroDivisionError mid-fit (a traceback naming none of them)."""
-    for key in ("check_val_every_n_epoch", "accumulate_grad_batches"):
-        value = trainer.get(key)
-        none_ok = key == "check_val_every_n_epoch"  # null: validate by val_check_interval alone
-        if value is None and none_ok:
-            continue
-        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-            alt = " or null" if none_ok else ""
-            raise CLIError(f"trainer.{key}: must be an integer >= 1{alt}, got {value!r}")
+    for key, none_means in (
+        ("check_val_every_n_epoch", "validate by val_check_interval alone"),
+        ("accumulate_grad_batches", None),
+    ):
+        check_integer(f"trainer.{key}", trainer.get(key), 1, error=CLIError, none_means=none_means)
     interval = trainer.get("val_check_interval")
     ok = interval is None or (
         not isinstance(interval, bool)
@@ -263,7 +260,7 @@ def _check_schedule_values(trainer: Namespace) -> None:
     )
     if not ok:
         raise CLIError(
-            "trainer.val_check_interval: must be a fraction of an epoch in (0, 1], a number of batches >= 1 "
+            "trainer.val_check_interval must be a fraction of an epoch in (0, 1], a number of batches >= 1 "
             f"or null, got {interval!r}"
         )
 
@@ -341,9 +338,10 @@ class FloAffCLI(LightningCLI):
         trainer = cfg.trainer
         if not isinstance(trainer, Namespace):  # `trainer: null` in a config: an AttributeError below
             raise CLIError(f"trainer: expected a mapping of trainer settings, got {trainer!r}")
-        clip = trainer.get("gradient_clip_val")
-        if clip is not None and not (math.isfinite(float(clip)) and clip >= 0):  # Lightning's message misleads
-            raise CLIError(f"trainer.gradient_clip_val: must be a finite number >= 0 or null, got {clip}")
+        # Lightning's message for a NaN misleads ("use only one of them")
+        check_number(
+            "trainer.gradient_clip_val", trainer.get("gradient_clip_val"), error=CLIError, none_means="no clipping"
+        )
         _check_schedule_values(trainer)
         train = cfg.model.get("init_args", Namespace()).get("train") if isinstance(cfg.model, Namespace) else None
         if train is not None and not isinstance(train, (Namespace, dict)):  # a TypeError deep in jsonargparse
