@@ -261,25 +261,41 @@ def _floor(n: int = 30) -> tuple[torch.Tensor, torch.Tensor]:
     return torch.cat([torch.rand(2, n, 2) * 0.6, torch.zeros(2, n, 1)], dim=-1), torch.ones(2, n, dtype=torch.bool)
 
 
-def _seed_voting_pair(cls: type, train: bool, n: int) -> tuple[nn.Module, nn.Module]:
-    """A VoteNet- or H3DNet-style net with as many seeds and proposals as a cloud of ``n`` points has distinct
-    points, and a copy with more of both (FPS repeats the first seed, then the first proposal)."""
-    torch.manual_seed(0)
-    extra = {"floor_fp": (8, 8)} if cls.__name__ == "VoteNetNet" else {"fuse_width": 8}
-    exact = cls(
-        1, 2, [n, n, 4], [[0.2], [0.4], [0.8]], [[4], [4], [4]], [[[8]], [[16]], [[16]]], [[16]],
-        num_proposals=n, proposal_radius=0.3, proposal_nsample=4, proposal_width=8, robot_width=8, head_width=8,
-        dropout=0.0, **extra,
+def _seed_voting_sizes(name: str, n: int) -> dict:
+    """Sizes of a VoteNet- or H3DNet-style net (or module) with as many seeds and proposals as a cloud of ``n``
+    points has distinct points."""
+    extra = {"floor_fp": [8, 8]} if name.startswith("VoteNet") else {"fuse_width": 8}
+    return dict(
+        npoints=[n, n, 4], radii=[[0.2], [0.4], [0.8]], nsamples=[[4], [4], [4]], mlps=[[[8]], [[16]], [[16]]],
+        seed_fp=[[16]], num_proposals=n, proposal_radius=0.3, proposal_nsample=4, proposal_width=8, robot_width=8,
+        head_width=8, dropout=0.0, **extra,
     )  # fmt: skip
-    _randomise_statistics(exact)
-    nn.init.normal_(exact.head.out.weight)  # scores that move with the head's inputs
-    exact.train(train)
-    more = copy.deepcopy(exact)
+
+
+def _with_surplus_seeds(net: nn.Module, n: int) -> nn.Module:
+    """A copy of a net from :func:`_seed_voting_sizes` with more seeds and proposals than the cloud's ``n`` distinct
+    points (FPS repeats the first seed, then the first proposal)."""
+    more = copy.deepcopy(net)
     more.backbone.encoder.levels[0].npoint = n + 8
     more.backbone.encoder.levels[1].npoint = n + 4  # the seed level
     for agg in more.aggregate if isinstance(more.aggregate, nn.ModuleList) else [more.aggregate]:
         agg.num_proposals = agg.sa.npoint = n + 5
-    return exact, more
+    return more
+
+
+def _batch_statistics(net: nn.Module, *inputs: torch.Tensor) -> None:
+    """Set the running statistics to those of one training pass over ``inputs``, then eval mode.
+
+    Random running statistics (``_randomise_statistics``) collapse the seeds' and proposals' features in eval: the
+    proposals' features were within 3e-4 of each other, so how the floor's 3-NN weighed them hardly showed."""
+    norms = [m for m in net.modules() if isinstance(m, nn.BatchNorm1d)]
+    for m in norms:
+        m.momentum = 1.0
+    with torch.no_grad():
+        net.train()(*inputs)
+    for m in norms:
+        m.momentum = 0.1
+    net.eval()
 
 
 @pytest.mark.parametrize("train", [False, True])
@@ -288,11 +304,16 @@ def test_seed_voting_scores_do_not_depend_on_surplus_seeds_or_proposals(name, tr
     """A cloud with fewer distinct points than seeds (256 by default) repeats the first seed, and fewer distinct votes
     than proposals repeat the first proposal: H3DNet's primitive (a softmax-weighted mean over the seeds) counted the
     first seed's vote once per repeat, the floor's 3-NN from the proposals took a repeated proposal two or three
-    times, and in training the repeats entered the vote and proposal heads' batch statistics."""
+    times (VoteNet's eval scores moved by 0.06), and in training the repeats entered the vote and proposal heads'
+    batch statistics."""
     from floaff_zoo.nn import nets
 
     n = 12
-    exact, more = _seed_voting_pair(getattr(nets, name), train, n)
+    torch.manual_seed(0)
+    exact = getattr(nets, name)(1, 2, **_seed_voting_sizes(name, n))
+    _randomise_statistics(exact)
+    nn.init.normal_(exact.head.out.weight)  # scores that move with the head's inputs
+    exact.train()
     xyz, feat, mask = _small_cloud(n)
     floor, fmask = _floor()
     robot, target = torch.rand(2, 2), torch.rand(2, 3) * 0.6
@@ -301,13 +322,57 @@ def test_seed_voting_scores_do_not_depend_on_surplus_seeds_or_proposals(name, tr
     near = probe["proposal_xyz"] if "proposal_xyz" in probe else probe["vote_xyz"][:, 0]
     floor = torch.cat([floor, near[:, :3].detach() + 0.2], dim=1)
     fmask = torch.ones(floor.shape[:2], dtype=torch.bool)
+    if not train:
+        _batch_statistics(exact, xyz, feat, mask, floor, fmask, robot, target)
+    more = _with_surplus_seeds(exact, n)
     a, aux_a = exact(xyz, feat, mask, floor, fmask, robot, target)
     b, aux_b = more(xyz, feat, mask, floor, fmask, robot, target)
+    assert aux_a["seed_mask"].all() and aux_b["seed_mask"].sum(dim=1).tolist() == [n, n]
     torch.testing.assert_close(b, a, atol=1e-5, rtol=1e-4)
     if "primitive_xyz" in aux_a:
         torch.testing.assert_close(aux_b["primitive_xyz"], aux_a["primitive_xyz"], atol=1e-5, rtol=1e-4)
     for key, value in _stats(exact).items():
         torch.testing.assert_close(_stats(more)[key], value, atol=1e-5, rtol=1e-4, msg=key)
+
+
+@pytest.mark.parametrize("train", [False, True])
+@pytest.mark.parametrize("name", ["VoteNetModule", "H3DNetModule"])
+def test_seed_vote_losses_count_each_distinct_seed_once(name, train):
+    """A repeated seed votes as its first occurrence: the vote losses, means over the seeds, counted the first seed's
+    vote error once per repeat. With as many seeds as distinct points or a surplus: the same vote loss, and the same
+    gradients, in training (mean over the votes) and in evaluation (mean over samples)."""
+    from floaff_zoo.models.h3dnet import H3DNetModule
+    from floaff_zoo.models.votenet import VoteNetModule
+
+    n = 12
+    cls = {"VoteNetModule": VoteNetModule, "H3DNetModule": H3DNetModule}[name]
+    torch.manual_seed(0)
+    exact = cls(**_seed_voting_sizes(name, n))
+    _randomise_statistics(exact.net)
+    exact.train(train)
+    more = copy.deepcopy(exact)
+    more.net = _with_surplus_seeds(exact.net, n)
+    xyz, feat, mask = _small_cloud(n)
+    floor, fmask = _floor()
+    torch.manual_seed(3)
+    batch = {
+        "scene_xyz": xyz, "scene_feat": feat, "scene_mask": mask, "floor_xyz": floor, "floor_mask": fmask,
+        "floor_label": torch.rand(floor.shape[:2]), "robot": torch.rand(2, 2), "target_xyz": torch.rand(2, 3) * 0.6,
+        "target_yaw": torch.rand(2) * 6.0 - 3.0,
+    }  # fmt: skip
+    losses, masks = [], []
+    for model in (exact, more):
+        _, aux = model.forward_with_aux(batch)
+        losses.append(model.vote_loss(batch, aux))
+        losses[-1].backward()
+        masks.append(aux["seed_mask"])
+    assert masks[0].all() and masks[1].sum(dim=1).tolist() == [n, n]
+    torch.testing.assert_close(losses[1], losses[0], atol=1e-6, rtol=1e-5)
+    for (key, p), q in zip(exact.net.named_parameters(), more.net.parameters()):
+        if p.grad is None:
+            assert q.grad is None, key
+        else:
+            torch.testing.assert_close(q.grad, p.grad, atol=1e-5, rtol=1e-4, msg=key)
 
 
 @pytest.mark.parametrize("train", [False, True])

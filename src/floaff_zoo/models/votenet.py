@@ -34,29 +34,45 @@ def vote_distances(votes: Tensor, gt_xyz: Tensor, gt_sel: Tensor) -> Tensor:
     return d.masked_fill(~gt_sel[:, None, :], float("inf")).amin(dim=-1)
 
 
-def vote_loss(votes: Tensor, gt_xyz: Tensor, gt_sel: Tensor) -> Tensor:
+def repeated_seeds(seed_mask: Tensor | None) -> Tensor | None:
+    """``seed_mask`` [B, S] bool (False on repeated seeds, the nets' ``aux["seed_mask"]``), or None when every seed
+    is distinct: the losses then take their plain means, bit for bit what they gave before the mask existed."""
+    return None if seed_mask is None or bool(seed_mask.all()) else seed_mask
+
+
+def vote_loss(votes: Tensor, gt_xyz: Tensor, gt_sel: Tensor, seed_mask: Tensor | None = None) -> Tensor:
     """Min-over-GT L1 distance of every vote (VoteNet's vote loss with a set of GT positions).
 
     Args:
-        votes: [B, S, 3]; gt_xyz: [B, M, 3]; gt_sel: [B, M] bool (samples with no True have no target: left out).
+        votes: [B, S, 3]; gt_xyz: [B, M, 3]; gt_sel: [B, M] bool (samples with no True have no target: left out);
+        seed_mask: [B, S] bool, False on repeated seeds (their votes copy the first seed's: each counts once).
     Returns:
-        scalar mean over the votes of the samples with a target (0, with a graph, when no sample has one).
+        scalar mean over the distinct seeds' votes of the samples with a target (0, with a graph, when no sample
+        has one).
     """
     has = gt_sel.any(dim=1)  # [B]
     if not bool(has.any()):
         return votes.sum() * 0.0
-    return vote_distances(votes[has], gt_xyz[has], gt_sel[has]).mean()
+    d = vote_distances(votes[has], gt_xyz[has], gt_sel[has])  # [B', S]
+    seed_mask = repeated_seeds(seed_mask)
+    return d.mean() if seed_mask is None else d[seed_mask[has]].mean()
 
 
-def vote_loss_per_sample(votes: Tensor, gt_xyz: Tensor, gt_sel: Tensor) -> Tensor:
-    """Each sample's mean vote distance (as :func:`vote_loss`): [B,S,3], [B,M,3], [B,M] bool -> [B].
+def vote_loss_per_sample(votes: Tensor, gt_xyz: Tensor, gt_sel: Tensor, seed_mask: Tensor | None = None) -> Tensor:
+    """Each sample's mean vote distance (as :func:`vote_loss`): [B,S,3], [B,M,3], [B,M] bool, [B,S] bool -> [B].
 
     A sample with no target gets 0 (it has no vote term), so the mean over a batch of these is a mean over samples,
     which Lightning's sample-weighted epoch average keeps whatever the batch size.
     """
     has = gt_sel.any(dim=1)  # [B]
     per_sample = votes.new_zeros(len(votes))
-    per_sample[has] = vote_distances(votes[has], gt_xyz[has], gt_sel[has]).mean(dim=-1)
+    d = vote_distances(votes[has], gt_xyz[has], gt_sel[has])  # [B', S]
+    seed_mask = repeated_seeds(seed_mask)
+    if seed_mask is None:
+        per_sample[has] = d.mean(dim=-1)
+    else:  # d * 0 is finite: every sample left here has a target
+        w = seed_mask[has].to(d.dtype)
+        per_sample[has] = (d * w).sum(dim=-1) / w.sum(dim=-1)
     return per_sample
 
 
@@ -65,7 +81,8 @@ class SeedVotingModule(FloAffModule, abc.ABC):
     loss is the affordance loss + ``vote_weight`` x :meth:`vote_loss`. Subclasses build the net."""
 
     def forward_with_aux(self, batch: Batch) -> tuple[Tensor, dict[str, Tensor]]:
-        """Scores [B, M] and the vote geometry (``seed_xyz`` [B,S,3] + the net's own, see its ``decode``)."""
+        """Scores [B, M] and the vote geometry (``seed_xyz`` [B,S,3], ``seed_mask`` [B,S] + the net's own, see its
+        ``decode``)."""
         scores, aux = run_scene_floor_net(self.net, batch, self.hparams["feat_channels"], self.hparams["bf16"])
         return scores.float(), aux
 
@@ -163,9 +180,10 @@ class VoteNetModule(SeedVotingModule):
 
     def vote_loss(self, batch: Batch, aux: dict[str, Tensor]) -> Tensor:
         """Min-over-GT L1 distance of the votes to the good floor points: training, the mean over the votes of the
-        samples with a target; evaluation, the mean over samples (0 for one without a target)."""
+        samples with a target; evaluation, the mean over samples (0 for one without a target). A repeated seed
+        (``aux["seed_mask"]`` False) is left out: each distinct seed's vote counts once."""
         gt_xyz, gt_sel = good_floor_points(batch, self.hparams["vote_label_threshold"])
         votes = aux["vote_xyz"].float()
         if self.training:
-            return vote_loss(votes, gt_xyz, gt_sel)
-        return vote_loss_per_sample(votes, gt_xyz, gt_sel).mean()
+            return vote_loss(votes, gt_xyz, gt_sel, aux["seed_mask"])
+        return vote_loss_per_sample(votes, gt_xyz, gt_sel, aux["seed_mask"]).mean()
