@@ -871,6 +871,28 @@ def test_a_resumed_slot_leaves_no_earlier_scene_of_it_readable(mini_run, tmp_pat
     assert (out / job.benchmark / ff.RETIRED / old_id / ff.SCENE_JSON).is_file()
 
 
+def test_a_regenerated_slot_retires_an_earlier_scene_of_another_kitchen(mini_run, tmp_path):
+    """An earlier scene of a slot that none of the slot's seeds draws now (the slot had another layout or style when
+    it was made) and that no manifest names is found by the slot in its scene.json at the run's start, and retired
+    when the slot is regenerated: after each job the run looks only at the slot's scenes it found then and at its
+    seeds' ids, not at every scene.json again."""
+    sys.path.insert(0, str(Path(__file__).parent))
+    import _crash_job
+
+    out, victim = _copy_with_an_old_scene(mini_run, tmp_path)
+    old_id = f"L9_S9_s1_{victim['task']}"
+    shutil.copytree(victim["dir"], ff.scene_dir(out, victim["benchmark"], old_id))
+    path = ff.scene_dir(out, victim["benchmark"], old_id) / ff.SCENE_JSON
+    path.write_text(json.dumps({**json.loads(path.read_text()), "scene_id": old_id}))
+    man = gen.generate(
+        out, get_preset("tiny", **MINI), seed=0, workers=0, quiet=True, job_fn=_crash_job.error_then_drop
+    )
+    (key,) = [k for k, s in man["scenes"].items() if not s.get("resumed")]
+    assert sorted(man["scenes"][key]["retired"]) == sorted([victim["scene_id"], old_id])
+    assert not {victim["scene_id"], old_id} & {s["scene_id"] for s in ff.iter_scenes(out)}
+    assert (out / victim["benchmark"] / ff.RETIRED / old_id / ff.SCENE_JSON).is_file()
+
+
 @pytest.mark.parametrize("damage", ["missing", "corrupt", "scenes_list", "entry_not_a_record"])
 def test_a_rerun_into_scenes_without_a_readable_manifest_is_refused(mini_run, tmp_path, damage):
     """Without a readable manifest the settings went unchecked: a rerun with another grid cell kept the old scenes
