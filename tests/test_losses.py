@@ -202,6 +202,8 @@ def test_bad_input():
     # a text or None failed a comparison naming nothing
     with pytest.raises(ValueError, match="build_loss: rank_weight must be a finite number >= 0, got '0.1'"):
         build_loss("aff", rank_weight="0.1")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="build_loss: beta must be a finite number >= 0, got nan"):
+        build_loss("aff", beta=float("nan"))
     with pytest.raises(ValueError, match="build_loss: rank_temperature must be a finite number > 0, got None"):
         build_loss("aff", rank_weight=0.1, rank_temperature=None)  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="listwise_rank_loss: temperature must be a finite number > 0, got '1'"):

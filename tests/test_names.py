@@ -10,7 +10,8 @@ from floaff_zoo import contract, demo, names
 from floaff_zoo.data import floaff_kitchen
 from floaff_zoo.sim import fileformat, kitchen, presets
 
-SRC = Path(__file__).resolve().parents[1] / "src" / "floaff_zoo"
+ROOT = Path(__file__).resolve().parents[1]
+SRC = ROOT / "src" / "floaff_zoo"
 
 
 def test_old_names_are_the_one_definition():
@@ -42,10 +43,10 @@ def _literal_slices(tree: ast.AST) -> set[int]:
 
 
 def test_no_module_writes_the_names_again():
-    """No tuple or list literal of the package spells out all the tasks or both benchmarks, except names.py (and a
-    ``Literal[...]`` annotation, checked above)."""
+    """No tuple, list or set literal of the package or its scripts spells out all the tasks or both benchmarks,
+    except names.py (and a ``Literal[...]`` annotation, checked above)."""
     again = []
-    for path in sorted(SRC.rglob("*.py")):
+    for path in sorted([*SRC.rglob("*.py"), *(ROOT / "scripts").glob("*.py"), *(ROOT / "benchmarks").glob("*.py")]):
         if path.name == "names.py" and path.parent == SRC:
             continue
         tree = ast.parse(path.read_text(encoding="utf-8"), str(path))
@@ -53,8 +54,8 @@ def test_no_module_writes_the_names_again():
         for node in ast.walk(tree):
             if id(node) in literals:
                 continue
-            if isinstance(node, (ast.Tuple, ast.List)) and all(isinstance(e, ast.Constant) for e in node.elts):
+            if isinstance(node, (ast.Tuple, ast.List, ast.Set)) and all(isinstance(e, ast.Constant) for e in node.elts):
                 values = {e.value for e in node.elts}
                 if values >= set(names.TASKS) or values == set(names.BENCHMARKS):
-                    again.append(f"{path.relative_to(SRC)}:{node.lineno}")
+                    again.append(f"{path.relative_to(ROOT)}:{node.lineno}")
     assert not again, f"task/benchmark names written again (import floaff_zoo.names): {again}"

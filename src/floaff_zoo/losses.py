@@ -28,7 +28,7 @@ from typing import Literal
 import torch
 from torch import Tensor
 
-from floaff_zoo.checks import check_number
+from floaff_zoo.checks import check_number, check_numbers
 
 __all__ = [
     "affordance_loss",
@@ -162,7 +162,8 @@ def build_loss(
     ``rank_weight > 0`` plus ``rank_weight * listwise_rank_loss(..., rank_temperature)``. ``deterministic``:
     no random draw (NavAff's weights at their expectation), for validation and test.
     """
-    check_number("rank_weight", rank_weight, owner="build_loss")  # a text or None failed the comparison unnamed
+    # a text or None failed a comparison unnamed; a NaN beta made every Dice term NaN
+    check_numbers({"beta": beta, "rank_weight": rank_weight}, owner="build_loss")
     if name == "mse":
         base: LossFn = masked_mse
     elif name == "aff":

@@ -97,14 +97,16 @@ class H3DNetModule(SeedVotingModule):
 
         Every sample has a target, and each one's error is a mean over its own seeds: the batch mean is a mean over
         samples in training and evaluation alike (the eval batch size does not move the epoch value). A repeated
-        seed (``aux["seed_mask"]`` False) does not vote: each distinct seed counts once.
+        seed (``aux["seed_mask"]`` False, the mask given when a seed repeats) does not vote: each distinct seed counts
+        once.
         """
         h = self.hparams
         gt = target_primitives(
             batch["target_xyz"].float(), batch["target_yaw"].float().reshape(-1), h["face_offset"], h["edge_half_width"]
         )  # [B, 4, 3]
-        seed, kept = aux["seed_xyz"].float(), aux["seed_mask"]
+        seed = aux["seed_xyz"].float()
         near = (seed[..., :2] - batch["target_xyz"].float()[:, None, :2]).norm(dim=-1) <= h["vote_radius"]
+        kept = aux.get("seed_mask", torch.ones_like(near))  # the nets give it when a seed repeats
         near = near & kept  # a repeat is as near as its first occurrence: near.any() is unchanged
         w = torch.where(near.any(dim=1, keepdim=True), near, kept).float()  # [B, S]
         err = (aux["vote_xyz"].float() - gt[:, :, None, :]).abs().sum(-1)  # [B, 4, S]

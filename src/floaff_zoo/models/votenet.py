@@ -34,18 +34,13 @@ def vote_distances(votes: Tensor, gt_xyz: Tensor, gt_sel: Tensor) -> Tensor:
     return d.masked_fill(~gt_sel[:, None, :], float("inf")).amin(dim=-1)
 
 
-def repeated_seeds(seed_mask: Tensor | None) -> Tensor | None:
-    """``seed_mask`` [B, S] bool (False on repeated seeds, the nets' ``aux["seed_mask"]``), or None when every seed
-    is distinct: the losses then take their plain means, bit for bit what they gave before the mask existed."""
-    return None if seed_mask is None or bool(seed_mask.all()) else seed_mask
-
-
 def vote_loss(votes: Tensor, gt_xyz: Tensor, gt_sel: Tensor, seed_mask: Tensor | None = None) -> Tensor:
     """Min-over-GT L1 distance of every vote (VoteNet's vote loss with a set of GT positions).
 
     Args:
         votes: [B, S, 3]; gt_xyz: [B, M, 3]; gt_sel: [B, M] bool (samples with no True have no target: left out);
-        seed_mask: [B, S] bool, False on repeated seeds (their votes copy the first seed's: each counts once).
+        seed_mask: [B, S] bool, False on repeated seeds (their votes copy the first seed's: each counts once);
+        None when no seed repeats (the plain mean).
     Returns:
         scalar mean over the distinct seeds' votes of the samples with a target (0, with a graph, when no sample
         has one).
@@ -54,7 +49,6 @@ def vote_loss(votes: Tensor, gt_xyz: Tensor, gt_sel: Tensor, seed_mask: Tensor |
     if not bool(has.any()):
         return votes.sum() * 0.0
     d = vote_distances(votes[has], gt_xyz[has], gt_sel[has])  # [B', S]
-    seed_mask = repeated_seeds(seed_mask)
     return d.mean() if seed_mask is None else d[seed_mask[has]].mean()
 
 
@@ -67,7 +61,6 @@ def vote_loss_per_sample(votes: Tensor, gt_xyz: Tensor, gt_sel: Tensor, seed_mas
     has = gt_sel.any(dim=1)  # [B]
     per_sample = votes.new_zeros(len(votes))
     d = vote_distances(votes[has], gt_xyz[has], gt_sel[has])  # [B', S]
-    seed_mask = repeated_seeds(seed_mask)
     if seed_mask is None:
         per_sample[has] = d.mean(dim=-1)
     else:  # d * 0 is finite: every sample left here has a target
@@ -81,8 +74,8 @@ class SeedVotingModule(FloAffModule, abc.ABC):
     loss is the affordance loss + ``vote_weight`` x :meth:`vote_loss`. Subclasses build the net."""
 
     def forward_with_aux(self, batch: Batch) -> tuple[Tensor, dict[str, Tensor]]:
-        """Scores [B, M] and the vote geometry (``seed_xyz`` [B,S,3], ``seed_mask`` [B,S] + the net's own, see its
-        ``decode``)."""
+        """Scores [B, M] and the vote geometry (``seed_xyz`` [B,S,3], ``seed_mask`` [B,S] when a seed repeats, + the
+        net's own, see its ``decode``)."""
         scores, aux = run_scene_floor_net(self.net, batch, self.hparams["feat_channels"], self.hparams["bf16"])
         return scores.float(), aux
 
@@ -181,9 +174,10 @@ class VoteNetModule(SeedVotingModule):
     def vote_loss(self, batch: Batch, aux: dict[str, Tensor]) -> Tensor:
         """Min-over-GT L1 distance of the votes to the good floor points: training, the mean over the votes of the
         samples with a target; evaluation, the mean over samples (0 for one without a target). A repeated seed
-        (``aux["seed_mask"]`` False) is left out: each distinct seed's vote counts once."""
+        (``aux["seed_mask"]`` False, the mask given when a seed repeats) is left out: each distinct seed's vote counts
+        once."""
         gt_xyz, gt_sel = good_floor_points(batch, self.hparams["vote_label_threshold"])
         votes = aux["vote_xyz"].float()
         if self.training:
-            return vote_loss(votes, gt_xyz, gt_sel, aux["seed_mask"])
-        return vote_loss_per_sample(votes, gt_xyz, gt_sel, aux["seed_mask"]).mean()
+            return vote_loss(votes, gt_xyz, gt_sel, aux.get("seed_mask"))
+        return vote_loss_per_sample(votes, gt_xyz, gt_sel, aux.get("seed_mask")).mean()

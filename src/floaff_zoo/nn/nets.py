@@ -540,18 +540,20 @@ class SeedVotingNet(nn.Module, abc.ABC):
         fps: list[Tensor | None] | None = None,
     ) -> tuple[Tensor, dict[str, Tensor]]:
         """Scene [B,N,3]/[B,N,C]/[B,N], floor [B,M,3]/[B,M], robot [B,R], target [B,3] ->
-        (scores [B,M] in [0,1], aux {seed_xyz [B,S,3], seed_mask [B,S] bool, + the subclass's vote geometry}).
+        (scores [B,M] in [0,1], aux {seed_xyz [B,S,3], + seed_mask [B,S] bool when a seed repeats, + the subclass's
+        vote geometry}).
 
         ``seed_mask`` is False on the repeats of the first seed (a cloud with fewer distinct points than seeds): a
-        vote loss over the seeds must leave them out, or the first seed's vote counts once per repeat."""
+        vote loss over the seeds must leave them out, or the first seed's vote counts once per repeat. It is absent
+        when no seed repeats (known from ``repeat_sources`` already: no further host sync)."""
         if fps is None:
             fps = self.sample(scene_xyz, scene_mask)
         seed_xyz, seed_feat, _ = self.backbone(scene_xyz, scene_feat, scene_mask, robot, fps)
         seed_src = repeat_sources(fps[self.backbone.stop_level - 1])
         logits, aux = self.decode(seed_xyz, seed_feat, floor_xyz, floor_mask, target_xyz, seed_src)
         kept = kept_centres(seed_src)
-        seed_mask = torch.ones(seed_xyz.shape[:2], dtype=torch.bool, device=seed_xyz.device) if kept is None else kept
-        return torch.sigmoid(logits.float()), {"seed_xyz": seed_xyz, "seed_mask": seed_mask, **aux}
+        masks = {} if kept is None else {"seed_mask": kept}
+        return torch.sigmoid(logits.float()), {"seed_xyz": seed_xyz, **masks, **aux}
 
 
 class VoteNetNet(SeedVotingNet):

@@ -14,7 +14,7 @@ from floaff_zoo.checks import check_integer, check_number, check_numbers
 from floaff_zoo.names import BENCHMARKS as ALL_BENCHMARKS  # defined once there; the old names re-exported
 from floaff_zoo.names import TASKS as ALL_TASKS
 
-__all__ = ["PAPER_VIEW_TOTALS", "PRESETS", "GenPreset", "get_preset", "view_counts"]
+__all__ = ["ALL_BENCHMARKS", "ALL_TASKS", "PAPER_VIEW_TOTALS", "PRESETS", "GenPreset", "get_preset", "view_counts"]
 
 
 # benchmark -> task -> (train front, train side, test front, test side); totals 13,610 (Styles) + 11,172 (Layouts)
