@@ -398,3 +398,22 @@ def test_n2m_pooled_code_does_not_depend_on_surplus_last_level_centres(train):
         torch.testing.assert_close(got, want, atol=1e-5, rtol=1e-4)
     for key, value in _stats(exact).items():
         torch.testing.assert_close(_stats(more)[key], value, atol=1e-5, rtol=1e-4, msg=key)
+
+
+def test_vote_losses_on_mixed_batches():
+    """A batch mixing a sample whose seeds repeat with one whose do not, and one without a target: each distinct seed's
+    vote counts once in the training mean, each sample's own mean in evaluation, a sample without a target 0."""
+    from floaff_zoo.models.votenet import vote_loss, vote_loss_per_sample
+
+    # vote distances to the target at the origin: 1, 2 (then two repeats of the first seed); 3, 5, 7, 9
+    dist = torch.tensor([[1.0, 2, 1, 1], [3, 5, 7, 9]])
+    votes = torch.stack([dist, torch.zeros_like(dist), torch.zeros_like(dist)], dim=-1)
+    gt = torch.zeros(2, 1, 3)
+    kept = torch.tensor([[True, True, False, False], [True, True, True, True]])
+    both = torch.tensor([[True], [True]])
+    assert float(vote_loss(votes, gt, both, kept)) == pytest.approx((1 + 2 + 3 + 5 + 7 + 9) / 6)
+    assert vote_loss_per_sample(votes, gt, both, kept).tolist() == pytest.approx([1.5, 6.0])
+    first_only = torch.tensor([[True], [False]])
+    assert float(vote_loss(votes, gt, first_only, kept)) == pytest.approx(1.5)
+    assert vote_loss_per_sample(votes, gt, first_only, kept).tolist() == pytest.approx([1.5, 0.0])
+    assert float(vote_loss(votes, gt, both)) == pytest.approx((1 + 2 + 1 + 1 + 3 + 5 + 7 + 9) / 8)  # no mask: all
