@@ -196,16 +196,20 @@ def slot_scenes(out: Path, job: SceneJob, ids: list[str] | None = None) -> list[
         dirs = [
             d for d in (ff.scene_dir(out, job.benchmark, s) for s in sorted(set(ids))) if (d / ff.SCENE_JSON).is_file()
         ]
-    found = []
+    return scenes_by_slot(dirs).get((job.benchmark, job.key), [])
+
+
+def scenes_by_slot(dirs: list[Path]) -> dict[tuple[str, str], list[str]]:
+    """(benchmark, slot key) -> scene_ids of the scene folders ``dirs`` (``committed_scene_dirs``), by the slot their
+    scene.json names, each read once; a folder whose scene.json does not parse or names no slot is left out."""
+    found: dict[tuple[str, str], list[str]] = {}
     for d in dirs:
-        if d.parent.name != job.benchmark:
-            continue
         try:
             rec = ff.read_json(d / ff.SCENE_JSON)
         except ff.FormatError:
             continue
-        if isinstance(rec, dict) and rec.get("slot") == job.key:
-            found.append(d.name)
+        if isinstance(rec, dict) and isinstance(rec.get("slot"), str):
+            found.setdefault((d.parent.name, rec["slot"]), []).append(d.name)
     return found
 
 
@@ -943,15 +947,7 @@ def _generate(
             "restore manifest.json"
         )
     todo: list[SceneJob] = []
-    # a slot's committed scenes by the slot their scene.json names (read once: slot_scenes reads every scene.json)
-    by_slot: dict[tuple[str, str], list[str]] = {}
-    for d in committed_scene_dirs(outp):
-        try:
-            slot = ff.read_json(d / ff.SCENE_JSON)
-        except ff.FormatError:
-            continue
-        if isinstance(slot, dict) and isinstance(slot.get("slot"), str):
-            by_slot.setdefault((d.parent.name, slot["slot"]), []).append(d.name)
+    by_slot = scenes_by_slot(committed_scene_dirs(outp))  # every scene.json read once, at the start
     retire: dict[str, list[str]] = {}  # resumed slot -> its other scenes, moved aside once the run is not refused
     for job in jobs:
         base = {
