@@ -465,3 +465,18 @@ def test_a_nan_input_is_named_not_cropped_away(root, key):
     b["scene_mask"][0, -1] = False
     b["scene_xyz"][0, -1] = float("nan")  # padding
     m.check_inputs(b)
+
+
+def test_a_teacher_whose_saved_sampling_is_not_numbers_is_named(tmp_path, root):
+    """A teacher file whose saved local radii are no numbers failed ``float()`` naming neither file nor field."""
+    import json
+
+    args = tiny_args(root)
+    CFARModule(**args).save_pretrained(tmp_path / "stage1")
+    cfg = json.loads((tmp_path / "stage1" / "config.json").read_text())
+    init = cfg["init_args"] if "init_args" in cfg else cfg
+    init["local_radii"] = ["near", "far"]
+    (tmp_path / "stage1" / "config.json").write_text(json.dumps(cfg))
+    student = CFARModule(**args, teacher=str(tmp_path / "stage1"))
+    with pytest.raises(ValueError, match=r"teacher '.*stage1': local_radii must be a list of numbers, got \['near'"):
+        student.setup("fit")

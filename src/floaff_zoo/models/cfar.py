@@ -107,12 +107,16 @@ def batch_statistics(module: nn.Module) -> Iterator[None]:
             m.training, m.track_running_stats = tr, track
 
 
-def _local_sampling(args: Any, name: str) -> list[float]:
-    """A local-encoder sampling argument of a CFAR's init args, ``None`` resolved to ``CFARNet``'s default."""
+def _local_sampling(args: Any, name: str, who: str) -> list[float]:
+    """A local-encoder sampling argument of a CFAR's init args, ``None`` resolved to ``CFARNet``'s default;
+    ValueError naming ``who`` (whose arguments) when it is not a list of numbers."""
     value = args.get(name)
     if value is None:
         value = inspect.signature(CFARNet.__init__).parameters[name].default
-    return [float(v) for v in value]
+    try:
+        return [float(v) for v in value]
+    except (TypeError, ValueError) as exc:  # a checkpoint's saved text failed float() naming nothing
+        raise ValueError(f"{who}: {name} must be a list of numbers, got {value!r}") from exc
 
 
 def _sha256(path: str) -> str | None:
@@ -340,11 +344,13 @@ class CFARModule(FloAffModule):
         # same weights' shapes but other centres, radii or neighbour counts: the copy would run the teacher's weights
         # with the student's sampling, a function the teacher never computed (a file without its arguments: unchecked)
         saved = info.get("init_args") or {}
-        differ = [
-            f"{k}: teacher {_local_sampling(saved, k)} vs student {_local_sampling(self.hparams, k)}"
+        teacher_of, student = f"teacher {name!r}", type(self).__name__
+        pairs = {
+            k: (_local_sampling(saved, k, teacher_of), _local_sampling(self.hparams, k, student))
             for k in TEACHER_SAMPLING_ARGS
-            if k in saved and _local_sampling(saved, k) != _local_sampling(self.hparams, k)
-        ]
+            if k in saved
+        }
+        differ = [f"{k}: teacher {t} vs student {s}" for k, (t, s) in pairs.items() if t != s]
         if differ:
             raise ValueError(
                 f"teacher {name!r} was trained with another canonical-cloud sampling than the student's: "
