@@ -701,3 +701,10 @@ def test_a_split_without_any_sample_of_a_loaded_task_is_said(floaff_root, tmp_pa
     with warnings.catch_warnings():
         warnings.simplefilter("error", UserWarning)
         dm.setup("test")  # the test split holds both tasks
+    no_test = tmp_path / "no_test"
+    shutil.copytree(root, no_test, ignore=shutil.ignore_patterns(".cache"))
+    for d in (no_test / "styles").glob("PnPCounterToCab-test*"):
+        shutil.rmtree(d)  # PnP keeps its train scenes only
+    for stage in ("test", "predict"):
+        with pytest.warns(UserWarning, match=r"'test' split holds no sample of task\(s\) \['PnPCounterToCab'\]"):
+            _dm(no_test, tasks=tasks).setup(stage)

@@ -410,16 +410,24 @@ def test_a_resumed_fit_averages_only_tasks_its_prior_lacks(root):
     assert all(torch.equal(m.prior.sums[i], kept[i]) for i in range(len(m.prior.tasks)) if i != o)
 
 
-def test_a_teacher_trained_with_other_local_sampling_is_refused(tmp_path, root):
-    """The teacher is the student's encoder with the teacher's weights: a teacher trained with other local radii (or
-    centres, or neighbour counts) has weights of the same shapes, and ran silently with the student's sampling."""
+@pytest.mark.parametrize(
+    ("arg", "value", "shown"),
+    [
+        ("local_radii", [0.25, 0.5], r"teacher \[0\.2, 0\.4\] vs student \[0\.25, 0\.5\]"),
+        ("local_npoints", [32, 16], r"teacher \[64\.0, 16\.0\] vs student \[32\.0, 16\.0\]"),
+        ("local_nsamples", [4, 8], r"teacher \[8\.0, 8\.0\] vs student \[4\.0, 8\.0\]"),
+    ],
+)
+def test_a_teacher_trained_with_other_local_sampling_is_refused(tmp_path, root, arg, value, shown):
+    """The teacher is the student's encoder with the teacher's weights: a teacher trained with other local radii,
+    centres or neighbour counts has weights of the same shapes, and ran silently with the student's sampling."""
     args = tiny_args(root)
     CFARModule(**args).save_pretrained(tmp_path / "stage1")
     same = CFARModule(**args, teacher=str(tmp_path / "stage1"))
     same.setup("fit")
     assert same.teacher is not None
-    other = CFARModule(**{**args, "local_radii": [0.25, 0.5]}, teacher=str(tmp_path / "stage1"))
-    with pytest.raises(ValueError, match=r"local_radii: teacher \[0\.2, 0\.4\] vs student \[0\.25, 0\.5\]"):
+    other = CFARModule(**{**args, arg: value}, teacher=str(tmp_path / "stage1"))
+    with pytest.raises(ValueError, match=f"{arg}: {shown}"):
         other.setup("fit")
     assert other.teacher is None
 
