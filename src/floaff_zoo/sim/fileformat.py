@@ -53,6 +53,7 @@ __all__ = [
     "atomic_write_json",
     "check_format_version",
     "commit_scene_dir",
+    "committed_record",
     "iter_scenes",
     "labels_digest",
     "labels_version",
@@ -179,13 +180,18 @@ def staging_dir(root: str | Path, benchmark: str, scene_id: str) -> Path:
     return Path(root) / benchmark / STAGING / scene_id
 
 
+def committed_record(root: str | Path, benchmark: str, scene_id: str) -> dict[str, Any] | None:
+    """The scene.json of a committed scene (it parses and has status "ok"), read once; None for any other."""
+    try:
+        rec = read_json(scene_dir(root, benchmark, scene_id) / SCENE_JSON)
+    except FormatError:
+        return None
+    return rec if isinstance(rec, dict) and rec.get("status") == "ok" else None
+
+
 def scene_is_done(root: str | Path, benchmark: str, scene_id: str) -> bool:
     """True when the scene's scene.json exists, parses and has status "ok" (resume skips such scenes)."""
-    p = scene_dir(root, benchmark, scene_id) / SCENE_JSON
-    try:
-        return json.loads(p.read_text()).get("status") == "ok"
-    except (OSError, ValueError, AttributeError):
-        return False
+    return committed_record(root, benchmark, scene_id) is not None
 
 
 def commit_scene_dir(stage: Path, final: Path) -> None:

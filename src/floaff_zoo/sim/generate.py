@@ -151,7 +151,7 @@ def find_done(out: Path, job: SceneJob, min_views: int = 0) -> str | None:
     existed counts as topped up when it holds at least ``min_views`` views).
     """
     for sid in _seed_scene_ids(job):
-        rec = _committed_record(out, job.benchmark, sid)
+        rec = ff.committed_record(out, job.benchmark, sid)
         if rec is not None:
             if rec.get("slot") != job.key or not same_generator(rec):
                 continue
@@ -169,16 +169,6 @@ def find_done(out: Path, job: SceneJob, min_views: int = 0) -> str | None:
 def _seed_scene_ids(job: SceneJob) -> list[str]:
     """The scene_ids the slot's seed attempts draw, in attempt order: the only scenes a job of it commits."""
     return [_scene_id(_spec(job, s)) for s in job.seeds]
-
-
-def _committed_record(out: Path, benchmark: str, sid: str) -> dict[str, Any] | None:
-    """The scene.json of a committed scene (one that parses with status "ok", as ``ff.scene_is_done``), read once;
-    None for any other."""
-    try:
-        rec = ff.read_json(ff.scene_dir(out, benchmark, sid) / ff.SCENE_JSON)
-    except ff.FormatError:
-        return None
-    return rec if isinstance(rec, dict) and rec.get("status") == "ok" else None
 
 
 def slot_scenes(out: Path, job: SceneJob, ids: list[str] | None = None) -> list[str]:
@@ -989,7 +979,7 @@ def _generate(
 
     def left_out(bench: str, sid: str) -> dict[str, Any] | None:
         """The scene.json of a left-out slot's scene, its generator checked once; None when it is not committed."""
-        rec = _committed_record(outp, bench, sid)
+        rec = ff.committed_record(outp, bench, sid)
         if rec is None:
             return None
         if (bench, sid) not in checked and not same_generator(rec):
