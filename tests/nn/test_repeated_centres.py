@@ -70,7 +70,7 @@ def test_encoder_centre_masks_flag_the_repeats_only():
     torch.manual_seed(0)
     enc = PointNet2Encoder(0, [6, 4], [[0.3], [0.6]], [[4], [4]], [[[8]], [[8]]])
     xyz = torch.rand(1, 4, 3)
-    masks = enc.centre_masks(enc.sample(xyz, None))
+    masks = enc.centre_masks(enc.sources(enc.sample(xyz, None)))
     assert masks[0].tolist() == [[True] * 4 + [False] * 2]
     assert masks[1] is None
 
@@ -417,3 +417,85 @@ def test_vote_losses_on_mixed_batches():
     assert float(vote_loss(votes, gt, first_only, kept)) == pytest.approx(1.5)
     assert vote_loss_per_sample(votes, gt, first_only, kept).tolist() == pytest.approx([1.5, 0.0])
     assert float(vote_loss(votes, gt, both)) == pytest.approx((1 + 2 + 1 + 1 + 3 + 5 + 7 + 9) / 8)  # no mask: all
+
+
+def _count_repeat_sources(monkeypatch: pytest.MonkeyPatch) -> list[int]:
+    """Patch ``repeat_sources`` wherever it is looked up; the returned list gets one entry per call that asks the device
+    whether an FPS level repeats (a host sync: a call on None asks nothing)."""
+    from floaff_zoo.nn import nets, pointnet2
+
+    calls: list[int] = []
+
+    def counted(idx):
+        if idx is not None:
+            calls.append(idx.shape[1])
+        return repeat_sources(idx)
+
+    for module in (pointnet2, nets):
+        monkeypatch.setattr(module, "repeat_sources", counted)
+    return calls
+
+
+def _fps_levels(fps) -> int:
+    """FPS levels (group-all levels sample none) in a net's ``sample`` output, nested for NavAff."""
+    if isinstance(fps, tuple):
+        return sum(_fps_levels(f) for f in fps)
+    return sum(idx is not None for idx in fps)
+
+
+@pytest.mark.parametrize("train", [False, True])
+@pytest.mark.parametrize("name", ["PointNet2Seg", "PointNet2Net", "VoteNetNet", "H3DNetNet", "N2MNet", "NavAffNet"])
+def test_one_repeat_lookup_per_fps_level_and_forward(name, train, monkeypatch):
+    """Whether an FPS level repeats a centre is a host sync (``repeat_sources``): a forward pass finds it once per level
+    and hands it on (the encoder, every set-abstraction level, the decoder and the heads each found it again: a VoteNet
+    training step waited on the device 7 more times)."""
+    from floaff_zoo.nn import nets
+    from floaff_zoo.nn.pointnet2 import PointNet2Seg
+
+    n = 12
+    torch.manual_seed(0)
+    xyz, feat, mask = _small_cloud(n)
+    floor, fmask = _floor()
+    robot, target = torch.rand(2, 2), torch.rand(2, 3) * 0.6
+    levels = ([n + 9, 8, 3], [[0.15], [0.25], [0.8]], [[4], [4], [4]], [[[8]], [[16]], [[16]]])
+    if name == "PointNet2Seg":
+        net = PointNet2Seg(1, *levels, [[16], [16], [16]], head=[8])
+        fps, run = net.encoder.sample(xyz, mask), lambda fps: net(xyz, feat, mask, fps)
+    elif name == "PointNet2Net":
+        net = nets.PointNet2Net("ssg", 1, 2, *levels, [[16], [16], [16]], robot_width=8, head_width=8, dropout=0.0)
+        fps, run = net.sample(xyz, mask), lambda fps: net(xyz, feat, mask, floor, fmask, robot, target, fps)
+    elif name == "N2MNet":
+        net = nets.N2MNet(1, [n + 3, n + 2], [[0.3], [0.6]], [[4], [4]], [[[8]], [[16]]], decoder=(16,), dropout=0.0)
+        fps, run = net.sample(xyz, mask), lambda fps: net(xyz, feat, mask, fps)
+    elif name == "NavAffNet":
+        net = nets.NavAffNet(npoints=(3 * floor.shape[1], 6, 3), num_heads=2, dropout=0.0)
+        fps = net.sample(xyz, mask, floor, fmask)
+        run = lambda fps: net(xyz, feat, mask, floor, fmask, robot, fps)  # noqa: E731
+    else:
+        net = _with_surplus_seeds(getattr(nets, name)(1, 2, **_seed_voting_sizes(name, n)), n)
+        fps, run = net.sample(xyz, mask), lambda fps: net(xyz, feat, mask, floor, fmask, robot, target, fps)
+    net.train(train)
+    proposals = [net.aggregate] if name == "VoteNetNet" else list(net.aggregate) if name == "H3DNetNet" else []
+    first = fps[1][0] if name == "NavAffNet" else fps[0]  # NavAff: the floor encoder's first level
+    assert repeat_sources(first) is not None  # a cloud with fewer points than centres: FPS repeats the first one
+    calls = _count_repeat_sources(monkeypatch)
+    run(fps)
+    assert len(calls) == _fps_levels(fps) + len(proposals), calls  # one per level, vote aggregation's FPS included
+
+
+@pytest.mark.parametrize("train", [False, True])
+def test_cfar_one_repeat_lookup_per_fps_level_and_forward(train, monkeypatch):
+    """As above for CFAR's net, which samples its local and floor levels itself (``sample_levels``)."""
+    args = yaml.safe_load((ROOT / "tests/configs/cfar_tiny.yaml").read_text())["model"]["init_args"]
+    torch.manual_seed(0)
+    net = CFARModule(**args).net.train(train)
+    n = net.local_encoder.levels[-2].npoint - 3  # fewer points than the last local level's centres
+    mask = torch.zeros(2, 64, dtype=torch.bool)
+    mask[:, :n] = True
+    xyz = torch.where(mask[..., None], torch.rand(2, 64, 3) * 0.6 - 0.3, 0.0)
+    feat = torch.randn(2, 64, net.feat_channels)
+    floor = torch.cat([torch.rand(2, 10, 2) * 0.6 - 0.3, torch.zeros(2, 10, 1)], dim=-1)  # under 16 floor centres
+    calls = _count_repeat_sources(monkeypatch)
+    net.logits(xyz, feat, mask, floor, torch.ones(2, 10, dtype=torch.bool), torch.randn(2, args.get("robot_dim", 2)))
+    levels = [sa for sa in (*net.local_encoder.levels, *net.floor_encoder.levels) if not sa.group_all]
+    assert sorted(calls) == sorted(sa.npoint for sa in levels)

@@ -420,8 +420,9 @@ class CFARNet(nn.Module):
         """Canonical cloud xyz [B,N,3], feat [B,N,C], mask [B,N] -> (g [B, C_g], all levels, per level 1..L its
         centre mask [B, S_l] (False on a repeated centre) or None: ``PointNet2Encoder.centre_masks``)."""
         fps = sample_levels(self.local_encoder, xyz, mask)
-        levels = self.local_encoder(xyz, feat[..., : self.feat_channels], mask, fps)
-        return levels[-1][1][:, 0], levels, self.local_encoder.centre_masks(fps)
+        srcs = self.local_encoder.sources(fps)
+        levels = self.local_encoder(xyz, feat[..., : self.feat_channels], mask, fps, srcs)
+        return levels[-1][1][:, 0], levels, self.local_encoder.centre_masks(srcs)
 
     def fourier(self, xy: Tensor) -> Tensor:
         """Canonical floor xy [B, M, 2] -> [B, M, 2 + 4F]: xy and sin/cos at F octaves (wavelengths 2 m, 1 m, ...)."""
@@ -436,10 +437,11 @@ class CFARNet(nn.Module):
         if self.floor_mode == "pointwise":
             return self.floor_point(self.fourier(floor_xyz[..., :2]))
         fps = sample_levels(self.floor_encoder, floor_xyz, floor_mask)
-        flv = self.floor_encoder(floor_xyz, None, floor_mask, fps)
+        srcs = self.floor_encoder.sources(fps)
+        flv = self.floor_encoder(floor_xyz, None, floor_mask, fps, srcs)
         # level 0 = the floor points themselves (padding masked); deeper levels: a floor with fewer points than
         # centres repeats one, kept out of the batch statistics and the interpolation (in training its rows are 0)
-        masks = [floor_mask] + self.floor_encoder.centre_masks(fps)
+        masks = [floor_mask] + self.floor_encoder.centre_masks(srcs)
         skips: list[Tensor | None] = [floor_xyz] + [f for _, f in flv[1:]]
         cur = flv[-1][1]
         n = len(flv) - 1

@@ -147,13 +147,23 @@ class SceneEncoderDecoder(nn.Module):
         return self.encoder.sample(xyz, mask)
 
     def forward(
-        self, xyz: Tensor, feat: Tensor, mask: Tensor, robot: Tensor, fps: list[Tensor | None] | None
+        self,
+        xyz: Tensor,
+        feat: Tensor,
+        mask: Tensor,
+        robot: Tensor,
+        fps: list[Tensor | None] | None,
+        srcs: list[Tensor | None] | None = None,
     ) -> tuple[Tensor, Tensor, list[tuple[Tensor, Tensor | None]]]:
-        """Returns (xyz at stop level [B,S,3], features [B,S,C], all encoder levels)."""
+        """Returns (xyz at stop level [B,S,3], features [B,S,C], all encoder levels).
+
+        ``srcs``: ``PointNet2Encoder.sources(fps)`` when the caller needs them too (found here when None)."""
         if fps is None:
             fps = self.encoder.sample(xyz, mask)
-        levels = self.encoder(xyz, feat, mask, fps)
-        kept = [None] + self.encoder.centre_masks(fps)  # repeated centres (a cloud under npoint), per level
+        if srcs is None:
+            srcs = self.encoder.sources(fps)
+        levels = self.encoder(xyz, feat, mask, fps, srcs)
+        kept = [None] + self.encoder.centre_masks(srcs)  # repeated centres (a cloud under npoint), per level
         deep_xyz, deep = levels[-1]
         r = self.robot(robot)[:, None, :].expand(-1, deep.shape[1], -1)
         cur = torch.cat([deep, r.to(deep.dtype)], dim=-1)
@@ -165,7 +175,7 @@ class SceneEncoderDecoder(nn.Module):
         # the caller reads every stop-level row (FP onto the floor, vote heads): a repeat gets its first occurrence's
         # row, which training left at 0 (kept out of the batch statistics above)
         if stop > 0:
-            cur = copy_to_repeats(cur, repeat_sources(fps[stop - 1]))
+            cur = copy_to_repeats(cur, srcs[stop - 1])
         return levels[stop][0], cur, levels
 
 
@@ -231,10 +241,11 @@ class PointNet2Net(nn.Module):
             skip = torch.cat([skip, floor_feat.to(skip.dtype)], dim=-1)
         if fps is None:
             fps = self.scene.sample(scene_xyz, scene_mask)
-        sxyz, sfeat, _ = self.scene(scene_xyz, scene_feat, scene_mask, robot, fps)
+        srcs = self.scene.encoder.sources(fps)
+        sxyz, sfeat, _ = self.scene(scene_xyz, scene_feat, scene_mask, robot, fps, srcs)
         # a cloud with fewer points than the stop level's centres repeats its first centre: the repeats stay out of the
         # floor points' 3-NN (they would fill two or three of the neighbours with one point)
-        kept = kept_centres(repeat_sources(fps[self.scene.stop_level - 1]))
+        kept = kept_centres(srcs[self.scene.stop_level - 1])
         h = self.floor_fp(floor_xyz, sxyz, skip, sfeat, mask_sparse=kept, mask_dense=floor_mask)
         return torch.sigmoid(self.head(h, floor_mask).float())
 
@@ -394,10 +405,11 @@ class NavAffNet(nn.Module):
         axyz, amask = self.floor_anchors(scene_xyz, scene_mask, floor_xyz, floor_mask)
         if fps_f is None:
             fps_f = self.encoder_floor.sample(axyz, amask)
-        f = self.encoder_floor(axyz, None, amask, fps_f)
+        srcs_f = self.encoder_floor.sources(fps_f)
+        f = self.encoder_floor(axyz, None, amask, fps_f, srcs_f)
         # a view's floor holds fewer points than sa1 has centres (median 150 of 256): FPS repeats the first one, and
         # the decoder keeps the repeats out of its interpolation and batch statistics
-        k1, k2, k3 = self.encoder_floor.centre_masks(fps_f)
+        k1, k2, k3 = self.encoder_floor.centre_masks(srcs_f)
         token = self.mlp_robot(robot)[:, None, :]
         kv = torch.cat([token.to(g[3][1].dtype), g[3][1]], dim=1)  # [B, 1 + N_p, 512]
         fused = self.fusion(f[3][1], kv)  # replaces the floor sa3 features (no residual)
@@ -463,8 +475,8 @@ class VoteAggregation(nn.Module):
         the first proposal, which then stays out of the head's batch statistics and of the caller's 3-NN."""
         if fps_idx is None:
             fps_idx = self.sample(vote_xyz, vote_mask)
-        pxyz, pfeat = self.sa(vote_xyz, vote_feat, vote_mask, fps_idx)
         src = repeat_sources(fps_idx)
+        pxyz, pfeat = self.sa(vote_xyz, vote_feat, vote_mask, fps_idx, src)
         kept = kept_centres(src)
         h = copy_to_repeats(self.head(pfeat, kept), src)
         s = torch.sigmoid(self.score(h))
@@ -548,8 +560,9 @@ class SeedVotingNet(nn.Module, abc.ABC):
         when no seed repeats (known from ``repeat_sources`` already: no further host sync)."""
         if fps is None:
             fps = self.sample(scene_xyz, scene_mask)
-        seed_xyz, seed_feat, _ = self.backbone(scene_xyz, scene_feat, scene_mask, robot, fps)
-        seed_src = repeat_sources(fps[self.backbone.stop_level - 1])
+        srcs = self.backbone.encoder.sources(fps)
+        seed_xyz, seed_feat, _ = self.backbone(scene_xyz, scene_feat, scene_mask, robot, fps, srcs)
+        seed_src = srcs[self.backbone.stop_level - 1]
         logits, aux = self.decode(seed_xyz, seed_feat, floor_xyz, floor_mask, target_xyz, seed_src)
         kept = kept_centres(seed_src)
         masks = {} if kept is None else {"seed_mask": kept}
@@ -781,9 +794,10 @@ class N2MNet(nn.Module):
         """-> GMM (means [B,K,3], cov [B,K,3,3], log-weights [B,K])."""
         if fps is None:
             fps = self.sample(scene_xyz, scene_mask)
-        levels = self.encoder(scene_xyz, scene_feat, scene_mask, fps)
+        srcs = self.encoder.sources(fps)
+        levels = self.encoder(scene_xyz, scene_feat, scene_mask, fps, srcs)
         f = levels[-1][1]
-        kept = self.encoder.centre_masks(fps)[-1]
+        kept = kept_centres(srcs[-1])
         # a repeated centre (a cloud with fewer distinct points than the last level's) counts once in the mean; the
         # max is the same either way (a repeat copies its first occurrence's row)
         mean = f.mean(dim=1) if kept is None else (f * kept[..., None]).sum(dim=1) / kept.sum(dim=1, keepdim=True)

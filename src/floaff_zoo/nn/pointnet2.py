@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
+from types import EllipsisType
 
 import torch
 import torch.nn.functional as F
@@ -713,9 +714,16 @@ class SetAbstraction(nn.Module):
         return None if self.group_all else farthest_point_sample(xyz, mask, self.npoint)
 
     def forward(
-        self, xyz: Tensor, feat: Tensor | None, mask: Tensor | None = None, fps_idx: Tensor | None = None
+        self,
+        xyz: Tensor,
+        feat: Tensor | None,
+        mask: Tensor | None = None,
+        fps_idx: Tensor | None = None,
+        src: Tensor | None | EllipsisType = ...,
     ) -> tuple[Tensor, Tensor]:
-        """xyz [B,N,3], feat [B,N,D] | None, mask [B,N] | None, fps_idx [B,S] | None.
+        """xyz [B,N,3], feat [B,N,D] | None, mask [B,N] | None, fps_idx [B,S] | None, src [B,S] | None: fps_idx's
+        ``repeat_sources`` when the caller has them (None: no centre repeats); ``...`` (default): found here, a host
+        sync, only when a batch-statistics MLP needs them.
 
         Returns (new_xyz [B,S,3], new_feat [B,S,C_out]).
         """
@@ -733,7 +741,8 @@ class SetAbstraction(nn.Module):
         groups = ball_query_multi(self.radii, self.nsamples, xyz, new_xyz, mask)
         # a repeated centre groups the same neighbours as its first occurrence, so it has the same features; with
         # batch statistics it would still count again in them (a 150-point floor under 256 centres: 40 % of the rows)
-        src = repeat_sources(fps_idx) if not all(m.rowwise() for m in self.mlps) else None
+        if src is ...:
+            src = repeat_sources(fps_idx) if not all(m.rowwise() for m in self.mlps) else None
         outs = []
         for idx, mlp in zip(groups, self.mlps):
             per_point = None
@@ -895,31 +904,46 @@ class PointNet2Encoder(nn.Module):
         return out
 
     def forward(
-        self, xyz: Tensor, feat: Tensor | None, mask: Tensor | None = None, fps: list[Tensor | None] | None = None
+        self,
+        xyz: Tensor,
+        feat: Tensor | None,
+        mask: Tensor | None = None,
+        fps: list[Tensor | None] | None = None,
+        srcs: list[Tensor | None] | None = None,
     ) -> list[tuple[Tensor, Tensor | None]]:
-        """Returns [(xyz_l, feat_l)] for l = 0..L (level 0 is the input)."""
+        """Returns [(xyz_l, feat_l)] for l = 0..L (level 0 is the input).
+
+        ``srcs``: ``sources(fps)`` when the caller needs them too (found here when None)."""
         if self.xyz_as_feat:
             feat = xyz if feat is None else torch.cat([xyz, feat], dim=-1)
         if fps is None:
             fps = self.sample(xyz, mask)
+        if srcs is None:
+            srcs = self.sources(fps)
         levels: list[tuple[Tensor, Tensor | None]] = [(xyz, feat)]
         cur_mask = mask
-        for sa, idx in zip(self.levels, fps):
-            xyz, feat = sa(xyz, feat, cur_mask, idx)
+        for sa, idx, src in zip(self.levels, fps, srcs):
+            xyz, feat = sa(xyz, feat, cur_mask, idx, src)
             # centres are valid points; repeated ones (a cloud smaller than npoint) stay out of the next level's
             # groups, where they would only add copies of the first point to the batch statistics
-            cur_mask = kept_centres(repeat_sources(idx))
+            cur_mask = kept_centres(src)
             levels.append((xyz, feat))
         return levels
 
     @staticmethod
-    def centre_masks(fps: list[Tensor | None]) -> list[Tensor | None]:
-        """Per level 1..L of ``sample``'s indices: [B, S_l] bool, False on repeated centres, or None (none repeat).
+    def sources(fps: list[Tensor | None]) -> list[Tensor | None]:
+        """Per level 1..L of ``sample``'s indices: its ``repeat_sources`` [B, S_l], None where no centre repeats (or
+        for a group-all level). One host sync per FPS level: a forward pass finds them once and hands them on."""
+        return [None if idx is None else repeat_sources(idx) for idx in fps]
+
+    @staticmethod
+    def centre_masks(srcs: list[Tensor | None]) -> list[Tensor | None]:
+        """Per level 1..L of ``sources``: [B, S_l] bool, False on repeated centres, or None (none repeat).
 
         A decoder passes them to ``FeaturePropagation`` (``mask_sparse`` / ``mask_dense``): a repeat shares its
         first occurrence's position, so 3-NN interpolation would otherwise weigh that point two or three times.
         """
-        return [kept_centres(repeat_sources(idx)) for idx in fps]
+        return [kept_centres(src) for src in srcs]
 
 
 class PointNet2Seg(nn.Module):
@@ -964,8 +988,9 @@ class PointNet2Seg(nn.Module):
         """xyz [B,N,3], feat [B,N,D] | None, mask [B,N] -> logits [B,N]."""
         if fps is None:
             fps = self.encoder.sample(xyz, mask)
-        levels = self.encoder(xyz, feat, mask, fps)
-        masks = [mask] + self.encoder.centre_masks(fps)  # padding, then repeated centres (a cloud under npoint)
+        srcs = self.encoder.sources(fps)
+        levels = self.encoder(xyz, feat, mask, fps, srcs)
+        masks = [mask] + self.encoder.centre_masks(srcs)  # padding, then repeated centres (a cloud under npoint)
         skip0 = xyz if feat is None else torch.cat([xyz, feat], dim=-1)
         skips = [skip0] + [f for _, f in levels[1:]]
         cur = levels[-1][1]
