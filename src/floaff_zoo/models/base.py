@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
-import math
 import os
 import random
 import typing
@@ -68,19 +67,6 @@ def check_layer_sizes(module: torch.nn.Module) -> None:
                 f"{type(module).__name__}: layer {name} ({type(m).__name__}) has {zero[0]} 0; every width, channel "
                 "count and mlps entry must be >= 1"
             )
-
-
-def check_numbers(
-    owner: str, values: Mapping[str, float], low: float = 0.0, high: float = math.inf, strict: bool = False
-) -> None:
-    """Refuse a scalar argument that is not a finite number in [low, high] ((low, high] when ``strict``): loss weights
-    and sizes that would otherwise run, silently wrong (a negative weight maximising its term, a zero cell or a negative
-    footprint switching a check off) or NaN. :func:`floaff_zoo.checks.check_numbers` with the model's ``owner``.
-
-    Raises:
-        ValueError: naming the first such argument of ``values`` ({name: value}).
-    """
-    checks.check_numbers(values, low, high, strict, owner, ValueError)
 
 
 # ----------------------------------------------------------------------------- training recipe

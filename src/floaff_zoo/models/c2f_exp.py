@@ -8,8 +8,9 @@ from typing import Any, ClassVar, Literal
 import torch
 from torch import Tensor
 
+from floaff_zoo.checks import check_numbers
 from floaff_zoo.contract import Batch
-from floaff_zoo.models.base import FloAffModule, FloAffTrainConfig, check_numbers
+from floaff_zoo.models.base import FloAffModule, FloAffTrainConfig
 from floaff_zoo.models.pointnet2 import floor_inputs, scene_inputs
 from floaff_zoo.models.yaw import estimate_yaw
 from floaff_zoo.nn.c2f import C2FConfig, C2FPlanner, resolve_scorer
@@ -88,10 +89,10 @@ class C2FExpModule(FloAffModule):
         # above 1 a negative exponent on the semantic term, a NaN anywhere NaN weights
         owner = type(self).__name__
         sizes = ("sigma_dist", "sigma_bias", "sigma_decay", "cell", "manhattan_radius")
-        check_numbers(owner, {k: h[k] for k in sizes}, strict=True)
-        check_numbers(owner, {k: h[k] for k in ("r_star", "clearance")})
-        check_numbers(owner, {"max_alpha": h["max_alpha"]}, high=1.0)
-        check_numbers(owner, {"z_min": h["z_min"]}, low=-math.inf)
+        check_numbers({k: h[k] for k in sizes}, strict=True, owner=owner)
+        check_numbers({k: h[k] for k in ("r_star", "clearance")}, owner=owner)
+        check_numbers({"max_alpha": h["max_alpha"]}, high=1.0, owner=owner)
+        check_numbers({"z_min": h["z_min"]}, low=-math.inf, owner=owner)
         if not h["max_drift"] >= 0:  # inf: no cap
             raise ValueError(f"{owner}: max_drift must be >= 0, got {h['max_drift']}")
         fields = C2FConfig.__dataclass_fields__

@@ -8,8 +8,9 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from floaff_zoo.checks import check_numbers
 from floaff_zoo.contract import Batch, batch_item
-from floaff_zoo.models.base import FloAffModule, FloAffTrainConfig, check_numbers
+from floaff_zoo.models.base import FloAffModule, FloAffTrainConfig
 from floaff_zoo.models.pointnet2 import floor_inputs, maybe_bf16, maybe_compile, scene_inputs
 from floaff_zoo.nn.nets import N2MNet, gmm_log_prob
 from floaff_zoo.nn.placement import footprint_collides, heading_to, occupied_cells
@@ -114,10 +115,12 @@ class N2MModule(FloAffModule):
     def configure_models(self) -> None:
         h = self.hparams
         owner = type(self).__name__
-        check_numbers(owner, {k: h[k] for k in ("lambda_weights", "lambda_components")})
-        check_numbers(owner, {k: h[k] for k in ("positive_threshold", "footprint_back")}, high=1.0)
-        check_numbers(owner, {k: h[k] for k in ("footprint_length", "footprint_width", "occupancy_cell")}, strict=True)
-        check_numbers(owner, {"occupancy_z": h["occupancy_z"]}, low=-math.inf)
+        check_numbers({k: h[k] for k in ("lambda_weights", "lambda_components")}, owner=owner)
+        check_numbers({k: h[k] for k in ("positive_threshold", "footprint_back")}, high=1.0, owner=owner)
+        check_numbers(
+            {k: h[k] for k in ("footprint_length", "footprint_width", "occupancy_cell")}, strict=True, owner=owner
+        )
+        check_numbers({"occupancy_z": h["occupancy_z"]}, low=-math.inf, owner=owner)
         if h["num_pose_samples"] < 1:
             raise ValueError(f"{owner}: num_pose_samples must be >= 1, got {h['num_pose_samples']}")
         self.net = N2MNet(

@@ -7,8 +7,9 @@ import abc
 import torch
 from torch import Tensor
 
+from floaff_zoo.checks import check_numbers
 from floaff_zoo.contract import Batch
-from floaff_zoo.models.base import FloAffModule, FloAffTrainConfig, check_numbers
+from floaff_zoo.models.base import FloAffModule, FloAffTrainConfig
 from floaff_zoo.models.pointnet2 import maybe_compile, run_scene_floor_net
 from floaff_zoo.nn.nets import VoteNetNet
 
@@ -150,8 +151,8 @@ class VoteNetModule(SeedVotingModule):
 
     def configure_models(self) -> None:
         h = self.hparams
-        check_numbers(type(self).__name__, {"vote_weight": h["vote_weight"]})
-        check_numbers(type(self).__name__, {"vote_label_threshold": h["vote_label_threshold"]}, high=1.0)
+        check_numbers({"vote_weight": h["vote_weight"]}, owner=type(self).__name__)
+        check_numbers({"vote_label_threshold": h["vote_label_threshold"]}, high=1.0, owner=type(self).__name__)
         self.net = VoteNetNet(
             h["feat_channels"],
             h["robot_dim"],
