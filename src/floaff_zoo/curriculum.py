@@ -385,7 +385,7 @@ def _write_json(path: Path, data: dict[str, Any]) -> None:
 
 def _finished(record: dict[str, Any] | None, args: list[str], inputs: dict[str, str]) -> tuple[bool, str]:
     """Whether ``record`` is a finished fit of ``args`` whose ``inputs`` (:func:`_input_files`, computed once per
-    stage: it walks the data folder) and checkpoint are unchanged; (False, why) otherwise."""
+    stage: it hashes the input files) and checkpoint are unchanged; (False, why) otherwise."""
     if not record or record.get("status") != "done":
         return False, "not finished"
     if record.get("args") != args:
@@ -410,10 +410,14 @@ def _finished(record: dict[str, Any] | None, args: list[str], inputs: dict[str, 
 INPUT_SUFFIXES = (".ckpt", ".safetensors", ".pt", ".pth", ".npz")
 
 
-def _input_files(args: list[str]) -> dict[str, str]:
+def _input_files(args: list[str], fingerprints: dict[str, str] | None = None) -> dict[str, str]:
     """{path: sha256} of every existing file of an ``INPUT_SUFFIXES`` kind that a fit argument names, or that a value
     in one of its ``--config`` files names (e.g. ``data.init_args.train_labels``, an ``.npz`` a script regenerates),
-    and {``<data root>/``: fingerprint} of the data folder the fit reads (:func:`floaff_zoo.runs.data_fingerprint`)."""
+    and {``<data root>/``: fingerprint} of the data folder the fit reads (:func:`floaff_zoo.runs.data_fingerprint`).
+
+    ``fingerprints``: {``<data root>/``: fingerprint} of the folders already walked in this curriculum run, filled
+    here: the stages of a curriculum mostly read one folder, which a fit does not change (its sample cache is hidden),
+    so each is walked once per run, not once per stage. Not kept across runs: the data may be generated again."""
     named = list(args) + [v for f in config_values(args) for v in _yaml_strings(f)]
     files = {a: _sha256(a) for a in dict.fromkeys(named) if a.endswith(INPUT_SUFFIXES) and Path(a).is_file()}
     root, bench = _data_value(args, "root"), _data_value(args, "benchmark")
@@ -421,7 +425,11 @@ def _input_files(args: list[str]) -> dict[str, str]:
         # the benchmark's folder when the arguments name one there: the other benchmark generated into the same
         # root is not what the stage trains on
         folder = Path(root, bench) if bench and Path(root, bench).is_dir() else Path(root)
-        files[folder.as_posix().rstrip("/") + "/"] = data_fingerprint(folder)
+        key = folder.as_posix().rstrip("/") + "/"
+        seen = {} if fingerprints is None else fingerprints
+        if key not in seen:
+            seen[key] = data_fingerprint(folder)
+        files[key] = seen[key]
     return files
 
 
@@ -883,6 +891,7 @@ def run_curriculum(
         "stages": [],
     }
     best: dict[str, str] = {}
+    fingerprints: dict[str, str] = {}  # data folder -> fingerprint, walked once per run (see _input_files)
     for stage in cfg["stages"]:
         name = stage["name"]
         sdir = stage_dir(cfg, stage, root)
@@ -894,7 +903,7 @@ def run_curriculum(
         with _stage_lock(name, sdir, out):
             record = _read_json(sdir / STAGE_FILE, _RECORD_FIELDS)
             _finish_runs(record)  # a kill right after writing it left its runs unmarked
-            inputs = _input_files(args)  # once per stage: it hashes the input files and walks the data folder
+            inputs = _input_files(args, fingerprints)  # once per stage: it hashes the input files
             finished, why = _reusable(sdir, args, record, inputs)
             if finished is not None:
                 if finished is not record:  # an earlier fit with these arguments: it becomes the folder's record

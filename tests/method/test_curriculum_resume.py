@@ -4,10 +4,12 @@ directory so the stage's best checkpoint is the best over the epochs before and 
 from __future__ import annotations
 
 import csv
+import io
 import json
 import re
 import shutil
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 import torch
@@ -533,3 +535,43 @@ def test_a_finished_stage_reruns_when_its_data_folder_changed(tmp_path, capsys):
     (new,) = run_curriculum(exp, runner=_spy(seen))
     assert len(seen) == 1 and f"rerunning, its data folder ({key}) changed" in capsys.readouterr().out
     assert new["inputs"][key] != first["inputs"][key]
+
+
+def _fake_fit(args):
+    """A fit that trains nothing: it writes a checkpoint where the stage's ModelCheckpoint would."""
+    ckpt = Path(args[args.index("--trainer.default_root_dir") + 1], "checkpoints", "best.ckpt")
+    ckpt.parent.mkdir(parents=True, exist_ok=True)
+    ckpt.write_bytes(b"weights")
+    callback = SimpleNamespace(best_model_path=str(ckpt), last_model_path="", best_model_score=None, monitor=None)
+    return SimpleNamespace(trainer=SimpleNamespace(checkpoint_callback=callback, global_step=1, callback_metrics={}))
+
+
+def test_a_data_folder_every_stage_reads_is_walked_once_per_run(tmp_path, monkeypatch):
+    """Each stage walked and hashed the data folder again: three times for a three-stage curriculum on one folder.
+    The records keep its fingerprint for every stage; a second run walks it again (the data may have been
+    regenerated between runs)."""
+    import floaff_zoo.curriculum
+    from floaff_zoo.runs import data_fingerprint
+
+    data = tmp_path / "data"
+    (data / "scenes").mkdir(parents=True)
+    (data / "scenes" / "scene.json").write_text("{}")
+    exp = tmp_path / "exp.yaml"
+    exp.write_text(
+        yaml.safe_dump(
+            {
+                "root": str(tmp_path / "run"),
+                "data": [str(ROOT / "configs/data/synthetic_tiny.yaml")],
+                "model": [str(ROOT / "configs/models/tiny_pointnet.yaml")],
+                "overrides": {"data.init_args.root": str(data)},
+                "stages": [{"name": "s1"}, {"name": "s2"}, {"name": "s3"}],
+            }
+        )
+    )
+    walked: list[Path] = []
+    monkeypatch.setattr(floaff_zoo.curriculum, "data_fingerprint", lambda p: walked.append(p) or data_fingerprint(p))
+    records = run_curriculum(exp, runner=_fake_fit, out=io.StringIO())
+    assert walked == [data]
+    assert [r["inputs"] for r in records] == [{f"{data}/": data_fingerprint(data)}] * 3
+    again = run_curriculum(exp, runner=_fake_fit, out=io.StringIO())  # every stage finished: skipped
+    assert walked == [data, data] and again == records
