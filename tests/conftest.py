@@ -49,6 +49,21 @@ def quiet_trainer_args(tmp_path) -> list[str]:
     ]
 
 
+def console(monkeypatch, capsys, args: list[str]) -> tuple[int, str, list[str]]:
+    """Run ``floaff-zoo <args>`` in this process as the console does (argv from ``sys.argv``: a user error is printed,
+    not raised): (exit code, stdout, non-blank stderr lines). A subprocess would test the same ``cli.main`` after
+    ``python -m floaff_zoo``'s two lines, at ~7 s of imports each; a few subprocess tests keep that path covered."""
+    import sys
+
+    from floaff_zoo import cli
+
+    capsys.readouterr()  # what earlier steps of the test printed is not this command's
+    monkeypatch.setattr(sys, "argv", ["floaff-zoo", *args])
+    rc = cli.main()
+    out = capsys.readouterr()
+    return rc, out.out, [line for line in out.err.splitlines() if line.strip()]
+
+
 def block_first_footprint(batch: dict, n: int = 10) -> dict:
     """A copy of ``batch`` whose sample 0 has ``n`` valid cloud points 0.2 m tall just behind floor point 0, inside the
     base footprint parked there facing the target (what the occupancy inputs must see)."""

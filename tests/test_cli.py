@@ -2,7 +2,6 @@
 
 import json
 import re
-import subprocess
 import sys
 from pathlib import Path
 
@@ -12,29 +11,29 @@ import torch
 import yaml
 
 from floaff_zoo.cli import CLIError, main, run_lightning
-from tests.conftest import quiet_trainer_args
+from tests.conftest import console, quiet_trainer_args
 
 DATA = "configs/data/synthetic_tiny.yaml"
 MODEL = "configs/models/tiny_pointnet.yaml"
 
 
-def test_help_lists_subcommands(root):
-    out = subprocess.run(
-        [sys.executable, "-m", "floaff_zoo", "--help"], capture_output=True, text=True, cwd=root, check=True
-    ).stdout
+def test_help_lists_subcommands(monkeypatch, capsys):
+    rc, out, _ = console(monkeypatch, capsys, ["--help"])
+    assert rc == 0
     # the command lists: lines indented by two spaces, the command first ("fit" also appears in prose lines)
     listed = {line.split()[0] for line in out.splitlines() if line.startswith("  ") and line[2:3].isalpha()}
     assert {"fit", "validate", "test", "predict", "generate", "curriculum", "table", "hub"} <= listed, out
-    ver = subprocess.run([sys.executable, "-m", "floaff_zoo", "--version"], capture_output=True, text=True, cwd=root)
-    assert ver.stdout.strip() == "0.1.0"
+    assert console(monkeypatch, capsys, ["--version"])[:2] == (0, "0.1.0\n")
 
 
-def test_fit_help_titles_the_model_and_data_groups_for_users(root):
+def test_fit_help_titles_the_model_and_data_groups_for_users(root, monkeypatch, capsys):
     """The --model and --data groups of ``fit --help`` were titled by the base classes' first docstring lines, which
     spoke to developers ("Shared machinery: ``setup`` fills ``self.datasets[split]``...")."""
-    out = subprocess.run(
-        [sys.executable, "-m", "floaff_zoo", "fit", "--help"], capture_output=True, text=True, cwd=root, check=True
-    ).stdout
+    monkeypatch.chdir(root)
+    with pytest.raises(SystemExit) as done:  # argparse's --help exits 0 after printing
+        console(monkeypatch, capsys, ["fit", "--help"])
+    assert done.value.code == 0
+    out = capsys.readouterr().out
     titles = [line for line in out.splitlines() if line.endswith(":") and not line.startswith(" ")]
     assert "The model: any model of the zoo; --model.help CLASS lists one's arguments:" in titles, titles
     assert "The data: any data module of the zoo; --data.help CLASS lists one's arguments:" in titles, titles
@@ -137,8 +136,8 @@ def test_a_config_typo_is_one_line_naming_the_field(tmp_path, root, monkeypatch,
         main(args)
     assert "\n" not in str(err.value) and "`floaff-zoo fit --help` lists the options" in str(err.value)
     assert "usage:" not in capsys.readouterr().err
-    proc = subprocess.run([sys.executable, "-m", "floaff_zoo", *args], capture_output=True, text=True, cwd=root)
-    assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and named in proc.stderr, proc.stderr
+    rc, _, lines = console(monkeypatch, capsys, args)  # at the console: printed, exit 2
+    assert rc == 2 and len(lines) == 1 and named in lines[0], lines
 
 
 @pytest.mark.parametrize(
@@ -181,26 +180,30 @@ def test_a_config_file_typo_names_close_keys_and_the_file(tmp_path, root, monkey
         ("predict", "data:\n  init_args:\n    batch_size: x\n", "data.init_args.batch_size"),
     ],
 )
-def test_a_wrong_type_in_a_config_file_names_the_field_and_the_file(tmp_path, root, command, text, field):
+def test_a_wrong_type_in_a_config_file_names_the_field_and_the_file(
+    tmp_path, root, monkeypatch, capsys, command, text, field
+):
     """A value of the wrong type is one line (exit 2, no usage) naming the key; among several ``--config`` files
     jsonargparse did not say which one set it."""
     bad = tmp_path / "bad.yaml"
     bad.write_text(text)
     args = [command, "--config", DATA, "--config", MODEL, "--config", str(bad), *quiet_trainer_args(tmp_path)]
-    proc = subprocess.run([sys.executable, "-m", "floaff_zoo", *args], capture_output=True, text=True, cwd=root)
-    err = proc.stderr
-    assert proc.returncode == 2 and "usage:" not in err and err.count("\n") == 1, err
+    monkeypatch.chdir(root)
+    rc, _, lines = console(monkeypatch, capsys, args)
+    err = "\n".join(lines)
+    assert rc == 2 and "usage:" not in err and len(lines) == 1, err
     assert f"({field} is set in {bad}) (`floaff-zoo {command} --help` lists the options)" in err, err
 
 
-def test_a_wrong_type_on_the_command_line_names_the_field_and_no_file(tmp_path, root):
+def test_a_wrong_type_on_the_command_line_names_the_field_and_no_file(tmp_path, root, monkeypatch, capsys):
     """The refused value came from a flag: a file setting the same key to a good value is not named."""
     good = tmp_path / "good.yaml"
     good.write_text("trainer:\n  max_epochs: 3\n")
     args = ["fit", "--config", DATA, "--config", MODEL, "--config", str(good), "--trainer.max_epochs", "abc"]
-    proc = subprocess.run([sys.executable, "-m", "floaff_zoo", *args], capture_output=True, text=True, cwd=root)
-    err = proc.stderr
-    assert proc.returncode == 2 and "usage:" not in err and err.count("\n") == 1, err
+    monkeypatch.chdir(root)
+    rc, _, lines = console(monkeypatch, capsys, args)
+    err = "\n".join(lines)
+    assert rc == 2 and "usage:" not in err and len(lines) == 1, err
     assert 'Parser key "trainer.max_epochs"' in err and "is set in" not in err, err
 
 

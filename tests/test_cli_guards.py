@@ -15,7 +15,7 @@ from lightning.pytorch.utilities.exceptions import MisconfigurationException
 from floaff_zoo.cli import CLIError, main, run_lightning
 from floaff_zoo.models.tiny import TinyPointNetModule
 from floaff_zoo.runs import RunError
-from tests.conftest import ROOT, quiet_trainer_args
+from tests.conftest import ROOT, console, quiet_trainer_args
 
 DATA = "configs/data/synthetic_tiny.yaml"
 MODEL = "configs/models/tiny_pointnet.yaml"  # width 32
@@ -184,15 +184,6 @@ def test_predict_names_the_task_a_prior_needs():
     assert predict_from_points(*args, cell=0.2, task="CloseDrawer").scores.size
 
 
-def _console(monkeypatch, capsys, args: list[str]) -> tuple[int, list[str]]:
-    """Run ``floaff-zoo <args>`` as the console does (argv from ``sys.argv``): (exit code, stderr lines)."""
-    from floaff_zoo import cli
-
-    monkeypatch.setattr(sys, "argv", ["floaff-zoo", *args])
-    rc = cli.main()
-    return rc, [line for line in capsys.readouterr().err.splitlines() if line.strip()]
-
-
 @pytest.fixture
 def not_checkpoints(width16_run, tmp_path):
     """Files that are no Lightning checkpoint: a truncated real one, text, a bare state dict, a tensor."""
@@ -224,7 +215,7 @@ def test_ckpt_path_that_is_no_checkpoint_exits_2_at_the_console(not_checkpoints,
     monkeypatch.chdir(root)
     bad = not_checkpoints["text"]
     args = ["test", "--config", DATA, "--config", MODEL, *quiet_trainer_args(tmp_path), "--ckpt_path", str(bad)]
-    rc, lines = _console(monkeypatch, capsys, args)
+    rc, _, lines = console(monkeypatch, capsys, args)
     assert rc == 2 and lines == [f"floaff-zoo: error: --ckpt_path {bad}: not a readable checkpoint (KeyError: 101)"]
 
 
@@ -303,7 +294,7 @@ def test_init_arg_rejected_by_a_class_is_one_line_naming_the_part(
 def test_init_error_exits_2_at_the_console_and_a_bug_keeps_its_traceback(tmp_path, root, monkeypatch, capsys):
     monkeypatch.chdir(root)
     args = ["fit", "--config", DATA, "--config", MODEL, *quiet_trainer_args(tmp_path)]
-    rc, lines = _console(monkeypatch, capsys, [*args, "--model.init_args.train.lr", "-1"])
+    rc, _, lines = console(monkeypatch, capsys, [*args, "--model.init_args.train.lr", "-1"])
     expected = "floaff-zoo: error: model (TinyPointNetModule): train.lr must be a finite number > 0, got -1.0"
     assert rc == 2 and lines[-1] == expected
 
@@ -383,7 +374,7 @@ def test_a_precision_that_converts_the_weights_is_one_line_before_the_first_step
 def test_a_mistyped_fps_backend_fails_before_the_first_batch(tmp_path, root, monkeypatch, capsys):
     monkeypatch.chdir(root)
     monkeypatch.setenv("FLOAFF_ZOO_FPS_BACKEND", "torh")
-    rc, lines = _console(monkeypatch, capsys, ["fit", "--config", DATA, "--config", MODEL])
+    rc, _, lines = console(monkeypatch, capsys, ["fit", "--config", DATA, "--config", MODEL])
     assert rc == 2 and lines == ["floaff-zoo: error: FLOAFF_ZOO_FPS_BACKEND='torh': choose auto, cpp or torch"]
 
 
