@@ -171,6 +171,21 @@ def test_three_interpolate_few_known_points():
     assert torch.allclose(masked, torch.full((1, 4, 1), 3.0))
 
 
+@pytest.mark.parametrize("m", [1, 2, 5])
+def test_three_interpolate_with_no_valid_known_point_gives_zeros(m):
+    """A sample whose known points are all padding gave NaN (0 / 0 weights; a lone masked point was broadcast), which
+    a decoder carried into the loss; the other samples keep their exact values."""
+    gen = torch.Generator().manual_seed(0)
+    known, feat = torch.rand(2, m, 3, generator=gen), torch.randn(2, m, 4, generator=gen)
+    unknown = torch.rand(2, 6, 3, generator=gen)
+    mask = torch.ones(2, m, dtype=torch.bool)
+    mask[1] = False
+    out = ops.three_interpolate(unknown, known, feat, mask)
+    assert torch.equal(out[1], torch.zeros(6, 4))
+    assert torch.equal(out[:1], ops.three_interpolate(unknown[:1], known[:1], feat[:1], mask[:1]))
+    assert torch.equal(out[:1], ops.three_interpolate(unknown[:1], known[:1], feat[:1]))
+
+
 @pytest.mark.parametrize("path", ["fast", "portable"])
 def test_three_interpolate_of_near_coincident_points_stays_within_its_features(monkeypatch, path):
     """The search's expanded distance went below 0 for a query on a known point with two more 0.3-0.6 mm away:

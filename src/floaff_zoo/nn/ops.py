@@ -446,7 +446,8 @@ def three_interpolate(unknown: Tensor, known: Tensor, known_feat: Tensor, known_
 
     Weights are ``1 / (d^2 + 1e-8)`` normalised, ``d^2`` the squared distance (as the classic
     PyTorch port), taken from the coordinate differences of the 3 picks (never below 0). A single known point is
-    broadcast.
+    broadcast. A sample with no valid known point (an all-padding cloud) interpolates to 0, not NaN (0 / 0), without
+    asking the device whether one exists.
 
     Args:
         unknown: [B, n, 3]; known: [B, m, 3]; known_feat: [B, m, C]; known_mask: [B, m].
@@ -455,10 +456,12 @@ def three_interpolate(unknown: Tensor, known: Tensor, known_feat: Tensor, known_
     """
     b, n, _ = unknown.shape
     if known.shape[1] == 1:
-        return known_feat.expand(b, n, known_feat.shape[-1])
+        feat = known_feat if known_mask is None else known_feat * known_mask[..., None].to(known_feat.dtype)
+        return feat.expand(b, n, known_feat.shape[-1])
     dist, idx = three_nn(unknown, known, known_mask)
     recip = 1.0 / (dist + 1e-8)  # inf distance -> weight 0
-    weight = recip / recip.sum(dim=-1, keepdim=True)
+    # a valid pick's weight is >= 1 / (d^2 + 1e-8), far above ``tiny``: the clamp only turns 0 / 0 into 0
+    weight = recip / recip.sum(dim=-1, keepdim=True).clamp_min(torch.finfo(recip.dtype).tiny)
     return weighted_gather3(known_feat, idx, weight.to(known_feat.dtype))
 
 
