@@ -7,6 +7,8 @@ import os
 import subprocess
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 #: a stand-in for `floaff-zoo validate`, as Lightning's plain results table prints: val_pcc by the stage its
@@ -35,8 +37,11 @@ def _stage(name: str) -> dict:
     return {"stage": name, "checkpoint": f"/runs/{name}/version_0/checkpoints/best.ckpt"}
 
 
-def test_a_finished_curriculum_gets_a_row(tmp_path):
-    stages = [_stage("axisnet"), _stage("stage1_pnp"), _stage("stage2_door_drawer")]
+@pytest.mark.parametrize("first", [["axisnet"], [], ["axisnet", "warmup"]])
+def test_a_finished_curriculum_gets_a_row(tmp_path, first):
+    """Stages 1 and 2 are the lineage's last two, however many stages come before them (no AxisNet stage when its
+    weights are given; a further warm-up stage)."""
+    stages = [*map(_stage, first), _stage("stage1_pnp"), _stage("stage2_door_drawer")]
     proc = _run(tmp_path, {"stages": stages, "complete": True})
     assert proc.returncode == 0, proc.stderr
     # stage 1's and stage 2's scores and the change between them, not the AxisNet stage's
