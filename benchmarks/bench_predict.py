@@ -113,7 +113,7 @@ def main(argv: list[str] | None = None) -> int:
         f"== predict B=1 x {a.points} points ({a.floor_cells**2} floor points), {a.rounds} interleaved rounds, "
         f"malloc {a.malloc} (kept: {kept}), torch {torch.__version__}, threads {torch.get_num_threads()}, "
         f"device {device}{' (' + torch.cuda.get_device_name(device) + ')' if device.type == 'cuda' else ''}, "
-        f"FPS {fps_backend(device)}"
+        f"FPS {fps_backend(device, a.points)}"
     )
     print(
         f"{'model':<16}{'median':>10}{'p10':>9}{'p90':>9}{'min':>9}   {'port ops':>9}"

@@ -87,7 +87,10 @@ def main(argv: list[str] | None = None) -> int:
         p.error("--steps must be >= 1 and --warmup >= 0")
     bm.require_positive(p, a, "batch", "points", "rows")
     device = bm.parse_device(p, a.device)
-    print(f"torch {torch.__version__}, threads {torch.get_num_threads()}, device {device}, FPS {fps_backend(device)}")
+    print(
+        f"torch {torch.__version__}, threads {torch.get_num_threads()}, device {device}, "
+        f"FPS {fps_backend(device, a.points)}"
+    )
     with warnings.catch_warnings():  # training_step logs; outside a Trainer Lightning warns on every call
         warnings.filterwarnings("ignore", message=".*self.trainer.* reference is not registered.*")
         warnings.filterwarnings("ignore", message=".*self.log.*")

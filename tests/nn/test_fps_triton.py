@@ -94,6 +94,12 @@ def test_the_kernel_serves_cuda_tensors_only(monkeypatch):
     assert not _fps_triton.available(torch.zeros(1, _fps_triton.MAX_POINTS + 1, 3))
     monkeypatch.setenv("FLOAFF_ZOO_FPS_BACKEND", "torch")
     assert not _fps_triton.available(torch.zeros(1, 64, 3))
+    monkeypatch.delenv("FLOAFF_ZOO_FPS_BACKEND")
+    # the label of another device (meta stands in for CUDA, served here by the interpreter) is per cloud size: a
+    # cloud past the kernel's cap takes the torch loop, which the label said was Triton
+    monkeypatch.setenv("TRITON_INTERPRET", "1")
+    assert ops.fps_backend("meta") == ops.fps_backend("meta", _fps_triton.MAX_POINTS) == "triton"
+    assert ops.fps_backend("meta", _fps_triton.MAX_POINTS + 1) == "torch"
     monkeypatch.setenv("FLOAFF_ZOO_FPS_BACKEND", "trition")
     with pytest.raises(ValueError, match="FLOAFF_ZOO_FPS_BACKEND='trition'"):
         _fps_triton.available(torch.zeros(1, 64, 3))

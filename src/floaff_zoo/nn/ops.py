@@ -197,15 +197,18 @@ def index_points(points: Tensor, idx: Tensor) -> Tensor:
 
 
 # ----------------------------------------------------------------------------- FPS
-def fps_backend(device: str | torch.device = "cpu") -> str:
-    """Which FPS implementation ``farthest_point_sample`` uses on ``device`` right now.
+def fps_backend(device: str | torch.device = "cpu", points: int = 1) -> str:
+    """Which FPS implementation ``farthest_point_sample`` uses on ``device`` right now, for clouds of ``points``
+    points (N, padding included).
 
     ``cpp`` (the C++ kernel) or ``torch`` on the CPU; ``triton`` (``nn/_fps_triton.py``, where Triton is installed)
-    or ``torch`` on CUDA.
+    or ``torch`` on CUDA: the Triton kernel serves clouds of up to ``_fps_triton.MAX_POINTS`` points, larger ones
+    take the torch loop.
     """
     device = torch.device(device)
     if device.type != "cpu":
-        return "triton" if gpu_fps_kernel(torch.empty(1, 1, 3, device=device)) is not None else "torch"
+        probe = torch.empty(1, int(points), 3, device=device)
+        return "triton" if gpu_fps_kernel(probe) is not None else "torch"
     # farthest_point_sample skips the kernel under FLOAFF_ZOO_CPU_PATHS=portable
     return "cpp" if not portable_requested() and _fps_ext.load_kernel() is not None else "torch"
 
