@@ -66,11 +66,11 @@ def test_set_abstraction_training_statistics_ignore_repeated_centres(per_point):
         torch.testing.assert_close(_stats(more)[key], value, atol=1e-6, rtol=1e-5, msg=key)
 
 
-def test_encoder_centre_masks_flag_the_repeats_only():
+def test_encoder_kept_masks_flag_the_repeats_only():
     torch.manual_seed(0)
     enc = PointNet2Encoder(0, [6, 4], [[0.3], [0.6]], [[4], [4]], [[[8]], [[8]]])
     xyz = torch.rand(1, 4, 3)
-    masks = enc.centre_masks(enc.sources(enc.sample(xyz, None)))
+    masks = enc.kept_masks(enc.sources(enc.sample(xyz, None)))
     assert masks[0].tolist() == [[True] * 4 + [False] * 2]
     assert masks[1] is None
 

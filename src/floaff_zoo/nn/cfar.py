@@ -418,11 +418,11 @@ class CFARNet(nn.Module):
         self, xyz: Tensor, feat: Tensor, mask: Tensor
     ) -> tuple[Tensor, list[tuple[Tensor, Tensor | None]], list[Tensor | None]]:
         """Canonical cloud xyz [B,N,3], feat [B,N,C], mask [B,N] -> (g [B, C_g], all levels, per level 1..L its
-        centre mask [B, S_l] (False on a repeated centre) or None: ``PointNet2Encoder.centre_masks``)."""
+        centre mask [B, S_l] (False on a repeated centre) or None: ``PointNet2Encoder.kept_masks``)."""
         fps = sample_levels(self.local_encoder, xyz, mask)
         srcs = self.local_encoder.sources(fps)
         levels = self.local_encoder(xyz, feat[..., : self.feat_channels], mask, fps, srcs)
-        return levels[-1][1][:, 0], levels, self.local_encoder.centre_masks(srcs)
+        return levels[-1][1][:, 0], levels, self.local_encoder.kept_masks(srcs)
 
     def fourier(self, xy: Tensor) -> Tensor:
         """Canonical floor xy [B, M, 2] -> [B, M, 2 + 4F]: xy and sin/cos at F octaves (wavelengths 2 m, 1 m, ...)."""
@@ -441,7 +441,7 @@ class CFARNet(nn.Module):
         flv = self.floor_encoder(floor_xyz, None, floor_mask, fps, srcs)
         # level 0 = the floor points themselves (padding masked); deeper levels: a floor with fewer points than
         # centres repeats one, kept out of the batch statistics and the interpolation (in training its rows are 0)
-        masks = [floor_mask] + self.floor_encoder.centre_masks(srcs)
+        masks = [floor_mask] + self.floor_encoder.kept_masks(srcs)
         skips: list[Tensor | None] = [floor_xyz] + [f for _, f in flv[1:]]
         cur = flv[-1][1]
         n = len(flv) - 1

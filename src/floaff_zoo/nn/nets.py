@@ -163,7 +163,7 @@ class SceneEncoderDecoder(nn.Module):
         if srcs is None:
             srcs = self.encoder.sources(fps)
         levels = self.encoder(xyz, feat, mask, fps, srcs)
-        kept = [None] + self.encoder.centre_masks(srcs)  # repeated centres (a cloud under npoint), per level
+        kept = [None] + self.encoder.kept_masks(srcs)  # repeated centres (a cloud under npoint), per level
         deep_xyz, deep = levels[-1]
         r = self.robot(robot)[:, None, :].expand(-1, deep.shape[1], -1)
         cur = torch.cat([deep, r.to(deep.dtype)], dim=-1)
@@ -409,7 +409,7 @@ class NavAffNet(nn.Module):
         f = self.encoder_floor(axyz, None, amask, fps_f, srcs_f)
         # a view's floor holds fewer points than sa1 has centres (median 150 of 256): FPS repeats the first one, and
         # the decoder keeps the repeats out of its interpolation and batch statistics
-        k1, k2, k3 = self.encoder_floor.centre_masks(srcs_f)
+        k1, k2, k3 = self.encoder_floor.kept_masks(srcs_f)
         token = self.mlp_robot(robot)[:, None, :]
         kv = torch.cat([token.to(g[3][1].dtype), g[3][1]], dim=1)  # [B, 1 + N_p, 512]
         fused = self.fusion(f[3][1], kv)  # replaces the floor sa3 features (no residual)

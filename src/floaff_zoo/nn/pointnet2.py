@@ -937,7 +937,7 @@ class PointNet2Encoder(nn.Module):
         return [None if idx is None else repeat_sources(idx) for idx in fps]
 
     @staticmethod
-    def centre_masks(srcs: list[Tensor | None]) -> list[Tensor | None]:
+    def kept_masks(srcs: list[Tensor | None]) -> list[Tensor | None]:
         """Per level 1..L of ``sources``: [B, S_l] bool, False on repeated centres, or None (none repeat).
 
         A decoder passes them to ``FeaturePropagation`` (``mask_sparse`` / ``mask_dense``): a repeat shares its
@@ -990,7 +990,7 @@ class PointNet2Seg(nn.Module):
             fps = self.encoder.sample(xyz, mask)
         srcs = self.encoder.sources(fps)
         levels = self.encoder(xyz, feat, mask, fps, srcs)
-        masks = [mask] + self.encoder.centre_masks(srcs)  # padding, then repeated centres (a cloud under npoint)
+        masks = [mask] + self.encoder.kept_masks(srcs)  # padding, then repeated centres (a cloud under npoint)
         skip0 = xyz if feat is None else torch.cat([xyz, feat], dim=-1)
         skips = [skip0] + [f for _, f in levels[1:]]
         cur = levels[-1][1]
