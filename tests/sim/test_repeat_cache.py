@@ -129,3 +129,25 @@ def test_a_runner_giving_another_number_of_outcomes_is_an_error():
     scene["candidates"] = {"xy": [[0, 0], [1, 0], [2, 0]], "yaw": [0.0] * 3, "valid": [True, True, False]}
     with pytest.raises(RuntimeError, match="scene a, episode 0: the runner gave 1 outcomes for 2 rollouts"):
         repeat.fresh_probability(scene, lambda seed, jobs: [True], 1, 0.0, 0.0, 0)
+
+
+def test_explicit_task_seeds_are_part_of_the_cached_setting(tmp_path, monkeypatch):
+    """The cache recorded the setting but not the explicit task seeds: a run with other seeds got the first run's
+    probabilities back."""
+    drawn: list[list[int]] = []
+
+    def fake_probability(scene, run, n, sxy, yaw, seed, seeds):
+        drawn.append(list(seeds))
+        return np.full(3, 0.5 if seeds[0] == 1 else 1.0)
+
+    monkeypatch.setattr(repeat, "fresh_probability", fake_probability)
+    monkeypatch.setattr(repeat, "service_runner", lambda workers: lambda task_seed, jobs: [])
+    monkeypatch.setattr("builtins.print", lambda *a, **k: None)
+    path = tmp_path / "probs.npz"
+    assert repeat.scene_probabilities(SCENES, SETTING, path, seeds=[1, 1])["a"].tolist() == [0.5] * 3
+    assert repeat.scene_probabilities(SCENES, SETTING, path, seeds=[1, 1])["a"].tolist() == [0.5] * 3
+    assert drawn == [[1, 1]]  # the second run read the cache
+    with pytest.raises(ValueError, match=r"'task_seeds': \[1, 1\]"):
+        repeat.scene_probabilities(SCENES, SETTING, path, seeds=[2, 2])
+    with pytest.raises(ValueError, match="was made with"):
+        repeat.scene_probabilities(SCENES, SETTING, path)  # the default seeds are other seeds too
