@@ -166,7 +166,8 @@ def main(argv: list[str] | None = None) -> int:
     if "gpu" in a.accelerators:
         from floaff_zoo.nn.ops import fps_backend
 
-        print(f"gpu: {torch.cuda.get_device_name(0)}, torch {torch.__version__}, FPS {fps_backend('cuda')}")
+        fps = fps_backend("cuda", max(SMALL["points"], PAPER["points"]))
+        print(f"gpu: {torch.cuda.get_device_name(0)}, torch {torch.__version__}, FPS {fps}")
     print(
         f"{'job':<22} {'acc':>4} {'points':>6} {'batch':>5} {'samples/s':>9} {'s/1k samples':>12} "
         f"{'recipe job':>10} {'10k samples':>11} {'x ' + a.accelerators[0]:>8}"

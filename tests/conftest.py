@@ -52,16 +52,21 @@ def quiet_trainer_args(tmp_path) -> list[str]:
 def console(monkeypatch, capsys, args: list[str]) -> tuple[int, str, list[str]]:
     """Run ``floaff-zoo <args>`` in this process as the console does (argv from ``sys.argv``: a user error is printed,
     not raised): (exit code, stdout, non-blank stderr lines). A subprocess would test the same ``cli.main`` after
-    ``python -m floaff_zoo``'s two lines, at ~7 s of imports each; a few subprocess tests keep that path covered."""
+    ``python -m floaff_zoo``'s two lines, at ~7 s of imports each; a few subprocess tests keep that path covered, and
+    what a logging handler bound to the real stderr prints (``test_corrupt_weights_file_is_one_line_on_stderr``)."""
     import sys
+    import warnings
 
     from floaff_zoo import cli
 
     capsys.readouterr()  # what earlier steps of the test printed is not this command's
     monkeypatch.setattr(sys, "argv", ["floaff-zoo", *args])
-    rc = cli.main()
+    with warnings.catch_warnings(record=True) as caught:  # pytest would keep a warning off stderr: count it as a line
+        warnings.simplefilter("always")
+        rc = cli.main()
     out = capsys.readouterr()
-    return rc, out.out, [line for line in out.err.splitlines() if line.strip()]
+    lines = [line for line in out.err.splitlines() if line.strip()]
+    return rc, out.out, lines + [f"warning: {w.message}" for w in caught]
 
 
 def block_first_footprint(batch: dict, n: int = 10) -> dict:

@@ -417,7 +417,8 @@ def _input_files(args: list[str], fingerprints: dict[str, str] | None = None) ->
 
     ``fingerprints``: {``<data root>/``: fingerprint} of the folders already walked in this curriculum run, filled
     here: the stages of a curriculum mostly read one folder, which a fit does not change (its sample cache is hidden),
-    so each is walked once per run, not once per stage. Not kept across runs: the data may be generated again."""
+    so each is walked once per run, not once per stage. Not kept across runs: the data may be generated again. Data
+    generated again during a run is recorded as the run first saw it: the next run finds the change and fits again."""
     named = list(args) + [v for f in config_values(args) for v in _yaml_strings(f)]
     files = {a: _sha256(a) for a in dict.fromkeys(named) if a.endswith(INPUT_SUFFIXES) and Path(a).is_file()}
     root, bench = _data_value(args, "root"), _data_value(args, "benchmark")

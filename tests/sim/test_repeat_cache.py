@@ -151,3 +151,8 @@ def test_explicit_task_seeds_are_part_of_the_cached_setting(tmp_path, monkeypatc
         repeat.scene_probabilities(SCENES, SETTING, path, seeds=[2, 2])
     with pytest.raises(ValueError, match="was made with"):
         repeat.scene_probabilities(SCENES, SETTING, path)  # the default seeds are other seeds too
+    # a setting that names its seeds itself (fresh_sr --annotation-seed) is recorded as it is: its caches stay readable
+    named = {**SETTING, "task_seed": "annotation"}
+    repeat.write_probs(tmp_path / "named.npz", named, {"a": np.array([0.0, 0.25, 1.0])})
+    got = repeat.scene_probabilities(SCENES, named, tmp_path / "named.npz", seeds=[3, 3])
+    assert got["a"].tolist() == [0.0, 0.25, 1.0] and drawn == [[1, 1]]

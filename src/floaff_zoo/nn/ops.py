@@ -459,7 +459,7 @@ def three_interpolate(unknown: Tensor, known: Tensor, known_feat: Tensor, known_
     """
     b, n, _ = unknown.shape
     if known.shape[1] == 1:
-        feat = known_feat if known_mask is None else known_feat * known_mask[..., None].to(known_feat.dtype)
+        feat = known_feat if known_mask is None else torch.where(known_mask[..., None], known_feat, 0.0)
         return feat.expand(b, n, known_feat.shape[-1])
     dist, idx = three_nn(unknown, known, known_mask)
     recip = 1.0 / (dist + 1e-8)  # inf distance -> weight 0

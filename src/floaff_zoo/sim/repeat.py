@@ -170,10 +170,12 @@ def scene_probabilities(
 
     ``setting`` holds ``episodes``, ``sigma_xy``, ``sigma_yaw_deg`` (degrees) and ``seed``; ``seeds`` as in
     :func:`fresh_probability`. Scenes in the cache are not rolled out again; the cache is rewritten after every new
-    scene (a killed run resumes). A cache made with another setting, explicit ``seeds`` included (recorded as
-    ``task_seeds``: probabilities drawn with other task seeds are other numbers), raises ``ValueError``.
+    scene (a killed run resumes). A cache made with another setting raises ``ValueError``. Explicit ``seeds`` are
+    part of the setting (probabilities drawn with other task seeds are other numbers): recorded as ``task_seeds``
+    unless ``setting`` names them itself under ``task_seed`` (``scripts/fresh_sr.py``'s ``annotation``, whose
+    caches stay readable).
     """
-    if seeds:
+    if seeds and "task_seed" not in setting:
         setting = {**setting, "task_seeds": [int(s) for s in seeds]}
     known: dict[str, str] = {}  # the versions of cached scenes not among ``scenes`` stay
     probs = read_probs(cache, setting, scenes, known) if cache is not None and cache.is_file() else {}
