@@ -114,3 +114,18 @@ def test_an_exported_config_of_a_wrong_meta_or_name_names_its_file(tmp_path, fie
     (exported / "config.json").write_text(json.dumps({**cfg, field: value}))
     with pytest.raises(ValueError, match=rf"config\.json: '{field}' must be an? "):
         load_model(exported)
+
+
+def test_an_index_or_config_of_bytes_that_are_not_utf8_names_its_file(tmp_path, monkeypatch):
+    """A UnicodeDecodeError escaped the JSON checks: `hub list` printed only "'utf-8' codec can't decode byte"."""
+    hub = tmp_path / "hub"
+    hub.mkdir()
+    (hub / "index.json").write_bytes(b"\xff\xfe\x00")
+    monkeypatch.setenv("FLOAFF_ZOO_HUB", str(hub))
+    with pytest.raises(HubError, match=rf"{hub / 'index.json'}: not a readable JSON index"):
+        load_registry()
+    exported = tmp_path / "export"
+    TinyPointNetModule(width=8).save_pretrained(str(exported))
+    (exported / "config.json").write_bytes(b"\xff{}")
+    with pytest.raises(ValueError, match=rf"{exported / 'config.json'}: unreadable JSON"):
+        load_model(exported)
