@@ -424,6 +424,22 @@ def test_a_bad_config_file_is_named_in_one_line(tmp_path, root, monkeypatch, con
         main(_fit(tmp_path, "--config", str(bad)))
 
 
+@pytest.mark.parametrize(
+    ("flags", "hint"),
+    [
+        (["--model", "TinyPointNetModul"], "did you mean 'TinyPointNetModule'"),  # a bare class name
+        (["--data.class_path", "floaff_zoo.data.synthetic.SynthDataModule"], "did you mean 'SyntheticDataModule'"),
+        (["--model", "Zzzz"], r"model classes: \['AxisNetModule'"),  # nothing close: the known ones
+    ],
+)
+def test_a_mistyped_model_or_data_class_names_the_classes_it_may_mean(tmp_path, root, monkeypatch, flags, hint):
+    """jsonargparse said only that the name was no import path, among 300 characters of union subtypes."""
+    monkeypatch.chdir(root)
+    with pytest.raises(CLIError, match=hint) as info:
+        main(_fit(tmp_path, *flags))
+    assert "FloAffModule" not in str(info.value)  # a base class is no choice
+
+
 def test_no_flag_is_read_from_a_prefix_of_it(tmp_path, root, monkeypatch):
     """argparse took --trainer.limit_train_batch 1 for --trainer.limit_train_batches, read as the fraction 1.0
     (only the exact flag is read as a batch count): every batch ran."""

@@ -801,9 +801,42 @@ def _value_hint(message: str, args: list[str]) -> str:
     return ""
 
 
+#: jsonargparse's words for a class name it cannot import (a bare name, or a dotted path with a mistyped last part)
+_UNKNOWN_CLASS = re.compile(
+    r"Expected a dot import path string: (?P<bare>[\w.]+)|Problem with given class_path '(?P<path>[\w.]+)': "
+    r"(?:module '[\w.]+' has no attribute|No module named)"
+)
+
+
+def _subclass_names(base: type) -> list[str]:
+    """Names of the classes under ``base`` that a config may name (the bases of ``*.base`` modules left out)."""
+    out, todo = [], list(base.__subclasses__())
+    while todo:
+        cls = todo.pop()
+        todo.extend(cls.__subclasses__())
+        if not inspect.isabstract(cls) and not cls.__module__.endswith(".base"):
+            out.append(cls.__name__)
+    return sorted(set(out))
+
+
+def _class_hint(message: str) -> str:
+    """For a ``model``/``data`` class that does not import (a typo of its name): the close class names, else the
+    known ones ('' for other errors). jsonargparse says only that the name is no import path."""
+    message = _one_line(message)
+    section, m = _SECTION_KEY.search(message), _UNKNOWN_CLASS.search(message)
+    if m is None or section is None or section["key"] not in ("model", "data"):
+        return ""
+    _import_registries()
+    known = _subclass_names(ZooModule if section["key"] == "model" else FloAffDataModule)
+    name = (m["bare"] or m["path"]).rpartition(".")[2]
+    close = difflib.get_close_matches(name, known, n=3, cutoff=0.6)
+    return f" (did you mean {' or '.join(map(repr, close))}?)" if close else f" ({section['key']} classes: {known})"
+
+
 def _parse_hint(message: str, args: list[str]) -> str:
-    """What a parse error leaves out: close names of an unknown key, the file that set a key or a refused value."""
-    return _key_hint(message, args) or _value_hint(message, args)
+    """What a parse error leaves out: close names of an unknown key or class, the file that set a key or a refused
+    value."""
+    return _class_hint(message) + (_key_hint(message, args) or _value_hint(message, args))
 
 
 def check_trainer_args(args: list[str]) -> None:
