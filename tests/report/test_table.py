@@ -138,6 +138,20 @@ def test_reports_with_wrong_field_types_are_named_and_skipped(tmp_path, capsys, 
     assert "no usable report.json" in capsys.readouterr().err
 
 
+def test_a_report_of_another_format_version_is_named_and_skipped(tmp_path, capsys):
+    """A version 2 report (a newer writer) was tabulated as a version 1 one, its fields read by the old meanings."""
+    from floaff_zoo.callbacks.report import SCHEMA_VERSION
+    from floaff_zoo.report.table import READ_VERSIONS
+
+    assert SCHEMA_VERSION in READ_VERSIONS  # the table reads what the test callback writes
+    rep = json.loads((RUNS / "cfar_layouts_s0" / "report.json").read_text())
+    _write_runs(tmp_path, {"v2": {**rep, "version": 2}, "vtrue": {**rep, "version": True}})
+    assert main(["--runs", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert f"skipped {tmp_path / 'v2' / 'report.json'}: report format version 2; this floaff-zoo reads [1]" in err
+    assert f"skipped {tmp_path / 'vtrue' / 'report.json'}: report format version True" in err
+
+
 def _write_runs(root: Path, reports: dict[str, dict]) -> None:
     for name, rep in reports.items():
         (root / name).mkdir()

@@ -137,6 +137,12 @@ def load_reports(runs: list[str]) -> tuple[list[tuple[Path, dict[str, Any]]], li
         if not isinstance(rep, dict) or rep.get("schema") != "floaff-zoo/report":
             skipped.append((str(path), "not a floaff-zoo report (schema field missing)"))
             continue
+        version = rep.get("version")
+        if version is not None and (isinstance(version, bool) or version not in READ_VERSIONS):
+            skipped.append(
+                (str(path), f"report format version {version!r}; this floaff-zoo reads {list(READ_VERSIONS)}")
+            )
+            continue
         wrong = malformed_field(rep)
         if wrong is not None:
             skipped.append((str(path), f"malformed report.json ({wrong})"))
@@ -413,6 +419,9 @@ def _fmt_key(v: Any) -> str:
     return str(v)
 
 
+#: the ``version`` values of report.json whose fields this table knows (``callbacks.report.SCHEMA_VERSION`` writes
+#: one of them): a report of another version, from a newer floaff-zoo, was read as this one
+READ_VERSIONS: tuple[int, ...] = (1,)
 #: the report path ``main`` attaches to each report (named in errors); ``run_dir`` is used when absent
 PATH_KEY = "_report_path"
 #: settings every report of a row must share (dotted names as in errors); SR ones only where SR was measured; the
