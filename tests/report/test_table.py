@@ -152,6 +152,15 @@ def test_a_report_of_another_format_version_is_named_and_skipped(tmp_path, capsy
     assert f"skipped {tmp_path / 'vtrue' / 'report.json'}: report format version True" in err
 
 
+def test_a_report_without_the_group_field_is_not_told_to_mean_that_field(tmp_path, capsys):
+    rep = json.loads((RUNS / "cfar_layouts_s0" / "report.json").read_text())
+    _write_runs(tmp_path, {"nomodel": {k: v for k, v in rep.items() if k != "model"}})
+    assert main(["--runs", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert f"--group-by model: report {tmp_path / 'nomodel' / 'report.json'} has no such field" in err
+    assert "did you mean 'model'" not in err
+
+
 def _write_runs(root: Path, reports: dict[str, dict]) -> None:
     for name, rep in reports.items():
         (root / name).mkdir()

@@ -402,7 +402,8 @@ def _field_hint(group_by: str, reports: list[dict[str, Any]], values: list[Any])
     shared ``model.hparams.`` of two paths made every field of a model close); else ``""``."""
     if any(v is not None for v in values):
         return ""
-    fields = {*GROUP_NAMES, *(f for r in reports for f in _dotted_fields(r))}
+    # not the field itself: a report without 'model' was told "did you mean 'model'?"
+    fields = {*GROUP_NAMES, *(f for r in reports for f in _dotted_fields(r))} - {group_by}
     parent, _, name = group_by.rpartition(".")
     beside = {f.rpartition(".")[2]: f for f in fields if f.rpartition(".")[0] == parent}
     close = [beside[k] for k in difflib.get_close_matches(name, sorted(beside), n=3, cutoff=0.75)]
