@@ -32,6 +32,13 @@ def run(main: Callable[[], int | None], prog: str) -> int:
     bug's traceback is kept)."""
     try:
         return int(main() or 0)
+    except SystemExit as exc:
+        if not isinstance(exc.code, str):  # argparse's usage error (2), a status the script chose
+            raise
+        # a script's own `raise SystemExit("<prog>: why")` on bad input: it exited 1, with no "error:"
+        why = exc.code.removeprefix(f"{prog}: ")
+        print(f"{prog}: error: {' '.join(why.split())}", file=sys.stderr)
+        return 2
     except Exception as exc:  # noqa: BLE001 - narrowed to the bad-input types below
         if not isinstance(exc, user_error_types()):
             raise

@@ -22,6 +22,19 @@ def test_bad_input_is_one_line_and_a_bug_keeps_its_traceback(capsys):
     assert sc.run(lambda: 0, "demo_script") == 0
 
 
+def test_a_scripts_own_exit_message_is_a_bad_input_line_with_exit_code_2(capsys):
+    """A script's `raise SystemExit("<prog>: why")` (40 of them) exited 1 with no "error:", unlike the other errors."""
+
+    def no_scene():
+        raise SystemExit("demo_script: no finished scene under /data\n(generate it first)")
+
+    assert sc.run(no_scene, "demo_script") == 2
+    assert capsys.readouterr().err == "demo_script: error: no finished scene under /data (generate it first)\n"
+    with pytest.raises(SystemExit) as done:  # argparse's usage error keeps its own code
+        sc.run(lambda: sys.exit(2), "demo_script")
+    assert done.value.code == 2
+
+
 def test_a_script_names_a_missing_data_root(tmp_path):
     """fixed_cell_ceiling (and five others) ended in a FormatError / MisconfigurationException traceback."""
     out = subprocess.run(
