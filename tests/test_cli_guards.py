@@ -292,6 +292,18 @@ def test_init_arg_rejected_by_a_class_is_one_line_naming_the_part(
     assert str(info.value).startswith(expected) and "\n" not in str(info.value)
 
 
+@pytest.mark.parametrize("field", ["axisnet", "teacher"])
+def test_a_missing_frozen_net_file_is_one_line_naming_the_field(tmp_path, root, monkeypatch, capsys, field):
+    """A missing AxisNet file was a FileNotFoundError traceback through jsonargparse's union types, a missing teacher
+    one a traceback from the fit's setup."""
+    monkeypatch.chdir(root)
+    missing = tmp_path / "nosuch.ckpt"
+    args = ["fit", "--config", DATA, "--config", "tests/configs/cfar_tiny.yaml", *quiet_trainer_args(tmp_path)]
+    rc, _, err = console(monkeypatch, capsys, [*args, f"--model.init_args.{field}", str(missing)])
+    assert rc == 2 and err[-1].startswith("floaff-zoo: error: ") and f"{field} '{missing}'" in err[-1]
+    assert "no such file" in err[-1] and not any("Traceback" in line for line in err)
+
+
 def test_init_error_exits_2_at_the_console_and_a_bug_keeps_its_traceback(tmp_path, root, monkeypatch, capsys):
     monkeypatch.chdir(root)
     args = ["fit", "--config", DATA, "--config", MODEL, *quiet_trainer_args(tmp_path)]

@@ -68,7 +68,7 @@ from torch import Tensor, nn
 from floaff_zoo.checks import check_number, check_numbers
 from floaff_zoo.contract import TASKS, Batch
 from floaff_zoo.hub.io import resolve_state_dict
-from floaff_zoo.hub.registry import sha256_file
+from floaff_zoo.hub.registry import HubError, sha256_file
 from floaff_zoo.models.base import FloAffModule, FloAffTrainConfig, sample_names
 from floaff_zoo.models.yaw import (
     YawSource,
@@ -91,6 +91,11 @@ TEACHER_SAMPLING_ARGS = ("local_npoints", "local_radii", "local_nsamples")
 #: the prior is clamped to [eps, 1 - eps] before its logit
 PRIOR_EPS = 1e-3
 DISTILLED_PREFIX = "net.local_encoder."
+
+
+class TeacherError(MisconfigurationException, ValueError):
+    """A ``teacher`` that does not load or does not fit the student: a user error, one line at the console (it is
+    raised in ``setup``, past the CLI's checks of init args)."""
 
 
 @contextmanager
@@ -321,11 +326,15 @@ class CFARModule(FloAffModule):
         """Load the previous stage's canonical-cloud encoder, frozen.
 
         Raises:
-            ValueError: listing missing / unexpected / shape-mismatched keys when the teacher's
-                encoder does not match the student's, or naming the sampling arguments
+            TeacherError: naming the teacher for one that does not load (a missing or corrupt file, an unknown hub
+                name: a FileNotFoundError traceback mid-fit), listing missing / unexpected / shape-mismatched keys
+                when the teacher's encoder does not match the student's, or naming the sampling arguments
                 (``TEACHER_SAMPLING_ARGS``) the teacher was trained with when they differ from the student's.
         """
-        state, info = resolve_state_dict(name)
+        try:
+            state, info = resolve_state_dict(name)
+        except (OSError, ValueError, HubError) as exc:
+            raise TeacherError(f"teacher {name!r}: {exc}") from exc
         t_state = {k[len(DISTILLED_PREFIX) :]: v for k, v in state.items() if k.startswith(DISTILLED_PREFIX)}
         own = self.net.local_encoder.state_dict()
         missing = sorted(set(own) - set(t_state))
@@ -336,7 +345,7 @@ class CFARModule(FloAffModule):
             if k in t_state and t_state[k].shape != own[k].shape
         ]
         if missing or unexpected or shapes:
-            raise ValueError(
+            raise TeacherError(
                 f"teacher {name!r} ({info.get('class_path') or 'unknown class'}) does not match the student's "
                 f"canonical-cloud encoder ({DISTILLED_PREFIX}*): missing {[DISTILLED_PREFIX + k for k in missing]}, "
                 f"unexpected {[DISTILLED_PREFIX + k for k in unexpected]}, shape mismatches {shapes}"
@@ -352,7 +361,7 @@ class CFARModule(FloAffModule):
         }
         differ = [f"{k}: teacher {t} vs student {s}" for k, (t, s) in pairs.items() if t != s]
         if differ:
-            raise ValueError(
+            raise TeacherError(
                 f"teacher {name!r} was trained with another canonical-cloud sampling than the student's: "
                 f"{'; '.join(differ)}; give the student the teacher's values"
             )

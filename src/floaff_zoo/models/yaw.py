@@ -32,7 +32,7 @@ from floaff_zoo.checks import check_number
 from floaff_zoo.contract import Batch
 from floaff_zoo.frames import PRIVILEGED_YAW  # kept in __all__: its home is frames.py, below models and report
 from floaff_zoo.hub.io import resolve_state_dict
-from floaff_zoo.hub.registry import sha256_file
+from floaff_zoo.hub.registry import HubError, sha256_file
 from floaff_zoo.models.base import sample_names
 from floaff_zoo.nn.axisnet import AxisNet, axis_inputs, yaw_from_vector
 from floaff_zoo.nn.yaw import heading_yaw, manhattan_yaw
@@ -67,8 +67,16 @@ def build_axisnet(arch: dict[str, Any], owner: str) -> tuple[AxisNet, float]:
 
 
 def load_axisnet(name: str, owner: str) -> tuple[AxisNet, float, dict[str, Any]]:
-    """Load an AxisNetModule checkpoint / hub entry frozen. Returns (net, crop radius, arch record)."""
-    state, info = resolve_state_dict(name)
+    """Load an AxisNetModule checkpoint / hub entry frozen. Returns (net, crop radius, arch record).
+
+    Raises:
+        MisconfigurationException: naming ``axisnet`` and the file or name, for one that does not load (a missing
+            or corrupt file, an unknown hub name: a FileNotFoundError was a traceback through jsonargparse).
+    """
+    try:
+        state, info = resolve_state_dict(name)
+    except (OSError, ValueError, HubError) as exc:
+        raise MisconfigurationException(f"{owner}: axisnet {name!r}: {exc}") from exc
     cls = str(info.get("class_path") or "")
     if cls and not cls.endswith("AxisNetModule"):
         raise MisconfigurationException(f"{owner}: axisnet {name!r} is a {cls} checkpoint, not an AxisNetModule")
