@@ -119,7 +119,9 @@ def _load_chain(path: Path, seen: tuple[Path, ...], by: Path | None = None) -> d
     try:
         cfg = yaml.safe_load(path.read_text(encoding="utf-8")) or {}
     except (yaml.YAMLError, UnicodeDecodeError) as exc:
-        raise CurriculumError(f"experiment config {path}: invalid YAML ({exc})") from exc
+        # on one line: YAML's message spans 6-8 lines and calls the file "<unicode string>"
+        where = " ".join(str(exc).replace('"<unicode string>"', path.name).split())
+        raise CurriculumError(f"experiment config {path}: invalid YAML ({where})") from exc
     if not isinstance(cfg, dict):
         raise CurriculumError(f"experiment config {path}: expected a mapping at the top level")
     unknown = set(cfg) - _TOP_KEYS

@@ -295,6 +295,17 @@ def test_malformed_top_level_field_names_file_and_field(tmp_path, top, message):
     assert str(info.value).startswith(f"experiment config {bad}: {message}")
 
 
+def test_invalid_yaml_is_one_line_naming_the_file(tmp_path):
+    """YAML's message came through on 8 lines that called the file "<unicode string>"."""
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("data: [configs/data/synthetic_tiny.yaml\nmodel: [configs/\n")
+    with pytest.raises(CurriculumError) as info:
+        load_experiment(bad)
+    message = str(info.value)
+    assert message.startswith(f"experiment config {bad}: invalid YAML (while parsing a flow sequence in bad.yaml")
+    assert "\n" not in message and "<unicode string>" not in message
+
+
 def test_curriculum_error_is_one_line_and_exit_2_at_the_console(tmp_path, root, monkeypatch, capsys):
     """`floaff-zoo` passed its argv on as a list, so every curriculum error re-raised: a traceback and exit 1."""
     from floaff_zoo import cli
