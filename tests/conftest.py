@@ -61,8 +61,9 @@ def console(monkeypatch, capsys, args: list[str]) -> tuple[int, str, list[str]]:
 
     capsys.readouterr()  # what earlier steps of the test printed is not this command's
     monkeypatch.setattr(sys, "argv", ["floaff-zoo", *args])
-    with warnings.catch_warnings(record=True) as caught:  # pytest would keep a warning off stderr: count it as a line
-        warnings.simplefilter("always")
+    # a warning the console would print (the filters ``quiet`` installs apply) is counted as a stderr line, after
+    # the printed ones: pytest would keep it off stderr
+    with warnings.catch_warnings(record=True) as caught:
         rc = cli.main()
     out = capsys.readouterr()
     lines = [line for line in out.err.splitlines() if line.strip()]

@@ -300,8 +300,9 @@ def test_a_missing_frozen_net_file_is_one_line_naming_the_field(tmp_path, root, 
     missing = tmp_path / "nosuch.ckpt"
     args = ["fit", "--config", DATA, "--config", "tests/configs/cfar_tiny.yaml", *quiet_trainer_args(tmp_path)]
     rc, _, err = console(monkeypatch, capsys, [*args, f"--model.init_args.{field}", str(missing)])
-    assert rc == 2 and err[-1].startswith("floaff-zoo: error: ") and f"{field} '{missing}'" in err[-1]
-    assert "no such file" in err[-1] and not any("Traceback" in line for line in err)
+    errors = [line for line in err if line.startswith("floaff-zoo: error: ")]
+    assert rc == 2 and len(errors) == 1 and f"{field} '{missing}'" in errors[0], err
+    assert "no such file" in errors[0] and not any("Traceback" in line for line in err)
 
 
 def test_init_error_exits_2_at_the_console_and_a_bug_keeps_its_traceback(tmp_path, root, monkeypatch, capsys):
