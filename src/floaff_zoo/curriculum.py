@@ -855,8 +855,9 @@ def run_curriculum(
         config: experiment YAML; root: run directory override (default: the file's ``root``, with the
             stems of ``extra_configs`` appended so e.g. each crop-radius sweep point gets its own run);
         sets: ``key=value`` overrides for every stage; extra_configs: extra ``--config`` files for
-            every shared stage; dry_run: print the fit commands only; runner: the fit function
-            (default ``floaff_zoo.cli.run_lightning``); on_stage_end: ``(stage name, cli)`` hook.
+            every shared stage; dry_run: print the fit commands only (parsed first, as a run parses them);
+            runner: the fit function (default ``floaff_zoo.cli.run_lightning``); on_stage_end: ``(stage name,
+            cli)`` hook.
     """
     out = out or sys.stdout
     cfg = load_experiment(config)
@@ -873,7 +874,7 @@ def run_curriculum(
         from floaff_zoo.cli import run_lightning
 
         runner = run_lightning
-    if not dry_run and default_runner:
+    if default_runner:  # a dry run too: the commands it prints must be ones that run
         _check_stages(cfg, root, extra, flags)
     lineage_path = root / LINEAGE_FILE
     if not dry_run:  # a damaged lineage of an earlier run is reported, not silently replaced

@@ -335,6 +335,15 @@ def test_a_stage_fit_error_is_one_line_naming_the_stage(tmp_path, root, monkeypa
     assert "data.num_val must be an integer >= 0, got -1" in err[0]
 
 
+def test_dry_run_refuses_an_override_no_stage_accepts(tmp_path, root, monkeypatch, capsys):
+    """A dry run printed the commands of a mistyped --set key and exited 0; the run itself refused them."""
+    monkeypatch.chdir(root)
+    args = ["--config", EXP, "--dry-run", "--set", "trainer.max_epoch=1", "--root", str(tmp_path)]
+    assert main(args, raise_errors=False) == 2
+    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert len(err) == 1 and "its fit arguments do not parse" in err[0] and "max_epoch" in err[0], err
+
+
 def test_dry_run_refuses_a_missing_config_file(tmp_path, root, monkeypatch, capsys):
     """A dry run printed the commands of a missing --extra-config or stage config file and exited 0."""
     monkeypatch.chdir(root)
