@@ -994,7 +994,9 @@ def main(argv: list[str] | None = None, *, raise_errors: bool | None = None) -> 
         metavar="FILE",
         help="extra --config file for every shared stage, e.g. an ablation or sweep file (repeatable)",
     )
-    parser.add_argument("--dry-run", action="store_true", help="print the fit commands and exit")
+    parser.add_argument(
+        "--dry-run", action="store_true", help="check every stage's fit arguments, print the fit commands and exit"
+    )
     ns = parser.parse_args(argv)
     try:
         run_curriculum(ns.config, ns.root, ns.sets, ns.extra, ns.dry_run)
