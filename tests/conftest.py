@@ -14,7 +14,9 @@ import pytest  # noqa: E402
 import torch  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-torch.set_num_threads(2)
+# ``make test`` runs the suite in pytest-xdist workers (2 by default, one per core of the CI machine): one torch thread
+# each, two in a single process
+torch.set_num_threads(1 if int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1")) > 1 else 2)
 
 
 @pytest.fixture(autouse=True)
