@@ -156,7 +156,10 @@ def view_choices(
         for name, s in scores.items():
             # the Oracle (``label``) stands on its argmax, as the test's does: top 1, no footprint check
             k, check = (1, None) if name == "label" else (top_k, free)
-            pose, _ = choose_pose(floor[i], s[i], mask[i], target[i], sim["base_pose_world"], k, check, tie)
+            # footprints checked at the exact pose the callback rolls out (the view's float32 one where no target_world)
+            pose, _ = choose_pose(
+                floor[i], s[i], mask[i], target[i], sim["base_pose_world"], k, check, tie, None, sim.get("target_world")
+            )
             c = nearest_cells(cand, np.array([pose[:2]]), cell, where)[0]
             row[name] = (bool(exact[c]), float(p[c]))
         seen = nearest_cells(cand, base_to_world(floor[i][mask[i]], sim["base_pose_world"]), cell, where)

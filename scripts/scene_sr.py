@@ -208,7 +208,9 @@ def view_outcomes(
     """Annotated outcome of each run's chosen cell, per view of a batch (scores: name -> per run [B, M]).
 
     ``top_k`` > 1: the best of the top-k cells whose base footprint is free in the view's own cloud, as
-    ``RolloutSuccessRate(top_k=k, free_space="cloud")`` chooses, the footprint grown by ``margin`` (m) on every side;
+    ``RolloutSuccessRate(top_k=k, free_space="cloud")`` chooses (each candidate's footprint checked at the pose the
+    callback rolls out: the annotation's exact one where ``meta['sim']`` gives ``target_world``), the footprint grown
+    by ``margin`` (m) on every side;
     ``full_cloud``: in every point the view's file stores (the batch's ``full_xyz``: ``check_clouds``), not the
     batch's sample; ``min_observed`` > 0: free cells whose footprint that cloud shows on at least this share come
     first (``cloud_observed``); ``off_grid``: the batch's floor points are not label cells (``deployment_queries``),
@@ -238,10 +240,12 @@ def view_outcomes(
         out: dict[str, list[bool]] = {}
         why: dict[str, list[str]] = {}
         base, tie = sim["base_pose_world"], int(meta.get("index", i))
+        # the footprint check reads the pose the callback rolls out, the annotation's exact one, not the view's float32
+        facing = sim.get("target_world")
         for name, runs in scores.items():
             out[name], why[name] = [], []
             for s in runs:
-                pose, _ = choose_pose(floor[i], s[i], mask[i], target[i], base, top_k, free, tie, prefer)
+                pose, _ = choose_pose(floor[i], s[i], mask[i], target[i], base, top_k, free, tie, prefer, facing)
                 c = label_cell(cand, pose, cell, sid, off_grid)
                 out[name].append(c is not None and bool(success[c]))
                 if c is None:

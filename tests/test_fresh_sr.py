@@ -264,6 +264,17 @@ def test_the_label_oracle_stands_on_its_argmax_under_top_k(drawer_root):
         assert [r["label"] for r in topk] == [r["label"] for r in top1]
 
 
+def test_top_k_checks_each_footprint_at_the_pose_the_callback_rolls_out():
+    """``--top-k`` checked the footprints of poses rebuilt from the view's float32 points, not at the exact pose the
+    callback rolls out: a point on a footprint's edge freed a cell the callback refuses (scene_sr's knife edge)."""
+    from tests.test_scene_sr import knife_edge_view
+
+    batch, scenes, scores = knife_edge_view(top_k=3)
+    probs = {sid: np.asarray(s["labels"]["success"], float) for sid, s in scenes.items()}
+    (row,) = fs.view_choices(batch, {"m": scores}, scenes, probs, top_k=3)
+    assert row["m"] == (True, 1.0)  # the callback's cell: the only successful one
+
+
 def _hole_scene(task: str = "CloseDrawer") -> dict:
     """A 3 x 3 scene whose centre the IK pre-filter refused amid 8 successes: the smoothed map (labels.label) peaks
     on that filtered cell, which every per-cell label (labels.cell_label) sets to 0."""

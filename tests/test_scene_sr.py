@@ -1,5 +1,7 @@
 """scripts/scene_sr.py: runs pooled per name, SR per scene, and the scene bootstrap's paired differences."""
 
+import math
+
 import numpy as np
 import pytest
 import torch
@@ -263,6 +265,65 @@ def test_main_asks_the_datamodule_for_the_stored_cloud(monkeypatch, tmp_path):
         with pytest.raises(SystemExit, match="spy: stop before loading data"):
             ssr.main(["--root", str(tmp_path), *flags, "m=some.ckpt"])
         assert seen["full_cloud"] is expected
+
+
+def knife_edge_view(top_k: int = 3) -> tuple[dict, dict[str, dict], np.ndarray]:
+    """One view whose top-k footprint check chooses another cell at the view's float32 pose than at the exact pose the
+    callback rolls out (``target_world``: the annotation's float64 yaw from the rounded cell): two obstacle points of
+    its cloud lie inside the best cell's footprint at the exact pose and outside it at the float32 one.
+
+    Returns (batch of the view, {scene id: record} whose only successful cell is the one the callback chooses,
+    scores [1, M]).
+    """
+    from floaff_zoo.callbacks.rollout import choose_pose, cloud_free
+    from floaff_zoo.contract import collate_samples
+    from floaff_zoo.floor import FOOTPRINT, _footprint_frame
+    from floaff_zoo.frames import base_to_world
+    from floaff_zoo.sim.kitchen import SceneSpec
+    from tests.report._fake_world import make_samples, world_to_base
+
+    for sample in make_samples(40, target_world=True):
+        batch = collate_samples([sample])
+        sim = sample["meta"]["sim"]
+        base, facing = sim["base_pose_world"], sim["target_world"]
+        floor, mask, target = (batch[k][0].numpy() for k in ("floor_xyz", "floor_mask", "target_xyz"))
+        scores = np.linspace(1.0, 0.0, len(floor))
+        exact = choose_pose(floor, scores, mask, target, base, 1, None, 0, None, facing)[0]
+        f32 = choose_pose(floor, scores, mask, target, base)[0]
+        # points on the exact footprint's front edge, stored as a float32 cloud in the view's base frame
+        c, s = math.cos(exact[2]), math.sin(exact[2])
+        a, w = (g.ravel() for g in np.meshgrid(FOOTPRINT[2] + np.linspace(-3e-7, 3e-7, 61), np.linspace(-0.2, 0.2, 41)))
+        world = np.stack([exact[0] + c * a - s * w, exact[1] + s * a + c * w], axis=1)
+        pts = np.c_[world_to_base(world, base), np.full(len(world), 0.5)].astype(np.float32)
+        back = base_to_world(pts, base)
+        edge = np.unique(
+            pts[_footprint_frame(back, exact, FOOTPRINT)[0] & ~_footprint_frame(back, f32, FOOTPRINT)[0]], axis=0
+        )
+        if len(edge) < 2:
+            continue
+        cloud = edge[:2]
+        cells = base_to_world(floor.astype(np.float64), base)[:, :2].round(2)
+        free = cloud_free(cloud, base)
+        chosen = [choose_pose(floor, scores, mask, target, base, top_k, free, 0, None, t)[0] for t in (facing, None)]
+        by_callback, by_float32 = (int(np.linalg.norm(cells - np.asarray(p[:2]), axis=1).argmin()) for p in chosen)
+        if by_callback == by_float32:
+            continue
+        batch = {**batch, "scene_xyz": torch.from_numpy(cloud)[None], "scene_mask": torch.ones(1, 2, dtype=torch.bool)}
+        success = np.zeros(len(cells))
+        success[by_callback] = 1.0
+        sid = SceneSpec.from_dict(sim).scene_id
+        scene = {"candidates": {"xy": cells.tolist(), "cell": 0.05}, "labels": {"success": success.tolist()}}
+        return batch, {sid: scene}, scores[None]
+    raise AssertionError("no view of the fake world puts a point between the two poses' footprints")
+
+
+def test_top_k_checks_each_footprint_at_the_pose_the_callback_rolls_out():
+    """``--top-k`` checked the footprints of poses rebuilt from the view's float32 points, whose yaw misses the exact
+    pose the callback rolls out by ~1e-7 rad: a point on a footprint's edge freed a cell there that the callback
+    refuses, and the script scored another cell than the test's for the same view."""
+    batch, scenes, scores = knife_edge_view(top_k=3)
+    rows = ssr.view_outcomes(batch, {"m": [scores]}, scenes, top_k=3)
+    assert rows[0][2]["m"] == [True]  # the callback's cell: the only successful one
 
 
 def test_label_cell_takes_the_nearest_cell_within_half_a_diagonal():
