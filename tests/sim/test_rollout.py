@@ -266,6 +266,31 @@ def test_close_releases_the_scenes_built_for_rollouts_in_this_process():
     assert other not in ro._WORKER_SCENES
 
 
+def test_closing_a_service_leaves_the_scenes_an_open_service_shares(monkeypatch):
+    """close() released every scene it had run, also one an open service beside it ran (which then built it again
+    for its next rollout) and the compiled kitchen that another task's scene of an open service shares."""
+    import floaff_zoo.sim.kitchen as kitchen
+    import floaff_zoo.sim.rollout as ro
+
+    builds: list[SceneSpec] = []
+    real = ro.build_scene
+    monkeypatch.setattr(ro, "build_scene", lambda spec: builds.append(spec) or real(spec))
+    drawer, door = SceneSpec(0, 0, 31, "CloseDrawer"), SceneSpec(0, 0, 31, "OpenSingleDoor")
+    svc, beside, other_task = RolloutService(workers=1), RolloutService(workers=1), RolloutService(workers=1)
+    for s, spec in ((svc, drawer), (beside, drawer), (other_task, door)):
+        s.run([(spec, (9.0, 9.0, 0.0))])  # off the floor: refused by the pose filter, the scene built all the same
+    assert builds == [drawer, door]
+    svc.close()
+    beside.run([(drawer, (9.0, 8.0, 0.0))])  # a pose not in its result cache: a rollout in the scene it ran
+    assert builds == [drawer, door] and drawer in ro._WORKER_SCENES
+    beside.close()
+    assert drawer not in ro._WORKER_SCENES
+    assert (0, 0, 31) in kitchen._CACHE  # the door scene of the open service uses the kitchen
+    other_task.close()
+    assert door not in ro._WORKER_SCENES and (0, 0, 31) not in kitchen._CACHE
+    assert drawer not in ro._SCENE_USERS and door not in ro._SCENE_USERS
+
+
 def test_close_releases_the_kitchens_of_scenes_the_lru_dropped(monkeypatch):
     """A scene the worker LRU dropped left its compiled kitchen in the kitchen cache, which close() then kept."""
     import floaff_zoo.sim.kitchen as kitchen

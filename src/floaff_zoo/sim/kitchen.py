@@ -1075,8 +1075,7 @@ def lru_put(cache: dict[Any, Any], key: Any, value: Any, size: int) -> None:
 def compile_scene(spec: SceneSpec) -> tuple[mujoco.MjModel, dict, list[_Rect], dict]:
     """Compiled model + fixture info for a spec (cached per process, the last ``CACHE_SIZE`` kitchens)."""
     with _LOCK:
-        # the kitchen does not depend on the task (only target + reset do): share one model
-        key = (int(spec.layout_id), int(spec.style_id), int(spec.seed))
+        key = kitchen_key(spec)
         hit = _CACHE.get(key)
         if hit is None:
             mspec, fixtures, rects, meta = _build_spec(SceneSpec(key[0], key[1], key[2], TASKS[0]))
@@ -1086,10 +1085,16 @@ def compile_scene(spec: SceneSpec) -> tuple[mujoco.MjModel, dict, list[_Rect], d
         return hit
 
 
+def kitchen_key(spec: SceneSpec) -> tuple[int, int, int]:
+    """(layout, style, seed): what names a compiled kitchen; the kitchen does not depend on the task (only target and
+    reset do), so the scenes of every task in it share one model."""
+    return int(spec.layout_id), int(spec.style_id), int(spec.seed)
+
+
 def release_scene(spec: SceneSpec) -> None:
     """Drop the compiled model of ``spec``'s kitchen from the per-process cache (its built scenes keep theirs)."""
     with _LOCK:
-        _CACHE.pop((int(spec.layout_id), int(spec.style_id), int(spec.seed)), None)
+        _CACHE.pop(kitchen_key(spec), None)
 
 
 def build_scene(spec: SceneSpec) -> SimScene:

@@ -24,7 +24,7 @@ from floaff_zoo import floor
 from floaff_zoo.frames import ROLLOUT_POSE_DECIMALS, heading_to
 from floaff_zoo.runtime import THREAD_ENV, exit_with_parent, one_thread_children
 from floaff_zoo.sim.controllers import CTRL_DT, Policy, default_policy
-from floaff_zoo.sim.kitchen import SceneSpec, SimScene, TargetInfo, build_scene, lru_put, release_scene
+from floaff_zoo.sim.kitchen import SceneSpec, SimScene, TargetInfo, build_scene, kitchen_key, lru_put, release_scene
 from floaff_zoo.sim.tasks import target_frame
 
 
@@ -167,6 +167,8 @@ def _settled(scene: SimScene) -> bool:
 #: each holds its compiled kitchen (~70-80 MB) and is rebuilt in ~0.1 s, so a long-lived worker must not keep them all
 WORKER_SCENES_SIZE = 8
 _WORKER_SCENES: dict[SceneSpec, SimScene] = {}
+#: spec -> how many open services ran rollouts of it in this process: the last one to close releases its scene
+_SCENE_USERS: dict[SceneSpec, int] = {}
 Job = tuple[dict, tuple[float, float, float], int]  # (spec dict, rounded pose, seed): what a worker receives
 
 
@@ -295,7 +297,7 @@ class RolloutService:
         payload = [(k[0].to_dict(), (k[1], k[2], k[3]), k[4]) for k in todo]
         t0 = time.perf_counter()
         if self.workers == 1 or len(payload) <= 1:
-            self._built_here.update(k[0] for k in todo)
+            self._use_here({k[0] for k in todo})
             results = []
             for i, p in enumerate(payload):
                 results.append(_run_one(self.job_fn, p))
@@ -405,17 +407,34 @@ class RolloutService:
         remote = ray.remote(num_cpus=1, runtime_env=env)(_run_one)
         return ray.get([remote.remote(self.job_fn, p) for p in payload])
 
+    def _use_here(self, specs: set[SceneSpec]) -> None:
+        """Record that this service runs rollouts of ``specs`` in this process (their scenes are built here)."""
+        for spec in specs - self._built_here:
+            _SCENE_USERS[spec] = _SCENE_USERS.get(spec, 0) + 1
+        self._built_here |= specs
+
+    def _release_here(self) -> None:
+        """Release the scenes (~80 MB each, for the life of a training process) and compiled kitchens of the rollouts
+        this service ran in this process that no other open service uses: another's are left to it, built."""
+        mine, self._built_here = self._built_here, set()
+        for spec in mine:
+            left = _SCENE_USERS.pop(spec, 1) - 1
+            if left > 0:
+                _SCENE_USERS[spec] = left
+            else:
+                _WORKER_SCENES.pop(spec, None)
+        in_use = {kitchen_key(s) for s in _SCENE_USERS}  # a kitchen is shared by the scenes of all its tasks
+        for spec in mine:
+            if kitchen_key(spec) not in in_use:
+                release_scene(spec)  # also where the scene LRU dropped the scene already
+
     def close(self) -> None:
         """Stop the pool (rollouts still queued by an interrupted ``run`` are dropped, not waited for) and release
-        the scenes of the rollouts it ran in this process (scenes only another service ran stay; one both ran is
-        built again by the other when it needs it, about 0.1 s)."""
+        the scenes of the rollouts it ran in this process that no other open service ran (``_release_here``)."""
         if self._pool is not None:
             self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = None
-        for spec in self._built_here:  # ~80 MB each, for the life of a training process; another service's stay
-            _WORKER_SCENES.pop(spec, None)
-            release_scene(spec)  # its compiled kitchen too, also where the scene LRU dropped the scene already
-        self._built_here.clear()
+        self._release_here()
         if self._ray_started:
             import ray
 
