@@ -523,6 +523,29 @@ def test_a_run_reads_each_scene_json_once_where_it_can(tmp_path, monkeypatch):
     assert {len(s["retired"]) for s in man["scenes"].values()} == {2}
 
 
+def test_a_left_out_slots_scene_json_is_read_once(tmp_path, monkeypatch):
+    """A rerun with fewer slots read a left-out slot's scene.json at the start (the slot map), again for the previous
+    manifest's entry and again by its slot: three reads of a record the run held from the first one."""
+    import collections
+
+    p = get_preset("tiny", tasks=("CloseDrawer",), n_train=4, n_test=0)
+    gen.generate(tmp_path, p, seed=0, workers=0, quiet=True, job_fn=_commit_first_seed)
+    reads = collections.Counter()
+    real = Path.read_text
+
+    def counted(self, *args, **kw):
+        if self.name == ff.SCENE_JSON and self.is_file():
+            reads[self.parent.name] += 1
+        return real(self, *args, **kw)
+
+    monkeypatch.setattr(Path, "read_text", counted)
+    fewer = get_preset("tiny", tasks=("CloseDrawer",), n_train=2, n_test=0)
+    man = gen.generate(tmp_path, fewer, seed=0, workers=0, quiet=True, job_fn=_commit_first_seed)
+    left = [s for s in man["scenes"].values() if s.get("in_plan") is False]
+    assert len(left) == 2 and all(s["status"] == "ok" for s in left)
+    assert {reads[s["scene_id"]] for s in left} == {1}
+
+
 def test_ray_backend_without_ray_says_pip_install(tmp_path, monkeypatch):
     monkeypatch.setitem(sys.modules, "ray", None)  # ray is a dev dependency: simulate a user without it
     p = get_preset("tiny", tasks=("CloseDrawer",), n_test=0)

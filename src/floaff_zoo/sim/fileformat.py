@@ -53,6 +53,7 @@ __all__ = [
     "atomic_write_json",
     "check_format_version",
     "commit_scene_dir",
+    "committed",
     "committed_record",
     "iter_scenes",
     "labels_digest",
@@ -186,6 +187,11 @@ def committed_record(root: str | Path, benchmark: str, scene_id: str) -> dict[st
         rec = read_json(scene_dir(root, benchmark, scene_id) / SCENE_JSON)
     except FormatError:
         return None
+    return committed(rec)
+
+
+def committed(rec: Any) -> dict[str, Any] | None:
+    """A parsed scene.json ``rec`` when it is a committed scene's (an object with status "ok"), else None."""
     return rec if isinstance(rec, dict) and rec.get("status") == "ok" else None
 
 

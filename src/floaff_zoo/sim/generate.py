@@ -192,14 +192,27 @@ def slot_scenes(out: Path, job: SceneJob, ids: list[str] | None = None) -> list[
 def scenes_by_slot(dirs: list[Path]) -> dict[tuple[str, str], list[str]]:
     """(benchmark, slot key) -> scene_ids of the scene folders ``dirs`` (``committed_scene_dirs``), by the slot their
     scene.json names, each read once; a folder whose scene.json does not parse or names no slot is left out."""
-    found: dict[tuple[str, str], list[str]] = {}
+    return slots_of(read_records(dirs))
+
+
+def read_records(dirs: list[Path]) -> dict[tuple[str, str], Any]:
+    """(benchmark, scene_id) -> the parsed scene.json of each scene folder of ``dirs``, in their order, each read
+    once; a folder whose scene.json does not parse is left out."""
+    records: dict[tuple[str, str], Any] = {}
     for d in dirs:
         try:
-            rec = ff.read_json(d / ff.SCENE_JSON)
+            records[(d.parent.name, d.name)] = ff.read_json(d / ff.SCENE_JSON)
         except ff.FormatError:
             continue
+    return records
+
+
+def slots_of(records: dict[tuple[str, str], Any]) -> dict[tuple[str, str], list[str]]:
+    """(benchmark, slot key) -> scene_ids of ``read_records``' records, by the slot each names (none: left out)."""
+    found: dict[tuple[str, str], list[str]] = {}
+    for (bench, sid), rec in records.items():
         if isinstance(rec, dict) and isinstance(rec.get("slot"), str):
-            found.setdefault((d.parent.name, rec["slot"]), []).append(d.name)
+            found.setdefault((bench, rec["slot"]), []).append(sid)
     return found
 
 
@@ -937,7 +950,8 @@ def _generate(
             "restore manifest.json"
         )
     todo: list[SceneJob] = []
-    by_slot = scenes_by_slot(committed_scene_dirs(outp))  # every scene.json read once, at the start
+    records = read_records(committed_scene_dirs(outp))  # every scene.json read once, at the start
+    by_slot = slots_of(records)
     retire: dict[str, list[str]] = {}  # resumed slot -> its other scenes, moved aside once the run is not refused
     for job in jobs:
         base = {
@@ -978,8 +992,9 @@ def _generate(
     checked: set[tuple[str, str]] = set()
 
     def left_out(bench: str, sid: str) -> dict[str, Any] | None:
-        """The scene.json of a left-out slot's scene, its generator checked once; None when it is not committed."""
-        rec = ff.committed_record(outp, bench, sid)
+        """The scene.json of a left-out slot's scene, its generator checked once; None when it is not committed.
+        From the records read at the start: nothing has written a scene since."""
+        rec = ff.committed(records.get((bench, sid)))
         if rec is None:
             return None
         if (bench, sid) not in checked and not same_generator(rec):
