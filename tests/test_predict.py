@@ -279,6 +279,53 @@ def test_predict_refuses_candidates_off_the_floor(tiny_model):
     predict_from_points(tiny_model, xyz, flag, noisy, [0.85, 1.03], t, num_points=64)
 
 
+def test_zero_d_and_wrongly_shaped_arguments_are_named_with_their_shape():
+    """A 0-d floor_xyz failed in len(), a [[rx, ry]] window in float(), a 0-d target in numpy's indexing or reshape
+    (default_target_yaw, default_floor_grid), a 0-d candidate set in candidate_spacing's; a [2, 2] or [1, 4]
+    intrinsics ran as (fx, fy, cx, cy) and a 0-d or [1, R] robot was flattened into a descriptor without a word.
+    Each is refused before any model loads, naming the argument and the shape given."""
+    import re
+
+    import numpy as np
+
+    from floaff_zoo import predict as P
+
+    xyz, flag, t = _cloud()
+    floor = np.c_[np.linspace(0.4, 1.0, 7), np.zeros(7), np.zeros(7)]
+    zero = np.asarray(1.0)
+
+    def shape(a) -> str:
+        return re.escape(str(np.shape(a)))
+
+    cases = [
+        ("floor_xyz", zero, r"floor_xyz must be \[M, 3\]"),
+        ("floor_xyz", floor[0], r"floor_xyz must be \[M, 3\]"),
+        ("target_xyz", zero, "target_xyz must be 3 finite values"),
+        ("target_xyz", np.zeros((1, 1, 3)), "target_xyz must be 3 finite values"),
+        ("robot", zero, r"robot must be a 1-D descriptor \[R\]"),
+        ("robot", np.array([[0.85, 1.03]]), r"robot must be a 1-D descriptor \[R\]"),
+        ("window", zero, "window must be two finite half-sizes"),
+        ("window", np.array([[1.0, 1.2]]), "window must be two finite half-sizes"),
+    ]
+    for name, bad, message in cases:
+        args = {"floor_xyz": floor, "robot": [0.85, 1.03], "target_xyz": t, name: bad}
+        if name == "window":
+            args["floor_xyz"] = None  # the default grid reads it
+        with pytest.raises(ValueError, match=f"predict: {message}.*{shape(bad)}"):
+            P.predict_from_points("no-such-model-is-loaded", xyz, flag, **args)
+    for k in (zero, np.ones((2, 2)), np.ones((1, 4))):
+        with pytest.raises(ValueError, match=rf"predict: intrinsics must be .*got shape {shape(k)}"):
+            P.backproject_depth(np.ones((4, 5)), k, np.eye(4))
+    with pytest.raises(ValueError, match=rf"predict: target_xyz must be 3 finite values.*{shape(zero)}"):
+        P.default_target_yaw(zero)
+    with pytest.raises(ValueError, match=rf"predict: target_xyz must be 3 finite values.*{shape(zero)}"):
+        P.default_floor_grid(zero, xyz)
+    with pytest.raises(ValueError, match=rf"predict: window must be two finite half-sizes.*{shape(zero)}"):
+        P.default_floor_grid(t, xyz, window=zero)
+    with pytest.raises(ValueError, match=rf"predict: floor_xyz must be \[M, 2\] or \[M, 3\].*{shape(zero)}"):
+        P.candidate_spacing(zero)
+
+
 def test_a_robot_descriptor_of_the_wrong_size_names_the_argument(tiny_model):
     """The model's own check said 'the data gives robot descriptors of size 3; set model.init_args.robot_dim: 3',
     naming no argument of predict and advising a config change a pretrained model cannot take."""

@@ -165,6 +165,19 @@ def _finite(value: Any) -> float | None:
     return float(a)
 
 
+def check_point(value: Any, name: str) -> np.ndarray:
+    """``value`` as a float64 point [3]; ValueError naming ``name`` and the shape given unless it is 3 finite values
+    (a 0-d number failed in numpy's indexing or reshape, naming no argument)."""
+    try:
+        p = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):  # a text, ragged values
+        p = None
+    if p is None or p.size != 3 or p.ndim not in (1, 2) or not np.isfinite(p).all():
+        got = f"shape {p.shape}: {p.tolist()}" if p is not None and p.size <= 9 else f"shape {np.shape(value)}"
+        raise ValueError(f"predict: {name} must be 3 finite values (x, y, z), got {got}")
+    return p.reshape(3)
+
+
 def check_cell(cell: float | None) -> float | None:
     """``cell`` (m) as a float, or None (the default); a ValueError for 0, negative, NaN or Inf sizes."""
     if cell is None:
@@ -184,12 +197,13 @@ def check_window(target_yaw: float | None, window: Any, grid_radius: float | Non
     if target_yaw is not None and _finite(target_yaw) is None:
         raise ValueError(f"predict: target_yaw must be a finite angle (rad) or None, got {target_yaw!r}")
     try:
-        w = np.asarray(window, dtype=np.float64).reshape(-1)
+        w = np.asarray(window, dtype=np.float64)
     except (TypeError, ValueError):  # a text: numpy's message named no argument
         w = np.array([])
-    if w.size != 2 or not (np.isfinite(w).all() and (w > 0).all()):
+    if w.shape != (2,) or not (np.isfinite(w).all() and (w > 0).all()):  # [[rx, ry]] failed in float(window[0])
         raise ValueError(
-            f"predict: window must be two finite half-sizes > 0 m (along the front, its normal), got {window!r}"
+            f"predict: window must be two finite half-sizes > 0 m (along the front, its normal), got {window!r} "
+            f"(shape {w.shape})"
         )
     if grid_radius is not None and not (_finite(grid_radius) or 0) > 0:
         raise ValueError(f"predict: grid_radius must be a finite radius > 0 m or None, got {grid_radius!r}")
@@ -341,7 +355,16 @@ def backproject_depth(
     d = np.asarray(depth, dtype=np.float64)
     if d.ndim != 2:
         raise ValueError(f"predict: depth must be [H, W], got shape {d.shape}")
-    k = np.asarray(intrinsics, dtype=np.float64).reshape(-1)
+    try:
+        k = np.asarray(intrinsics, dtype=np.float64)
+    except (TypeError, ValueError):  # a text, ragged rows: numpy's message named no argument
+        k = np.array([])
+    if k.shape not in ((4,), (3, 3)):  # a 0-d number, a [2, 2] array read as (fx, fy, cx, cy)
+        raise ValueError(
+            f"predict: intrinsics must be (fx, fy, cx, cy) or a 3x3 K, got shape {k.shape}"
+            + (f": {k.tolist()}" if k.size <= 9 else "")
+        )
+    k = k.reshape(-1)
     skew = 0.0
     if k.size == 9:  # a 3x3 K matrix
         if np.isfinite(k).all() and not np.allclose(k[[3, 6, 7, 8]], [0.0, 0.0, 0.0, 1.0]):  # a transposed K
@@ -391,7 +414,7 @@ def backproject_depth(
 
 def default_target_yaw(target_xyz: np.ndarray) -> float:
     """Front yaw assumed when none is given: the target faces the base origin (the observing robot)."""
-    t = np.asarray(target_xyz, dtype=np.float64).reshape(-1)
+    t = check_point(target_xyz, "target_xyz")
     return math.atan2(-float(t[1]), -float(t[0]))
 
 
@@ -414,7 +437,8 @@ def default_floor_grid(
     Raises:
         SampleError: the cloud shows no ground point in the window.
     """
-    t = np.asarray(target_xyz, dtype=np.float64).reshape(3)
+    t = check_point(target_xyz, "target_xyz")
+    check_window(target_yaw, window, radius)
     yaw = default_target_yaw(t) if target_yaw is None else float(target_yaw)
     lattice = FloorLattice.target_window(t[:2], yaw, float(cell), float(window[0]), float(window[1]))
     check_raster_size(lattice.shape, float(cell), f"the default grid's window {window}", "a smaller window")
@@ -432,7 +456,10 @@ def default_floor_grid(
 
 def candidate_spacing(floor_xyz: np.ndarray, default: float = 0.05) -> float:
     """Median nearest-neighbour distance of candidates [M, 2+] (their grid cell); ``default`` if < 2 points."""
-    pts = np.asarray(floor_xyz, dtype=np.float64)[:, :2]
+    pts = np.asarray(floor_xyz, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] < 2:  # a 0-d or [M] array failed in numpy's indexing
+        raise ValueError(f"predict: floor_xyz must be [M, 2] or [M, 3] candidates, got shape {pts.shape}")
+    pts = pts[:, :2]
     if len(pts) < 2:
         return default
     from scipy.spatial import cKDTree
@@ -571,9 +598,7 @@ def predict_from_points(
         raise ValueError(f"predict: num_points must be an int >= 1, or None for every point, got {num_points!r}")
     check_window(target_yaw, window, grid_radius)
     check_device(device)
-    t = np.asarray(target_xyz, dtype=np.float32).reshape(-1)
-    if t.size != 3 or not np.isfinite(t).all():
-        raise ValueError(f"predict: target_xyz must be 3 finite values, got {target_xyz!r}")
+    t = check_point(target_xyz, "target_xyz").astype(np.float32)
     check_target(xyz, feat, t)
     if target_yaw is None:
         target_yaw = default_target_yaw(t)
@@ -581,13 +606,19 @@ def predict_from_points(
         cell = DEFAULT_FLOOR_CELL if cell is None else cell
         floor_xyz = default_floor_grid(t, xyz, target_yaw, cell=cell, window=window, radius=grid_radius)
     floor = np.asarray(floor_xyz, dtype=np.float32)
-    if floor.ndim == 2 and floor.shape[1] == 2:
+    if floor.ndim != 2 or floor.shape[1] not in (2, 3) or len(floor) == 0:  # a 0-d one failed in len()
+        raise ValueError(
+            f"predict: floor_xyz must be [M, 3] (or [M, 2]) candidates with M >= 1, got shape {floor.shape}"
+        )
+    if floor.shape[1] == 2:
         floor = np.c_[floor, np.zeros(len(floor), np.float32)]
     check_floor_height(floor)
     try:
         robot = np.asarray(robot, dtype=np.float32)
     except (TypeError, ValueError) as exc:  # a robot's name, or ragged values: numpy's message named no argument
         raise ValueError(f"predict: robot must be the robot's descriptor numbers, got {robot!r}") from exc
+    if robot.ndim != 1:  # a 0-d number or a [1, R] row was flattened into a descriptor without a word
+        raise ValueError(f"predict: robot must be a 1-D descriptor [R], got shape {robot.shape}: {robot.tolist()}")
     sample = validate_sample(
         {
             "scene_xyz": xyz,
