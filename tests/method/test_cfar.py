@@ -475,16 +475,43 @@ def test_a_nan_input_is_named_not_cropped_away(root, key):
     m.check_inputs(b)
 
 
-def test_a_teacher_whose_saved_sampling_is_not_numbers_is_named(tmp_path, root):
-    """A teacher file whose saved local radii are no numbers failed ``float()`` naming neither file nor field."""
+def _teacher_saved_with(tmp_path: Path, root: Path, field: str, value: object) -> Path:
+    """A teacher saved from the tiny CFAR whose config.json holds ``value`` as ``field``; its folder."""
     import json
 
-    args = tiny_args(root)
-    CFARModule(**args).save_pretrained(tmp_path / "stage1")
+    CFARModule(**tiny_args(root)).save_pretrained(tmp_path / "stage1")
     cfg = json.loads((tmp_path / "stage1" / "config.json").read_text())
     init = cfg["init_args"] if "init_args" in cfg else cfg
-    init["local_radii"] = ["near", "far"]
+    init[field] = value
     (tmp_path / "stage1" / "config.json").write_text(json.dumps(cfg))
-    student = CFARModule(**args, teacher=str(tmp_path / "stage1"))
-    with pytest.raises(ValueError, match=r"teacher '.*stage1': local_radii must be a list of numbers, got \['near'"):
+    return tmp_path / "stage1"
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "shown"),
+    [
+        ("local_radii", ["near", "far"], r"local_radii must be a list of numbers, got \['near'"),
+        ("local_npoints", "64", r"local_npoints must be a list of numbers, got '64'"),  # was read as [6.0, 4.0]
+    ],
+)
+def test_a_teacher_whose_saved_sampling_is_not_numbers_is_named(tmp_path, root, field, value, shown):
+    """A teacher file whose saved local radii are no numbers failed ``float()`` naming neither file nor field."""
+    from floaff_zoo.models.cfar import TeacherError
+
+    student = CFARModule(**tiny_args(root), teacher=str(_teacher_saved_with(tmp_path, root, field, value)))
+    with pytest.raises(TeacherError, match=rf"teacher '.*stage1': {shown}"):
         student.setup("fit")
+
+
+def test_a_teacher_whose_saved_sampling_is_not_numbers_is_one_line_at_the_console(tmp_path, root, monkeypatch, capsys):
+    """It was a ValueError from the fit's setup: a traceback at the console, where the other teacher errors are one
+    line."""
+    from tests.conftest import console
+
+    teacher = _teacher_saved_with(tmp_path, root, "local_radii", ["near", "far"])
+    monkeypatch.chdir(root)
+    args = ["fit", "--config", DATA, "--config", CFAR, *quiet_trainer_args(tmp_path / "run")]
+    rc, _, err = console(monkeypatch, capsys, [*args, "--model.init_args.teacher", str(teacher)])
+    errors = [line for line in err if line.startswith("floaff-zoo: error: ")]
+    assert rc == 2 and len(errors) == 1 and f"teacher '{teacher}': local_radii must be a list" in errors[0], err
+    assert not any("Traceback" in line for line in err)

@@ -112,16 +112,18 @@ def batch_statistics(module: nn.Module) -> Iterator[None]:
             m.training, m.track_running_stats = tr, track
 
 
-def _local_sampling(args: Any, name: str, who: str) -> list[float]:
+def _local_sampling(args: Any, name: str, who: str, error: type[ValueError] = ValueError) -> list[float]:
     """A local-encoder sampling argument of a CFAR's init args, ``None`` resolved to ``CFARNet``'s default;
-    ValueError naming ``who`` (whose arguments) when it is not a list of numbers."""
+    ``error`` naming ``who`` (whose arguments) when it is not a list of numbers."""
     value = args.get(name)
     if value is None:
         value = inspect.signature(CFARNet.__init__).parameters[name].default
     try:
+        if isinstance(value, (str, bytes, dict)):  # iterable, but "64" read as [6.0, 4.0]
+            raise TypeError(type(value).__name__)
         return [float(v) for v in value]
     except (TypeError, ValueError) as exc:  # a checkpoint's saved text failed float() naming nothing
-        raise ValueError(f"{who}: {name} must be a list of numbers, got {value!r}") from exc
+        raise error(f"{who}: {name} must be a list of numbers, got {value!r}") from exc
 
 
 def _sha256(path: str) -> str | None:
@@ -355,7 +357,8 @@ class CFARModule(FloAffModule):
         saved = info.get("init_args") or {}
         teacher_of, student = f"teacher {name!r}", type(self).__name__
         pairs = {
-            k: (_local_sampling(saved, k, teacher_of), _local_sampling(self.hparams, k, student))
+            # the teacher's file is a user's input: TeacherError, one line at the console, not a setup traceback
+            k: (_local_sampling(saved, k, teacher_of, TeacherError), _local_sampling(self.hparams, k, student))
             for k in TEACHER_SAMPLING_ARGS
             if k in saved
         }
