@@ -1,10 +1,12 @@
 """FloAffKitchenDataModule on a fixture in the generator's format (tests/data/floaff_fixture.py)."""
 
 import json
+import re
 import shutil
 from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
 import pytest
 from lightning.pytorch.utilities.exceptions import MisconfigurationException
 
@@ -426,6 +428,52 @@ def test_strict_raises_for_a_file_that_breaks_after_setup(tmp_path):
                 ds[i]
         else:
             assert ds[i]["meta"]["replaces"].endswith(f"{sid}/front_0000")
+
+
+class _MaskingReader(GeneratedReader):
+    """A user reader that marks every point of the view file ``masked`` invalid (a mask of its own)."""
+
+    masked = ""
+
+    def load_view(self, scene, view):
+        s = super().load_view(scene, view)
+        if view.file == self.masked:
+            s["scene_mask"] = np.zeros(len(s["scene_xyz"]), dtype=bool)
+        return s
+
+
+def _first_view(tmp_path: Path) -> Path:
+    """The front_0000 view file of the first CloseDrawer train scene of a clean fixture."""
+    from tests.data.floaff_fixture import make_floaff_dataset
+
+    root = tmp_path / "fx"
+    make_floaff_dataset(root, problems=False)
+    sid = sorted(p.name for p in (root / "styles").iterdir() if p.name.startswith("CloseDrawer-train"))[0]
+    return root / "styles" / sid / "views" / "front_0000.npz"
+
+
+@pytest.mark.parametrize("empty", ["no_point", "all_masked"])
+def test_a_view_without_a_valid_point_is_named_by_its_file(tmp_path, monkeypatch, empty):
+    """A view with no point was named by its sample id twice (``sample <id> (<id>): scene_xyz is empty``), not by
+    the file to look at; one whose reader masked every point invalid passed the setup check and failed in the first
+    batch's resampling, naming no sample at all."""
+    view = _first_view(tmp_path)
+    root = view.parents[3]
+    reader = "generated" if empty == "no_point" else "tests.data.test_floaff_kitchen:_MaskingReader"
+    if empty == "no_point":
+        with np.load(view) as z:
+            arrays = {k: z[k] for k in z.files}
+        arrays["scene_xyz"], arrays["scene_feat"] = arrays["scene_xyz"][:0], arrays["scene_feat"][:0]
+        ff.atomic_save_npz(view, arrays)
+    else:
+        monkeypatch.setattr(_MaskingReader, "masked", str(view))
+    args = dict(root=str(root), benchmark="styles", tasks=["CloseDrawer"], reader=reader, cache=False, val_scenes=0)
+    dm = FloAffKitchenDataModule(**args)
+    dm.setup("fit")
+    assert dm.skips.total == 1 and str(view) in dm.skips.summary(), dm.skips.summary()
+    assert all(r.file != str(view) for split in ("train", "test") for r in dm.datasets[split].records)
+    with pytest.raises(DataError, match=re.escape(str(view))):
+        FloAffKitchenDataModule(**args, strict=True).setup("fit")
 
 
 def test_a_copied_scene_folder_is_skipped_not_read_twice(tmp_path, capsys):

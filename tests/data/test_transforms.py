@@ -294,3 +294,13 @@ def test_the_learnability_probes_settings_are_named_up_front(field, value):
         CanonicalProbeDataModule(**{field: value})
     assert isinstance(err.value, MisconfigurationException)
     CanonicalProbeDataModule(num_train=0, floor_per_sample=1, max_yaw_deg=0.0)  # the edges stay allowed
+
+
+def test_a_transform_names_the_file_of_a_sample_without_a_valid_point():
+    """ResamplePoints / TargetCrop named the sample id only; a dataset's parse gives them the file in meta."""
+    s = validate_sample(make_synthetic_sample(0, 64, 4))
+    s["scene_mask"][:] = False
+    s["meta"] = {**s["meta"], "path": "/data/styles/x/views/front_0000.npz"}
+    for t in (ResamplePoints(16), TargetCrop(1.0)):
+        with pytest.raises(SampleError, match=r"sample syn0 \(/data/styles/x/views/front_0000\.npz\) has no valid"):
+            t(s, np.random.default_rng(0))

@@ -283,8 +283,13 @@ class RecordDataset(Dataset):
     def _parse(self, rec: SampleRecord) -> dict[str, torch.Tensor]:
         """Read, validate and pre-transform one record (no cache). Raises on bad data."""
         raw = self.loader(rec)
-        raw["meta"] = {**rec.meta, **(raw.get("meta") or {}), "path": rec.key}
+        # the contract check and the pre-transforms name meta's path in their messages: the file, not the id again
+        raw["meta"] = {**rec.meta, **(raw.get("meta") or {}), "path": rec.file}
         s = validate_sample(raw)
+        if not bool(s["scene_mask"].any()):  # passed the contract, then failed mid-epoch in the loader's resampling
+            raise DataError(
+                f"{rec.file}: sample {rec.key} has no valid scene point (scene_mask all false)", "empty_cloud"
+            )
         before = dict(s.get("meta") or {})
         s = apply_transforms(s, self.pre_transforms, _record_seed(self.seed, rec.key))
         out: dict[str, Any] = {k: s[k].contiguous() for k in (*TENSOR_KEYS, FULL_CLOUD_KEY) if k in s}
@@ -347,7 +352,7 @@ class RecordDataset(Dataset):
             if res is None:
                 keep.append(rec)
             else:
-                # loaders name the file in the problem; generic contract errors name the record key
+                # loaders name the file in the problem, the contract check and pre-transforms the key and file
                 skips.add(res[0], "" if rec.key in res[1] or "/" in res[1] else rec.key, res[1])
         self.records = keep
         return self

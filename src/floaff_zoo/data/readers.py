@@ -54,7 +54,8 @@ class SampleRecord:
 
     Attributes:
         key: stable, unique id within the dataset (e.g. the relative sample directory).
-        sources: files the sample is built from (their size/mtime or bytes key the cache).
+        sources: files the sample is built from (their size/mtime or bytes key the cache), its own file first (the
+            view file, the scene cloud): the one :attr:`file` names.
         meta: contract ``meta`` (JSON-able), complete except what only loading reveals.
         payload: reader-specific loading instructions (JSON-able).
     """
@@ -63,6 +64,12 @@ class SampleRecord:
     sources: list[str]
     meta: dict[str, Any]
     payload: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def file(self) -> str:
+        """The sample's own file, which its error messages name (the key names no file): the first source, the key
+        when there is none."""
+        return self.sources[0] if self.sources else self.key
 
 
 class SkipLog:

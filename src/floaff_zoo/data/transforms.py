@@ -73,6 +73,14 @@ def _keyable(value: Any, where: str) -> Any:
     )
 
 
+def _sample_name(sample: Sample) -> str:
+    """``sample <id>`` for messages, with the file it was read from (``meta['path']``, set while a dataset parses and
+    pre-transforms it) when known: the file is what a user can look at."""
+    meta = sample.get("meta") or {}
+    name = f"sample {meta.get('sample_id')}"
+    return f"{name} ({meta['path']})" if meta.get("path") else name
+
+
 def fps_indices(xyz: np.ndarray, k: int, start: int = 0) -> np.ndarray:
     """Farthest point sampling: xyz [n, 3] -> k indices [k] (n >= k), starting at ``start``."""
     n = xyz.shape[0]
@@ -109,7 +117,7 @@ class ResamplePoints(SampleTransform):
         valid = sample["scene_mask"].nonzero().squeeze(1).numpy()
         n = valid.size
         if n == 0:
-            raise SampleError(f"ResamplePoints: sample {sample.get('meta', {}).get('sample_id')} has no valid point")
+            raise SampleError(f"ResamplePoints: {_sample_name(sample)} has no valid point")
         if n >= self.num_points:
             if self.method == "fps":
                 pick = fps_indices(sample["scene_xyz"][valid].double().numpy(), self.num_points, int(rng.integers(n)))
@@ -149,7 +157,7 @@ class TargetCrop(SampleTransform):
     def __call__(self, sample: Sample, rng: np.random.Generator) -> Sample:
         valid = sample["scene_mask"].nonzero().squeeze(1)
         if valid.numel() == 0:
-            raise SampleError(f"TargetCrop: sample {sample.get('meta', {}).get('sample_id')} has no valid point")
+            raise SampleError(f"TargetCrop: {_sample_name(sample)} has no valid point")
         d2 = ((sample["scene_xyz"][valid] - sample["target_xyz"]) ** 2).sum(-1)  # [n_valid]
         keep = valid[d2 <= self.radius**2]
         if keep.numel() < self.min_points:
