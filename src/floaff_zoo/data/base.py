@@ -137,8 +137,9 @@ class FloAffDataModule(L.LightningDataModule):
         num_workers: DataLoader workers, >= 0.
         num_points: scene points per sample after collation, >= 1 (``None`` = largest in the batch).
         num_floor: floor points per sample after collation, >= 1 (``None`` = largest in the batch).
-        collate_mode: ``resample`` (fast mode: exactly ``num_points`` valid points) or ``pad``
-            (faithful mode: truncate/zero-pad with masks).
+        collate_mode: ``resample`` (fast mode: exactly ``num_points`` valid points; with ``num_points`` None, the
+            batch's largest cloud, every other one filled up by repeats, so an eval sample's points depend on its
+            batch) or ``pad`` (faithful mode: truncate/zero-pad with masks).
         seed: seed of the splits, the train shuffle and the evaluation splits' resampling and transforms (train
             resampling and augmentation draw from torch's global generator: ``seed_everything`` fixes them).
         train_transforms: per-sample transforms of the train split, in order (e.g.
