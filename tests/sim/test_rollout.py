@@ -288,7 +288,25 @@ def test_closing_a_service_leaves_the_scenes_an_open_service_shares(monkeypatch)
     assert (0, 0, 31) in kitchen._CACHE  # the door scene of the open service uses the kitchen
     other_task.close()
     assert door not in ro._WORKER_SCENES and (0, 0, 31) not in kitchen._CACHE
-    assert drawer not in ro._SCENE_USERS and door not in ro._SCENE_USERS
+    assert not set(ro._OPEN_SERVICES)
+
+
+def test_a_copy_of_a_service_closing_leaves_the_scenes_of_the_open_ones():
+    """A count of open users per scene missed copies: a deep copy of a service that ran a scene, closed, and then the
+    original closed, released the scene while a third service that ran it was still open."""
+    import copy
+
+    import floaff_zoo.sim.rollout as ro
+
+    drawer = SceneSpec(0, 0, 32, "CloseDrawer")
+    first, beside = RolloutService(workers=1), RolloutService(workers=1)
+    for s in (first, beside):
+        s.run([(drawer, (9.0, 9.0, 0.0))])  # off the floor: refused by the pose filter, the scene built all the same
+    copy.deepcopy(first).close()
+    first.close()
+    assert drawer in ro._WORKER_SCENES  # ``beside`` is open
+    beside.close()
+    assert drawer not in ro._WORKER_SCENES
 
 
 def test_close_releases_the_kitchens_of_scenes_the_lru_dropped(monkeypatch):

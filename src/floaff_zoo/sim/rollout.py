@@ -14,6 +14,7 @@ from __future__ import annotations
 import concurrent.futures as cf
 import os
 import time
+import weakref
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -167,8 +168,9 @@ def _settled(scene: SimScene) -> bool:
 #: each holds its compiled kitchen (~70-80 MB) and is rebuilt in ~0.1 s, so a long-lived worker must not keep them all
 WORKER_SCENES_SIZE = 8
 _WORKER_SCENES: dict[SceneSpec, SimScene] = {}
-#: spec -> how many open services ran rollouts of it in this process: the last one to close releases its scene
-_SCENE_USERS: dict[SceneSpec, int] = {}
+#: the services that ran rollouts in this process and are not closed: a scene one of them ran stays built (weak: a
+#: service dropped without close() stops holding its scenes)
+_OPEN_SERVICES: weakref.WeakSet[RolloutService] = weakref.WeakSet()
 Job = tuple[dict, tuple[float, float, float], int]  # (spec dict, rounded pose, seed): what a worker receives
 
 
@@ -409,23 +411,20 @@ class RolloutService:
 
     def _use_here(self, specs: set[SceneSpec]) -> None:
         """Record that this service runs rollouts of ``specs`` in this process (their scenes are built here)."""
-        for spec in specs - self._built_here:
-            _SCENE_USERS[spec] = _SCENE_USERS.get(spec, 0) + 1
         self._built_here |= specs
+        _OPEN_SERVICES.add(self)
 
     def _release_here(self) -> None:
         """Release the scenes (~80 MB each, for the life of a training process) and compiled kitchens of the rollouts
         this service ran in this process that no other open service uses: another's are left to it, built."""
         mine, self._built_here = self._built_here, set()
+        _OPEN_SERVICES.discard(self)
+        in_use = {spec for svc in _OPEN_SERVICES for spec in svc._built_here}  # read from the services themselves
+        kitchens = {kitchen_key(spec) for spec in in_use}  # a kitchen is shared by the scenes of all its tasks
+        for spec in mine - in_use:
+            _WORKER_SCENES.pop(spec, None)
         for spec in mine:
-            left = _SCENE_USERS.pop(spec, 1) - 1
-            if left > 0:
-                _SCENE_USERS[spec] = left
-            else:
-                _WORKER_SCENES.pop(spec, None)
-        in_use = {kitchen_key(s) for s in _SCENE_USERS}  # a kitchen is shared by the scenes of all its tasks
-        for spec in mine:
-            if kitchen_key(spec) not in in_use:
+            if kitchen_key(spec) not in kitchens:
                 release_scene(spec)  # also where the scene LRU dropped the scene already
 
     def close(self) -> None:
