@@ -280,10 +280,10 @@ def test_predict_refuses_candidates_off_the_floor(tiny_model):
 
 
 def test_zero_d_and_wrongly_shaped_arguments_are_named_with_their_shape():
-    """A 0-d floor_xyz failed in len(), a [[rx, ry]] window in float(), a 0-d target in numpy's indexing or reshape
-    (default_target_yaw, default_floor_grid), a 0-d candidate set in candidate_spacing's; a [2, 2] or [1, 4]
-    intrinsics ran as (fx, fy, cx, cy) and a 0-d or [1, R] robot was flattened into a descriptor without a word.
-    Each is refused before any model loads, naming the argument and the shape given."""
+    """A 0-d floor_xyz failed in len(), a 0-d target in numpy's indexing or reshape (default_target_yaw,
+    default_floor_grid), a 0-d candidate set in candidate_spacing's; a [2, 2] intrinsics ran as (fx, fy, cx, cy) and
+    a 0-d or [2, 2] robot was flattened into a descriptor without a word. Each is refused before any model loads,
+    naming the argument and the shape given."""
     import re
 
     import numpy as np
@@ -301,11 +301,12 @@ def test_zero_d_and_wrongly_shaped_arguments_are_named_with_their_shape():
         ("floor_xyz", zero, r"floor_xyz must be \[M, 3\]"),
         ("floor_xyz", floor[0], r"floor_xyz must be \[M, 3\]"),
         ("target_xyz", zero, "target_xyz must be 3 finite values"),
-        ("target_xyz", np.zeros((1, 1, 3)), "target_xyz must be 3 finite values"),
-        ("robot", zero, r"robot must be a 1-D descriptor \[R\]"),
-        ("robot", np.array([[0.85, 1.03]]), r"robot must be a 1-D descriptor \[R\]"),
+        ("target_xyz", np.zeros((2, 3)), "target_xyz must be 3 finite values"),
+        ("target_xyz", np.zeros(4), "target_xyz must be 3 finite values"),
+        ("robot", zero, "robot must be the robot's descriptor numbers"),
+        ("robot", np.ones((2, 2)), "robot must be the robot's descriptor numbers"),
         ("window", zero, "window must be two finite half-sizes"),
-        ("window", np.array([[1.0, 1.2]]), "window must be two finite half-sizes"),
+        ("window", np.ones((2, 2)), "window must be two finite half-sizes"),
     ]
     for name, bad, message in cases:
         args = {"floor_xyz": floor, "robot": [0.85, 1.03], "target_xyz": t, name: bad}
@@ -313,7 +314,7 @@ def test_zero_d_and_wrongly_shaped_arguments_are_named_with_their_shape():
             args["floor_xyz"] = None  # the default grid reads it
         with pytest.raises(ValueError, match=f"predict: {message}.*{shape(bad)}"):
             P.predict_from_points("no-such-model-is-loaded", xyz, flag, **args)
-    for k in (zero, np.ones((2, 2)), np.ones((1, 4))):
+    for k in (zero, np.ones((2, 2)), np.ones((2, 4))):
         with pytest.raises(ValueError, match=rf"predict: intrinsics must be .*got shape {shape(k)}"):
             P.backproject_depth(np.ones((4, 5)), k, np.eye(4))
     with pytest.raises(ValueError, match=rf"predict: target_xyz must be 3 finite values.*{shape(zero)}"):
@@ -324,6 +325,44 @@ def test_zero_d_and_wrongly_shaped_arguments_are_named_with_their_shape():
         P.default_floor_grid(t, xyz, window=zero)
     with pytest.raises(ValueError, match=rf"predict: floor_xyz must be \[M, 2\] or \[M, 3\].*{shape(zero)}"):
         P.candidate_spacing(zero)
+
+
+def test_ragged_huge_and_misnamed_arguments_are_named():
+    """Ragged values gave numpy's 'inhomogeneous shape' naming no argument (the shape of the message failed too); a
+    target of 1e39 m passed the float64 check and became inf in float32; default_floor_grid called its ``radius``
+    grid_radius."""
+    import numpy as np
+
+    from floaff_zoo import predict as P
+
+    xyz, flag, t = _cloud()
+    with pytest.raises(ValueError, match=r"predict: target_xyz must be 3 finite values .*\(ragged or non-numeric\)"):
+        P.predict_from_points("no-such-model-is-loaded", xyz, flag, None, [0.85, 1.03], [[1.0, 2.0], [3.0]])
+    with pytest.raises(ValueError, match=r"predict: intrinsics must be .*\(ragged or non-numeric\)"):
+        P.backproject_depth(np.ones((4, 5)), [[1.0, 0.0], [1.0]], np.eye(4))
+    with pytest.raises(ValueError, match=r"predict: target_xyz must be 3 finite values .*1e\+39"):
+        P.predict_from_points("no-such-model-is-loaded", xyz, flag, None, [0.85, 1.03], [1e39, 0.0, 0.0])
+    with pytest.raises(ValueError, match="predict: radius must be a finite radius"):
+        P.default_floor_grid(t, xyz, radius=-1.0)
+
+
+def test_one_point_or_pair_in_a_batch_shape_is_read_as_that_point(tiny_model):
+    """A target, window or robot given as a batch of one ([1, 3], [[rx, ry]], [1, R]) is that value: a [[rx, ry]]
+    window failed in float(window[0]), and intrinsics may be a flat K of 9 values."""
+    import numpy as np
+
+    from floaff_zoo import predict as P
+
+    xyz, flag, t = _cloud()
+    grid = P.default_floor_grid(t, xyz, window=(0.6, 0.5))
+    assert np.array_equal(P.default_floor_grid(t[None, None], xyz, window=[[0.6, 0.5]]), grid)
+    one = P.predict_from_points(tiny_model, xyz, flag, None, [0.85, 1.03], t, num_points=64)
+    batch = P.predict_from_points(tiny_model, xyz, flag, None, [[0.85, 1.03]], t[None], num_points=64)
+    assert np.array_equal(one.scores, batch.scores)
+    k = np.array([[50.0, 0.0, 2.0], [0.0, 50.0, 1.5], [0.0, 0.0, 1.0]])
+    depth = np.ones((4, 5))
+    for a, b in zip(P.backproject_depth(depth, k, np.eye(4)), P.backproject_depth(depth, k.reshape(-1), np.eye(4))):
+        assert np.array_equal(a, b)
 
 
 def test_a_robot_descriptor_of_the_wrong_size_names_the_argument(tiny_model):

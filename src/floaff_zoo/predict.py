@@ -165,17 +165,34 @@ def _finite(value: Any) -> float | None:
     return float(a)
 
 
-def check_point(value: Any, name: str) -> np.ndarray:
-    """``value`` as a float64 point [3]; ValueError naming ``name`` and the shape given unless it is 3 finite values
-    (a 0-d number failed in numpy's indexing or reshape, naming no argument)."""
+def _vector(value: Any, name: str, what: str) -> np.ndarray:
+    """``value`` flattened to float64 [n] when it holds numbers along at most one axis longer than 1 ([n], [1, n],
+    [n, 1], [1, 1, n]: one point or descriptor, as a batch of one gives it); a ValueError naming ``name`` (which
+    must be ``what``) and the shape for a 0-d number, a matrix, a text or ragged values (numpy named no argument)."""
     try:
-        p = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):  # a text, ragged values
-        p = None
-    if p is None or p.size != 3 or p.ndim not in (1, 2) or not np.isfinite(p).all():
-        got = f"shape {p.shape}: {p.tolist()}" if p is not None and p.size <= 9 else f"shape {np.shape(value)}"
-        raise ValueError(f"predict: {name} must be 3 finite values (x, y, z), got {got}")
-    return p.reshape(3)
+        a = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"predict: {name} must be {what}, got {value!r:.80} (ragged or non-numeric)") from None
+    if a.ndim == 0 or sum(d > 1 for d in a.shape) > 1:
+        raise ValueError(
+            f"predict: {name} must be {what}, got shape {a.shape}" + (f": {a.tolist()}" if a.size <= 9 else "")
+        )
+    return a.reshape(-1)
+
+
+def _finite32(a: np.ndarray) -> bool:
+    """Every value finite, also as the float32 the model is fed (1e39 passed as float64 and became inf)."""
+    return bool(np.isfinite(a).all() and (np.abs(a) <= np.finfo(np.float32).max).all())
+
+
+def check_point(value: Any, name: str) -> np.ndarray:
+    """``value`` as a float64 point [3] (any shape of one point, ``_vector``); ValueError naming ``name`` and the
+    value given unless it is 3 finite values."""
+    what = "3 finite values (x, y, z)"
+    p = _vector(value, name, what)
+    if p.size != 3 or not _finite32(p):
+        raise ValueError(f"predict: {name} must be {what}, got shape {np.shape(value)}: {p.tolist()[:9]}")
+    return p
 
 
 def check_cell(cell: float | None) -> float | None:
@@ -191,22 +208,21 @@ def check_cell(cell: float | None) -> float | None:
     return c
 
 
-def check_window(target_yaw: float | None, window: Any, grid_radius: float | None) -> None:
-    """ValueError naming the argument for a non-finite ``target_yaw``, a ``window`` that is not two finite sizes
-    > 0 m, or a ``grid_radius`` that is not a finite size > 0 m (None: none); checked before the model is loaded."""
+def check_window(
+    target_yaw: float | None, window: Any, grid_radius: float | None, radius_name: str = "grid_radius"
+) -> tuple[float, float]:
+    """``window`` as (r_x, r_y); ValueError naming the argument for a non-finite ``target_yaw``, a ``window`` that is
+    not two finite sizes > 0 m (any shape of one pair, ``_vector``), or a ``grid_radius`` (called ``radius_name``)
+    that is not a finite size > 0 m (None: none); checked before the model is loaded."""
     if target_yaw is not None and _finite(target_yaw) is None:
         raise ValueError(f"predict: target_yaw must be a finite angle (rad) or None, got {target_yaw!r}")
-    try:
-        w = np.asarray(window, dtype=np.float64)
-    except (TypeError, ValueError):  # a text: numpy's message named no argument
-        w = np.array([])
-    if w.shape != (2,) or not (np.isfinite(w).all() and (w > 0).all()):  # [[rx, ry]] failed in float(window[0])
-        raise ValueError(
-            f"predict: window must be two finite half-sizes > 0 m (along the front, its normal), got {window!r} "
-            f"(shape {w.shape})"
-        )
+    what = "two finite half-sizes > 0 m (along the front, its normal)"
+    w = _vector(window, "window", what)
+    if w.size != 2 or not (np.isfinite(w).all() and (w > 0).all()):
+        raise ValueError(f"predict: window must be {what}, got {window!r} (shape {np.shape(window)})")
     if grid_radius is not None and not (_finite(grid_radius) or 0) > 0:
-        raise ValueError(f"predict: grid_radius must be a finite radius > 0 m or None, got {grid_radius!r}")
+        raise ValueError(f"predict: {radius_name} must be a finite radius > 0 m or None, got {grid_radius!r}")
+    return float(w[0]), float(w[1])
 
 
 def check_device(device: str) -> None:
@@ -355,16 +371,14 @@ def backproject_depth(
     d = np.asarray(depth, dtype=np.float64)
     if d.ndim != 2:
         raise ValueError(f"predict: depth must be [H, W], got shape {d.shape}")
+    what = "(fx, fy, cx, cy) or a 3x3 K"
     try:
         k = np.asarray(intrinsics, dtype=np.float64)
-    except (TypeError, ValueError):  # a text, ragged rows: numpy's message named no argument
-        k = np.array([])
-    if k.shape not in ((4,), (3, 3)):  # a 0-d number, a [2, 2] array read as (fx, fy, cx, cy)
-        raise ValueError(
-            f"predict: intrinsics must be (fx, fy, cx, cy) or a 3x3 K, got shape {k.shape}"
-            + (f": {k.tolist()}" if k.size <= 9 else "")
-        )
-    k = k.reshape(-1)
+    except (TypeError, ValueError):  # a text, ragged rows: _vector names them
+        k = None
+    k = k.reshape(-1) if k is not None and k.shape == (3, 3) else _vector(intrinsics, "intrinsics", what)
+    if k.size not in (4, 9):  # a [2, 2] array was read as (fx, fy, cx, cy)
+        raise ValueError(f"predict: intrinsics must be {what}, got shape {np.shape(intrinsics)}: {k.tolist()[:9]}")
     skew = 0.0
     if k.size == 9:  # a 3x3 K matrix
         if np.isfinite(k).all() and not np.allclose(k[[3, 6, 7, 8]], [0.0, 0.0, 0.0, 1.0]):  # a transposed K
@@ -438,9 +452,9 @@ def default_floor_grid(
         SampleError: the cloud shows no ground point in the window.
     """
     t = check_point(target_xyz, "target_xyz")
-    check_window(target_yaw, window, radius)
+    rx, ry = check_window(target_yaw, window, radius, "radius")
     yaw = default_target_yaw(t) if target_yaw is None else float(target_yaw)
-    lattice = FloorLattice.target_window(t[:2], yaw, float(cell), float(window[0]), float(window[1]))
+    lattice = FloorLattice.target_window(t[:2], yaw, float(cell), rx, ry)
     check_raster_size(lattice.shape, float(cell), f"the default grid's window {window}", "a smaller window")
     seen = observed_cells(scene_xyz, lattice, z_max, min_points)  # refuses a cloud that is not [N, 3]
     if radius is not None:
@@ -448,7 +462,7 @@ def default_floor_grid(
     if not seen.any():
         raise SampleError(
             f"predict: no observed floor cell around the target {t.round(3).tolist()}: the cloud has no ground point "
-            f"(z < {z_max} m) in the {window[0]} x {window[1]} m window; pass floor_xyz explicitly"
+            f"(z < {z_max} m) in the {rx} x {ry} m window; pass floor_xyz explicitly"
         )
     xy = lattice.centers()[seen]
     return np.c_[xy, np.zeros(len(xy))].astype(np.float32)
@@ -613,12 +627,8 @@ def predict_from_points(
     if floor.shape[1] == 2:
         floor = np.c_[floor, np.zeros(len(floor), np.float32)]
     check_floor_height(floor)
-    try:
-        robot = np.asarray(robot, dtype=np.float32)
-    except (TypeError, ValueError) as exc:  # a robot's name, or ragged values: numpy's message named no argument
-        raise ValueError(f"predict: robot must be the robot's descriptor numbers, got {robot!r}") from exc
-    if robot.ndim != 1:  # a 0-d number or a [1, R] row was flattened into a descriptor without a word
-        raise ValueError(f"predict: robot must be a 1-D descriptor [R], got shape {robot.shape}: {robot.tolist()}")
+    # a 0-d number, or an [R1, R2] matrix flattened into one descriptor without a word; [1, R] is a batch of one
+    robot = _vector(robot, "robot", "the robot's descriptor numbers").astype(np.float32)
     sample = validate_sample(
         {
             "scene_xyz": xyz,
