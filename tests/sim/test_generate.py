@@ -6,6 +6,7 @@ import dataclasses
 import json
 import shutil
 import sys
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -491,14 +492,9 @@ def _commit_first_seed(job, out, preset_dict, save_images, status="ok", attempt=
     return {"key": job.key, "status": status, "scene_id": sid if ok else None, "attempts": [], "wall_s": 0.0}
 
 
-def test_a_run_reads_each_scene_json_once_where_it_can(tmp_path, monkeypatch):
-    """After each job the driver read every committed scene.json again to find the slot's earlier scenes (a run of n
-    scenes read the first one n + 1 times), and a resumed slot's scene.json was read four times. A scene committed by
-    a job that then failed (a worker that died after the commit) is still found and retired."""
-    import collections
-    import functools
-
-    reads = collections.Counter()
+def _count_scene_json_reads(monkeypatch) -> Counter[str]:
+    """scene id -> how many times its scene.json is read from now on (``Path.read_text`` counted)."""
+    reads: Counter[str] = Counter()
     real = Path.read_text
 
     def counted(self, *args, **kw):
@@ -507,6 +503,16 @@ def test_a_run_reads_each_scene_json_once_where_it_can(tmp_path, monkeypatch):
         return real(self, *args, **kw)
 
     monkeypatch.setattr(Path, "read_text", counted)
+    return reads
+
+
+def test_a_run_reads_each_scene_json_once_where_it_can(tmp_path, monkeypatch):
+    """After each job the driver read every committed scene.json again to find the slot's earlier scenes (a run of n
+    scenes read the first one n + 1 times), and a resumed slot's scene.json was read four times. A scene committed by
+    a job that then failed (a worker that died after the commit) is still found and retired."""
+    import functools
+
+    reads = _count_scene_json_reads(monkeypatch)
     p = get_preset("tiny", tasks=("CloseDrawer",), n_train=4, n_test=0)
     man = gen.generate(tmp_path, p, seed=0, workers=0, quiet=True, job_fn=_commit_first_seed)
     assert man["counts"]["scenes_ok"] == 4
@@ -526,19 +532,9 @@ def test_a_run_reads_each_scene_json_once_where_it_can(tmp_path, monkeypatch):
 def test_a_left_out_slots_scene_json_is_read_once(tmp_path, monkeypatch):
     """A rerun with fewer slots read a left-out slot's scene.json at the start (the slot map), again for the previous
     manifest's entry and again by its slot: three reads of a record the run held from the first one."""
-    import collections
-
     p = get_preset("tiny", tasks=("CloseDrawer",), n_train=4, n_test=0)
     gen.generate(tmp_path, p, seed=0, workers=0, quiet=True, job_fn=_commit_first_seed)
-    reads = collections.Counter()
-    real = Path.read_text
-
-    def counted(self, *args, **kw):
-        if self.name == ff.SCENE_JSON and self.is_file():
-            reads[self.parent.name] += 1
-        return real(self, *args, **kw)
-
-    monkeypatch.setattr(Path, "read_text", counted)
+    reads = _count_scene_json_reads(monkeypatch)
     fewer = get_preset("tiny", tasks=("CloseDrawer",), n_train=2, n_test=0)
     man = gen.generate(tmp_path, fewer, seed=0, workers=0, quiet=True, job_fn=_commit_first_seed)
     left = [s for s in man["scenes"].values() if s.get("in_plan") is False]
