@@ -48,11 +48,15 @@ def fold_files(paths: list[str]) -> list[tuple[Path, str]]:
     return out
 
 
-def tagged(doc: dict, tag: str) -> dict:
-    """A scene_sr JSON with every model NAME read as ``NAME@tag`` (unchanged without a tag)."""
-    if not tag or not isinstance(doc.get("scenes"), dict):
-        return doc  # nothing to tag (merge_folds names a malformed file)
-    scenes = {sid: {**s, "sr": {f"{n}@{tag}": v for n, v in s["sr"].items()}} for sid, s in doc["scenes"].items()}
+def tagged(doc: dict, tag: str, where: str) -> dict:
+    """A scene_sr JSON with every model NAME read as ``NAME@tag`` (unchanged without a tag); exits naming ``where``
+    when its scene table is malformed (a list for a file or a scene was an AttributeError here)."""
+    if not tag:
+        return doc  # merge_folds names a malformed file
+    scenes = {
+        sid: {**s, "sr": {f"{n}@{tag}": v for n, v in s["sr"].items()}}
+        for sid, s in checked_scenes(doc, where, "cv_sr").items()
+    }
     return {**doc, "scenes": scenes}
 
 
@@ -67,8 +71,10 @@ def merge_folds(docs: list[tuple[str, dict]]) -> tuple[dict[str, dict], dict[str
     first: dict[str, str] = {}  # scene id -> the file that first scored it
     benchmarks = set()
     for f, d in docs:
-        if not isinstance(d, dict) or d.get("split") != "val" or d.get("val_layout") is None:
-            raise SystemExit(f"cv_sr: {f} is not a fold (scene_sr.py --split val --val-layout F)")
+        layout = d.get("val_layout") if isinstance(d, dict) else None
+        # a fold is a layout number: another value (a list, a string beside numbers) was a TypeError when sorted
+        if layout is None or d.get("split") != "val" or not isinstance(layout, int) or isinstance(layout, bool):
+            raise SystemExit(f"cv_sr: {f} is not a fold (scene_sr.py --split val --val-layout F, F a layout number)")
         benchmarks.add(d.get("benchmark"))
         for sid, s in checked_scenes(d, f, "cv_sr").items():
             row = scenes.setdefault(sid, {"task": s["task"], "views": s["views"], "fold": d["val_layout"], "sr": {}})
@@ -105,11 +111,13 @@ def main(argv: list[str] | None = None) -> int:
     a = p.parse_args(argv)
     if a.draws < 1:
         p.error("--draws must be >= 1")
+    if a.seed < 0:  # numpy's generator takes no negative seed: a traceback after every file had been read
+        p.error(f"--seed must be >= 0, got {a.seed}")
     files = fold_files(a.inputs)
     docs = []
     for f, tag in files:
         try:
-            docs.append((str(f), tagged(json.loads(f.read_text()), tag)))
+            docs.append((str(f), tagged(json.loads(f.read_text()), tag, str(f))))
         except (OSError, ValueError) as exc:
             raise SystemExit(f"cv_sr: {f}: {exc}") from exc
     scenes, per_fold, bench = merge_folds(docs)

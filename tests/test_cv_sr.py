@@ -98,3 +98,32 @@ def test_tagged_inputs_compare_one_model_from_two_runs(tmp_path):
     assert res["files"][0].endswith("cv0_succ.json@new")
     with pytest.raises(SystemExit, match="succ scored twice"):  # untagged, the two runs collide
         cv.main([str(after), str(before), "--draws", "20"])
+
+
+@pytest.mark.parametrize(
+    ("content", "match"),
+    [
+        ([1, 2], r"l\.json is not a scene_sr\.py --json output"),  # a list: an AttributeError in tagged
+        ({"scenes": {"L0_a": [1]}}, r"l\.json: scene L0_a needs"),  # a scene that is a list: a TypeError
+        ({"scenes": {"L0_a": {"task": "A", "views": 2, "sr": [0.5]}}}, r"l\.json: scene L0_a needs"),
+    ],
+)
+def test_a_malformed_tagged_file_is_named(tmp_path, content, match):
+    (tmp_path / "l.json").write_text(json.dumps(content))
+    with pytest.raises(SystemExit, match=match):
+        cv.main([f"{tmp_path / 'l.json'}@t", "--draws", "5"])
+
+
+@pytest.mark.parametrize("layout", [[0], "x", True])
+def test_a_fold_that_is_not_a_layout_number_is_named(layout):
+    """A list was unhashable, a string beside numbers unsortable: TypeErrors after every file had been read."""
+    docs = _docs() + [("w", fold(layout, "occ", {"L2_a": ("CloseDrawer", 2, 1.0)}))]
+    with pytest.raises(SystemExit, match="w is not a fold"):
+        cv.merge_folds(docs)
+
+
+def test_a_negative_seed_is_a_usage_error(tmp_path, capsys):
+    (tmp_path / "f.json").write_text(json.dumps(fold(0, "occ", F0)))
+    with pytest.raises(SystemExit) as done:
+        cv.main([str(tmp_path / "f.json"), "--seed", "-1", "--draws", "5"])
+    assert done.value.code == 2 and "--seed must be >= 0" in capsys.readouterr().err
