@@ -36,8 +36,13 @@ def read_episodes(path: str) -> list[dict[str, Any]]:
     if not isinstance(episodes, list) or not episodes:
         raise SystemExit(f"episodes_sr: {path} holds no episode list")
     for i, e in enumerate(episodes):
-        if not isinstance(e, dict) or any(k not in e for k in FIELDS) or not isinstance(e["success"], bool):
-            raise SystemExit(f"episodes_sr: {path}: episode {i} lacks one of {list(FIELDS)} (success a boolean)")
+        # ids and task strings: a list there was unhashable (a TypeError), a number a table protocol_change refuses
+        ok = isinstance(e, dict) and all(k in e for k in FIELDS) and isinstance(e["success"], bool)
+        if not ok or not all(isinstance(e[k], str) for k in ("sample_id", "scene_id", "task")):
+            raise SystemExit(
+                f"episodes_sr: {path}: episode {i} lacks one of {list(FIELDS)} "
+                "(ids and task strings, success a boolean)"
+            )
     ids = [e["sample_id"] for e in episodes]
     if len(set(ids)) != len(ids):
         raise SystemExit(f"episodes_sr: {path} lists a view twice")
@@ -52,6 +57,12 @@ def scene_table(runs: dict[str, list[dict[str, Any]]]) -> dict[str, dict[str, An
     for n in names[1:]:
         if {e["sample_id"] for e in runs[n]} != set(first):
             raise SystemExit(f"episodes_sr: {n} holds other views than {names[0]}")
+        # a view under another scene or task was counted there: a silently wrong SR of both scenes
+        for e in runs[n]:
+            if (e["scene_id"], e["task"]) != (first[e["sample_id"]]["scene_id"], first[e["sample_id"]]["task"]):
+                raise SystemExit(
+                    f"episodes_sr: {n} puts view {e['sample_id']} in another scene or task than {names[0]}"
+                )
     table: dict[str, dict[str, Any]] = {}
     wins: dict[str, dict[str, int]] = defaultdict(lambda: dict.fromkeys(names, 0))
     for n in names:
@@ -59,6 +70,8 @@ def scene_table(runs: dict[str, list[dict[str, Any]]]) -> dict[str, dict[str, An
             wins[e["scene_id"]][n] += int(e["success"])
     for e in first.values():
         row = table.setdefault(e["scene_id"], {"task": e["task"], "views": 0})
+        if row["task"] != e["task"]:  # the table kept the first view's task for the whole scene
+            raise SystemExit(f"episodes_sr: scene {e['scene_id']} has views of two tasks ({row['task']}, {e['task']})")
         row["views"] += 1
     for sid, row in table.items():
         row["sr"] = {n: wins[sid][n] / row["views"] for n in names}

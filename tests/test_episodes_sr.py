@@ -59,3 +59,32 @@ def test_bad_files_are_named(tmp_path, capsys):
         with pytest.raises(SystemExit) as done:
             es.main([*bad, "--json", out])
         assert done.value.code == 2 and why in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("episodes", "match"),
+    [
+        ([{"sample_id": ["a"], "scene_id": "s0", "task": "A", "success": True}], "episode 0 lacks"),  # a TypeError
+        ([{"sample_id": "a", "scene_id": ["s0"], "task": "A", "success": True}], "episode 0 lacks"),  # a TypeError
+        ([{"sample_id": "a", "scene_id": "s0", "task": 3, "success": True}], "episode 0 lacks"),  # written as is
+        (
+            _episodes({"s0": [True]}) + [{"sample_id": "b", "scene_id": "s0", "task": "B", "success": False}],
+            "two tasks",
+        ),
+    ],
+)
+def test_malformed_episodes_are_named(tmp_path, episodes, match):
+    (tmp_path / "e.json").write_text(json.dumps(episodes))
+    with pytest.raises(SystemExit, match=match):
+        es.main([f"e={tmp_path / 'e.json'}", "--json", str(tmp_path / "t.json")])
+
+
+def test_a_view_in_another_scene_than_the_first_runs_is_named(tmp_path):
+    """The same views under other scenes were counted there: a silently wrong SR for both scenes."""
+    a, b = tmp_path / "a.json", tmp_path / "b.json"
+    a.write_text(json.dumps(_episodes({"s0": [True, False]})))
+    moved = _episodes({"s0": [True, True]})
+    moved[0] |= {"scene_id": "s1", "task": "B"}
+    b.write_text(json.dumps(moved))
+    with pytest.raises(SystemExit, match="b puts view s0/v0 in another scene or task than a"):
+        es.main([f"a={a}", f"b={b}", "--json", str(tmp_path / "t.json")])
