@@ -26,6 +26,7 @@ rolled out (the annotated outcome alone, seconds):
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -33,6 +34,9 @@ import numpy as np
 
 from floaff_zoo.contract import TASKS
 from floaff_zoo.sim.fileformat import BENCHMARKS
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from script_cli import folder_given  # noqa: E402
 
 
 def scene_label(scene: dict, fresh: np.ndarray, episodes: int, zero_failures: bool = False) -> np.ndarray:
@@ -74,12 +78,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--zero-failures", action="store_true", help="label 0 on cells that never succeeded (module doc)")
     p.add_argument("--out", required=True, help="the scene-label file to write (.npz)")
     a = p.parse_args(argv)
-    if a.episodes < 0 or a.sigma_xy < 0 or a.sigma_yaw_deg < 0 or a.workers < 1 or a.seed < 0:
-        p.error("--episodes must be >= 0, --workers >= 1 and the sigmas and --seed >= 0")
+    sigmas_ok = 0 <= a.sigma_xy < math.inf and 0 <= a.sigma_yaw_deg < math.inf  # a NaN passed `< 0`
+    if a.episodes < 0 or not sigmas_ok or a.workers < 1 or a.seed < 0:
+        p.error("--episodes must be >= 0, --workers >= 1, the sigmas finite and >= 0 and --seed >= 0")
     for name in ("probs", "out"):
         v = getattr(a, name)
         if v is not None and not v.endswith(".npz"):
             p.error(f"--{name} must name a .npz file, got {v!r}")
+    if folder := folder_given(probs=a.probs, out=a.out):
+        p.error(folder)
 
     from floaff_zoo.data.scene_labels import MADE_FROM, write_scene_labels
     from floaff_zoo.sim import fileformat as ff
@@ -104,9 +111,7 @@ def main(argv: list[str] | None = None) -> int:
     source = "annotated + fresh episodes" if a.episodes else "annotated"
     setting = {**setting, "zero_failures": a.zero_failures}
     made_from = {sid: ff.labels_digest(scene) for sid, scene in scenes.items()}  # the data module checks it
-    write_scene_labels(
-        a.out, labels, {**setting, "benchmark": a.benchmark, "source": source, MADE_FROM: made_from}
-    )
+    write_scene_labels(a.out, labels, {**setting, "benchmark": a.benchmark, "source": source, MADE_FROM: made_from})
     print(f"{a.out}: labels of {len(labels)} train scenes of {a.benchmark} ({setting})")
     for t in TASKS:
         ids = [s for s in scenes if scenes[s]["task"] == t]

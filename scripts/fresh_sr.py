@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from pathlib import Path
 from typing import Any
@@ -42,7 +43,7 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from script_cli import floor_model  # noqa: E402
+from script_cli import floor_model, folder_given  # noqa: E402
 
 from floaff_zoo.callbacks.rollout import check_clouds, choose_pose, cloud_free  # noqa: E402
 from floaff_zoo.contract import TASKS  # noqa: E402
@@ -279,14 +280,17 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--probs", default=None, help="cache of the fresh probabilities (.npz; read if it exists)")
     p.add_argument("--json", default=None)
     a = p.parse_args(argv)
-    if a.episodes < 1 or a.sigma_xy < 0 or a.sigma_yaw_deg < 0 or a.seed < 0:
-        p.error("--episodes must be >= 1 and the sigmas and --seed >= 0")
+    # a NaN sigma passed `< 0` and ended in a rollout's error that named no option
+    if a.episodes < 1 or not (0 <= a.sigma_xy < math.inf and 0 <= a.sigma_yaw_deg < math.inf) or a.seed < 0:
+        p.error("--episodes must be >= 1, the sigmas finite and >= 0 and --seed >= 0")
     if min(a.top_k, a.workers, a.batch_size) < 1:
         p.error("--top-k, --workers and --batch-size must be >= 1")
     if a.full_cloud and a.top_k == 1:
         p.error("--full-cloud chooses the cloud that --top-k checks: give --top-k > 1")
     if a.probs and not a.probs.endswith(".npz"):
         p.error(f"--probs must name a .npz file, got {a.probs!r}")
+    if folder := folder_given(probs=a.probs, json=a.json):
+        p.error(folder)
 
     from floaff_zoo.sim.generate import ANNOTATE_SEED
 

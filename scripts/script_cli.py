@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Callable
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
@@ -44,6 +45,15 @@ def run(main: Callable[[], int | None], prog: str) -> int:
             raise
         print(f"{prog}: error: {' '.join(str(exc).split())}", file=sys.stderr)
         return 2
+
+
+def folder_given(**files: str | None) -> str | None:
+    """The usage error for the first of ``files`` (option name with ``_`` for ``-`` -> path) that names an existing
+    folder, else None: a script writes its files after the work, so a folder there lost the run at its very end."""
+    for option, path in files.items():
+        if path is not None and Path(path).is_dir():
+            return f"--{option.replace('_', '-')} names a file to write, got the folder {path!r}"
+    return None
 
 
 def floor_model(model: str, where: str) -> torch.nn.Module:

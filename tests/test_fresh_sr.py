@@ -330,3 +330,27 @@ def test_cell_stats_leaves_cells_over_the_budget_out_of_the_annotated_failures()
     # failures: cell 1 (rolled out) and the IK-refused centre 4; not the skipped cell 0
     assert stats["fresh_p_of_annotated_failures"] == pytest.approx((0.25 + 0.0) / 2)
     assert fs.annotated_failures(scene).tolist() == [i in (1, 4) for i in range(9)]
+
+
+@pytest.mark.parametrize("sigma", [["--sigma-xy", "nan"], ["--sigma-yaw-deg", "inf"]])
+@pytest.mark.parametrize("script", ["fresh_sr", "fresh_labels"])
+def test_a_sigma_that_is_no_number_is_a_usage_error(script, sigma, tmp_path, capsys):
+    """NaN passed `sigma < 0` and ended in a rollout's error about a NaN pose, naming no option, after the setup."""
+    out = ["--out", str(tmp_path / "l.npz")] if script == "fresh_labels" else []
+    with pytest.raises(SystemExit) as done:
+        load_script(script).main(["--root", str(tmp_path), *out, *sigma])
+    assert done.value.code == 2 and "the sigmas finite and >= 0" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(("script", "option"), [("fresh_sr", "--probs"), ("fresh_sr", "--json"),
+                                                ("fresh_labels", "--probs"), ("fresh_labels", "--out")])  # fmt: skip
+def test_an_output_file_that_is_a_folder_is_refused_before_any_rollout(script, option, tmp_path, capsys):
+    """The cache or the output was written after the first scene's rollouts (or the whole run): an IsADirectoryError."""
+    folder = tmp_path / "x.npz"
+    folder.mkdir()
+    args = {"--out": str(tmp_path / "l.npz"), option: str(folder)}
+    if script == "fresh_sr":
+        args.pop("--out")
+    with pytest.raises(SystemExit) as done:
+        load_script(script).main(["--root", str(tmp_path / "none"), *[x for kv in args.items() for x in kv]])
+    assert done.value.code == 2 and f"{option} names a file to write, got the folder" in capsys.readouterr().err
