@@ -78,3 +78,23 @@ def test_bad_input_exits_with_a_message(tmp_path):
     (d / "views" / "front_0000.npz").write_bytes(b"not a zip")
     with pytest.raises(SystemExit, match="front_0000.npz"):
         cr.main(["--root", str(tmp_path), "--every", "1"])
+
+
+@pytest.mark.parametrize(
+    ("edit", "match"),
+    [
+        (lambda c: c.update(cell=float("nan")), r"candidates\.cell must be a finite spacing > 0"),
+        (lambda c: c.update(cell=0), r"candidates\.cell must be a finite spacing > 0"),
+        (lambda c: c["xy"].__setitem__(0, [float("nan"), -1.0]), r"candidates\.xy holds NaN"),
+        (lambda c: c["xy"].__setitem__(0, [-1.0, -1.0, 0.0]), r"candidates\.xy must"),
+    ],
+)
+def test_a_candidate_grid_that_is_no_grid_is_named(tmp_path, edit, match):
+    """A NaN spacing or cell centre was read on (fixed_cell_ceiling cast NaN cell indices, the others binned or skipped
+    the cell) and every script exited 0: the scene reader refuses it, naming the file."""
+    d = _scene(tmp_path, np.zeros((4, 3)))
+    rec = json.loads((d / ff.SCENE_JSON).read_text())
+    edit(rec["candidates"])
+    (d / ff.SCENE_JSON).write_text(json.dumps(rec))
+    with pytest.raises(SystemExit, match=rf"scene\.json: {match}"):
+        cr.main(["--root", str(tmp_path), "--every", "1"])

@@ -355,6 +355,7 @@ def read_scene(scene_path: str | Path) -> dict[str, Any]:
         or shape[0] * shape[1] != m
     ):  # the labels are smoothed and read on this grid: another shape mixes rows
         raise FormatError(f"{p}: candidates.grid_shape {shape} does not hold the {m} cells of candidates.xy")
+    _check_grid(rec["candidates"], p)
     for k in ("label", "cell_label"):
         if k not in rec["labels"]:
             continue
@@ -366,6 +367,25 @@ def read_scene(scene_path: str | Path) -> dict[str, Any]:
             raise NonFiniteFieldError(f"{p}: labels.{k} holds NaN or Inf values")
     rec["dir"] = str(p.parent)
     return rec
+
+
+def _check_grid(cand: dict[str, Any], p: Path) -> None:
+    """Refuse a candidate grid the scripts would read wrong without a word: ``xy`` not [M, 2] finite numbers, or a
+    ``cell`` spacing that is not a finite number > 0 (a NaN there made every cell index garbage, a NaN cell centre the
+    nearest-cell lookups skip it)."""
+    try:
+        xy = np.asarray(cand["xy"], dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise FormatError(f"{p}: candidates.xy must hold [x, y] numbers ({exc})") from exc
+    if xy.size and (xy.ndim != 2 or xy.shape[1] != 2):
+        raise FormatError(f"{p}: candidates.xy must be [M, 2], got shape {list(xy.shape)}")
+    if not np.isfinite(xy).all():
+        raise NonFiniteFieldError(f"{p}: candidates.xy holds NaN or Inf values")
+    cell = cand.get("cell")
+    if cell is not None and (
+        isinstance(cell, bool) or not isinstance(cell, (int, float)) or not math.isfinite(cell) or cell <= 0
+    ):
+        raise FormatError(f"{p}: candidates.cell must be a finite spacing > 0 (m), got {cell!r}")
 
 
 def labels_digest(rec: dict[str, Any]) -> str:
