@@ -20,6 +20,7 @@ blank out of reach. Needs MuJoCo (the scene is rebuilt).
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -135,6 +136,8 @@ def parse_cell(text: str) -> tuple[float, float]:
         xo, yo = (float(v) for v in text.split(","))
     except ValueError:
         raise argparse.ArgumentTypeError(f"a cell is 'x,y' in metres (target frame), got {text!r}") from None
+    if not (math.isfinite(xo) and math.isfinite(yo)):  # NaN is nearest to no cell: argmin chose cell #0 silently
+        raise argparse.ArgumentTypeError(f"a cell is 'x,y' in finite metres (target frame), got {text!r}")
     return xo, yo
 
 

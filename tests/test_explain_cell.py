@@ -103,3 +103,11 @@ def test_a_negative_seed_is_a_usage_error(record, capsys):
     with pytest.raises(SystemExit) as done:
         ec.main([str(record), "--cell", "0,-0.7", "--seed", "-1"])
     assert done.value.code == 2 and "--seed must be >= 0, got -1" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("cell", ["nan,0", "0,inf"])
+def test_a_cell_that_is_no_point_is_a_usage_error(cell, capsys):
+    """NaN is nearest to no cell: the argmin took cell #0, explained it and exited 0."""
+    with pytest.raises(SystemExit) as done:
+        ec.main(["any_scene", "--cell", cell])
+    assert done.value.code == 2 and f"finite metres (target frame), got '{cell}'" in capsys.readouterr().err
