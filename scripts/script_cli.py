@@ -43,7 +43,9 @@ def run(main: Callable[[], int | None], prog: str) -> int:
     except Exception as exc:  # noqa: BLE001 - narrowed to the bad-input types below
         if not isinstance(exc, user_error_types()):
             raise
-        print(f"{prog}: error: {' '.join(str(exc).split())}", file=sys.stderr)
+        # a package error that names the script itself (``load_axisnet(..., owner=prog)``) is not prefixed twice
+        why = " ".join(str(exc).split()).removeprefix(f"{prog}: ")
+        print(f"{prog}: error: {why}", file=sys.stderr)
         return 2
 
 

@@ -45,3 +45,14 @@ def test_a_script_names_a_missing_data_root(tmp_path):
     )
     assert out.returncode == 2
     assert out.stderr.strip() == f"fixed_cell_ceiling: error: {tmp_path / 'none'}: dataset root not found"
+
+
+def test_a_package_error_naming_the_script_is_not_prefixed_twice(capsys):
+    """load_axisnet(..., owner="yaw_errors") names its owner: the line read 'yaw_errors: error: yaw_errors: axisnet'."""
+    from floaff_zoo.hub.registry import HubError
+
+    def bad_axisnet():
+        raise HubError("yaw_errors: axisnet 'x.ckpt': no such file")
+
+    assert sc.run(bad_axisnet, "yaw_errors") == 2
+    assert capsys.readouterr().err == "yaw_errors: error: axisnet 'x.ckpt': no such file\n"
