@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from pathlib import Path
 
@@ -104,6 +105,8 @@ def main(argv: list[str] | None = None) -> int:
     a = p.parse_args(argv)
     if a.seed < 0:  # numpy's generator takes no negative seed: a traceback after the table's header
         p.error(f"--seed must be >= 0, got {a.seed}")
+    if not 0 <= a.noise_deg < math.inf:  # NaN or Inf turned every query into NaN: an SR of 0 printed as a result
+        p.error(f"--noise-deg must be a finite standard deviation >= 0 (deg), got {a.noise_deg}")
     rows = []
     print("| Benchmark | cells | query yaw | split | " + " | ".join(TASKS) + " | all |")
     print("|---|---|---|---|" + "---:|" * (len(TASKS) + 1))

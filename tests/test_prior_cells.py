@@ -67,3 +67,13 @@ def test_an_unknown_benchmark_is_named_before_the_table(tmp_path, capsys):
         pc.main(["--root", str(tmp_path), "--seed", "-1"])
     out = capsys.readouterr()
     assert exc.value.code == 2 and "--seed must be >= 0, got -1" in out.err and "| Benchmark" not in out.out
+
+
+@pytest.mark.parametrize("noise", ["nan", "inf", "-1"])
+def test_a_noise_that_is_no_standard_deviation_is_a_usage_error(noise, tmp_path, capsys):
+    """NaN or Inf turned every query into NaN and printed an SR of 0.00 as that noise's result, exit 0."""
+    with pytest.raises(SystemExit) as exc:
+        pc.main(["--root", str(tmp_path), "--noise-deg", noise])
+    out = capsys.readouterr()
+    assert exc.value.code == 2 and "--noise-deg must be a finite standard deviation >= 0" in out.err
+    assert "| Benchmark" not in out.out
