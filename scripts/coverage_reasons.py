@@ -28,6 +28,9 @@ from floaff_zoo.frames import base_to_world
 from floaff_zoo.sim import fileformat as ff
 from floaff_zoo.sim.views import candidates_in_target_frame
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from script_cli import refuse_folders  # noqa: E402
+
 #: upper edges of the coverage bins (the last bin is [0.75, 1])
 BINS = (0.25, 0.5, 0.75)
 
@@ -68,6 +71,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--every", type=int, default=20, help="use every n-th view of each scene")
     p.add_argument("--json", default=None)
     a = p.parse_args(argv)
+    refuse_folders(p, json=a.json)
     if a.every < 1:
         p.error("--every must be >= 1")
     table: dict[str, dict[str, dict[str, int]]] = defaultdict(lambda: defaultdict(lambda: defaultdict(int)))

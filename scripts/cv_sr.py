@@ -23,6 +23,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from scene_sr import print_scenes, print_summary, summarize  # noqa: E402
+from script_cli import refuse_folders  # noqa: E402
 from sr_json import checked_scenes  # noqa: E402
 
 
@@ -109,6 +110,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", default=None)
     a = p.parse_args(argv)
+    refuse_folders(p, json=a.json)
     if a.draws < 1:
         p.error("--draws must be >= 1")
     if a.seed < 0:  # numpy's generator takes no negative seed: a traceback after every file had been read

@@ -21,6 +21,7 @@ from typing import Any
 from floaff_zoo.atomic import atomic_write_text
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from script_cli import refuse_folders  # noqa: E402
 from sr_json import sr_all  # noqa: E402
 
 #: the fields an episode needs here
@@ -83,6 +84,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("runs", nargs="+", metavar="NAME=PATH", help="a name and its sr_episodes.json")
     p.add_argument("--json", required=True, help="where the scene table goes")
     args = p.parse_args(argv)
+    refuse_folders(p, json=args.json)
     runs: dict[str, list[dict[str, Any]]] = {}
     paths: dict[str, str] = {}
     for item in args.runs:

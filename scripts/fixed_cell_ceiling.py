@@ -36,6 +36,9 @@ from floaff_zoo.contract import TASKS
 from floaff_zoo.sim import fileformat as ff
 from floaff_zoo.sim.views import candidates_in_target_frame
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from script_cli import refuse_folders  # noqa: E402
+
 # (task, split) -> per view: {canonical cell (i, j): rollout succeeded}
 Views = dict[tuple[str, str], list[dict[tuple[int, int], bool]]]
 
@@ -166,6 +169,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--benchmarks", nargs="+", default=sorted(ff.BENCHMARKS), choices=ff.BENCHMARKS)  # layouts first
     p.add_argument("--json", default=None, help="also write the rows here")
     a = p.parse_args(argv)
+    refuse_folders(p, json=a.json)
     out = {b: ceiling(*read_views(Path(a.root), b)) for b in a.benchmarks}
     print(markdown(out))
     if a.json:

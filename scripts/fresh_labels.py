@@ -36,7 +36,7 @@ from floaff_zoo.contract import TASKS
 from floaff_zoo.sim.fileformat import BENCHMARKS
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from script_cli import folder_given  # noqa: E402
+from script_cli import refuse_folders  # noqa: E402
 
 
 def scene_label(scene: dict, fresh: np.ndarray, episodes: int, zero_failures: bool = False) -> np.ndarray:
@@ -85,8 +85,7 @@ def main(argv: list[str] | None = None) -> int:
         v = getattr(a, name)
         if v is not None and not v.endswith(".npz"):
             p.error(f"--{name} must name a .npz file, got {v!r}")
-    if folder := folder_given(probs=a.probs, out=a.out):
-        p.error(folder)
+    refuse_folders(p, probs=a.probs, out=a.out)
 
     from floaff_zoo.data.scene_labels import MADE_FROM, write_scene_labels
     from floaff_zoo.sim import fileformat as ff

@@ -43,7 +43,7 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from script_cli import floor_model, folder_given  # noqa: E402
+from script_cli import floor_model, refuse_folders  # noqa: E402
 
 from floaff_zoo.callbacks.rollout import check_clouds, choose_pose, cloud_free  # noqa: E402
 from floaff_zoo.contract import TASKS  # noqa: E402
@@ -289,8 +289,7 @@ def main(argv: list[str] | None = None) -> int:
         p.error("--full-cloud chooses the cloud that --top-k checks: give --top-k > 1")
     if a.probs and not a.probs.endswith(".npz"):
         p.error(f"--probs must name a .npz file, got {a.probs!r}")
-    if folder := folder_given(probs=a.probs, json=a.json):
-        p.error(folder)
+    refuse_folders(p, probs=a.probs, json=a.json)
 
     from floaff_zoo.sim.generate import ANNOTATE_SEED
 

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from script_cli import floor_model  # noqa: E402
+from script_cli import floor_model, refuse_folders  # noqa: E402
 
 from floaff_zoo.frames import facing_pose, pose_to_world
 from floaff_zoo.predict import check_cell, predict_from_points
@@ -36,6 +36,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--cell", type=float, default=0.1, help="grid cell of the model's training data (m)")
     p.add_argument("--json", default=None)
     a = p.parse_args(argv)
+    refuse_folders(p, json=a.json)
     try:  # else predict's ValueError, naming no option, was a traceback at the first view, after the model loaded
         check_cell(a.cell)
     except ValueError as exc:

@@ -24,6 +24,7 @@ import numpy as np
 from floaff_zoo.atomic import atomic_write_text
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from script_cli import refuse_folders  # noqa: E402
 from sr_json import checked_scenes, sr_all  # noqa: E402
 
 
@@ -85,6 +86,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", default=None)
     args = p.parse_args(argv)
+    refuse_folders(p, json=args.json)
     if args.draws < 1:
         p.error("--draws must be >= 1")
     if args.seed < 0:  # numpy's generator takes no negative seed

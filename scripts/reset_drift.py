@@ -25,6 +25,9 @@ import numpy as np
 from floaff_zoo.sim import fileformat as ff
 from floaff_zoo.sim.kitchen import PARK_POSE, SceneSpec, build_scene, release_scene
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from script_cli import refuse_folders  # noqa: E402
+
 try:
     from floaff_zoo.sim.rollout import hold_still
 except ImportError:  # a simulator before generator 2.3 first on PYTHONPATH (to check an older copy): the same loop
@@ -98,6 +101,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--tol", type=float, default=0.005, help="a move larger than this (fraction of opening) counts")
     p.add_argument("--json", type=Path, default=None, help="write every scene's record here")
     args = p.parse_args(argv)
+    refuse_folders(p, json=args.json)
     if not (0 < args.seconds < math.inf and 0 <= args.tol < math.inf):  # NaN passed a plain comparison
         p.error(f"--seconds must be a finite number > 0 and --tol one >= 0, got {args.seconds} and {args.tol}")
     folders = scene_folders(args.root, args.benchmark)

@@ -71,7 +71,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from fresh_sr import nearest_cells, split_data  # noqa: E402
-from script_cli import floor_model  # noqa: E402
+from script_cli import floor_model, refuse_folders  # noqa: E402
 from sr_json import sr_all  # noqa: E402
 
 from floaff_zoo.atomic import atomic_write_text  # noqa: E402
@@ -414,6 +414,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     p.add_argument("--json", default=None)
     a = p.parse_args(argv)
+    refuse_folders(p, json=a.json)
     if a.draws < 1:
         p.error("--draws must be >= 1")
     if a.seed < 0:  # numpy's generator takes no negative seed: a traceback after every model had been scored

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -49,13 +50,12 @@ def run(main: Callable[[], int | None], prog: str) -> int:
         return 2
 
 
-def folder_given(**files: str | None) -> str | None:
-    """The usage error for the first of ``files`` (option name with ``_`` for ``-`` -> path) that names an existing
-    folder, else None: a script writes its files after the work, so a folder there lost the run at its very end."""
+def refuse_folders(parser: argparse.ArgumentParser, **files: str | Path | None) -> None:
+    """A usage error (``parser.error``) for the first of ``files`` (option name with ``_`` for ``-`` -> path) that
+    names an existing folder: a script writes its files after the work, so a folder there lost the run at its end."""
     for option, path in files.items():
         if path is not None and Path(path).is_dir():
-            return f"--{option.replace('_', '-')} names a file to write, got the folder {path!r}"
-    return None
+            parser.error(f"--{option.replace('_', '-')} names a file to write, got the folder {str(path)!r}")
 
 
 def floor_model(model: str, where: str) -> torch.nn.Module:

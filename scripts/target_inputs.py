@@ -30,6 +30,9 @@ import numpy as np
 from floaff_zoo.atomic import atomic_write_text
 from floaff_zoo.sim.fileformat import BENCHMARKS
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from script_cli import refuse_folders  # noqa: E402
+
 BANDS = (0.03, 0.05, 0.10)
 
 
@@ -78,6 +81,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--every", type=int, default=1, help="use every n-th view of each scene")
     p.add_argument("--json", default=None)
     a = p.parse_args(argv)
+    refuse_folders(p, json=a.json)
     if a.every < 1:
         p.error("--every must be >= 1")
     from floaff_zoo.sim import fileformat as ff

@@ -22,7 +22,7 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from script_cli import floor_model  # noqa: E402
+from script_cli import floor_model, refuse_folders  # noqa: E402
 
 from floaff_zoo.callbacks.rollout import choose_pose, cloud_free, default_service
 from floaff_zoo.contract import TASKS
@@ -43,6 +43,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--top-k", type=int, default=1, help="> 1: best of the top-k poses free in the view's cloud")
     p.add_argument("--json", default=None)
     a = p.parse_args(argv)
+    refuse_folders(p, json=a.json)
     if a.top_k < 1:
         p.error(f"--top-k must be >= 1, got {a.top_k}")
     if a.crop_first is not None and not a.crop_first > 0:  # TargetCrop's ValueError was a traceback after the models

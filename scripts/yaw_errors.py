@@ -23,6 +23,9 @@ from floaff_zoo.models.yaw import estimate_yaw, load_axisnet
 from floaff_zoo.nn.axisnet import angle_error_deg
 from floaff_zoo.sim.fileformat import BENCHMARKS
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from script_cli import refuse_folders  # noqa: E402
+
 
 def collect(dm: FloAffKitchenDataModule, split: str, sources: list[str], axisnet, radius: float) -> dict:
     """{source: {(task, view): [errors in deg]}} over one split."""
@@ -65,6 +68,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--points", type=int, default=1024)
     p.add_argument("--json", default=None, help="also write the raw errors here")
     a = p.parse_args(argv)
+    refuse_folders(p, json=a.json)
     torch.manual_seed(0)
     dm = FloAffKitchenDataModule(
         root=a.root, benchmark=a.benchmark, batch_size=8, num_points=a.points, collate_mode="resample", validate=False

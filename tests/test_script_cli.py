@@ -56,3 +56,27 @@ def test_a_package_error_naming_the_script_is_not_prefixed_twice(capsys):
 
     assert sc.run(bad_axisnet, "yaw_errors") == 2
     assert capsys.readouterr().err == "yaw_errors: error: axisnet 'x.ckpt': no such file\n"
+
+
+@pytest.mark.parametrize(
+    ("script", "args"),
+    [
+        ("cv_sr", ["x.json"]),
+        ("episodes_sr", ["a=x.json"]),
+        ("predict_sr", ["--root", "r", "--model", "m"]),
+        ("protocol_change", ["a.json", "b.json"]),
+        ("scene_sr", ["a=m"]),
+        ("val_sr", ["m"]),
+        ("coverage_reasons", []),
+        ("fixed_cell_ceiling", []),
+        ("prior_cells", []),
+        ("target_inputs", []),
+        ("reset_drift", ["--root", "r"]),
+        ("yaw_errors", ["--root", "r"]),
+    ],
+)
+def test_a_json_output_that_is_a_folder_is_refused_before_the_work(script, args, tmp_path, capsys):
+    """The scripts write --json after the work: a folder there was an IsADirectoryError at the very end of the run."""
+    with pytest.raises(SystemExit) as done:
+        load_script(script).main([*args, "--json", str(tmp_path)])
+    assert done.value.code == 2 and "--json names a file to write, got the folder" in capsys.readouterr().err
