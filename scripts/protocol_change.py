@@ -64,7 +64,9 @@ def changes(a: dict, b: dict, draws: int, seed: int) -> dict:
     ids, names = matched(a, b)
     samples = bootstrap_ids(a, ids, draws, seed)
     boot = np.array([[sr_all(b, d, n) - sr_all(a, d, n) for n in names] for d in samples])  # [draws, names]
-    out: dict = {"models": {}, "differences": {}}
+    every = {n for s in (*a.values(), *b.values()) for n in s["sr"]}
+    # a NAME of one file only, or not scored on every scene, is left out of the table: said, not dropped silently
+    out: dict = {"models": {}, "differences": {}, "left_out": sorted(every - set(names))}
     for k, n in enumerate(names):
         lo, hi = np.quantile(boot[:, k], [0.05, 0.95])
         base, new = sr_all(a, ids, n), sr_all(b, ids, n)
@@ -96,6 +98,8 @@ def main(argv: list[str] | None = None) -> int:
     print("|---|---:|---:|---:|---|")
     for n, m in res["models"].items():
         print(f"| {n} | {m['a']:.3f} | {m['b']:.3f} | {m['change']:+.3f} | {m['p05']:+.3f} to {m['p95']:+.3f} |")
+    if res["left_out"]:
+        print(f"left out (not scored on every scene of both files): {', '.join(res['left_out'])}")
     for pair, d in res["differences"].items():
         print(f"change of {pair}: {d['diff']:+.3f} (90 %: {d['p05']:+.3f} to {d['p95']:+.3f})")
     if args.json:

@@ -88,3 +88,14 @@ def test_a_negative_seed_is_a_usage_error(tmp_path, capsys):
     with pytest.raises(SystemExit) as done:
         pc.main([str(tmp_path / "a.json"), str(tmp_path / "a.json"), "--seed", "-1"])
     assert done.value.code == 2 and "--seed must be >= 0, got -1" in capsys.readouterr().err
+
+
+def test_a_name_not_in_both_files_is_said_to_be_left_out(tmp_path, capsys):
+    """A NAME scored in one file only (or on some scenes) vanished from the table without a word."""
+    a = _scenes({"m": [1.0, 1.0, 1.0, 1.0], "old": [0.0, 0.0, 0.0, 0.0]})
+    b = _scenes({"m": [1.0, 1.0, 1.0, 1.0], "new": [1.0, 1.0, 1.0, 1.0]})
+    for name, doc in (("a.json", a), ("b.json", b)):
+        (tmp_path / name).write_text(json.dumps({"scenes": doc}))
+    assert pc.main([str(tmp_path / "a.json"), str(tmp_path / "b.json"), "--draws", "5"]) == 0
+    assert "left out (not scored on every scene of both files): new, old" in capsys.readouterr().out
+    assert pc.changes(a, b, 5, 0)["left_out"] == ["new", "old"]
