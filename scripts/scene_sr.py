@@ -125,6 +125,9 @@ def with_residual_scales(nets: dict[str, list], scales: list[float]) -> dict[str
             "--residual-scales scales the residual of prior-residual models (CFARModule with prior_residual): "
             f"no NAME's runs all have one ({', '.join(nets)})"
         )
+    taken = [f"{name}@{s:g}" for name in scaled for s in scales if f"{name}@{s:g}" in nets]
+    if taken:  # the scaled copies replaced that NAME's own runs without a word
+        raise ValueError(f"--residual-scales would name rows {taken}, which are NAMEs given: rename them")
     for name in scaled:
         runs = nets[name]
         for s in scales:
@@ -439,6 +442,8 @@ def main(argv: list[str] | None = None) -> int:
     groups = parse_models(a.models)
     if a.ensemble and not ensembled(groups):
         p.error("--ensemble averages the runs of one NAME: give some NAME two runs or more (NAME=a.ckpt NAME=b.ckpt)")
+    if a.ensemble and (taken := [f"{n}+ens" for n in ensembled(groups) if f"{n}+ens" in groups]):
+        p.error(f"--ensemble would name rows {taken}, which are NAMEs given: rename them")  # replaced their runs
 
     try:  # a bad model name, or one without a floor map, ends here with its message, before any data is read
         runs = {n: [floor_model(m, f"scene_sr: {m}") for m in ms] for n, ms in groups.items()}

@@ -403,3 +403,17 @@ def test_a_model_without_a_floor_map_exits_naming_it(tmp_path):
     ckpt = axisnet_ckpt(tmp_path / "axisnet.ckpt")
     with pytest.raises(SystemExit, match=rf"scene_sr: {re.escape(str(ckpt))}: .*AxisNetModule predicts no floor map"):
         ssr.main(["--root", str(tmp_path / "missing"), f"a={ckpt}"])
+
+
+def test_a_generated_row_name_that_is_a_given_name_is_refused(tmp_path, capsys):
+    """NAME@s and NAME+ens replaced the runs of a NAME given that way, and the table scored the copies under it."""
+
+    class Run:
+        def __init__(self, prior):
+            self.prior, self.hparams = prior, {"residual_scale": 1.0}
+
+    with pytest.raises(ValueError, match=r"would name rows \['recipe@0'\]"):
+        ssr.with_residual_scales({"recipe": [Run(object())], "recipe@0": [Run(None)]}, [0.0])
+    with pytest.raises(SystemExit) as done:
+        ssr.main(["--root", str(tmp_path), "--ensemble", "a=x.ckpt", "a=y.ckpt", "a+ens=z.ckpt"])
+    assert done.value.code == 2 and "--ensemble would name rows ['a+ens']" in capsys.readouterr().err
