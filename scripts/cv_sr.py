@@ -74,8 +74,12 @@ def merge_folds(docs: list[tuple[str, dict]]) -> tuple[dict[str, dict], dict[str
     for f, d in docs:
         layout = d.get("val_layout") if isinstance(d, dict) else None
         # a fold is a layout number: another value (a list, a string beside numbers) was a TypeError when sorted
-        if layout is None or d.get("split") != "val" or not isinstance(layout, int) or isinstance(layout, bool):
-            raise SystemExit(f"cv_sr: {f} is not a fold (scene_sr.py --split val --val-layout F, F a layout number)")
+        # ... and of a named benchmark (a fold without one pooled as benchmark None)
+        bad = not isinstance(layout, int) or isinstance(layout, bool) or not isinstance(d.get("benchmark"), str)
+        if layout is None or d.get("split") != "val" or bad:
+            raise SystemExit(
+                f"cv_sr: {f} is not a fold (scene_sr.py --split val --val-layout F: a benchmark, F a layout number)"
+            )
         benchmarks.add(d.get("benchmark"))
         for sid, s in checked_scenes(d, f, "cv_sr").items():
             row = scenes.setdefault(sid, {"task": s["task"], "views": s["views"], "fold": d["val_layout"], "sr": {}})

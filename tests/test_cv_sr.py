@@ -46,6 +46,8 @@ def test_folds_merge_by_scene_and_weigh_views():
         (lambda d: d + [("v", fold(1, "x", {"L1_cd": ("CloseDrawer", 3, 1.0)}))], "L1_cd has other views"),
         (lambda d: d + [("n", {"split": "val", "val_layout": 1, "benchmark": "layouts"})], r"n is not a .*no scenes"),
         (lambda d: d + [("l", [1, 2])], "l is not a fold"),  # a top-level list: an AttributeError before
+        # no file names its benchmark: pooled as benchmark None, exit 0
+        (lambda d: [("nb", {k: v for k, v in fold(1, "x", F1).items() if k != "benchmark"})], "nb is not a fold"),
         (lambda d: d + [("k", fold(1, "x", {"L1_zz": ("CloseDrawer", 0, 1.0)}))], r"scene L1_zz needs .*views >= 1"),
     ],
 )
