@@ -38,16 +38,18 @@ def run(main: Callable[[], int | None], prog: str) -> int:
         if not isinstance(exc.code, str):  # argparse's usage error (2), a status the script chose
             raise
         # a script's own `raise SystemExit("<prog>: why")` on bad input: it exited 1, with no "error:"
-        why = exc.code.removeprefix(f"{prog}: ")
-        print(f"{prog}: error: {' '.join(why.split())}", file=sys.stderr)
-        return 2
+        return _user_error(prog, exc.code)
     except Exception as exc:  # noqa: BLE001 - narrowed to the bad-input types below
         if not isinstance(exc, user_error_types()):
             raise
-        # a package error that names the script itself (``load_axisnet(..., owner=prog)``) is not prefixed twice
-        why = " ".join(str(exc).split()).removeprefix(f"{prog}: ")
-        print(f"{prog}: error: {why}", file=sys.stderr)
-        return 2
+        return _user_error(prog, str(exc))
+
+
+def _user_error(prog: str, why: str) -> int:
+    """Print ``<prog>: error: <why on one line>`` on stderr and return exit code 2; a message that already starts
+    with the script's name (its own SystemExit, ``load_axisnet(..., owner=prog)``) is not prefixed twice."""
+    print(f"{prog}: error: {' '.join(why.split()).removeprefix(f'{prog}: ')}", file=sys.stderr)
+    return 2
 
 
 def refuse_folders(parser: argparse.ArgumentParser, **files: str | Path | None) -> None:

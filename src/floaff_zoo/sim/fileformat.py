@@ -357,30 +357,31 @@ def read_scene(scene_path: str | Path) -> dict[str, Any]:
         raise FormatError(f"{p}: candidates.grid_shape {shape} does not hold the {m} cells of candidates.xy")
     _check_grid(rec["candidates"], p)
     for k in ("label", "cell_label"):
-        if k not in rec["labels"]:
-            continue
-        try:
-            finite = np.isfinite(np.asarray(rec["labels"][k], dtype=np.float64)).all()
-        except (TypeError, ValueError) as exc:
-            raise FormatError(f"{p}: labels.{k} must hold numbers ({exc})") from exc
-        if not finite:
-            raise NonFiniteFieldError(f"{p}: labels.{k} holds NaN or Inf values")
+        if k in rec["labels"]:
+            _finite_numbers(rec["labels"][k], f"labels.{k}", p)
     rec["dir"] = str(p.parent)
     return rec
+
+
+def _finite_numbers(value: Any, field: str, p: Path) -> np.ndarray:
+    """``value`` as a float64 array; FormatError naming ``field`` of file ``p`` when it does not hold numbers,
+    NonFiniteFieldError when one is NaN or Inf."""
+    try:
+        a = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise FormatError(f"{p}: {field} must hold numbers ({exc})") from exc
+    if not np.isfinite(a).all():
+        raise NonFiniteFieldError(f"{p}: {field} holds NaN or Inf values")
+    return a
 
 
 def _check_grid(cand: dict[str, Any], p: Path) -> None:
     """Refuse a candidate grid the scripts would read wrong without a word: ``xy`` not [M, 2] finite numbers, or a
     ``cell`` spacing that is not a finite number > 0 (a NaN there made every cell index garbage, a NaN cell centre the
     nearest-cell lookups skip it)."""
-    try:
-        xy = np.asarray(cand["xy"], dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise FormatError(f"{p}: candidates.xy must hold [x, y] numbers ({exc})") from exc
+    xy = _finite_numbers(cand["xy"], "candidates.xy", p)
     if xy.size and (xy.ndim != 2 or xy.shape[1] != 2):
         raise FormatError(f"{p}: candidates.xy must be [M, 2], got shape {list(xy.shape)}")
-    if not np.isfinite(xy).all():
-        raise NonFiniteFieldError(f"{p}: candidates.xy holds NaN or Inf values")
     cell = cand.get("cell")
     if cell is not None and (
         isinstance(cell, bool) or not isinstance(cell, (int, float)) or not math.isfinite(cell) or cell <= 0
