@@ -33,7 +33,10 @@ def fold_files(paths: list[str]) -> list[tuple[Path, str]]:
     out: list[tuple[Path, str]] = []
     for item in paths:
         # the tag follows the last @ (a folder of the path may hold one); an existing path is never split
-        path, _, tag = item.rpartition("@") if "@" in item and not Path(item).exists() else (item, "", "")
+        split = "@" in item and not Path(item).exists()
+        path, _, tag = item.rpartition("@") if split else (item, "", "")
+        if split and not tag:  # `x.json@` read untagged would pool it with x.json's own names
+            raise SystemExit(f"cv_sr: {item}: the tag after @ is empty")
         p = Path(path)
         if p.is_dir():
             found = sorted(p.glob("*.json"))

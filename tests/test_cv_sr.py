@@ -84,6 +84,14 @@ def test_missing_or_empty_inputs_exit(tmp_path):
         cv.fold_files([f"{tmp_path / 'full'}@old", f"{tmp_path / 'empty'}@new"])
 
 
+def test_an_empty_tag_exits(tmp_path):
+    (tmp_path / "full").mkdir()
+    (tmp_path / "full" / "cv0_occ.json").write_text("{}")
+    # `full@` used to be read untagged, its names pooled with the other input's own
+    with pytest.raises(SystemExit, match=r"full@: the tag after @ is empty"):
+        cv.fold_files([str(tmp_path / "full"), f"{tmp_path / 'full'}@"])
+
+
 def test_tagged_inputs_compare_one_model_from_two_runs(tmp_path):
     before, after = tmp_path / "before", tmp_path / "run@2" / "after"  # an @ inside the path, the tag after the last
     for folder, scale in ((before, 0.5), (after, 1.0)):
