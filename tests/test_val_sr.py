@@ -37,3 +37,10 @@ def test_a_crop_radius_that_is_no_radius_is_named(radius, capsys):
     with pytest.raises(SystemExit) as exc:
         vs.main(["--root", "nowhere", "m", "--crop-first", radius])
     assert exc.value.code == 2 and "--crop-first must be a radius > 0" in capsys.readouterr().err
+
+
+def test_a_model_given_twice_is_named(capsys):
+    """One row per model: `m m` was merged into one row, before anything told the user."""
+    with pytest.raises(SystemExit) as exc:
+        vs.main(["--root", "nowhere", "m", "n", "m"])
+    assert exc.value.code == 2 and "a model is given twice: m" in capsys.readouterr().err
