@@ -107,9 +107,10 @@ def main(argv: list[str] | None = None) -> int:
     folders = scene_folders(args.root, args.benchmark)
     if not folders:
         raise FileNotFoundError(f"{args.root}: no scene folders under {args.benchmark or ', '.join(ff.BENCHMARKS)}")
+    # every scene.json read before any simulation: a corrupt one used to stop the run after the scenes before it
+    scenes = [(d, *read_spec(d)) for d in folders]
     records, moved = [], 0
-    for d in folders:
-        meta, spec = read_spec(d)
+    for d, meta, spec in scenes:
         if spec is None:
             continue
         rec = {"scene": f"{d.parent.name}/{d.name}", "split": meta.get("split"), **scene_drift(spec, args.seconds)}

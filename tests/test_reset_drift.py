@@ -64,7 +64,12 @@ def test_runs_with_a_simulator_from_before_hold_still(tmp_path, monkeypatch, cap
     assert "0 of 1 scene(s)" in capsys.readouterr().out
 
 
-def test_a_scene_json_without_a_whole_spec_is_named(tmp_path):
+def test_a_scene_json_without_a_whole_spec_is_named_before_any_scene_is_simulated(tmp_path, monkeypatch):
+    """The corrupt scene.json sorts after a good one: it stopped the run only after that scene was simulated."""
+    _scene_json(tmp_path, "L0_S0_s5_CloseDrawer", {"layout_id": 0, "style_id": 0, "seed": 5, "task": "CloseDrawer"})
     _scene_json(tmp_path, "broken", {"layout_id": 5, "style_id": 3, "task": "CloseDoubleDoor"})
+    simulated = []
+    monkeypatch.setattr(rd, "scene_drift", lambda spec, seconds: simulated.append(spec))
     with pytest.raises(ff.FormatError, match=r"broken/scene.json: 'spec' must hold layout_id, style_id, seed and task"):
         rd.main(["--root", str(tmp_path)])
+    assert simulated == []
