@@ -26,7 +26,6 @@ rolled out (the annotated outcome alone, seconds):
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 from pathlib import Path
 
@@ -36,7 +35,7 @@ from floaff_zoo.contract import TASKS
 from floaff_zoo.sim.fileformat import BENCHMARKS
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from script_cli import refuse_folders  # noqa: E402
+from script_cli import add_parking_noise, check_parking_noise, refuse_folders  # noqa: E402
 
 
 def scene_label(scene: dict, fresh: np.ndarray, episodes: int, zero_failures: bool = False) -> np.ndarray:
@@ -66,9 +65,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--root", default="data/floaff_dense")
     p.add_argument("--benchmark", default="layouts", choices=BENCHMARKS)
     p.add_argument("--episodes", type=int, default=4, help="fresh episodes per cell (0: the annotated outcome only)")
-    p.add_argument("--sigma-xy", type=float, default=0.02, help="parking noise per axis (m)")
-    p.add_argument("--sigma-yaw-deg", type=float, default=2.0, help="parking heading noise (deg)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the parking noise")
+    add_parking_noise(p)
     p.add_argument("--workers", type=int, default=1)
     p.add_argument(
         "--probs",
@@ -78,9 +75,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--zero-failures", action="store_true", help="label 0 on cells that never succeeded (module doc)")
     p.add_argument("--out", required=True, help="the scene-label file to write (.npz)")
     a = p.parse_args(argv)
-    sigmas_ok = 0 <= a.sigma_xy < math.inf and 0 <= a.sigma_yaw_deg < math.inf  # a NaN passed `< 0`
-    if a.episodes < 0 or not sigmas_ok or a.workers < 1 or a.seed < 0:
-        p.error("--episodes must be >= 0, --workers >= 1, the sigmas finite and >= 0 and --seed >= 0")
+    check_parking_noise(p, a)
+    if a.episodes < 0 or a.workers < 1:
+        p.error("--episodes must be >= 0 and --workers >= 1")
     for name in ("probs", "out"):
         v = getattr(a, name)
         if v is not None and not v.endswith(".npz"):

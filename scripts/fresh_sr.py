@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 from pathlib import Path
 from typing import Any
@@ -43,7 +42,7 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from script_cli import floor_model, refuse_folders  # noqa: E402
+from script_cli import add_parking_noise, check_parking_noise, floor_model, refuse_folders  # noqa: E402
 
 from floaff_zoo.callbacks.rollout import check_clouds, choose_pose, cloud_free  # noqa: E402
 from floaff_zoo.contract import TASKS  # noqa: E402
@@ -263,9 +262,7 @@ def main(argv: list[str] | None = None) -> int:
         help="test scenes, or the validation scenes the DataModule holds out of train (val_scenes=1, seed 0)",
     )
     p.add_argument("--episodes", type=int, default=4)
-    p.add_argument("--sigma-xy", type=float, default=0.02, help="parking noise per axis (m)")
-    p.add_argument("--sigma-yaw-deg", type=float, default=2.0, help="parking heading noise (deg)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the parking noise")
+    add_parking_noise(p)
     p.add_argument(
         "--annotation-seed", action="store_true", help="every episode keeps the annotation's task seed (noise only)"
     )
@@ -280,9 +277,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--probs", default=None, help="cache of the fresh probabilities (.npz; read if it exists)")
     p.add_argument("--json", default=None)
     a = p.parse_args(argv)
-    # a NaN sigma passed `< 0` and ended in a rollout's error that named no option
-    if a.episodes < 1 or not (0 <= a.sigma_xy < math.inf and 0 <= a.sigma_yaw_deg < math.inf) or a.seed < 0:
-        p.error("--episodes must be >= 1, the sigmas finite and >= 0 and --seed >= 0")
+    check_parking_noise(p, a)
+    if a.episodes < 1:
+        p.error("--episodes must be >= 1")
     if min(a.top_k, a.workers, a.batch_size) < 1:
         p.error("--top-k, --workers and --batch-size must be >= 1")
     if a.full_cloud and a.top_k == 1:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -74,3 +75,17 @@ def floor_model(model: str, where: str) -> torch.nn.Module:
     except TypeError as exc:
         raise SystemExit(f"{where}: {exc}") from exc
     return net.eval()
+
+
+def add_parking_noise(parser: argparse.ArgumentParser) -> None:
+    """``--sigma-xy``, ``--sigma-yaw-deg`` and ``--seed``: the parking noise of the fresh-episode scripts."""
+    parser.add_argument("--sigma-xy", type=float, default=0.02, help="parking noise per axis (m)")
+    parser.add_argument("--sigma-yaw-deg", type=float, default=2.0, help="parking heading noise (deg)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the parking noise")
+
+
+def check_parking_noise(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """A usage error for a sigma that is not a finite number >= 0 (a NaN passed ``< 0`` and ended in a rollout's
+    error about a NaN pose, naming no option) or a negative seed."""
+    if not (0 <= args.sigma_xy < math.inf and 0 <= args.sigma_yaw_deg < math.inf) or args.seed < 0:
+        parser.error("the sigmas must be finite and >= 0 and --seed >= 0")
