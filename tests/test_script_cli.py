@@ -80,3 +80,17 @@ def test_a_json_output_that_is_a_folder_is_refused_before_the_work(script, args,
     with pytest.raises(SystemExit) as done:
         load_script(script).main([*args, "--json", str(tmp_path)])
     assert done.value.code == 2 and "--json names a file to write, got the folder" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "bad", [["--sigma-xy", "nan"], ["--sigma-yaw-deg", "inf"], ["--sigma-xy", "-0.1"], ["--seed", "-1"]]
+)
+def test_parking_noise_that_is_no_noise_is_a_usage_error(bad, capsys):
+    import argparse
+
+    p = argparse.ArgumentParser(prog="fresh")
+    sc.add_parking_noise(p)
+    sc.check_parking_noise(p, p.parse_args([]))  # the defaults pass
+    with pytest.raises(SystemExit) as done:
+        sc.check_parking_noise(p, p.parse_args(bad))
+    assert done.value.code == 2 and "the sigmas must be finite and >= 0 and --seed >= 0" in capsys.readouterr().err
