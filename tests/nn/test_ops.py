@@ -183,7 +183,12 @@ def test_three_interpolate_with_no_valid_known_point_gives_zeros(m):
     out = ops.three_interpolate(unknown, known, feat, mask)
     assert torch.equal(out[1], torch.zeros(6, 4))
     assert torch.equal(out[:1], ops.three_interpolate(unknown[:1], known[:1], feat[:1], mask[:1]))
-    assert torch.equal(out[:1], ops.three_interpolate(unknown[:1], known[:1], feat[:1]))
+    # the valid sample against a brute-force reference: its (up to) 3 nearest, weights 1 / (d^2 + 1e-8) normalised
+    d2 = ((unknown[0, :, None].double() - known[0, None].double()) ** 2).sum(-1)  # [6, m]
+    near, idx = d2.topk(min(m, 3), dim=1, largest=False)
+    w = 1.0 / (near + 1e-8)
+    ref = ((w / w.sum(1, keepdim=True))[..., None] * feat[0].double()[idx]).sum(1)  # [6, 4]
+    assert torch.allclose(out[0].double(), ref, atol=1e-5)
 
 
 @pytest.mark.parametrize("path", ["fast", "portable"])
