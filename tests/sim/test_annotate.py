@@ -165,3 +165,18 @@ def test_a_cell_that_is_no_size_is_refused_by_name(cell, shown):
 
     with pytest.raises(ValueError, match=rf"candidate_grid: cell must be a finite number > 0, got {shown}"):
         candidate_grid(None, cell, 1.0, 1.0)  # refused before the scene is read
+
+
+def test_one_rollout_with_workers_runs_on_the_given_scene(scene_factory, monkeypatch):
+    """With one job the service ran it in this process on a kitchen it built again, not the scene it was given."""
+    import floaff_zoo.sim.annotate as annotate
+
+    class NoService:
+        def __init__(self, *args, **kwargs):
+            raise AssertionError("a rollout service started for one job")
+
+    sc = scene_factory("CloseDrawer")
+    one = annotate_scene(sc, cell=0.2, max_candidates=1)
+    monkeypatch.setattr(annotate, "RolloutService", NoService)
+    again = annotate_scene(sc, cell=0.2, max_candidates=1, workers=2)
+    assert again.counts["rolled_out"] == 1 and again.success.tobytes() == one.success.tobytes()

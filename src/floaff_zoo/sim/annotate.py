@@ -211,7 +211,7 @@ def annotate_scene(
                 counts[SKIPPED_REASON] += 1
         todo = [i for k, i in enumerate(todo) if k in keep]
     success = np.zeros(M, dtype=bool)
-    if workers > 1 and todo:
+    if workers > 1 and len(todo) > 1:  # the service runs one job in this process, on a second build of the scene
         svc = RolloutService(workers=workers, cache_decimals=ROLLOUT_POSE_DECIMALS, seed=seed)
         try:
             res = svc.run([(scene.spec, (float(xy[i, 0]), float(xy[i, 1]), float(yaws[i]))) for i in todo])
