@@ -98,6 +98,21 @@ def _merge_sections(old: str, new: list[str]) -> list[str]:
     return head + [s.rstrip("\n") + "\n" for s in body]
 
 
+def check_out(ap: argparse.ArgumentParser, out: Path) -> None:
+    """``ap.error`` naming ``--out`` where the report could not be written or its old text not read: checked before
+    the suite runs (10-20 minutes), whose output was lost when the write failed at its end."""
+    if out.is_dir():
+        ap.error(f"--out {out}: is a folder, give the report's file name")
+    folder = next(p for p in out.absolute().parents if p.exists())  # the write creates the missing folders
+    if not folder.is_dir() or not os.access(folder, os.W_OK | os.X_OK):
+        ap.error(f"--out {out}: cannot write under {folder}")
+    if out.exists():
+        try:  # its sections are kept, so it must be readable text
+            out.read_text()
+        except (OSError, UnicodeDecodeError) as exc:
+            ap.error(f"--out {out}: cannot read the existing report ({exc})")
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--full", action="store_true", help="longer settings (more rounds or steps, the small preset)")
@@ -116,6 +131,7 @@ def main(argv: list[str] | None = None) -> int:
         if not args.only or unknown:
             what = f"unknown script(s) {unknown}" if unknown else "no script named"
             ap.error(f"--only: {what}; choose from {scripts}")
+    check_out(ap, Path(args.out))
     env = dict(os.environ, MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"))
     only = f" --only {' '.join(args.only)}" if args.only else ""
     earlier = " (the other sections are from earlier runs, each says how it ran)" if only else ""

@@ -56,3 +56,29 @@ except OSError as exc:
     assert "write failed" in proc.stdout, proc.stderr[-2000:]
     assert out.read_text() == old
     assert sorted(p.name for p in tmp_path.iterdir()) == ["perf.md"]  # no temp file left either
+
+
+def test_an_out_path_that_cannot_be_written_is_refused_before_the_suite_runs(tmp_path, monkeypatch, capsys):
+    """An --out that is a folder, lies under a file or holds a report that is not text failed only at the write,
+    after the whole suite (10-20 minutes) had run: its output was lost."""
+    import subprocess
+
+    ran = []
+    monkeypatch.setattr(
+        run_all.subprocess, "run", lambda cmd, **kw: ran.append(cmd) or subprocess.CompletedProcess(cmd, 0, "x", "")
+    )
+    (tmp_path / "file").write_text("x")
+    (tmp_path / "binary.md").write_bytes(b"\xff\xfe\x00bad")
+    for out, said in (
+        (tmp_path, "is a folder"),
+        (tmp_path / "file" / "sub" / "perf.md", "cannot write under"),
+        (tmp_path / "binary.md", "cannot read the existing report"),
+    ):
+        with pytest.raises(SystemExit) as exc:
+            run_all.main(["--only", "bench_predict", "--out", str(out)])
+        assert exc.value.code == 2 and f"--out {out}: {said}" in capsys.readouterr().err
+    assert ran == []
+    assert (tmp_path / "binary.md").read_bytes() == b"\xff\xfe\x00bad"
+    # a report in folders that do not exist yet is still written (the write creates them)
+    assert run_all.main(["--only", "bench_predict", "--out", str(tmp_path / "new" / "perf.md")]) == 0
+    assert (tmp_path / "new" / "perf.md").read_text().startswith("# Performance")
