@@ -59,7 +59,7 @@ def bench_preset(name: str, workers: int, out: Path | None, **overrides) -> tupl
     from floaff_zoo.sim.presets import get_preset
 
     tmp = Path(tempfile.mkdtemp(prefix=f"bench_{name}_")) if out is None else out / name
-    if out is not None and tmp.exists() and any(tmp.iterdir()):  # generate would resume it: no wall time
+    if out is not None and _holds_a_run(tmp):  # generate would resume it: no wall time
         raise SystemExit(f"bench_generate: {tmp} holds an earlier run, which generate would resume: give a new --out")
     try:
         t0 = time.perf_counter()
@@ -68,6 +68,32 @@ def bench_preset(name: str, workers: int, out: Path | None, **overrides) -> tupl
     finally:
         if out is None:
             shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _holds_a_run(folder: Path) -> bool:
+    """Whether ``folder`` holds anything (an earlier run, which generate would resume)."""
+    return folder.is_dir() and any(folder.iterdir())
+
+
+def check_args(ap: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """``ap.error`` naming the flag of a bad value, before anything runs: ``--views`` below 1 timed no view and
+    printed 0.0 ms/view, and a bad ``--workers`` or ``--out`` failed only after the render and scaling runs."""
+    for flag in ("views", "image_size"):
+        if (value := getattr(args, flag)) < 1:
+            ap.error(f"--{flag.replace('_', '-')} must be >= 1, got {value}")
+    if args.workers < 0:
+        ap.error(f"--workers must be >= 0, got {args.workers}")
+    if args.data is not None and not Path(args.data).is_dir():
+        ap.error(f"--data {args.data}: not a folder")  # a typo reported no manifest without a word
+    if args.out is None:
+        return
+    out = Path(args.out)
+    folder = next((p for p in [out, *out.absolute().parents] if p.exists()))  # generate creates the missing ones
+    if not folder.is_dir():
+        ap.error(f"--out {out}: {folder} is not a folder")
+    for name in ("tiny", "small") if args.small else ("tiny",):
+        if _holds_a_run(out / name):
+            ap.error(f"--out {out}: {out / name} holds an earlier run, which generate would resume: give a new --out")
 
 
 def _phase_means(man: dict) -> str:
@@ -114,11 +140,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default=None, help="keep generated data here")
     ap.add_argument(
         "--data",
-        default="data",
+        default=None,
         help="also report the wall time recorded in the manifest of every "
-        "benchmark generated under this folder (by `floaff-zoo generate`)",
+        "benchmark generated under this folder (by `floaff-zoo generate`; default: data, where it exists)",
     )
     args = ap.parse_args(argv)
+    check_args(ap, args)
     out = Path(args.out) if args.out else None
 
     r = bench_render(args.views, args.image_size)
@@ -155,7 +182,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.grid:
         for line in grid_rows(args.workers):
             print(line)
-    for line in manifest_walls(Path(args.data)):
+    for line in manifest_walls(Path(args.data or "data")):
         print(line)
     return 0
 
@@ -169,25 +196,34 @@ def manifest_walls(root: Path) -> list[str]:
     lines = []
     for path in sorted(root.glob("*/manifest.json")):
         try:
-            man = json.loads(path.read_text())
+            line = _manifest_line(path, json.loads(path.read_text()))
         except (OSError, ValueError) as exc:
             lines.append(f"[manifest] {path}: unreadable ({exc}); skipped")
             continue
-        if man.get("status") != "done" or not man.get("wall_s"):
+        except (KeyError, TypeError, AttributeError) as exc:  # read last: one bad file ended the whole run
+            lines.append(f"[manifest] {path}: not a generate manifest ({type(exc).__name__}: {exc}); skipped")
             continue
-        c, cfg = man["counts"], man["config"]
-        resumed = sum(1 for sc in man["scenes"].values() if sc.get("resumed"))
-        made = sum(1 for sc in man["scenes"].values() if not sc.get("resumed"))  # incl. dropped slots
-        ended = _dt.datetime.fromtimestamp(path.stat().st_mtime, _dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
-        rate = f"{man['wall_s'] / made:.1f} s/slot" if made else "s/slot n/a: every slot was resumed"
-        lines.append(
-            f"[preset {man['preset']}, from {path} written {ended}, not timed here] {path.parent.name}: "
-            f"{'+'.join(cfg['benchmarks'])}, {c['scenes_ok']} scenes ok, {c['scenes_dropped']} dropped, "
-            f"{c['views_total']} views, max {cfg['max_candidates']} rollouts/scene: {man['wall_s']:.0f} s wall with "
-            f"{man['workers']} worker(s) for the {made} scene slot(s) that run filled ({rate})"
-            + (f"; {resumed} scene(s) came from an earlier run" if resumed else "")
-        )
+        if line is not None:
+            lines.append(line)
     return lines
+
+
+def _manifest_line(path: Path, man: dict) -> str | None:
+    """``manifest_walls``'s line of the manifest ``man`` read from ``path``; None for an unfinished run."""
+    if man.get("status") != "done" or not man.get("wall_s"):
+        return None
+    c, cfg = man["counts"], man["config"]
+    resumed = sum(1 for sc in man["scenes"].values() if sc.get("resumed"))
+    made = sum(1 for sc in man["scenes"].values() if not sc.get("resumed"))  # incl. dropped slots
+    ended = _dt.datetime.fromtimestamp(path.stat().st_mtime, _dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    rate = f"{man['wall_s'] / made:.1f} s/slot" if made else "s/slot n/a: every slot was resumed"
+    return (
+        f"[preset {man['preset']}, from {path} written {ended}, not timed here] {path.parent.name}: "
+        f"{'+'.join(cfg['benchmarks'])}, {c['scenes_ok']} scenes ok, {c['scenes_dropped']} dropped, "
+        f"{c['views_total']} views, max {cfg['max_candidates']} rollouts/scene: {man['wall_s']:.0f} s wall with "
+        f"{man['workers']} worker(s) for the {made} scene slot(s) that run filled ({rate})"
+        + (f"; {resumed} scene(s) came from an earlier run" if resumed else "")
+    )
 
 
 if __name__ == "__main__":

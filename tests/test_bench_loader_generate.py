@@ -143,3 +143,40 @@ def test_run_all_refreshes_both_loader_sections(tmp_path, monkeypatch):
     text = out.read_text()
     assert "old 0" not in text and "old 1" not in text
     assert text.index(titles[0]) < text.index("new 1") < text.index(titles[1]) < text.index("new 2")
+
+
+def test_the_generate_benchmark_refuses_bad_arguments_before_anything_runs(tmp_path, monkeypatch, capsys):
+    """--views 0 timed no view and printed 0.0 ms/view with exit 0; a negative --workers, an --out under a file or
+    holding an earlier run failed only after the render and scaling runs (minutes); a --data typo reported nothing."""
+    bg = load_benchmark("bench_generate")
+    ran = []
+    monkeypatch.setattr(bg, "bench_render", lambda *a: ran.append(a) or pytest.fail("ran"))
+    (tmp_path / "file").write_text("x")
+    (tmp_path / "old" / "small").mkdir(parents=True)
+    (tmp_path / "old" / "small" / "manifest.json").write_text("{}")
+    for args, said in (
+        (["--views", "0"], "--views must be >= 1, got 0"),
+        (["--image-size", "-1"], "--image-size must be >= 1, got -1"),
+        (["--workers", "-1"], "--workers must be >= 0, got -1"),
+        (["--data", str(tmp_path / "nope")], f"--data {tmp_path / 'nope'}: not a folder"),
+        (["--out", str(tmp_path / "file" / "x")], f"--out {tmp_path / 'file' / 'x'}: {tmp_path / 'file'} is not a"),
+        (["--small", "--out", str(tmp_path / "old")], f"{tmp_path / 'old' / 'small'} holds an earlier run"),
+    ):
+        with pytest.raises(SystemExit) as exc:
+            bg.main(args)
+        assert exc.value.code == 2 and said in capsys.readouterr().err, args
+    assert ran == []
+
+
+def test_a_malformed_manifest_is_skipped_with_a_line_not_a_traceback(tmp_path):
+    """The manifests are read at the end of the run: a finished one without its counts (or not an object) raised
+    KeyError / AttributeError there, after every figure was measured."""
+    import json
+
+    bg = load_benchmark("bench_generate")
+    for name, man in (("a", {"status": "done", "wall_s": 3.0}), ("b", [1, 2])):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "manifest.json").write_text(json.dumps(man))
+    lines = bg.manifest_walls(tmp_path)
+    assert len(lines) == 2 and all("not a generate manifest" in line and "skipped" in line for line in lines)
+    assert "KeyError" in lines[0] and "AttributeError" in lines[1]
