@@ -62,13 +62,19 @@ def require_positive(parser: argparse.ArgumentParser, args: argparse.Namespace, 
 
 
 def parse_device(parser: argparse.ArgumentParser, value: str) -> torch.device:
-    """``--device value`` as a torch device; a name torch does not know, or CUDA without a device, ends ``parser``."""
+    """``--device value`` as a torch device; a name torch does not know, a device type the benchmarks do not time
+    (``meta``, ``mps``: they failed deep in the first model call), CUDA without a device or a CUDA index past the
+    last device ends ``parser``."""
     try:
         device = torch.device(value)
     except RuntimeError as exc:
         parser.error(f"--device {value!r}: not a torch device ({exc})")
+    if device.type not in ("cpu", "cuda"):
+        parser.error(f"--device {value!r}: the benchmarks run on cpu or cuda, not {device.type}")
     if device.type == "cuda" and not torch.cuda.is_available():
         parser.error(f"--device {value!r}: torch sees no CUDA device here")
+    if device.type == "cuda" and device.index is not None and device.index >= torch.cuda.device_count():
+        parser.error(f"--device {value!r}: torch sees {torch.cuda.device_count()} CUDA device(s) here")
     return device
 
 
@@ -335,6 +341,10 @@ def main(argv: list[str] | None = None) -> int:
     if a.warmup < 1:  # ours always has an untimed first step: the reference needs one too to be timed fairly
         p.error("--warmup must be >= 1")
     require_positive(p, a, "batch", "points", "floor_cells", "threads")
+    if any(n < 1 for n in a.points_sweep):  # an empty cloud failed deep in make_batch, after the models' timings
+        p.error(f"--points-sweep sizes must be >= 1, got {a.points_sweep}")
+    if a.points_sweep and not a.sweep_models:  # a heading over no row, exit 0
+        p.error(f"--sweep-models: name at least one of {MODELS} for --points-sweep")
     if a.threads:
         torch.set_num_threads(a.threads)
     iters = a.iters or (2 if a.quick else 5)

@@ -88,6 +88,8 @@ def main(argv: list[str] | None = None) -> int:
     a = p.parse_args(argv)
     if a.rounds < 1 or a.iters < 1 or a.warmup < 0 or not a.models:
         p.error("--rounds and --iters must be >= 1, --warmup >= 0 and --models must name a model")
+    if a.threads is not None and a.threads < 1:  # 0 ran on torch's default silently, -1 failed in every child
+        p.error(f"--threads must be >= 1, got {a.threads}")
     if a.child:
         print(json.dumps(child(a.child[0], a.child[1], a.iters, a.warmup, a.threads)))
         return 0

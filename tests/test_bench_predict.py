@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import argparse
+
 import pytest
 import torch
 
@@ -124,3 +126,45 @@ def test_generation_figures_read_from_a_manifest_say_so(tmp_path):
     (line,) = bg.manifest_walls(tmp_path)
     assert "not timed here" in line and str(tmp_path / "floaff_demo" / "manifest.json") in line
     assert "s/slot n/a: every slot was resumed" in line and "0.0 s/slot" not in line
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["--skip-models", "--skip-reference", "--points-sweep", "1024", "0"],  # SampleError after the models' rows
+        ["--skip-models", "--skip-reference", "--points-sweep", "1024", "--sweep-models"],  # a heading, exit 0
+    ],
+)
+def test_bench_models_refuses_a_bad_points_sweep_up_front(args, capsys):
+    with pytest.raises(SystemExit) as exc:
+        load_benchmark("bench_models").main(args)
+    assert exc.value.code == 2 and "error: --" in capsys.readouterr().err
+
+
+def test_a_device_the_benchmarks_cannot_time_is_refused_by_name(monkeypatch, capsys):
+    """meta and mps were taken as devices and failed deep in the first model call (meta: Tensor.item() on a meta
+    tensor; mps: not linked); a CUDA index past the last device was taken too."""
+    bp = _load()
+    for device in ("meta", "mps"):
+        with pytest.raises(SystemExit) as exc:
+            bp.main(["--device", device, "--models", "pointnet2_ssg", "--points", "256", "--floor-cells", "4"])
+        assert (
+            exc.value.code == 2 and f"--device {device!r}: the benchmarks run on cpu or cuda" in capsys.readouterr().err
+        )
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    monkeypatch.setattr(torch.cuda, "device_count", lambda: 1)
+    parser = argparse.ArgumentParser()
+    assert bp.bm.parse_device(parser, "cuda:0") == torch.device("cuda:0")
+    with pytest.raises(SystemExit):
+        bp.bm.parse_device(parser, "cuda:1")
+    assert "--device 'cuda:1': torch sees 1 CUDA device(s) here" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("threads", ["0", "-1"])
+def test_bench_vs_port_refuses_threads_below_one(threads, monkeypatch, capsys):
+    """--threads 0 ran every child on torch's default thread count without a word; -1 failed in each child."""
+    bv = load_benchmark("bench_vs_port")
+    monkeypatch.setattr(bv, "run_config", lambda *a: pytest.fail("a child ran"))
+    with pytest.raises(SystemExit) as exc:
+        bv.main(["--threads", threads, "--models", "pointnet2_ssg"])
+    assert exc.value.code == 2 and f"--threads must be >= 1, got {threads}" in capsys.readouterr().err
