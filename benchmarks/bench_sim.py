@@ -13,6 +13,7 @@ without the pre-check on up to --agree candidates the pre-filter refused.
 from __future__ import annotations
 
 import argparse
+import math
 import time
 
 import mujoco
@@ -59,12 +60,16 @@ def main(argv: list[str] | None = None) -> None:
     # --quick sets only what is not given (it overwrote an explicit --cell / --agree)
     args.cell = args.cell if args.cell is not None else (0.2 if args.quick else 0.1)
     args.agree = args.agree if args.agree is not None else (5 if args.quick else 20)
-    if not args.cell > 0:
-        ap.error(f"--cell must be > 0, got {args.cell}")
+    if not 0 < args.cell < math.inf:  # inf failed in the first annotation, after the scene was built
+        ap.error(f"--cell must be a finite number > 0, got {args.cell}")
     if args.agree < 0:
         ap.error(f"--agree must be >= 0, got {args.agree}")
-    if any(not c > 0 for c in args.growth_cells):
-        ap.error(f"--growth-cells must be > 0, got {args.growth_cells}")
+    if any(not 0 < c < math.inf for c in args.growth_cells):
+        ap.error(f"--growth-cells must be finite numbers > 0, got {args.growth_cells}")
+    try:  # an unknown layout or style, a negative seed: a ValueError traceback from SceneSpec
+        SceneSpec(args.layout, args.style, args.seed, TASKS[0])
+    except ValueError as exc:
+        ap.error(f"--layout {args.layout} --style {args.style} --seed {args.seed}: {exc}")
     t0 = time.perf_counter()
     build_scene(SceneSpec(args.layout, args.style, args.seed, TASKS[0]))
     print(f"build_scene (first, incl. robot model) {time.perf_counter() - t0:.2f}s")

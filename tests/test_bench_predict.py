@@ -168,3 +168,19 @@ def test_bench_vs_port_refuses_threads_below_one(threads, monkeypatch, capsys):
     with pytest.raises(SystemExit) as exc:
         bv.main(["--threads", threads, "--models", "pointnet2_ssg"])
     assert exc.value.code == 2 and f"--threads must be >= 1, got {threads}" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("args", "said"),
+    [
+        (["--cell", "inf"], "--cell must be a finite number > 0, got inf"),  # ValueError in the first annotation
+        (["--growth-cells", "0.2", "inf", "--layout", "99"], "--growth-cells must be finite numbers > 0"),
+        (["--layout", "99"], "--layout 99 --style 0 --seed 0: unknown layout_id 99"),  # a SceneSpec traceback
+        (["--style", "-1"], "--layout 0 --style -1 --seed 0: unknown style_id -1"),
+        (["--seed", "-1"], "--layout 0 --style 0 --seed -1: seed must be >= 0"),
+    ],
+)
+def test_bench_sim_refuses_a_bad_grid_or_scene_by_name(args, said, capsys):
+    with pytest.raises(SystemExit) as exc:
+        load_benchmark("bench_sim").main(args)
+    assert exc.value.code == 2 and said in capsys.readouterr().err
