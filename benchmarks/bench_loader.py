@@ -36,6 +36,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from floaff_zoo.names import BENCHMARKS
+
 
 def write_moma_like(root: Path, n: int, seed: int = 0) -> None:
     """n samples (n // 4 configurations x 4 views) in the official layout, official cloud sizes; the test split lists
@@ -243,7 +245,7 @@ def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--dataset", choices=["moma", "floaff"], default="moma")
     p.add_argument("--root", default=None, help="dataset root (default: write MoMa-sized samples to a temp dir)")
-    p.add_argument("--benchmark", default="styles")
+    p.add_argument("--benchmark", default="styles", choices=BENCHMARKS, help="FloAff benchmark (--dataset floaff)")
     p.add_argument("--samples", type=int, default=32, help="samples to write when --root is not given")
     p.add_argument("--max-samples", type=int, default=None, help="first N records of each split (--dataset moma)")
     p.add_argument("--num-points", type=int, default=4096)
@@ -277,6 +279,8 @@ def main(argv: list[str] | None = None) -> None:
         p.error(f"--workers must be >= 0, got {args.workers}")
     if args.dataset == "floaff" and args.max_samples is not None:  # FloAffKitchenDataModule has no such option
         p.error("--max-samples applies to --dataset moma only (the FloAff data module reads every sample)")
+    if args.root is not None and not Path(args.root).is_dir():  # the data module's traceback named it only
+        p.error(f"--root {args.root}: not a folder")
     torch.set_num_threads(int(os.environ.get("OMP_NUM_THREADS", torch.get_num_threads())))
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(args.root) if args.root else Path(tmp) / "moma"

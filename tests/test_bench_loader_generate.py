@@ -180,3 +180,19 @@ def test_a_malformed_manifest_is_skipped_with_a_line_not_a_traceback(tmp_path):
     lines = bg.manifest_walls(tmp_path)
     assert len(lines) == 2 and all("not a generate manifest" in line and "skipped" in line for line in lines)
     assert "KeyError" in lines[0] and "AttributeError" in lines[1]
+
+
+@pytest.mark.parametrize(
+    ("args", "said"),
+    [
+        (["--root", "{tmp}/nope"], "--root {tmp}/nope: not a folder"),  # a MisconfigurationException traceback
+        (["--root", "{tmp}/file"], "--root {tmp}/file: not a folder"),
+        (["--dataset", "floaff", "--root", "{tmp}", "--benchmark", "style"], "argument --benchmark: invalid choice"),
+    ],
+)
+def test_the_loader_benchmark_refuses_a_missing_root_or_unknown_benchmark_by_name(tmp_path, args, said, capsys):
+    (tmp_path / "file").write_text("x")
+    bl = load_benchmark("bench_loader")
+    with pytest.raises(SystemExit) as exc:
+        bl.main([a.format(tmp=tmp_path) for a in args])
+    assert exc.value.code == 2 and said.format(tmp=tmp_path) in capsys.readouterr().err
