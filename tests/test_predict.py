@@ -413,3 +413,35 @@ def test_the_prediction_writer_writes_bf16_mixed_outputs_as_float32(tmp_path):
 
     arrays, _ = gather_predictions([{"yaw": torch.tensor([0.5, -1.25], dtype=torch.bfloat16)}])
     assert arrays["yaw"].dtype == np.float32 and arrays["yaw"].tolist() == [0.5, -1.25]
+
+
+@pytest.mark.parametrize(
+    "records, named",
+    [
+        ([{"scores": "S", "loss": "L"}], r"batch 0: every output must hold one entry per sample .* loss: a scalar"),
+        ([{"scores": "S", "meta": [{}]}], r"batch 0: every output must hold one entry per sample .* meta: 1"),
+        ([{"scores": "S", "extra": "X1"}], r"batch 0: every output must hold one entry per sample .* extra: 1"),
+        (
+            [{"scores": "S"}, {"scores": "S", "extra": "X2"}],
+            r"batch 1 has tensor\(s\) \['extra'\] that batch 0 has not",
+        ),
+        (["S"], "batch 0: predict_step returned a Tensor, not a dict of tensors"),
+    ],
+)
+def test_the_prediction_writer_refuses_outputs_out_of_step_with_the_samples(records, named):
+    """A predict_step output of another length than the batch (a scalar loss, a [1, ...] tensor, a meta list one
+    short) was written out of step with the samples, or failed in numpy's concatenate naming no key; a tensor that
+    only a later batch returned was dropped without a word; a bare tensor record raised AttributeError."""
+    import torch
+
+    from floaff_zoo.callbacks.predictions import gather_predictions
+
+    made = {"S": torch.rand(2, 5), "L": torch.tensor(1.0), "X1": torch.rand(1, 3), "X2": torch.rand(2)}
+    records = [
+        made[r] if isinstance(r, str) else {k: made[v] if isinstance(v, str) else v for k, v in r.items()}
+        for r in records
+    ]
+    with pytest.raises(ValueError, match=named):
+        gather_predictions(records)
+    arrays, meta = gather_predictions([{"scores": made["S"], "meta": []}, {"scores": made["S"]}])  # no meta: fine
+    assert arrays["scores"].shape == (4, 5) and meta == [{}] * 4

@@ -61,19 +61,42 @@ def _to_numpy(t: torch.Tensor) -> np.ndarray:
     return (t.float() if t.dtype == torch.bfloat16 else t).numpy()
 
 
+def check_record(i: int, record: dict[str, Any], keys: list[str]) -> None:
+    """Refuse batch ``i``'s ``predict_step`` record unless it holds a tensor ``[B, ...]`` under each of ``keys``
+    (batch 0's tensors), no other tensor, and ``meta`` (when given) of ``B`` samples: written, an array of another
+    length, or a ``meta`` list of another length, sat in the files out of step with the samples, and a key that
+    batch 0 lacked vanished without a word.
+
+    Raises:
+        ValueError: naming the batch and the key.
+    """
+    missing = [k for k in keys if not torch.is_tensor(record.get(k))]
+    if missing:
+        raise ValueError(f"predict: batch {i} has no tensor {missing[0]!r} (batch 0 has)")
+    extra = [k for k, v in record.items() if torch.is_tensor(v) and k not in keys]
+    if extra:
+        raise ValueError(f"predict: batch {i} has tensor(s) {extra} that batch 0 has not")
+    sizes = {k: len(record[k]) if record[k].dim() else None for k in keys}
+    if record.get("meta"):  # none (or an empty list) stands for one empty meta per sample
+        sizes["meta"] = len(record["meta"])
+    if len(set(sizes.values())) > 1 or None in sizes.values():
+        got = ", ".join(f"{k}: {'a scalar' if n is None else n}" for k, n in sizes.items())
+        raise ValueError(f"predict: batch {i}: every output must hold one entry per sample [B, ...]; got {got}")
+
+
 def gather_predictions(records: list[dict[str, Any]]) -> tuple[dict[str, np.ndarray], list[dict[str, Any]]]:
-    """Batch records of ``predict_step`` -> (arrays {key: [N, ...]}, meta [N]); a key missing from a batch is an
-    error."""
+    """Batch records of ``predict_step`` -> (arrays {key: [N, ...]}, meta [N]); a record that does not hold the same
+    per-sample tensors as batch 0 is an error (``check_record``)."""
+    for i, r in enumerate(records):
+        if not isinstance(r, dict):
+            raise ValueError(f"predict: batch {i}: predict_step returned a {type(r).__name__}, not a dict of tensors")
     keys = [k for k, v in records[0].items() if torch.is_tensor(v)]
     dropped = [k for k in records[0] if k != "meta" and k not in keys]
     if dropped:  # a model's extra output that is no tensor (a list of poses) would vanish without a word
         warnings.warn(f"predict: {dropped} are not tensors and are not written to the predictions file", stacklevel=2)
-    arrays: dict[str, np.ndarray] = {}
-    for k in keys:
-        missing = [i for i, r in enumerate(records) if not torch.is_tensor(r.get(k))]
-        if missing:
-            raise ValueError(f"predict: batch {missing[0]} has no tensor {k!r} (batch 0 has)")
-        arrays[k] = stack_batches([_to_numpy(r[k]) for r in records], k)
+    for i, r in enumerate(records):
+        check_record(i, r, keys)
+    arrays = {k: stack_batches([_to_numpy(r[k]) for r in records], k) for k in keys}
     meta: list[dict[str, Any]] = []
     for r in records:
         meta.extend(r.get("meta") or [{}] * (len(r[keys[0]]) if keys else 0))
