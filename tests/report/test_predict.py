@@ -335,6 +335,23 @@ def test_a_figure_breaks_ties_as_predict_does():
     assert len(marked) == 2
 
 
+def test_figures_of_groups_whose_names_spell_one_file_name_are_all_kept(tmp_path):
+    """write_figures counted per (task, view) but named files by their filename-safe spelling: "Close Drawer" and
+    "Close_Drawer" (or task "a_b" view "c" and task "a" view "b_c") both wrote <prefix>_0.png, the later drawing over
+    the earlier, and the report listed that file twice. A sample without meta raised AttributeError."""
+    from floaff_zoo.report.figures import FigureSample, write_figures
+
+    floor = np.c_[np.linspace(0, 1, 6), np.zeros(6), np.zeros(6)]
+    groups = [("Close Drawer", "front"), ("Close_Drawer", "front"), ("a_b", "c"), ("a", "b_c")]
+    samples = [FigureSample(floor, np.zeros(6), np.ones(6) * 0.5, np.array([2.0, 0, 0.5]), 0.0,
+                            meta={"task": t, "view": v}) for t, v in groups]  # fmt: skip
+    samples.append(FigureSample(floor, np.zeros(6), np.ones(6) * 0.5, np.array([2.0, 0, 0.5]), 0.0, meta=None))
+    paths = write_figures(samples, tmp_path)
+    names = ["Close_Drawer_front_0", "Close_Drawer_front_1", "a_b_c_0", "a_b_c_1", "task_view_0"]
+    assert [p.stem for p in paths] == names
+    assert sorted(p.stem for p in tmp_path.glob("*.png")) == sorted(names)
+
+
 def test_a_model_without_a_floor_map_is_named():
     """AxisNet (a yaw estimator) given to predict_from_points ended in an unrelated IndexError in the raster."""
     from floaff_zoo.models.axisnet import AxisNetModule

@@ -103,7 +103,8 @@ def draw_sample(
     gt_pose, pr_pose = drawn_pose(s, s.oracle, s.label, base), drawn_pose(s, s.chosen, s.scores, base)
     fig, axes = plt.subplots(1, 2, figsize=(8.6, 4.0), dpi=100)
     try:
-        title = f"{s.meta.get('task', '')} | {s.meta.get('view', '') or '-'} | {s.meta.get('sample_id', '')}"
+        meta = s.meta or {}
+        title = f"{meta.get('task', '')} | {meta.get('view', '') or '-'} | {meta.get('sample_id', '')}"
         fig.suptitle(title, fontsize=9)
         panels = (("ground truth", s.label, gt_pose, s.oracle_success), ("prediction", s.scores, pr_pose, s.success))
         if sim is not None:
@@ -176,7 +177,7 @@ def write_figures(
     import warnings
 
     outlines: dict[str, Sequence[np.ndarray] | None] = {}
-    counts: dict[tuple[str, str], int] = {}
+    counts: dict[str, int] = {}  # per file-name prefix: groups whose names it spells alike share one count
     paths: list[Path] = []
     for s in samples:
         sim = (s.meta or {}).get("sim")
@@ -192,10 +193,13 @@ def write_figures(
                     )
                     outlines[key] = None
             outline = outlines[key]
-        task, view = str(s.meta.get("task", "task")), str(s.meta.get("view", "") or "view")
-        k = counts.get((task, view), 0)
-        counts[(task, view)] = k + 1
-        paths.append(draw_sample(s, Path(out_dir) / f"{_safe(task)}_{_safe(view)}_{k}.png", outline))
+        meta = s.meta or {}
+        # the (task, view) group's k-th figure; two groups whose names spell one file name ("Close Drawer" and
+        # "Close_Drawer", task "a_b" view "c" and task "a" view "b_c") count on, or the later drew over the earlier
+        prefix = f"{_safe(str(meta.get('task', 'task')))}_{_safe(str(meta.get('view', '') or 'view'))}"
+        k = counts.get(prefix, 0)
+        counts[prefix] = k + 1
+        paths.append(draw_sample(s, Path(out_dir) / f"{prefix}_{k}.png", outline))
     return paths
 
 
