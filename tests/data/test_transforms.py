@@ -217,6 +217,24 @@ def test_plot_writes_png(tmp_path):
     assert (tmp_path / "a.png").stat().st_size > 1000 and fig is not None
 
 
+def test_plot_refuses_a_folder_a_suffix_and_scores_it_cannot_draw(tmp_path):
+    """A folder as path wrote <folder>.png beside it and returned as if done; an unknown suffix, scores of another
+    length than the floor and a floor_mask of another length ended in matplotlib's or numpy's error naming no field."""
+    s = validate_sample(_sample())
+    m = s["floor_xyz"].shape[0]
+    (tmp_path / "out").mkdir()
+    for path, scores, named in (
+        (tmp_path / "out", None, "is a folder"),
+        (tmp_path / "a.pngx", None, "cannot write '.pngx' pictures"),
+        (tmp_path / "a.png", torch.rand(m - 1), f"scores has {m - 1} entries for {m} floor points"),
+    ):
+        with pytest.raises(ValueError, match=named):
+            plot(s, path, scores=scores)
+    with pytest.raises(ValueError, match=f"floor_mask has 3 entries for {m} points"):
+        plot({**s, "floor_mask": torch.ones(3, dtype=torch.bool)}, tmp_path / "b.png")
+    assert sorted(f.name for f in tmp_path.iterdir()) == ["out"]
+
+
 def test_synthetic_task_names_are_checked():
     with pytest.raises(ValueError, match=r"unknown tasks \['CloseDrawerr'\]"):
         SyntheticDataModule(tasks=["CloseDrawerr"])

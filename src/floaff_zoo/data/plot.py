@@ -16,6 +16,28 @@ def _np(x: Any) -> np.ndarray:
     return x.detach().cpu().numpy() if torch.is_tensor(x) else np.asarray(x)
 
 
+def _mask(sample: Sample, key: str, n: int) -> np.ndarray:
+    """``sample[key]`` [n] as bool (all True when absent); ValueError naming the field when its length is not n."""
+    mask = _np(sample.get(key, np.ones(n, bool))).astype(bool).reshape(-1)
+    if len(mask) != n:
+        raise ValueError(f"plot: {key} has {len(mask)} entries for {n} points")
+    return mask
+
+
+def _check_path(path: str | Path) -> Path:
+    """The PNG to write; ValueError (before drawing) for a folder, which matplotlib turned into ``<folder>.png``
+    beside it, or a suffix matplotlib cannot write."""
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    path = Path(path)
+    if path.is_dir():
+        raise ValueError(f"plot: {path} is a folder; name the picture to write, e.g. {path / 'sample.png'}")
+    formats = FigureCanvasBase.get_supported_filetypes()
+    if path.suffix and path.suffix[1:].lower() not in formats:
+        raise ValueError(f"plot: {path}: cannot write {path.suffix!r} pictures; use one of {sorted(formats)}")
+    return path
+
+
 def plot(sample: Sample, path: str | Path | None = None, scores: Any = None) -> Any:
     """Top view (x forward, y left) + side view of one sample (matplotlib Agg; no display needed).
 
@@ -31,12 +53,17 @@ def plot(sample: Sample, path: str | Path | None = None, scores: Any = None) -> 
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
 
+    path = _check_path(path) if path is not None else None
     xyz = _np(sample["scene_xyz"])
     flag = _np(sample["scene_feat"]).reshape(xyz.shape[0], -1)[:, 0]
-    smask = _np(sample.get("scene_mask", np.ones(len(xyz), bool))).astype(bool)
+    smask = _mask(sample, "scene_mask", len(xyz))
     floor = _np(sample["floor_xyz"])
     label = _np(sample["floor_label"]).reshape(-1)
-    fmask = _np(sample.get("floor_mask", np.ones(len(floor), bool))).astype(bool)
+    fmask = _mask(sample, "floor_mask", len(floor))
+    if scores is not None:
+        scores = _np(scores).reshape(-1)
+        if len(scores) != len(floor):
+            raise ValueError(f"plot: scores has {len(scores)} entries for {len(floor)} floor points")
     t = _np(sample["target_xyz"]).reshape(3)
     yaw = float(_np(sample["target_yaw"]))
     xyz, flag, floor, label = xyz[smask], flag[smask], floor[fmask], label[fmask]
@@ -66,7 +93,7 @@ def plot(sample: Sample, path: str | Path | None = None, scores: Any = None) -> 
     ax.set_title("side view (red target, blue obstacle)", fontsize=8)
     if scores is not None:
         ax = axes[2]
-        sc = ax.scatter(floor[:, 0], floor[:, 1], s=8, c=_np(scores).reshape(-1)[fmask], cmap="viridis", vmin=0, vmax=1)
+        sc = ax.scatter(floor[:, 0], floor[:, 1], s=8, c=scores[fmask], cmap="viridis", vmin=0, vmax=1)
         ax.set_aspect("equal")
         ax.set_title("prediction", fontsize=8)
         fig.colorbar(sc, ax=ax)
