@@ -90,7 +90,7 @@ def test_montage_refuses_runs_of_different_benchmarks(tmp_path, capsys):
 
 def test_montage_out_names_the_file_it_writes(tmp_path, capsys):
     """--out without a suffix wrote <out>.png and printed <out>; a folder wrote <folder>.png beside it; an unknown
-    suffix gave matplotlib's traceback."""
+    suffix gave matplotlib's traceback; a run's own figure was overwritten."""
     a = _run(tmp_path, "CFAR+PFAL", 0.1)
     args = ["montage", "--runs", str(a), "--cases", "CloseDrawer_front_0", "--out"]
     assert zoo_main([*args, str(tmp_path / "fig")]) == 0
@@ -99,6 +99,12 @@ def test_montage_out_names_the_file_it_writes(tmp_path, capsys):
         with pytest.raises(SystemExit) as ex:
             zoo_main([*args, str(out)])
         assert ex.value.code == 2 and message in capsys.readouterr().err
+    figure = tmp_path / "runs" / "CFAR+PFAL" / "version_1" / "figures" / "CloseDrawer_front_0.png"
+    before = figure.read_bytes()
+    with pytest.raises(SystemExit) as ex:  # the montage was written over the run's own figure, exit 0
+        zoo_main([*args, str(figure)])
+    assert ex.value.code == 2 and f"--out {figure}: is the figure {figure} of a run" in capsys.readouterr().err
+    assert figure.read_bytes() == before
 
 
 @pytest.mark.parametrize(

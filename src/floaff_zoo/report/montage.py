@@ -130,7 +130,11 @@ def montage(
     titles = labels or [
         str(rep.get("label") or (rep.get("model") or {}).get("name") or p.parent.name) for p, rep in reports
     ]
-    images = [[_read_image(find_figure(p, rep, case)) for p, rep in reports] for case in cases]
+    figures = [[find_figure(p, rep, case) for p, rep in reports] for case in cases]
+    overwritten = next((f for row in figures for f in row if f.resolve() == out.resolve()), None)
+    if overwritten is not None:  # the montage was written over a run's own figure, exit 0
+        raise MontageError(f"--out {out}: is the figure {overwritten} of a run; name another picture to write")
+    images = [[_read_image(f) for f in row] for row in figures]
     h, w = images[0][0].shape[:2]
     size = (width * len(runs), width * h / w * len(cases))  # every panel keeps the figures' aspect ratio
     fig, axes = plt.subplots(len(cases), len(runs), figsize=size, squeeze=False)
