@@ -1047,3 +1047,25 @@ def test_two_runs_into_one_folder_are_refused(tmp_path):
         with pytest.raises(ValueError, match="another `floaff-zoo generate` is writing into this folder"):
             gen.generate(tmp_path, get_preset("tiny", **MINI), seed=0, workers=0, quiet=True)
     assert not (tmp_path / ff.MANIFEST).exists()
+
+
+def test_rgb_png_refuses_an_image_it_would_draw_wrong():
+    """rgb_png cast any image to uint8: a float image in [0, 1] became an all-black picture, 300 wrapped to 44 and
+    NaN became 0, all without a word; an empty image failed inside PIL."""
+    import io
+
+    from PIL import Image
+
+    from floaff_zoo.sim.pictures import rgb_png
+
+    for bad, named in (
+        (np.full((4, 4, 3), 0.8), r"integers 0..255 \(uint8\), got float64 in \[0.8, 0.8\]"),
+        (np.full((4, 4, 3), 300), "got int64 in"),
+        (np.full((4, 4, 3), np.nan), "got float64 in"),
+        (np.zeros((0, 4, 3), np.uint8), r"non-empty \[H,W,3\] image, got \(0, 4, 3\)"),
+    ):
+        with pytest.raises(ValueError, match=named):
+            rgb_png(bad)
+    for good in (np.full((4, 4, 3), 200, np.uint8), np.full((4, 4, 3), 200, np.int64), np.full((4, 4, 3), 200.0)):
+        img = np.asarray(Image.open(io.BytesIO(rgb_png(good, min_size=8))))
+        assert img.shape[:2] == (8, 8) and (img[..., :3] == 200).all()

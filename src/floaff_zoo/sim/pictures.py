@@ -120,10 +120,24 @@ def render_topdown_png(
 
 
 def rgb_png(rgb: np.ndarray, min_size: int = 128) -> bytes:
-    """PNG bytes of an RGB image [H,W,3] uint8, upscaled by an integer nearest-neighbour factor to >= min_size."""
-    rgb = np.asarray(rgb, dtype=np.uint8)
-    if rgb.ndim != 3 or rgb.shape[2] != 3:
-        raise ValueError(f"rgb must be [H,W,3], got {rgb.shape}")
+    """PNG bytes of an RGB image [H,W,3] of integers 0..255 (uint8), upscaled by an integer nearest-neighbour factor
+    to >= min_size.
+
+    Raises:
+        ValueError: another shape, an empty image, or values that are not integers 0..255 (a float image in [0, 1]
+            was cast to an all-black picture, 300 wrapped to 44, NaN became 0).
+    """
+    rgb = np.asarray(rgb)
+    if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.size == 0:
+        raise ValueError(f"rgb must be a non-empty [H,W,3] image, got {rgb.shape}")
+    if rgb.dtype != np.uint8:
+        values = rgb.astype(np.float64)
+        if not (np.isfinite(values).all() and values.min() >= 0 and values.max() <= 255 and (values % 1 == 0).all()):
+            raise ValueError(
+                f"rgb must hold integers 0..255 (uint8), got {rgb.dtype} in [{values.min()}, {values.max()}]; "
+                "scale a [0, 1] image by 255"
+            )
+        rgb = rgb.astype(np.uint8)
     k = max(1, int(math.ceil(min_size / max(1, min(rgb.shape[:2])))))
     if k > 1:
         rgb = np.repeat(np.repeat(rgb, k, axis=0), k, axis=1)
