@@ -25,6 +25,7 @@ import lightning as L
 import numpy as np
 import torch
 from lightning.pytorch.callbacks import BasePredictionWriter
+from lightning.pytorch.utilities.exceptions import MisconfigurationException
 
 from floaff_zoo.atomic import atomic_write, atomic_write_text
 from floaff_zoo.callbacks.report import jsonable
@@ -150,6 +151,12 @@ class PredictionWriter(BasePredictionWriter):
         super().__init__(write_interval="epoch")
         self.out_dir = out_dir
         self.written: dict[str, str] = {}
+
+    def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
+        """Refuse an ``out_dir`` that is a file before predicting (its ``mkdir`` failed after the whole run)."""
+        super().setup(trainer, pl_module, stage)
+        if self.out_dir is not None and Path(self.out_dir).exists() and not Path(self.out_dir).is_dir():
+            raise MisconfigurationException(f"PredictionWriter: out_dir {self.out_dir} is a file, not a folder")
 
     def write_on_epoch_end(
         self, trainer: L.Trainer, pl_module: L.LightningModule, predictions: Any, batch_indices: Any
