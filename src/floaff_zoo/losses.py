@@ -59,11 +59,18 @@ def _prepare(name: str, pred: Tensor, target: Tensor, mask: Tensor | None) -> tu
         mask = torch.ones_like(pred, dtype=torch.bool)
     if mask.dtype != torch.bool or mask.shape != pred.shape:
         raise ValueError(f"{name}: mask must be bool {tuple(pred.shape)}; got {mask.dtype} {tuple(mask.shape)}")
-    if pred.dtype in (torch.float16, torch.bfloat16):
+    if pred.dtype in (torch.float16, torch.bfloat16) or not pred.is_floating_point():
         # autocast hands over half-precision scores: a score that rounds to 1.0 has infinite log-odds (the clamp's
-        # 1 - 1e-6 is 1.0 there), and half-precision labels lose their third digit
+        # 1 - 1e-6 is 1.0 there), and half-precision labels lose their third digit; integer scores took the labels to
+        # their integer type (0.6 became 0)
         pred = pred.float()
     target = target.to(pred.dtype)
+    # a NaN label made the MSE and Dice terms NaN and silently dropped its sample from the rank term (NaN > 0 is
+    # False); predictions are not checked: a non-finite loss is how mixed precision's scaler skips a step
+    bad = mask & ~torch.isfinite(target)
+    if bool(bad.any()):
+        rows = torch.nonzero(bad.any(1)).flatten()[:8].tolist()
+        raise ValueError(f"{name}: target must be finite on valid points; {int(bad.sum())} bad values in rows {rows}")
     # where() (not multiplication) so NaN/garbage in padded entries cannot reach the value or the gradient.
     return torch.where(mask, pred, 0.0), torch.where(mask, target, 0.0), mask
 
