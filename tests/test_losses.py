@@ -242,3 +242,14 @@ def test_integer_scores_are_promoted():
     pred, target = torch.tensor([[1, 0, 0]]), torch.tensor([[0.6, 0.3, 0.0]])
     for fn in (masked_mse, soft_dice_loss, listwise_rank_loss):
         assert float(fn(pred, target, None)) == pytest.approx(float(fn(pred.float(), target, None))), fn.__name__
+
+
+def test_dice_eps_and_beta_must_be_finite_numbers():
+    """A NaN or infinite eps or beta gave a NaN loss; a text eps failed a comparison naming nothing."""
+    p, g = torch.rand(2, 3), torch.rand(2, 3)
+    for eps in (float("nan"), float("inf"), 0.0, "1"):
+        with pytest.raises(ValueError, match=r"soft_dice_loss: eps must be a finite number > 0"):
+            soft_dice_loss(p, g, None, eps=eps)  # type: ignore[arg-type]
+    for beta in (float("nan"), -1.0):
+        with pytest.raises(ValueError, match=r"affordance_loss: beta must be a finite number >= 0"):
+            affordance_loss(p, g, None, beta=beta)

@@ -97,8 +97,7 @@ def soft_dice_loss(pred: Tensor, target: Tensor, mask: Tensor | None, eps: float
     pred, target [B, M], mask bool [B, M] -> scalar. 0 for a perfect prediction; samples without a valid
     point are left out of the mean (0 if the whole batch is empty).
     """
-    if eps <= 0:
-        raise ValueError(f"soft_dice_loss: eps must be > 0, got {eps}")
+    check_number("eps", eps, strict=True, owner="soft_dice_loss")  # a NaN or inf eps made every term NaN
     p, g, m = _prepare("soft_dice_loss", pred, target, mask)
     inter = (p * g).sum(1)
     denom = (p * p).sum(1) + (g * g).sum(1)
@@ -111,6 +110,7 @@ def soft_dice_loss(pred: Tensor, target: Tensor, mask: Tensor | None, eps: float
 
 def affordance_loss(pred: Tensor, target: Tensor, mask: Tensor | None, beta: float = 1.0, eps: float = 1.0) -> Tensor:
     """The paper's L_aff = masked MSE + beta * soft Dice (eps see ``soft_dice_loss``). [B, M] x3 -> scalar."""
+    check_number("beta", beta, owner="affordance_loss")  # a NaN beta made the loss NaN
     return masked_mse(pred, target, mask) + beta * soft_dice_loss(pred, target, mask, eps=eps)
 
 
