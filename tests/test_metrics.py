@@ -266,3 +266,16 @@ def test_attributes_and_bad_input():
         m.update(torch.zeros(2, 3), torch.zeros(2, 3), torch.ones(2, 3))
     with pytest.raises(ValueError, match="index"):
         m.update(torch.zeros(2, 3), torch.zeros(2, 3), None, torch.zeros(3, dtype=torch.long))
+
+
+def test_bad_values_name_their_argument_and_chunk_size_is_an_integer():
+    """The error said "preds/target" whichever held the NaN; a chunk_size of 2.7 was truncated to 2, True taken as 1."""
+    m = FloorRMSE()
+    with pytest.raises(ValueError, match=r"FloorRMSE: target must be finite and > -1 on valid floor points; 1 bad "):
+        m.update(torch.zeros(2, 3), torch.tensor([[0.0, 0.0, 0.0], [0.0, float("inf"), 0.0]]))
+    with pytest.raises(ValueError, match=r"FloorRMSE: preds must be finite .* 4 bad values in batch rows \[0, 1\]"):
+        m.update(torch.tensor([[float("nan")] * 3, [0.0, -1.0, 0.0]]), torch.zeros(2, 3))
+    for bad in (2.7, True, 0, None):
+        with pytest.raises(ValueError, match="FloorPCC: chunk_size must be an integer >= 1"):
+            FloorPCC(reduction="official_batchwise", chunk_size=bad)  # type: ignore[arg-type]
+    assert FloorPCC(reduction="official_batchwise", chunk_size=np.int64(8)).chunk_size == 8

@@ -65,6 +65,8 @@ from torchmetrics import Metric, MetricCollection
 from torchmetrics.utilities.data import dim_zero_cat
 from torchmetrics.utilities.distributed import gather_all_tensors
 
+from floaff_zoo.checks import check_integer
+
 __all__ = [
     "FloorCIoU",
     "FloorLogMSE",
@@ -107,14 +109,15 @@ def _check_inputs(
         if (index < 0).any():
             raise ValueError(f"{name}: index must be >= 0 (position of the sample in its split)")
     p, g = preds.detach().double(), target.detach().double()
-    ok = torch.isfinite(p) & torch.isfinite(g) & (p > -1) & (g > -1)
-    bad = mask & ~ok
-    if bad.any():
-        rows = torch.nonzero(bad.any(1)).flatten()[:8].tolist()
-        raise ValueError(
-            f"{name}: preds/target must be finite and > -1 on valid floor points; "
-            f"{int(bad.sum())} bad values in batch rows {rows}"
-        )
+    bad = {arg: mask & ~(torch.isfinite(v) & (v > -1)) for arg, v in (("preds", p), ("target", g))}
+    # one sync for both; the message names the argument that holds them
+    for (arg, b), has_bad in zip(bad.items(), torch.stack([b.any() for b in bad.values()]).tolist()):
+        if has_bad:
+            rows = torch.nonzero(b.any(1)).flatten()[:8].tolist()
+            raise ValueError(
+                f"{name}: {arg} must be finite and > -1 on valid floor points; "
+                f"{int(b.sum())} bad values in batch rows {rows}"
+            )
     return p, g, mask
 
 
@@ -261,8 +264,8 @@ class _FloorMetric(Metric):
             raise ValueError(
                 f"{type(self).__name__}: reduction must be 'per_sample' or 'official_batchwise', got {reduction!r}"
             )
-        if int(chunk_size) < 1:
-            raise ValueError(f"{type(self).__name__}: chunk_size must be >= 1, got {chunk_size}")
+        # a float was truncated (2.7 -> 2), True counted as 1
+        check_integer("chunk_size", chunk_size, minimum=1, owner=type(self).__name__)
         self.reduction = reduction
         self.chunk_size = int(chunk_size)
         # Element size in samples: 1 for per_sample, chunk_size for the official convention.
