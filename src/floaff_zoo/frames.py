@@ -14,6 +14,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from floaff_zoo.floor import check_pose
+
 Pose = tuple[float, float, float]
 
 #: decimals (m, rad) to which a base pose is rounded before it is rolled out (and its rollout cached): the
@@ -34,20 +36,25 @@ def facing_pose(pose: Pose, target_world: Sequence[float]) -> Pose:
     the annotated one by 1e-6 rad, enough to flip the sixth decimal and, at a knife edge, the rollout
     (docs/background.md §5).
     """
-    x, y = round(float(pose[0]), ROLLOUT_POSE_DECIMALS), round(float(pose[1]), ROLLOUT_POSE_DECIMALS)
+    x, y, _ = check_pose(pose, "facing_pose")
+    x, y = round(x, ROLLOUT_POSE_DECIMALS), round(y, ROLLOUT_POSE_DECIMALS)
     return x, y, heading_to(x, y, target_world)
 
 
 def heading_to(x: float, y: float, target_world: Sequence[float]) -> float:
     """Yaw (rad, float64) of a base at world (x, y) facing the target's world (x, y): the annotation's and the
     evaluation's one formula."""
-    return math.atan2(float(target_world[1]) - y, float(target_world[0]) - x)
+    tx, ty = float(target_world[0]), float(target_world[1])
+    if not all(math.isfinite(v) for v in (x, y, tx, ty)):  # atan2 of a NaN is a NaN yaw, of an inf a wrong one
+        raise ValueError(f"heading_to: the base (x, y) and target_world must be finite, got {(x, y)} and {(tx, ty)}")
+    return math.atan2(ty - y, tx - x)
 
 
 def base_to_world(xyz: np.ndarray, base_pose_world: Sequence[float]) -> np.ndarray:
     """Points in the view's robot base frame -> world. xyz [K, 2+] -> same shape (z untouched)."""
+    # a NaN pose made every point NaN, an infinite yaw failed in math.cos naming nothing
+    x0, y0, yaw = check_pose(base_pose_world, "base_to_world", "base_pose_world")
     p = np.array(xyz, dtype=np.float64, copy=True)
-    x0, y0, yaw = (float(v) for v in base_pose_world)
     c, s = math.cos(yaw), math.sin(yaw)
     px, py = p[..., 0].copy(), p[..., 1].copy()
     p[..., 0] = c * px - s * py + x0
@@ -57,6 +64,7 @@ def base_to_world(xyz: np.ndarray, base_pose_world: Sequence[float]) -> np.ndarr
 
 def pose_to_world(pose: Pose, base_pose_world: Sequence[float]) -> Pose:
     """An SE(2) pose (x, y, yaw) in the base frame -> world (yaw wrapped to (-pi, pi])."""
+    pose = check_pose(pose, "pose_to_world")  # a NaN yaw came back as a NaN world yaw
     xy = base_to_world(np.array([[pose[0], pose[1]]]), base_pose_world)[0]
     yaw = math.atan2(math.sin(pose[2] + float(base_pose_world[2])), math.cos(pose[2] + float(base_pose_world[2])))
     if yaw <= -math.pi:  # atan2 gives -pi for a sine of -0.0: the interval is (-pi, pi]
@@ -66,8 +74,9 @@ def pose_to_world(pose: Pose, base_pose_world: Sequence[float]) -> Pose:
 
 def pose_to_base(pose: Pose, base_pose_world: Sequence[float]) -> Pose:
     """A world SE(2) pose (x, y, yaw) -> the base frame: the inverse of :func:`pose_to_world`."""
-    x0, y0, b = (float(v) for v in base_pose_world)
-    dx, dy = float(pose[0]) - x0, float(pose[1]) - y0
+    x0, y0, b = check_pose(base_pose_world, "pose_to_base", "base_pose_world")
+    pose = check_pose(pose, "pose_to_base")
+    dx, dy = pose[0] - x0, pose[1] - y0
     c, s = math.cos(b), math.sin(b)
     yaw = math.atan2(math.sin(pose[2] - b), math.cos(pose[2] - b))
     if yaw <= -math.pi:

@@ -301,6 +301,30 @@ def test_pose_to_base_inverts_pose_to_world(base):
         assert math.cos(back[2] - pose[2]) == pytest.approx(1.0)
 
 
+@pytest.mark.parametrize("bad", [math.nan, math.inf])
+def test_frames_refuse_a_non_finite_pose_naming_it(bad):
+    """A NaN base yaw turned every point NaN and a NaN pose came back with a NaN yaw; an infinite yaw failed in
+    math.cos as "math domain error"; a NaN target gave a NaN heading."""
+    from floaff_zoo.frames import base_to_world, facing_pose, heading_to, pose_to_base, pose_to_world
+
+    good, worse = (1.0, 2.0, 0.5), (1.0, 2.0, bad)
+    with pytest.raises(ValueError, match="base_to_world: base_pose_world must be 3 finite values"):
+        base_to_world(np.zeros((2, 3)), worse)
+    with pytest.raises(ValueError, match="pose_to_world: pose must be 3 finite values"):
+        pose_to_world(worse, good)
+    with pytest.raises(ValueError, match="base_pose_world must be 3 finite values"):
+        pose_to_world(good, worse)
+    with pytest.raises(ValueError, match="pose_to_base: pose must be 3 finite values"):
+        pose_to_base(worse, good)
+    with pytest.raises(ValueError, match="pose_to_base: base_pose_world must be 3 finite values"):
+        pose_to_base(good, worse)
+    with pytest.raises(ValueError, match="facing_pose: pose must be 3 finite values"):
+        facing_pose((bad, 0.0, 0.0), (1.0, 1.0))
+    with pytest.raises(ValueError, match="heading_to: the base .* and target_world must be finite"):
+        heading_to(0.0, 0.0, (bad, 1.0))
+    assert pose_to_world(good, (0.0, 0.0, 0.0)) == pytest.approx(good)
+
+
 def test_a_figure_without_its_kitchen_marks_the_rolled_out_pose():
     """A sim sample whose scene could not be rebuilt was drawn in the base frame with the argmax marked, under the
     title of the rolled-out pose's outcome (another pose with a top-k footprint check)."""
