@@ -1,7 +1,8 @@
 """Masked FloAff training losses on per-point maps ``pred``/``target`` [B, M] with a validity ``mask`` [B, M].
 
 Masked (padding) points never change a loss or its gradient; a batch or sample without valid points
-gives 0 (with a graph attached), never NaN.
+gives 0 (with a graph attached), never NaN. A non-finite label on a valid point raises ``ValueError`` naming
+``target``; predictions are not checked (a non-finite loss is what mixed precision's gradient scaler skips).
 
 * ``masked_mse``: the paper's eq. (mse), but the mean over all valid points of the batch (docs/method.md, "The loss").
 * ``soft_dice_loss``: the paper's eq. (sdl) per sample, averaged over samples that have valid points.
