@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import torch
 
-from floaff_zoo.contract import FloorGrid, SampleError, best_pose, collate_samples, validate_sample
+from floaff_zoo.contract import FloorGrid, SampleError, best_pose, check_batch, collate_samples, validate_sample
 from floaff_zoo.data.synthetic import make_synthetic_sample
 
 
@@ -152,3 +152,15 @@ def test_pad_truncation_warns_once(monkeypatch):
         warnings.simplefilter("error")
         contract.collate_samples(samples, num_points=100, mode="pad")  # once per process
         contract.collate_samples(samples, num_points=256, mode="pad")  # no truncation, no warning
+
+
+def test_check_batch_names_a_non_finite_label_on_a_valid_floor_point():
+    """A batch built by hand or by a user's data module: a NaN label made the loss NaN, and the rank term dropped
+    its sample without a word (NaN > 0 is False). Padding may hold anything."""
+    batch = collate_samples([validate_sample(_sample(m=6)), validate_sample(_sample(m=4))], mode="pad")
+    check_batch(batch)
+    batch["floor_label"][1, 4] = float("nan")  # padding of the shorter sample
+    check_batch(batch)
+    batch["floor_label"][1, 0] = float("inf")
+    with pytest.raises(SampleError, match=r"floor_label holds NaN/Inf values in 1 sample"):
+        check_batch(batch)

@@ -325,6 +325,8 @@ _FINITE_FIELDS = {
     "scene_xyz": "scene_mask",
     "scene_feat": "scene_mask",
     "floor_xyz": "floor_mask",
+    # a NaN label made the loss NaN and dropped its sample from the rank term silently (NaN > 0 is False)
+    "floor_label": "floor_mask",
     "target_xyz": None,
     "robot": None,
 }
@@ -343,7 +345,8 @@ def check_batch(batch: Batch) -> None:
         if not torch.is_tensor(t) or not t.is_floating_point():
             continue
         bad = ~torch.isfinite(t)
-        bad = bad.reshape(*bad.shape[: 2 if t.dim() > 2 else 1], -1).any(dim=-1)  # [B, N] per point, or [B]
+        per_point = t.dim() > 2 or mask_key is not None  # [B, N, C] or a masked [B, M] (floor_label)
+        bad = bad.reshape(*bad.shape[: 2 if per_point else 1], -1).any(dim=-1)  # [B, N] per point, or [B]
         if mask_key is not None and bad.dim() == 2 and torch.is_tensor(batch.get(mask_key)):
             bad = bad & batch[mask_key].bool()
         rows_of[key] = bad.reshape(bad.shape[0], -1).any(dim=1)  # [B]

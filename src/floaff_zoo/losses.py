@@ -1,8 +1,9 @@
 """Masked FloAff training losses on per-point maps ``pred``/``target`` [B, M] with a validity ``mask`` [B, M].
 
 Masked (padding) points never change a loss or its gradient; a batch or sample without valid points
-gives 0 (with a graph attached), never NaN. A non-finite label on a valid point raises ``ValueError`` naming
-``target``; predictions are not checked (a non-finite loss is what mixed precision's gradient scaler skips).
+gives 0 (with a graph attached), never NaN. Nothing here checks values: ``contract.check_batch``, which every
+model's step calls, refuses a non-finite label on a valid point in the host sync it already makes, and a non-finite
+prediction is left to the loss, which is what mixed precision's gradient scaler skips on.
 
 * ``masked_mse``: the paper's eq. (mse), but the mean over all valid points of the batch (docs/method.md, "The loss").
 * ``soft_dice_loss``: the paper's eq. (sdl) per sample, averaged over samples that have valid points.
@@ -66,12 +67,6 @@ def _prepare(name: str, pred: Tensor, target: Tensor, mask: Tensor | None) -> tu
         # their integer type (0.6 became 0)
         pred = pred.float()
     target = target.to(pred.dtype)
-    # a NaN label made the MSE and Dice terms NaN and silently dropped its sample from the rank term (NaN > 0 is
-    # False); predictions are not checked: a non-finite loss is how mixed precision's scaler skips a step
-    bad = mask & ~torch.isfinite(target)
-    if bool(bad.any()):
-        rows = torch.nonzero(bad.any(1)).flatten()[:8].tolist()
-        raise ValueError(f"{name}: target must be finite on valid points; {int(bad.sum())} bad values in rows {rows}")
     # where() (not multiplication) so NaN/garbage in padded entries cannot reach the value or the gradient.
     return torch.where(mask, pred, 0.0), torch.where(mask, target, 0.0), mask
 
