@@ -18,6 +18,7 @@ from floaff_zoo.models.h3dnet import H3DNetModule
 from floaff_zoo.models.n2m import N2MModule
 from floaff_zoo.models.navaff import NavAffModule
 from floaff_zoo.models.pointnet2 import PointNet2Module
+from floaff_zoo.models.prior import CanonicalPriorModule
 from floaff_zoo.models.votenet import VoteNetModule
 from tests.conftest import block_first_footprint
 
@@ -493,3 +494,19 @@ def test_loss_weights_and_sizes_that_break_later_are_refused_by_name(name, arg, 
     cls = CLASSES[cfg["class_path"].rsplit(".", 1)[1]]
     with pytest.raises(ValueError, match=rf"{cls.__name__}: {arg} must be"):
         cls(**{**cfg.get("init_args", {}), arg: value})
+
+
+@pytest.mark.parametrize(
+    ("cls", "args", "named"),
+    [
+        (PointNet2Module, {"variant": "SSG"}, "variant"),  # built the MSG sizes, silently
+        (C2FExpModule, {"yaw_source": "gtt"}, "yaw_source"),  # failed at the first batch
+        (CanonicalPriorModule, {"yaw_source": "GT"}, "yaw_source"),  # refused only at the first training batch
+        (PointNet2Module, {"feat_channels": -1}, "feat_channels"),  # sliced a channel off, then a shape error
+        (VoteNetModule, {"robot_dim": 2.0}, "robot_dim"),  # torch's TypeError named no argument
+    ],
+)
+def test_an_unknown_choice_or_a_bad_channel_count_is_refused_by_name(cls, args, named):
+    """The CLI checks a Literal's choices itself; Python, checkpoints and hub configs did not."""
+    with pytest.raises(ValueError, match=rf"{cls.__name__}: {named} must be"):
+        cls(**args)

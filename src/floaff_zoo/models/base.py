@@ -25,6 +25,7 @@ import dataclasses
 import inspect
 import os
 import random
+import types
 import typing
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -67,6 +68,32 @@ def check_layer_sizes(module: torch.nn.Module) -> None:
                 f"{type(module).__name__}: layer {name} ({type(m).__name__}) has {zero[0]} 0; every width, channel "
                 "count and mlps entry must be >= 1"
             )
+
+
+def literal_choices(hint: Any) -> tuple[Any, ...]:
+    """The values a ``Literal[...]`` hint allows (None too for ``Literal[...] | None``); () for any other hint."""
+    if typing.get_origin(hint) is Literal:
+        return typing.get_args(hint)
+    if typing.get_origin(hint) in (typing.Union, types.UnionType):
+        parts = typing.get_args(hint)
+        literals = [c for p in parts for c in literal_choices(p)]
+        return (*literals, *([None] * (type(None) in parts))) if literals else ()
+    return ()
+
+
+def check_choices(cls: type, args: Mapping[str, Any]) -> None:
+    """Refuse an init arg of ``cls`` typed ``Literal[...]`` whose value in ``args`` is not one of its choices.
+
+    The CLI validates its own input; checkpoints, hub configs and Python land here, where an unknown text passed:
+    ``variant="SSG"`` built the MSG sizes, a mistyped ``yaw_source`` failed at the first batch.
+
+    Raises:
+        ValueError: ``"{cls}: {name} must be one of [...], got {value!r}"``.
+    """
+    for name, hint in typing.get_type_hints(cls.__init__).items():
+        choices = literal_choices(hint)
+        if choices and name in args and args[name] not in choices:
+            raise ValueError(f"{cls.__name__}: {name} must be one of {list(choices)}, got {args[name]!r}")
 
 
 # ----------------------------------------------------------------------------- training recipe
@@ -249,6 +276,7 @@ class ZooModule(L.LightningModule):
                 f"{type(self).__name__}: a size argument is negative ({exc}); every width, channel count and mlps "
                 "entry must be >= 1"
             ) from exc
+        check_choices(type(self), self.hparams)  # after configure_models: its own checks word some choices first
         check_layer_sizes(self)
         self.configure_losses()
         self.configure_metrics()
@@ -603,6 +631,9 @@ class FloAffModule(ZooModule):
         train: FloAffTrainConfig = FloAffTrainConfig(),  # noqa: B008 - frozen
         weights: str | None = None,
     ) -> None:
+        # a negative count sliced channels off the end (scene_feat[..., :-1]) and failed in the first Linear
+        checks.check_integer("feat_channels", feat_channels, owner=type(self).__name__)
+        checks.check_integer("robot_dim", robot_dim, owner=type(self).__name__)
         super().__init__(train=train, weights=weights)
 
     def configure_losses(self) -> None:
