@@ -510,3 +510,14 @@ def test_an_unknown_choice_or_a_bad_channel_count_is_refused_by_name(cls, args, 
     """The CLI checks a Literal's choices itself; Python, checkpoints and hub configs did not."""
     with pytest.raises(ValueError, match=rf"{cls.__name__}: {named} must be"):
         cls(**args)
+
+
+@pytest.mark.parametrize("name", ["pointnet2_ssg", "votenet", "h3dnet", "navaff", "n2m"])
+@pytest.mark.parametrize("value", [1.0, float("nan"), 1.5, -0.1])
+def test_a_dropout_outside_zero_to_one_is_refused_by_name(name, value):
+    """1 zeroed every activation (a constant map, no error); NaN failed at the first training batch; torch's own
+    error for the rest named neither the model nor the argument."""
+    cfg = yaml.safe_load((TINY / f"{name}_tiny.yaml").read_text())["model"]
+    cls = CLASSES[cfg["class_path"].rsplit(".", 1)[1]]
+    with pytest.raises(ValueError, match=rf"{cls.__name__}: dropout must be a finite number >= 0 and < 1"):
+        cls(**{**cfg.get("init_args", {}), "dropout": value})

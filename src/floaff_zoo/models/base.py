@@ -96,6 +96,17 @@ def check_choices(cls: type, args: Mapping[str, Any]) -> None:
             raise ValueError(f"{cls.__name__}: {name} must be one of {list(choices)}, got {args[name]!r}")
 
 
+def check_dropout(value: object, owner: str) -> None:
+    """Refuse a dropout probability outside [0, 1): 1 zeroed every activation (the head learned a constant), NaN
+    passed torch's constructor and failed at the first training batch, and torch's own error named no model.
+
+    Raises:
+        ValueError: ``"{owner}: dropout must be a finite number >= 0 and < 1, got {value}"``.
+    """
+    if not (checks.is_number(value) and 0 <= value < 1):
+        raise ValueError(f"{owner}: dropout must be a finite number >= 0 and < 1, got {checks.shown(value)}")
+
+
 # ----------------------------------------------------------------------------- training recipe
 @dataclass(frozen=True)
 class TrainConfig:

@@ -7,7 +7,7 @@ from torch import Tensor
 
 from floaff_zoo.checks import check_numbers
 from floaff_zoo.contract import Batch
-from floaff_zoo.models.base import FloAffTrainConfig
+from floaff_zoo.models.base import FloAffTrainConfig, check_dropout
 from floaff_zoo.models.pointnet2 import maybe_compile
 from floaff_zoo.models.votenet import SeedVotingModule
 from floaff_zoo.nn.nets import PRIMITIVES, H3DNetNet, target_primitives
@@ -72,6 +72,7 @@ class H3DNetModule(SeedVotingModule):
 
     def configure_models(self) -> None:
         h = self.hparams
+        check_dropout(h["dropout"], type(self).__name__)
         names = ("vote_weight", "face_offset", "edge_half_width", "vote_radius")
         check_numbers({k: h[k] for k in names}, owner=type(self).__name__)
         self.net = H3DNetNet(

@@ -10,7 +10,7 @@ from torch import Tensor
 
 from floaff_zoo.checks import check_numbers
 from floaff_zoo.contract import Batch, batch_item
-from floaff_zoo.models.base import FloAffModule, FloAffTrainConfig
+from floaff_zoo.models.base import FloAffModule, FloAffTrainConfig, check_dropout
 from floaff_zoo.models.pointnet2 import floor_inputs, maybe_bf16, maybe_compile, scene_inputs
 from floaff_zoo.nn.nets import N2MNet, gmm_log_prob
 from floaff_zoo.nn.placement import footprint_collides, heading_to, occupied_cells
@@ -115,6 +115,7 @@ class N2MModule(FloAffModule):
     def configure_models(self) -> None:
         h = self.hparams
         owner = type(self).__name__
+        check_dropout(h["dropout"], owner)
         check_numbers({k: h[k] for k in ("lambda_weights", "lambda_components")}, owner=owner)
         check_numbers({k: h[k] for k in ("positive_threshold", "footprint_back")}, high=1.0, owner=owner)
         check_numbers(

@@ -7,7 +7,7 @@ from typing import Literal
 from torch import Tensor
 
 from floaff_zoo.contract import Batch
-from floaff_zoo.models.base import FloAffModule, FloAffTrainConfig
+from floaff_zoo.models.base import FloAffModule, FloAffTrainConfig, check_dropout
 from floaff_zoo.models.pointnet2 import floor_inputs, maybe_bf16, maybe_compile, scene_inputs
 from floaff_zoo.nn.nets import NAVAFF_NSAMPLES, NAVAFF_RADII, NavAffNet
 
@@ -65,6 +65,7 @@ class NavAffModule(FloAffModule):
 
     def configure_models(self) -> None:
         h = self.hparams
+        check_dropout(h["dropout"], type(self).__name__)
         self.net = NavAffNet(
             npoints=h["npoints"],
             radii=h["radii"],

@@ -9,7 +9,7 @@ from torch import Tensor
 
 from floaff_zoo.checks import check_numbers
 from floaff_zoo.contract import Batch
-from floaff_zoo.models.base import FloAffModule, FloAffTrainConfig
+from floaff_zoo.models.base import FloAffModule, FloAffTrainConfig, check_dropout
 from floaff_zoo.models.pointnet2 import maybe_compile, run_scene_floor_net
 from floaff_zoo.nn.nets import VoteNetNet
 
@@ -151,6 +151,7 @@ class VoteNetModule(SeedVotingModule):
 
     def configure_models(self) -> None:
         h = self.hparams
+        check_dropout(h["dropout"], type(self).__name__)
         check_numbers({"vote_weight": h["vote_weight"]}, owner=type(self).__name__)
         check_numbers({"vote_label_threshold": h["vote_label_threshold"]}, high=1.0, owner=type(self).__name__)
         self.net = VoteNetNet(
