@@ -521,3 +521,19 @@ def test_a_dropout_outside_zero_to_one_is_refused_by_name(name, value):
     cls = CLASSES[cfg["class_path"].rsplit(".", 1)[1]]
     with pytest.raises(ValueError, match=rf"{cls.__name__}: dropout must be a finite number >= 0 and < 1"):
         cls(**{**cfg.get("init_args", {}), "dropout": value})
+
+
+@pytest.mark.parametrize(
+    ("name", "arg", "value", "message"),
+    [
+        ("pointnet2_ssg", "mlps", [[[]], [[16, 32]], [[32, 32]]], "mlps: every scale needs >= 1 width"),  # IndexError
+        ("pointnet2_msg", "mlps", [[[8], []], [[16], [16]], [[16], [16]]], "mlps: every scale needs >= 1 width"),
+        ("navaff", "num_heads", 0, "num_heads must be >= 1"),  # ZeroDivisionError
+        ("navaff", "num_heads", -8, "num_heads must be >= 1"),  # a shape error at the first batch
+    ],
+)
+def test_an_empty_scale_or_no_attention_head_is_refused_at_construction(name, arg, value, message):
+    cfg = yaml.safe_load((TINY / f"{name}_tiny.yaml").read_text())["model"]
+    cls = CLASSES[cfg["class_path"].rsplit(".", 1)[1]]
+    with pytest.raises(ValueError, match=message):
+        cls(**{**cfg.get("init_args", {}), arg: value})

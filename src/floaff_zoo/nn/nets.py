@@ -260,6 +260,8 @@ class CrossAttention(nn.Module):
 
     def __init__(self, dim: int = 512, num_heads: int = 8, dropout: float = 0.1) -> None:
         super().__init__()
+        if num_heads < 1:  # 0 divided by zero below; a negative count failed at the first batch
+            raise ValueError(f"num_heads must be >= 1, got {num_heads}")
         if dim % num_heads:
             raise ValueError(f"dim {dim} is not divisible by num_heads {num_heads}")
         self.num_heads = num_heads

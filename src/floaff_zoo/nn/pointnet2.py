@@ -695,6 +695,8 @@ class SetAbstraction(nn.Module):
                 raise ValueError(f"nsamples: every ball needs >= 1 neighbour, got {list(nsamples)}")
             if not all(math.isfinite(r) and r > 0 for r in radii):
                 raise ValueError(f"radii: every ball radius must be a finite number > 0, got {list(radii)}")
+            if any(len(m) < 1 for m in mlps):  # an IndexError at the first batch
+                raise ValueError(f"mlps: every scale needs >= 1 width, got {[list(m) for m in mlps]}")
         self.npoint = int(npoint)
         self.radii = [float(r) for r in radii]
         self.nsamples = [int(k) for k in nsamples]
