@@ -189,3 +189,9 @@ def test_the_yaw_is_float32_under_bf16_autocast_and_reaches_the_predictions_file
         assert record["yaw"].dtype == torch.float32, type(model).__name__
         arrays, _ = gather_predictions([record])
         assert arrays["yaw"].shape == (4,)
+
+
+def test_an_empty_widths_list_is_refused_not_replaced_by_the_default():
+    """[] built the default [64, 128, 256] without a word (``head: []`` is honoured: no hidden layer)."""
+    with pytest.raises(ValueError, match=r"AxisNetModule: widths needs >= 1 width \(null for \[64, 128, 256\]\)"):
+        AxisNetModule(widths=[])

@@ -515,3 +515,18 @@ def test_a_teacher_whose_saved_sampling_is_not_numbers_is_one_line_at_the_consol
     errors = [line for line in err if line.startswith("floaff-zoo: error: ")]
     assert rc == 2 and len(errors) == 1 and f"teacher '{teacher}': local_radii must be a list" in errors[0], err
     assert not any("Traceback" in line for line in err)
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        ({"prior_residual": True, "prior_tasks": []}, r"prior_tasks needs >= 1 task"),  # read as every task
+        ({"prior_residual": True, "prior_tasks": ["CloseDrawr"]}, r"unknown task\(s\) \['CloseDrawr'\] in prior_tasks"),
+        ({"prior_tasks": ["CloseDrawer"]}, r"prior_tasks sets the prior's tasks; set prior_residual: true"),  # ignored
+    ],
+)
+def test_prior_tasks_that_would_be_ignored_or_fail_at_the_first_batch_are_refused(root, args, message):
+    """An unknown task failed at the first batch of another task ('has no grid'); [] and a list without
+    prior_residual were silently read as every task / ignored."""
+    with pytest.raises(MisconfigurationException, match=rf"CFARModule: {message}"):
+        CFARModule(**tiny_args(root), **args)

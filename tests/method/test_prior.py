@@ -228,6 +228,13 @@ def test_prior_rejects_unknown_tasks_and_missing_axisnet():
         CanonicalPriorModule(eval_yaw_source="axisnet")
 
 
+def test_an_empty_task_list_is_refused_not_read_as_every_task():
+    from lightning.pytorch.utilities.exceptions import MisconfigurationException
+
+    with pytest.raises(MisconfigurationException, match=r"CanonicalPriorModule: tasks needs >= 1 task \(null for all"):
+        CanonicalPriorModule(tasks=[])
+
+
 def test_shipped_prior_rebuilds_its_axisnet_and_weights_alone_warns():
     name = "canonical-prior.floaff-small-layouts.v1"
     full = CanonicalPriorModule.from_pretrained(name)

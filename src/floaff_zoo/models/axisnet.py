@@ -114,7 +114,10 @@ class AxisNetModule(ZooModule):
         check_number("crop_radius", h["crop_radius"], strict=True, owner=type(self).__name__)
         # negative or NaN turned the augmentation off silently
         check_numbers({k: h[k] for k in ("rot_aug_deg", "jitter_sigma")}, owner=type(self).__name__)
-        self.net = AxisNet(4, h["widths"] or [64, 128, 256], h["head"] if h["head"] is not None else [128, 64])
+        if h["widths"] is not None and not h["widths"]:  # [] built the default widths, silently
+            raise ValueError(f"{type(self).__name__}: widths needs >= 1 width (null for [64, 128, 256]), got []")
+        widths = h["widths"] if h["widths"] is not None else [64, 128, 256]
+        self.net = AxisNet(4, widths, h["head"] if h["head"] is not None else [128, 64])
 
     def configure_losses(self) -> None:
         self.criterion = torch.nn.MSELoss()

@@ -66,10 +66,11 @@ from lightning.pytorch.utilities.exceptions import MisconfigurationException
 from torch import Tensor, nn
 
 from floaff_zoo.checks import check_number, check_numbers
-from floaff_zoo.contract import TASKS, Batch
+from floaff_zoo.contract import Batch
 from floaff_zoo.hub.io import resolve_state_dict
 from floaff_zoo.hub.registry import HubError, sha256_file
 from floaff_zoo.models.base import FloAffModule, FloAffTrainConfig, sample_names
+from floaff_zoo.models.prior import prior_tasks
 from floaff_zoo.models.yaw import (
     YawSource,
     check_manhattan_radius,
@@ -240,6 +241,8 @@ class CFARModule(FloAffModule):
             raise MisconfigurationException(
                 "CFARModule: residual_scale scales the prior residual; set prior_residual: true"
             )
+        if h["prior_tasks"] is not None and not h["prior_residual"]:  # as residual_scale: ignored, silently
+            raise MisconfigurationException("CFARModule: prior_tasks sets the prior's tasks; set prior_residual: true")
         arch = {
             k: h[k]
             for k in (
@@ -267,7 +270,8 @@ class CFARModule(FloAffModule):
         )
         self.prior: CanonicalLabelGrid | None = None
         if h["prior_residual"]:
-            self.prior = CanonicalLabelGrid(list(h["prior_tasks"] or TASKS), centred=h["prior_centred"])
+            tasks = prior_tasks(h["prior_tasks"], "prior_tasks", owner)
+            self.prior = CanonicalLabelGrid(tasks, centred=h["prior_centred"])
             # the residual starts at zero: an untrained model predicts the prior
             nn.init.zeros_(self.net.out.weight)
             nn.init.zeros_(self.net.out.bias)

@@ -15,6 +15,7 @@ yaw"); ``none`` is the unrotated, target-centred average.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 from lightning.pytorch.utilities.exceptions import MisconfigurationException
@@ -33,6 +34,24 @@ from floaff_zoo.models.yaw import (
 )
 from floaff_zoo.nn.cfar import alignment_angle, rotate_z
 from floaff_zoo.nn.prior import CanonicalLabelGrid
+
+
+def prior_tasks(value: Sequence[str] | None, name: str, owner: str) -> list[str]:
+    """The tasks a prior keeps a grid for: ``value``, or every task for None.
+
+    Raises:
+        MisconfigurationException: naming ``name`` for an empty list (it meant every task, silently) or an unknown
+            task.
+    """
+    if value is None:
+        return list(TASKS)
+    tasks = list(value)
+    if not tasks:
+        raise MisconfigurationException(f"{owner}: {name} needs >= 1 task (null for all of {list(TASKS)}), got []")
+    unknown = sorted(set(tasks) - set(TASKS))
+    if unknown:
+        raise MisconfigurationException(f"{owner}: unknown task(s) {unknown} in {name}; known: {list(TASKS)}")
+    return tasks
 
 
 class CanonicalPriorModule(FloAffModule):
@@ -77,10 +96,7 @@ class CanonicalPriorModule(FloAffModule):
 
     def configure_models(self) -> None:
         h = self.hparams
-        tasks = list(h["tasks"]) if h["tasks"] else list(TASKS)
-        unknown = sorted(set(tasks) - set(TASKS))
-        if unknown:
-            raise MisconfigurationException(f"CanonicalPriorModule: unknown task(s) {unknown}; known: {list(TASKS)}")
+        tasks = prior_tasks(h["tasks"], "tasks", type(self).__name__)
         self.net = CanonicalLabelGrid(tasks, h["cell"], h["extent"], h["smooth_sigma_cells"], h["fill"], h["centred"])
         check_manhattan_radius(h["manhattan_radius"], type(self).__name__)
         self.axisnet, self.axis_radius, arch = configured_axisnet(h["axisnet"], h["axisnet_arch"], type(self).__name__)
