@@ -537,3 +537,15 @@ def test_an_empty_scale_or_no_attention_head_is_refused_at_construction(name, ar
     cls = CLASSES[cfg["class_path"].rsplit(".", 1)[1]]
     with pytest.raises(ValueError, match=message):
         cls(**{**cfg.get("init_args", {}), arg: value})
+
+
+def test_a_user_model_whose_hints_name_an_import_only_a_type_checker_sees_still_builds():
+    """The choice check reads the init's type hints: a user's model whose hint names a TYPE_CHECKING import (a
+    string the module cannot resolve) failed to build with a NameError."""
+    from floaff_zoo.models.tiny import TinyPointNetModule
+
+    class UserModel(TinyPointNetModule):
+        def __init__(self, width: int = 8, extra: "OnlyForTypeCheckers | None" = None) -> None:  # noqa: F821
+            super().__init__(width=width)
+
+    assert UserModel().hparams["width"] == 8

@@ -90,7 +90,11 @@ def check_choices(cls: type, args: Mapping[str, Any]) -> None:
     Raises:
         ValueError: ``"{cls}: {name} must be one of [...], got {value!r}"``.
     """
-    for name, hint in typing.get_type_hints(cls.__init__).items():
+    try:
+        hints = typing.get_type_hints(cls.__init__)
+    except (NameError, TypeError, AttributeError):  # a user's model whose hints name what only a type checker sees
+        return
+    for name, hint in hints.items():
         choices = literal_choices(hint)
         if choices and name in args and args[name] not in choices:
             raise ValueError(f"{cls.__name__}: {name} must be one of {list(choices)}, got {args[name]!r}")
