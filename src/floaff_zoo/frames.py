@@ -65,8 +65,9 @@ def base_to_world(xyz: np.ndarray, base_pose_world: Sequence[float]) -> np.ndarr
 def pose_to_world(pose: Pose, base_pose_world: Sequence[float]) -> Pose:
     """An SE(2) pose (x, y, yaw) in the base frame -> world (yaw wrapped to (-pi, pi])."""
     pose = check_pose(pose, "pose_to_world")  # a NaN yaw came back as a NaN world yaw
-    xy = base_to_world(np.array([[pose[0], pose[1]]]), base_pose_world)[0]
-    yaw = math.atan2(math.sin(pose[2] + float(base_pose_world[2])), math.cos(pose[2] + float(base_pose_world[2])))
+    base = check_pose(base_pose_world, "pose_to_world", "base_pose_world")
+    xy = base_to_world(np.array([[pose[0], pose[1]]]), base)[0]
+    yaw = math.atan2(math.sin(pose[2] + base[2]), math.cos(pose[2] + base[2]))
     if yaw <= -math.pi:  # atan2 gives -pi for a sine of -0.0: the interval is (-pi, pi]
         yaw += 2.0 * math.pi
     return float(xy[0]), float(xy[1]), float(yaw)

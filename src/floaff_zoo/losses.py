@@ -1,9 +1,9 @@
 """Masked FloAff training losses on per-point maps ``pred``/``target`` [B, M] with a validity ``mask`` [B, M].
 
 Masked (padding) points never change a loss or its gradient; a batch or sample without valid points
-gives 0 (with a graph attached), never NaN. Nothing here checks values: ``contract.check_batch``, which every
-model's step calls, refuses a non-finite label on a valid point in the host sync it already makes, and a non-finite
-prediction is left to the loss, which is what mixed precision's gradient scaler skips on.
+gives 0 (with a graph attached), never NaN. Nothing here checks the maps' values: ``contract.check_batch``, which
+every model's step calls, refuses a non-finite label on a valid point in the host sync it already makes, and a
+non-finite prediction gives a non-finite loss, which the step refuses naming the samples (``NonFiniteError``).
 
 * ``masked_mse``: the paper's eq. (mse), but the mean over all valid points of the batch (docs/method.md, "The loss").
 * ``soft_dice_loss``: the paper's eq. (sdl) per sample, averaged over samples that have valid points.
@@ -106,7 +106,9 @@ def soft_dice_loss(pred: Tensor, target: Tensor, mask: Tensor | None, eps: float
 
 def affordance_loss(pred: Tensor, target: Tensor, mask: Tensor | None, beta: float = 1.0, eps: float = 1.0) -> Tensor:
     """The paper's L_aff = masked MSE + beta * soft Dice (eps see ``soft_dice_loss``). [B, M] x3 -> scalar."""
-    check_number("beta", beta, owner="affordance_loss")  # a NaN beta made the loss NaN
+    # a NaN beta made the loss NaN; build_loss checks it once for training, this covers a direct call (a few Python
+    # comparisons, no host sync)
+    check_number("beta", beta, owner="affordance_loss")
     return masked_mse(pred, target, mask) + beta * soft_dice_loss(pred, target, mask, eps=eps)
 
 

@@ -312,7 +312,7 @@ def test_frames_refuse_a_non_finite_pose_naming_it(bad):
         base_to_world(np.zeros((2, 3)), worse)
     with pytest.raises(ValueError, match="pose_to_world: pose must be 3 finite values"):
         pose_to_world(worse, good)
-    with pytest.raises(ValueError, match="base_pose_world must be 3 finite values"):
+    with pytest.raises(ValueError, match="pose_to_world: base_pose_world must be 3 finite values"):
         pose_to_world(good, worse)
     with pytest.raises(ValueError, match="pose_to_base: pose must be 3 finite values"):
         pose_to_base(worse, good)

@@ -10,6 +10,7 @@ import numpy as np
 import torch
 
 from floaff_zoo.contract import Sample
+from floaff_zoo.sim.pictures import picture_path
 
 
 def _np(x: Any) -> np.ndarray:
@@ -22,20 +23,6 @@ def _mask(sample: Sample, key: str, n: int) -> np.ndarray:
     if len(mask) != n:
         raise ValueError(f"plot: {key} has {len(mask)} entries for {n} points")
     return mask
-
-
-def _check_path(path: str | Path) -> Path:
-    """The PNG to write; ValueError (before drawing) for a folder, which matplotlib turned into ``<folder>.png``
-    beside it, or a suffix matplotlib cannot write."""
-    from matplotlib.backend_bases import FigureCanvasBase
-
-    path = Path(path)
-    if path.is_dir():
-        raise ValueError(f"plot: {path} is a folder; name the picture to write, e.g. {path / 'sample.png'}")
-    formats = FigureCanvasBase.get_supported_filetypes()
-    if path.suffix and path.suffix[1:].lower() not in formats:
-        raise ValueError(f"plot: {path}: cannot write {path.suffix!r} pictures; use one of {sorted(formats)}")
-    return path
 
 
 def plot(sample: Sample, path: str | Path | None = None, scores: Any = None) -> Any:
@@ -53,7 +40,7 @@ def plot(sample: Sample, path: str | Path | None = None, scores: Any = None) -> 
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
 
-    path = _check_path(path) if path is not None else None
+    path = picture_path(path, "plot: ", "sample.png") if path is not None else None
     xyz = _np(sample["scene_xyz"])
     flag = _np(sample["scene_feat"]).reshape(xyz.shape[0], -1)[:, 0]
     smask = _mask(sample, "scene_mask", len(xyz))

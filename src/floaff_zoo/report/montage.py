@@ -120,9 +120,8 @@ def montage(
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from matplotlib.backend_bases import FigureCanvasBase
 
-    out = montage_path(out, FigureCanvasBase.get_supported_filetypes())
+    out = montage_path(out)
     reports = [_load_report(r) for r in runs]
     check_one_benchmark(reports)
     if labels is not None and len(labels) != len(runs):
@@ -159,17 +158,12 @@ def montage(
     return out
 
 
-def montage_path(out: str | Path, formats: dict[str, str]) -> Path:
-    """The file ``montage`` writes for ``--out``: ``.png`` added when it has no suffix (matplotlib would add it
-    without saying so); a folder or a suffix matplotlib cannot write (``formats``) is a MontageError."""
-    out = Path(out)
-    if out.is_dir():
-        raise MontageError(f"--out {out}: is a folder; name the picture to write, e.g. {out / 'montage.png'}")
-    if not out.suffix:
-        return out.with_suffix(".png")
-    if out.suffix[1:].lower() not in formats:
-        raise MontageError(f"--out {out}: cannot write {out.suffix!r} pictures; use one of {sorted(formats)}")
-    return out
+def montage_path(out: str | Path) -> Path:
+    """The file ``montage`` writes for ``--out`` (``sim.pictures.picture_path``: ``.png`` added when it has no suffix;
+    a folder or a suffix matplotlib cannot write is a MontageError)."""
+    from floaff_zoo.sim.pictures import picture_path
+
+    return picture_path(out, "--out ", "montage.png", MontageError)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -119,6 +119,23 @@ def render_topdown_png(
         plt.close(fig)
 
 
+def picture_path(path: str | Path, who: str, example: str = "picture.png", error: type[Exception] = ValueError) -> Path:
+    """The picture file to write for ``path``: ``.png`` added when it has no suffix (matplotlib would add it without
+    saying so); ``error`` naming ``who`` (e.g. ``"plot: "``, ``"--out "``), before anything is drawn, for a folder
+    (matplotlib wrote ``<folder>.png`` beside it) or a suffix matplotlib cannot write."""
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    path = Path(path)
+    if path.is_dir():
+        raise error(f"{who}{path}: is a folder; name the picture to write, e.g. {path / example}")
+    if not path.suffix:
+        return path.with_suffix(".png")
+    formats = FigureCanvasBase.get_supported_filetypes()
+    if path.suffix[1:].lower() not in formats:
+        raise error(f"{who}{path}: cannot write {path.suffix!r} pictures; use one of {sorted(formats)}")
+    return path
+
+
 def rgb_png(rgb: np.ndarray, min_size: int = 128) -> bytes:
     """PNG bytes of an RGB image [H,W,3] of integers 0..255 (uint8), upscaled by an integer nearest-neighbour factor
     to >= min_size.
