@@ -87,5 +87,8 @@ def add_parking_noise(parser: argparse.ArgumentParser) -> None:
 def check_parking_noise(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
     """A usage error for a sigma that is not a finite number >= 0 (a NaN passed ``< 0`` and ended in a rollout's
     error about a NaN pose, naming no option) or a negative seed."""
-    if not (0 <= args.sigma_xy < math.inf and 0 <= args.sigma_yaw_deg < math.inf) or args.seed < 0:
-        parser.error("the sigmas must be finite and >= 0 and --seed >= 0")
+    for flag, value in (("--sigma-xy", args.sigma_xy), ("--sigma-yaw-deg", args.sigma_yaw_deg)):
+        if not 0 <= value < math.inf:
+            parser.error(f"{flag} must be a finite number >= 0, got {value}")
+    if args.seed < 0:
+        parser.error(f"--seed must be >= 0, got {args.seed}")

@@ -339,7 +339,7 @@ def test_a_sigma_that_is_no_number_is_a_usage_error(script, sigma, tmp_path, cap
     out = ["--out", str(tmp_path / "l.npz")] if script == "fresh_labels" else []
     with pytest.raises(SystemExit) as done:
         load_script(script).main(["--root", str(tmp_path), *out, *sigma])
-    assert done.value.code == 2 and "the sigmas must be finite and >= 0" in capsys.readouterr().err
+    assert done.value.code == 2 and f"{sigma[0]} must be a finite number >= 0" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize(("script", "option"), [("fresh_sr", "--probs"), ("fresh_sr", "--json"),

@@ -83,9 +83,15 @@ def test_a_json_output_that_is_a_folder_is_refused_before_the_work(script, args,
 
 
 @pytest.mark.parametrize(
-    "bad", [["--sigma-xy", "nan"], ["--sigma-yaw-deg", "inf"], ["--sigma-xy", "-0.1"], ["--seed", "-1"]]
+    ("bad", "named"),
+    [
+        (["--sigma-xy", "nan"], "--sigma-xy must be a finite number >= 0, got nan"),
+        (["--sigma-yaw-deg", "inf"], "--sigma-yaw-deg must be a finite number >= 0, got inf"),
+        (["--sigma-xy", "-0.1"], "--sigma-xy must be a finite number >= 0, got -0.1"),
+        (["--seed", "-1"], "--seed must be >= 0, got -1"),
+    ],
 )
-def test_parking_noise_that_is_no_noise_is_a_usage_error(bad, capsys):
+def test_parking_noise_that_is_no_noise_is_a_usage_error(bad, named, capsys):
     import argparse
 
     p = argparse.ArgumentParser(prog="fresh")
@@ -93,4 +99,4 @@ def test_parking_noise_that_is_no_noise_is_a_usage_error(bad, capsys):
     sc.check_parking_noise(p, p.parse_args([]))  # the defaults pass
     with pytest.raises(SystemExit) as done:
         sc.check_parking_noise(p, p.parse_args(bad))
-    assert done.value.code == 2 and "the sigmas must be finite and >= 0 and --seed >= 0" in capsys.readouterr().err
+    assert done.value.code == 2 and named in capsys.readouterr().err
