@@ -196,11 +196,13 @@ def manifest_walls(root: Path) -> list[str]:
     lines = []
     for path in sorted(root.glob("*/manifest.json")):
         try:
-            line = _manifest_line(path, json.loads(path.read_text()))
+            man = json.loads(path.read_text())
         except (OSError, ValueError) as exc:
             lines.append(f"[manifest] {path}: unreadable ({exc}); skipped")
             continue
-        except (KeyError, TypeError, AttributeError) as exc:  # read last: one bad file ended the whole run
+        try:
+            line = _manifest_line(path, man)
+        except (KeyError, TypeError, AttributeError, ValueError) as exc:  # read last: one bad file ended the run
             lines.append(f"[manifest] {path}: not a generate manifest ({type(exc).__name__}: {exc}); skipped")
             continue
         if line is not None:

@@ -174,12 +174,17 @@ def test_a_malformed_manifest_is_skipped_with_a_line_not_a_traceback(tmp_path):
     import json
 
     bg = load_benchmark("bench_generate")
-    for name, man in (("a", {"status": "done", "wall_s": 3.0}), ("b", [1, 2])):
+    # c: a wall time that is text failed in its line's format, and was called "unreadable"
+    counts = {"scenes_ok": 1, "scenes_dropped": 0, "views_total": 2}
+    config = {"benchmarks": ["styles"], "max_candidates": 9}
+    texts = {"counts": counts, "config": config, "scenes": {}, "preset": "tiny", "workers": 1}
+    bad = (("a", {"status": "done", "wall_s": 3.0}), ("b", [1, 2]), ("c", {"status": "done", "wall_s": "3 s", **texts}))
+    for name, man in bad:
         (tmp_path / name).mkdir()
         (tmp_path / name / "manifest.json").write_text(json.dumps(man))
     lines = bg.manifest_walls(tmp_path)
-    assert len(lines) == 2 and all("not a generate manifest" in line and "skipped" in line for line in lines)
-    assert "KeyError" in lines[0] and "AttributeError" in lines[1]
+    assert len(lines) == 3 and all("not a generate manifest" in line and "skipped" in line for line in lines)
+    assert "KeyError" in lines[0] and "AttributeError" in lines[1] and "ValueError" in lines[2]
 
 
 @pytest.mark.parametrize(
