@@ -1059,8 +1059,8 @@ def test_rgb_png_refuses_an_image_it_would_draw_wrong():
     from floaff_zoo.sim.pictures import rgb_png
 
     for bad, named in (
-        (np.full((4, 4, 3), 0.8), r"integers 0..255 \(uint8\), got float64 in \[0.8, 0.8\]"),
-        (np.full((4, 4, 3), 300), "got int64 in"),
+        (np.full((4, 4, 3), 0.8), r"integers 0..255 \(uint8\), got float64 in \[0.8, 0.8\]; scale a \[0, 1\]"),
+        (np.full((4, 4, 3), 300), r"got int64 in \[300.0, 300.0\]$"),  # no [0, 1] hint for it
         (np.full((4, 4, 3), np.nan), "got float64 in"),
         (np.zeros((0, 4, 3), np.uint8), r"non-empty \[H,W,3\] image, got \(0, 4, 3\)"),
     ):

@@ -150,9 +150,10 @@ def rgb_png(rgb: np.ndarray, min_size: int = 128) -> bytes:
     if rgb.dtype != np.uint8:
         values = rgb.astype(np.float64)
         if not (np.isfinite(values).all() and values.min() >= 0 and values.max() <= 255 and (values % 1 == 0).all()):
+            unit = np.isfinite(values).all() and values.min() >= 0 and values.max() <= 1
             raise ValueError(
-                f"rgb must hold integers 0..255 (uint8), got {rgb.dtype} in [{values.min()}, {values.max()}]; "
-                "scale a [0, 1] image by 255"
+                f"rgb must hold integers 0..255 (uint8), got {rgb.dtype} in [{values.min()}, {values.max()}]"
+                + ("; scale a [0, 1] image by 255" if unit else "")
             )
         rgb = rgb.astype(np.uint8)
     k = max(1, int(math.ceil(min_size / max(1, min(rgb.shape[:2])))))
