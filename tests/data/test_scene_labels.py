@@ -173,3 +173,27 @@ def test_datamodule_names_a_missing_label_file(floaff_root, tmp_path):
     assert len(dm.test_dataloader().dataset)
     with pytest.raises(MisconfigurationException, match="nope.npz does not exist"):
         dm.train_dataloader()
+
+
+def test_a_label_file_written_again_misses_the_cache_as_a_pre_transform(floaff_root, tmp_path):
+    """As a pre-transform, SceneLabels keyed the sample cache by the file's path alone: a label file written again
+    under the same name (fresh_labels.py with other episodes) served the old labels from the cache, silently."""
+    data_root = floaff_root[0]
+    ids = [s["scene_id"] for s in ff.iter_scenes(data_root, benchmark="layouts")]
+    labels = tmp_path / "labels.npz"
+    for seed in (0, 1):
+        table, want = _labels_of_views(data_root, "layouts", ids, seed)
+        write_scene_labels(labels, table, {})
+        dm = FloAffKitchenDataModule(
+            root=str(data_root), benchmark="layouts", num_points=64, pre_transforms=[SceneLabels(str(labels))]
+        )
+        dm.setup("test")
+        ds = dm.datasets["test"]
+        assert len(ds)
+        for i in range(len(ds)):
+            s = ds[i]
+            assert s["floor_label"].numpy() == pytest.approx(want[s["meta"]["sample_id"]], abs=1e-6)
+    with pytest.raises(FileNotFoundError, match="gone.npz does not exist"):  # named at setup, not skipped per sample
+        FloAffKitchenDataModule(
+            root=str(data_root), benchmark="layouts", pre_transforms=[SceneLabels(str(tmp_path / "gone.npz"))]
+        ).setup("test")

@@ -15,6 +15,7 @@ was kept have none, and are used unchecked with a warning).
 
 from __future__ import annotations
 
+import hashlib
 import json
 import zipfile
 from pathlib import Path
@@ -105,6 +106,15 @@ class SceneLabels(SampleTransform):
         self.path = str(path)
         self._table: dict[str, tuple[np.ndarray, np.ndarray, float]] | None = None
         self._setting: dict[str, Any] = {}
+
+    def config(self) -> dict[str, Any]:
+        """The path and a digest of the labels it holds: as a pre-transform, a file written again under the same
+        name (``scripts/fresh_labels.py``) must miss the sample cache, whose entries hold the old labels (and skip
+        markers the old file's errors). Reads the file: a missing or bad one fails here, naming it."""
+        h = hashlib.sha256()
+        for sid, (xy, label, cell) in sorted(self.table().items()):
+            h.update(sid.encode() + b"\0" + xy.tobytes() + label.tobytes() + np.float64(cell).tobytes())
+        return {**super().config(), "labels": h.hexdigest()[:16]}
 
     def table(self) -> dict[str, tuple[np.ndarray, np.ndarray, float]]:
         """The file's {scene id: (xy, label, cell)}, read once per process."""
