@@ -72,6 +72,18 @@ def test_file_round_trip_and_bad_files(tmp_path):
     np.savez(path, setting="{}", **{"d/xy": np.array([["a", "b"]]), "d/label": np.zeros(1), "d/cell": 0.1})
     with pytest.raises(ValueError, match=f"{path}: scene d has xy of <U1"):
         read_scene_labels(path)
+    # a setting that is no JSON object (an AttributeError naming no file at the data module's check), a made_from of
+    # another shape (read as a file written before it was kept: used unchecked) and complex cells (their imaginary
+    # part dropped with a warning; a complex spacing was a TypeError)
+    good = {"d/xy": np.zeros((1, 2)), "d/label": np.zeros(1), "d/cell": 0.1}
+    for setting in ("[1, 2]", '{"made_from": ["d"]}', '{"made_from": {"d": 7}}'):
+        np.savez(path, setting=setting, **good)
+        with pytest.raises(ValueError, match=f"{path}: its 'setting' must be a JSON object"):
+            read_scene_labels(path)
+    for key, value in (("d/xy", np.zeros((1, 2)) + 1j), ("d/cell", np.complex128(0.1))):
+        np.savez(path, setting="{}", **{**good, key: value})
+        with pytest.raises(ValueError, match=f"{path}: scene d has xy"):
+            read_scene_labels(path)
 
 
 def _sample(pose, floor_xy, sid="s1"):

@@ -66,6 +66,14 @@ def read_scene_labels(path: str | Path) -> tuple[dict[str, tuple[np.ndarray, np.
         setting = json.loads(str(arrays.pop("setting")))
     except json.JSONDecodeError as exc:
         raise ValueError(f"scene labels: {path}: its 'setting' entry is not JSON ({exc})") from exc
+    made = setting.get(MADE_FROM) if isinstance(setting, dict) else None
+    if not isinstance(setting, dict) or not (made is None or (isinstance(made, dict) and _all_str(made))):
+        # a list setting failed the data module's check with an AttributeError naming no file, and a made_from of
+        # another shape read as a file written before it was kept: used unchecked
+        raise ValueError(
+            f"scene labels: {path}: its 'setting' must be a JSON object whose {MADE_FROM!r} maps scene ids to digests,"
+            f" got {str(setting)[:80]}"
+        )
     ids = sorted({k.rsplit("/", 1)[0] for k in arrays})
     out: dict[str, tuple[np.ndarray, np.ndarray, float]] = {}
     for sid in ids:
@@ -75,8 +83,8 @@ def read_scene_labels(path: str | Path) -> tuple[dict[str, tuple[np.ndarray, np.
             raise ValueError(f"scene labels: {path}: scene {sid} lacks the entry {exc}") from None
         # one finite positive spacing and at least one cell: an inf spacing put every floor point on the grid, and
         # an empty scene failed at the first sample with numpy's 'argmin of an empty sequence'
-        cell = float(cell) if cell.shape == () and np.issubdtype(cell.dtype, np.number) else float("nan")
-        if not (np.issubdtype(xy.dtype, np.number) and np.issubdtype(label.dtype, np.number)):
+        cell = float(cell) if cell.shape == () and cell.dtype.kind in "iuf" else float("nan")
+        if xy.dtype.kind not in "iuf" or label.dtype.kind not in "iuf":  # complex parts were dropped with a warning
             raise ValueError(f"scene labels: {path}: scene {sid} has xy of {xy.dtype} and label of {label.dtype}")
         if xy.ndim != 2 or xy.shape[1] != 2 or not len(xy) or label.shape != (len(xy),) or not 0 < cell < np.inf:
             raise ValueError(
@@ -89,6 +97,10 @@ def read_scene_labels(path: str | Path) -> tuple[dict[str, tuple[np.ndarray, np.
     if not out:
         raise ValueError(f"scene labels: {path} holds no scene")
     return out, setting
+
+
+def _all_str(d: dict[Any, Any]) -> bool:
+    return all(isinstance(k, str) and isinstance(v, str) for k, v in d.items())
 
 
 class SceneLabels(SampleTransform):
