@@ -322,3 +322,18 @@ def test_a_transform_names_the_file_of_a_sample_without_a_valid_point():
     for t in (ResamplePoints(16), TargetCrop(1.0)):
         with pytest.raises(SampleError, match=r"sample syn0 \(/data/styles/x/views/front_0000\.npz\) has no valid"):
             t(s, np.random.default_rng(0))
+
+
+@pytest.mark.parametrize("module", ["synthetic", "learnability"])
+@pytest.mark.parametrize("field", ["num_train", "num_val"])
+def test_a_split_larger_than_the_seed_stride_is_refused(module, field):
+    """Split k's sample i is seeded by seed + k * 100000 + i: a train (or val) split of more samples than that held
+    the first samples of the next split, so validation (or test) silently scored samples the model trained on."""
+    from floaff_zoo.data.learnability import CanonicalProbeDataModule
+
+    cls = SyntheticDataModule if module == "synthetic" else CanonicalProbeDataModule
+    with pytest.raises(ValueError, match=rf"data\.{field} must be <= 100000 .* got 100001"):
+        cls(**{field: 100_001})
+    dm = cls(**{field: 100_000})  # the edge: the splits touch, none overlaps
+    dm.setup("fit")
+    assert dm.datasets["val"].seed == dm.datasets["train"].seed + 100_000

@@ -26,6 +26,7 @@ from torch.utils.data import Dataset
 from floaff_zoo.checks import check_number
 from floaff_zoo.contract import Sample, validate_sample
 from floaff_zoo.data.base import DataConfigError, FloAffDataModule, check_size
+from floaff_zoo.data.synthetic import SPLIT_STRIDE, check_split_sizes
 from floaff_zoo.data.transforms import SampleTransform
 
 #: canonical centre (m) and width (m) of the label blob
@@ -169,6 +170,7 @@ class CanonicalProbeDataModule(FloAffDataModule):
             ("floor_per_sample", floor_per_sample, 1),
         ):  # failed in the first batch (a negative __len__, an empty floor) naming no field
             check_size(name, value, least)
+        check_split_sizes(num_train, num_val)
         # NaN / inf failed in numpy at the first sample; a negative range drew from the positive one
         check_number("data.max_yaw_deg", max_yaw_deg, error=DataConfigError)
         self.sizes = {"train": num_train, "val": num_val, "test": num_test}
@@ -179,7 +181,7 @@ class CanonicalProbeDataModule(FloAffDataModule):
         )
 
     def setup(self, stage: str | None = None) -> None:
-        offsets = {"train": 0, "val": 100_000, "test": 200_000}
+        offsets = {"train": 0, "val": SPLIT_STRIDE, "test": 2 * SPLIT_STRIDE}
         for split, n in self.sizes.items():
             self.datasets[split] = ProbeDataset(
                 n, self.seed + offsets[split], self.points_per_sample, self.floor_per_sample, self.max_yaw_deg

@@ -15,11 +15,24 @@ import numpy as np
 from torch.utils.data import Dataset
 
 from floaff_zoo.contract import TASKS, Sample, validate_sample
-from floaff_zoo.data.base import FloAffDataModule, check_size
+from floaff_zoo.data.base import DataConfigError, FloAffDataModule, check_size
 from floaff_zoo.data.readers import check_names
 from floaff_zoo.data.transforms import SampleTransform
 
 ROBOTS = np.array([[0.85, 1.03], [0.7, 0.33], [0.78, 1.03]], dtype=np.float32)
+#: split k's sample i is seeded by seed + k * SPLIT_STRIDE + i (train, val, test)
+SPLIT_STRIDE = 100_000
+
+
+def check_split_sizes(num_train: int, num_val: int) -> None:
+    """DataConfigError when the train or val split holds more than ``SPLIT_STRIDE`` samples: the next split's seeds
+    would be some of its own (validation scoring training samples, silently)."""
+    for name, value in (("num_train", num_train), ("num_val", num_val)):
+        if value > SPLIT_STRIDE:
+            raise DataConfigError(
+                f"data.{name} must be <= {SPLIT_STRIDE} (the next split's seeds start {SPLIT_STRIDE} further), "
+                f"got {value}"
+            )
 
 
 def make_synthetic_sample(seed: int, num_points: int = 512, floor_cells: int = 16, task: str = "CloseDrawer") -> Sample:
@@ -154,13 +167,14 @@ class SyntheticDataModule(FloAffDataModule):
             ("floor_cells", floor_cells, 1),
         ):  # numpy's messages at the sanity check named no field
             check_size(name, value, least)
+        check_split_sizes(num_train, num_val)
         self.sizes = {"train": num_train, "val": num_val, "test": num_test}
         self.points_per_sample = points_per_sample
         self.floor_cells = floor_cells
         self.tasks = check_names("tasks", ["CloseDrawer"] if tasks is None else list(tasks), TASKS)
 
     def setup(self, stage: str | None = None) -> None:
-        offsets = {"train": 0, "val": 100_000, "test": 200_000}
+        offsets = {"train": 0, "val": SPLIT_STRIDE, "test": 2 * SPLIT_STRIDE}
         for split, n in self.sizes.items():
             self.datasets[split] = SyntheticDataset(
                 n, self.seed + offsets[split], self.points_per_sample, self.floor_cells, self.tasks
