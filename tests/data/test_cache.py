@@ -157,3 +157,36 @@ def test_a_parsing_fix_reaches_samples_cached_before_it(moma_root, monkeypatch):
     assert kept() == (False, {"corrupt_ply": 1})  # the same code version reads its own markers back
     monkeypatch.undo()  # the fixed reader, the installed code's digest
     assert kept() == (True, {})
+
+
+#: package modules a parsing module may import without being one: they never touch a sample's tensors or its skip
+NOT_PARSING = {
+    "floaff_zoo.names": "constant names",
+    "floaff_zoo.atomic": "writes files",
+    "floaff_zoo.checks": "constructor argument checks",
+    "floaff_zoo.data.base": "the DataModule's plumbing",
+    "floaff_zoo.data.scene_labels": "a pre-transform: its class's file is in the cache key (code_digest)",
+    "floaff_zoo.sim": "the package, for fileformat",
+    "floaff_zoo.sim.presets": "a hint's preset names",
+}
+
+
+def test_every_package_module_the_parsers_call_is_in_the_cache_key():
+    """floor (the readers' pose check) and frames (SceneLabels' frame change) were not hashed: an edit to either
+    kept serving samples and skip markers cached before it."""
+    import ast
+    import importlib
+    import inspect
+
+    modules = [*cache_mod.PARSER_MODULES, "floaff_zoo.data.scene_labels"]
+    missing = set()
+    for name in modules:
+        for node in ast.walk(ast.parse(inspect.getsource(importlib.import_module(name)))):
+            if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("floaff_zoo"):
+                found = {node.module} if node.module != "floaff_zoo" else {f"floaff_zoo.{a.name}" for a in node.names}
+            elif isinstance(node, ast.Import):
+                found = {a.name for a in node.names if a.name.startswith("floaff_zoo")}
+            else:
+                continue
+            missing |= found - set(cache_mod.PARSER_MODULES) - set(NOT_PARSING)
+    assert not missing, f"imported by the parsing code but not in PARSER_MODULES: {sorted(missing)}"

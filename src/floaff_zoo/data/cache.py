@@ -57,6 +57,10 @@ PARSER_MODULES = (
     "floaff_zoo.data.floaff_kitchen",
     "floaff_zoo.data.moma_kitchen",
     "floaff_zoo.sim.fileformat",
+    # what those and the package's pre-transforms call on a sample: the readers' pose check (which samples are
+    # skipped, and marked so) and SceneLabels' frame change (the labels cached)
+    "floaff_zoo.floor",
+    "floaff_zoo.frames",
 )
 
 
