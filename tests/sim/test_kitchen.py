@@ -137,3 +137,33 @@ def test_no_lazy_name_is_also_a_submodule():
 
     submodules = {m.name for m in pkgutil.iter_modules(sim.__path__)}
     assert not submodules & set(sim._LAZY)
+
+
+@pytest.mark.parametrize(
+    "field,value",
+    [("seed", 1.7), ("seed", True), ("layout_id", 1.5), ("style_id", False), ("seed", float("nan")), ("seed", None)],
+)
+def test_spec_refuses_a_value_that_is_not_a_whole_number(field, value):
+    """The constructor cut seed 1.7 to seed 1's kitchen under the id ``s1.7`` and built layout 1 for True (or 1.5)
+    without a word; a NaN failed inside int() naming no field."""
+    d = {**SceneSpec(2, 5, 17, "CloseDrawer").to_dict(), field: value}
+    with pytest.raises(ValueError, match=f"SceneSpec: {field} must be a whole number"):
+        SceneSpec(**d)
+
+
+def test_spec_stores_whole_numbers_as_ints():
+    """seed 3.0 named its scene ``s3.0`` (another id, another cache key) for seed 3's kitchen; a text seed made a spec
+    that was not equal to (nor hashed as) the int one."""
+    s = SceneSpec(2, 5, 3, "CloseDrawer")
+    for other in (SceneSpec(2.0, np.int64(5), 3.0, "CloseDrawer"), SceneSpec("2", 5, "3", "CloseDrawer")):
+        assert other == s and hash(other) == hash(s) and other.scene_id == "L2_S5_s3_CloseDrawer"
+        assert all(type(v) is int for v in (other.layout_id, other.style_id, other.seed))
+
+
+def test_spec_from_dict_and_release_refuse_what_is_not_a_spec():
+    from floaff_zoo.sim.kitchen import release_scene
+
+    with pytest.raises(ValueError, match="expects a mapping"):
+        SceneSpec.from_dict(None)
+    with pytest.raises(TypeError, match="release_scene expects a SceneSpec, got dict"):
+        release_scene(SceneSpec(0, 0, 0, "CloseDrawer").to_dict())

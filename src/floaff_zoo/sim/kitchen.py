@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 import threading
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -72,13 +73,21 @@ class SceneSpec:
     task: str
 
     def __post_init__(self) -> None:
-        if int(self.layout_id) not in LAYOUTS:
+        # stored as Python ints: a seed 1.7 built seed 1's kitchen under the id ``s1.7``, True was layout 1, and 3.0
+        # named its scene ``s3.0`` (another id, another cache key) for seed 3's kitchen
+        for name in ("layout_id", "style_id", "seed"):
+            value = getattr(self, name)
+            whole = _whole_number(value)
+            if whole is None:
+                raise ValueError(f"SceneSpec: {name} must be a whole number, got {value!r}")
+            object.__setattr__(self, name, whole)
+        if self.layout_id not in LAYOUTS:
             raise ValueError(f"unknown layout_id {self.layout_id!r}; valid ids: {sorted(LAYOUTS)} ({LAYOUTS})")
-        if int(self.style_id) not in STYLES:
+        if self.style_id not in STYLES:
             raise ValueError(f"unknown style_id {self.style_id!r}; valid ids: {sorted(STYLES)} ({STYLES})")
         if self.task not in TASKS:
             raise ValueError(f"unknown task {self.task!r}; valid tasks: {list(TASKS)}")
-        if int(self.seed) < 0:
+        if self.seed < 0:
             raise ValueError(f"seed must be >= 0, got {self.seed}")
 
     @property
@@ -95,6 +104,8 @@ class SceneSpec:
 
     @classmethod
     def from_dict(cls, d: dict) -> "SceneSpec":
+        if not isinstance(d, Mapping):  # None failed with "argument of type 'NoneType' is not iterable"
+            raise ValueError(f"SceneSpec.from_dict expects a mapping of the spec's fields, got {d!r}")
         missing = [k for k in ("layout_id", "style_id", "seed", "task") if k not in d]
         if missing:
             raise ValueError(f"SceneSpec.from_dict: missing field(s) {missing} in {d!r}")
@@ -105,12 +116,21 @@ def _spec_int(d: dict, key: str) -> int:
     """``d[key]`` as an int; a value that is not a whole number (``int`` cut 17.5 to seed 17's kitchen and read ``true``
     as 1) or not a number at all is a ValueError naming the field and the record."""
     v = d[key]
-    try:
-        i = int(v)
-    except (TypeError, ValueError, OverflowError):
-        i = None
-    if i is None or isinstance(v, bool) or (not isinstance(v, str) and i != v):
+    i = _whole_number(v)
+    if i is None:
         raise ValueError(f"SceneSpec.from_dict: {key} must be a whole number, got {v!r} in {d!r}")
+    return i
+
+
+def _whole_number(v: object) -> int | None:
+    """``v`` as an int when it is a whole number (an int, a float such as 17.0, a numeric text), else None (a bool,
+    17.5, NaN, anything ``int`` refuses)."""
+    try:
+        i = int(v)  # type: ignore[call-overload]
+    except (TypeError, ValueError, OverflowError):
+        return None
+    if isinstance(v, bool) or (not isinstance(v, str) and i != v):
+        return None
     return i
 
 
@@ -1093,6 +1113,8 @@ def kitchen_key(spec: SceneSpec) -> tuple[int, int, int]:
 
 def release_scene(spec: SceneSpec) -> None:
     """Drop the compiled model of ``spec``'s kitchen from the per-process cache (its built scenes keep theirs)."""
+    if not isinstance(spec, SceneSpec):  # a dict or a scene id failed with an AttributeError on ``layout_id``
+        raise TypeError(f"release_scene expects a SceneSpec, got {type(spec).__name__}")
     with _LOCK:
         _CACHE.pop(kitchen_key(spec), None)
 
