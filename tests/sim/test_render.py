@@ -136,3 +136,49 @@ def test_closing_one_renderer_leaves_another_working(scene):
     other.close()
     after = r.render(d, "cam").depth
     np.testing.assert_allclose(after, before, atol=1e-6)
+
+
+@pytest.mark.parametrize("fovy", [float("nan"), 0.0, 180.0, -60.0, float("inf")])
+def test_a_field_of_view_outside_0_180_is_refused(fovy):
+    """A NaN fovy back-projected every pixel to NaN and reported each one valid; 0 or 180 made the points infinite,
+    a negative one mirrored the image, all without a word."""
+    with pytest.raises(ValueError, match="fovy_deg must be"):
+        render.backproject(np.ones((4, 4)), fovy, np.zeros(3), np.eye(3))
+    with pytest.raises(ValueError, match="fovy_deg must be"):
+        render.camera_intrinsics(4, 4, fovy)
+
+
+def test_a_nan_depth_max_is_refused():
+    """It masked every point: an empty cloud without a word."""
+    with pytest.raises(ValueError, match="depth_max must be"):
+        render.backproject(np.ones((4, 4)), 60.0, np.zeros(3), np.eye(3), float("nan"))
+
+
+@pytest.mark.parametrize(
+    "kwargs,match",
+    [
+        (dict(height=float("nan")), "height must be an integer"),  # failed inside int() naming nothing
+        (dict(height=1.5), "height must be an integer"),  # rendered one pixel row
+        (dict(width=True), "width must be an integer"),
+        (dict(hide_groups=(7,)), "hide_groups must be an integer >= 0 and <= 5"),  # bare IndexError
+        (dict(hide_groups=(-1,)), "hide_groups must be an integer >= 0"),  # silently hid group 5
+    ],
+)
+def test_renderer_refuses_a_bad_size_or_group(scene, kwargs, match):
+    m = scene[0]
+    with pytest.raises(ValueError, match=match):
+        render.Renderer(m, **{"height": 16, "width": 16, **kwargs})
+
+
+def test_render_refuses_a_bad_camera_index_or_hidden_geom(scene):
+    """Camera 0.5 (or True) rendered camera 0; hide_geoms -1 hid the last geom and 1.7 geom 1, without a word; one
+    past the end failed with a bare IndexError."""
+    m, d, r = scene
+    with pytest.raises(ValueError, match="camera must be an integer"):
+        r.render(d, 0.5)
+    with pytest.raises(ValueError, match="camera must be an integer"):
+        r.render(d, True)
+    for bad in ([-1], [1.7], [m.ngeom]):
+        with pytest.raises(ValueError, match="hide_geoms must be geom ids"):
+            r.render(d, "cam", hide_geoms=bad)
+    assert r.render(d, "cam", hide_geoms=[]).rgb.shape == (64, 64, 3)

@@ -23,6 +23,8 @@ from dataclasses import dataclass  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+from floaff_zoo.checks import check_integer, check_number, is_number  # noqa: E402
+
 try:
     import mujoco  # noqa: E402
 except (ImportError, AttributeError) as _exc:  # e.g. MUJOCO_GL=osmesa without libosmesa6: PyOpenGL finds no GL
@@ -151,7 +153,12 @@ def near_clip(model: mujoco.MjModel) -> float:
 
 
 def camera_intrinsics(height: int, width: int, fovy_deg: float) -> tuple[float, float, float]:
-    """Pinhole intrinsics (f, cx, cy) in pixels for square pixels: f = (H/2)/tan(fovy/2), principal point at centre."""
+    """Pinhole intrinsics (f, cx, cy) in pixels for square pixels: f = (H/2)/tan(fovy/2), principal point at centre.
+
+    A fovy outside (0, 180) degrees raises ``ValueError`` (a NaN one made every back-projected point NaN, and each
+    was still reported valid; 0 or 180 made them infinite, a negative one mirrored the image)."""
+    if not (is_number(fovy_deg) and 0.0 < fovy_deg < 180.0):
+        raise ValueError(f"camera_intrinsics: fovy_deg must be a finite number > 0 and < 180, got {fovy_deg}")
     f = (height / 2.0) / np.tan(np.deg2rad(fovy_deg) / 2.0)
     return float(f), width / 2.0, height / 2.0
 
@@ -169,6 +176,8 @@ def backproject(
     Returns points [H*W,3] float64 in world (row-major pixel order) and valid [H*W] bool
     (finite, 0 < d < depth_max: the far plane of background pixels is masked).
     """
+    # a NaN depth_max masked every point without a word
+    check_number("depth_max", depth_max, strict=True, owner="backproject")
     depth = np.asarray(depth, dtype=np.float64)
     if depth.ndim != 2:
         raise ValueError(f"depth must be [H,W], got shape {depth.shape}")
@@ -201,8 +210,12 @@ class Renderer:
         width: int = 128,
         hide_groups: tuple[int, ...] = (0,),
     ) -> None:
-        if height <= 0 or width <= 0:
-            raise ValueError(f"image size must be positive, got {height}x{width}")
+        # a NaN size failed inside int() naming nothing, 1.5 (or True) rendered a 1-pixel image
+        check_integer("height", height, 1, owner="Renderer")
+        check_integer("width", width, 1, owner="Renderer")
+        groups = tuple(hide_groups)
+        for g in groups:  # group 7 failed with a bare IndexError, -1 silently hid group 5 instead
+            check_integer("hide_groups", g, 0, mujoco.mjNGROUP - 1, owner="Renderer")
         self.model = model
         self.height = int(height)
         self.width = int(width)
@@ -223,7 +236,7 @@ class Renderer:
         mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._mjr)
         self._scene = mujoco.MjvScene(model, maxgeom=max(1000, 2 * model.ngeom + 100))
         self._opt = mujoco.MjvOption()
-        for g in tuple(hide_groups) + (HIDDEN_GROUP,):
+        for g in groups + (HIDDEN_GROUP,):
             self._opt.geomgroup[int(g)] = 0
         # sites (robosuite's grip-site cylinders, frames) are markers, not scene surfaces
         for g in range(len(self._opt.sitegroup)):
@@ -243,6 +256,7 @@ class Renderer:
             if cid < 0:
                 raise KeyError(f"camera {camera!r} not found in the model")
             return int(cid)
+        check_integer("camera", camera, owner="Renderer.render")  # 0.5 or True rendered camera 0 without a word
         cid = int(camera)
         if not 0 <= cid < self.model.ncam:
             raise KeyError(f"camera index {cid} out of range (ncam={self.model.ncam})")
@@ -281,7 +295,7 @@ class Renderer:
             raise RuntimeError("Renderer is closed")
         cid = self._camera_id(camera)
         self._gl.make_current()
-        hide = None if hide_geoms is None else np.asarray(hide_geoms, dtype=np.int64).reshape(-1)
+        hide = None if hide_geoms is None else self._geom_ids(hide_geoms)
         saved = None
         if hide is not None and hide.size:
             saved = self.model.geom_group[hide].copy()
@@ -291,6 +305,15 @@ class Renderer:
         finally:
             if saved is not None:
                 self.model.geom_group[hide] = saved
+
+    def _geom_ids(self, ids: np.ndarray) -> np.ndarray:
+        """``hide_geoms`` [K] as int64 geom ids; one that is not a geom id of the model raises ``ValueError`` (-1 hid
+        the last geom, 1.7 geom 1, one past the end failed with a bare IndexError)."""
+        a = np.asarray(ids).reshape(-1)
+        ok = a.dtype.kind in "iu" or (a.size == 0 and a.dtype.kind == "f")
+        if not ok or ((a < 0) | (a >= self.model.ngeom)).any():
+            raise ValueError(f"Renderer.render: hide_geoms must be geom ids in [0, {self.model.ngeom}), got {a[:8]}")
+        return a.astype(np.int64)
 
     def _render(self, data: mujoco.MjData, cid: int, segmentation: bool) -> RenderResult:
         self._update(data, cid, segment=False)
