@@ -263,3 +263,49 @@ def test_camera_clearance_is_the_exact_signed_distance():
     assert inside > 10
     with pytest.raises(ValueError, match="CAPSULE"):
         views._signed_distances(m, d, np.arange(4), np.zeros(3))
+
+
+@pytest.mark.parametrize(
+    "field,value",
+    [
+        ("depth_max", float("nan")),  # every point masked: no view
+        ("front_rx", float("nan")),  # numpy's "high - low range exceeds valid bounds"
+        ("side_ry", -0.5),
+        ("max_dist", 0.0),
+        ("max_points", -1),  # numpy's "negative dimensions are not allowed" mid-render
+        ("max_tries_per_view", -1),  # no proposal: no view, without a word
+        ("max_tries_per_view", 1.5),  # bare TypeError
+        ("image_size", 0),
+        ("min_target_pixels", -5),
+    ],
+)
+def test_view_config_refuses_a_bad_value_naming_it(field, value):
+    with pytest.raises(ValueError, match=f"ViewConfig: {field} must be"):
+        views.ViewConfig(**{field: value})
+
+
+def test_view_functions_refuse_a_bad_pose_count_or_target(fake):
+    """A NaN n sampled no view and 1.5 failed with a bare TypeError; a [2] pose failed with an IndexError or an
+    unpacking error; a NaN pose or target was written into every array of the stored view."""
+    scene, r = fake
+    rng = np.random.default_rng(0)
+    for n in (float("nan"), 1.5, True, -1):
+        with pytest.raises(ValueError, match="sample_view_poses: n must be an integer >= 0"):
+            views.sample_view_poses(scene, r, "front", n, CFG, rng)
+    with pytest.raises(ValueError, match="render_view: base_pose must be 3 finite values"):
+        views.render_view(scene, r, np.array([0.0, 0.0]), CFG, rng)
+    with pytest.raises(ValueError, match="view_pose_clear: pose must be 3 finite values"):
+        views.view_pose_clear(scene, np.array([0.0, 0.0]))
+    obs = views.ViewObservation(
+        np.zeros((1, 3), np.float32), np.zeros((1, 4), np.float32), np.zeros((2, 2, 3), np.uint8), np.zeros((2, 2)), 0
+    )
+    good = dict(base_pose=np.zeros(3), target_pos=np.ones(3), target_yaw=0.5, grid_xy=np.zeros((2, 2)), label=[0, 1])
+    assert views.make_view_sample(obs, **good)["target_yaw"] == np.float32(0.5)
+    for field, bad, match in (
+        ("base_pose", np.array([np.nan, 0.0, 0.0]), "base_pose must be 3 finite values"),
+        ("target_pos", np.array([0.0, np.inf, 0.0]), "target_pos must be 3 finite values"),
+        ("target_pos", np.zeros(2), "target_pos must be 3 finite values"),
+        ("target_yaw", float("nan"), "target_yaw must be a finite number"),
+    ):
+        with pytest.raises(ValueError, match=f"make_view_sample: {match}"):
+            views.make_view_sample(obs, **{**good, field: bad})

@@ -25,6 +25,8 @@ from typing import Any, Literal
 
 import numpy as np
 
+from floaff_zoo.checks import check_integer, check_number, check_numbers
+from floaff_zoo.floor import check_pose
 from floaff_zoo.sim.render import Renderer, backproject, near_clip
 
 __all__ = [
@@ -74,6 +76,16 @@ class ViewConfig:
     min_target_pixels: int = 4
     max_tries_per_view: int = 60
     hide_robot: bool = True
+
+    def __post_init__(self) -> None:
+        # as GenPreset checks its copies: a NaN region or depth_max, or a negative max_tries_per_view, sampled no view
+        # without a word; a negative max_points failed mid-render with numpy's "negative dimensions"
+        check_numbers({k: getattr(self, k) for k in ("front_rx", "front_ry", "side_rx", "side_ry")}, owner="ViewConfig")
+        check_number("max_dist", self.max_dist, strict=True, owner="ViewConfig")
+        check_number("depth_max", self.depth_max, strict=True, owner="ViewConfig")
+        for name in ("image_size", "max_points", "max_tries_per_view"):
+            check_integer(name, getattr(self, name), 1, owner="ViewConfig")
+        check_integer("min_target_pixels", self.min_target_pixels, 0, owner="ViewConfig")
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -240,7 +252,7 @@ def view_pose_clear(scene: Any, pose: np.ndarray) -> bool:
     (:func:`camera_clearance` >= :func:`floaff_zoo.sim.render.near_clip`; nearer, the render cuts the surface away or
     looks through it from inside). Leaves the robot's base at the pose when the wall test passes.
     """
-    x, y, yaw = (float(v) for v in pose)
+    x, y, yaw = check_pose(pose, "view_pose_clear")
     if scene.wall_between(x, y, np.asarray(scene.target.pos, dtype=np.float64)[:2]):
         return False
     scene.set_base_pose(x, y, yaw)
@@ -264,7 +276,7 @@ def render_view(
     """
     import mujoco  # local: render.py already chose the GL back end
 
-    scene.set_base_pose(float(base_pose[0]), float(base_pose[1]), float(base_pose[2]))
+    scene.set_base_pose(*check_pose(base_pose, "render_view", "base_pose"))  # a [2] pose failed with an IndexError
     mujoco.mj_forward(scene.model, scene.data)
     ng = scene.model.ngeom
     is_scene = np.zeros(ng + 1, dtype=bool)  # last slot: sentinel for "no geom" (-1)
@@ -308,6 +320,7 @@ def sample_view_poses(
     """
     if kind not in ("front", "side"):
         raise ValueError(f"view kind must be 'front' or 'side', got {kind!r}")
+    check_integer("n", n, 0, owner="sample_view_poses")  # a NaN n sampled no view without a word, 1.5 a bare TypeError
     in_region = in_front_region if kind == "front" else in_side_region
     tpos = np.asarray(scene.target.pos, dtype=np.float64)
     tyaw = float(scene.target.yaw)
@@ -354,6 +367,12 @@ def make_view_sample(
     Format v2 fields, stored when given: floor_known [M] bool (label from a rollout or a filter, not interpolated),
     floor_index [M] int (flat index of each cell in the scene's candidate grid).
     """
+    # a NaN pose or target was written into every base-frame array of the view without a word
+    check_pose(base_pose, "make_view_sample", "base_pose")
+    target = np.asarray(target_pos, dtype=np.float64).reshape(-1)
+    if target.shape != (3,) or not np.isfinite(target).all():
+        raise ValueError(f"make_view_sample: target_pos must be 3 finite values (x, y, z), got {target_pos!r}")
+    check_number("target_yaw", target_yaw, -math.inf, owner="make_view_sample")
     grid_xy = np.asarray(grid_xy, dtype=np.float64).reshape(-1, 2)
     floor = np.concatenate([grid_xy, np.zeros((len(grid_xy), 1))], axis=1)
     out = {
