@@ -156,3 +156,37 @@ def test_explicit_task_seeds_are_part_of_the_cached_setting(tmp_path, monkeypatc
     repeat.write_probs(tmp_path / "named.npz", named, {"a": np.array([0.0, 0.25, 1.0])})
     got = repeat.scene_probabilities(SCENES, named, tmp_path / "named.npz", seeds=[3, 3])
     assert got["a"].tolist() == [0.0, 0.25, 1.0] and drawn == [[1, 1]]
+
+
+@pytest.mark.parametrize(
+    "kwargs,match",
+    [
+        (dict(sigma_xy=float("nan")), "sigma_xy must be a finite number >= 0"),  # every pose NaN
+        (dict(sigma_yaw=-0.1), "sigma_yaw must be a finite number >= 0"),
+        (dict(seed=1.5), "seed must be an integer >= 0"),  # seed 1's noise without a word
+        (dict(episode=0.5), "episode must be an integer >= 0"),  # episode 0's noise
+        (dict(yaw=np.zeros(2)), r"xy must be \[M, 2\] and yaw \[M\]"),  # numpy's concatenate error
+    ],
+)
+def test_perturbed_poses_refuses_a_bad_noise_setting(kwargs, match):
+    args = dict(xy=np.zeros((3, 2)), yaw=np.zeros(3), episode=0, sigma_xy=0.03, sigma_yaw=0.05, seed=7)
+    with pytest.raises(ValueError, match=f"perturbed_poses: {match}"):
+        repeat.perturbed_poses(**{**args, **kwargs})
+
+
+def test_fresh_probability_refuses_a_bad_count_seed_or_outcome():
+    """episodes 2.5 failed in range() and True counted as one episode; a noise seed 1.5 drew seed 1's noise and a task
+    seed 1.5 went to the runner; a runner's outcome 2.0 or NaN became a probability above 1 or NaN."""
+    run = lambda seed, jobs: [True] * len(jobs)  # noqa: E731
+    scene = _scene("a", "2.0.0")
+    for episodes in (2.5, True):
+        with pytest.raises(ValueError, match="fresh_probability: episodes must be an integer >= 0"):
+            repeat.fresh_probability(scene, run, episodes, 0.0, 0.0, 0)
+    with pytest.raises(ValueError, match="parking-noise seed must be an integer, got 1.5"):
+        repeat.fresh_probability(scene, run, 1, 0.0, 0.0, 1.5)
+    with pytest.raises(ValueError, match="task seed must be an integer >= 0, got 1.5"):
+        repeat.fresh_probability(scene, run, 1, 0.0, 0.0, 0, seeds=[3, 1.5])
+    for outcome in (2.0, float("nan")):
+        with pytest.raises(RuntimeError, match="scene a, episode 0: the runner gave outcomes that are not successes"):
+            repeat.fresh_probability(scene, lambda seed, jobs, o=outcome: [o] * len(jobs), 1, 0.0, 0.0, 0)
+    assert repeat.fresh_probability(scene, lambda s, jobs: [np.True_] * len(jobs), 1, 0.0, 0.0, 0).tolist() == [1, 0]

@@ -17,6 +17,7 @@ Probabilities are cached in ``.npz`` files (:func:`read_probs` / :func:`write_pr
 from __future__ import annotations
 
 import json
+import numbers
 import zipfile
 import zlib
 from collections.abc import Callable, Sequence
@@ -25,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from floaff_zoo.atomic import atomic_write
+from floaff_zoo.checks import check_integer, check_number
 from floaff_zoo.frames import ROLLOUT_POSE_DECIMALS
 from floaff_zoo.sim.fileformat import labels_version
 
@@ -48,10 +50,20 @@ Runner = Callable[[int, list[tuple[object, tuple[float, float, float]]]], list[b
 def perturbed_poses(
     xy: np.ndarray, yaw: np.ndarray, episode: int, sigma_xy: float, sigma_yaw: float, seed: int
 ) -> np.ndarray:
-    """Candidate poses with parking noise for one episode: xy [M, 2], yaw [M] -> [M, 3] (x, y, yaw)."""
+    """Candidate poses with parking noise for one episode: xy [M, 2], yaw [M] -> [M, 3] (x, y, yaw).
+
+    A NaN or negative sigma, or a seed or episode that is not an integer >= 0, raises ``ValueError``: a NaN sigma made
+    every pose NaN, a seed 1.5 (or episode 0.5) drew seed 1's (episode 0's) noise without a word."""
+    check_number("sigma_xy", sigma_xy, owner="perturbed_poses")
+    check_number("sigma_yaw", sigma_yaw, owner="perturbed_poses")
+    check_integer("seed", seed, owner="perturbed_poses")
+    check_integer("episode", episode, owner="perturbed_poses")
+    xy, yaw = np.asarray(xy, float), np.asarray(yaw, float)
+    if xy.ndim != 2 or xy.shape[1] != 2 or yaw.shape != (len(xy),):  # numpy's concatenate error named neither
+        raise ValueError(f"perturbed_poses: xy must be [M, 2] and yaw [M], got {xy.shape} and {yaw.shape}")
     rng = np.random.default_rng([int(seed), int(episode)])
     noise = rng.normal(size=(len(xy), 3)) * np.array([sigma_xy, sigma_xy, sigma_yaw])
-    return np.concatenate([np.asarray(xy, float), np.asarray(yaw, float)[:, None]], axis=1) + noise
+    return np.concatenate([xy, yaw[:, None]], axis=1) + noise
 
 
 def fresh_probability(
@@ -70,10 +82,15 @@ def fresh_probability(
     xy, yaw = np.asarray(cand["xy"], float), np.asarray(cand["yaw"], float)
     valid = np.flatnonzero(np.asarray(cand["valid"], bool))
     spec = SceneSpec.from_dict(scene["spec"])
+    check_integer("episodes", episodes, owner="fresh_probability")  # 2.5 failed in range(), True was 1 episode
     task_seeds = list(seeds) or [FRESH_SEED0 + k for k in range(episodes)]
     if not task_seeds:  # 0 / 0 made every probability NaN, and the cache kept them
         raise ValueError(f"fresh_probability: episodes must be >= 1 (or seeds given), got {episodes}")
-    if int(seed) < 0:  # numpy refused the negative noise seed with a bare 'expected non-negative integer'
+    for task_seed in task_seeds:  # a task seed 1.5 reset the task as seed 1 did, in the runner, without a word
+        check_integer("task seed", task_seed, owner="fresh_probability")
+    if not isinstance(seed, numbers.Integral) or isinstance(seed, bool):  # 1.5 drew seed 1's noise without a word
+        raise ValueError(f"fresh_probability: the parking-noise seed must be an integer, got {seed!r}")
+    if seed < 0:  # numpy refused a negative noise seed with a bare 'expected non-negative integer'
         raise ValueError(f"fresh_probability: the parking-noise seed must be >= 0, got {seed}")
     scene_seed = zlib.crc32(scene["scene_id"].encode()) ^ int(seed)
     wins = np.zeros(len(xy))
@@ -84,6 +101,11 @@ def fresh_probability(
             raise RuntimeError(
                 f"fresh_probability: scene {scene['scene_id']}, episode {k}: the runner gave {ok.size} outcomes "
                 f"for {len(poses)} rollouts"
+            )
+        if not np.isin(ok, (0.0, 1.0)).all():  # 2.0 or NaN made a "probability" above 1 or NaN, averaged as one
+            raise RuntimeError(
+                f"fresh_probability: scene {scene['scene_id']}, episode {k}: the runner gave outcomes that are not "
+                f"successes or failures: {ok[~np.isin(ok, (0.0, 1.0))][:5].tolist()}"
             )
         wins[valid] += ok
     return wins / len(task_seeds)
