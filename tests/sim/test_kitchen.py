@@ -167,3 +167,20 @@ def test_spec_from_dict_and_release_refuse_what_is_not_a_spec():
         SceneSpec.from_dict(None)
     with pytest.raises(TypeError, match="release_scene expects a SceneSpec, got dict"):
         release_scene(SceneSpec(0, 0, 0, "CloseDrawer").to_dict())
+
+
+def test_scene_refuses_a_bad_margin_rng_or_ik_damping(scene_factory):
+    """robot_collides took a NaN or negative margin as 0, reset_task failed inside the task on a seed (or, for a task
+    that draws nothing, ignored it), and a NaN IK damping made every solution NaN."""
+    from floaff_zoo.sim.robot import DLSIK
+
+    sc = scene_factory("CloseDrawer")
+    for margin in (float("nan"), -0.1):
+        with pytest.raises(ValueError, match="robot_collides: margin must be a finite number >= 0"):
+            sc.robot_collides(margin)
+    for task in ("CloseDrawer", "OpenSingleDoor"):
+        with pytest.raises(TypeError, match="rng must be a numpy Generator or None, got int"):
+            scene_factory(task).reset_task(3)
+    for damping in (float("nan"), 0.0):
+        with pytest.raises(ValueError, match="DLSIK: damping must be a finite number > 0"):
+            DLSIK(sc.model, sc.robot, damping)

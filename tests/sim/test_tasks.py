@@ -148,3 +148,28 @@ def _part_qpos(sc, joint: str) -> int:
     import mujoco
 
     return int(sc.model.jnt_qposadr[mujoco.mj_name2id(sc.model, mujoco.mjtObj.mjOBJ_JOINT, joint)])
+
+
+def test_a_task_name_that_is_not_text_is_named():
+    """A list failed with a bare "unhashable type: 'list'" in get_task and default_policy."""
+    from floaff_zoo.sim.controllers import default_policy
+
+    with pytest.raises(ValueError, match="unknown task"):
+        get_task(["CloseDrawer"])
+    with pytest.raises(ValueError, match="unknown task"):
+        default_policy(["CloseDrawer"])
+
+
+@pytest.mark.parametrize(
+    "kwargs,match",
+    [
+        (dict(ik_iters=-1), "ik_iters must be an integer >= 1"),  # no IK iteration at a tick: every step 1e9 m off
+        (dict(ik_iters=1.5), "ik_iters must be an integer >= 1"),  # failed mid-rollout in range()
+        (dict(precheck="no"), "precheck must be a bool"),  # read as true
+    ],
+)
+def test_a_policy_refuses_a_bad_setting(kwargs, match):
+    from floaff_zoo.sim.controllers import CloseDrawerPolicy
+
+    with pytest.raises(ValueError, match=f"CloseDrawerPolicy: {match}"):
+        CloseDrawerPolicy(**kwargs)

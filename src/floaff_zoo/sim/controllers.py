@@ -30,6 +30,7 @@ from typing import Callable, Protocol, runtime_checkable
 import mujoco
 import numpy as np
 
+from floaff_zoo.checks import check_integer
 from floaff_zoo.sim import robot as _robot
 
 CTRL_DT = 0.05  # s, 20 Hz control / IK rate
@@ -115,6 +116,10 @@ class ScriptedPolicy:
     task: str = ""
 
     def __init__(self, precheck: bool = True, ik_iters: int = 8) -> None:
+        # ik_iters -1 ran no IK iteration at a tick (every path step a 1e9 m error), 1.5 failed mid-rollout in range()
+        check_integer("ik_iters", ik_iters, 1, owner=type(self).__name__)
+        if not isinstance(precheck, (bool, np.bool_)):  # "no" or "False" read as true: the IK exits stayed on
+            raise ValueError(f"{type(self).__name__}: precheck must be a bool, got {precheck!r}")
         self.precheck = precheck
         self.ik_iters = ik_iters
         self.reason = ""
@@ -566,6 +571,6 @@ POLICIES: dict[str, type[ScriptedPolicy]] = {
 
 def default_policy(task: str, precheck: bool = True) -> ScriptedPolicy:
     """The scripted policy of a task."""
-    if task not in POLICIES:
+    if not isinstance(task, str) or task not in POLICIES:  # a list failed with "unhashable type"
         raise ValueError(f"unknown task {task!r}; valid tasks: {list(POLICIES)}")
     return POLICIES[task](precheck=precheck)

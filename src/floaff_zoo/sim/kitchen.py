@@ -27,6 +27,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from floaff_zoo.checks import check_number
 from floaff_zoo.floor import check_pose
 from floaff_zoo.names import TASKS as TASKS  # defined once there; re-exported here
 from floaff_zoo.sim import robot as _robot
@@ -958,6 +959,8 @@ class SimScene:
     # -- state -----------------------------------------------------------------------------
     def reset_task(self, rng: np.random.Generator | None = None) -> None:
         """mj_resetData, robot tucked at its current base pose, task reset state (rng=None: deterministic midpoint)."""
+        if rng is not None and not isinstance(rng, np.random.Generator):  # a seed failed in the task, or was ignored
+            raise TypeError(f"reset_task: rng must be a numpy Generator or None, got {type(rng).__name__}")
         pose = self.base_pose()
         mujoco.mj_resetData(self.model, self.data)
         self.robot.set_base_pose(self.data, *pose)
@@ -981,6 +984,8 @@ class SimScene:
 
         The floor is excluded. ``margin`` > 0 also reports pairs closer than margin (m).
         """
+        # a NaN or negative margin was taken as 0 without a word
+        check_number("margin", margin, owner="SimScene.robot_collides")
         m, d = self.model, self.data
         ids = self.robot_geom_ids
         old = m.geom_margin[ids].copy()

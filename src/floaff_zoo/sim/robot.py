@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from floaff_zoo.checks import check_number
 from floaff_zoo.quiet import quiet_robosuite
 
 ARM_JOINTS: tuple[str, ...] = tuple(f"robot0_joint{i}" for i in range(1, 8))
@@ -247,6 +248,8 @@ class DLSIK:
     """
 
     def __init__(self, model: mujoco.MjModel, index: RobotIndex, damping: float = 0.04) -> None:
+        # a NaN damping made every solution NaN (written into the arm's commands), 0 a singular inverse near the limits
+        check_number("damping", damping, strict=True, owner="DLSIK")
         self.m = model
         self.ix = index
         self.d = mujoco.MjData(model)

@@ -414,7 +414,7 @@ TASK_REGISTRY: dict[str, Task] = {
 
 
 def get_task(name: str) -> Task:
-    if name not in TASK_REGISTRY:
+    if not isinstance(name, str) or name not in TASK_REGISTRY:  # a list failed with "unhashable type"
         raise ValueError(f"unknown task {name!r}; valid tasks: {list(TASK_REGISTRY)}")
     return TASK_REGISTRY[name]
 
