@@ -184,3 +184,13 @@ def test_scene_refuses_a_bad_margin_rng_or_ik_damping(scene_factory):
     for damping in (float("nan"), 0.0):
         with pytest.raises(ValueError, match="DLSIK: damping must be a finite number > 0"):
             DLSIK(sc.model, sc.robot, damping)
+
+
+def test_style_params_refuses_a_style_that_is_not_a_whole_number():
+    """int() read style 1.5 (or True) as style 1 without a word."""
+    from floaff_zoo.sim.kitchen import style_params
+
+    assert style_params(np.int64(1)) == style_params(1.0) == style_params(1)
+    for bad in (1.5, True, None):
+        with pytest.raises(ValueError, match="unknown style_id"):
+            style_params(bad)

@@ -272,9 +272,10 @@ _STYLE_TABLE: dict[int, dict] = {
 
 def style_params(style_id: int) -> dict:
     """Copy of the style's parameters (colours, dimensions, handle type)."""
-    if int(style_id) not in _STYLE_TABLE:
+    sid = _whole_number(style_id)  # int() read 1.5 (or True) as style 1 without a word
+    if sid not in _STYLE_TABLE:
         raise ValueError(f"unknown style_id {style_id!r}; valid ids: {sorted(STYLES)}")
-    return dict(_STYLE_TABLE[int(style_id)])
+    return dict(_STYLE_TABLE[sid])
 
 
 # ----------------------------------------------------------------------------------------------
