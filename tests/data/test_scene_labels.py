@@ -38,7 +38,8 @@ def _labels_of_views(root: Path, bench: str, ids: list[str], seed: int = 0) -> t
 
 def test_file_round_trip_and_bad_files(tmp_path):
     path = tmp_path / "labels.npz"
-    write_scene_labels(path, {"a": (np.zeros((3, 2)), np.array([0.0, 0.5, 1.0]), 0.1)}, {"episodes": 4})
+    xy = np.array([[0.0, 0.0], [0.1, 0.0], [0.0, 0.1]])
+    write_scene_labels(path, {"a": (xy, np.array([0.0, 0.5, 1.0]), 0.1)}, {"episodes": 4})
     table, setting = read_scene_labels(path)
     assert setting == {"episodes": 4} and table["a"][1].tolist() == [0.0, 0.5, 1.0] and table["a"][2] == 0.1
     with pytest.raises(FileNotFoundError, match="missing.npz"):
@@ -80,6 +81,10 @@ def test_file_round_trip_and_bad_files(tmp_path):
         np.savez(path, setting=setting, **good)
         with pytest.raises(ValueError, match=f"{path}: its 'setting' must be a JSON object"):
             read_scene_labels(path)
+    # a cell listed twice: a floor point took the first one's label without a word
+    np.savez(path, setting="{}", **{**good, "d/xy": np.zeros((2, 2)), "d/label": np.array([0.0, 1.0])})
+    with pytest.raises(ValueError, match=f"{path}: scene d lists a cell's xy twice"):
+        read_scene_labels(path)
     for key, value in (("d/xy", np.zeros((1, 2)) + 1j), ("d/cell", np.complex128(0.1))):
         np.savez(path, setting="{}", **{**good, key: value})
         with pytest.raises(ValueError, match=f"{path}: scene d has xy"):

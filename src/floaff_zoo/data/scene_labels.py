@@ -93,6 +93,8 @@ def read_scene_labels(path: str | Path) -> tuple[dict[str, tuple[np.ndarray, np.
         finite = np.all(np.isfinite(xy)) and np.all(np.isfinite(label))
         if not finite or label.min(initial=0) < 0 or label.max(initial=0) > 1:
             raise ValueError(f"scene labels: {path}: scene {sid} has non-finite values or labels outside [0, 1]")
+        if len(np.unique(xy, axis=0)) < len(xy):  # a floor point took the first of two cells' labels, silently
+            raise ValueError(f"scene labels: {path}: scene {sid} lists a cell's xy twice")
         out[sid] = (xy.astype(np.float64), label.astype(np.float32), cell)
     if not out:
         raise ValueError(f"scene labels: {path} holds no scene")
