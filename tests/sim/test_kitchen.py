@@ -141,7 +141,17 @@ def test_no_lazy_name_is_also_a_submodule():
 
 @pytest.mark.parametrize(
     "field,value",
-    [("seed", 1.7), ("seed", True), ("layout_id", 1.5), ("style_id", False), ("seed", float("nan")), ("seed", None)],
+    [
+        ("seed", 1.7),
+        ("seed", True),
+        ("layout_id", 1.5),
+        ("style_id", False),
+        ("seed", float("nan")),
+        ("seed", None),
+        ("layout_id", np.True_),  # layout 1
+        ("seed", "1_7"),  # int() read seed 17
+        ("seed", " 17 "),
+    ],
 )
 def test_spec_refuses_a_value_that_is_not_a_whole_number(field, value):
     """The constructor cut seed 1.7 to seed 1's kitchen under the id ``s1.7`` and built layout 1 for True (or 1.5)
@@ -170,8 +180,9 @@ def test_spec_from_dict_and_release_refuse_what_is_not_a_spec():
 
 
 def test_scene_refuses_a_bad_margin_rng_or_ik_damping(scene_factory):
-    """robot_collides took a NaN or negative margin as 0, reset_task failed inside the task on a seed (or, for a task
-    that draws nothing, ignored it), and a NaN IK damping made every solution NaN."""
+    """robot_collides with a NaN margin found no collision anywhere and with a negative one let the robot sink into
+    furniture; reset_task failed inside the task on a seed (or, for a task that draws nothing, ignored it), and a
+    NaN IK damping made every solution NaN."""
     from floaff_zoo.sim.robot import DLSIK
 
     sc = scene_factory("CloseDrawer")

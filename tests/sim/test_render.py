@@ -171,13 +171,12 @@ def test_renderer_refuses_a_bad_size_or_group(scene, kwargs, match):
 
 
 def test_render_refuses_a_bad_camera_index_or_hidden_geom(scene):
-    """Camera 0.5 (or True) rendered camera 0; hide_geoms -1 hid the last geom and 1.7 geom 1, without a word; one
-    past the end failed with a bare IndexError."""
+    """Camera 0.5 rendered camera 0 and True camera 1; hide_geoms -1 hid the last geom and 1.7 geom 1, without a word;
+    one past the end failed with a bare IndexError. Every camera that is not one is a KeyError, as an unknown name."""
     m, d, r = scene
-    with pytest.raises(ValueError, match="camera must be an integer"):
-        r.render(d, 0.5)
-    with pytest.raises(ValueError, match="camera must be an integer"):
-        r.render(d, True)
+    for bad in (0.5, True, -1, m.ncam):
+        with pytest.raises(KeyError, match=rf"camera must be an integer >= 0 and <= {m.ncam - 1}"):
+            r.render(d, bad)
     for bad in ([-1], [1.7], [m.ngeom]):
         with pytest.raises(ValueError, match="hide_geoms must be geom ids"):
             r.render(d, "cam", hide_geoms=bad)

@@ -80,7 +80,7 @@ def test_no_episode_and_a_negative_noise_seed_are_named():
     run = lambda seed, jobs: [True] * len(jobs)  # noqa: E731
     with pytest.raises(ValueError, match="episodes must be >= 1"):
         repeat.fresh_probability(_scene("a", "2.0.0"), run, 0, 0.0, 0.0, 0)
-    with pytest.raises(ValueError, match="parking-noise seed must be >= 0, got -1"):
+    with pytest.raises(ValueError, match="parking-noise seed must be an integer >= 0, got -1"):
         repeat.fresh_probability(_scene("a", "2.0.0"), run, 1, 0.0, 0.0, -1)
     assert repeat.fresh_probability(_scene("a", "2.0.0"), run, 1, 0.0, 0.0, 0).tolist() == [1.0, 0.0]
 
@@ -182,7 +182,7 @@ def test_fresh_probability_refuses_a_bad_count_seed_or_outcome():
     for episodes in (2.5, True):
         with pytest.raises(ValueError, match="fresh_probability: episodes must be an integer >= 0"):
             repeat.fresh_probability(scene, run, episodes, 0.0, 0.0, 0)
-    with pytest.raises(ValueError, match="parking-noise seed must be an integer, got 1.5"):
+    with pytest.raises(ValueError, match="parking-noise seed must be an integer >= 0, got 1.5"):
         repeat.fresh_probability(scene, run, 1, 0.0, 0.0, 1.5)
     with pytest.raises(ValueError, match="task seed must be an integer >= 0, got 1.5"):
         repeat.fresh_probability(scene, run, 1, 0.0, 0.0, 0, seeds=[3, 1.5])

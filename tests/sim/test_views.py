@@ -277,6 +277,7 @@ def test_camera_clearance_is_the_exact_signed_distance():
         ("max_tries_per_view", 1.5),  # bare TypeError
         ("image_size", 0),
         ("min_target_pixels", -5),
+        ("min_target_pixels", 0),  # views whose cloud shows no target point (GenPreset refuses it too)
     ],
 )
 def test_view_config_refuses_a_bad_value_naming_it(field, value):

@@ -125,7 +125,8 @@ class CanonicalProbeDataModule(FloAffDataModule):
     """The learnability probe (module docstring): held-out splits use other seeds.
 
     Args:
-        num_train / num_val / num_test: split sizes.
+        num_train / num_val / num_test: split sizes; train and val at most ``SPLIT_STRIDE`` (100000), the seed
+            offset between splits.
         points_per_sample: raw scene points per sample; floor_per_sample: floor queries per sample.
         max_yaw_deg: the target's front turns up to this far from facing the robot.
         (the rest: see :class:`FloAffDataModule`)

@@ -121,7 +121,8 @@ class SyntheticDataModule(FloAffDataModule):
     """Seeded analytic data (no files): fast CLI round trips before any real data exists.
 
     Args:
-        num_train / num_val / num_test: split sizes.
+        num_train / num_val / num_test: split sizes; train and val at most ``SPLIT_STRIDE`` (100000), the seed
+            offset between splits.
         points_per_sample: raw scene points generated per sample.
         floor_cells: the floor grid is ``floor_cells x floor_cells``.
         tasks: task names cycled over samples (labels differ per task).

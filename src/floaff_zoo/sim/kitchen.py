@@ -124,15 +124,15 @@ def _spec_int(d: dict, key: str) -> int:
 
 
 def _whole_number(v: object) -> int | None:
-    """``v`` as an int when it is a whole number (an int, a float such as 17.0, a numeric text), else None (a bool,
-    17.5, NaN, anything ``int`` refuses)."""
+    """``v`` as an int when it is a whole number (an int, a float such as 17.0, a text of digits only), else None (a
+    bool, numpy's too, 17.5, NaN, "1_7" or " 17 ", anything ``int`` refuses)."""
+    if isinstance(v, (bool, np.bool_)) or (isinstance(v, str) and not (v.isascii() and v.isdigit())):
+        return None
     try:
         i = int(v)  # type: ignore[call-overload]
     except (TypeError, ValueError, OverflowError):
         return None
-    if isinstance(v, bool) or (not isinstance(v, str) and i != v):
-        return None
-    return i
+    return i if isinstance(v, str) or i == v else None
 
 
 # ----------------------------------------------------------------------------------------------
@@ -983,9 +983,10 @@ class SimScene:
     def robot_collides(self, margin: float = 0.0) -> bool:
         """True if robot collision geoms (base, torso, arm, gripper as posed now) touch scene geoms.
 
-        The floor is excluded. ``margin`` > 0 also reports pairs closer than margin (m).
+        The floor is excluded. ``margin`` > 0 also reports pairs closer than margin (m); a NaN or negative one is a
+        ValueError.
         """
-        # a NaN or negative margin was taken as 0 without a word
+        # a NaN margin reported no collision at any pose, a negative one let the robot sink that deep into furniture
         check_number("margin", margin, owner="SimScene.robot_collides")
         m, d = self.model, self.data
         ids = self.robot_geom_ids

@@ -156,7 +156,8 @@ def camera_intrinsics(height: int, width: int, fovy_deg: float) -> tuple[float, 
     """Pinhole intrinsics (f, cx, cy) in pixels for square pixels: f = (H/2)/tan(fovy/2), principal point at centre.
 
     A fovy outside (0, 180) degrees raises ``ValueError`` (a NaN one made every back-projected point NaN, and each
-    was still reported valid; 0 or 180 made them infinite, a negative one mirrored the image)."""
+    was still reported valid; 0 put every point on the camera's axis, 180 made them infinite, a negative one mirrored
+    the image)."""
     if not (is_number(fovy_deg) and 0.0 < fovy_deg < 180.0):
         raise ValueError(f"camera_intrinsics: fovy_deg must be a finite number > 0 and < 180, got {fovy_deg}")
     f = (height / 2.0) / np.tan(np.deg2rad(fovy_deg) / 2.0)
@@ -256,11 +257,9 @@ class Renderer:
             if cid < 0:
                 raise KeyError(f"camera {camera!r} not found in the model")
             return int(cid)
-        check_integer("camera", camera, owner="Renderer.render")  # 0.5 or True rendered camera 0 without a word
-        cid = int(camera)
-        if not 0 <= cid < self.model.ncam:
-            raise KeyError(f"camera index {cid} out of range (ncam={self.model.ncam})")
-        return cid
+        # one error type for every camera that is not one: 0.5 rendered camera 0 and True camera 1 without a word
+        check_integer("camera", camera, 0, self.model.ncam - 1, owner="Renderer.render", error=KeyError)
+        return int(camera)
 
     def _update(self, data: mujoco.MjData, cid: int, segment: bool) -> None:
         self._cam.fixedcamid = cid

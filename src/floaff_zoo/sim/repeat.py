@@ -17,7 +17,6 @@ Probabilities are cached in ``.npz`` files (:func:`read_probs` / :func:`write_pr
 from __future__ import annotations
 
 import json
-import numbers
 import zipfile
 import zlib
 from collections.abc import Callable, Sequence
@@ -88,10 +87,8 @@ def fresh_probability(
         raise ValueError(f"fresh_probability: episodes must be >= 1 (or seeds given), got {episodes}")
     for task_seed in task_seeds:  # a task seed 1.5 reset the task as seed 1 did, in the runner, without a word
         check_integer("task seed", task_seed, owner="fresh_probability")
-    if not isinstance(seed, numbers.Integral) or isinstance(seed, bool):  # 1.5 drew seed 1's noise without a word
-        raise ValueError(f"fresh_probability: the parking-noise seed must be an integer, got {seed!r}")
-    if seed < 0:  # numpy refused a negative noise seed with a bare 'expected non-negative integer'
-        raise ValueError(f"fresh_probability: the parking-noise seed must be >= 0, got {seed}")
+    # 1.5 drew seed 1's noise without a word; numpy refused a negative one with a bare 'expected non-negative integer'
+    check_integer("parking-noise seed", seed, owner="fresh_probability")
     scene_seed = zlib.crc32(scene["scene_id"].encode()) ^ int(seed)
     wins = np.zeros(len(xy))
     for k, task_seed in enumerate(task_seeds):

@@ -85,7 +85,8 @@ class ViewConfig:
         check_number("depth_max", self.depth_max, strict=True, owner="ViewConfig")
         for name in ("image_size", "max_points", "max_tries_per_view"):
             check_integer(name, getattr(self, name), 1, owner="ViewConfig")
-        check_integer("min_target_pixels", self.min_target_pixels, 0, owner="ViewConfig")
+        # as GenPreset: 0 stored views whose cloud shows no target point, which the models and predict need
+        check_integer("min_target_pixels", self.min_target_pixels, 1, owner="ViewConfig")
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
