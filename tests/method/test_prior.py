@@ -233,6 +233,11 @@ def test_an_empty_task_list_is_refused_not_read_as_every_task():
 
     with pytest.raises(MisconfigurationException, match=r"CanonicalPriorModule: tasks needs >= 1 task \(null for all"):
         CanonicalPriorModule(tasks=[])
+    # a text was read letter by letter as unknown tasks; a task named twice passed
+    with pytest.raises(MisconfigurationException, match="tasks must be a list of task names, got the text"):
+        CanonicalPriorModule(tasks="CloseDrawer")
+    with pytest.raises(MisconfigurationException, match="tasks names a task twice"):
+        CanonicalPriorModule(tasks=["CloseDrawer", "CloseDrawer"])
 
 
 def test_shipped_prior_rebuilds_its_axisnet_and_weights_alone_warns():

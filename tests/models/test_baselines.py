@@ -528,8 +528,9 @@ def test_a_dropout_outside_zero_to_one_is_refused_by_name(name, value):
     [
         ("pointnet2_ssg", "mlps", [[[]], [[16, 32]], [[32, 32]]], "mlps: every scale needs >= 1 width"),  # IndexError
         ("pointnet2_msg", "mlps", [[[8], []], [[16], [16]], [[16], [16]]], "mlps: every scale needs >= 1 width"),
-        ("navaff", "num_heads", 0, "num_heads must be >= 1"),  # ZeroDivisionError
-        ("navaff", "num_heads", -8, "num_heads must be >= 1"),  # a shape error at the first batch
+        ("navaff", "num_heads", 0, "num_heads must be an integer >= 1"),  # ZeroDivisionError
+        ("navaff", "num_heads", -8, "num_heads must be an integer >= 1"),  # a shape error at the first batch
+        ("navaff", "num_heads", 2.0, "num_heads must be an integer >= 1"),  # a float in a reshape
     ],
 )
 def test_an_empty_scale_or_no_attention_head_is_refused_at_construction(name, arg, value, message):
@@ -549,3 +550,30 @@ def test_a_user_model_whose_hints_name_an_import_only_a_type_checker_sees_still_
             super().__init__(width=width)
 
     assert UserModel().hparams["width"] == 8
+
+
+def test_a_choice_hint_that_also_takes_any_number_takes_any_number():
+    """``Literal["auto"] | float`` refused 0.5 as 'not one of [auto]'."""
+    from typing import Literal
+
+    from floaff_zoo.models.base import literal_choices
+
+    assert literal_choices(Literal["a", "b"] | None) == ("a", "b", None)
+    assert literal_choices(Literal["auto"] | float) == ()
+    assert literal_choices(float) == ()
+
+
+def test_an_empty_list_saved_when_it_meant_the_default_still_loads():
+    """Checkpoints and hub configs written when ``[]`` meant the default (AxisNet's widths, the prior's tasks, CFAR's
+    prior_tasks) and CFAR's prior_tasks saved without prior_residual (ignored then) loaded before these were refused."""
+    from floaff_zoo.models.axisnet import AxisNetModule
+    from floaff_zoo.models.cfar import CFARModule
+    from floaff_zoo.models.prior import CanonicalPriorModule
+
+    assert AxisNetModule.upgrade_init_args({"widths": []})["widths"] is None
+    assert CanonicalPriorModule.upgrade_init_args({"tasks": []})["tasks"] is None
+    assert CFARModule.upgrade_init_args({"prior_residual": True, "prior_tasks": []})["prior_tasks"] is None
+    assert "prior_tasks" not in CFARModule.upgrade_init_args({"prior_tasks": ["CloseDrawer"]})
+    kept = {"prior_residual": True, "prior_tasks": ["CloseDrawer"]}
+    assert CFARModule.upgrade_init_args(kept)["prior_tasks"] == ["CloseDrawer"]
+    AxisNetModule(**AxisNetModule.upgrade_init_args({"widths": []}))

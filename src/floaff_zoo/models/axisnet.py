@@ -93,6 +93,7 @@ class AxisNetModule(ZooModule):
     monitor: ClassVar[str] = "val_angle_error_deg"
     mode: ClassVar[str] = "min"
     output_key: ClassVar[str] = "yaw"
+    empty_means_default: ClassVar[tuple[str, ...]] = ("widths",)
     metrics_in_progress_bar: ClassVar[bool] = True
 
     def __init__(

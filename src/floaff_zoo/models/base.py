@@ -76,6 +76,8 @@ def literal_choices(hint: Any) -> tuple[Any, ...]:
         return typing.get_args(hint)
     if typing.get_origin(hint) in (typing.Union, types.UnionType):
         parts = typing.get_args(hint)
+        if any(p is not type(None) and typing.get_origin(p) is not Literal for p in parts):
+            return ()  # ``Literal["auto"] | float``: any float is a choice too
         literals = [c for p in parts for c in literal_choices(p)]
         return (*literals, *([None] * (type(None) in parts))) if literals else ()
     return ()
@@ -92,7 +94,7 @@ def check_choices(cls: type, args: Mapping[str, Any]) -> None:
     """
     try:
         hints = typing.get_type_hints(cls.__init__)
-    except (NameError, TypeError, AttributeError):  # a user's model whose hints name what only a type checker sees
+    except (NameError, TypeError, AttributeError, SyntaxError):  # a user's hint naming what only a type checker sees
         return
     for name, hint in hints.items():
         choices = literal_choices(hint)
@@ -133,7 +135,7 @@ class TrainConfig:
     def __post_init__(self) -> None:
         # the CLI validates choices itself; dicts from checkpoints, hub configs and Python land here
         for name, hint in typing.get_type_hints(type(self)).items():
-            choices = typing.get_args(hint) if typing.get_origin(hint) is Literal else ()
+            choices = literal_choices(hint)
             if choices and getattr(self, name) not in choices:
                 raise ValueError(f"train.{name}: {getattr(self, name)!r} is not one of {list(choices)}")
         # inf passed the bounds, and every step's loss was then NaN
@@ -269,6 +271,9 @@ class ZooModule(L.LightningModule):
     mode: ClassVar[str] = "min"
     #: models without learnable parameters (C2F-Exp) set this False; ``fit`` then refuses.
     trainable: ClassVar[bool] = True
+    #: list arguments an older version read as their default (None) when given ``[]``, which is now refused: a saved
+    #: ``[]`` is read as None (:meth:`upgrade_init_args`), so such checkpoints and hub configs still load
+    empty_means_default: ClassVar[tuple[str, ...]] = ()
     #: the type of the ``train`` argument
     train_config: ClassVar[type[TrainConfig]] = TrainConfig
     #: name of the prediction in the outputs of ``validation_step``/``test_step``
@@ -560,7 +565,8 @@ class ZooModule(L.LightningModule):
         The training arguments used to be flat (``lr: 0.001`` beside the model's own): the ones ``train``
         has move into it (an explicit ``train`` entry wins). The old shared ones this class does not take
         (AxisNet's ``loss``, C2F-Exp's ``weights``) are dropped: the old base class took them, nothing
-        used them. Anything else is kept, so a really unknown argument still fails in the constructor.
+        used them. A ``[]`` under ``empty_means_default`` becomes None, as it was read then. Anything else is kept,
+        so a really unknown argument still fails in the constructor.
         """
         names = init_arg_names(cls)
         fields = {f.name for f in dataclasses.fields(cls.train_config)}
@@ -576,6 +582,9 @@ class ZooModule(L.LightningModule):
         if moved:
             given = out.get("train") or {}
             out["train"] = {**moved, **(dataclasses.asdict(given) if dataclasses.is_dataclass(given) else given)}
+        for k in cls.empty_means_default:
+            if isinstance(out.get(k), (list, tuple)) and not out[k]:
+                out[k] = None
         return out
 
     @classmethod

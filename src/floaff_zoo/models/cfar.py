@@ -57,9 +57,9 @@ from __future__ import annotations
 import copy
 import inspect
 import math
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from contextlib import contextmanager, nullcontext
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 import torch
 from lightning.pytorch.utilities.exceptions import MisconfigurationException
@@ -180,6 +180,17 @@ class CFARModule(FloAffModule):
         manhattan_radius: neighbourhood (m) of the Manhattan face estimate (``*manhattan`` yaw sources).
         (the rest: see :class:`FloAffModule`; paper: Adam 2e-4, batch 8, 30 epochs/stage, beta = 1.)
     """
+
+    empty_means_default: ClassVar[tuple[str, ...]] = ("prior_tasks",)
+
+    @classmethod
+    def upgrade_init_args(cls, init_args: Mapping[str, Any]) -> dict[str, Any]:
+        """As the base class; a ``prior_tasks`` saved without ``prior_residual``, which was ignored then and is
+        refused now, is dropped."""
+        out = super().upgrade_init_args(init_args)
+        if not out.get("prior_residual", False) and out.get("prior_tasks") is not None:
+            out.pop("prior_tasks")
+        return out
 
     def __init__(
         self,

@@ -16,7 +16,7 @@ yaw"); ``none`` is the unrotated, target-centred average.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, ClassVar
 
 from lightning.pytorch.utilities.exceptions import MisconfigurationException
 from torch import Tensor
@@ -40,14 +40,18 @@ def prior_tasks(value: Sequence[str] | None, name: str, owner: str) -> list[str]
     """The tasks a prior keeps a grid for: ``value``, or every task for None.
 
     Raises:
-        MisconfigurationException: naming ``name`` for an empty list (it meant every task, silently) or an unknown
-            task.
+        MisconfigurationException: naming ``name`` for a text, an empty list (it meant every task, silently), a
+            task named twice or an unknown task.
     """
     if value is None:
         return list(TASKS)
+    if isinstance(value, str):  # "CloseDrawer" was read letter by letter as unknown tasks
+        raise MisconfigurationException(f"{owner}: {name} must be a list of task names, got the text {value!r}")
     tasks = list(value)
     if not tasks:
         raise MisconfigurationException(f"{owner}: {name} needs >= 1 task (null for all of {list(TASKS)}), got []")
+    if len(set(tasks)) < len(tasks):
+        raise MisconfigurationException(f"{owner}: {name} names a task twice: {tasks}")
     unknown = sorted(set(tasks) - set(TASKS))
     if unknown:
         raise MisconfigurationException(f"{owner}: unknown task(s) {unknown} in {name}; known: {list(TASKS)}")
@@ -71,6 +75,8 @@ class CanonicalPriorModule(FloAffModule):
         manhattan_radius: neighbourhood (m) of the Manhattan face estimate.
         (the rest: see :class:`FloAffModule`; ``train`` sets only the logged loss and the metrics.)
     """
+
+    empty_means_default: ClassVar[tuple[str, ...]] = ("tasks",)
 
     def __init__(
         self,

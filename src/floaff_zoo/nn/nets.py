@@ -15,6 +15,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from floaff_zoo.checks import check_integer
 from floaff_zoo.nn.ops import (
     check_finite,
     check_floor_feat,
@@ -260,8 +261,8 @@ class CrossAttention(nn.Module):
 
     def __init__(self, dim: int = 512, num_heads: int = 8, dropout: float = 0.1) -> None:
         super().__init__()
-        if num_heads < 1:  # 0 divided by zero below; a negative count failed at the first batch
-            raise ValueError(f"num_heads must be >= 1, got {num_heads}")
+        # 0 divided by zero below, a negative count failed at the first batch, 2.0 in a reshape
+        check_integer("num_heads", num_heads, 1, owner="CrossAttention")
         if dim % num_heads:
             raise ValueError(f"dim {dim} is not divisible by num_heads {num_heads}")
         self.num_heads = num_heads
