@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from floaff_zoo.nn import _fps_ext, ops
+from floaff_zoo.nn import _fps_ext, cfar, ops
 
 
 def naive_fps(xyz: torch.Tensor, mask: torch.Tensor, npoint: int) -> torch.Tensor:
@@ -525,3 +525,53 @@ def test_fps_backend_names_the_implementation_that_ran(paths, want, built, cloud
     ran = {"cpp": kernel.calls, "torch": len(loops)}
     assert sorted(ran.values()) == [0, 1], ran
     assert ops.fps_backend("cpu") == max(ran, key=ran.get)
+
+
+def test_gathers_refuse_arguments_of_another_batch_or_shape(monkeypatch):
+    """A batch of 1 or a [B, 1, 3] weight was broadcast, and a longer known_feat was read at known's indices."""
+    x, f = torch.rand(2, 16, 3), torch.rand(2, 16, 5)
+    centres, idx = x[:, :4], torch.zeros(2, 4, 3, dtype=torch.long)
+    with pytest.raises(ValueError, match=r"idx \[1, 4\]"):
+        ops.index_points(x, torch.zeros(1, 4, dtype=torch.long))
+    with pytest.raises(ValueError, match=r"points \[1, 16, 3\]"):
+        ops.index_points(x[:1].requires_grad_(), torch.zeros(2, 4, dtype=torch.long))
+    monkeypatch.setenv(ops.CPU_PATHS_ENV, "portable")
+    with pytest.raises(ValueError, match=r"weight \[2, 1, 3\]"):
+        ops.weighted_gather3(f, idx, torch.ones(2, 1, 3))
+    for interpolate in (ops.three_interpolate, cfar.stable_three_interpolate):
+        with pytest.raises(ValueError, match=r"known_feat must be \[2, 16, C\].*got \[2, 20, 5\]"):
+            interpolate(centres, x, torch.rand(2, 20, 5))
+        with pytest.raises(ValueError, match=r"known_mask must be \[2, 16\], got \[2, 1\]"):
+            interpolate(centres, x, f, known_mask=torch.ones(2, 1, dtype=torch.bool))
+        with pytest.raises(ValueError, match=r"unknown must be \[1, S, 3\]"):  # one known point: was expanded
+            interpolate(centres, x[:1, :1], f[:1, :1])
+    with pytest.raises(ValueError, match=r"known_mask must be \[2, 1\], got \[1, 1\]"):
+        ops.three_interpolate(centres, x[:, :1], f[:, :1], torch.ones(1, 1, dtype=torch.bool))
+    with pytest.raises(ValueError, match="at least one point"):
+        ops.three_interpolate(centres, x[:, :0], f[:, :0])
+    for k in (0, -1):
+        with pytest.raises(ValueError, match="k must be >= 1"):
+            ops.knn(k, x, centres)
+
+
+def test_canonical_transform_refuses_batch_broadcasts():
+    """A [1] angle, a [1, 3] centre, a [B, 1] mask or a batch-1 floor was broadcast over the batch."""
+    x, m = torch.rand(2, 16, 3), torch.ones(2, 16, dtype=torch.bool)
+    with pytest.raises(ValueError, match=r"angle must be \[2\], got \[1\]"):
+        cfar.rotate_z(x, torch.tensor([0.3]))
+    with pytest.raises(ValueError, match=r"yaw must be \[4\].*got \[2, 2\]"):
+        cfar.alignment_angle(torch.rand(2, 2), 4, x.device, x.dtype)
+    with pytest.raises(ValueError, match=r"centre must be \[2, 3\], got \[1, 3\]"):
+        cfar.crop_mask(x, m, x[:1, 0], 0.5)
+    with pytest.raises(ValueError, match=r"mask must be \[2, 16\], got \[2, 1\]"):
+        cfar.crop_mask(x, m[:, :1], x[:, 0], None)
+    with pytest.raises(ValueError, match=r"floor_xyz must be \[2, M, 3\]"):
+        cfar.canonical_transform(x, m, x[:1], x[:, 0], torch.rand(2), 0.5)
+    with pytest.raises(ValueError, match=r"extra_angle must be \[2\]"):
+        cfar.canonical_transform(x, m, x, x[:, 0], torch.rand(2), 0.5, extra_angle=torch.rand(1))
+    with pytest.raises(ValueError, match=r"centre must be \[2, 3\]"):
+        cfar.canonical_to_robot(x, x[:1, 0], torch.rand(2))
+    with pytest.raises(ValueError, match="npoint must be >= 1"):
+        cfar.tolerant_fps(x, m, 0)
+    with pytest.raises(ValueError, match=r"mask must be \[2, 16\]"):
+        cfar.tolerant_fps(x, m[:, :1], 4)

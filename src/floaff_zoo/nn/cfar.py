@@ -32,7 +32,13 @@ from torch import Tensor, nn
 
 from floaff_zoo.checks import check_number
 from floaff_zoo.contract import SampleError
-from floaff_zoo.nn.ops import check_floor_feat, gpu_fps_kernel, point_kernel, weighted_gather3
+from floaff_zoo.nn.ops import (
+    check_floor_feat,
+    check_interpolation_inputs,
+    gpu_fps_kernel,
+    point_kernel,
+    weighted_gather3,
+)
 from floaff_zoo.nn.pointnet2 import FeaturePropagation, PointNet2Encoder, SharedMLP
 
 __all__ = [
@@ -58,8 +64,17 @@ CROP_GROWTH = 1.25
 CROP_RETRIES = 3
 
 
+def _check_batch_vector(owner: str, name: str, t: Tensor, want: list[int]) -> None:
+    """Raise ``ValueError`` unless ``t`` has exactly the shape ``want`` (a [1] or [1, 3] one broadcast silently)."""
+    if list(t.shape) != want:
+        raise ValueError(f"{owner}: {name} must be {want}, got {list(t.shape)}")
+
+
 def rotate_z(xyz: Tensor, angle: Tensor) -> Tensor:
     """Rotate points about +z. xyz [B, N, 3], angle [B] (rad) -> [B, N, 3]."""
+    if xyz.ndim != 3 or xyz.shape[-1] != 3:
+        raise ValueError(f"rotate_z: xyz must be [B, N, 3], got {list(xyz.shape)}")
+    _check_batch_vector("rotate_z", "angle", angle, [xyz.shape[0]])
     c, s = torch.cos(angle)[:, None], torch.sin(angle)[:, None]
     x, y, z = xyz.unbind(-1)
     return torch.stack([c * x - s * y, s * x + c * y, z], dim=-1)
@@ -69,6 +84,8 @@ def alignment_angle(yaw: Tensor | None, batch: int, device: torch.device, dtype:
     """Rotation angle phi [B] that sends a front normal of angle ``yaw`` [B] to -y; zeros when yaw is None."""
     if yaw is None:
         return torch.zeros(batch, device=device, dtype=dtype)
+    if yaw.ndim < 1 or yaw.shape[0] != batch or yaw.numel() != batch:  # a [2, 2] yaw was reshaped into 4 samples
+        raise ValueError(f"alignment_angle: yaw must be [{batch}] for a batch of {batch}, got {list(yaw.shape)}")
     return -0.5 * math.pi - yaw.to(dtype).reshape(batch)
 
 
@@ -89,7 +106,13 @@ def crop_mask(
     Raises:
         SampleError: a sample has no valid point even at ``radius * 1.25**3`` (or no valid point at all).
     """
+    if xyz.ndim != 3 or xyz.shape[-1] != 3:
+        raise ValueError(f"crop_mask: xyz must be [B, N, 3], got {list(xyz.shape)}")
     b = xyz.shape[0]
+    # a [B, 1] or [1, N] mask and a [1, 3] centre were broadcast over the batch
+    _check_batch_vector("crop_mask", "mask", mask, list(xyz.shape[:2]))
+    _check_batch_vector("crop_mask", "centre", centre, [b, 3])
+    mask = mask.bool()
     if radius is None:
         empty = ~mask.any(dim=1)
         if empty.any():
@@ -161,8 +184,11 @@ def canonical_transform(
     """
     b = scene_xyz.shape[0]
     keep, used = crop_mask(scene_xyz, scene_mask, target_xyz, radius, names)
+    if floor_xyz.ndim != 3 or floor_xyz.shape[0] != b or floor_xyz.shape[-1] != 3:  # a batch of 1 was broadcast
+        raise ValueError(f"canonical_transform: floor_xyz must be [{b}, M, 3], got {list(floor_xyz.shape)}")
     angle = alignment_angle(yaw, b, scene_xyz.device, scene_xyz.dtype)
     if extra_angle is not None:
+        _check_batch_vector("canonical_transform", "extra_angle", extra_angle, [b])
         angle = angle + extra_angle.to(angle.dtype)
     xyz = rotate_z(scene_xyz - target_xyz[:, None, :], angle)
     xyz = torch.where(keep[..., None], xyz, torch.zeros_like(xyz))
@@ -172,6 +198,7 @@ def canonical_transform(
 
 def canonical_to_robot(xyz: Tensor, centre: Tensor, angle: Tensor) -> Tensor:
     """Inverse of the rigid part of T: canonical [B, N, 3] -> robot frame [B, N, 3] (centre [B, 3], angle [B])."""
+    _check_batch_vector("canonical_to_robot", "centre", centre, [xyz.shape[0], 3])
     return rotate_z(xyz, -angle) + centre[:, None, :]
 
 
@@ -205,9 +232,17 @@ def tolerant_fps(xyz: Tensor, mask: Tensor | None, npoint: int, tol: float = FPS
         xyz: [B, N, 3]; mask: [B, N] bool or None; npoint: centres; tol: tie tolerance (m^2).
     Returns:
         [B, npoint] int64.
+    Raises:
+        ValueError: for npoint below 1, a cloud without a valid point, bad shapes (a [B, 1] mask was broadcast).
     """
+    if xyz.ndim != 3 or xyz.shape[-1] != 3:
+        raise ValueError(f"tolerant_fps: xyz must be [B, N, 3], got {list(xyz.shape)}")
+    if int(npoint) < 1:
+        raise ValueError(f"tolerant_fps: npoint must be >= 1, got {npoint}")
     b, n, _ = xyz.shape
-    mask = torch.ones(b, n, dtype=torch.bool, device=xyz.device) if mask is None else mask
+    if mask is not None:
+        _check_batch_vector("tolerant_fps", "mask", mask, [b, n])
+    mask = torch.ones(b, n, dtype=torch.bool, device=xyz.device) if mask is None else mask.bool()
     if not mask.any(dim=1).all():
         raise ValueError("tolerant_fps: a cloud of the batch has no valid point")
     kernel = point_kernel(xyz.device)
@@ -251,7 +286,11 @@ def stable_three_interpolate(
             and then with a negligible weight.
     Returns:
         [B, n, C].
+    Raises:
+        ValueError: for bad shapes (a longer known_feat was read at the known points' indices, a batch of 1 or a
+            [B, 1] mask broadcast).
     """
+    check_interpolation_inputs(unknown, known, known_feat, known_mask)
     b, n, _ = unknown.shape
     m = known.shape[1]
     if m == 1:

@@ -186,8 +186,16 @@ def index_points(points: Tensor, idx: Tensor) -> Tensor:
     Returns:
         [B, *S, C]. Uses ``torch.gather`` (fast backward) when gradients flow, advanced indexing
         (faster forward) otherwise.
+    Raises:
+        ValueError: for points not [B, N, C] or idx of another B (advanced indexing broadcast a batch of 1 over the
+            other's B, and the gather path regrouped the indices into B rows).
     """
     b = points.shape[0]
+    if points.ndim != 3 or idx.ndim < 1 or idx.shape[0] != b:
+        raise ValueError(
+            f"index_points: points must be [B, N, C] and idx [B, ...] of the same B, got points "
+            f"{list(points.shape)}, idx {list(idx.shape)}"
+        )
     if points.requires_grad and torch.is_grad_enabled():
         flat = idx.reshape(b, -1)
         out = torch.gather(points, 1, flat[..., None].expand(-1, -1, points.shape[-1]))
@@ -376,7 +384,11 @@ def knn(k: int, xyz: Tensor, new_xyz: Tensor, mask: Tensor | None = None) -> tup
     Returns:
         (sq_dist [B, S, k] ascending, idx [B, S, k]). When fewer than k points are valid the
         tail repeats the nearest neighbour (distance repeated too).
+    Raises:
+        ValueError: for k below 1 (0 gave [B, S, 0], a negative k failed inside ``topk``), bad shapes.
     """
+    if int(k) < 1:
+        raise ValueError(f"knn: k must be >= 1, got {k}")
     _check_points("xyz", xyz)
     _check_queries("new_xyz", new_xyz, xyz)
     mask = _full_mask(xyz, mask, "mask")
@@ -456,16 +468,34 @@ def three_interpolate(unknown: Tensor, known: Tensor, known_feat: Tensor, known_
         unknown: [B, n, 3]; known: [B, m, 3]; known_feat: [B, m, C]; known_mask: [B, m].
     Returns:
         [B, n, C] in ``known_feat``'s dtype.
+    Raises:
+        ValueError: for bad shapes, among them known_feat not [B, m, C] for known [B, m, 3] (a longer one was read
+            at the known points' indices), and a known cloud of no point.
     """
+    check_interpolation_inputs(unknown, known, known_feat, known_mask)
     b, n, _ = unknown.shape
-    if known.shape[1] == 1:
-        feat = known_feat if known_mask is None else torch.where(known_mask[..., None], known_feat, 0.0)
+    if known.shape[1] == 1:  # the mask checked here too: a [1, 1] one was broadcast over the batch
+        feat = known_feat if known_mask is None else torch.where(known_mask.bool()[..., None], known_feat, 0.0)
         return feat.expand(b, n, known_feat.shape[-1])
     dist, idx = three_nn(unknown, known, known_mask)
     recip = 1.0 / (dist + 1e-8)  # inf distance -> weight 0
     # a valid pick's weight is >= 1 / (d^2 + 1e-8), far above ``tiny``: the clamp only turns 0 / 0 into 0
     weight = recip / recip.sum(dim=-1, keepdim=True).clamp_min(torch.finfo(recip.dtype).tiny)
     return weighted_gather3(known_feat, idx, weight.to(known_feat.dtype))
+
+
+def check_interpolation_inputs(unknown: Tensor, known: Tensor, known_feat: Tensor, known_mask: Tensor | None) -> None:
+    """Raise ``ValueError`` naming the argument unless unknown [B, n, 3], known [B, m, 3] (m >= 1), known_feat
+    [B, m, C] and known_mask [B, m] or None fit together (shape checks only: no device sync)."""
+    _check_points("known", known)
+    _check_queries("unknown", unknown, known)
+    if known.shape[1] == 0:
+        raise ValueError(f"known must hold at least one point, got {list(known.shape)}")
+    if known_feat.ndim != 3 or known_feat.shape[:2] != known.shape[:2]:
+        b, m = known.shape[:2]
+        raise ValueError(f"known_feat must be [{b}, {m}, C] for known [{b}, {m}, 3], got {list(known_feat.shape)}")
+    if known_mask is not None and known_mask.shape != known.shape[:2]:
+        raise ValueError(f"known_mask must be {list(known.shape[:2])}, got {list(known_mask.shape)}")
 
 
 def weighted_gather3(feat: Tensor, idx: Tensor, weight: Tensor) -> Tensor:
@@ -476,7 +506,14 @@ def weighted_gather3(feat: Tensor, idx: Tensor, weight: Tensor) -> Tensor:
     Returns:
         [B, n, C]. Without gradients on CPU (fp32/64, eager) one C++ pass that never writes the
         [B, n, 3, C] gathered tensor and sums in torch's order (bit for bit, tested); else gather + sum.
+    Raises:
+        ValueError: for weight not of idx's shape (the torch path broadcast a [B, 1, 3] one) or bad shapes.
     """
+    if feat.ndim != 3 or idx.ndim != 3 or idx.shape[0] != feat.shape[0] or weight.shape != idx.shape:
+        raise ValueError(
+            f"weighted_gather3: need feat [B, m, C], idx [B, n, k], weight [B, n, k], got feat {list(feat.shape)}, "
+            f"idx {list(idx.shape)}, weight {list(weight.shape)}"
+        )
     kernel = point_kernel(feat.device)
     if (
         kernel is not None
