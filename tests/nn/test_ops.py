@@ -575,3 +575,30 @@ def test_canonical_transform_refuses_batch_broadcasts():
         cfar.tolerant_fps(x, m, 0)
     with pytest.raises(ValueError, match=r"mask must be \[2, 16\]"):
         cfar.tolerant_fps(x, m[:, :1], 4)
+
+
+def test_placement_and_prior_grid_refuse_broadcast_arguments():
+    """A [1] mask or task and a [K, 1] cells were broadcast; xy with a z column had z binned into the inside flag."""
+    from floaff_zoo.nn import placement
+    from floaff_zoo.nn.prior import CanonicalLabelGrid
+
+    x = torch.rand(16, 3)
+    with pytest.raises(ValueError, match=r"mask must be \[16\], got \[1\]"):
+        placement.occupied_cells(x, torch.ones(1, dtype=torch.bool))
+    with pytest.raises(ValueError, match="cell must be finite and > 0"):
+        placement.occupied_cells(x, None, cell=0.0)
+    with pytest.raises(ValueError, match=r"cells must be \[K, 2\], got \[5, 1\]"):
+        placement.footprint_collides(torch.rand(5, 1), torch.rand(3, 3))
+    grid = CanonicalLabelGrid(["a", "b"], cell=0.5, extent=1.0, smooth_sigma_cells=0)
+    xy, label, mask = torch.rand(2, 5, 2), torch.rand(2, 5), torch.ones(2, 5, dtype=torch.bool)
+    with pytest.raises(ValueError, match=r"task must be \[2\].*got \[1\]"):
+        grid.add(torch.tensor([1]), xy, label, mask)
+    with pytest.raises(ValueError, match=r"mask must be \[2, 5\], got \[2, 1\]"):
+        grid.add(torch.tensor([0, 1]), xy, label, mask[:, :1])
+    with pytest.raises(ValueError, match=r"task indices must be in \[0, 2\)"):
+        grid.add(torch.tensor([2, 0]), xy, label, mask)
+    with pytest.raises(ValueError, match=r"xy must be \[B, M, 2\]"):
+        grid.read(torch.tensor([0, 1]), torch.rand(2, 5, 3))
+    with pytest.raises(ValueError, match=r"task must be \[2\]"):
+        grid.read(torch.tensor([1]), xy)
+    assert grid.counts.sum() == 0  # nothing was added by the refused calls

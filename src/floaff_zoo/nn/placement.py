@@ -42,7 +42,15 @@ def occupied_cells(xyz: Tensor, mask: Tensor | None = None, cell: float = 0.02, 
         z_min: points at or below this height are floor and do not occupy.
     Returns:
         [K, 2] unique occupied cell centres (xy).
+    Raises:
+        ValueError: for xyz not [N, 3], a mask not [N] (a [1] one was broadcast), a cell not finite and > 0.
     """
+    if xyz.ndim != 2 or xyz.shape[-1] != 3:
+        raise ValueError(f"occupied_cells: xyz must be [N, 3] (one sample), got {list(xyz.shape)}")
+    if mask is not None and mask.shape != xyz.shape[:1]:
+        raise ValueError(f"occupied_cells: mask must be [{xyz.shape[0]}], got {list(mask.shape)}")
+    if not (cell > 0 and math.isfinite(cell)):  # 0 put every point in one cell at -0, NaN gave NaN centres
+        raise ValueError(f"occupied_cells: cell must be finite and > 0, got {cell!r}")
     keep = xyz[:, 2] > z_min
     if mask is not None:
         keep = keep & mask.bool()
@@ -67,7 +75,13 @@ def footprint_collides(
         (m, along/across the heading); back_frac: share of ``length`` behind the base origin.
     Returns:
         [P] bool, True = collision.
+    Raises:
+        ValueError: for poses not [P, 3] or cells not [K, 2] (a [K, 1] one was broadcast as x = y).
     """
+    if poses.ndim != 2 or poses.shape[-1] != 3:
+        raise ValueError(f"footprint_collides: poses must be [P, 3] (x, y, yaw), got {list(poses.shape)}")
+    if cells.ndim != 2 or cells.shape[-1] != 2:
+        raise ValueError(f"footprint_collides: cells must be [K, 2], got {list(cells.shape)}")
     if cells.numel() == 0:
         return torch.zeros(poses.shape[0], dtype=torch.bool, device=poses.device)
     d = cells[None, :, :] - poses[:, None, :2]  # [P, K, 2]

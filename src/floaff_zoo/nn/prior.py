@@ -160,8 +160,20 @@ class CanonicalLabelGrid(nn.Module):
         """Coordinate (m) of the grid's lower cell edge on both axes (kept as a float: no device sync per read)."""
         return -self.extent - (0.5 * self.cell if centred else 0.0)
 
+    def _check_batch(self, task: Tensor, xy: Tensor) -> None:
+        """Raise ValueError unless task [B] and xy [B, M, 2] (a [1] task was broadcast over the batch, an xy of 3
+        columns had its z binned into the inside flag)."""
+        if xy.ndim != 3 or xy.shape[-1] != 2:
+            raise ValueError(f"CanonicalLabelGrid: xy must be [B, M, 2], got {list(xy.shape)}")
+        if list(task.shape) != [xy.shape[0]]:
+            raise ValueError(
+                f"CanonicalLabelGrid: task must be [{xy.shape[0]}] for xy {list(xy.shape)}, got {list(task.shape)}"
+            )
+
     def cells(self, xy: Tensor) -> tuple[Tensor, Tensor]:
         """Canonical xy [..., 2] -> (flat cell index [...] long, inside-grid flag [...] bool)."""
+        if xy.shape[-1] != 2:
+            raise ValueError(f"CanonicalLabelGrid: xy must be [..., 2], got {list(xy.shape)}")
         ij = torch.floor((xy - self._lower) / self.cell).long()
         inside = ((ij >= 0) & (ij < self.size)).all(-1)
         ij = ij.clamp(0, self.size - 1)
@@ -169,9 +181,20 @@ class CanonicalLabelGrid(nn.Module):
 
     @torch.no_grad()
     def add(self, task: Tensor, xy: Tensor, label: Tensor, mask: Tensor) -> None:
-        """Accumulate labels. task [B] long, xy [B, M, 2] canonical, label [B, M], mask [B, M] bool."""
+        """Accumulate labels. task [B] long, xy [B, M, 2] canonical, label [B, M], mask [B, M] bool.
+
+        Raises:
+            ValueError: for bad shapes (a [B, 1] mask was broadcast) or a task index outside [0, T).
+        """
+        self._check_batch(task, xy)
+        for name, t in (("label", label), ("mask", mask)):
+            if t.shape != xy.shape[:2]:
+                raise ValueError(f"CanonicalLabelGrid: {name} must be {list(xy.shape[:2])}, got {list(t.shape)}")
+        # one sync, in a method whose boolean indexing syncs anyway: a bad index failed inside index_add_
+        if bool(((task < 0) | (task >= len(self.tasks))).any()):
+            raise ValueError(f"CanonicalLabelGrid: task indices must be in [0, {len(self.tasks)}), got {task.tolist()}")
         flat, inside = self.cells(xy)
-        keep = mask & inside
+        keep = mask.bool() & inside
         index = (task[:, None] * self.size * self.size + flat)[keep]
         self.sums.view(-1).index_add_(0, index, label[keep].to(self.sums.dtype))
         self.counts.view(-1).index_add_(0, index, torch.ones_like(index, dtype=self.counts.dtype))
@@ -213,6 +236,7 @@ class CanonicalLabelGrid(nn.Module):
 
     def read(self, task: Tensor, xy: Tensor) -> Tensor:
         """Prior [B, M] at canonical xy [B, M, 2] for tasks [B] (``fill`` outside the grid)."""
+        self._check_batch(task, xy)
         maps = self.cached_mean_maps().flatten(1)  # [T, S*S]
         flat, inside = self.cells(xy)
         vals = maps[task[:, None].expand_as(flat), flat]
