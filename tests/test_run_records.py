@@ -214,3 +214,50 @@ def test_the_data_fingerprint_reads_what_a_fit_trains_on_and_not_what_it_writes(
     assert data_fingerprint(data) == first
     (other / "s1" / "scene.json").write_text('{"labels": [1]}')  # a linked folder generated again
     assert data_fingerprint(data) != first
+
+
+def test_a_last_ckpt_that_is_no_file_is_passed_over_and_named(tmp_path):
+    """A link to a removed checkpoint (or a folder) named last.ckpt stopped `--ckpt_path last|best` with a bare
+    FileNotFoundError from sorting by time, or was handed out as the checkpoint."""
+    import os
+
+    ckpts = tmp_path / "m" / "version_0" / "checkpoints"
+    ckpts.mkdir(parents=True)
+    os.symlink(tmp_path / "removed.ckpt", ckpts / "last.ckpt")
+    (ckpts / "last-v1.ckpt").mkdir()
+    with pytest.raises(RunError, match=r"no last.ckpt under .* \(2 not a file, e\.g\. "):
+        resolve_ckpt_alias("last", tmp_path)
+    real = tmp_path / "m" / "version_1" / "checkpoints" / "last.ckpt"
+    real.parent.mkdir(parents=True)
+    real.write_bytes(b"weights")
+    os.utime(real, (1, 1))  # older than the link: still the only file
+    assert resolve_ckpt_alias("last", tmp_path) == str(real)
+
+
+@pytest.mark.parametrize(
+    "callbacks",
+    [
+        ["ModelCheckpoint"],
+        {"ModelCheckpoint{'monitor': 'val/loss'}": "x.ckpt"},
+        {"ModelCheckpoint{}": {"best_model_path": 5}},
+    ],
+)
+def test_best_of_a_checkpoint_with_damaged_callback_states_is_named(tmp_path, callbacks):
+    """Callback states that are not Lightning's mappings were an AttributeError/TypeError traceback."""
+    import torch
+
+    last = tmp_path / "m" / "version_0" / "checkpoints" / "last.ckpt"
+    last.parent.mkdir(parents=True)
+    torch.save({"state_dict": {}, "callbacks": callbacks, "pytorch-lightning_version": "2"}, last)
+    with pytest.raises(RunError, match=f"--ckpt_path best: {last}: "):
+        resolve_ckpt_alias("best", tmp_path)
+
+
+def test_a_checkpoint_whose_hyper_parameters_are_no_mapping_records_no_class(tmp_path):
+    import torch
+
+    last = tmp_path / "m" / "version_0" / "checkpoints" / "last.ckpt"
+    last.parent.mkdir(parents=True)
+    torch.save({"state_dict": {}, "hyper_parameters": ["lr"], "pytorch-lightning_version": "2"}, last)
+    with pytest.raises(RunError, match=r"no last.ckpt of TinyPointNetModule .*\(no class recorded\)"):
+        resolve_ckpt_alias("best", tmp_path, model_class="TinyPointNetModule")

@@ -16,7 +16,9 @@ import datetime as _dt
 import hashlib
 import json
 import os
+import stat
 import zipfile
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -39,9 +41,10 @@ def resolve_ckpt_alias(alias: str, root: str | Path, model_class: str | None = N
     such as ``PointNet2Module``) only checkpoints whose hyper-parameters record that class count: a root that holds
     the runs of several models (``trainer.default_root_dir``) must not hand one model another model's weights.
     """
-    lasts = sorted(Path(root).rglob("last*.ckpt"), key=lambda p: p.stat().st_mtime, reverse=True)
+    lasts, skipped = _newest_files(Path(root).rglob("last*.ckpt"))
     if not lasts:
-        raise RunError(f"--ckpt_path {alias}: no last.ckpt under {root}; pass a checkpoint file instead")
+        why = f" ({len(skipped)} not a file, e.g. {skipped[0]})" if skipped else ""
+        raise RunError(f"--ckpt_path {alias}: no last.ckpt under {root}{why}; pass a checkpoint file instead")
     last, state = lasts[0], None
     if model_class is not None:
         last, others, unreadable = None, [], None
@@ -67,11 +70,7 @@ def resolve_ckpt_alias(alias: str, root: str | Path, model_class: str | None = N
         return str(last)
     if state is None:
         state = load_checkpoint(last, f"--ckpt_path {alias}: ")
-    recorded = [
-        Path(cb["best_model_path"])
-        for key, cb in (state.get("callbacks") or {}).items()
-        if key.startswith("ModelCheckpoint") and cb.get("best_model_path")
-    ]
+    recorded = [Path(p) for p in _recorded_best_paths(state, f"--ckpt_path {alias}: {last}: ")]
     for best in recorded:
         # the run's own folder first: a moved run's old absolute path may hold another run's file by now
         for candidate in (last.parent / best.name, best):
@@ -85,10 +84,51 @@ def resolve_ckpt_alias(alias: str, root: str | Path, model_class: str | None = N
     return str(last)
 
 
+def _recorded_best_paths(state: dict[str, Any], context: str) -> list[str]:
+    """The ``best_model_path`` each ModelCheckpoint state of a checkpoint records (those that recorded one).
+
+    Raises:
+        RunError: ``{context}...`` when the callbacks' states are not the mappings Lightning writes (a damaged or
+            hand-made file): read as "none recorded", ``best`` would hand out the last weights.
+    """
+    callbacks = state.get("callbacks") or {}
+    if not isinstance(callbacks, dict):
+        raise RunError(f"{context}its 'callbacks' is a {type(callbacks).__name__}, not a mapping")
+    out = []
+    for key, cb in callbacks.items():
+        if not str(key).startswith("ModelCheckpoint"):
+            continue
+        best = cb.get("best_model_path") if isinstance(cb, dict) else cb
+        if not isinstance(cb, dict) or not isinstance(best, (str, type(None))):
+            raise RunError(f"{context}callback state {key}: expected a best_model_path text, got {best!r:.60}")
+        if best:
+            out.append(best)
+    return out
+
+
+def _newest_files(paths: Iterable[Path]) -> tuple[list[Path], list[Path]]:
+    """(the regular files among ``paths``, newest first; the others): a link to nothing, a folder, or a file
+    removed since it was listed (another run's, rotated) has no time to sort by."""
+    files: list[tuple[float, Path]] = []
+    others: list[Path] = []
+    for path in paths:
+        try:
+            st = path.stat()
+        except OSError:
+            st = None
+        if st is not None and stat.S_ISREG(st.st_mode):
+            files.append((st.st_mtime, path))
+        else:
+            others.append(path)
+    files.sort(key=lambda item: item[0], reverse=True)
+    return [p for _, p in files], others
+
+
 def checkpoint_class(ckpt: dict[str, Any]) -> str | None:
     """The class name a Lightning checkpoint's hyper-parameters record (``_class_path``, written when the CLI built
     the model), or None."""
-    path = (ckpt.get("hyper_parameters") or {}).get("_class_path")
+    hparams = ckpt.get("hyper_parameters")
+    path = hparams.get("_class_path") if isinstance(hparams, dict) else None
     return str(path).rsplit(".", 1)[-1] if path else None
 
 
