@@ -112,3 +112,18 @@ def test_a_failing_comparison_table_fails_the_demo(root, tmp_path, monkeypatch, 
     monkeypatch.setattr(demo, "_test", lambda run, data, ckpt=None: tmp_path / "none" / "report.json")  # not written
     assert demo.main(["--data", str(tmp_path / "data"), "--runs", str(tmp_path / "runs")], raise_errors=False) == 2
     assert "floaff-zoo demo: error: the map, sr_views, sr_tasks table(s) failed" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("below", ["", "runs"])
+def test_demo_runs_folder_blocked_by_a_file_is_refused_before_generating(tmp_path, below, capsys):
+    """`--runs <a file>` generated the whole benchmark first and failed at the curriculum's first stage."""
+    from floaff_zoo.demo import parse_args
+
+    blocker = tmp_path / "taken"
+    blocker.write_text("not a folder")
+    with pytest.raises(SystemExit) as ex:
+        parse_args(["--data", str(tmp_path / "data"), "--runs", str(blocker / below)])
+    assert ex.value.code == 2
+    assert f"{blocker} exists and is not a folder" in capsys.readouterr().err
+    assert not (tmp_path / "data").exists()
+    assert parse_args(["--runs", str(tmp_path / "new" / "runs")]).runs == str(tmp_path / "new" / "runs")
