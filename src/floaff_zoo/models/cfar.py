@@ -57,7 +57,7 @@ from __future__ import annotations
 import copy
 import inspect
 import math
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator
 from contextlib import contextmanager, nullcontext
 from typing import Any, ClassVar, Literal
 
@@ -182,15 +182,6 @@ class CFARModule(FloAffModule):
     """
 
     empty_means_default: ClassVar[tuple[str, ...]] = ("prior_tasks",)
-
-    @classmethod
-    def upgrade_init_args(cls, init_args: Mapping[str, Any]) -> dict[str, Any]:
-        """As the base class; a ``prior_tasks`` saved without ``prior_residual``, which was ignored then and is
-        refused now, is dropped."""
-        out = super().upgrade_init_args(init_args)
-        if not out.get("prior_residual", False) and out.get("prior_tasks") is not None:
-            out.pop("prior_tasks")
-        return out
 
     def __init__(
         self,

@@ -35,6 +35,8 @@ from floaff_zoo.contract import SampleError
 from floaff_zoo.nn.ops import (
     check_floor_feat,
     check_interpolation_inputs,
+    check_points,
+    full_mask,
     gpu_fps_kernel,
     point_kernel,
     weighted_gather3,
@@ -72,8 +74,7 @@ def _check_batch_vector(owner: str, name: str, t: Tensor, want: list[int]) -> No
 
 def rotate_z(xyz: Tensor, angle: Tensor) -> Tensor:
     """Rotate points about +z. xyz [B, N, 3], angle [B] (rad) -> [B, N, 3]."""
-    if xyz.ndim != 3 or xyz.shape[-1] != 3:
-        raise ValueError(f"rotate_z: xyz must be [B, N, 3], got {list(xyz.shape)}")
+    check_points("rotate_z: xyz", xyz)
     _check_batch_vector("rotate_z", "angle", angle, [xyz.shape[0]])
     c, s = torch.cos(angle)[:, None], torch.sin(angle)[:, None]
     x, y, z = xyz.unbind(-1)
@@ -106,13 +107,11 @@ def crop_mask(
     Raises:
         SampleError: a sample has no valid point even at ``radius * 1.25**3`` (or no valid point at all).
     """
-    if xyz.ndim != 3 or xyz.shape[-1] != 3:
-        raise ValueError(f"crop_mask: xyz must be [B, N, 3], got {list(xyz.shape)}")
+    check_points("crop_mask: xyz", xyz)
     b = xyz.shape[0]
     # a [B, 1] or [1, N] mask and a [1, 3] centre were broadcast over the batch
-    _check_batch_vector("crop_mask", "mask", mask, list(xyz.shape[:2]))
+    mask = full_mask(xyz, mask, "crop_mask: mask")
     _check_batch_vector("crop_mask", "centre", centre, [b, 3])
-    mask = mask.bool()
     if radius is None:
         empty = ~mask.any(dim=1)
         if empty.any():
@@ -235,14 +234,11 @@ def tolerant_fps(xyz: Tensor, mask: Tensor | None, npoint: int, tol: float = FPS
     Raises:
         ValueError: for npoint below 1, a cloud without a valid point, bad shapes (a [B, 1] mask was broadcast).
     """
-    if xyz.ndim != 3 or xyz.shape[-1] != 3:
-        raise ValueError(f"tolerant_fps: xyz must be [B, N, 3], got {list(xyz.shape)}")
+    check_points("tolerant_fps: xyz", xyz)
     if int(npoint) < 1:
         raise ValueError(f"tolerant_fps: npoint must be >= 1, got {npoint}")
     b, n, _ = xyz.shape
-    if mask is not None:
-        _check_batch_vector("tolerant_fps", "mask", mask, [b, n])
-    mask = torch.ones(b, n, dtype=torch.bool, device=xyz.device) if mask is None else mask.bool()
+    mask = full_mask(xyz, mask, "tolerant_fps: mask")  # a [B, 1] one was broadcast
     if not mask.any(dim=1).all():
         raise ValueError("tolerant_fps: a cloud of the batch has no valid point")
     kernel = point_kernel(xyz.device)

@@ -63,7 +63,8 @@ def check_floor_feat(owner: str, floor_feat: Tensor | None, floor_xyz: Tensor, c
         )
 
 
-def _check_points(name: str, xyz: Tensor) -> None:
+def check_points(name: str, xyz: Tensor) -> None:
+    """Raise ``ValueError`` naming ``name`` unless ``xyz`` is [B, N, 3] (shape only: no device sync)."""
     if xyz.ndim != 3 or xyz.shape[-1] != 3:
         raise ValueError(f"{name} must be [B, N, 3], got {list(xyz.shape)}")
 
@@ -71,14 +72,15 @@ def _check_points(name: str, xyz: Tensor) -> None:
 def _check_queries(name: str, queries: Tensor, cloud: Tensor) -> None:
     """``queries`` [B, S, 3] for the cloud [B, N, 3]: the same batch (the torch path broadcast a batch of 1 over B,
     the C++ kernels refused it)."""
-    _check_points(name, queries)
+    check_points(name, queries)
     if queries.shape[0] != cloud.shape[0]:
         raise ValueError(
             f"{name} must be [{cloud.shape[0]}, S, 3] for a batch of {cloud.shape[0]}, got {list(queries.shape)}"
         )
 
 
-def _full_mask(xyz: Tensor, mask: Tensor | None, name: str) -> Tensor:
+def full_mask(xyz: Tensor, mask: Tensor | None, name: str) -> Tensor:
+    """``mask`` [B, N] as bool, all True for None; ``ValueError`` naming ``name`` for another shape."""
     if mask is None:
         return torch.ones(xyz.shape[:2], dtype=torch.bool, device=xyz.device)
     if mask.shape != xyz.shape[:2]:
@@ -234,10 +236,10 @@ def gpu_fps_kernel(xyz: Tensor):
 
 
 def _fps_prepare(xyz: Tensor, mask: Tensor | None, npoint: int) -> Tensor:
-    _check_points("xyz", xyz)
+    check_points("xyz", xyz)
     if npoint < 1:
         raise ValueError(f"npoint must be >= 1, got {npoint}")
-    mask = _full_mask(xyz, mask, "mask")
+    mask = full_mask(xyz, mask, "mask")
     counts = mask.sum(dim=1)
     if (counts == 0).any():
         bad = torch.nonzero(counts == 0).flatten().tolist()
@@ -332,7 +334,7 @@ def ball_query_multi(
     Raises:
         ValueError: for a radius that is negative or NaN or a K below 1, a cloud without a valid point, bad shapes.
     """
-    _check_points("xyz", xyz)
+    check_points("xyz", xyz)
     _check_queries("new_xyz", new_xyz, xyz)
     if len(radii) != len(nsamples):
         raise ValueError(f"radii {radii} and nsamples {nsamples} differ in length")
@@ -341,7 +343,7 @@ def ball_query_multi(
         raise ValueError(f"ball_query: every radius must be >= 0, got {list(radii)}")
     if any(int(k) < 1 for k in nsamples):  # K = 0: [B, S, 0] on the torch path, an error in the C++ kernel
         raise ValueError(f"ball_query: every nsample must be >= 1, got {list(nsamples)}")
-    mask = _full_mask(xyz, mask, "mask")
+    mask = full_mask(xyz, mask, "mask")
     if not mask.any(dim=1).all():
         raise ValueError("ball_query: a cloud of the batch has no valid point")
     b, n, _ = xyz.shape
@@ -389,9 +391,9 @@ def knn(k: int, xyz: Tensor, new_xyz: Tensor, mask: Tensor | None = None) -> tup
     """
     if int(k) < 1:
         raise ValueError(f"knn: k must be >= 1, got {k}")
-    _check_points("xyz", xyz)
+    check_points("xyz", xyz)
     _check_queries("new_xyz", new_xyz, xyz)
-    mask = _full_mask(xyz, mask, "mask")
+    mask = full_mask(xyz, mask, "mask")
     if not mask.any(dim=1).all():
         raise ValueError("knn: a cloud of the batch has no valid point")
     sqr = square_distance(new_xyz, xyz).masked_fill(~mask[:, None, :], float("inf"))
@@ -428,10 +430,10 @@ def three_nn(unknown: Tensor, known: Tensor, known_mask: Tensor | None = None) -
 
 def _three_nn_search(unknown: Tensor, known: Tensor, known_mask: Tensor | None) -> tuple[Tensor, Tensor]:
     """``three_nn``'s picks by the expanded distance (C++ kernel or torch): (sq_dist [B, n, 3], idx [B, n, 3])."""
-    _check_points("known", known)
+    check_points("known", known)
     _check_queries("unknown", unknown, known)
     masked = known_mask is not None
-    known_mask = _full_mask(known, known_mask, "known_mask")  # checked: a [1, m] mask was broadcast on the torch path
+    known_mask = full_mask(known, known_mask, "known_mask")  # checked: a [1, m] mask was broadcast on the torch path
     kernel = point_kernel(unknown.device)
     if kernel is not None:
         return tuple(kernel.three_nn_direct(*_direct_parts(unknown, known), known_mask.contiguous()))
@@ -487,7 +489,7 @@ def three_interpolate(unknown: Tensor, known: Tensor, known_feat: Tensor, known_
 def check_interpolation_inputs(unknown: Tensor, known: Tensor, known_feat: Tensor, known_mask: Tensor | None) -> None:
     """Raise ``ValueError`` naming the argument unless unknown [B, n, 3], known [B, m, 3] (m >= 1), known_feat
     [B, m, C] and known_mask [B, m] or None fit together (shape checks only: no device sync)."""
-    _check_points("known", known)
+    check_points("known", known)
     _check_queries("unknown", unknown, known)
     if known.shape[1] == 0:
         raise ValueError(f"known must hold at least one point, got {list(known.shape)}")
