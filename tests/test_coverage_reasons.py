@@ -83,8 +83,8 @@ def test_bad_input_exits_with_a_message(tmp_path):
 @pytest.mark.parametrize(
     ("edit", "match"),
     [
-        (lambda c: c.update(cell=float("nan")), r"candidates\.cell must be a finite spacing > 0"),
-        (lambda c: c.update(cell=0), r"candidates\.cell must be a finite spacing > 0"),
+        (lambda c: c.update(cell=float("nan")), r"candidates\.cell must be a finite number > 0"),
+        (lambda c: c.update(cell=0), r"candidates\.cell must be a finite number > 0"),
         (lambda c: c["xy"].__setitem__(0, [float("nan"), -1.0]), r"candidates\.xy holds NaN"),
         (lambda c: c["xy"].__setitem__(0, [-1.0, -1.0, 0.0]), r"candidates\.xy must"),
     ],

@@ -34,6 +34,7 @@ import numpy as np
 
 from floaff_zoo import atomic
 from floaff_zoo.atomic import atomic_write
+from floaff_zoo.checks import check_number
 from floaff_zoo.names import BENCHMARKS as BENCHMARKS  # defined once there; re-exported (the scripts read it here)
 from floaff_zoo.names import TASKS
 
@@ -382,11 +383,7 @@ def _check_grid(cand: dict[str, Any], p: Path) -> None:
     xy = _finite_numbers(cand["xy"], "candidates.xy", p)
     if xy.size and (xy.ndim != 2 or xy.shape[1] != 2):
         raise FormatError(f"{p}: candidates.xy must be [M, 2], got shape {list(xy.shape)}")
-    cell = cand.get("cell")
-    if cell is not None and (
-        isinstance(cell, bool) or not isinstance(cell, (int, float)) or not math.isfinite(cell) or cell <= 0
-    ):
-        raise FormatError(f"{p}: candidates.cell must be a finite spacing > 0 (m), got {cell!r}")
+    check_number("candidates.cell", cand.get("cell"), strict=True, owner=str(p), error=FormatError, none_means="unset")
 
 
 def labels_digest(rec: dict[str, Any]) -> str:
