@@ -23,6 +23,8 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
+from floaff_zoo.atomic import existing_ancestor  # noqa: E402
+
 
 def bench_render(n_views: int, image_size: int) -> dict[str, float]:
     """Build one CloseDrawer scene and time view sampling + rendering (ms per view, by view kind)."""
@@ -88,7 +90,7 @@ def check_args(ap: argparse.ArgumentParser, args: argparse.Namespace) -> None:
     if args.out is None:
         return
     out = Path(args.out)
-    folder = next((p for p in [out, *out.absolute().parents] if p.exists()))  # generate creates the missing ones
+    folder = existing_ancestor(out)  # generate creates the missing ones
     if not folder.is_dir():
         ap.error(f"--out {out}: {folder} is not a folder")
     for name in ("tiny", "small") if args.small else ("tiny",):

@@ -18,7 +18,7 @@ import sys
 import time
 from pathlib import Path
 
-from floaff_zoo.atomic import atomic_write_text
+from floaff_zoo.atomic import atomic_write_text, existing_ancestor
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
@@ -103,7 +103,7 @@ def check_out(ap: argparse.ArgumentParser, out: Path) -> None:
     the suite runs (10-20 minutes), whose output was lost when the write failed at its end."""
     if out.is_dir():
         ap.error(f"--out {out}: is a folder, give the report's file name")
-    folder = next(p for p in out.absolute().parents if p.exists())  # the write creates the missing folders
+    folder = existing_ancestor(out.absolute().parent)  # the write creates the missing folders
     if not folder.is_dir() or not os.access(folder, os.W_OK | os.X_OK):
         ap.error(f"--out {out}: cannot write under {folder}")
     if out.exists():

@@ -6,7 +6,7 @@ import stat
 import numpy as np
 import pytest
 
-from floaff_zoo.atomic import atomic_write
+from floaff_zoo.atomic import atomic_write, existing_ancestor
 from floaff_zoo.sim import fileformat as ff
 
 
@@ -100,3 +100,13 @@ def test_the_kept_metrics_keep_their_csv_bytes(tmp_path):
     rows = [{"val_loss": "1.0", "epoch": "0"}, {"epoch": "0", "val_loss": "1.0"}, {"epoch": "1", "step": "9"}]
     curriculum._write_rows(tmp_path / "kept.csv", rows)
     assert (tmp_path / "kept.csv").read_bytes() == b"epoch,step,val_loss\r\n0,,1.0\r\n1,9,\r\n"
+
+
+def test_existing_ancestor_is_the_first_existing_path_a_dangling_link_included(tmp_path, monkeypatch):
+    (tmp_path / "file").write_text("x")
+    (tmp_path / "dangling").symlink_to(tmp_path / "gone")
+    assert existing_ancestor(tmp_path / "a" / "b") == tmp_path
+    assert existing_ancestor(tmp_path / "file" / "sub") == tmp_path / "file"
+    assert existing_ancestor(tmp_path / "dangling" / "sub") == tmp_path / "dangling"
+    monkeypatch.chdir(tmp_path)
+    assert existing_ancestor("new/runs") == tmp_path  # relative paths are taken from the working folder

@@ -69,6 +69,13 @@ def _umask() -> int:
     return umask
 
 
+def existing_ancestor(path: str | os.PathLike[str]) -> Path:
+    """The first of ``path`` and its parents that exists (a dangling link counts): where a write that creates the
+    missing folders would start. Callers check it is a folder before minutes of work whose output it is to hold."""
+    path = Path(path).absolute()
+    return next(p for p in (path, *path.parents) if p.exists() or p.is_symlink())
+
+
 def publish(tmp: str | os.PathLike[str], dest: str | os.PathLike[str]) -> None:
     """Rename the finished temp file ``tmp`` onto ``dest``, with the mode the umask gives a new file."""
     os.chmod(tmp, 0o666 & ~_umask())

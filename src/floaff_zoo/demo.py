@@ -22,6 +22,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from floaff_zoo.atomic import existing_ancestor
 from floaff_zoo.names import TASKS as ALL_TASKS  # the final model and the baseline are tested on every task
 
 EXPERIMENT = "configs/demo/pfal_demo.yaml"
@@ -193,18 +194,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         args.data = f"data/floaff_{args.preset}"
     if args.runs is None:
         args.runs = "runs/demo" if args.preset == "demo" else f"runs/demo_{args.preset}"
-    blocked = _file_in_the_way(Path(args.runs))
-    if blocked is not None:  # the curriculum found it only after the benchmark was generated (minutes)
-        p.error(f"--runs {args.runs}: {blocked} exists and is not a folder")
+    if not (found := existing_ancestor(args.runs)).is_dir():  # the curriculum found it only after generating
+        p.error(f"--runs {args.runs}: {found} exists and is not a folder")
     return args
-
-
-def _file_in_the_way(folder: Path) -> Path | None:
-    """The first of ``folder`` and its parents that exists and is not a folder (None: it can be made)."""
-    for path in (folder, *folder.parents):
-        if path.exists() or path.is_symlink():
-            return None if path.is_dir() else path
-    return None
 
 
 def _run(argv: list[str] | None, raise_errors: bool) -> int:
