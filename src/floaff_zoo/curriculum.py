@@ -943,12 +943,21 @@ def _stage_lock(name: str, sdir: Path, out: Any) -> Iterator[None]:
     fitted it twice at once, and each tagged the other's live run as its own. The second waits, then finds the stage
     finished. DDP worker processes (a nonzero LOCAL_RANK / NODE_RANK: Lightning's launcher re-runs the command in
     them) take no lock: rank 0 of the same run holds it."""
-    if any(int(os.environ.get(k, "0") or 0) > 0 for k in ("LOCAL_RANK", "NODE_RANK")):
+    if any(_rank(k) > 0 for k in ("LOCAL_RANK", "NODE_RANK")):
         yield
         return
     message = f"[curriculum] stage {name}: another curriculum is working on {sdir}; waiting for it"
     with folder_lock(sdir / STAGE_LOCK, on_wait=lambda: print(message, file=out)):
         yield
+
+
+def _rank(variable: str) -> int:
+    """The launcher's rank in environment ``variable`` (0 when unset or empty); a non-number is named."""
+    value = os.environ.get(variable, "").strip()
+    try:
+        return int(value or 0)
+    except ValueError:
+        raise CurriculumError(f"environment variable {variable}={value!r}: not a whole-number rank") from None
 
 
 def _fit_errors() -> tuple[type[BaseException], ...]:

@@ -378,7 +378,7 @@ def test_a_stage_another_curriculum_is_working_on_is_waited_for(tmp_path, monkey
     import time as clock
 
     from floaff_zoo.atomic import folder_lock
-    from floaff_zoo.curriculum import STAGE_LOCK, _stage_lock
+    from floaff_zoo.curriculum import STAGE_LOCK, CurriculumError, _stage_lock
 
     sdir = tmp_path / "axisnet"
     held, release = threading.Event(), threading.Event()
@@ -399,6 +399,10 @@ def test_a_stage_another_curriculum_is_working_on_is_waited_for(tmp_path, monkey
     assert waited >= 0.4 and "another curriculum is working on" in out.getvalue()
     with folder_lock(sdir / STAGE_LOCK):  # held by "rank 0": a worker process of the same run goes on
         monkeypatch.setenv("LOCAL_RANK", "1")
+        with _stage_lock("axisnet", sdir, out):
+            pass
+    monkeypatch.setenv("LOCAL_RANK", "one")  # a traceback from int() before
+    with pytest.raises(CurriculumError, match="LOCAL_RANK='one': not a whole-number rank"):
         with _stage_lock("axisnet", sdir, out):
             pass
 
