@@ -551,6 +551,20 @@ def test_a_fit_whose_data_setup_fails_leaves_no_empty_run_folder(tmp_path, root,
     assert out.is_dir() and not list(out.iterdir())
 
 
+def test_a_file_in_place_of_the_next_run_folder_is_named(tmp_path, root, monkeypatch):
+    """Lightning counts only folders when it picks ``version_N``: a file named ``version_0`` in the model's folder
+    ended the fit in a ``FileExistsError`` traceback from its setup hook. It is refused, the file left as it was."""
+    monkeypatch.chdir(root)
+    out = tmp_path / "runs"
+    blocker = out / "tinypointnetmodule" / "version_0"
+    blocker.parent.mkdir(parents=True)
+    blocker.write_text("a user's notes")
+    args = ["fit", "--config", DATA, "--config", MODEL, *quiet_trainer_args(out)]
+    with pytest.raises(CLIError, match=f"run folder {blocker}: a file is in its place; move it away"):
+        main(args)
+    assert blocker.read_text() == "a user's notes"
+
+
 class WritesThenFails(L.Callback):
     """Writes a file into its run's folder, then stops the fit (a run that failed after writing something)."""
 
