@@ -221,7 +221,8 @@ def test_floor_queries_refuse_clouds_that_are_not_n_by_3_and_poses_that_are_not_
         default_floor_grid(np.array([0.5, 0.0, 0.8]), xyz.T)
     box = np.array([[0.0, 0.0, 0.3], [0.1, 0.1, 0.3], [-0.2, 0.1, 0.5]])
     assert footprint_blocked(box, (0.0, 0.0, 0.0))
-    for pose in ((float("nan"), 0.0, 0.0), (0.0, 0.0), (0.0, 0.0, float("inf")), ("x", 0.0, 0.0), [[0.0], 1.0, 2.0]):
+    bad_poses = ((float("nan"), 0.0, 0.0), (0.0, 0.0), (0.0, 0.0, float("inf")), ("x", 0.0, 0.0), [[0.0], 1.0, 2.0])
+    for pose in (*bad_poses, (True, 0.0, 0.0), np.array([False, True, False])):  # bools were read as 1 m and 0 m
         with pytest.raises(ValueError, match=r"footprint_blocked: pose must be 3 finite values"):
             footprint_blocked(box, pose)
         with pytest.raises(ValueError, match=r"footprint_coverage: pose must be 3 finite values"):

@@ -279,3 +279,11 @@ def test_bad_values_name_their_argument_and_chunk_size_is_an_integer():
         with pytest.raises(ValueError, match="FloorPCC: chunk_size must be an integer >= 1"):
             FloorPCC(reduction="official_batchwise", chunk_size=bad)  # type: ignore[arg-type]
     assert FloorPCC(reduction="official_batchwise", chunk_size=np.int64(8)).chunk_size == 8
+    z = torch.zeros(2, 3)
+    for arg, args in (
+        ("index", (z, z, None, [0, 1])),  # an AttributeError on ``.shape`` before
+        ("mask", (z, z, [[True] * 3] * 2)),
+        ("target", (z, np.zeros((2, 3)))),
+    ):
+        with pytest.raises(TypeError, match=f"FloorRMSE: {arg} must be a torch.Tensor, got "):
+            m.update(*args)

@@ -140,6 +140,8 @@ def check_pose(pose: Any, who: str, what: str = "pose") -> tuple[float, float, f
     was written into the robot's qpos."""
     try:
         p = np.asarray(pose, dtype=np.float64).reshape(-1)
+        if any(isinstance(v, (bool, np.bool_)) for v in np.asarray(pose, dtype=object).reshape(-1)):
+            p = np.empty(0)  # True is not x = 1 m: a flag passed where the pose belongs
     except (TypeError, ValueError):  # not numbers (a string, a ragged list): named like any other bad pose
         p = np.empty(0)
     if p.size != 3 or not np.isfinite(p).all():

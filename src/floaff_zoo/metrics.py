@@ -93,6 +93,9 @@ def _check_inputs(
     name: str, preds: Tensor, target: Tensor, mask: Tensor | None, index: Tensor | None
 ) -> tuple[Tensor, Tensor, Tensor]:
     """Validate shapes/dtypes; return (p, g) float64 [B, M] and mask bool [B, M]."""
+    for arg, value in (("preds", preds), ("target", target), ("mask", mask), ("index", index)):
+        if value is not None and not isinstance(value, Tensor):  # a list failed on ``.shape`` naming nothing
+            raise TypeError(f"{name}: {arg} must be a torch.Tensor, got {type(value).__name__}")
     if preds.ndim != 2 or preds.shape != target.shape:
         raise ValueError(
             f"{name}: preds and target must both be [B, M]; got {tuple(preds.shape)} and {tuple(target.shape)}"
