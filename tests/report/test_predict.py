@@ -376,6 +376,21 @@ def test_figures_of_groups_whose_names_spell_one_file_name_are_all_kept(tmp_path
     assert sorted(p.stem for p in tmp_path.glob("*.png")) == sorted(names)
 
 
+def test_a_figure_sample_out_of_step_is_named():
+    """Scores of another length failed in matplotlib at the drawing, naming no sample; a [M, 1] label broadcast."""
+    from floaff_zoo.report.figures import FigureSample
+
+    floor, ok, target = np.zeros((4, 3)), np.zeros(4), np.array([2.0, 0.0, 0.5])
+    for args, said in (
+        ((floor, ok, np.zeros(5), target), r"scores must be \[M=4\], got \[5\]"),
+        ((floor, ok[:, None], ok, target), r"label must be \[M=4\], got \[4, 1\]"),
+        ((floor[:, :2], ok, ok, target), r"floor_xyz must be \[M, 3\], got \[4, 2\]"),
+        ((floor, ok, ok, target[:2]), r"target_xyz must be \[3\], got \[2\]"),
+    ):
+        with pytest.raises(ValueError, match=f"figure sample s7: {said}"):
+            FigureSample(*args, 0.0, meta={"sample_id": "s7"})
+
+
 def test_a_model_without_a_floor_map_is_named():
     """AxisNet (a yaw estimator) given to predict_from_points ended in an unrelated IndexError in the raster."""
     from floaff_zoo.models.axisnet import AxisNetModule

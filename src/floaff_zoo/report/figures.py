@@ -41,6 +41,19 @@ class FigureSample:
     success: bool | None = None
     oracle_success: bool | None = None
 
+    def __post_init__(self) -> None:
+        """Shapes checked where the sample is made: out of step, matplotlib failed at the drawing, naming no sample
+        (scores of another length), or the panels drew the wrong cells (a [M, 1] label broadcast)."""
+        who = f"figure sample {(self.meta or {}).get('sample_id', '?')!s}"
+        m = np.shape(self.floor_xyz)
+        if len(m) != 2 or m[1] != 3:
+            raise ValueError(f"{who}: floor_xyz must be [M, 3], got {list(m)}")
+        for name in ("label", "scores"):
+            if np.shape(getattr(self, name)) != m[:1]:
+                raise ValueError(f"{who}: {name} must be [M={m[0]}], got {list(np.shape(getattr(self, name)))}")
+        if np.shape(self.target_xyz) != (3,):
+            raise ValueError(f"{who}: target_xyz must be [3], got {list(np.shape(self.target_xyz))}")
+
 
 def _plt():
     import matplotlib
