@@ -161,3 +161,37 @@ def test_two_tests_into_one_folder_write_one_after_the_other(tmp_path, capsys):
     thread.join(120)
     assert not errors and not thread.is_alive() and (tmp_path / "report.json").is_file()
     assert f"another test is writing its report into {tmp_path}; waiting" in capsys.readouterr().out
+
+
+class _CountBatches(L.Callback):
+    def __init__(self) -> None:
+        self.batches = 0
+
+    def on_test_batch_end(self, *args, **kwargs) -> None:
+        self.batches += 1
+
+
+def test_a_report_folder_that_cannot_take_the_report_is_refused_before_the_test(tmp_path):
+    """A file in place of the report folder, of its ``figures`` folder, or a folder in place of ``report.json`` failed
+    at the test's end, after every batch and rollout: the results were lost."""
+    from lightning.pytorch.utilities.exceptions import MisconfigurationException
+
+    (tmp_path / "file").write_text("x")
+    (tmp_path / "figs").mkdir()
+    (tmp_path / "figs" / "figures").write_text("x")
+    (tmp_path / "json" / "report.json").mkdir(parents=True)
+    for out, figures, said in (
+        (tmp_path / "file" / "run", False, f"cannot write the report into {tmp_path / 'file' / 'run'}: "),
+        (tmp_path / "figs", True, f"{tmp_path / 'figs' / 'figures'} is a file; the figures go into a folder"),
+        (tmp_path / "json", False, f"{tmp_path / 'json' / 'report.json'} is a folder; the report writes a file"),
+    ):
+        counted = _CountBatches()
+        trainer = quiet_trainer([counted, TestReport(out_dir=str(out), figures=figures)])
+        with pytest.raises(MisconfigurationException, match=f"TestReport: {said}"):
+            trainer.test(ConstantModule(), dataloaders=loader(make_samples(2)), verbose=False)
+        assert counted.batches == 0
+    # without figures a file named figures is no obstacle
+    quiet_trainer([TestReport(out_dir=str(tmp_path / "figs"), figures=False)]).test(
+        ConstantModule(), dataloaders=loader(make_samples(2)), verbose=False
+    )
+    assert (tmp_path / "figs" / "report.json").is_file()
