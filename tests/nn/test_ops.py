@@ -465,8 +465,14 @@ def test_ball_query_refuses_a_negative_or_nan_radius_and_an_empty_sample(monkeyp
     for radius in (-0.5, float("nan")):
         with pytest.raises(ValueError, match="radius must be >= 0"):
             ops.ball_query(radius, 3, xyz, xyz[:, :2])
-    with pytest.raises(ValueError, match="nsample must be >= 1"):
+    with pytest.raises(ValueError, match="ball_query: nsample must be an integer >= 1, got 0"):
         ops.ball_query_multi([0.5, 0.5], [3, 0], xyz, xyz[:, :2])
+    for k in (2.5, True):  # 2.5 was cut to 2, True taken as 1
+        with pytest.raises(ValueError, match=f"ball_query: nsample must be an integer >= 1, got {k}"):
+            ops.ball_query(0.5, k, xyz, xyz[:, :2])
+    for npoint in (0, 2.5, True):
+        with pytest.raises(ValueError, match=f"farthest_point_sample: npoint must be an integer >= 1, got {npoint}"):
+            ops.farthest_point_sample(xyz, None, npoint)
     # radius 0 stays valid: the centre itself (drawn from xyz), else its nearest valid point
     assert ops.ball_query(0.0, 2, xyz, xyz[:, :2]).tolist() == [[[0, 0], [1, 1]]]
 
@@ -571,8 +577,9 @@ def test_canonical_transform_refuses_batch_broadcasts():
         cfar.canonical_transform(x, m, x, x[:, 0], torch.rand(2), 0.5, extra_angle=torch.rand(1))
     with pytest.raises(ValueError, match=r"centre must be \[2, 3\]"):
         cfar.canonical_to_robot(x, x[:1, 0], torch.rand(2))
-    with pytest.raises(ValueError, match="npoint must be >= 1"):
-        cfar.tolerant_fps(x, m, 0)
+    for npoint in (0, 2.5):
+        with pytest.raises(ValueError, match=f"tolerant_fps: npoint must be an integer >= 1, got {npoint}"):
+            cfar.tolerant_fps(x, m, npoint)
     with pytest.raises(ValueError, match=r"mask must be \[2, 16\]"):
         cfar.tolerant_fps(x, m[:, :1], 4)
 

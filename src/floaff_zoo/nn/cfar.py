@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor, nn
 
-from floaff_zoo.checks import check_number
+from floaff_zoo.checks import check_integer, check_number
 from floaff_zoo.contract import SampleError
 from floaff_zoo.nn.ops import (
     check_floor_feat,
@@ -235,8 +235,7 @@ def tolerant_fps(xyz: Tensor, mask: Tensor | None, npoint: int, tol: float = FPS
         ValueError: for npoint below 1, a cloud without a valid point, bad shapes (a [B, 1] mask was broadcast).
     """
     check_points("tolerant_fps: xyz", xyz)
-    if int(npoint) < 1:
-        raise ValueError(f"tolerant_fps: npoint must be >= 1, got {npoint}")
+    check_integer("npoint", npoint, 1, owner="tolerant_fps")
     b, n, _ = xyz.shape
     mask = full_mask(xyz, mask, "tolerant_fps: mask")  # a [B, 1] one was broadcast
     if not mask.any(dim=1).all():

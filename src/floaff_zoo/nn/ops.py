@@ -16,6 +16,7 @@ import os
 import torch
 from torch import Tensor
 
+from floaff_zoo.checks import check_integer
 from floaff_zoo.nn import _fps_ext
 
 __all__ = [
@@ -237,8 +238,7 @@ def gpu_fps_kernel(xyz: Tensor):
 
 def _fps_prepare(xyz: Tensor, mask: Tensor | None, npoint: int) -> Tensor:
     check_points("xyz", xyz)
-    if npoint < 1:
-        raise ValueError(f"npoint must be >= 1, got {npoint}")
+    check_integer("npoint", npoint, 1, owner="farthest_point_sample")  # 2.5 was cut to 2 by the kernels
     mask = full_mask(xyz, mask, "mask")
     counts = mask.sum(dim=1)
     if (counts == 0).any():
@@ -341,8 +341,8 @@ def ball_query_multi(
     # squared, a negative radius was the ball of its absolute value; a NaN one held no point (nearest fallback)
     if not all(float(r) >= 0 for r in radii):
         raise ValueError(f"ball_query: every radius must be >= 0, got {list(radii)}")
-    if any(int(k) < 1 for k in nsamples):  # K = 0: [B, S, 0] on the torch path, an error in the C++ kernel
-        raise ValueError(f"ball_query: every nsample must be >= 1, got {list(nsamples)}")
+    for k in nsamples:  # K = 0: [B, S, 0] on the torch path, an error in the C++ kernel; 2.5 was cut to 2
+        check_integer("nsample", k, 1, owner="ball_query")
     mask = full_mask(xyz, mask, "mask")
     if not mask.any(dim=1).all():
         raise ValueError("ball_query: a cloud of the batch has no valid point")
