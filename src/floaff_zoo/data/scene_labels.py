@@ -141,7 +141,7 @@ class SceneLabels(SampleTransform):
         it was kept (module doc)."""
         self.table()
         made = self._setting.get(MADE_FROM)
-        return {str(k): str(v) for k, v in made.items()} if isinstance(made, dict) else None
+        return dict(made) if isinstance(made, dict) else None  # read_scene_labels checked: str to str
 
     def __getstate__(self) -> dict[str, Any]:  # worker processes read the file themselves
         return {"path": self.path, "_table": None, "_setting": {}}
