@@ -55,10 +55,17 @@ def _user_error(prog: str, why: str) -> int:
 
 def refuse_folders(parser: argparse.ArgumentParser, **files: str | Path | None) -> None:
     """A usage error (``parser.error``) for the first of ``files`` (option name with ``_`` for ``-`` -> path) that
-    names an existing folder: a script writes its files after the work, so a folder there lost the run at its end."""
+    names an existing folder, or lies under a file: a script writes its files after the work, so either lost the run
+    at its end (a missing folder is fine: the writers make it)."""
     for option, path in files.items():
-        if path is not None and Path(path).is_dir():
-            parser.error(f"--{option.replace('_', '-')} names a file to write, got the folder {str(path)!r}")
+        if path is None:
+            continue
+        flag = f"--{option.replace('_', '-')}"
+        if Path(path).is_dir():
+            parser.error(f"{flag} names a file to write, got the folder {str(path)!r}")
+        above = next((q for q in Path(path).parents if q.exists() or q.is_symlink()), None)
+        if above is not None and not above.is_dir():
+            parser.error(f"{flag} {str(path)!r}: {str(above)!r} exists and is not a folder")
 
 
 def floor_model(model: str, where: str) -> torch.nn.Module:

@@ -58,28 +58,44 @@ def test_a_package_error_naming_the_script_is_not_prefixed_twice(capsys):
     assert capsys.readouterr().err == "yaw_errors: error: axisnet 'x.ckpt': no such file\n"
 
 
-@pytest.mark.parametrize(
-    ("script", "args"),
-    [
-        ("cv_sr", ["x.json"]),
-        ("episodes_sr", ["a=x.json"]),
-        ("predict_sr", ["--root", "r", "--model", "m"]),
-        ("protocol_change", ["a.json", "b.json"]),
-        ("scene_sr", ["a=m"]),
-        ("val_sr", ["m"]),
-        ("coverage_reasons", []),
-        ("fixed_cell_ceiling", []),
-        ("prior_cells", []),
-        ("target_inputs", []),
-        ("reset_drift", ["--root", "r"]),
-        ("yaw_errors", ["--root", "r"]),
-    ],
-)
+#: the scripts with a --json output, each with the arguments it needs to parse
+JSON_SCRIPTS = [
+    ("cv_sr", ["x.json"]),
+    ("episodes_sr", ["a=x.json"]),
+    ("predict_sr", ["--root", "r", "--model", "m"]),
+    ("protocol_change", ["a.json", "b.json"]),
+    ("scene_sr", ["a=m"]),
+    ("val_sr", ["m"]),
+    ("coverage_reasons", []),
+    ("fixed_cell_ceiling", []),
+    ("prior_cells", []),
+    ("target_inputs", []),
+    ("reset_drift", ["--root", "r"]),
+    ("yaw_errors", ["--root", "r"]),
+]
+
+
+@pytest.mark.parametrize(("script", "args"), JSON_SCRIPTS)
 def test_a_json_output_that_is_a_folder_is_refused_before_the_work(script, args, tmp_path, capsys):
     """The scripts write --json after the work: a folder there was an IsADirectoryError at the very end of the run."""
     with pytest.raises(SystemExit) as done:
         load_script(script).main([*args, "--json", str(tmp_path)])
     assert done.value.code == 2 and "--json names a file to write, got the folder" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(("script", "args"), JSON_SCRIPTS)
+def test_a_json_output_under_a_file_is_refused_before_the_work(script, args, tmp_path, capsys):
+    """A --json under a file passed the folder check: the write failed with a NotADirectoryError (or a
+    FileExistsError naming only the file) at the very end of the run."""
+    (tmp_path / "notes.txt").write_text("")
+    out = tmp_path / "notes.txt" / "sub" / "x.json"
+    with pytest.raises(SystemExit) as done:
+        load_script(script).main([*args, "--json", str(out)])
+    err = capsys.readouterr().err
+    assert (
+        done.value.code == 2
+        and f"--json {str(out)!r}: {str(tmp_path / 'notes.txt')!r} exists and is not a folder" in err
+    )
 
 
 @pytest.mark.parametrize(
