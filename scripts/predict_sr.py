@@ -21,6 +21,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from script_cli import floor_model, refuse_folders  # noqa: E402
 
+from floaff_zoo.atomic import atomic_write_text
 from floaff_zoo.frames import facing_pose, pose_to_world
 from floaff_zoo.predict import check_cell, predict_from_points
 from floaff_zoo.sim import fileformat as ff
@@ -74,7 +75,7 @@ def main(argv: list[str] | None = None) -> int:
     for key in out:
         print(f"| {key} | " + " | ".join(f"{v:.2f}" for v in out[key].values()) + " |")
     if a.json:
-        Path(a.json).write_text(json.dumps(out, indent=1))
+        atomic_write_text(a.json, json.dumps(out, indent=1))  # a missing folder failed after every rollout
     return 0
 
 

@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from floaff_zoo.atomic import atomic_write_text
 from floaff_zoo.contract import TASKS
 from floaff_zoo.data.floaff_kitchen import FloAffKitchenDataModule, view_sample_id
 from floaff_zoo.nn.prior import CanonicalLabelGrid
@@ -127,7 +128,7 @@ def main(argv: list[str] | None = None) -> int:
                     vals = " | ".join(f"{sr[t]:.2f}" if t in sr else "n/a" for t in TASKS)  # a task without views
                     print(f"| {bench} | {cells} | {yaw} | {split} | {vals} | {sr['all']:.3f} |")
     if a.json:
-        Path(a.json).write_text(json.dumps(rows, indent=1) + "\n")
+        atomic_write_text(a.json, json.dumps(rows, indent=1) + "\n")  # makes a missing folder, as the others do
     return 0
 
 

@@ -1,5 +1,6 @@
 """scripts/predict_sr.py: SR of the predict API's default floor vs the dataset's floor points, on test views."""
 
+import json
 import re
 
 import pytest
@@ -42,3 +43,26 @@ def test_a_cell_that_is_no_size_is_named(cell, tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         ps.main(["--root", str(tmp_path), "--model", "m", "--cell", cell])
     assert exc.value.code == 2 and "--cell: predict: cell must be a finite size > 0 m" in capsys.readouterr().err
+
+
+def test_a_json_in_a_missing_folder_is_written(tmp_path, monkeypatch):
+    """Path.write_text failed with a FileNotFoundError traceback after every rollout; the other scripts' writer makes
+    the folder."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from tests.data.floaff_fixture import make_floaff_dataset
+
+    class Rollouts:  # every other job succeeds
+        def run(self, jobs):
+            return [SimpleNamespace(success=i % 2 == 0) for i in range(len(jobs))]
+
+    make_floaff_dataset(tmp_path / "data", problems=False, version=2)
+    monkeypatch.setattr(ps, "floor_model", lambda model, where: object())
+    monkeypatch.setattr(ps, "predict_from_points", lambda *a, **k: SimpleNamespace(best_pose=np.zeros(3)))
+    monkeypatch.setattr(ps, "RolloutService", Rollouts)
+    out = tmp_path / "new" / "sr.json"
+    assert ps.main(["--root", str(tmp_path / "data"), "--model", "m", "--json", str(out)]) == 0
+    half = {"OpenSingleDoor": 0.5, "all": 0.5}  # 4 views of one task, every other one succeeds
+    assert json.loads(out.read_text()) == {"default": half, "dataset": half}

@@ -1,5 +1,7 @@
 """scripts/prior_cells.py: the prior filled from label-lattice views, scored with and without a small yaw error."""
 
+import json
+
 import numpy as np
 import pytest
 
@@ -77,3 +79,15 @@ def test_a_noise_that_is_no_standard_deviation_is_a_usage_error(noise, tmp_path,
     out = capsys.readouterr()
     assert exc.value.code == 2 and "--noise-deg must be a finite standard deviation >= 0" in out.err
     assert "| Benchmark" not in out.out
+
+
+def test_a_json_in_a_missing_folder_is_written(tmp_path):
+    """Path.write_text failed with a FileNotFoundError traceback after the whole table; the other scripts' writer
+    makes the folder."""
+    from tests.data.floaff_fixture import make_floaff_dataset
+
+    make_floaff_dataset(tmp_path / "data", problems=False, version=2)
+    out = tmp_path / "new" / "rows.json"
+    assert pc.main(["--root", str(tmp_path / "data"), "--benchmarks", "styles", "--json", str(out)]) == 0
+    rows = json.loads(out.read_text())
+    assert len(rows) == 8 and {r["benchmark"] for r in rows} == {"styles"}
