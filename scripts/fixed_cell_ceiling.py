@@ -146,6 +146,21 @@ def ceiling(views: Views, counts: dict[tuple[str, str], list[int]]) -> list[dict
     return rows
 
 
+def benchmark_rows(root: Path, benchmark: str) -> list[dict]:
+    """``ceiling``'s rows of one benchmark; a task with no train or no test scene is left out, said on stderr, and a
+    benchmark with no row exits naming it (its table was empty, exit 0)."""
+    views, counts = read_views(root, benchmark)
+    rows = ceiling(views, counts)
+    left = sorted({t for t, _ in counts} - {r["task"] for r in rows})
+    if not rows:
+        raise SystemExit(f"fixed_cell_ceiling: no task under {root / benchmark} has both train and test scenes")
+    if left:
+        print(
+            f"fixed_cell_ceiling: {benchmark}: left out {', '.join(left)} (no train or no test scene)", file=sys.stderr
+        )
+    return rows
+
+
 def markdown(bench_rows: dict[str, list[dict]]) -> str:
     lines = [
         "| Benchmark | Task | success cells per scene (train; test) | ranking fitted on train: test SR "
@@ -170,7 +185,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--json", default=None, help="also write the rows here")
     a = p.parse_args(argv)
     refuse_folders(p, json=a.json)
-    out = {b: ceiling(*read_views(Path(a.root), b)) for b in a.benchmarks}
+    out = {b: benchmark_rows(Path(a.root), b) for b in a.benchmarks}
     print(markdown(out))
     if a.json:
         atomic_write_text(a.json, json.dumps(out, indent=1) + "\n")

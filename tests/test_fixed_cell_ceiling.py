@@ -105,3 +105,16 @@ def test_an_unknown_benchmark_is_a_usage_error_naming_the_argument(tmp_path, cap
     with pytest.raises(SystemExit) as done:
         fcc.main(["--root", str(tmp_path), "--benchmarks", "layout"])
     assert done.value.code == 2 and "--benchmarks: invalid choice: 'layout'" in capsys.readouterr().err
+
+
+def test_a_task_without_train_or_test_scenes_is_said_and_no_task_is_an_error(tmp_path, capsys):
+    """Such a task was dropped without a word; a root with test scenes only printed an empty table, exit 0."""
+    _scene(tmp_path, "OpenSingleDoor", "test", 0, [1, 0, 1], [[0, 1]])
+    with pytest.raises(SystemExit, match=r"fixed_cell_ceiling: no task under .*layouts has both train and test"):
+        fcc.main(["--root", str(tmp_path), "--benchmarks", "layouts"])
+    _scene(tmp_path, "CloseDrawer", "train", 0, [0, 1, 0], [[0, 1]])
+    _scene(tmp_path, "CloseDrawer", "test", 0, [1, 1, 0], [[0, 1]])
+    assert fcc.main(["--root", str(tmp_path), "--benchmarks", "layouts"]) == 0
+    out = capsys.readouterr()
+    assert "| layouts | CloseDrawer |" in out.out and "OpenSingleDoor" not in out.out
+    assert "layouts: left out OpenSingleDoor (no train or no test scene)" in out.err
