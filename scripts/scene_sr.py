@@ -101,7 +101,7 @@ def parse_models(specs: list[str]) -> dict[str, list[str]]:
 
 def parse_scales(text: str | None) -> list[float]:
     """'0,0.5,1.5' -> [0.0, 0.5, 1.5]; every value finite and >= 0."""
-    if not text:
+    if text is None:  # an empty text is refused below: it scored no scaled row, without a word
         return []
     try:
         vals = [float(v) for v in text.split(",")]

@@ -107,7 +107,7 @@ def test_bad_arguments_exit_with_a_message(tmp_path, capsys):
 
 def test_residual_scales_parse_and_copy_only_prior_residual_runs():
     assert ssr.parse_scales(None) == [] and ssr.parse_scales("0,0.5,2") == [0.0, 0.5, 2.0]
-    for bad in ("a,1", "-1", "nan"):
+    for bad in ("a,1", "-1", "nan", ""):  # "" was taken as no option
         with pytest.raises(SystemExit, match="--residual-scales"):
             ssr.parse_scales(bad)
 
