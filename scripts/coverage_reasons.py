@@ -75,8 +75,10 @@ def main(argv: list[str] | None = None) -> int:
     if a.every < 1:
         p.error("--every must be >= 1")
     table: dict[str, dict[str, dict[str, int]]] = defaultdict(lambda: defaultdict(lambda: defaultdict(int)))
+    scenes = 0
     try:
         for scene in ff.iter_scenes(a.root, split=a.split):
+            scenes += 1
             if "reasons" not in scene["labels"] or "yaw" not in scene["candidates"]:
                 raise ff.FormatError(f"{scene['dir']}: no per-cell reasons or yaws (format 1 data); regenerate it")
             key = f"{scene['benchmark']}/{scene['task']}"
@@ -85,8 +87,13 @@ def main(argv: list[str] | None = None) -> int:
                     table[key][b][k] += v
     except (OSError, ValueError) as exc:
         raise SystemExit(f"coverage_reasons: {exc}") from exc
-    if not table:
+    if not scenes:
         raise SystemExit(f"coverage_reasons: no finished {a.split} scene under {a.root}")
+    if not table:  # said "no finished scene" too, of a root that has them
+        raise SystemExit(
+            f"coverage_reasons: no view of the {scenes} {a.split} scene(s) under {a.root} shows a cell in front of "
+            "the target free in its cloud (no row to print)"
+        )
     order = [f"<{e:g}" for e in BINS] + [f">={BINS[-1]:g}"]
     print("| benchmark/task | footprint shown | (view, cell) pairs | filtered_collision | success |")
     print("|---|---|---:|---:|---:|")

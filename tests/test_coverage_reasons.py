@@ -98,3 +98,12 @@ def test_a_candidate_grid_that_is_no_grid_is_named(tmp_path, edit, match):
     (d / ff.SCENE_JSON).write_text(json.dumps(rec))
     with pytest.raises(SystemExit, match=rf"scene\.json: {match}"):
         cr.main(["--root", str(tmp_path), "--every", "1"])
+
+
+def test_scenes_without_a_free_cell_are_not_called_missing(tmp_path):
+    """A root whose views block every cell in front of the target exited saying it has no finished train scene."""
+    _scene(tmp_path, np.array([[x, -1.0, 0.5] for x in (-1.0, -0.95, 0.0, 0.05, 1.0, 1.05)]))
+    with pytest.raises(SystemExit, match=r"no view of the 1 train scene\(s\) under .* shows a cell in front"):
+        cr.main(["--root", str(tmp_path), "--every", "1"])
+    with pytest.raises(SystemExit, match="coverage_reasons: no finished test scene under"):
+        cr.main(["--root", str(tmp_path), "--split", "test"])
