@@ -26,6 +26,8 @@ from scene_sr import print_scenes, print_summary, summarize  # noqa: E402
 from script_cli import refuse_folders  # noqa: E402
 from sr_json import checked_scenes  # noqa: E402
 
+from floaff_zoo.atomic import atomic_write_text  # noqa: E402
+
 
 def fold_files(paths: list[str]) -> list[tuple[Path, str]]:
     """Files and folders (their ``*.json``), each optionally ``PATH@TAG`` -> [(fold JSON, tag or "")], sorted per input;
@@ -147,7 +149,7 @@ def main(argv: list[str] | None = None) -> int:
         listed = [f"{f}@{tag}" if tag else str(f) for f, tag in files]
         out = {"benchmark": bench, "files": listed, "draws": a.draws, "seed": a.seed}
         out |= {"scenes": scenes, "folds": per_fold, **res}
-        Path(a.json).write_text(json.dumps(out, indent=1) + "\n")
+        atomic_write_text(a.json, json.dumps(out, indent=1) + "\n")
         print(f"wrote {a.json}")
     return 0
 

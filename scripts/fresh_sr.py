@@ -44,6 +44,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from script_cli import add_parking_noise, check_parking_noise, floor_model, refuse_folders  # noqa: E402
 
+from floaff_zoo.atomic import atomic_write_text  # noqa: E402
 from floaff_zoo.callbacks.rollout import check_clouds, choose_pose, cloud_free  # noqa: E402
 from floaff_zoo.contract import TASKS  # noqa: E402
 from floaff_zoo.frames import base_to_world  # noqa: E402
@@ -329,8 +330,8 @@ def main(argv: list[str] | None = None) -> int:
     for t, c in cells.items():
         print(f"{t}: " + ", ".join(f"{k} {v:.2f}" for k, v in c.items()))
     if a.json:
-        Path(a.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(a.json).write_text(
+        atomic_write_text(
+            a.json,
             json.dumps(
                 {
                     "setting": setting,
@@ -344,7 +345,7 @@ def main(argv: list[str] | None = None) -> int:
                 },
                 indent=1,
             )
-            + "\n"
+            + "\n",
         )
     return 0
 

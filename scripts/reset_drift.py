@@ -121,6 +121,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{rec['scene']:<52} {rec['split'] or '':<5} reset {rec['reset']} after {rec['after']}{mark}")
     print(f"{moved} of {len(records)} scene(s): a part moved by itself more than {args.tol:g} in {args.seconds:g} s")
     if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)  # not floaff_zoo.atomic: an older src may be first
         args.json.write_text(json.dumps({"seconds": args.seconds, "tol": args.tol, "scenes": records}, indent=1))
     return 0
 

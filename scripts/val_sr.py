@@ -24,6 +24,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from script_cli import floor_model, refuse_folders  # noqa: E402
 
+from floaff_zoo.atomic import atomic_write_text  # noqa: E402
 from floaff_zoo.callbacks.rollout import choose_pose, cloud_free, default_service
 from floaff_zoo.contract import TASKS
 from floaff_zoo.data.floaff_kitchen import FloAffKitchenDataModule
@@ -104,8 +105,8 @@ def main(argv: list[str] | None = None) -> int:
     for m, row in out.items():
         print(f"| {m} | " + " | ".join(f"{v:.2f}" for v in row.values()) + " |")
     if a.json:
-        Path(a.json).write_text(
-            json.dumps({"val_scenes": dm.split_scenes["val"], "top_k": a.top_k, "sr": out}, indent=1) + "\n"
+        atomic_write_text(
+            a.json, json.dumps({"val_scenes": dm.split_scenes["val"], "top_k": a.top_k, "sr": out}, indent=1) + "\n"
         )
     return 0
 

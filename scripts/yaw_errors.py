@@ -26,6 +26,8 @@ from floaff_zoo.sim.fileformat import BENCHMARKS
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from script_cli import refuse_folders  # noqa: E402
 
+from floaff_zoo.atomic import atomic_write_text  # noqa: E402
+
 
 def collect(dm: FloAffKitchenDataModule, split: str, sources: list[str], axisnet, radius: float) -> dict:
     """{source: {(task, view): [errors in deg]}} over one split."""
@@ -83,8 +85,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{a.benchmark} {a.split}: {sum(len(v) for v in errors[sources[0]].values())} views")
     print(table(errors))
     if a.json:
-        Path(a.json).write_text(
-            json.dumps({s: {f"{t}/{v}": e for (t, v), e in d.items()} for s, d in errors.items()}, indent=1)
+        atomic_write_text(
+            a.json, json.dumps({s: {f"{t}/{v}": e for (t, v), e in d.items()} for s, d in errors.items()}, indent=1)
         )
     return 0
 

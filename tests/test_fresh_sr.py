@@ -49,7 +49,7 @@ def test_nearest_cells_names_an_off_grid_point():
 
 
 def test_cli_scores_the_label_oracle_and_caches_probabilities(drawer_root, tmp_path, monkeypatch):
-    out, cache = tmp_path / "fresh.json", tmp_path / "new_dir" / "p.npz"  # folders are made
+    out, cache = tmp_path / "j" / "fresh.json", tmp_path / "new_dir" / "p.npz"  # folders are made
     args = ["--root", str(drawer_root), "--benchmark", "styles", "--episodes", "2", "--probs", str(cache)]
     assert fs.main([*args, "--json", str(out)]) == 0
     rep = json.loads(out.read_text())
