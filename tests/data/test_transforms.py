@@ -149,6 +149,16 @@ def test_lateral_mirror_flips_the_canonical_frame_laterally():
         (lambda: Jitter("0.005"), r"Jitter: sigma must be a finite number >= 0, got '0.005'"),  # a TypeError
         (lambda: Jitter(0.005, clip="0.01"), r"Jitter: clip must be a finite number > 0 or null \(no clipping\)"),
         (lambda: Jitter(0.005, clip=0.0), r"Jitter: clip must be a finite number > 0 or null \(no clipping\)"),
+        # each passed its constructor: a NaN min_points kept no point, True ran as 1, the rest failed in numpy/torch
+        (lambda: ResamplePoints(True), r"ResamplePoints: num_points must be an integer >= 1, got True"),
+        (lambda: ResamplePoints(2.5), r"ResamplePoints: num_points must be an integer >= 1, got 2.5"),
+        (lambda: ResamplePoints(None), r"ResamplePoints: num_points must be an integer >= 1, got None"),
+        (lambda: TargetCrop(float("inf")), r"TargetCrop: radius must be a finite number > 0, got inf"),
+        (lambda: TargetCrop("1.2"), r"TargetCrop: radius must be a finite number > 0, got '1.2'"),
+        (lambda: TargetCrop(1.2, float("nan")), r"TargetCrop: min_points must be an integer >= 1, got nan"),
+        (lambda: TargetCrop(1.2, 2.5), r"TargetCrop: min_points must be an integer >= 1, got 2.5"),
+        (lambda: LateralMirror(True), r"LateralMirror: p must be a finite number >= 0 and <= 1, got True"),
+        (lambda: LateralMirror("0.5"), r"LateralMirror: p must be a finite number >= 0 and <= 1, got '0.5'"),
     ],
 )
 def test_transform_sizes_are_refused_by_name(make, message):

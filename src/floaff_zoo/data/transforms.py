@@ -27,7 +27,7 @@ from typing import Any, Literal
 import numpy as np
 import torch
 
-from floaff_zoo.checks import check_number
+from floaff_zoo.checks import check_integer, check_number
 from floaff_zoo.contract import FULL_CLOUD_KEY, Sample, SampleError, yaw_matrix
 
 
@@ -106,8 +106,8 @@ class ResamplePoints(SampleTransform):
     """
 
     def __init__(self, num_points: int = 4096, method: Literal["random", "fps"] = "random") -> None:
-        if num_points < 1:
-            raise ValueError(f"ResamplePoints: num_points must be >= 1, got {num_points}")
+        # True ran as 1 point; 2.5 or NaN failed in numpy at the first sample
+        check_integer("num_points", num_points, 1, owner=type(self).__name__)
         if method not in ("random", "fps"):
             raise ValueError(f"ResamplePoints: method must be 'random' or 'fps', got {method!r}")
         self.num_points = num_points
@@ -147,10 +147,9 @@ class TargetCrop(SampleTransform):
     """
 
     def __init__(self, radius: float = 1.2, min_points: int = 64) -> None:
-        if not radius > 0:
-            raise ValueError(f"TargetCrop: radius must be > 0, got {radius}")
-        if min_points < 1:
-            raise ValueError(f"TargetCrop: min_points must be >= 1, got {min_points}")
+        check_number("radius", radius, strict=True, owner=type(self).__name__)  # inf kept every point: no crop
+        # NaN kept no point at all when the radius held too few; 2.5 failed in torch at the first such sample
+        check_integer("min_points", min_points, 1, owner=type(self).__name__)
         self.radius = radius
         self.min_points = min_points
 
@@ -251,8 +250,7 @@ class LateralMirror(SampleTransform):
     """
 
     def __init__(self, p: float = 0.5) -> None:
-        if not 0.0 <= p <= 1.0:
-            raise ValueError(f"LateralMirror: p must be in [0, 1], got {p}")
+        check_number("p", p, high=1.0, owner=type(self).__name__)  # True mirrored every sample
         self.p = p
 
     def __call__(self, sample: Sample, rng: np.random.Generator) -> Sample:
