@@ -347,3 +347,27 @@ def test_a_split_larger_than_the_seed_stride_is_refused(module, field):
     dm = cls(**{field: 100_000})  # the edge: the splits touch, none overlaps
     dm.setup("fit")
     assert dm.datasets["val"].seed == dm.datasets["train"].seed + 100_000
+
+
+@pytest.mark.parametrize(
+    ("call", "message"),
+    [
+        (lambda s: fps_indices(np.zeros((5, 3)), 6), r"fps_indices: k must be an integer >= 0 and <= 5, got 6"),
+        (lambda s: fps_indices(np.zeros((5, 3)), 2, -1), r"fps_indices: start must be an integer >= 0 and <= 4"),
+        (lambda s: fps_indices(np.full((5, 3), np.nan), 2), r"fps_indices: xyz contains NaN/Inf"),
+        (lambda s: fps_indices(np.zeros(5), 2), r"fps_indices: xyz must be \[n, 3\], got \[5\]"),
+        (lambda s: rotate_sample(s, float("nan")), r"rotate_sample: angle must be a finite number, got nan"),
+    ],
+)
+def test_the_public_helpers_refuse_bad_arguments_by_name(call, message):
+    """k > n repeated the first index, start=-1 came back as an index, NaN points picked the start k times, a NaN
+    angle made every coordinate NaN: all without a word; a [n] cloud failed in numpy's sum."""
+    with pytest.raises(ValueError, match=message):
+        call(_sample())
+
+
+def test_official_normalize_names_a_sample_without_a_valid_point():
+    s = validate_sample(make_synthetic_sample(0, 64, 4))
+    s["scene_mask"][:] = False
+    with pytest.raises(SampleError, match=r"OfficialNormalize: sample syn0 has no valid point"):  # torch's max()
+        OfficialNormalize()(s, np.random.default_rng(0))

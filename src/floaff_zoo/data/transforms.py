@@ -82,8 +82,20 @@ def _sample_name(sample: Sample) -> str:
 
 
 def fps_indices(xyz: np.ndarray, k: int, start: int = 0) -> np.ndarray:
-    """Farthest point sampling: xyz [n, 3] -> k indices [k] (n >= k), starting at ``start``."""
+    """Farthest point sampling: xyz [n, 3] -> k indices [k] (n >= k), starting at ``start``.
+
+    Raises:
+        ValueError: for xyz not [n, 3] or not finite (NaN picked ``start`` k times), k not in [0, n] (k > n repeated
+            the first point), ``start`` not in [0, n) (-1 was returned as an index).
+    """
+    if xyz.ndim != 2 or xyz.shape[1] != 3:
+        raise ValueError(f"fps_indices: xyz must be [n, 3], got {list(xyz.shape)}")
+    if not np.isfinite(xyz).all():
+        raise ValueError("fps_indices: xyz contains NaN/Inf")
     n = xyz.shape[0]
+    check_integer("k", k, 0, n, owner="fps_indices")
+    if k:
+        check_integer("start", start, 0, n - 1, owner="fps_indices")
     out = np.empty(k, dtype=np.int64)
     dist = np.full(n, np.inf)
     cur = start
@@ -175,6 +187,7 @@ def rotate_sample(sample: Sample, angle: float) -> Sample:
     ``target_yaw`` turns by the same angle; ``meta['sim']['base_pose_world']`` is updated so the
     base frame -> world mapping stays right (the virtual robot turned by ``-angle``).
     """
+    check_number("angle", angle, low=-math.inf, owner="rotate_sample")  # NaN made every coordinate NaN, silently
     rot = yaw_matrix(angle)
     out = dict(sample)
     out["scene_xyz"] = sample["scene_xyz"] @ rot.T
@@ -280,6 +293,8 @@ class OfficialNormalize(SampleTransform):
 
     def __call__(self, sample: Sample, rng: np.random.Generator) -> Sample:
         m = sample["scene_mask"]
+        if not m.any():  # torch's max() of an empty tensor failed naming no sample
+            raise SampleError(f"OfficialNormalize: {_sample_name(sample)} has no valid point")
         xyz = sample["scene_xyz"]
         c = xyz[m].mean(0)
         r = (xyz[m] - c).norm(dim=1).max().clamp_min(1e-12)
