@@ -371,3 +371,18 @@ def test_official_normalize_names_a_sample_without_a_valid_point():
     s["scene_mask"][:] = False
     with pytest.raises(SampleError, match=r"OfficialNormalize: sample syn0 has no valid point"):  # torch's max()
         OfficialNormalize()(s, np.random.default_rng(0))
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        ({"num_floor": -1}, r"make_probe_sample: num_floor must be an integer >= 1, got -1"),  # every cell but one
+        ({"num_points": 2.5}, r"make_probe_sample: num_points must be an integer >= 1, got 2.5"),
+        ({"max_yaw_deg": float("nan")}, r"make_probe_sample: max_yaw_deg must be a finite number >= 0, got nan"),
+    ],
+)
+def test_make_probe_sample_names_a_bad_argument(args, message):
+    from floaff_zoo.data.learnability import make_probe_sample
+
+    with pytest.raises(ValueError, match=message):
+        make_probe_sample(0, **args)

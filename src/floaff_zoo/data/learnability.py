@@ -23,7 +23,7 @@ from typing import Literal
 import numpy as np
 from torch.utils.data import Dataset
 
-from floaff_zoo.checks import check_number
+from floaff_zoo.checks import check_integer, check_number
 from floaff_zoo.contract import Sample, validate_sample
 from floaff_zoo.data.base import DataConfigError, FloAffDataModule, check_size
 from floaff_zoo.data.synthetic import SPLIT_STRIDE, check_split_sizes
@@ -53,7 +53,15 @@ def _box_points(rng: np.random.Generator, centre: np.ndarray, size: np.ndarray, 
 def make_probe_sample(
     seed: int, num_points: int = 512, num_floor: int = 96, max_yaw_deg: float = 60.0, task: str = "CloseDrawer"
 ) -> Sample:
-    """One probe sample in the robot base frame (see module docstring)."""
+    """One probe sample in the robot base frame (see module docstring).
+
+    Raises:
+        ValueError: for num_points or num_floor not an integer >= 1 (num_floor -1 gave every cell but one), or
+            max_yaw_deg not a finite number >= 0 (numpy's error named no argument).
+    """
+    check_integer("num_points", num_points, 1, owner="make_probe_sample")
+    check_integer("num_floor", num_floor, 1, owner="make_probe_sample")
+    check_number("max_yaw_deg", max_yaw_deg, owner="make_probe_sample")
     rng = np.random.default_rng(seed)
     dist, bearing = rng.uniform(1.3, 2.0), rng.uniform(-0.5, 0.5)
     t = np.array([dist * math.cos(bearing), dist * math.sin(bearing), rng.uniform(0.6, 1.0)])
