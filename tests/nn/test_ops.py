@@ -592,7 +592,7 @@ def test_placement_and_prior_grid_refuse_broadcast_arguments():
     x = torch.rand(16, 3)
     with pytest.raises(ValueError, match=r"mask must be \[16\], got \[1\]"):
         placement.occupied_cells(x, torch.ones(1, dtype=torch.bool))
-    with pytest.raises(ValueError, match="cell must be finite and > 0"):
+    with pytest.raises(ValueError, match="occupied_cells: cell must be a finite number > 0, got 0.0"):
         placement.occupied_cells(x, None, cell=0.0)
     with pytest.raises(ValueError, match=r"cells must be \[K, 2\], got \[5, 1\]"):
         placement.footprint_collides(torch.rand(5, 1), torch.rand(3, 3))
@@ -609,3 +609,41 @@ def test_placement_and_prior_grid_refuse_broadcast_arguments():
     with pytest.raises(ValueError, match=r"task must be \[2\]"):
         grid.read(torch.tensor([1]), xy)
     assert grid.counts.sum() == 0  # nothing was added by the refused calls
+
+
+_B = (torch.rand(2, 16, 3), torch.ones(2, 16, dtype=torch.bool), torch.rand(2, 4, 2), torch.rand(2, 2))
+_NAN = float("nan")
+
+
+@pytest.mark.parametrize(
+    ("call", "message"),
+    [
+        # each ran: a NaN size, fraction or height put no point inside or kept none (free / nothing counted)
+        (lambda p: p.occupied_cells(torch.rand(8, 3), None, 0.1, _NAN), r"occupied_cells: z_min must be a finite"),
+        (lambda p: p.occupied_cells(torch.rand(8, 3), None, True), r"occupied_cells: cell must be .* got True"),
+        (lambda p: p.footprint_collides(torch.rand(4, 2), torch.rand(3, 3), _NAN), r"collides: length must be"),
+        (lambda p: p.footprint_collides(torch.rand(4, 2), torch.rand(3, 3), width=-1.0), r"collides: width must be"),
+        (
+            lambda p: p.footprint_collides(torch.rand(4, 2), torch.rand(3, 3), back_frac=2.0),
+            r"back_frac must be .*<= 1",
+        ),
+        (lambda p: p.footprint_counts(*_B, footprint=(_NAN, 0.5, 0.1)), r"counts: footprint length must be a finite"),
+        (
+            lambda p: p.footprint_counts(*_B, footprint=(0.6, 0.5)),
+            r"counts: footprint must be \(length, width, front\)",
+        ),
+        (lambda p: p.footprint_counts(*_B, z_range=(_NAN, 1.0)), r"counts: z_range low must be a finite number"),
+        (lambda p: p.footprint_counts(*_B, z_range=(1.0, 0.1)), r"counts: z_range must have low < high"),
+        (lambda p: p.footprint_counts(*_B, chunk=-3), r"footprint_counts: chunk must be an integer >= 1, got -3"),
+        (lambda p: p.footprint_counts(*_B, chunk=2.5), r"footprint_counts: chunk must be an integer >= 1, got 2.5"),
+        # these failed in math.ceil / torch.zeros naming no argument
+        (lambda p: p.footprint_seen(*_B, footprint=(_NAN, 0.5, 0.1)), r"seen: footprint length must be a finite"),
+        (lambda p: p.footprint_seen(*_B, footprint=(0.6, -0.5, 0.1)), r"seen: footprint width must be a finite"),
+        (lambda p: p.footprint_seen(*_B, chunk=0), r"footprint_seen: chunk must be an integer >= 1, got 0"),
+    ],
+)
+def test_placement_refuses_bad_sizes_by_name(call, message):
+    from floaff_zoo.nn import placement
+
+    with pytest.raises(ValueError, match=message):
+        call(placement)

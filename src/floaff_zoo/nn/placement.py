@@ -14,6 +14,7 @@ from collections.abc import Iterator
 import torch
 from torch import Tensor
 
+from floaff_zoo.checks import check_integer, check_number, check_numbers
 from floaff_zoo.floor import FLOOR_Z_MAX, FOOTPRINT
 
 __all__ = [
@@ -49,8 +50,9 @@ def occupied_cells(xyz: Tensor, mask: Tensor | None = None, cell: float = 0.02, 
         raise ValueError(f"occupied_cells: xyz must be [N, 3] (one sample), got {list(xyz.shape)}")
     if mask is not None and mask.shape != xyz.shape[:1]:
         raise ValueError(f"occupied_cells: mask must be [{xyz.shape[0]}], got {list(mask.shape)}")
-    if not (cell > 0 and math.isfinite(cell)):  # 0 put every point in one cell at -0, NaN gave NaN centres
-        raise ValueError(f"occupied_cells: cell must be finite and > 0, got {cell!r}")
+    # 0 put every point in one cell at -0, NaN gave NaN centres; a NaN z_min called every point floor
+    check_number("cell", cell, strict=True, owner="occupied_cells")
+    check_number("z_min", z_min, low=-math.inf, owner="occupied_cells")
     keep = xyz[:, 2] > z_min
     if mask is not None:
         keep = keep & mask.bool()
@@ -76,8 +78,11 @@ def footprint_collides(
     Returns:
         [P] bool, True = collision.
     Raises:
-        ValueError: for poses not [P, 3] or cells not [K, 2] (a [K, 1] one was broadcast as x = y).
+        ValueError: for poses not [P, 3] or cells not [K, 2] (a [K, 1] one was broadcast as x = y), a length or
+            width not a finite number > 0, a back_frac not in [0, 1] (NaN in any put no cell inside: no collision).
     """
+    check_numbers({"length": length, "width": width}, strict=True, owner="footprint_collides")
+    check_number("back_frac", back_frac, high=1.0, owner="footprint_collides")
     if poses.ndim != 2 or poses.shape[-1] != 3:
         raise ValueError(f"footprint_collides: poses must be [P, 3] (x, y, yaw), got {list(poses.shape)}")
     if cells.ndim != 2 or cells.shape[-1] != 2:
@@ -90,6 +95,16 @@ def footprint_collides(
     side = -d[..., 0] * s + d[..., 1] * c
     inside = (fwd >= -back_frac * length) & (fwd <= (1 - back_frac) * length) & (side.abs() <= width / 2)
     return inside.any(dim=1)
+
+
+def _check_footprint(owner: str, footprint: object, chunk: object) -> None:
+    """Raise ValueError unless ``footprint`` is (length > 0, width > 0, front) finite m and ``chunk`` an integer >= 1:
+    a NaN or negative size put no point inside (every floor point free), a chunk of 0, -3 or 2.5 ran as 1 or 2."""
+    if not (isinstance(footprint, (tuple, list)) and len(footprint) == 3):
+        raise ValueError(f"{owner}: footprint must be (length, width, front) m, got {footprint!r}")
+    check_numbers({"footprint length": footprint[0], "footprint width": footprint[1]}, strict=True, owner=owner)
+    check_number("footprint front", footprint[2], low=-math.inf, owner=owner)
+    check_integer("chunk", chunk, 1, owner=owner)
 
 
 def _check_batch_shapes(xyz: Tensor, mask: Tensor, floor_xy: Tensor, target_xy: Tensor) -> None:
@@ -134,6 +149,12 @@ def footprint_counts(
         [B, M] counts in ``xyz``'s dtype (no gradient).
     """
     _check_batch_shapes(xyz, mask, floor_xy, target_xy)
+    _check_footprint("footprint_counts", footprint, chunk)
+    if not (isinstance(z_range, (tuple, list)) and len(z_range) == 2):
+        raise ValueError(f"footprint_counts: z_range must be (low, high) m, got {z_range!r}")
+    check_numbers({"z_range low": z_range[0], "z_range high": z_range[1]}, low=-math.inf, owner="footprint_counts")
+    if not z_range[0] < z_range[1]:  # an empty range counted nothing, silently
+        raise ValueError(f"footprint_counts: z_range must have low < high, got {tuple(z_range)}")
     length, width, front = footprint
     z = xyz[..., 2]
     keep = mask.bool() & torch.isfinite(xyz).all(-1) & (z > z_range[0]) & (z <= z_range[1])  # [B, N]
@@ -149,7 +170,7 @@ def _footprint_frames(xyz: Tensor, floor_xy: Tensor, target_xy: Tensor, chunk: i
     time: (along the heading, across it) [B, m, N] each, m <= chunk, in floor-point order."""
     yaw = heading_to(floor_xy, target_xy[:, None, :])  # [B, M]
     c, s = torch.cos(yaw), torch.sin(yaw)
-    step = max(1, int(chunk))
+    step = chunk
     for m0 in range(0, floor_xy.shape[1], step):
         sl = slice(m0, m0 + step)
         d = xyz[:, None, :, :2] - floor_xy[:, sl, None, :]  # [B, m, N, 2]
@@ -179,8 +200,8 @@ def footprint_seen(
         [B, M] shares in [0, 1] in ``xyz``'s dtype (no gradient).
     """
     _check_batch_shapes(xyz, mask, floor_xy, target_xy)
-    if not (cell > 0 and math.isfinite(cell)):
-        raise ValueError(f"footprint_seen: cell must be finite and > 0, got {cell!r}")
+    _check_footprint("footprint_seen", footprint, chunk)
+    check_number("cell", cell, strict=True, owner="footprint_seen")
     length, width, front = footprint
     na, nw = math.ceil(length / cell - 1e-9), math.ceil(width / cell - 1e-9)
     keep = mask.bool() & torch.isfinite(xyz).all(-1)  # [B, N]
