@@ -9,7 +9,7 @@ from lightning.pytorch.utilities.exceptions import MisconfigurationException
 from floaff_zoo.cli import run_lightning
 from floaff_zoo.models.prior import CanonicalPriorModule
 from floaff_zoo.nn.prior import CanonicalLabelGrid
-from floaff_zoo.nn.yaw import heading_yaw, manhattan_yaw
+from floaff_zoo.nn.yaw import heading_yaw, local_normals, manhattan_yaw
 from tests.conftest import quiet_trainer_args
 
 DATA = "configs/data/synthetic_tiny.yaml"
@@ -191,6 +191,30 @@ def test_manhattan_yaw_without_reference_uses_the_heading_and_falls_back():
     # no point near the target: the heading itself
     far = manhattan_yaw(xyz + 50.0, mask, target, radius=2.0)
     assert torch.allclose(far, heading_yaw(target))
+
+
+_X, _M, _T = torch.rand(2, 40, 3), torch.ones(2, 40, dtype=torch.bool), torch.zeros(2, 3)
+
+
+@pytest.mark.parametrize(
+    ("call", "message"),
+    [
+        # a NaN or negative radius found no face: every sample kept its reference yaw, silently
+        (lambda: manhattan_yaw(_X, _M, _T, float("nan")), r"manhattan_yaw: radius must be a finite number > 0"),
+        (lambda: manhattan_yaw(_X, _M, _T, -1.0), r"manhattan_yaw: radius must be a finite number > 0, got -1"),
+        # a [B + 1] reference gave B + 1 yaws; the rest failed in indexing naming no argument
+        (lambda: manhattan_yaw(_X, _M, _T, 1.0, torch.zeros(3)), r"manhattan_yaw: reference must be \[2\], got \[3\]"),
+        (lambda: manhattan_yaw(_X, _M[:, 1:], _T, 1.0), r"manhattan_yaw: scene_mask must be \[2, 40\], got \[2, 39\]"),
+        (lambda: manhattan_yaw(_X, _M, _T[0], 1.0), r"manhattan_yaw: target_xyz must be \[2, 3\], got \[3\]"),
+        (lambda: manhattan_yaw(_X[0], _M, _T, 1.0), r"manhattan_yaw: scene_xyz must be \[B, N, 3\], got \[40, 3\]"),
+        (lambda: heading_yaw(_T[0]), r"heading_yaw: target_xyz must be \[B, 3\], got \[3\]"),
+        (lambda: local_normals(_X[0], 0), r"local_normals: k must be an integer >= 1, got 0"),  # every point planar
+        (lambda: local_normals(_X[0, :5]), r"local_normals: xyz must be \[N, 3\] with N > k = 12, got \[5, 3\]"),
+    ],
+)
+def test_the_yaw_estimates_refuse_bad_arguments_by_name(call, message):
+    with pytest.raises(ValueError, match=message):
+        call()
 
 
 def test_prior_fits_and_tests_through_the_cli(tmp_path, root, monkeypatch):

@@ -22,6 +22,9 @@ import math
 import torch
 from torch import Tensor
 
+from floaff_zoo.checks import check_integer, check_number
+from floaff_zoo.nn.ops import check_points, full_mask
+
 __all__ = ["MANHATTAN_K", "heading_yaw", "local_normals", "manhattan_yaw"]
 
 #: neighbours of the local PCA that gives each point's surface normal
@@ -34,6 +37,8 @@ MAX_POINTS = 1024
 
 def heading_yaw(target_xyz: Tensor) -> Tensor:
     """Yaw [B] of the direction from the target [B, 3] back to the robot base (the frame origin)."""
+    if target_xyz.ndim != 2 or target_xyz.shape[-1] != 3:  # a [3] target failed in indexing naming nothing
+        raise ValueError(f"heading_yaw: target_xyz must be [B, 3], got {list(target_xyz.shape)}")
     return torch.atan2(-target_xyz[:, 1], -target_xyz[:, 0])
 
 
@@ -44,7 +49,12 @@ def local_normals(xyz: Tensor, k: int = MANHATTAN_K) -> tuple[Tensor, Tensor]:
         xyz: [N, 3] (N > k).
     Returns:
         (normals [N, 3], planarity [N] in [0, 1]: 1 - smallest / middle eigenvalue, high on flat faces).
+    Raises:
+        ValueError: for xyz not [N, 3] with N > k, or k not an integer >= 1 (k = 0 called every point planar).
     """
+    check_integer("k", k, 1, owner="local_normals")
+    if xyz.ndim != 2 or xyz.shape[-1] != 3 or xyz.shape[0] <= k:  # torch's topk failed: "selected index k out of range"
+        raise ValueError(f"local_normals: xyz must be [N, 3] with N > k = {k}, got {list(xyz.shape)}")
     d = torch.cdist(xyz, xyz)
     idx = d.topk(k + 1, largest=False).indices  # [N, k+1], includes the point itself
     nb = xyz[idx]  # [N, k+1, 3]
@@ -94,7 +104,18 @@ def manhattan_yaw(
     Returns:
         yaw [B] (rad) in [-pi, pi); samples without a usable vertical face keep the reference (or
         :func:`heading_yaw`).
+    Raises:
+        ValueError: for a shape that does not fit (a [B + 1] reference gave B + 1 yaws), or a radius not a finite
+            number > 0 (NaN found no face near any target: every sample kept its reference, silently).
     """
+    check_points("manhattan_yaw: scene_xyz", scene_xyz)
+    scene_mask = full_mask(scene_xyz, scene_mask, "manhattan_yaw: scene_mask")
+    b = scene_xyz.shape[0]
+    if list(target_xyz.shape) != [b, 3]:
+        raise ValueError(f"manhattan_yaw: target_xyz must be [{b}, 3], got {list(target_xyz.shape)}")
+    if reference is not None and reference.numel() != b:
+        raise ValueError(f"manhattan_yaw: reference must be [{b}], got {list(reference.shape)}")
+    check_number("radius", radius, strict=True, owner="manhattan_yaw")
     head = heading_yaw(target_xyz)
     out = (head if reference is None else reference.to(head.dtype).reshape(-1)).clone()
     for i in range(scene_xyz.shape[0]):
