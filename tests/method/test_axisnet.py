@@ -195,3 +195,42 @@ def test_an_empty_widths_list_is_refused_not_replaced_by_the_default():
     """[] built the default [64, 128, 256] without a word (``head: []`` is honoured: no hidden layer)."""
     with pytest.raises(ValueError, match=r"AxisNetModule: widths needs >= 1 width \(null for \[64, 128, 256\]\)"):
         AxisNetModule(widths=[])
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        ({"widths": [8.5]}, r"widths\[0\] must be an integer >= 1, got 8.5"),  # failed in torch.empty, unnamed
+        ({"widths": [8, True]}, r"widths\[1\] must be an integer >= 1, got True"),
+        ({"widths": "64"}, r"widths must be a list of integers >= 1, got '64'"),
+        ({"head": [2.5]}, r"head\[0\] must be an integer >= 1, got 2.5"),
+    ],
+)
+def test_a_width_that_is_not_a_whole_number_is_refused_by_name(args, message):
+    with pytest.raises(ValueError, match=rf"AxisNetModule: {message}"):
+        AxisNetModule(**args)
+
+
+def test_bad_inference_inputs_and_metric_indices_are_named():
+    """A scene_feat of another shape (or no channel) failed in torch.cat or the first Linear; an index of another
+    length than the batch failed in torch.stack."""
+    b = _batch(2, 64)
+    model = AxisNetModule(widths=[8], head=[8])
+    for feat in (b["scene_feat"][:, 1:], b["scene_feat"][:1], b["scene_feat"][..., :0]):
+        with pytest.raises(ValueError, match=r"axis_inputs: scene_feat must be \[2, 64, C >= 1\]"):
+            model.estimate_yaw(b["scene_xyz"], feat, b["scene_mask"], b["target_xyz"])
+    with pytest.raises(ValueError, match=r"AngleErrorDeg: index must have 3 entries, got \[2\]"):
+        AngleErrorDeg().update(torch.zeros(3), torch.zeros(3), torch.arange(2))
+
+
+@pytest.mark.parametrize("radius", [float("nan"), -1.0, "1.3", None])
+def test_a_recorded_axisnet_crop_radius_is_checked(radius):
+    """A NaN or negative recorded crop_radius built a CFAR whose AxisNet cropped every point away (blaming the
+    samples); a text failed float() naming nothing."""
+    from lightning.pytorch.utilities.exceptions import MisconfigurationException
+
+    from floaff_zoo.models.yaw import build_axisnet
+
+    arch = {"widths": [8], "head": [8], "crop_radius": radius}
+    with pytest.raises(MisconfigurationException, match=r"O: axisnet_arch.crop_radius must be a finite number > 0"):
+        build_axisnet(arch, "O")

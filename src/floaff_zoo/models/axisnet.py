@@ -22,7 +22,7 @@ from torch import Tensor
 from torchmetrics import Metric, MetricCollection
 from torchmetrics.utilities.distributed import gather_all_tensors
 
-from floaff_zoo.checks import check_number, check_numbers
+from floaff_zoo.checks import check_integer, check_number, check_numbers
 from floaff_zoo.contract import Batch
 from floaff_zoo.metrics import _cat_or_empty, _first_occurrence, fill_empty_cat_states
 from floaff_zoo.models.base import TrainConfig, ZooModule, batch_index, sample_names
@@ -59,6 +59,8 @@ class AngleErrorDeg(Metric):
         if not (torch.isfinite(pred_yaw).all() and torch.isfinite(target_yaw).all()):
             raise ValueError("AngleErrorDeg: NaN/Inf yaw")
         err = angle_error_deg(pred_yaw.double(), target_yaw.double()).reshape(-1)
+        if index is not None and index.numel() != err.numel():  # torch.stack failed naming no argument
+            raise ValueError(f"AngleErrorDeg: index must have {err.numel()} entries, got {list(index.shape)}")
         idx = torch.full_like(err, -1.0) if index is None else index.reshape(-1).to(err)
         self.rows.append(torch.stack([idx, err], dim=1))
 
@@ -74,6 +76,16 @@ class AngleErrorDeg(Metric):
         unkeyed = keys < 0  # rows without an index are distinct samples: give each a key of its own
         keys[unkeyed] = -1.0 - torch.arange(int(unkeyed.sum()), dtype=keys.dtype, device=keys.device)
         return rows[_first_occurrence(keys), 1].mean().float()
+
+
+def _check_widths(name: str, value: object, owner: str) -> None:
+    """Raise ValueError unless ``value`` is None or a list of integers >= 1, naming ``name`` (and the entry)."""
+    if value is None:
+        return
+    if not isinstance(value, (list, tuple)):  # a text is iterable: "64" read as widths 6 and 4
+        raise ValueError(f"{owner}: {name} must be a list of integers >= 1, got {value!r}")
+    for i, width in enumerate(value):
+        check_integer(f"{name}[{i}]", width, 1, owner=owner)
 
 
 class AxisNetModule(ZooModule):
@@ -117,6 +129,8 @@ class AxisNetModule(ZooModule):
         check_numbers({k: h[k] for k in ("rot_aug_deg", "jitter_sigma")}, owner=type(self).__name__)
         if h["widths"] is not None and not h["widths"]:  # [] built the default widths, silently
             raise ValueError(f"{type(self).__name__}: widths needs >= 1 width (null for [64, 128, 256]), got []")
+        for name in ("widths", "head"):  # 8.5, True or a text failed in torch.empty naming no argument
+            _check_widths(name, h[name], type(self).__name__)
         widths = h["widths"] if h["widths"] is not None else [64, 128, 256]
         self.net = AxisNet(4, widths, h["head"] if h["head"] is not None else [128, 64])
 

@@ -56,12 +56,19 @@ AXISNET_YAW = frozenset({"axisnet", "axisnet_manhattan"})
 
 
 def build_axisnet(arch: dict[str, Any], owner: str) -> tuple[AxisNet, float]:
-    """A frozen AxisNet from a recorded ``arch`` (widths, head, crop_radius). Returns (net, crop radius)."""
+    """A frozen AxisNet from a recorded ``arch`` (widths, head, crop_radius). Returns (net, crop radius).
+
+    Raises:
+        MisconfigurationException: naming ``axisnet_arch`` for a record that is not one, or whose crop_radius is not a
+            finite number > 0 (a NaN one cropped every point away and blamed the samples; a text failed float()).
+    """
     try:
         net = AxisNet(4, list(arch["widths"]), list(arch["head"]))
-        radius = float(arch["crop_radius"])
+        radius = arch["crop_radius"]
     except (KeyError, TypeError) as exc:
         raise MisconfigurationException(f"{owner}: axisnet_arch {arch!r} is not a recorded AxisNet ({exc})") from exc
+    check_number("axisnet_arch.crop_radius", radius, strict=True, owner=owner, error=MisconfigurationException)
+    radius = float(radius)
     net.requires_grad_(False).eval()
     return net, radius
 
@@ -83,13 +90,14 @@ def load_axisnet(name: str, owner: str) -> tuple[AxisNet, float, dict[str, Any]]
     args = info.get("init_args") or {}
     source = Path(str(info.get("source", name)))
     arch = {
-        "crop_radius": float(args.get("crop_radius", 1.3)),
+        "crop_radius": args.get("crop_radius", 1.3),  # build_axisnet checks it: float() of a text named nothing
         "widths": list(args.get("widths") or [64, 128, 256]),
         "head": list(args["head"]) if args.get("head") is not None else [128, 64],
         "source": str(name),
         "sha256": info.get("sha256") or (sha256_file(source) if source.is_file() else None),
     }
     net, radius = build_axisnet(arch, owner)
+    arch["crop_radius"] = radius
     sub = {k[len("net.") :]: v for k, v in state.items() if k.startswith("net.")}
     missing, unexpected = net.load_state_dict(sub, strict=False)
     if missing or unexpected:

@@ -61,6 +61,12 @@ def axis_inputs(
         (x [B, N, 4] zeros where masked, mask [B, N] = valid and inside the crop).
     """
     keep, used = crop_mask(scene_xyz, scene_mask, target_xyz, radius, names)
+    if scene_feat.ndim != 3 or scene_feat.shape[:2] != scene_xyz.shape[:2] or scene_feat.shape[-1] < 1:
+        # torch.cat's or the first Linear's error named no argument; [1, N, C] one was not broadcast either
+        raise ValueError(
+            f"axis_inputs: scene_feat must be [{scene_xyz.shape[0]}, {scene_xyz.shape[1]}, C >= 1] (channel 0 = "
+            f"target flag), got {list(scene_feat.shape)}"
+        )
     rel = (scene_xyz - target_xyz[:, None]) / used[:, None, None]
     x = torch.cat([rel, scene_feat[..., :1].to(rel.dtype)], dim=-1)
     return torch.where(keep[..., None], x, torch.zeros_like(x)), keep
