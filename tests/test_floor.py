@@ -227,6 +227,19 @@ def test_floor_queries_refuse_clouds_that_are_not_n_by_3_and_poses_that_are_not_
             footprint_blocked(box, pose)
         with pytest.raises(ValueError, match=r"footprint_coverage: pose must be 3 finite values"):
             footprint_coverage(box, pose)
+    # a NaN or negative size, or an empty or NaN height range, put no point inside: every pose was free
+    nan = float("nan")
+    for footprint, said in (((nan, 0.5, 0.3), "footprint length must be"), ((0.8, -0.5, 0.3), "footprint width must"),
+                            ((0.8, 0.5), r"footprint must be \(length, width, front\)")):  # fmt: skip
+        with pytest.raises(ValueError, match=f"footprint_blocked: {said}"):
+            footprint_blocked(box, (0.0, 0.0, 0.0), footprint=footprint)
+        with pytest.raises(ValueError, match=f"footprint_coverage: {said}"):
+            footprint_coverage(box, (0.0, 0.0, 0.0), footprint=footprint)
+    for z_range, said in (((nan, 1.2), "z_range low must be"), ((1.2, 0.02), "z_range must have low < high")):
+        with pytest.raises(ValueError, match=f"footprint_blocked: {said}"):
+            footprint_blocked(box, (0.0, 0.0, 0.0), z_range=z_range)
+    with pytest.raises(ValueError, match="footprint_blocked: min_points must be an integer >= 1, got 1.5"):
+        footprint_blocked(box, (0.0, 0.0, 0.0), min_points=1.5)  # a float count was compared as it was
 
 
 def test_a_lattice_refuses_a_half_size_that_is_no_integer_and_a_centre_that_is_not_two_values():

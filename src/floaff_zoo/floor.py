@@ -21,11 +21,15 @@ from typing import Any
 
 import numpy as np
 
+from floaff_zoo.checks import check_integer, check_number, check_numbers
+
 __all__ = [
     "CANDIDATE_WINDOW",
     "FLOOR_Z_MAX",
     "FOOTPRINT",
     "FloorLattice",
+    "check_footprint",
+    "check_z_range",
     "footprint_blocked",
     "footprint_coverage",
     "grown_footprint",
@@ -182,6 +186,25 @@ def grown_footprint(margin: float, footprint: tuple[float, float, float] = FOOTP
     return (length + 2 * margin, width + 2 * margin, front + margin)
 
 
+def check_footprint(owner: str, footprint: object) -> None:
+    """ValueError naming ``owner`` unless ``footprint`` is (length > 0, width > 0, front) finite m: a NaN or negative
+    size put no point inside the base (every pose free)."""
+    if not (isinstance(footprint, (tuple, list)) and len(footprint) == 3):
+        raise ValueError(f"{owner}: footprint must be (length, width, front) m, got {footprint!r}")
+    check_numbers({"footprint length": footprint[0], "footprint width": footprint[1]}, strict=True, owner=owner)
+    check_number("footprint front", footprint[2], low=-math.inf, owner=owner)
+
+
+def check_z_range(owner: str, z_range: object) -> None:
+    """ValueError naming ``owner`` unless ``z_range`` is (low, high) finite m with low < high: an empty or NaN range
+    counted no obstacle point (every pose free)."""
+    if not (isinstance(z_range, (tuple, list)) and len(z_range) == 2):
+        raise ValueError(f"{owner}: z_range must be (low, high) m, got {z_range!r}")
+    check_numbers({"z_range low": z_range[0], "z_range high": z_range[1]}, low=-math.inf, owner=owner)
+    if not z_range[0] < z_range[1]:
+        raise ValueError(f"{owner}: z_range must have low < high, got {tuple(z_range)}")
+
+
 def footprint_blocked(
     xyz: np.ndarray,
     pose: tuple[float, float, float],
@@ -204,8 +227,9 @@ def footprint_blocked(
     """
     p = points_n3(xyz, "footprint_blocked")
     pose = check_pose(pose, "footprint_blocked")
-    if min_points < 1:
-        raise ValueError(f"footprint_blocked: min_points must be >= 1, got {min_points}")
+    check_footprint("footprint_blocked", footprint)
+    check_z_range("footprint_blocked", z_range)
+    check_integer("min_points", min_points, 1, owner="footprint_blocked")
     p = p[np.isfinite(p).all(axis=1) & (p[:, 2] > z_range[0]) & (p[:, 2] <= z_range[1])]
     inside = _footprint_frame(p, pose, footprint)[0]
     # distinct 3-D points: points stacked at one (x, y) are several obstacles, one point repeated is one
@@ -254,8 +278,8 @@ def footprint_coverage(
     """
     p = points_n3(xyz, "footprint_coverage")
     pose = check_pose(pose, "footprint_coverage")
-    if not (cell > 0 and math.isfinite(cell)):
-        raise ValueError(f"footprint_coverage: cell must be finite and > 0, got {cell!r}")
+    check_footprint("footprint_coverage", footprint)
+    check_number("cell", cell, strict=True, owner="footprint_coverage")
     local = _in_footprint(p[np.isfinite(p).all(axis=1)], pose, footprint)
     length, width, _ = footprint
     na, nw = math.ceil(length / cell - 1e-9), math.ceil(width / cell - 1e-9)

@@ -15,7 +15,7 @@ import torch
 from torch import Tensor
 
 from floaff_zoo.checks import check_integer, check_number, check_numbers
-from floaff_zoo.floor import FLOOR_Z_MAX, FOOTPRINT
+from floaff_zoo.floor import FLOOR_Z_MAX, FOOTPRINT, check_footprint, check_z_range
 
 __all__ = [
     "footprint_collides",
@@ -98,12 +98,9 @@ def footprint_collides(
 
 
 def _check_footprint(owner: str, footprint: object, chunk: object) -> None:
-    """Raise ValueError unless ``footprint`` is (length > 0, width > 0, front) finite m and ``chunk`` an integer >= 1:
-    a NaN or negative size put no point inside (every floor point free), a chunk of 0, -3 or 2.5 ran as 1 or 2."""
-    if not (isinstance(footprint, (tuple, list)) and len(footprint) == 3):
-        raise ValueError(f"{owner}: footprint must be (length, width, front) m, got {footprint!r}")
-    check_numbers({"footprint length": footprint[0], "footprint width": footprint[1]}, strict=True, owner=owner)
-    check_number("footprint front", footprint[2], low=-math.inf, owner=owner)
+    """Raise ValueError unless ``footprint`` is one (``floor.check_footprint``) and ``chunk`` an integer >= 1 (a chunk
+    of 0, -3 or 2.5 ran as 1 or 2)."""
+    check_footprint(owner, footprint)
     check_integer("chunk", chunk, 1, owner=owner)
 
 
@@ -150,11 +147,7 @@ def footprint_counts(
     """
     _check_batch_shapes(xyz, mask, floor_xy, target_xy)
     _check_footprint("footprint_counts", footprint, chunk)
-    if not (isinstance(z_range, (tuple, list)) and len(z_range) == 2):
-        raise ValueError(f"footprint_counts: z_range must be (low, high) m, got {z_range!r}")
-    check_numbers({"z_range low": z_range[0], "z_range high": z_range[1]}, low=-math.inf, owner="footprint_counts")
-    if not z_range[0] < z_range[1]:  # an empty range counted nothing, silently
-        raise ValueError(f"footprint_counts: z_range must have low < high, got {tuple(z_range)}")
+    check_z_range("footprint_counts", z_range)
     length, width, front = footprint
     z = xyz[..., 2]
     keep = mask.bool() & torch.isfinite(xyz).all(-1) & (z > z_range[0]) & (z <= z_range[1])  # [B, N]
