@@ -56,6 +56,29 @@ def test_repeated_or_unsupported_settings_are_refused():
 @pytest.mark.parametrize(
     ("field", "value", "message"),
     [
+        ("tasks", (), r"tasks must be a non-empty tuple of names, got \(\)"),  # a run of no scene, exit 0
+        ("benchmarks", (), r"benchmarks must be a non-empty tuple of names, got \(\)"),
+        ("tasks", "CloseDrawer", "tasks must be a non-empty tuple of names, got 'CloseDrawer'"),  # letter by letter
+        ("use_paper_view_counts", "false", "use_paper_view_counts must be True or False, got 'false'"),  # was true
+        ("floor_only", 0, "floor_only must be True or False, got 0"),
+    ],
+)
+def test_names_and_switches_of_another_type_are_refused_by_name(field, value, message):
+    """An empty tasks or benchmarks planned no scene and the run ended "done" with nothing; a text was read letter by
+    letter ("unknown task(s) ['C', 'l', ...]"); the switch "false" was true (the paper's view counts)."""
+    with pytest.raises(ValueError, match=message):
+        get_preset("tiny", **{field: value})
+
+
+def test_a_preset_name_that_is_not_a_text_is_refused_by_name():
+    """A list failed with "unhashable type: 'list'"."""
+    with pytest.raises(ValueError, match=r"unknown preset \['tiny'\]; choose from"):
+        get_preset(["tiny"])
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "message"),
+    [
         ("sigma_cells", float("nan"), "sigma_cells must be a finite number >= 0, got nan"),
         ("sigma_cells", -1.0, "sigma_cells must be a finite number >= 0, got -1.0"),
         ("front_rx", float("nan"), "front_rx must be a finite number >= 0, got nan"),
@@ -67,6 +90,7 @@ def test_repeated_or_unsupported_settings_are_refused():
         ("views_per_scene", (1.5, 2), r"views_per_scene \(front\) must be an integer >= 0, got 1.5"),
         ("views_per_scene", (2,), r"views_per_scene must be \(front, side\), got \(2,\)"),
         ("views_per_scene", (2, 2, 2), r"views_per_scene must be \(front, side\), got \(2, 2, 2\)"),
+        ("views_per_scene", 4, r"views_per_scene must be \(front, side\), got 4"),  # a TypeError naming nothing
         ("min_target_pixels", 0, "min_target_pixels must be an integer >= 1, got 0"),  # views without their target
         ("min_target_pixels", 2.5, "min_target_pixels must be an integer >= 1, got 2.5"),
     ],

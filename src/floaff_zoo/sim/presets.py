@@ -96,6 +96,13 @@ class GenPreset:
         return cls(**d)
 
     def validate(self) -> "GenPreset":
+        for name in ("tasks", "benchmarks"):  # a text was read letter by letter; none planned no scene, said nothing
+            values = getattr(self, name)
+            if isinstance(values, str) or not isinstance(values, (tuple, list)) or not values:
+                raise ValueError(f"{name} must be a non-empty tuple of names, got {values!r}")
+        for name in ("floor_only", "use_paper_view_counts"):  # the text "false" was true
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"{name} must be True or False, got {getattr(self, name)!r}")
         bad = [t for t in self.tasks if t not in ALL_TASKS]
         if bad:
             raise ValueError(f"unknown task(s) {bad}; choose from {list(ALL_TASKS)}")
@@ -121,8 +128,9 @@ class GenPreset:
         # (0 = no smoothing); a NaN or negative view region gives none of its views, found only after each annotation
         check_numbers({k: getattr(self, k) for k in ("sigma_cells", "front_rx", "front_ry", "side_rx", "side_ry")})
         check_number("max_dist", self.max_dist, strict=True)
-        if len(self.views_per_scene) != 2:  # view_counts reads two numbers: one failed the plan, a third was ignored
-            raise ValueError(f"views_per_scene must be (front, side), got {tuple(self.views_per_scene)}")
+        # view_counts reads two numbers: one failed the plan, a third was ignored
+        if not isinstance(self.views_per_scene, (tuple, list)) or len(self.views_per_scene) != 2:
+            raise ValueError(f"views_per_scene must be (front, side), got {self.views_per_scene!r}")
         for side, n in zip(("front", "side"), self.views_per_scene, strict=True):
             check_integer(f"views_per_scene ({side})", n, 0)
         check_integer("min_views", self.min_views, 0)
@@ -206,7 +214,7 @@ PRESETS: dict[str, GenPreset] = {
 
 def get_preset(name: str, **overrides: Any) -> GenPreset:
     """A copy of a named preset with field overrides (None values are ignored)."""
-    if name not in PRESETS:
+    if not isinstance(name, str) or name not in PRESETS:  # a list failed with "unhashable type"
         raise ValueError(f"unknown preset {name!r}; choose from {sorted(PRESETS)}")
     ov = {k: v for k, v in overrides.items() if v is not None}
     known = {f.name for f in fields(GenPreset)}
