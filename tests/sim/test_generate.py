@@ -104,6 +104,34 @@ def test_sizes_that_would_be_ignored_or_fail_each_scene_are_refused_by_name(fiel
         get_preset("tiny", **{field: value})
 
 
+@pytest.mark.parametrize(
+    ("kwargs", "error", "message"),
+    [
+        ({"seed": 1.5}, ValueError, "seed must be an integer, got 1.5"),  # cut to seed 1, recorded as 1
+        ({"seed": True}, ValueError, "seed must be an integer, got True"),
+        ({"workers": 1.5}, ValueError, "workers must be an integer >= 0, got 1.5"),  # a TypeError in the pool
+        ({"workers": "2"}, ValueError, "workers must be an integer >= 0, got '2'"),
+        ({"preset": "tiny"}, TypeError, "preset must be a GenPreset"),  # an AttributeError on 'validate'
+        ({"address": "ray://head:10001"}, ValueError, "address 'ray://head:10001' names a ray cluster"),  # ignored
+    ],
+)
+def test_generate_refuses_a_seed_workers_or_preset_of_another_type_before_the_folder(tmp_path, kwargs, error, message):
+    args = {"preset": get_preset("tiny"), "seed": 0, "workers": 0, **kwargs}
+    with pytest.raises(error, match=message):
+        gen.generate(tmp_path / "o", quiet=True, job_fn=_error_job, **args)
+    assert not (tmp_path / "o").exists()
+    with pytest.raises(ValueError, match="seed must be an integer, got 2.5"):
+        gen.derive_seed(2.5, "views")
+
+
+def test_plan_refuses_repeated_layout_or_style_ids():
+    """With the held-out id also among the seen ones, the test split's kitchens were not unseen."""
+    with pytest.raises(ValueError, match=r"layout ids given more than once: \[0, 0\]"):
+        gen.plan_jobs(get_preset("tiny"), 0, [0, 0], [0, 1])
+    with pytest.raises(ValueError, match=r"style ids given more than once: \[0, 1, 1\]"):
+        gen.plan_jobs(get_preset("tiny"), 0, [0, 1], [0, 1, 1])
+
+
 def test_a_slots_scenes_are_found_whatever_kitchen_they_hold(tmp_path):
     """Every committed scene whose scene.json names the slot, found by the slot and not by the slot's seeds; a scene
     drawn with other per-scene view counts (the paper preset under another --n-train) is not resumed."""

@@ -30,6 +30,7 @@ import dataclasses
 import hashlib
 import itertools
 import multiprocessing as mp
+import numbers
 import os
 import shutil
 import sys
@@ -43,6 +44,7 @@ from typing import Any
 import numpy as np
 
 from floaff_zoo.atomic import LockedError, folder_lock
+from floaff_zoo.checks import check_integer
 from floaff_zoo.runtime import THREAD_ENV, exit_with_parent, one_thread_children
 from floaff_zoo.sim import fileformat as ff
 from floaff_zoo.sim.presets import ALL_BENCHMARKS, ALL_TASKS, PRESETS, GenPreset, get_preset, view_counts
@@ -57,6 +59,8 @@ ANNOTATE_SEED = 0
 # ------------------------------------------------------------------------------------------------ planning
 def derive_seed(global_seed: int, *parts: Any) -> int:
     """Deterministic 31-bit seed from the global seed and identifying parts (independent of PYTHONHASHSEED)."""
+    if not isinstance(global_seed, numbers.Integral) or isinstance(global_seed, bool):  # int() cut 1.5 to seed 1
+        raise ValueError(f"seed must be an integer, got {global_seed!r}")
     key = "|".join([str(int(global_seed))] + [str(p) for p in parts]).encode()
     return int.from_bytes(hashlib.sha256(key).digest()[:4], "little") & 0x7FFFFFFF
 
@@ -82,6 +86,8 @@ class SceneJob:
 
 def _split_ids(ids: list[int], name: str) -> tuple[list[int], int]:
     """Sorted ids -> (seen ids, held-out id = the last one)."""
+    if len(set(ids)) < len(ids):  # a repeated held-out id was also a seen one: the test split was not unseen
+        raise ValueError(f"{name} ids given more than once: {ids}")
     if len(ids) < 2:
         raise ValueError(f"need at least 2 {name} ids to hold one out for the test split, got {ids}")
     ids = sorted(ids)
@@ -887,11 +893,16 @@ def generate(
     job_fn: the per-slot function with run_job's signature (default run_job; replaced only by tests that simulate
     crashing workers; it must be importable by name for process workers).
     """
+    if not isinstance(preset, GenPreset):  # a preset's name or dict failed with an AttributeError
+        raise TypeError(f"generate: preset must be a GenPreset (presets.get_preset), got {type(preset).__name__}")
     preset = preset.validate()
     if backend not in ("local", "ray"):
         raise ValueError(f"backend must be 'local' or 'ray', got {backend!r}")
-    if workers < 0:
-        raise ValueError(f"workers must be >= 0, got {workers}")
+    if address and backend != "ray":  # the local pool ignored it: the scenes were not made on the named cluster
+        raise ValueError(f"address {address!r} names a ray cluster: give it with backend 'ray'")
+    check_integer("workers", workers, 0)  # 1.5 or "2" failed with a TypeError once the folder was locked
+    if not isinstance(seed, numbers.Integral) or isinstance(seed, bool):  # 1.5 was cut to seed 1 without a word
+        raise ValueError(f"seed must be an integer, got {seed!r}")
     outp = check_out_dir(out)
     with contextlib.ExitStack() as stack:
         try:
