@@ -167,6 +167,29 @@ def test_a_cell_that_is_no_size_is_refused_by_name(cell, shown):
         candidate_grid(None, cell, 1.0, 1.0)  # refused before the scene is read
 
 
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"sigma_cells": float("nan")}, r"sigma_cells must be a finite number >= 0 \(0 = no smoothing\), got nan"),
+        ({"sigma_cells": -1.0}, r"sigma_cells must be a finite number >= 0 \(0 = no smoothing\), got -1.0"),
+        ({"max_candidates": -1}, r"max_candidates must be an integer >= 1 or null \(no cap\), got -1"),
+        ({"max_candidates": 2.5}, r"max_candidates must be an integer >= 1 or null \(no cap\), got 2.5"),
+        ({"max_candidates": True}, r"max_candidates must be an integer >= 1 or null \(no cap\), got True"),
+        ({"seed": 1.5}, "seed must be an integer >= 0, got 1.5"),
+        ({"workers": 1.5}, "workers must be an integer >= 0, got 1.5"),
+    ],
+)
+def test_annotation_settings_out_of_range_are_refused_by_name_before_any_rollout(kwargs, message):
+    """A NaN or negative sigma left the labels unsmoothed without a word; a negative or fractional budget failed in
+    np.linspace after every filter had run, True was a budget of one rollout; a float seed failed in the first reset
+    with numpy's SeedSequence message; 1.5 workers started a rollout pool."""
+    with pytest.raises(ValueError, match=f"annotate_scene: {message}"):
+        annotate_scene(None, cell=0.2, **kwargs)  # refused before the scene is read
+    if "sigma_cells" in kwargs:
+        with pytest.raises(ValueError, match=f"probability_label: {message}"):
+            probability_label(np.ones(4), np.full(4, ROLLED_OUT), (2, 2), kwargs["sigma_cells"])
+
+
 def test_one_rollout_with_workers_runs_on_the_given_scene(scene_factory, monkeypatch):
     """With one job the service ran it in this process on a kitchen it built again, not the scene it was given."""
     import floaff_zoo.sim.annotate as annotate

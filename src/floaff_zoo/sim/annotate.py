@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from floaff_zoo.checks import check_number
+from floaff_zoo.checks import check_integer, check_number
 from floaff_zoo.frames import ROLLOUT_POSE_DECIMALS
 from floaff_zoo.sim.controllers import default_policy
 from floaff_zoo.sim.kitchen import SimScene
@@ -76,6 +76,7 @@ def probability_label(
             f"probability_label: need {int(np.prod(shape))} finite probabilities in [0, 1] for grid {tuple(shape)}, "
             f"got {p.size} ({p.size - finite.size} not finite, {span})"
         )
+    check_number("sigma_cells", sigma_cells, owner="probability_label", note="0 = no smoothing")
     st = np.asarray(status).reshape(-1)
     if st.size != p.size:  # else _smooth's reshape of the known mask failed, naming neither argument
         raise ValueError(f"probability_label: status has {st.size} cells, prob has {p.size} (grid {tuple(shape)})")
@@ -162,6 +163,12 @@ def annotate_scene(
             (``rollout.pose_filter``), and so do pool workers, so the labels would disagree with the rollouts.
     """
     t0 = time.perf_counter()
+    # a NaN or negative sigma left the labels unsmoothed without a word; a negative or fractional budget failed in
+    # np.linspace after every filter ran, True was a budget of 1; a float seed failed in the first reset
+    check_number("sigma_cells", sigma_cells, owner="annotate_scene", note="0 = no smoothing")
+    check_integer("max_candidates", max_candidates, 1, owner="annotate_scene", none_means="no cap")
+    check_integer("seed", seed, 0, owner="annotate_scene")
+    check_integer("workers", workers, 0, owner="annotate_scene")
     task = scene.task
     r_x, r_y = task.candidate_region()
     if r_arm is not None and float(r_arm) != task.r_arm:
