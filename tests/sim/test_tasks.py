@@ -160,6 +160,21 @@ def test_a_task_name_that_is_not_text_is_named():
         default_policy(["CloseDrawer"])
 
 
+@pytest.mark.parametrize("shape", [(5,), (2, 3), (2, 4), (1,), ()])
+def test_target_frame_refuses_points_that_are_not_xy(shape):
+    """A 1-D array of 5 values came back as one point, [N,3] and [N,4] points lost their other coordinates, one
+    value failed with an IndexError."""
+    import numpy as np
+
+    from floaff_zoo.sim.tasks import TargetInfo, target_frame, target_frame_to_world
+
+    target = TargetInfo(np.zeros(3), 0.0, "drawer", [], np.zeros(0, np.int64), [])
+    for fn in (target_frame, target_frame_to_world):
+        with pytest.raises(ValueError, match=rf"{fn.__name__}: expects points of shape \[\.\.\., 2\], got shape"):
+            fn(target, np.zeros(shape))
+    assert target_frame(target, target_frame_to_world(target, np.ones((3, 2)))).shape == (3, 2)
+
+
 @pytest.mark.parametrize(
     "kwargs,match",
     [

@@ -104,15 +104,24 @@ def _body_geoms(scene: "TaskScene", bodies: list[str]) -> np.ndarray:
     return np.array([g for g in range(m.ngeom) if m.geom_bodyid[g] in ids], dtype=np.int64)
 
 
+def _points_2d(name: str, p: np.ndarray) -> np.ndarray:
+    """``p`` as float64 [...,2]; another last axis is a ValueError naming ``name`` (a 1-D array of 5 values was read
+    as one point, [N,3] or [N,4] points lost their other coordinates, one value failed with an IndexError)."""
+    p = np.asarray(p, dtype=np.float64)
+    if p.ndim == 0 or p.shape[-1] != 2:
+        raise ValueError(f"{name}: expects points of shape [..., 2], got shape {p.shape}")
+    return p
+
+
 def target_frame(target: "TargetInfo", xy: np.ndarray) -> np.ndarray:
     """World xy [...,2] -> paper target frame (x° lateral, y° = -outward distance) [...,2]."""
-    loc = target.to_local(np.asarray(xy, dtype=np.float64))
+    loc = target.to_local(_points_2d("target_frame", xy))
     return np.stack([loc[..., 1], -loc[..., 0]], axis=-1)
 
 
 def target_frame_to_world(target: "TargetInfo", xo: np.ndarray) -> np.ndarray:
     """Paper target frame [...,2] -> world xy [...,2]."""
-    xo = np.asarray(xo, dtype=np.float64)
+    xo = _points_2d("target_frame_to_world", xo)
     return target.to_world(np.stack([-xo[..., 1], xo[..., 0]], axis=-1))
 
 
