@@ -205,3 +205,11 @@ def test_style_params_refuses_a_style_that_is_not_a_whole_number():
     for bad in (1.5, True, None):
         with pytest.raises(ValueError, match="unknown style_id"):
             style_params(bad)
+
+
+def test_compile_scene_names_an_argument_that_is_no_scene_spec():
+    """A spec's dict failed with an AttributeError on 'layout_id', as build_scene's did."""
+    from floaff_zoo.sim.kitchen import compile_scene
+
+    with pytest.raises(TypeError, match="compile_scene expects a SceneSpec, got dict"):
+        compile_scene({"layout_id": 0, "style_id": 0, "seed": 1, "task": "CloseDrawer"})

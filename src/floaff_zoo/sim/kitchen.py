@@ -1101,6 +1101,8 @@ def lru_put(cache: dict[Any, Any], key: Any, value: Any, size: int) -> None:
 
 def compile_scene(spec: SceneSpec) -> tuple[mujoco.MjModel, dict, list[_Rect], dict]:
     """Compiled model + fixture info for a spec (cached per process, the last ``CACHE_SIZE`` kitchens)."""
+    if not isinstance(spec, SceneSpec):  # a dict failed with an AttributeError on ``layout_id``
+        raise TypeError(f"compile_scene expects a SceneSpec, got {type(spec).__name__}")
     with _LOCK:
         key = kitchen_key(spec)
         hit = _CACHE.get(key)
