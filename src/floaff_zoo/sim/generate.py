@@ -57,10 +57,15 @@ ANNOTATE_SEED = 0
 
 
 # ------------------------------------------------------------------------------------------------ planning
+def check_seed(seed: object) -> None:
+    """ValueError unless ``seed`` is an integer (any sign; not a bool): ``int()`` cut 1.5 to seed 1, recorded as 1."""
+    if not isinstance(seed, numbers.Integral) or isinstance(seed, bool):
+        raise ValueError(f"seed must be an integer, got {seed!r}")
+
+
 def derive_seed(global_seed: int, *parts: Any) -> int:
     """Deterministic 31-bit seed from the global seed and identifying parts (independent of PYTHONHASHSEED)."""
-    if not isinstance(global_seed, numbers.Integral) or isinstance(global_seed, bool):  # int() cut 1.5 to seed 1
-        raise ValueError(f"seed must be an integer, got {global_seed!r}")
+    check_seed(global_seed)
     key = "|".join([str(int(global_seed))] + [str(p) for p in parts]).encode()
     return int.from_bytes(hashlib.sha256(key).digest()[:4], "little") & 0x7FFFFFFF
 
@@ -901,8 +906,7 @@ def generate(
     if address and backend != "ray":  # the local pool ignored it: the scenes were not made on the named cluster
         raise ValueError(f"address {address!r} names a ray cluster: give it with backend 'ray'")
     check_integer("workers", workers, 0)  # 1.5 or "2" failed with a TypeError once the folder was locked
-    if not isinstance(seed, numbers.Integral) or isinstance(seed, bool):  # 1.5 was cut to seed 1 without a word
-        raise ValueError(f"seed must be an integer, got {seed!r}")
+    check_seed(seed)  # before the folder is made
     outp = check_out_dir(out)
     with contextlib.ExitStack() as stack:
         try:
