@@ -88,9 +88,11 @@ def main(argv: list[str] | None = None) -> int:
 
     angle: dict[str, list[float]] = defaultdict(list)
     offsets: dict[str, dict[str, list[float]]] = defaultdict(lambda: defaultdict(list))
+    read = 0
     try:
         for scene in ff.iter_scenes(a.root, benchmark=a.benchmark, split=a.split):
             for v in scene["views"][:: a.every]:
+                read += 1
                 view = ff.read_sample(scene, v, a.root)
                 task = view["meta"]["task"]
                 fa = lattice_angle(np.asarray(view["floor_xyz"], float)[:, :2])
@@ -101,8 +103,13 @@ def main(argv: list[str] | None = None) -> int:
                     offsets[name][task].append(float(np.hypot(*(guess - view["target_xyz"])[:2])))
     except (OSError, ValueError, KeyError) as exc:
         raise SystemExit(f"target_inputs: {exc}") from exc
-    if not angle and not offsets:
+    if not read:
         raise SystemExit(f"target_inputs: no {a.benchmark} {a.split} view under {a.root}")
+    if not angle and not offsets:  # was "no view" too, of a root that has them
+        raise SystemExit(
+            f"target_inputs: none of the {read} {a.benchmark} {a.split} view(s) read under {a.root} has 3 or more "
+            "floor points or a flagged target point (nothing to measure)"
+        )
     res = {
         "benchmark": a.benchmark,
         "split": a.split,

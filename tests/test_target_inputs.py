@@ -33,3 +33,14 @@ def test_target_estimates_centroid_and_nearest_band():
 def test_a_root_without_views_is_named(tmp_path):
     with pytest.raises(SystemExit, match="no layouts test view under"):
         ti.main(["--root", str(tmp_path), "--benchmark", "layouts"])
+
+
+def test_views_with_nothing_to_measure_are_not_called_missing(tmp_path, monkeypatch):
+    """A root whose views have too few floor points and no flagged target point was said to hold no view."""
+    from tests.data.floaff_fixture import make_floaff_dataset
+
+    make_floaff_dataset(tmp_path, problems=False, version=2)
+    monkeypatch.setattr(ti, "lattice_angle", lambda xy: None)
+    monkeypatch.setattr(ti, "target_estimates", lambda xyz, flag: None)
+    with pytest.raises(SystemExit, match=r"none of the \d+ layouts test view\(s\) read under .* has 3 or more floor"):
+        ti.main(["--root", str(tmp_path), "--benchmark", "layouts"])
