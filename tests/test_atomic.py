@@ -110,3 +110,19 @@ def test_existing_ancestor_is_the_first_existing_path_a_dangling_link_included(t
     assert existing_ancestor(tmp_path / "dangling" / "sub") == tmp_path / "dangling"
     monkeypatch.chdir(tmp_path)
     assert existing_ancestor("new/runs") == tmp_path  # relative paths are taken from the working folder
+
+
+def test_a_symlink_is_written_through_not_replaced(tmp_path):
+    """The rename replaced the link with a file and left its target holding the old bytes; a plain open writes the
+    target. A dangling link gets its target made, as open would."""
+    (tmp_path / "real").mkdir()
+    target = tmp_path / "real" / "index.json"
+    target.write_text("old")
+    link = tmp_path / "index.json"
+    link.symlink_to(target)
+    atomic_write(link, lambda f: f.write(b"new"))
+    assert link.is_symlink() and target.read_text() == "new"
+    dangling = tmp_path / "dangling.json"
+    dangling.symlink_to(tmp_path / "real" / "made.json")
+    atomic_write(dangling, lambda f: f.write(b"x"))
+    assert dangling.is_symlink() and (tmp_path / "real" / "made.json").read_text() == "x"
