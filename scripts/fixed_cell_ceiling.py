@@ -37,7 +37,7 @@ from floaff_zoo.sim import fileformat as ff
 from floaff_zoo.sim.views import candidates_in_target_frame
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from script_cli import refuse_folders  # noqa: E402
+from script_cli import refuse_folders, refuse_repeats  # noqa: E402
 
 # (task, split) -> per view: {canonical cell (i, j): rollout succeeded}
 Views = dict[tuple[str, str], list[dict[tuple[int, int], bool]]]
@@ -185,6 +185,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--json", default=None, help="also write the rows here")
     a = p.parse_args(argv)
     refuse_folders(p, json=a.json)
+    refuse_repeats(p, "benchmark", a.benchmarks)  # printed its rows twice, or merged them
     out = {b: benchmark_rows(Path(a.root), b) for b in a.benchmarks}
     print(markdown(out))
     if a.json:

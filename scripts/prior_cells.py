@@ -32,7 +32,7 @@ from floaff_zoo.sim import fileformat as ff
 from floaff_zoo.sim.views import candidates_in_target_frame
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from script_cli import refuse_folders  # noqa: E402
+from script_cli import refuse_folders, refuse_repeats  # noqa: E402
 
 # per view: (task index, split, canonical xy [M, 2], smoothed label [M], rollout success [M])
 View = tuple[int, str, np.ndarray, np.ndarray, np.ndarray]
@@ -108,6 +108,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--json", default=None)
     a = p.parse_args(argv)
     refuse_folders(p, json=a.json)
+    refuse_repeats(p, "benchmark", a.benchmarks)  # printed its rows twice, or merged them
     if a.seed < 0:  # numpy's generator takes no negative seed: a traceback after the table's header
         p.error(f"--seed must be >= 0, got {a.seed}")
     if not 0 <= a.noise_deg < math.inf:  # NaN or Inf turned every query into NaN: an SR of 0 printed as a result

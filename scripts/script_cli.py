@@ -63,6 +63,7 @@ def refuse_folders(parser: argparse.ArgumentParser, **files: str | Path | None) 
         flag = f"--{option.replace('_', '-')}"
         if Path(path).is_dir():
             parser.error(f"{flag} names a file to write, got the folder {str(path)!r}")
+        # floaff_zoo.atomic.existing_ancestor spelled out: reset_drift runs with an older src first on its path
         above = next((q for q in Path(path).parents if q.exists() or q.is_symlink()), None)
         if above is not None and not above.is_dir():
             parser.error(f"{flag} {str(path)!r}: {str(above)!r} exists and is not a folder")
@@ -99,3 +100,11 @@ def check_parking_noise(parser: argparse.ArgumentParser, args: argparse.Namespac
             parser.error(f"{flag} must be a finite number >= 0, got {value}")
     if args.seed < 0:
         parser.error(f"--seed must be >= 0, got {args.seed}")
+
+
+def refuse_repeats(parser: argparse.ArgumentParser, what: str, values: list[str]) -> None:
+    """A usage error naming the ``values`` given more than once (``what``: "model", "benchmark"): each names one row
+    of the script's table, and a repeat printed its rows twice or merged them with their counts doubled."""
+    repeated = sorted({v for v in values if values.count(v) > 1})
+    if repeated:
+        parser.error(f"a {what} is given twice: {', '.join(repeated)}")

@@ -22,7 +22,7 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from script_cli import floor_model, refuse_folders  # noqa: E402
+from script_cli import floor_model, refuse_folders, refuse_repeats  # noqa: E402
 
 from floaff_zoo.atomic import atomic_write_text  # noqa: E402
 from floaff_zoo.callbacks.rollout import choose_pose, cloud_free, default_service
@@ -47,9 +47,7 @@ def main(argv: list[str] | None = None) -> int:
     refuse_folders(p, json=a.json)
     if a.top_k < 1:
         p.error(f"--top-k must be >= 1, got {a.top_k}")
-    repeated = sorted({m for m in a.models if a.models.count(m) > 1})
-    if repeated:  # one row per model: a repeat was merged into one row with its jobs counted twice
-        p.error(f"a model is given twice: {', '.join(repeated)}")
+    refuse_repeats(p, "model", a.models)
     if a.crop_first is not None and not a.crop_first > 0:  # TargetCrop's ValueError was a traceback after the models
         p.error(f"--crop-first must be a radius > 0 (m), got {a.crop_first}")
     models = {m: floor_model(m, f"val_sr: {m}") for m in a.models}  # a bad model fails before the data are set up

@@ -105,6 +105,9 @@ def test_an_unknown_benchmark_is_a_usage_error_naming_the_argument(tmp_path, cap
     with pytest.raises(SystemExit) as done:
         fcc.main(["--root", str(tmp_path), "--benchmarks", "layout"])
     assert done.value.code == 2 and "--benchmarks: invalid choice: 'layout'" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as done:  # merged into one table silently
+        fcc.main(["--root", str(tmp_path), "--benchmarks", "layouts", "layouts"])
+    assert done.value.code == 2 and "a benchmark is given twice: layouts" in capsys.readouterr().err
 
 
 def test_a_task_without_train_or_test_scenes_is_said_and_no_task_is_an_error(tmp_path, capsys):

@@ -69,6 +69,10 @@ def test_an_unknown_benchmark_is_named_before_the_table(tmp_path, capsys):
         pc.main(["--root", str(tmp_path), "--seed", "-1"])
     out = capsys.readouterr()
     assert exc.value.code == 2 and "--seed must be >= 0, got -1" in out.err and "| Benchmark" not in out.out
+    with pytest.raises(SystemExit) as exc:  # its rows were printed twice
+        pc.main(["--root", str(tmp_path), "--benchmarks", "styles", "layouts", "styles"])
+    out = capsys.readouterr()
+    assert exc.value.code == 2 and "a benchmark is given twice: styles" in out.err and "| Benchmark" not in out.out
 
 
 @pytest.mark.parametrize("noise", ["nan", "inf", "-1"])
