@@ -337,8 +337,11 @@ def test_init_error_stays_one_line_when_jsonargparse_does_not_show_the_part(tmp_
 @pytest.mark.parametrize(
     ("flags", "expected"),
     [
-        (["--model.init_args.npoints", "[64,0,8]"], "npoints: every level needs >= 1 centre, got 0"),
-        (["--model.init_args.nsamples", "[[0],[8],[8]]"], "nsamples: every ball needs >= 1 neighbour, got [0]"),
+        (["--model.init_args.npoints", "[64,0,8]"], "npoints: a level's centres must be an integer >= 1, got 0"),
+        (
+            ["--model.init_args.nsamples", "[[0],[8],[8]]"],
+            "nsamples: a ball's neighbours must be an integer >= 1, got 0",
+        ),
     ],
 )
 def test_pointnet2_sizes_are_checked_before_the_first_batch(tmp_path, root, monkeypatch, flags, expected):
@@ -560,7 +563,7 @@ def test_a_file_in_place_of_the_next_run_folder_is_named(tmp_path, root, monkeyp
     blocker.parent.mkdir(parents=True)
     blocker.write_text("a user's notes")
     args = ["fit", "--config", DATA, "--config", MODEL, *quiet_trainer_args(out)]
-    with pytest.raises(CLIError, match=f"run folder {blocker}: a file is in its place; move it away"):
+    with pytest.raises(CLIError, match=f"run folder {blocker}: a file or link is in its place; move it away"):
         main(args)
     assert blocker.read_text() == "a user's notes"
 

@@ -469,3 +469,10 @@ def test_shared_mlp_two_forwards_before_one_backward(use_kernel, monkeypatch):
         torch.testing.assert_close(lin.weight.grad, r_lin.weight.grad, atol=1e-4, rtol=1e-4)
         torch.testing.assert_close(norm.running_mean, r_norm.running_mean, atol=1e-5, rtol=1e-5)
         torch.testing.assert_close(norm.running_var, r_norm.running_var, atol=1e-5, rtol=1e-5)
+
+
+def test_set_abstraction_sizes_must_be_whole_numbers():
+    """int() cut 2.5 centres or neighbours to 2 and read True as 1, where the ops now refuse them by name."""
+    for npoint, k, said in ((2.5, 16, "npoints: a level's centres"), (32, True, "nsamples: a ball's neighbours")):
+        with pytest.raises(ValueError, match=f"{said} must be an integer >= 1, got"):
+            SetAbstraction(npoint, [0.3], [k], 0, [[8]])

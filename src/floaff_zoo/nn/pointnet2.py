@@ -28,6 +28,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from floaff_zoo.checks import check_integer
 from floaff_zoo.nn.ops import (
     ball_query_multi,
     cpu_fast_paths,
@@ -689,10 +690,10 @@ class SetAbstraction(nn.Module):
         if not group_all and not (len(radii) == len(nsamples) == len(mlps)):
             raise ValueError(f"radii {radii}, nsamples {nsamples}, mlps {mlps}: one entry per scale needed")
         if not group_all:  # checked here, not at the first batch
-            if npoint < 1:
-                raise ValueError(f"npoints: every level needs >= 1 centre, got {npoint}")
-            if any(k < 1 for k in nsamples):
-                raise ValueError(f"nsamples: every ball needs >= 1 neighbour, got {list(nsamples)}")
+            # whole numbers: int() cut 2.5 centres or neighbours to 2, and True was 1
+            check_integer("npoints: a level's centres", npoint, 1)
+            for k in nsamples:
+                check_integer("nsamples: a ball's neighbours", k, 1)
             if not all(math.isfinite(r) and r > 0 for r in radii):
                 raise ValueError(f"radii: every ball radius must be a finite number > 0, got {list(radii)}")
             if any(len(m) < 1 for m in mlps):  # an IndexError at the first batch
