@@ -145,7 +145,6 @@ def main(argv: list[str] | None = None) -> int:
     print()
     print_summary(res)
     if a.json:
-        Path(a.json).parent.mkdir(parents=True, exist_ok=True)
         listed = [f"{f}@{tag}" if tag else str(f) for f, tag in files]
         out = {"benchmark": bench, "files": listed, "draws": a.draws, "seed": a.seed}
         out |= {"scenes": scenes, "folds": per_fold, **res}

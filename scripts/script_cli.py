@@ -63,7 +63,7 @@ def refuse_folders(parser: argparse.ArgumentParser, **files: str | Path | None) 
         flag = f"--{option.replace('_', '-')}"
         if Path(path).is_dir():
             parser.error(f"{flag} names a file to write, got the folder {str(path)!r}")
-        # floaff_zoo.atomic.existing_ancestor spelled out: reset_drift runs with an older src first on its path
+        # atomic.existing_ancestor spelled out: reset_drift may run with a src older than floaff_zoo.atomic
         above = next((q for q in Path(path).parents if q.exists() or q.is_symlink()), None)
         if above is not None and not above.is_dir():
             parser.error(f"{flag} {str(path)!r}: {str(above)!r} exists and is not a folder")

@@ -61,7 +61,7 @@ def test_main_pools_every_fold_and_writes_json(tmp_path, capsys):
     folder.mkdir()
     for name, doc in _docs():
         (folder / f"{name}.json").write_text(json.dumps(doc))
-    out = tmp_path / "new" / "pooled.json"  # a missing folder is made (write_text failed at the end)
+    out = tmp_path / "new" / "pooled.json"  # a missing folder is made
     assert cv.main([str(folder), "--draws", "50", "--json", str(out)]) == 0
     res = json.loads(out.read_text())
     # occ: (4 + 1 + 0 + 2) / 10 views; prior: (2 + 0.5 + 0 + 2) / 10

@@ -86,8 +86,9 @@ def atomic_write(path: str | os.PathLike[str], write: Callable[[BinaryIO], None]
     """Write ``path`` whole or not at all: ``write(f)`` fills a temp file beside it, which then replaces it.
 
     ``durable`` also flushes the data to disk before the rename (after a power loss the file is the old or the new
-    one, never empty). A symlink is written through, as ``open`` does: the rename would replace the link itself
-    and leave its target as it was."""
+    one, never empty). A symlink is written through, as ``open`` does (the rename would replace the link itself and
+    leave its target as it was): a link into another folder has that file replaced there, and a link to a folder
+    fails as ``open`` would."""
     path = Path(os.path.realpath(path)) if os.path.islink(path) else Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)

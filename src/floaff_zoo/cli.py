@@ -620,11 +620,12 @@ class FloAffCLI(LightningCLI):
     before_predict = _before_eval
 
     def _check_run_dir(self) -> None:
-        """Refuse a run folder (the logger's ``version_N``) that is a file: Lightning counts only folders when it
-        picks the next version, and its ``makedirs`` then failed in the setup hook with a ``FileExistsError``."""
+        """Refuse a run folder (the logger's ``version_N``) that is a file or a dangling link: Lightning counts only
+        folders when it picks the next version, and its ``makedirs`` then failed in the setup hook with a
+        ``FileExistsError``."""
         log_dir = getattr(getattr(self.trainer, "logger", None), "log_dir", None)
         if log_dir and (Path(log_dir).exists() or Path(log_dir).is_symlink()) and not Path(log_dir).is_dir():
-            raise CLIError(f"run folder {log_dir}: a file is in its place; move it away and run again")
+            raise CLIError(f"run folder {log_dir}: a file or link is in its place; move it away and run again")
 
     def _stage_line(self, ckpt: str | None) -> None:
         """One line per stage (Lightning's own banners and model summary are off unless --verbose)."""

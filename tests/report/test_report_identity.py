@@ -182,7 +182,7 @@ def test_a_report_folder_that_cannot_take_the_report_is_refused_before_the_test(
     (tmp_path / "json" / "report.json").mkdir(parents=True)
     for out, figures, said in (
         (tmp_path / "file" / "run", False, f"cannot write the report into {tmp_path / 'file' / 'run'}: "),
-        (tmp_path / "figs", True, f"{tmp_path / 'figs' / 'figures'} is a file; the figures go into a folder"),
+        (tmp_path / "figs", True, f"{tmp_path / 'figs' / 'figures'} is not a folder; the figures go into one"),
         (tmp_path / "json", False, f"{tmp_path / 'json' / 'report.json'} is a folder; the report writes a file"),
     ):
         counted = _CountBatches()
@@ -195,3 +195,14 @@ def test_a_report_folder_that_cannot_take_the_report_is_refused_before_the_test(
         ConstantModule(), dataloaders=loader(make_samples(2)), verbose=False
     )
     assert (tmp_path / "figs" / "report.json").is_file()
+    # a folder named sr_episodes.json stands in the way only of a test that rolls out and writes its episodes
+    (tmp_path / "eps" / "sr_episodes.json").mkdir(parents=True)
+    quiet_trainer([TestReport(out_dir=str(tmp_path / "eps"), figures=False)]).test(
+        ConstantModule(), dataloaders=loader(make_samples(2)), verbose=False
+    )
+    assert (tmp_path / "eps" / "report.json").is_file()
+    rollout = RolloutSuccessRate(service=FakeService, progress=False)
+    with pytest.raises(MisconfigurationException, match="sr_episodes.json is a folder; the report writes a file"):
+        quiet_trainer([rollout, TestReport(out_dir=str(tmp_path / "eps"), figures=False)]).test(
+            ConstantModule(), dataloaders=loader(make_samples(2)), verbose=False
+        )

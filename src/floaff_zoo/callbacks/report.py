@@ -182,24 +182,29 @@ class TestReport(L.Callback):
         run's. (``trainer.log_dir`` is a broadcast under DDP: every rank calls it here.)"""
         self._checkpoint, self._weights_known = checkpoint_record(trainer, pl_module), True
         log_dir = trainer.log_dir
-        self._check_report_dir(Path(self.out_dir or log_dir or trainer.default_root_dir))
+        rollout = any(type(c).__name__ == "RolloutSuccessRate" for c in trainer.callbacks)
+        self._check_report_dir(Path(self.out_dir or log_dir or trainer.default_root_dir), rollout)
         self._config = read_config(Path(log_dir)) if log_dir else None
         if self._config is None and self.out_dir:
             self._config = read_config(Path(self.out_dir))
         self._config_known = True
 
-    def _check_report_dir(self, run_dir: Path) -> None:
+    def _check_report_dir(self, run_dir: Path, rollout: bool) -> None:
         """Refuse, before the test and its rollouts run (minutes), a folder whose report files could not be written:
-        a file on its path, a folder in place of one of its files, or a file in place of its ``figures`` folder
-        failed at the end, and the test's results were lost."""
+        something other than a folder on its path, a folder in place of one of the files it writes (the episodes'
+        only when a ``rollout`` callback gives them), or a file in place of its ``figures`` folder failed at the
+        end, and the test's results were lost."""
         if not (found := existing_ancestor(run_dir)).is_dir():
-            raise MisconfigurationException(f"TestReport: cannot write the report into {run_dir}: {found} is a file")
-        for name in ("report.json", "report.md", "sr_episodes.json"):
+            raise MisconfigurationException(
+                f"TestReport: cannot write the report into {run_dir}: {found} is not a folder"
+            )
+        names = ("report.json", "report.md") + (("sr_episodes.json",) if rollout and self.write_episodes else ())
+        for name in names:
             if (run_dir / name).is_dir():
                 raise MisconfigurationException(f"TestReport: {run_dir / name} is a folder; the report writes a file")
         figures = run_dir / "figures"
         if self.figures and (figures.exists() or figures.is_symlink()) and not figures.is_dir():
-            raise MisconfigurationException(f"TestReport: {figures} is a file; the figures go into a folder there")
+            raise MisconfigurationException(f"TestReport: {figures} is not a folder; the figures go into one there")
 
     def on_test_epoch_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         self._samples, self._candidates = [], {}

@@ -60,7 +60,7 @@ def build_axisnet(arch: dict[str, Any], owner: str) -> tuple[AxisNet, float]:
 
     Raises:
         MisconfigurationException: naming ``axisnet_arch`` for a record that is not one, or whose crop_radius is not a
-            finite number > 0 (a NaN one cropped every point away and blamed the samples; a text failed float()).
+            finite number > 0 (a NaN one cropped every point away and blamed the samples; a text is no recorded number).
     """
     try:
         net = AxisNet(4, list(arch["widths"]), list(arch["head"]))
