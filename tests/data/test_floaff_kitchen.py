@@ -756,3 +756,9 @@ def test_a_split_without_any_sample_of_a_loaded_task_is_said(floaff_root, tmp_pa
     for stage in ("test", "predict"):
         with pytest.warns(UserWarning, match=r"'test' split holds no sample of task\(s\) \['PnPCounterToCab'\]"):
             _dm(no_test, tasks=tasks).setup(stage)
+
+
+def test_a_pre_transform_that_is_no_transform_is_named_at_construction():
+    """A dict in pre_transforms failed at setup, inside the cache key (no config()) or the first parse."""
+    with pytest.raises(DataConfigError, match=r"data\.pre_transforms\[0\] must be a SampleTransform"):
+        _dm("unused", pre_transforms=[{"class_path": "floaff_zoo.data.transforms.OfficialNormalize"}])

@@ -374,3 +374,11 @@ def test_a_setup_reads_each_split_file_once(moma_root, monkeypatch, stage):
     monkeypatch.setattr(mk, "read_split_file", lambda p: reads.append(p.name) or real(p))
     _dm(root).setup(stage)
     assert sorted(reads) == ["kitchen_test.txt", "kitchen_train.txt"]
+
+
+def test_a_pre_transform_that_is_no_transform_is_named_at_construction():
+    """A text in pre_transforms failed at setup, inside the cache key (no config()) or the first parse."""
+    with pytest.raises(
+        ValueError, match=r"data\.pre_transforms\[1\] must be a SampleTransform .*got 'OfficialNormalize'"
+    ):
+        _dm("unused", pre_transforms=[OfficialNormalize(), "OfficialNormalize"])

@@ -386,3 +386,24 @@ def test_make_probe_sample_names_a_bad_argument(args, message):
 
     with pytest.raises(ValueError, match=message):
         make_probe_sample(0, **args)
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "message"),
+    [
+        ("train_transforms", [YawPerturb(5.0), "Jitter"], r"data\.train_transforms\[1\] must be a SampleTransform"),
+        ("eval_transforms", [{"class_path": "Jitter"}], r"data\.eval_transforms\[0\] must be a SampleTransform"),
+        ("train_transforms", [YawPerturb], r"data\.train_transforms\[0\] must be a SampleTransform"),  # the class
+        ("train_transforms", YawPerturb(5.0), r"data\.train_transforms must be a list of transforms"),
+        ("eval_transforms", "YawPerturb", r"data\.eval_transforms must be a list of transforms"),
+    ],
+)
+def test_a_transform_list_entry_that_is_no_transform_is_named_at_construction(field, value, message):
+    """A text or a dict in a transform list failed at the first sample ("'str' object is not callable"), a single
+    transform for the list failed as "not iterable", and a text was taken letter by letter."""
+    from lightning.pytorch.utilities.exceptions import MisconfigurationException
+
+    with pytest.raises(ValueError, match=message) as err:
+        SyntheticDataModule(**{field: value})
+    assert isinstance(err.value, MisconfigurationException)
+    assert SyntheticDataModule(train_transforms=(YawPerturb(5.0),), eval_transforms=[]).train_transforms[0].max_deg == 5

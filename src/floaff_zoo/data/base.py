@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import itertools
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from functools import partial
 from typing import Any, Literal
 
@@ -36,6 +36,22 @@ def check_size(field: str, value: Any, minimum: int, none_means: str | None = No
     """Raise DataConfigError unless ``value`` is an int >= ``minimum`` (or None where ``none_means`` says what
     None does); ``field`` is the DataModule argument's name."""
     check_integer(f"data.{field}", value, minimum, error=DataConfigError, none_means=none_means)
+
+
+def check_transforms(field: str, value: Any) -> list[SampleTransform]:
+    """``value`` (None = none) as a list; DataConfigError naming ``data.<field>`` and the position of an entry that is
+    not a :class:`SampleTransform` (a text or a dict failed only at the first sample: "'str' object is not
+    callable"), or when ``value`` is no list (a single transform, a text: its letters were taken as the entries)."""
+    if value is None:
+        return []
+    if isinstance(value, (str, bytes, Mapping)) or not isinstance(value, Sequence):
+        raise DataConfigError(f"data.{field} must be a list of transforms, got {value!r}")
+    for i, t in enumerate(value):
+        if not isinstance(t, SampleTransform):
+            raise DataConfigError(
+                f"data.{field}[{i}] must be a SampleTransform (class_path and init_args in a config), got {t!r}"
+            )
+    return list(value)
 
 
 def after_base_seed(state: torch.Tensor) -> torch.Tensor:
@@ -193,8 +209,8 @@ class FloAffDataModule(L.LightningDataModule):
             raise DataConfigError(
                 f"data.persistent_train_workers must be true or false, got {persistent_train_workers!r}"
             )
-        self.train_transforms = list(train_transforms or [])
-        self.eval_transforms = list(eval_transforms or [])
+        self.train_transforms = check_transforms("train_transforms", train_transforms)
+        self.eval_transforms = check_transforms("eval_transforms", eval_transforms)
         self.batch_size = batch_size
         self.eval_batch_size = batch_size if eval_batch_size is None else eval_batch_size
         self.num_workers = num_workers

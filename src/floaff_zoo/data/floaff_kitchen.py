@@ -27,7 +27,7 @@ import numpy as np
 from lightning.pytorch.utilities.exceptions import MisconfigurationException
 
 from floaff_zoo.contract import FULL_CLOUD_KEY, TASKS, VIEWS, Sample, SampleError
-from floaff_zoo.data.base import DataConfigError, FloAffDataModule, check_size
+from floaff_zoo.data.base import DataConfigError, FloAffDataModule, check_size, check_transforms
 from floaff_zoo.data.cache import RecordDataset, SampleCache, code_digest
 from floaff_zoo.data.readers import (
     FloAffReader,
@@ -173,7 +173,7 @@ class FloAffKitchenDataModule(FloAffDataModule):
         self.use_cache = cache
         self.cache_dir = Path(cache_dir) if cache_dir else self.root / ".cache"
         self.cache_hash = cache_hash
-        self.pre_transforms = list(pre_transforms or [])
+        self.pre_transforms = check_transforms("pre_transforms", pre_transforms)
         self.full_cloud = full_cloud
         self.skips: SkipLog | None = None
         self.split_scenes: dict[str, list[str]] = {}

@@ -54,7 +54,7 @@ from lightning.pytorch.utilities.exceptions import MisconfigurationException
 
 from floaff_zoo.checks import check_number
 from floaff_zoo.contract import Sample
-from floaff_zoo.data.base import DataConfigError, FloAffDataModule, check_size
+from floaff_zoo.data.base import DataConfigError, FloAffDataModule, check_size, check_transforms
 from floaff_zoo.data.cache import RecordDataset, SampleCache, code_digest
 from floaff_zoo.data.readers import DataError, SampleRecord, SkipLog, check_finite_arrays
 from floaff_zoo.data.transforms import SampleTransform, transforms_config
@@ -561,7 +561,7 @@ class MoMaKitchenDataModule(FloAffDataModule):
         self.cache_dir = Path(cache_dir) if cache_dir else self.root / ".cache"
         self.use_cache = cache
         self.cache_hash = cache_hash
-        self.pre_transforms = list(pre_transforms or [])
+        self.pre_transforms = check_transforms("pre_transforms", pre_transforms)
         self.skips: dict[str, SkipLog] = {}
 
     def _split_text(self, split: str) -> str:
