@@ -762,3 +762,23 @@ def test_a_pre_transform_that_is_no_transform_is_named_at_construction():
     """A dict in pre_transforms failed at setup, inside the cache key (no config()) or the first parse."""
     with pytest.raises(DataConfigError, match=r"data\.pre_transforms\[0\] must be a SampleTransform"):
         _dm("unused", pre_transforms=[{"class_path": "floaff_zoo.data.transforms.OfficialNormalize"}])
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "message"),
+    [
+        ("strict", "false", r"data\.strict must be true or false, got 'false'"),  # a true text: strict mode
+        ("validate", 0, r"data\.validate must be true or false, got 0"),
+        ("cache", "no", r"data\.cache must be true or false, got 'no'"),
+        ("full_cloud", 1, r"data\.full_cloud must be true or false, got 1"),
+        ("cache_hash", "sha", r"data\.cache_hash must be one of 'stat', 'content', got 'sha'"),  # ignored with no cache
+        ("val_view_fraction", "0.2", r"data\.val_view_fraction must be in \[0, 1\), got '0\.2'"),  # a bare TypeError
+        ("val_view_fraction", False, r"data\.val_view_fraction must be in \[0, 1\), got False"),  # taken as 0
+        ("val_view_fraction", float("nan"), r"data\.val_view_fraction must be in \[0, 1\), got nan"),
+    ],
+)
+def test_a_flag_a_choice_or_a_fraction_of_the_wrong_kind_is_named(field, value, message):
+    """A text where a flag is asked for was true ("false" set strict mode), a cache_hash typo passed unseen while the
+    cache was off, and a text fraction failed in a bare comparison naming nothing."""
+    with pytest.raises(DataConfigError, match=message):
+        _dm("unused", **{field: value})

@@ -382,3 +382,24 @@ def test_a_pre_transform_that_is_no_transform_is_named_at_construction():
         ValueError, match=r"data\.pre_transforms\[1\] must be a SampleTransform .*got 'OfficialNormalize'"
     ):
         _dm("unused", pre_transforms=[OfficialNormalize(), "OfficialNormalize"])
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "message"),
+    [
+        ("strict", "false", r"data\.strict must be true or false, got 'false'"),  # a true text: strict mode
+        ("validate", 0, r"data\.validate must be true or false, got 0"),
+        ("cache", "no", r"data\.cache must be true or false, got 'no'"),
+        ("cache_hash", "sha", r"data\.cache_hash must be one of 'stat', 'content', got 'sha'"),
+        ("val_fraction", "0.05", r"data\.val_fraction must be in \[0, 1\), got '0\.05'"),  # a bare TypeError
+        ("val_fraction", False, r"data\.val_fraction must be in \[0, 1\), got False"),  # 0: validate on test
+        ("val_fraction", 1.0, r"data\.val_fraction must be in \[0, 1\), got 1\.0"),
+    ],
+)
+def test_a_flag_a_choice_or_a_fraction_of_the_wrong_kind_is_named(field, value, message):
+    """A text where a flag is asked for was true ("false" set strict mode), a cache_hash typo passed unseen while the
+    cache was off, and a text fraction failed in a bare comparison naming nothing."""
+    from floaff_zoo.data.base import DataConfigError
+
+    with pytest.raises(DataConfigError, match=message):
+        _dm("unused", **{field: value})

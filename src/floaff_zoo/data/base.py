@@ -15,7 +15,7 @@ from lightning.pytorch.utilities import rank_zero_warn
 from lightning.pytorch.utilities.exceptions import MisconfigurationException
 from torch.utils.data import DataLoader, Dataset, RandomSampler
 
-from floaff_zoo.checks import check_integer
+from floaff_zoo.checks import check_integer, is_number, shown
 from floaff_zoo.contract import Sample, collate_samples, validate_sample
 from floaff_zoo.data.transforms import SampleTransform, apply_transforms
 
@@ -36,6 +36,26 @@ def check_size(field: str, value: Any, minimum: int, none_means: str | None = No
     """Raise DataConfigError unless ``value`` is an int >= ``minimum`` (or None where ``none_means`` says what
     None does); ``field`` is the DataModule argument's name."""
     check_integer(f"data.{field}", value, minimum, error=DataConfigError, none_means=none_means)
+
+
+def check_flag(field: str, value: Any) -> None:
+    """DataConfigError unless ``value`` is a bool: "false" from a hand-written config is a true text, 0 or 1 no
+    flag."""
+    if not isinstance(value, bool):
+        raise DataConfigError(f"data.{field} must be true or false, got {value!r}")
+
+
+def check_fraction(field: str, value: Any) -> None:
+    """DataConfigError unless ``value`` is a number in [0, 1): a text failed in a bare comparison, False was taken
+    as 0."""
+    if not (is_number(value) and 0 <= value < 1):
+        raise DataConfigError(f"data.{field} must be in [0, 1), got {shown(value)}")
+
+
+def check_choice(field: str, value: Any, choices: tuple[str, ...]) -> None:
+    """DataConfigError unless ``value`` is one of ``choices``."""
+    if not (isinstance(value, str) and value in choices):
+        raise DataConfigError(f"data.{field} must be one of {', '.join(map(repr, choices))}, got {value!r}")
 
 
 def check_transforms(field: str, value: Any) -> list[SampleTransform]:
@@ -205,10 +225,7 @@ class FloAffDataModule(L.LightningDataModule):
         check_size("seed", seed, 0)  # numpy's seeded streams refuse a negative seed only at setup, per sample
         if collate_mode not in ("pad", "resample"):
             raise DataConfigError(f"data.collate_mode must be 'pad' or 'resample', got {collate_mode!r}")
-        if not isinstance(persistent_train_workers, bool):  # "false" from a hand-written config is a true text
-            raise DataConfigError(
-                f"data.persistent_train_workers must be true or false, got {persistent_train_workers!r}"
-            )
+        check_flag("persistent_train_workers", persistent_train_workers)
         self.train_transforms = check_transforms("train_transforms", train_transforms)
         self.eval_transforms = check_transforms("eval_transforms", eval_transforms)
         self.batch_size = batch_size

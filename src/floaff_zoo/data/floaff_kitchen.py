@@ -27,7 +27,15 @@ import numpy as np
 from lightning.pytorch.utilities.exceptions import MisconfigurationException
 
 from floaff_zoo.contract import FULL_CLOUD_KEY, TASKS, VIEWS, Sample, SampleError
-from floaff_zoo.data.base import DataConfigError, FloAffDataModule, check_size, check_transforms
+from floaff_zoo.data.base import (
+    DataConfigError,
+    FloAffDataModule,
+    check_choice,
+    check_flag,
+    check_fraction,
+    check_size,
+    check_transforms,
+)
 from floaff_zoo.data.cache import RecordDataset, SampleCache, code_digest
 from floaff_zoo.data.readers import (
     FloAffReader,
@@ -154,8 +162,10 @@ class FloAffKitchenDataModule(FloAffDataModule):
         self.reader_cls = get_reader(reader)
         check_size("val_scenes", val_scenes, 0)  # 1.5 reached the scene split as a slice index (a TypeError)
         check_size("max_views_per_scene", max_views_per_scene, 1, "every view")  # 0 or less emptied every split
-        if not 0.0 <= val_view_fraction < 1.0:
-            raise DataConfigError(f"data.val_view_fraction must be in [0, 1), got {val_view_fraction!r}")
+        check_fraction("val_view_fraction", val_view_fraction)  # False was 0, a text a bare TypeError
+        for name, flag in (("strict", strict), ("validate", validate), ("cache", cache), ("full_cloud", full_cloud)):
+            check_flag(name, flag)  # "false" from a hand-written config is a true text
+        check_choice("cache_hash", cache_hash, ("stat", "content"))
         self.root = Path(root)
         self.val_scenes = val_scenes
         self.val_scene_ids = None if val_scene_ids is None else list(val_scene_ids)

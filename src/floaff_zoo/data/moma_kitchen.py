@@ -54,7 +54,15 @@ from lightning.pytorch.utilities.exceptions import MisconfigurationException
 
 from floaff_zoo.checks import check_number
 from floaff_zoo.contract import Sample
-from floaff_zoo.data.base import DataConfigError, FloAffDataModule, check_size, check_transforms
+from floaff_zoo.data.base import (
+    DataConfigError,
+    FloAffDataModule,
+    check_choice,
+    check_flag,
+    check_fraction,
+    check_size,
+    check_transforms,
+)
 from floaff_zoo.data.cache import RecordDataset, SampleCache, code_digest
 from floaff_zoo.data.readers import DataError, SampleRecord, SkipLog, check_finite_arrays
 from floaff_zoo.data.transforms import SampleTransform, transforms_config
@@ -536,8 +544,10 @@ class MoMaKitchenDataModule(FloAffDataModule):
             eval_transforms,
             persistent_train_workers,
         )
-        if not 0.0 <= val_fraction < 1.0:
-            raise ValueError(f"val_fraction must be in [0, 1), got {val_fraction}")
+        check_fraction("val_fraction", val_fraction)  # False was 0 (validate on test), a text a bare TypeError
+        for name, flag in (("strict", strict), ("validate", validate), ("cache", cache)):
+            check_flag(name, flag)
+        check_choice("cache_hash", cache_hash, ("stat", "content"))
         if yaw_estimator not in ("toward_origin", "toward_view", "label_centroid"):
             raise ValueError(
                 f"unknown yaw_estimator {yaw_estimator!r}; valid: toward_origin, toward_view, label_centroid"
