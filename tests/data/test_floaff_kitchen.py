@@ -782,3 +782,11 @@ def test_a_flag_a_choice_or_a_fraction_of_the_wrong_kind_is_named(field, value, 
     cache was off, and a text fraction failed in a bare comparison naming nothing."""
     with pytest.raises(DataConfigError, match=message):
         _dm("unused", **{field: value})
+
+
+@pytest.mark.parametrize("ids", [[], "CloseDrawer-train0-s001"])
+def test_an_empty_or_text_val_scene_ids_is_named_at_construction(ids):
+    """[] held out no scene, so a fit failed at setup with "the 'val' split is empty", naming no argument; a text
+    was read letter by letter as scene ids."""
+    with pytest.raises(DataConfigError, match=r"data\.val_scene_ids must be a non-empty list of train scene ids"):
+        _dm("unused", val_scene_ids=ids)

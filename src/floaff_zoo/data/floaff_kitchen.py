@@ -168,6 +168,13 @@ class FloAffKitchenDataModule(FloAffDataModule):
         check_choice("cache_hash", cache_hash, ("stat", "content"))
         self.root = Path(root)
         self.val_scenes = val_scenes
+        if val_scene_ids is not None and (isinstance(val_scene_ids, str) or not val_scene_ids):
+            # [] held out nothing, yet a fit asked for a validation split: "the 'val' split is empty" at setup; a text
+            # was taken letter by letter
+            raise DataConfigError(
+                f"FloAffKitchenDataModule: data.val_scene_ids must be a non-empty list of train scene ids (null: the "
+                f"seeded draw of val_scenes), got {val_scene_ids!r}"
+            )
         self.val_scene_ids = None if val_scene_ids is None else list(val_scene_ids)
         if val_layout is not None and val_scene_ids is not None:
             raise DataConfigError("FloAffKitchenDataModule: give data.val_scene_ids or data.val_layout, not both")
