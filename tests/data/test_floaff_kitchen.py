@@ -790,3 +790,10 @@ def test_an_empty_or_text_val_scene_ids_is_named_at_construction(ids):
     was read letter by letter as scene ids."""
     with pytest.raises(DataConfigError, match=r"data\.val_scene_ids must be a non-empty list of train scene ids"):
         _dm("unused", val_scene_ids=ids)
+
+
+@pytest.mark.parametrize(("field", "value"), [("tasks", "CloseDrawer"), ("views", "front"), ("tasks", 5)])
+def test_a_single_name_for_a_name_list_is_named(field, value):
+    """A text was read letter by letter ("unknown tasks ['C', 'l', 'o', ...]"), a number failed as "not iterable"."""
+    with pytest.raises(ValueError, match=rf"{field} must be a list of names \(valid {field}: .*got {value!r}"):
+        _dm("unused", **{field: value})

@@ -157,8 +157,8 @@ class FloAffKitchenDataModule(FloAffDataModule):
             persistent_train_workers,
         )
         self.benchmark = check_names("benchmark", [benchmark], BENCHMARKS)[0]
-        self.tasks = check_names("tasks", list(TASKS) if tasks is None else list(tasks), TASKS)
-        self.views = check_names("views", list(VIEWS) if views is None else list(views), VIEWS)
+        self.tasks = check_names("tasks", list(TASKS) if tasks is None else tasks, TASKS)
+        self.views = check_names("views", list(VIEWS) if views is None else views, VIEWS)
         self.reader_cls = get_reader(reader)
         check_size("val_scenes", val_scenes, 0)  # 1.5 reached the scene split as a slice index (a TypeError)
         check_size("max_views_per_scene", max_views_per_scene, 1, "every view")  # 0 or less emptied every split

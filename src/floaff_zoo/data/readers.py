@@ -377,8 +377,10 @@ class GeneratedReader(FloAffReader):
         return s
 
 
-def check_names(kind: str, given: list[str], valid: tuple[str, ...] | list[str]) -> list[str]:
-    """Return ``given`` or raise a ValueError listing the valid names."""
+def check_names(kind: str, given: list[str] | tuple[str, ...], valid: tuple[str, ...] | list[str]) -> list[str]:
+    """Return ``given`` as a list or raise a ValueError listing the valid names."""
+    if not isinstance(given, (list, tuple)):  # a text was read letter by letter: "unknown tasks ['C', 'l', ...]"
+        raise ValueError(f"{kind} must be a list of names (valid {kind}: {list(valid)}), got {given!r}")
     bad = [g for g in given if g not in valid]
     if bad:
         raise ValueError(f"unknown {kind} {bad}; valid {kind}: {list(valid)}")

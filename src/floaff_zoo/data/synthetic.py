@@ -172,7 +172,7 @@ class SyntheticDataModule(FloAffDataModule):
         self.sizes = {"train": num_train, "val": num_val, "test": num_test}
         self.points_per_sample = points_per_sample
         self.floor_cells = floor_cells
-        self.tasks = check_names("tasks", ["CloseDrawer"] if tasks is None else list(tasks), TASKS)
+        self.tasks = check_names("tasks", ["CloseDrawer"] if tasks is None else tasks, TASKS)
 
     def setup(self, stage: str | None = None) -> None:
         offsets = {"train": 0, "val": SPLIT_STRIDE, "test": 2 * SPLIT_STRIDE}
