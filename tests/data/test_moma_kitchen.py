@@ -166,6 +166,9 @@ def test_robot_table_entries_are_checked_by_name():
         ({"elephant": [0.6]}, "must all have the same length"),
         # a NaN made every sample of the robot a skip that named the sample folders, not the table
         ({"elephant": [0.6, float("nan")]}, r"robots / extra_robots: robot 'elephant' needs a list of finite"),
+        # every sample of the robot came with robot [0], and an int name failed in the reader's .lower()
+        ({"ur5e": [], "xarm": [], "flexiv": [], "panda": []}, r"robot 'ur5e' has an empty descriptor"),
+        ({7: [0.6, 1.0]}, r"robots / extra_robots: robot names must be texts, got 7"),
     ):
         with pytest.raises(ValueError, match=match):
             _dm("unused", extra_robots=bad)

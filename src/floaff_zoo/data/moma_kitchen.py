@@ -103,12 +103,16 @@ def _check_robot_table(table: dict[str, Any], field: str) -> None:
     if not table:
         raise ValueError(f"MoMaKitchenDataModule: {field}: the robot table is empty")
     for name, desc in table.items():
+        if not isinstance(name, str):  # the reader matches robot_name case-insensitively: an int key failed there
+            raise ValueError(f"MoMaKitchenDataModule: {field}: robot names must be texts, got {name!r}")
         if not isinstance(desc, (list, tuple)) or not all(
             isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in desc
         ):  # a NaN entry made every sample of that robot a 'NaN field robot' skip naming the samples, not the table
             raise ValueError(
                 f"MoMaKitchenDataModule: {field}: robot {name!r} needs a list of finite numbers, got {desc!r}"
             )
+        if not desc:  # every sample of that robot got an empty descriptor (robot [B, 0]), without a word
+            raise ValueError(f"MoMaKitchenDataModule: {field}: robot {name!r} has an empty descriptor")
     lengths = {len(d) for d in table.values()}
     if len(lengths) > 1:
         raise ValueError(f"MoMaKitchenDataModule: {field}: robot entries must all have the same length, got {table}")
