@@ -797,3 +797,12 @@ def test_a_single_name_for_a_name_list_is_named(field, value):
     """A text was read letter by letter ("unknown tasks ['C', 'l', 'o', ...]"), a number failed as "not iterable"."""
     with pytest.raises(ValueError, match=rf"{field} must be a list of names \(valid {field}: .*got {value!r}"):
         _dm("unused", **{field: value})
+
+
+@pytest.mark.parametrize("reader", [5, None, GeneratedReader])
+def test_a_reader_that_is_no_name_is_named(reader):
+    """A number or None failed as "argument of type 'int' is not iterable", a class as "'type' is not iterable"."""
+    with pytest.raises(
+        ValueError, match=r"reader must be a registered name \[.*'generated'.*\] or 'pkg\.module:Class'"
+    ):
+        _dm("unused", reader=reader)

@@ -226,6 +226,8 @@ def register_reader(name: str):
 
 def get_reader(name: str) -> type[FloAffReader]:
     """A registered reader name, or an import path ``pkg.module:Class`` / ``pkg.module.Class``."""
+    if not isinstance(name, str):  # a number failed as "argument of type 'int' is not iterable"
+        raise ValueError(f"reader must be a registered name {sorted(READERS)} or 'pkg.module:Class', got {name!r}")
     if name in READERS:
         return READERS[name]
     if ":" in name or "." in name:
