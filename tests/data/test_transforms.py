@@ -407,3 +407,17 @@ def test_a_transform_list_entry_that_is_no_transform_is_named_at_construction(fi
         SyntheticDataModule(**{field: value})
     assert isinstance(err.value, MisconfigurationException)
     assert SyntheticDataModule(train_transforms=(YawPerturb(5.0),), eval_transforms=[]).train_transforms[0].max_deg == 5
+
+
+def test_numpy_sizes_and_seed_reach_the_loaders_as_python_ints():
+    """The checks take numpy's integers, but DataLoader refused batch_size np.int64(2) and torch's manual_seed seed
+    np.int64(3) at the first batch; a seed past 64 bits failed there as "Overflow when unpacking long long"."""
+    dm = SyntheticDataModule(
+        num_train=4, num_val=2, num_test=2, batch_size=np.int64(2), eval_batch_size=np.int32(2), seed=np.int64(3)
+    )
+    dm.setup("fit")
+    assert len(next(iter(dm.train_dataloader()))["robot"]) == 2 == len(next(iter(dm.val_dataloader()))["robot"])
+    with pytest.raises(
+        ValueError, match=r"data\.seed must be an integer >= 0 and <= 18446744073709551615, got 18446744073709551616"
+    ):
+        SyntheticDataModule(seed=2**64)

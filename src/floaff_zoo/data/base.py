@@ -222,20 +222,23 @@ class FloAffDataModule(L.LightningDataModule):
         check_size("num_workers", num_workers, 0)
         check_size("num_points", num_points, 1, "the largest cloud in the batch")
         check_size("num_floor", num_floor, 1, "the largest floor in the batch")
-        check_size("seed", seed, 0)  # numpy's seeded streams refuse a negative seed only at setup, per sample
+        # numpy's seeded streams refuse a negative seed only at setup, per sample; the loaders' torch generators one
+        # past 64 bits at the first batch
+        check_integer("data.seed", seed, 0, 2**64 - 1, error=DataConfigError)
         if collate_mode not in ("pad", "resample"):
             raise DataConfigError(f"data.collate_mode must be 'pad' or 'resample', got {collate_mode!r}")
         check_flag("persistent_train_workers", persistent_train_workers)
         self.train_transforms = check_transforms("train_transforms", train_transforms)
         self.eval_transforms = check_transforms("eval_transforms", eval_transforms)
-        self.batch_size = batch_size
-        self.eval_batch_size = batch_size if eval_batch_size is None else eval_batch_size
-        self.num_workers = num_workers
+        # Python ints: numpy's pass the checks, but DataLoader and torch's manual_seed refused them at the first batch
+        self.batch_size = int(batch_size)
+        self.eval_batch_size = self.batch_size if eval_batch_size is None else int(eval_batch_size)
+        self.num_workers = int(num_workers)
         self.persistent_train_workers = persistent_train_workers
-        self.num_points = num_points
-        self.num_floor = num_floor
+        self.num_points = None if num_points is None else int(num_points)
+        self.num_floor = None if num_floor is None else int(num_floor)
         self.collate_mode = collate_mode
-        self.seed = seed
+        self.seed = int(seed)
         self.datasets: dict[str, Dataset] = {}
         #: split -> keys of the samples that failed at load time after setup and were replaced (``meta['replaces']``)
         self.load_failures: dict[str, set[str]] = {}
