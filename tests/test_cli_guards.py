@@ -263,7 +263,7 @@ def test_ckpt_best_with_a_truncated_last_ckpt_names_it(width16_run, tmp_path, ro
                     *("--trainer.max_steps", "1"),  # should the check go, the fit stays short
                     *("--trainer.callbacks+", "floaff_zoo.callbacks.RolloutSuccessRate", f"--trainer.callbacks.{k}", v),
                 ],
-                f"trainer.callbacks: RolloutSuccessRate: {k} must be >= ",
+                f"trainer.callbacks: RolloutSuccessRate: {k} must be an integer >= ",
             )
             for k, v in (("workers", "0"), ("cache_decimals", "-1"), ("max_val_samples", "0"))
         ],

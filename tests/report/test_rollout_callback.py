@@ -263,6 +263,40 @@ def test_free_space_is_checked():
         RolloutSuccessRate(free_space="cloudy")
 
 
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        # 2.5 failed at the end of the epoch (a slice, a round(), a resample size); True or NaN ran as another value
+        ({"top_k": 2.5}, "top_k must be an integer >= 1, got 2.5"),
+        ({"top_k": float("nan")}, "top_k must be an integer >= 1, got nan"),
+        ({"top_k": True}, "top_k must be an integer >= 1, got True"),
+        ({"top_k": "3"}, "top_k must be an integer >= 1, got '3'"),
+        ({"n_bootstrap": 1.5}, "n_bootstrap must be an integer >= 0, got 1.5"),
+        ({"cache_decimals": 2.5}, "cache_decimals must be an integer >= 0, got 2.5"),
+        ({"max_val_samples": 2.5}, r"max_val_samples must be an integer >= 1 or null \(all\), got 2.5"),
+        ({"every_n_val_epochs": 1.5}, "every_n_val_epochs must be an integer >= 0, got 1.5"),
+        ({"workers": 1.5}, "workers must be an integer >= 1, got 1.5"),
+        ({"backend": "Ray"}, r"backend must be one of \['local', 'ray'\], got 'Ray'"),
+        ({"oracle": "no"}, "oracle must be true or false, got 'no'"),
+        ({"on_test": "false"}, "on_test must be true or false, got 'false'"),
+    ],
+)
+def test_constructor_refuses_bad_values_before_any_epoch(kwargs, message):
+    with pytest.raises(ValueError, match=f"RolloutSuccessRate: {message}"):
+        RolloutSuccessRate(service=FakeService, progress=False, **kwargs)
+
+
+def test_ray_backend_without_ray_is_refused_at_construction(monkeypatch):
+    """The default service is built when the first rollout runs: without ray that failed after the whole epoch."""
+    import importlib.util
+
+    find_spec = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "ray" else find_spec(name, *a))
+    with pytest.raises(ValueError, match="backend 'ray' needs the 'ray' package"):
+        RolloutSuccessRate(backend="ray")
+    RolloutSuccessRate(backend="ray", service=FakeService)  # an injected service need not be ray's
+
+
 def test_cloud_free_margin_grows_the_footprint_on_every_side():
     """An obstacle 5 cm outside each side of the footprint is free at margin 0 and blocked at margin 0.1."""
     from floaff_zoo.floor import FOOTPRINT

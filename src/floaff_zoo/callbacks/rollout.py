@@ -40,6 +40,7 @@ when no sample has sim metadata nothing is logged and the summary says ``availab
 
 from __future__ import annotations
 
+import importlib.util
 import time
 import warnings
 from collections.abc import Callable, Sequence
@@ -51,6 +52,7 @@ import torch
 from lightning.pytorch.utilities import rank_zero_warn
 from lightning.pytorch.utilities.exceptions import MisconfigurationException
 
+from floaff_zoo.checks import check_integer
 from floaff_zoo.contract import FULL_CLOUD_KEY, batch_item, best_pose
 from floaff_zoo.floor import footprint_blocked, footprint_coverage, grown_footprint
 from floaff_zoo.frames import ROLLOUT_POSE_DECIMALS, Pose, base_to_world, facing_pose, pose_to_world
@@ -72,6 +74,7 @@ STD_METHOD = "bootstrap std of the mean over evaluated episodes"
 FREE_SPACE: tuple[str, ...] = ("cloud", "full_cloud", "sim")
 #: where the rolled-out pose comes from: the predicted map, or the model's own placement procedure
 POSE_SOURCES: tuple[str, ...] = ("map", "model")
+BACKENDS: tuple[str, ...] = ("local", "ray")
 #: free_space -> the batch's (points, mask) keys the footprint check reads
 _CLOUD_KEYS = {"cloud": ("scene_xyz", "scene_mask"), "full_cloud": (FULL_CLOUD_KEY, "full_mask")}
 
@@ -313,19 +316,20 @@ class RolloutSuccessRate(L.Callback):
         spec_factory: Callable[[dict], Any] | None = None,
     ) -> None:
         super().__init__()
-        if top_k < 1:
-            raise ValueError(f"RolloutSuccessRate: top_k must be >= 1, got {top_k}")
+        # checked here, not when the first rollout runs at the end of a test or validation epoch: 2.5 failed there as
+        # a slice, a round() or a resample size; a bool or NaN ran as another value
+        owner = "RolloutSuccessRate"
+        check_integer("top_k", top_k, 1, owner=owner)
+        check_integer("every_n_val_epochs", every_n_val_epochs, 0, owner=owner)
+        check_integer("workers", workers, 1, owner=owner)
+        check_integer("cache_decimals", cache_decimals, 0, owner=owner)  # < 0 merges distinct poses in one episode
+        check_integer("max_val_samples", max_val_samples, 1, owner=owner, none_means="all")
+        check_integer("n_bootstrap", n_bootstrap, 0, owner=owner)  # 0/1: no std
+        for name, flag in (("on_test", on_test), ("oracle", oracle), ("progress", progress)):
+            if not isinstance(flag, (bool, np.bool_)):  # a text "false" is true
+                raise ValueError(f"{owner}: {name} must be true or false, got {flag!r}")
         if free_space not in FREE_SPACE:
             raise ValueError(f"RolloutSuccessRate: free_space must be one of {list(FREE_SPACE)}, got {free_space!r}")
-        if every_n_val_epochs < 0:
-            raise ValueError(f"RolloutSuccessRate: every_n_val_epochs must be >= 0, got {every_n_val_epochs}")
-        # checked here, not when the first rollout runs at the end of a test or validation epoch
-        if workers < 1:
-            raise ValueError(f"RolloutSuccessRate: workers must be >= 1, got {workers}")
-        if cache_decimals < 0:  # a negative rounding merges distinct poses into one cached episode
-            raise ValueError(f"RolloutSuccessRate: cache_decimals must be >= 0, got {cache_decimals}")
-        if max_val_samples is not None and max_val_samples < 1:
-            raise ValueError(f"RolloutSuccessRate: max_val_samples must be >= 1 or None (all), got {max_val_samples}")
         if pose_source not in POSE_SOURCES:
             raise ValueError(
                 f"RolloutSuccessRate: pose_source must be one of {list(POSE_SOURCES)}, got {pose_source!r}"
@@ -334,8 +338,10 @@ class RolloutSuccessRate(L.Callback):
             raise ValueError(
                 f"RolloutSuccessRate: pose_source 'model' takes the model's own pose; top_k must be 1, got {top_k}"
             )
-        if n_bootstrap < 0:  # read as "no std" (0.0) without a word
-            raise ValueError(f"RolloutSuccessRate: n_bootstrap must be >= 0 (0/1: no std), got {n_bootstrap}")
+        if backend not in BACKENDS:  # the service is built when the first rollout runs, after the epoch
+            raise ValueError(f"{owner}: backend must be one of {list(BACKENDS)}, got {backend!r}")
+        if backend == "ray" and service is None and importlib.util.find_spec("ray") is None:
+            raise ValueError(f"{owner}: backend 'ray' needs the 'ray' package, which is not installed; use 'local'")
         self.on_test = on_test
         self.every_n_val_epochs = every_n_val_epochs
         self.max_val_samples = max_val_samples
