@@ -115,6 +115,35 @@ def test_best_pose_random_tie_break_is_seeded_and_uniform():
     assert all(best_pose(floor, torch.eye(10)[3], None, target, seed=s)[0][0] == 3.0 for s in range(20))
 
 
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        # fewer scores than points ranked only the first points; more failed as an index naming nothing
+        ({"scores": torch.tensor([0.1, 0.9])}, "scores has 2 entries for 3 floor points"),
+        ({"scores": torch.rand(5)}, "scores has 5 entries for 3 floor points"),
+        ({"mask": torch.tensor([True, False])}, "mask has 2 entries for 3 floor points"),
+        ({"target_xyz": torch.tensor([float("nan"), 0.0, 0.0])}, "target_xyz must be 3 finite values"),  # NaN yaw
+        ({"target_xyz": torch.zeros(2)}, "target_xyz must be 3 finite values"),
+        ({"floor_xyz": torch.tensor([[1.0, 0, 0], [float("nan"), 0, 0], [3.0, 0, 0]])}, "floor_xyz holds NaN"),
+        ({"floor_xyz": torch.ones(3)}, r"floor_xyz must be \[M, 3\]"),
+        # k 0 returned no pose, -1 all but the last, 2.5 failed as a slice
+        ({"k": 0}, "k must be an integer >= 1, got 0"),
+        ({"k": -1}, "k must be an integer >= 1, got -1"),
+        ({"k": 2.5}, "k must be an integer >= 1, got 2.5"),
+        ({"seed": -1}, "seed must be an integer >= 0, got -1"),
+    ],
+)
+def test_best_pose_refuses_bad_input_naming_it(change, message):
+    args = {
+        "floor_xyz": torch.tensor([[1.0, 0, 0], [2.0, 0, 0], [3.0, 0, 0]]),
+        "scores": torch.tensor([0.1, 0.9, 0.5]),
+        "mask": None,
+        "target_xyz": torch.zeros(3),
+    }
+    with pytest.raises(ValueError, match=f"best_pose: {message}"):
+        best_pose(**{**args, **change})
+
+
 def test_full_cloud_is_checked_and_padded_never_resampled():
     """The optional stored cloud: validated (shape, NaN named), zero-padded to the batch's largest with full_mask,
     kept whole when the scene points are resampled; a batch where only some samples have one is refused."""

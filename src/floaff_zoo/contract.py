@@ -46,6 +46,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from floaff_zoo.checks import check_integer
 from floaff_zoo.names import TASKS as TASKS  # defined once there (sim reads it without torch); re-exported
 
 TENSOR_KEYS: tuple[str, ...] = (
@@ -449,13 +450,26 @@ def best_pose(
     Returns:
         up to ``k`` tuples (x, y, yaw), best first.
     """
+    # k 0 or -1 returned no pose or all but the last, 2.5 failed as a slice; a negative seed failed inside numpy
+    check_integer("k", k, 1, owner="best_pose")
+    check_integer("seed", seed, 0, owner="best_pose")
     xyz = np.asarray(torch.as_tensor(floor_xyz).detach().cpu(), dtype=np.float64)
     sc = np.asarray(torch.as_tensor(scores).detach().cpu(), dtype=np.float64).reshape(-1)
-    valid = np.ones(sc.shape[0], bool) if mask is None else np.asarray(torch.as_tensor(mask).cpu()).astype(bool)
-    valid &= np.isfinite(sc)
+    if xyz.ndim != 2 or xyz.shape[1] < 2:
+        raise SampleError(f"best_pose: floor_xyz must be [M, 3] (or [M, 2]), got shape {list(xyz.shape)}")
+    # fewer scores than points ranked only the first points, more failed as an index: one score per point
+    valid = np.ones(sc.shape[0], bool) if mask is None else np.asarray(torch.as_tensor(mask).cpu()).reshape(-1)
+    for name, n in (("scores", sc.shape[0]), ("mask", valid.shape[0])):
+        if n != xyz.shape[0]:
+            raise SampleError(f"best_pose: {name} has {n} entries for {xyz.shape[0]} floor points (one per point)")
+    valid = valid.astype(bool) & np.isfinite(sc)
+    if not np.isfinite(xyz[valid]).all():  # a NaN point gave a NaN pose
+        raise SampleError("best_pose: floor_xyz holds NaN/Inf on a valid floor point")
     if not valid.any():
         raise SampleError("best_pose: no valid floor point with a finite score")
-    t = np.asarray(torch.as_tensor(target_xyz).detach().cpu(), dtype=np.float64).reshape(3)
+    t = np.asarray(torch.as_tensor(target_xyz).detach().cpu(), dtype=np.float64).reshape(-1)
+    if t.shape != (3,) or not np.isfinite(t).all():  # a NaN gave every pose a NaN yaw
+        raise SampleError(f"best_pose: target_xyz must be 3 finite values, got {t.tolist()[:9]}")
     idx = np.nonzero(valid)[0]
     if tie_break == "random":
         # over the valid points only: a batch pads a view's floor to its largest view, and a permutation of the
