@@ -6,11 +6,13 @@ import warnings
 import lightning as L
 import numpy as np
 import pytest
+import torch
 
 from floaff_zoo.callbacks.rollout import (
     RolloutSuccessRate,
     base_to_world,
     bootstrap_std,
+    check_clouds,
     choose_pose,
     cloud_free,
     cloud_observed,
@@ -59,6 +61,17 @@ def test_choose_pose_prefers_free_poses_that_pass_the_stricter_check():
     # none of the top-k preferred: the free-only choice; outside the top-k nothing counts
     assert choose_pose(floor, scores, None, target, base, 4, free, prefer=lambda *a: False)[1] == 1
     assert choose_pose(floor, scores, None, target, base, 2, free, prefer=lambda x, y, yaw: x > 3.5)[1] == 1
+
+
+def test_choose_pose_and_check_clouds_refuse_bad_arguments():
+    floor, scores, target, base = np.array([[1.0, 0, 0], [2.0, 0, 0]]), np.array([0.9, 0.8]), np.zeros(3), (0, 0, 0)
+    for top_k in (0, -3, 2.5):  # 0 and -3 ran as 1, 2.5 failed as a slice
+        with pytest.raises(ValueError, match=f"choose_pose: top_k must be an integer >= 1, got {top_k}"):
+            choose_pose(floor, scores, None, target, base, top_k=top_k)
+    batch = {"scene_xyz": torch.zeros(1, 4, 3), "scene_mask": torch.ones(1, 4, dtype=torch.bool)}
+    for free_space in ("Cloud", "sim"):  # a KeyError named no argument
+        with pytest.raises(ValueError, match=f"check_clouds: free_space must be one of .*got '{free_space}'"):
+            check_clouds(batch, free_space)
 
 
 def test_cloud_observed_reads_the_footprint_coverage_in_the_world():

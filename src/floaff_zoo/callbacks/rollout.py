@@ -107,7 +107,8 @@ def choose_pose(
         ((x, y, yaw) world, rank of the chosen candidate among the top-k).
         ``seed`` seeds ``best_pose``'s tie-break (the sample's index, so runs are repeatable).
     """
-    poses = best_pose(floor_xyz, scores, mask, target_xyz, k=max(1, top_k), seed=seed)
+    check_integer("top_k", top_k, 1, owner="choose_pose")  # 0 or -3 ran as 1 without a word
+    poses = best_pose(floor_xyz, scores, mask, target_xyz, k=top_k, seed=seed)
     world = [pose_to_world(p, base_pose_world) for p in poses]
     if target_world is not None:
         world = [facing_pose(w, target_world) for w in world]
@@ -131,6 +132,8 @@ def check_clouds(batch: dict[str, Any], free_space: str) -> tuple[np.ndarray, np
     Raises:
         ValueError: the batch has no stored cloud (its DataModule was built without ``full_cloud``).
     """
+    if free_space not in _CLOUD_KEYS:  # a KeyError named no argument ("sim" reads the scene, not a cloud)
+        raise ValueError(f"check_clouds: free_space must be one of {list(_CLOUD_KEYS)}, got {free_space!r}")
     xyz_key, mask_key = _CLOUD_KEYS[free_space]
     if xyz_key not in batch:
         raise ValueError(
