@@ -183,6 +183,20 @@ def test_pad_truncation_warns_once(monkeypatch):
         contract.collate_samples(samples, num_points=256, mode="pad")  # no truncation, no warning
 
 
+def test_a_sample_with_no_valid_scene_point_is_named():
+    """A mask with every point padding: TinyPointNet scored the sample from nothing, CFAR blamed its crop radius and
+    resampling failed naming no sample."""
+    for name in ("scene_mask", "floor_mask"):
+        s = _sample(m=6)
+        s[name] = np.zeros(len(s[name.replace("mask", "xyz")]), bool)
+        with pytest.raises(SampleError, match=f"{name} marks no valid entry"):
+            validate_sample(s)
+    batch = collate_samples([validate_sample(_sample(m=6)), validate_sample(_sample(m=4))], mode="pad")
+    batch["scene_mask"][1] = False
+    with pytest.raises(SampleError, match=r"1 sample\(s\) in the batch have no valid scene point"):
+        check_batch(batch)
+
+
 def test_check_batch_names_a_non_finite_label_on_a_valid_floor_point():
     """A batch built by hand or by a user's data module: a NaN label made the loss NaN, and the rank term dropped
     its sample without a word (NaN > 0 is False). Padding may hold anything."""

@@ -183,6 +183,8 @@ def _mask(mask: Any, n: int, where: str, name: str) -> Tensor:
     m = torch.as_tensor(np.asarray(mask) if not torch.is_tensor(mask) else mask).bool().reshape(-1)
     if m.shape[0] != n:
         raise SampleError(f"{where}: {name} has {m.shape[0]} entries, expected {n}")
+    if not m.any():  # as an empty cloud: a model scored a sample it saw nothing of, or failed naming another cause
+        raise SampleError(f"{where}: {name} marks no valid entry (all {n} are padding)")
     return m
 
 
@@ -334,13 +336,16 @@ _FINITE_FIELDS = {
 
 
 def check_batch(batch: Batch) -> None:
-    """Raise a clear error for an empty batch, one whose samples have no valid floor point, or one with NaN/Inf on a
-    valid point of the inputs every model reads (the readers refuse such files; a user's data module or a batch built
-    by hand does not pass through them), naming the field and the samples. Every model of the zoo calls this before
-    its step: CFAR, the prior and AxisNet cropped NaN points away without a word, the other models named them."""
+    """Raise a clear error for an empty batch, one whose samples have no valid floor or scene point, or one with
+    NaN/Inf on a valid point of the inputs every model reads (the readers refuse such files; a user's data module or
+    a batch built by hand does not pass through them), naming the field and the samples. Every model of the zoo calls
+    this before its step: CFAR, the prior and AxisNet cropped NaN points away without a word, the other models named
+    them."""
     if batch["scene_xyz"].shape[0] == 0:
         raise SampleError("empty batch (0 samples)")
-    rows_of: dict[str, Tensor] = {"floor": ~batch["floor_mask"].any(dim=1)}  # [B] per check
+    # [B] per check; a sample with no valid scene point was scored from nothing (TinyPointNet) or failed naming another
+    # cause (CFAR's crop)
+    rows_of: dict[str, Tensor] = {"floor": ~batch["floor_mask"].any(dim=1), "scene": ~batch["scene_mask"].any(dim=1)}
     for key, mask_key in _FINITE_FIELDS.items():
         t = batch.get(key)
         if not torch.is_tensor(t) or not t.is_floating_point():
@@ -358,8 +363,8 @@ def check_batch(batch: Batch) -> None:
         bad_rows = rows.nonzero().squeeze(1).tolist()
         if bad_rows:
             names = [_where(meta[i] if i < len(meta) else None) for i in bad_rows[:3]]
-            if key == "floor":
-                raise SampleError(f"{len(bad_rows)} sample(s) in the batch have no valid floor point: {names}")
+            if key in ("floor", "scene"):
+                raise SampleError(f"{len(bad_rows)} sample(s) in the batch have no valid {key} point: {names}")
             raise SampleError(f"{key} holds NaN/Inf values in {len(bad_rows)} sample(s) of the batch: {names}")
 
 
