@@ -4,7 +4,15 @@ import numpy as np
 import pytest
 import torch
 
-from floaff_zoo.contract import FloorGrid, SampleError, best_pose, check_batch, collate_samples, validate_sample
+from floaff_zoo.contract import (
+    FloorGrid,
+    SampleError,
+    batch_item,
+    best_pose,
+    check_batch,
+    collate_samples,
+    validate_sample,
+)
 from floaff_zoo.data.synthetic import make_synthetic_sample
 
 
@@ -195,6 +203,14 @@ def test_a_sample_with_no_valid_scene_point_is_named():
     batch["scene_mask"][1] = False
     with pytest.raises(SampleError, match=r"1 sample\(s\) in the batch have no valid scene point"):
         check_batch(batch)
+
+
+def test_batch_item_refuses_an_index_outside_the_batch():
+    batch = collate_samples([validate_sample(_sample()), validate_sample(_sample())])
+    assert batch_item(batch, 1)["scene_xyz"].shape == (1, 10, 3)
+    for i in (-1, 2, 1.5):  # -1 gave empty tensors beside the last sample's meta
+        with pytest.raises(ValueError, match=f"batch_item: i must be an integer >= 0 and <= 1, got {i}"):
+            batch_item(batch, i)
 
 
 def test_check_batch_names_a_non_finite_label_on_a_valid_floor_point():

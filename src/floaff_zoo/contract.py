@@ -320,6 +320,8 @@ def _collate_full_cloud(samples: Sequence[Sample], batch: Batch) -> None:
 
 def batch_item(batch: Batch, i: int) -> Batch:
     """Sample ``i`` of a collated batch as a one-sample batch (tensors sliced [i:i+1], other fields [value])."""
+    # -1 sliced every tensor empty ([-1:0]) beside the last sample's meta
+    check_integer("i", i, 0, len(next(iter(batch.values()))) - 1, owner="batch_item")
     return {k: (v[i : i + 1] if torch.is_tensor(v) else [v[i]]) for k, v in batch.items()}
 
 
