@@ -20,6 +20,10 @@ def test_named_models_reads_name_model_specs(tmp_path):
     for bad in ("=a.ckpt", "occ="):
         with pytest.raises(ValueError, match="bad model argument"):
             named_models([bad])
+    with pytest.raises(ValueError, match="bad model arguments 'cfar': pass a list"):  # was read letter by letter
+        named_models("cfar")
+    with pytest.raises(ValueError, match="bad model argument 3"):
+        named_models([3])
 
 
 # ------------------------------------------------------------------------------------------ bad input to predict

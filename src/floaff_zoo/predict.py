@@ -144,8 +144,12 @@ def named_models(specs: list[str]) -> dict[str, list[str]]:
     A bare MODEL is its own NAME; so is a spec whose part before ``=`` holds a ``/`` or that names an existing
     file (a checkpoint path may hold ``=``: ``epoch=1-step=9.ckpt``). An empty NAME or MODEL is a ValueError.
     """
+    if isinstance(specs, str):  # one text was read letter by letter: {"c": ["c"], "f": ["f"], ...}
+        raise ValueError(f"bad model arguments {specs!r}: pass a list of [NAME=]MODEL texts")
     out: dict[str, list[str]] = {}
     for spec in specs:
+        if not isinstance(spec, str):
+            raise ValueError(f"bad model argument {spec!r}; use NAME=MODEL (a hub name or checkpoint)")
         name, sep, model = spec.partition("=")
         if not sep or "/" in name or Path(spec).exists():
             name, model = spec, spec
