@@ -196,8 +196,8 @@ def test_grown_footprint_adds_the_margin_on_every_side():
     grown = grown_footprint(0.05)
     assert grown == pytest.approx((length + 0.1, width + 0.1, front + 0.05))
     assert grown[2] - grown[0] == pytest.approx(front - length - 0.05)  # the back edge moves back by the margin
-    for bad in (-0.1, float("nan"), float("inf")):
-        with pytest.raises(ValueError, match="margin"):
+    for bad in (-0.1, float("nan"), float("inf"), "0.1", True):  # a text was a TypeError naming nothing
+        with pytest.raises(ValueError, match="grown_footprint: margin must be a finite number >= 0"):
             grown_footprint(bad)
 
 

@@ -180,8 +180,8 @@ def observed_cells(
 
 def grown_footprint(margin: float, footprint: tuple[float, float, float] = FOOTPRINT) -> tuple[float, float, float]:
     """``footprint`` (length, width, front) m grown by ``margin`` m on every side: a clearance around the base."""
-    if not (math.isfinite(margin) and margin >= 0):
-        raise ValueError(f"grown_footprint: margin must be finite and >= 0, got {margin!r}")
+    check_number("margin", margin, owner="grown_footprint")  # a text failed in math.isfinite naming nothing
+    check_footprint("grown_footprint", footprint)
     length, width, front = footprint
     return (length + 2 * margin, width + 2 * margin, front + margin)
 

@@ -44,7 +44,11 @@ def facing_pose(pose: Pose, target_world: Sequence[float]) -> Pose:
 def heading_to(x: float, y: float, target_world: Sequence[float]) -> float:
     """Yaw (rad, float64) of a base at world (x, y) facing the target's world (x, y): the annotation's and the
     evaluation's one formula."""
-    tx, ty = float(target_world[0]), float(target_world[1])
+    try:
+        tx, ty = float(target_world[0]), float(target_world[1])
+    except (IndexError, TypeError, ValueError):  # one value was an IndexError, a text a bare ValueError
+        msg = f"heading_to: target_world must hold the target's world (x, y), got {target_world!r}"
+        raise ValueError(msg) from None
     if not all(math.isfinite(v) for v in (x, y, tx, ty)):  # atan2 of a NaN is a NaN yaw, of an inf a wrong one
         raise ValueError(f"heading_to: the base (x, y) and target_world must be finite, got {(x, y)} and {(tx, ty)}")
     return math.atan2(ty - y, tx - x)

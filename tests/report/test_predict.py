@@ -322,6 +322,9 @@ def test_frames_refuse_a_non_finite_pose_naming_it(bad):
         facing_pose((bad, 0.0, 0.0), (1.0, 1.0))
     with pytest.raises(ValueError, match="heading_to: the base .* and target_world must be finite"):
         heading_to(0.0, 0.0, (bad, 1.0))
+    for target in ((1.0,), "xy", None):  # an IndexError, a bare ValueError of float('x'), a TypeError
+        with pytest.raises(ValueError, match="heading_to: target_world must hold the target's world"):
+            facing_pose(good, target)
     assert pose_to_world(good, (0.0, 0.0, 0.0)) == pytest.approx(good)
 
 

@@ -81,6 +81,9 @@ def test_cloud_observed_reads_the_footprint_coverage_in_the_world():
     observed = cloud_observed(ahead, base, 0.5)
     assert observed(1.0, 2.0 + 0.9 + 0.2, math.pi / 2)  # the world pose 0.9 m + 0.2 m ahead of the view's robot
     assert not observed(3.0, 2.0, 0.0)
+    for bad in (float("nan"), 1.5):  # every footprint read as unseen
+        with pytest.raises(ValueError, match="cloud_observed: min_observed must be a finite number >= 0 and <= 1"):
+            cloud_observed(ahead, base, bad)
 
 
 def test_constant_map_uses_documented_tie_break():
@@ -106,6 +109,10 @@ def test_summary_and_bootstrap():
     assert bootstrap_std([1, 1, 1]) == 0.0 and bootstrap_std([1]) == 0.0
     # bootstrap std of a mean of 400 fair coins ~ sqrt(.25/400) = 0.025
     assert bootstrap_std(np.arange(400) % 2, 2000) == pytest.approx(0.025, abs=0.004)
+    with pytest.raises(ValueError, match="bootstrap_std: outcomes must be 0/1"):
+        bootstrap_std([1, float("nan"), 0])  # a NaN std before
+    with pytest.raises(ValueError, match="bootstrap_std: n_bootstrap must be an integer >= 0, got 1.5"):
+        bootstrap_std([1, 0, 1], 1.5)
 
 
 def test_oracle_and_perfect_model_succeed_constant_map_scores_base_rate():

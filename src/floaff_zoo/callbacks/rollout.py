@@ -52,7 +52,7 @@ import torch
 from lightning.pytorch.utilities import rank_zero_warn
 from lightning.pytorch.utilities.exceptions import MisconfigurationException
 
-from floaff_zoo.checks import check_integer
+from floaff_zoo.checks import check_integer, check_number
 from floaff_zoo.contract import FULL_CLOUD_KEY, batch_item, best_pose
 from floaff_zoo.floor import footprint_blocked, footprint_coverage, grown_footprint
 from floaff_zoo.frames import ROLLOUT_POSE_DECIMALS, Pose, base_to_world, facing_pose, pose_to_world
@@ -162,6 +162,8 @@ def cloud_observed(
     ``prefer``. Free space the view does not show is often furniture it missed, but preferring shown footprints chose
     worse cells on the benchmark's validation folds (docs/results.md, "Preferring footprints the view shows"), so the
     callback does not offer it."""
+    # a NaN or a share above 1 called every footprint unseen
+    check_number("min_observed", min_observed, high=1.0, owner="cloud_observed")
     world = base_to_world(xyz, base_pose_world)
     return lambda x, y, yaw: footprint_coverage(world, (x, y, yaw)) >= min_observed
 
@@ -169,7 +171,10 @@ def cloud_observed(
 # ----------------------------------------------------------------------------------------------- statistics
 def bootstrap_std(success: Sequence[bool] | np.ndarray, n_bootstrap: int = 1000, seed: int = 0) -> float:
     """Bootstrap standard deviation of the mean of 0/1 outcomes [n] (0.0 for n <= 1)."""
+    check_integer("n_bootstrap", n_bootstrap, 0, owner="bootstrap_std")  # 1.5 failed in numpy's size argument
     x = np.asarray(success, dtype=np.float64).reshape(-1)
+    if not np.isin(x, (0.0, 1.0)).all():  # a NaN outcome made the std NaN; 2 counted as two successes
+        raise ValueError(f"bootstrap_std: outcomes must be 0/1 (or bools), got {np.unique(x)[:5].tolist()}")
     if x.size <= 1 or n_bootstrap <= 1:
         return 0.0
     rng = np.random.default_rng(seed)
