@@ -205,6 +205,22 @@ def test_a_sample_with_no_valid_scene_point_is_named():
         check_batch(batch)
 
 
+def test_fields_of_more_than_one_axis_are_not_flattened():
+    """A [M, 2] label matched a floor of 2M points, a [2, 5] mask 10 points and a [2, 2] robot became 4 values;
+    [M, 1] and [1, M] stay vectors."""
+    m = 6
+    assert validate_sample(_sample(m=m, floor_label=np.zeros((m, 1), np.float32)))["floor_label"].shape == (m,)
+    assert validate_sample(_sample(robot=np.ones((1, 2), np.float32)))["robot"].shape == (2,)
+    for name, value in (
+        ("floor_label", np.zeros((6, 2), np.float32)),
+        ("scene_mask", np.ones((2, 5), bool)),
+        ("robot", np.ones((2, 2), np.float32)),
+    ):
+        kw = {"floor_xyz": np.random.rand(12, 3).astype(np.float32)} if name == "floor_label" else {}
+        with pytest.raises(SampleError, match=f"{name} must be a vector, got \\[{value.shape[0]}, {value.shape[1]}\\]"):
+            validate_sample(_sample(**kw, **{name: value}))
+
+
 def test_batch_item_refuses_an_index_outside_the_batch():
     batch = collate_samples([validate_sample(_sample()), validate_sample(_sample())])
     assert batch_item(batch, 1)["scene_xyz"].shape == (1, 10, 3)

@@ -137,11 +137,10 @@ def validate_sample(sample: Sample) -> Sample:
         raise SampleError(f"{where}: floor_xyz must be [M, 3], got {list(floor.shape)}")
     if floor.shape[1] == 2:
         floor = out["floor_xyz"] = torch.cat([floor, floor.new_zeros(floor.shape[0], 1)], dim=1)
-    label = out["floor_label"] = label.reshape(-1)
+    label = out["floor_label"] = _flat(label, where, "floor_label")
     if label.shape[0] != floor.shape[0]:
         raise SampleError(f"{where}: floor_label has {label.shape[0]} values but floor_xyz has {floor.shape[0]} points")
-    if out["robot"].ndim != 1:
-        out["robot"] = out["robot"].reshape(-1)
+    out["robot"] = _flat(out["robot"], where, "robot")
     if out["target_xyz"].numel() != 3:
         raise SampleError(f"{where}: target_xyz must have 3 values, got {list(out['target_xyz'].shape)}")
     out["target_xyz"] = out["target_xyz"].reshape(3)
@@ -177,10 +176,19 @@ def _full_cloud(value: Any, where: str) -> Tensor:
     return full
 
 
+def _flat(t: Tensor, where: str, name: str) -> Tensor:
+    """``t`` as a vector when it has at most one axis longer than 1 ([M], [M, 1], [1, M]); a [M, 2] label, a [2, 5]
+    mask or a [2, 2] robot was flattened into twice as many values (matching a floor of that size) or a longer
+    descriptor."""
+    if sum(d > 1 for d in t.shape) > 1:
+        raise SampleError(f"{where}: {name} must be a vector, got {list(t.shape)}")
+    return t.reshape(-1)
+
+
 def _mask(mask: Any, n: int, where: str, name: str) -> Tensor:
     if mask is None:
         return torch.ones(n, dtype=torch.bool)
-    m = torch.as_tensor(np.asarray(mask) if not torch.is_tensor(mask) else mask).bool().reshape(-1)
+    m = _flat(torch.as_tensor(np.asarray(mask) if not torch.is_tensor(mask) else mask).bool(), where, name)
     if m.shape[0] != n:
         raise SampleError(f"{where}: {name} has {m.shape[0]} entries, expected {n}")
     if not m.any():  # as an empty cloud: a model scored a sample it saw nothing of, or failed naming another cause
