@@ -221,6 +221,15 @@ def test_fields_of_more_than_one_axis_are_not_flattened():
             validate_sample(_sample(**kw, **{name: value}))
 
 
+def test_a_sample_or_meta_that_is_no_dict_is_named():
+    """A list meta failed in dict() with a TypeError naming no sample; a list sample on .get."""
+    with pytest.raises(SampleError, match="sample: meta must be a dict \\(or absent\\), got list"):
+        validate_sample(_sample(meta=[("sample_id", "s1")]))
+    with pytest.raises(SampleError, match="a sample must be a dict of the contract's fields, got list"):
+        validate_sample([1, 2])  # type: ignore[arg-type]
+    assert validate_sample(_sample(meta=None))["meta"] == {}
+
+
 def test_batch_item_refuses_an_index_outside_the_batch():
     batch = collate_samples([validate_sample(_sample()), validate_sample(_sample())])
     assert batch_item(batch, 1)["scene_xyz"].shape == (1, 10, 3)

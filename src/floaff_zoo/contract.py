@@ -38,7 +38,7 @@ from __future__ import annotations
 
 import math
 import warnings
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -117,7 +117,12 @@ def validate_sample(sample: Sample) -> Sample:
     Raises:
         SampleError: naming the sample and the offending field.
     """
-    where = _where(sample.get("meta"))
+    if not isinstance(sample, Mapping):  # a list or a tensor failed on .get naming nothing
+        raise SampleError(f"a sample must be a dict of the contract's fields, got {type(sample).__name__}")
+    meta = sample.get("meta")
+    if meta is not None and not isinstance(meta, Mapping):  # dict(meta) failed with a TypeError naming no sample
+        raise SampleError(f"sample: meta must be a dict (or absent), got {type(meta).__name__}")
+    where = _where(meta)
     missing = [k for k in REQUIRED_KEYS if k not in sample]
     if missing:
         raise SampleError(f"{where}: missing field(s) {missing}; required {list(REQUIRED_KEYS)}")
