@@ -6,7 +6,8 @@ import pytest
 import torch
 
 from floaff_zoo.nn import ops
-from floaff_zoo.nn.pointnet2 import PointNet2Encoder, PointNet2Seg, SetAbstraction
+from floaff_zoo.nn.nets import PerPointHead
+from floaff_zoo.nn.pointnet2 import PointNet2Encoder, PointNet2Seg, SetAbstraction, SharedMLP, on_valid_rows
 from tests._scripts import load_benchmark
 
 SSG = dict(
@@ -476,3 +477,30 @@ def test_set_abstraction_sizes_must_be_whole_numbers():
     for npoint, k, said in ((2.5, 16, "npoints: a level's centres"), (32, True, "nsamples: a ball's neighbours")):
         with pytest.raises(ValueError, match=f"{said} must be an integer >= 1, got"):
             SetAbstraction(npoint, [0.3], [k], 0, [[8]])
+
+
+def test_shared_mlp_sizes_must_be_whole_numbers_of_at_least_one():
+    """A width of 0 built an empty layer that ran silently and True one of width 1; 2.5 and -1 failed inside
+    nn.Linear with a message naming no argument."""
+    for in_channels, widths, said in ((4, [0], "widths"), (4, [True], "widths"), (4, [8, 2.5], "widths")):
+        with pytest.raises(ValueError, match=f"SharedMLP: {said}.* must be an integer >= 1"):
+            SharedMLP(in_channels, widths)
+    with pytest.raises(ValueError, match="SharedMLP: in_channels must be an integer >= 1, got -2"):
+        SharedMLP(-2, [4])
+    assert SharedMLP(4, []).out_channels == 4  # no layer: the identity (CFARNet's head=())
+
+
+@pytest.mark.parametrize("train", [True, False])
+def test_shared_mlp_mask_must_match_the_rows(train):
+    """A transposed [N, B] or a [B, 1] mask was read at other rows' positions (in training) without an error."""
+    mlp = SharedMLP(4, [8]).train(train)
+    x = torch.randn(2, 5, 4)
+    bad = torch.ones(5, 2, dtype=torch.bool)
+    bad[0, 0] = False
+    for mask in (bad, torch.ones(2, 1, dtype=torch.bool)):
+        with pytest.raises(ValueError, match=r"SharedMLP: mask must be \[2, 5\] for x \[2, 5, 4\]"):
+            mlp(x, mask)
+    with pytest.raises(ValueError, match=r"on_valid_rows: mask must be \[2, 5\]"):
+        on_valid_rows(mlp, x, bad)
+    with pytest.raises(ValueError, match=r"PerPointHead: mask must be \[2, 5\]"):
+        PerPointHead(4, 8).train(train)(x, bad)

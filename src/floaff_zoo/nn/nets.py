@@ -28,6 +28,7 @@ from floaff_zoo.nn.pointnet2 import (
     PointNet2Encoder,
     SetAbstraction,
     SharedMLP,
+    check_row_mask,
     copy_to_repeats,
     kept_centres,
     on_valid_rows,
@@ -95,6 +96,8 @@ class PerPointHead(nn.Module):
 
     def forward(self, x: Tensor, mask: Tensor | None = None) -> Tensor:
         """x [B, M, C] -> logits [B, M]."""
+        if mask is not None:
+            check_row_mask("PerPointHead", x, mask)
         if mask is None or self.mlp.rowwise():
             return self._logits(x)
         return on_valid_rows(self._logits, x, mask)

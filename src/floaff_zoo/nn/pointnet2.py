@@ -66,6 +66,10 @@ class SharedMLP(nn.Module):
 
     def __init__(self, in_channels: int, widths: Sequence[int], last_act: bool = True) -> None:
         super().__init__()
+        # a width of 0 built an empty layer that ran silently, True one of 1; 2.5 or -1 failed inside nn.Linear
+        check_integer("in_channels", in_channels, 1, owner="SharedMLP")
+        for w in widths:
+            check_integer("widths: a layer's width", w, 1, owner="SharedMLP")
         self.linears = nn.ModuleList()
         self.norms = nn.ModuleList()
         c = in_channels
@@ -83,6 +87,8 @@ class SharedMLP(nn.Module):
         padding rows of the output are 0, so padding never enters the batch or running statistics. Without
         batch statistics every row is independent of the others and all run.
         """
+        if mask is not None:
+            check_row_mask("SharedMLP", x, mask)
         if mask is None or self.rowwise():
             return self._run(x, pre=False)
         return on_valid_rows(lambda rows: self._run(rows, pre=False), x, mask)
@@ -212,6 +218,13 @@ class SharedMLP(nn.Module):
         return h.reshape(*shape, h.shape[-1])
 
 
+def check_row_mask(owner: str, x: Tensor, mask: Tensor) -> None:
+    """Raise ``ValueError`` unless ``mask`` is x [*S, C]'s [*S] (shape only: no device sync); a [B, 1] or a
+    transposed mask of x's row count had its rows run, or kept out, at other positions."""
+    if mask.shape != x.shape[:-1]:
+        raise ValueError(f"{owner}: mask must be {list(x.shape[:-1])} for x {list(x.shape)}, got {list(mask.shape)}")
+
+
 def on_valid_rows(fn: Callable[[Tensor], Tensor], x: Tensor, mask: Tensor) -> Tensor:
     """``fn`` on the valid rows of x [*S, C] only (mask [*S] bool) -> [*S, *O], 0 on the other rows.
 
@@ -219,6 +232,7 @@ def on_valid_rows(fn: Callable[[Tensor], Tensor], x: Tensor, mask: Tensor) -> Te
     ``fn`` gives a batch of the valid rows alone: the padding is neither normalised with them nor counted in
     the statistics.
     """
+    check_row_mask("on_valid_rows", x, mask)
     if bool(mask.all()):
         return fn(x)
     # gather / scatter by index: their backward needs no boolean indexing (which torch.compile cannot lower)
