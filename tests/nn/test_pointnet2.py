@@ -7,7 +7,14 @@ import torch
 
 from floaff_zoo.nn import ops
 from floaff_zoo.nn.nets import PerPointHead
-from floaff_zoo.nn.pointnet2 import PointNet2Encoder, PointNet2Seg, SetAbstraction, SharedMLP, on_valid_rows
+from floaff_zoo.nn.pointnet2 import (
+    FeaturePropagation,
+    PointNet2Encoder,
+    PointNet2Seg,
+    SetAbstraction,
+    SharedMLP,
+    on_valid_rows,
+)
 from tests._scripts import load_benchmark
 
 SSG = dict(
@@ -504,3 +511,45 @@ def test_shared_mlp_mask_must_match_the_rows(train):
         on_valid_rows(mlp, x, bad)
     with pytest.raises(ValueError, match=r"PerPointHead: mask must be \[2, 5\]"):
         PerPointHead(4, 8).train(train)(x, bad)
+
+
+def test_set_abstraction_refuses_bad_scales_and_channels():
+    """True was a radius of 1 m and a text failed in math.isfinite; no scale gave 0 channels and a torch.cat error
+    at the first batch, a group-all level without its MLP an IndexError, a negative in_channels a Linear error."""
+    for radius in (True, "0.1", -0.1, float("nan")):
+        with pytest.raises(ValueError, match="radii: a ball's radius must be a finite number > 0"):
+            SetAbstraction(8, [radius], [4], 0, [[8]])
+    with pytest.raises(ValueError, match="at least one scale"):
+        SetAbstraction(8, [], [], 0, [])
+    with pytest.raises(ValueError, match="a group-all level takes one MLP"):
+        SetAbstraction(1, [], [], 0, [], group_all=True)
+    for channels in (-1, 2.5):
+        with pytest.raises(ValueError, match="SetAbstraction: in_channels must be an integer >= 0"):
+            SetAbstraction(8, [0.3], [4], channels, [[8]])
+
+
+def test_encoder_and_feature_propagation_name_inputs_of_the_wrong_shape():
+    """Features of another width failed inside a Linear ("mat1 and mat2 shapes"), another N inside the gather or
+    torch.cat; a shorter fps list or centres of another count ran silently (fewer levels, other centres)."""
+    torch.manual_seed(0)
+    enc = PointNet2Encoder(1, [8, 4], [[0.3], [0.5]], [[4], [4]], [[[8]], [[16]]])
+    xyz, feat = torch.rand(2, 32, 3), torch.rand(2, 32, 1)
+    for bad in (torch.rand(2, 32, 2), torch.rand(2, 30, 1), None):
+        with pytest.raises(ValueError, match=r"PointNet2Encoder: feat must be \[2, 32, 1\] for xyz \[2, 32, 3\]"):
+            enc(xyz, bad)
+    with pytest.raises(ValueError, match=r"SetAbstraction: feat must be \[2, 32, 1\]"):
+        enc.levels[0](xyz, torch.rand(2, 32, 3))
+    fps = enc.sample(xyz, None)
+    with pytest.raises(ValueError, match=r"PointNet2Encoder: fps needs one entry per level \(2\), got 1"):
+        enc(xyz, feat, None, fps[:1])
+    with pytest.raises(ValueError, match=r"PointNet2Encoder: srcs needs one entry per level \(2\), got 1"):
+        enc(xyz, feat, None, fps, [None])
+    with pytest.raises(ValueError, match=r"SetAbstraction: fps_idx must be \[2, 8\], got \[2, 5\]"):
+        enc(xyz, feat, None, [fps[0][:, :5], fps[1]])
+    fp = FeaturePropagation(5, [8])
+    sparse, feat_sparse = xyz[:, :4], torch.rand(2, 4, 4)
+    assert fp(xyz, sparse, torch.rand(2, 32, 1), feat_sparse).shape == (2, 32, 8)
+    with pytest.raises(ValueError, match=r"FeaturePropagation: feat_dense must be \[2, 32, 1\]"):
+        fp(xyz, sparse, torch.rand(2, 30, 1), feat_sparse)
+    with pytest.raises(ValueError, match="must hold 5 channels together, got 2 \\+ 4"):
+        fp(xyz, sparse, torch.rand(2, 32, 2), feat_sparse)

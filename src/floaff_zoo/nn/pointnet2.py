@@ -20,7 +20,6 @@ set-abstraction level whose MLP has no batch statistics runs in chunks of ``CHUN
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Sequence
 from types import EllipsisType
 
@@ -28,9 +27,10 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from floaff_zoo.checks import check_integer
+from floaff_zoo.checks import check_integer, check_number
 from floaff_zoo.nn.ops import (
     ball_query_multi,
+    check_points,
     cpu_fast_paths,
     extreme_over_dim,
     farthest_point_sample,
@@ -679,6 +679,15 @@ def _pool_rows(layers: list[tuple[Tensor, Tensor]], h: Tensor, pre: bool) -> Ten
     return inference_linear(h, layers[-1][0]).amax(dim=2)
 
 
+def check_features(owner: str, name: str, feat: Tensor | None, xyz: Tensor, channels: int) -> None:
+    """Raise ``ValueError`` unless ``feat`` is [B, N, channels] for xyz [B, N, 3] (None allowed for 0 channels):
+    another width failed inside a Linear ("mat1 and mat2 shapes"), another N inside the gather."""
+    want = [*xyz.shape[:2], channels]
+    got = None if feat is None else list(feat.shape)
+    if (feat is None and channels) or (feat is not None and got != want):
+        raise ValueError(f"{owner}: {name} must be {want} for xyz {list(xyz.shape)}, got {got}")
+
+
 class SetAbstraction(nn.Module):
     """One PointNet++ set-abstraction level: FPS centres, ball query per scale, shared MLP, max-pool.
 
@@ -703,13 +712,19 @@ class SetAbstraction(nn.Module):
         super().__init__()
         if not group_all and not (len(radii) == len(nsamples) == len(mlps)):
             raise ValueError(f"radii {radii}, nsamples {nsamples}, mlps {mlps}: one entry per scale needed")
+        # a negative count built a narrower first layer that failed at the first batch
+        check_integer("in_channels", in_channels, 0, owner="SetAbstraction")
+        if group_all and len(mlps) != 1:  # an IndexError at the first batch, or extra MLPs that never ran
+            raise ValueError(f"SetAbstraction: a group-all level takes one MLP, got mlps {[list(m) for m in mlps]}")
         if not group_all:  # checked here, not at the first batch
+            if not mlps:  # no scale: 0 output channels, and torch.cat of nothing at the first batch
+                raise ValueError("SetAbstraction: a level needs at least one scale (radius, nsample, mlp)")
             # whole numbers: int() cut 2.5 centres or neighbours to 2, and True was 1
             check_integer("npoints: a level's centres", npoint, 1)
             for k in nsamples:
                 check_integer("nsamples: a ball's neighbours", k, 1)
-            if not all(math.isfinite(r) and r > 0 for r in radii):
-                raise ValueError(f"radii: every ball radius must be a finite number > 0, got {list(radii)}")
+            for r in radii:  # True was a radius of 1 m, a text a TypeError naming no argument
+                check_number("radii: a ball's radius", r, strict=True)
             if any(len(m) < 1 for m in mlps):  # an IndexError at the first batch
                 raise ValueError(f"mlps: every scale needs >= 1 width, got {[list(m) for m in mlps]}")
         self.npoint = int(npoint)
@@ -744,6 +759,13 @@ class SetAbstraction(nn.Module):
 
         Returns (new_xyz [B,S,3], new_feat [B,S,C_out]).
         """
+        check_points("SetAbstraction: xyz", xyz)
+        check_features("SetAbstraction", "feat", feat, xyz, self.in_channels)
+        if fps_idx is not None and list(fps_idx.shape) != [xyz.shape[0], self.npoint]:
+            # another count of centres ran silently (the MLP does not care how many)
+            raise ValueError(
+                f"SetAbstraction: fps_idx must be [{xyz.shape[0]}, {self.npoint}], got {list(fps_idx.shape)}"
+            )
         if self.group_all:
             grouped = self._cat(xyz, feat)  # classic port: raw xyz, centre at the origin
             mlp = self.mlps[0]
@@ -845,6 +867,7 @@ class FeaturePropagation(nn.Module):
     def __init__(self, in_channels: int, widths: Sequence[int]) -> None:
         super().__init__()
         self.mlp = SharedMLP(in_channels, widths)
+        self.in_channels = in_channels
         self.out_channels = self.mlp.out_channels
 
     def forward(
@@ -861,6 +884,13 @@ class FeaturePropagation(nn.Module):
         ``mask_dense`` [B,n] (False = padding) keeps padded dense points out of the MLP's batch statistics
         (``SharedMLP.forward``); their rows are then 0 in training.
         """
+        skip = 0 if feat_dense is None else feat_dense.shape[-1]
+        check_features("FeaturePropagation", "feat_dense", feat_dense, xyz_dense, skip)  # another n: a torch.cat error
+        if skip + feat_sparse.shape[-1] != self.in_channels:  # a Linear's "mat1 and mat2 shapes" error
+            raise ValueError(
+                f"FeaturePropagation: feat_dense and feat_sparse must hold {self.in_channels} channels together, "
+                f"got {skip} + {feat_sparse.shape[-1]}"
+            )
         interp = three_interpolate(xyz_dense, xyz_sparse, feat_sparse, mask_sparse)
         h = interp if feat_dense is None else torch.cat([feat_dense.to(interp.dtype), interp], dim=-1)
         return self.mlp(h, mask_dense)
@@ -931,6 +961,13 @@ class PointNet2Encoder(nn.Module):
         """Returns [(xyz_l, feat_l)] for l = 0..L (level 0 is the input).
 
         ``srcs``: ``sources(fps)`` when the caller needs them too (found here when None)."""
+        check_points("PointNet2Encoder: xyz", xyz)
+        check_features("PointNet2Encoder", "feat", feat, xyz, self.in_channels)
+        for name, given in (("fps", fps), ("srcs", srcs)):  # a shorter list ran only its levels, silently
+            if given is not None and len(given) != len(self.levels):
+                raise ValueError(
+                    f"PointNet2Encoder: {name} needs one entry per level ({len(self.levels)}), got {len(given)}"
+                )
         if self.xyz_as_feat:
             feat = xyz if feat is None else torch.cat([xyz, feat], dim=-1)
         if fps is None:
