@@ -530,3 +530,24 @@ def test_prior_tasks_that_would_be_ignored_or_fail_at_the_first_batch_are_refuse
     prior_residual were silently read as every task / ignored."""
     with pytest.raises(MisconfigurationException, match=rf"CFARModule: {message}"):
         CFARModule(**tiny_args(root), **args)
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        ({"floor_feat_channels": 2.5}, "floor_feat_channels must be an integer >= 0, got 2.5"),
+        ({"feat_channels": -1}, "feat_channels must be an integer >= 0, got -1"),
+        ({"feat_channels": True}, "feat_channels must be an integer >= 0, got True"),
+        ({"floor_encoder": "pointwise", "fourier_freqs": -1}, "fourier_freqs must be an integer >= 0, got -1"),
+        ({"local_global_mlp": ()}, "local_global_mlp needs at least one width"),
+        ({"local_radii": ("0.1", 0.3)}, "local_radii must be a finite number > 0, got '0.1'"),
+        ({"floor_radii": (True, 0.5)}, "floor_radii must be a finite number > 0, got True"),
+    ],
+)
+def test_cfar_net_refuses_sizes_by_name(kwargs, message):
+    """int() cut 2.5 to 2 and read True as 1; a negative feat_channels dropped the last feature channels and a
+    negative fourier_freqs failed inside nn.Linear; without local_global_mlp g was the first centre's features."""
+    from floaff_zoo.nn.cfar import CFARNet
+
+    with pytest.raises(ValueError, match=f"CFARNet: {message}"):
+        CFARNet(**kwargs)

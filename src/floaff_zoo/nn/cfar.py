@@ -398,11 +398,22 @@ class CFARNet(nn.Module):
         floor_feat_channels: int = 0,
     ) -> None:
         super().__init__()
-        if floor_feat_channels < 0:
-            raise ValueError(f"CFARNet: floor_feat_channels must be >= 0, got {floor_feat_channels}")
+        # int() cut 2.5 to 2 and read True as 1; a negative feat_channels dropped the last feature channels
+        # (feat[..., :-1]) and a negative fourier_freqs failed inside nn.Linear
+        for name, value in (
+            ("floor_feat_channels", floor_feat_channels),
+            ("feat_channels", feat_channels),
+            ("fourier_freqs", fourier_freqs),
+        ):
+            check_integer(name, value, 0, owner="CFARNet")
         self.floor_feat_channels = int(floor_feat_channels)
         if not local_npoints or not floor_npoints:
             raise ValueError("CFARNet needs at least one local and one floor set-abstraction level")
+        if not local_global_mlp:  # without the group-all level g was the first centre's features, silently
+            raise ValueError("CFARNet: local_global_mlp needs at least one width (the global code g)")
+        for name, radii in (("local_radii", local_radii), ("floor_radii", floor_radii)):
+            for r in radii:  # before the margin's product: a text failed there ("can't multiply sequence")
+                check_number(name, r, strict=True, owner="CFARNet")
         if floor_encoder not in ("set", "pointwise"):
             raise ValueError(f"CFARNet: floor_encoder must be 'set' or 'pointwise', got {floor_encoder!r}")
         self.floor_mode = floor_encoder

@@ -211,10 +211,12 @@ class PointNet2Net(nn.Module):
         floor_feat_channels: int = 0,
     ) -> None:
         super().__init__()
+        if variant not in ("ssg", "msg"):  # anything but "ssg" (e.g. "SSG") silently took the MSG channel order
+            raise ValueError(f"PointNet2Net: variant must be 'ssg' or 'msg', got {variant!r}")
         if len(fp_mlps) != len(npoints):
             raise ValueError(f"fp_mlps needs {len(npoints)} entries (one per SA level), got {len(fp_mlps)}")
-        if floor_feat_channels < 0:
-            raise ValueError(f"PointNet2Net: floor_feat_channels must be >= 0, got {floor_feat_channels}")
+        # int() cut 2.5 to 2 and read True as 1; NaN or a text failed in the comparison naming no argument
+        check_integer("floor_feat_channels", floor_feat_channels, 0, owner="PointNet2Net")
         self.floor_feat_channels = int(floor_feat_channels)
         self.scene = SceneEncoderDecoder(
             feat_channels, robot_dim, robot_width, npoints, radii, nsamples, mlps, fp_mlps[:-1], variant == "ssg"
@@ -265,6 +267,7 @@ class CrossAttention(nn.Module):
     def __init__(self, dim: int = 512, num_heads: int = 8, dropout: float = 0.1) -> None:
         super().__init__()
         # 0 divided by zero below, a negative count failed at the first batch, 2.0 in a reshape
+        check_integer("dim", dim, 1, owner="CrossAttention")  # 0: a ZeroDivisionError, 2.5: "not divisible"
         check_integer("num_heads", num_heads, 1, owner="CrossAttention")
         if dim % num_heads:
             raise ValueError(f"dim {dim} is not divisible by num_heads {num_heads}")
@@ -731,6 +734,9 @@ class GMM(nn.Module):
 
     def __init__(self, in_channels: int, num_components: int = 2, dim: int = 3) -> None:
         super().__init__()
+        # 0 built an empty head that failed in a reshape at the first batch, naming no argument
+        check_integer("num_components", num_components, 1, owner="GMM")
+        check_integer("dim", dim, 1, owner="GMM")
         self.k, self.d = num_components, dim
         self.out = nn.Linear(in_channels, num_components * (dim + dim * dim + 1))
 
