@@ -352,3 +352,23 @@ def test_weights_of_other_tasks_are_refused_not_loaded_into_the_wrong_layers(tmp
         CanonicalPriorModule(tasks=["PnPCounterToCab", "CloseDrawer"], weights=str(path))
     reordered = CanonicalPriorModule(tasks=["OpenSingleDoor", "PnPCounterToCab"], weights=str(path))
     assert reordered.net.sums[0].max() == 2.0 and reordered.weights_not_loaded == []
+
+
+@pytest.mark.parametrize("tasks", ["CloseDrawer", ["a", "a"], ["a\nb", "c"], [1, 2], ["", "a"], []])
+def test_grid_tasks_must_be_distinct_one_line_names(tasks):
+    """A text was read letter by letter as tasks, a repeated name's second grid was never read or filled, a newline
+    split the saved names into other tasks, and numbers failed in str.join naming no argument."""
+    with pytest.raises(ValueError, match="CanonicalLabelGrid: tasks must be"):
+        CanonicalLabelGrid(tasks)
+
+
+def test_grid_refuses_a_nan_label_it_would_keep():
+    """A NaN label made its cell's mean NaN for good; a NaN on a masked point is not read."""
+    grid = CanonicalLabelGrid(["a"], smooth_sigma_cells=0.0)
+    xy = torch.zeros(1, 2, 2)
+    task = torch.zeros(1, dtype=torch.long)
+    label = torch.tensor([[float("nan"), 1.0]])
+    grid.add(task, xy, label, torch.tensor([[False, True]]))
+    assert grid.read(task, xy).tolist() == [[1.0, 1.0]]
+    with pytest.raises(ValueError, match="CanonicalLabelGrid: label contains 1 NaN"):
+        grid.add(task, xy, label, torch.ones(1, 2, dtype=torch.bool))

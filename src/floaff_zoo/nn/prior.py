@@ -24,6 +24,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from floaff_zoo.checks import check_number, check_numbers
+from floaff_zoo.nn.ops import check_finite
 
 __all__ = ["CanonicalLabelGrid"]
 
@@ -76,8 +77,11 @@ class CanonicalLabelGrid(nn.Module):
                 f"CanonicalLabelGrid: centred cells need extent to be a multiple of cell, got cell={cell}, "
                 f"extent={extent}"
             )
-        if not tasks:
-            raise ValueError("CanonicalLabelGrid: at least one task")
+        if isinstance(tasks, str) or not tasks:  # a text was read letter by letter as tasks
+            raise ValueError(f"CanonicalLabelGrid: tasks must be a list of at least one task name, got {tasks!r}")
+        # a repeated name's second grid was never read or filled; a newline split the saved names into others
+        if not all(isinstance(t, str) and t and "\n" not in t for t in tasks) or len(set(tasks)) < len(tasks):
+            raise ValueError(f"CanonicalLabelGrid: tasks must be distinct one-line names, got {list(tasks)}")
         self.tasks = list(tasks)
         self.cell, self.extent = float(cell), float(extent)
         self.size = int(math.ceil(2 * extent / cell))
@@ -196,6 +200,7 @@ class CanonicalLabelGrid(nn.Module):
         flat, inside = self.cells(xy)
         keep = mask.bool() & inside
         index = (task[:, None] * self.size * self.size + flat)[keep]
+        check_finite("CanonicalLabelGrid: label", label[keep])  # a NaN label made its cell NaN for good
         self.sums.view(-1).index_add_(0, index, label[keep].to(self.sums.dtype))
         self.counts.view(-1).index_add_(0, index, torch.ones_like(index, dtype=self.counts.dtype))
 
