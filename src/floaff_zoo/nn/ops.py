@@ -49,19 +49,22 @@ def check_finite(name: str, x: Tensor) -> None:
         raise ValueError(f"{name} contains {bad} NaN/Inf value(s)")
 
 
-def check_floor_feat(owner: str, floor_feat: Tensor | None, floor_xyz: Tensor, channels: int) -> None:
-    """Raise ``ValueError`` unless ``floor_feat`` is [B, M, channels] for floor [B, M, 3] (None when 0 channels).
+def check_features(owner: str, name: str, feat: Tensor | None, xyz: Tensor, channels: int) -> None:
+    """Raise ``ValueError`` unless ``feat`` is [B, N, channels] for points xyz [B, N, 3] (None allowed for 0
+    channels): another width failed inside a Linear ("mat1 and mat2 shapes"), another N inside a gather or cat.
+    Shapes only, no device sync."""
+    want = [*xyz.shape[:2], channels]
+    got = None if feat is None else list(feat.shape)
+    if (feat is None and channels) or (feat is not None and got != want):
+        raise ValueError(f"{owner}: {name} must be {want} for xyz {list(xyz.shape)}, got {got}")
 
-    Shared by the nets that take extra per-floor-point inputs (``floor_feat_channels``); ``owner`` names the net.
-    """
-    if channels and floor_feat is None:
-        raise ValueError(f"{owner}: floor_feat must be {[*floor_xyz.shape[:2], channels]}, got None")
+
+def check_floor_feat(owner: str, floor_feat: Tensor | None, floor_xyz: Tensor, channels: int) -> None:
+    """:func:`check_features` of the extra per-floor-point inputs of the nets that take them
+    (``floor_feat_channels``; ``owner`` names the net), which also refuse any given to a net built without."""
     if not channels and floor_feat is not None:
         raise ValueError(f"{owner}: floor_feat given but the net was built with floor_feat_channels=0")
-    if channels and list(floor_feat.shape) != [*floor_xyz.shape[:2], channels]:
-        raise ValueError(
-            f"{owner}: floor_feat must be {[*floor_xyz.shape[:2], channels]}, got {list(floor_feat.shape)}"
-        )
+    check_features(owner, "floor_feat", floor_feat, floor_xyz, channels)
 
 
 def check_points(name: str, xyz: Tensor) -> None:

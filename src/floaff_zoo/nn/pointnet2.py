@@ -30,6 +30,7 @@ from torch import Tensor, nn
 from floaff_zoo.checks import check_integer, check_number
 from floaff_zoo.nn.ops import (
     ball_query_multi,
+    check_features,
     check_points,
     cpu_fast_paths,
     extreme_over_dim,
@@ -677,15 +678,6 @@ def _pool_rows(layers: list[tuple[Tensor, Tensor]], h: Tensor, pre: bool) -> Ten
     for j, (w, b) in enumerate(layers[:-1]):
         h = torch.relu_(h) if pre and j == 0 else inference_linear(h, w, b, relu=True)
     return inference_linear(h, layers[-1][0]).amax(dim=2)
-
-
-def check_features(owner: str, name: str, feat: Tensor | None, xyz: Tensor, channels: int) -> None:
-    """Raise ``ValueError`` unless ``feat`` is [B, N, channels] for xyz [B, N, 3] (None allowed for 0 channels):
-    another width failed inside a Linear ("mat1 and mat2 shapes"), another N inside the gather."""
-    want = [*xyz.shape[:2], channels]
-    got = None if feat is None else list(feat.shape)
-    if (feat is None and channels) or (feat is not None and got != want):
-        raise ValueError(f"{owner}: {name} must be {want} for xyz {list(xyz.shape)}, got {got}")
 
 
 class SetAbstraction(nn.Module):
