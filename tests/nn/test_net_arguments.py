@@ -45,3 +45,17 @@ def test_heads_refuse_sizes_by_name(build, message):
     ZeroDivisionError, 2.5 a "not divisible by num_heads" message."""
     with pytest.raises(ValueError, match=message):
         build()
+
+
+def test_layer_widths_and_encoder_channels_are_whole_numbers():
+    """A width of 0 built a layer of no output that ran silently; a negative encoder input a narrower first level."""
+    from floaff_zoo.nn.cfar import plain_mlp
+    from floaff_zoo.nn.pointnet2 import PointNet2Encoder
+
+    with pytest.raises(ValueError, match="plain_mlp: widths: a layer's width must be an integer >= 1, got 0"):
+        plain_mlp(4, [8, 0])
+    with pytest.raises(ValueError, match="mlp: sizes: a layer's width must be an integer >= 1, got 0"):
+        PointNet2Net("ssg", **{**SIZES, "robot_width": 0})
+    assert len(plain_mlp(4, [])) == 0  # an empty list stays the identity
+    with pytest.raises(ValueError, match="PointNet2Encoder: in_channels must be an integer >= 0, got -1"):
+        PointNet2Encoder(-1, [8], [[0.3]], [[4]], [[[8]]], xyz_as_feat=True)

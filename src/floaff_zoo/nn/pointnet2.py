@@ -914,6 +914,8 @@ class PointNet2Encoder(nn.Module):
         super().__init__()
         if not (len(npoints) == len(radii) == len(nsamples) == len(mlps)):
             raise ValueError("npoints, radii, nsamples and mlps need one entry per level")
+        # a negative count built a first level narrower than its input, found only at the first batch
+        check_integer("in_channels", in_channels, 0, owner="PointNet2Encoder")
         self.xyz_as_feat = xyz_as_feat
         c = in_channels + (3 if xyz_as_feat else 0)
         self.levels = nn.ModuleList()
