@@ -1,4 +1,5 @@
 import math
+import re
 import sys
 
 import numpy as np
@@ -155,6 +156,53 @@ def test_ray_backend_clear_error(monkeypatch):
         RolloutService(backend="ray")
     with pytest.raises(ValueError, match="backend"):
         RolloutService(backend="dask")
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        ({"workers": 2.5}, "RolloutService: workers must be an integer >= 1, got 2.5"),  # ran 2 workers
+        ({"workers": True}, "RolloutService: workers must be an integer >= 1, got True"),
+        ({"workers": "2"}, "RolloutService: workers must be an integer >= 1, got '2'"),  # a bare TypeError
+        ({"workers": float("nan")}, "RolloutService: workers must be an integer >= 1, got nan"),
+        ({"cache_decimals": -1}, "RolloutService: cache_decimals must be an integer >= 0, got -1"),  # 10 m cells
+        ({"seed": -1}, "RolloutService: seed must be an integer >= 0, got -1"),  # failed in the first rollout
+        ({"seed": 2.5}, "RolloutService: seed must be an integer >= 0, got 2.5"),
+        ({"max_retries": 1.5}, "RolloutService: max_retries must be an integer >= 0, got 1.5"),
+        ({"timeout_s": float("inf")}, "RolloutService: timeout_s must be a finite number > 0, got inf"),
+        ({"timeout_s": True}, "RolloutService: timeout_s must be a finite number > 0, got True"),  # 1 s
+        ({"timeout_s": "5"}, "RolloutService: timeout_s must be a finite number > 0, got '5'"),
+    ],
+)
+def test_a_bad_service_setting_is_named(kwargs, message):
+    with pytest.raises(ValueError, match=f"^{re.escape(message)}$"):
+        RolloutService(**kwargs)
+
+
+def test_a_bad_seed_r_arm_seconds_or_scene_is_named():
+    """A seed 2.5 reset the task as seed 2, -1 failed in numpy's rng naming nothing (mid-run in a pool); a NaN
+    r_arm filtered no pose by reach; hold_still ran nothing for a negative time and failed in int() for a NaN.
+    Every check comes before the scene is touched, so no scene is built here."""
+    import floaff_zoo.sim.rollout as ro
+
+    scene = object()
+    with pytest.raises(ValueError, match=r"^pose_filter: seed must be an integer >= 0, got 2\.5"):
+        pose_filter(scene, 0.0, 0.0, 0.0, seed=2.5)
+    with pytest.raises(ValueError, match=r"^pose_filter: r_arm must be a finite number > 0 or null"):
+        pose_filter(scene, 0.0, 0.0, 0.0, r_arm=float("nan"))
+    with pytest.raises(ValueError, match=r"^rollout: seed must be an integer >= 0, got -1"):
+        rollout(scene, (0.0, 0.0, 0.0), seed=-1)
+    with pytest.raises(TypeError, match=r"^rollout: scene must be a SimScene or a SceneSpec, got dict"):
+        rollout({}, (0.0, 0.0, 0.0))
+    with pytest.raises(ValueError, match=r"^start_rollout: seed must be an integer >= 0, got None"):
+        ro.start_rollout(scene, (0.0, 0.0, 0.0), None, seed=None)
+    for bad in (-1.0, float("nan"), "1"):
+        with pytest.raises(ValueError, match=r"^hold_still: seconds must be a finite number >= 0"):
+            ro.hold_still(scene, bad)
+    with pytest.raises(ValueError, match=r"^RolloutService.run: seed must be an integer >= 0 or null"):
+        RolloutService().run([(SceneSpec(0, 0, 0, "CloseDrawer"), (0.0, 0.0, 0.0))], seed=-1)
+    with pytest.raises(TypeError, match=r"^RolloutService: job_fn must be a function"):
+        RolloutService(job_fn=None)
 
 
 def test_one_service_serves_every_task_seed(monkeypatch):

@@ -22,6 +22,7 @@ import mujoco
 import numpy as np
 
 from floaff_zoo import floor
+from floaff_zoo.checks import check_integer, check_number
 from floaff_zoo.frames import ROLLOUT_POSE_DECIMALS, heading_to
 from floaff_zoo.runtime import THREAD_ENV, exit_with_parent, one_thread_children
 from floaff_zoo.sim.controllers import CTRL_DT, Policy, default_policy
@@ -56,9 +57,12 @@ def pose_filter(scene: SimScene, x: float, y: float, yaw: float, seed: int = 0, 
     N2M footprint over a furniture footprint, or the tucked robot touching the scene in the task's reset state
     for ``seed``). The robot check, when reached, leaves the scene in that reset state with the base at the pose.
     ``rollout`` passes no ``r_arm``: a dataset generated with a preset's own ``r_arm`` is evaluated with the task's.
-    A non-finite pose raises ``ValueError`` (it was reported ``filtered_collision``: every comparison with a NaN fails).
+    A non-finite pose raises ``ValueError`` (it was reported ``filtered_collision``: every comparison with a NaN fails),
+    so do a ``seed`` that is no integer >= 0 and an ``r_arm`` that is no number > 0 (a NaN one filtered nothing).
     """
     x, y, yaw = floor.check_pose((x, y, yaw), "pose_filter")
+    check_integer("seed", seed, owner="pose_filter")  # 2.5 reset as seed 2 did, -1 failed in numpy's rng unnamed
+    check_number("r_arm", r_arm, strict=True, owner="pose_filter", none_means="the task's")
     task, c = scene.task, scene.target.pos[:2]
     r_arm = task.r_arm if r_arm is None else float(r_arm)
     if float(np.hypot(x - c[0], y - c[1])) >= r_arm:
@@ -74,6 +78,7 @@ def pose_filter(scene: SimScene, x: float, y: float, yaw: float, seed: int = 0, 
 def start_rollout(scene: SimScene, base_pose, policy: Policy, seed: int = 0) -> None:
     """Reset the task with rng(seed), teleport the base, tuck the arm, reset the policy (may set policy.reason)."""
     x, y, yaw = floor.check_pose(base_pose, "start_rollout", "base_pose")
+    check_integer("seed", seed, owner="start_rollout")
     scene.robot.set_base_pose(scene.data, x, y, yaw)
     scene.reset_task(np.random.default_rng(int(seed)))
     mujoco.mj_forward(scene.model, scene.data)
@@ -92,6 +97,9 @@ def rollout(
     ``check_pose=False`` skips ``pose_filter`` (the annotation, which has filtered its candidates already).
     """
     t0 = time.perf_counter()
+    check_integer("seed", seed, owner="rollout")
+    if not isinstance(scene, (SimScene, SceneSpec)):
+        raise TypeError(f"rollout: scene must be a SimScene or a SceneSpec, got {type(scene).__name__}")
     if isinstance(scene, SceneSpec):
         scene = build_scene(scene)
     if policy is None:
@@ -143,6 +151,7 @@ _DIVERGED = (mujoco.mjtWarning.mjWARN_BADQACC, mujoco.mjtWarning.mjWARN_BADQPOS,
 def hold_still(scene: SimScene, seconds: float) -> None:
     """Simulate ``seconds`` at the rollout's control rate with the base and arm held where they are (a part the reset
     put into furniture moves by itself here: ``scripts/reset_drift.py``)."""
+    check_number("seconds", seconds, owner="hold_still")  # a negative one held nothing, a NaN failed in int()
     m, d = scene.model, scene.data
     nsub = max(1, int(round(CTRL_DT / m.opt.timestep)))
     q = scene.robot.ik_q(d)
@@ -264,10 +273,15 @@ class RolloutService:
                 raise ImportError(
                     "RolloutService(backend='ray') needs the 'ray' package, which is not installed; use backend='local'"
                 ) from e
-        if workers < 1:
-            raise ValueError(f"workers must be >= 1, got {workers}")
-        if max_retries < 0 or not timeout_s > 0:
-            raise ValueError(f"max_retries must be >= 0 and timeout_s > 0, got {max_retries}, {timeout_s}")
+        # 2.5 workers ran 2, True one, a text failed in a comparison; a negative cache_decimals cached by 10 m cells
+        owner = "RolloutService"
+        check_integer("workers", workers, 1, owner=owner)
+        check_integer("cache_decimals", cache_decimals, owner=owner)
+        check_integer("seed", seed, owner=owner)
+        check_integer("max_retries", max_retries, owner=owner)
+        check_number("timeout_s", timeout_s, strict=True, owner=owner)  # an infinite one waited for ever
+        if not callable(job_fn):
+            raise TypeError(f"{owner}: job_fn must be a function of a job, got {job_fn!r}")
         self.workers = int(workers)
         self.backend = backend
         self.cache_decimals = int(cache_decimals)
@@ -293,6 +307,7 @@ class RolloutService:
     ) -> list[RolloutResult]:
         """Roll every (scene, pose) job out (cached); ``seed``: the task's reset seed for these jobs (default the
         service's), so one pool serves episodes of several seeds (``repeat.service_runner``)."""
+        check_integer("seed", seed, owner="RolloutService.run", none_means="the service's")
         seed = self.seed if seed is None else int(seed)
         keys = [self._key(s, p, seed) for s, p in jobs]
         todo = sorted({k for k in keys if k not in self.cache}, key=lambda k: (k[0].scene_id, k[1:]))
