@@ -168,3 +168,23 @@ def test_read_sample_gives_the_target_world_and_names_a_bad_one(tmp_path):
     rec = next(r for r in ff.iter_scenes(tmp_path, benchmark="styles") if r["scene_id"] == rec["scene_id"])
     with pytest.raises(ff.FormatError, match=r"scene.json: target.pos must be a list"):
         ff.read_sample(rec, rec["views"][0])
+
+
+@pytest.mark.parametrize("bad", ["", ".", "..", "a/b", "/abs"])
+def test_a_scene_id_that_is_no_folder_name_is_refused_before_anything_moves(tmp_path, bad):
+    """retire_scene with a scene_id from a hand-edited manifest deleted folders: an absolute one rmtree'd that folder
+    (the target of its move is the folder itself), "" the benchmark's retired scenes before failing to move it."""
+    root = tmp_path / "data"
+    (root / "styles" / ff.RETIRED / "old").mkdir(parents=True)
+    victim = tmp_path / "victim"
+    victim.mkdir()
+    sid = str(victim) if bad == "/abs" else bad
+    with pytest.raises(ValueError, match=r"^scene_dir: scene_id must be one folder name"):
+        ff.retire_scene(root, "styles", sid)
+    assert victim.is_dir() and (root / "styles" / ff.RETIRED / "old").is_dir()
+    with pytest.raises(ValueError, match=r"^scene_dir: benchmark must be one folder name"):
+        ff.scene_dir(root, "", "s0")
+    with pytest.raises(ValueError, match=r"^staging_dir: scene_id must be one folder name"):
+        ff.staging_dir(root, "styles", sid)
+    assert ff.scene_dir(root, "styles", "s0") == root / "styles" / "s0"
+    assert ff.staging_dir(root, "styles", "s0") == root / "styles" / ff.STAGING / "s0"

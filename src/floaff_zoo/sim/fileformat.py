@@ -158,9 +158,17 @@ def read_json(path: str | Path) -> Any:
 
 
 # ------------------------------------------------------------------------------------------------ scene dirs
+def _folder(who: str, what: str, name: Any) -> str:
+    """``name`` when it is one folder's name; ValueError naming ``who``'s ``what`` otherwise. A scene_id read from a
+    hand-edited manifest ("", "..", an absolute path) made ``retire_scene`` delete a folder outside the dataset."""
+    if not isinstance(name, str) or name in ("", ".", "..") or "/" in name or os.sep in name:
+        raise ValueError(f"{who}: {what} must be one folder name (not empty, '.' or '..', no '/'), got {name!r}")
+    return name
+
+
 def scene_dir(root: str | Path, benchmark: str, scene_id: str) -> Path:
-    """Final directory of one scene."""
-    return Path(root) / benchmark / scene_id
+    """Final directory of one scene; ValueError when ``benchmark`` or ``scene_id`` is not one folder name."""
+    return Path(root) / _folder("scene_dir", "benchmark", benchmark) / _folder("scene_dir", "scene_id", scene_id)
 
 
 def retire_scene(root: str | Path, benchmark: str, scene_id: str) -> Path | None:
@@ -178,8 +186,9 @@ def retire_scene(root: str | Path, benchmark: str, scene_id: str) -> Path | None
 
 
 def staging_dir(root: str | Path, benchmark: str, scene_id: str) -> Path:
-    """Work directory of one scene while it is generated (removed or moved on commit)."""
-    return Path(root) / benchmark / STAGING / scene_id
+    """Work directory of one scene while it is generated (removed or moved on commit); names checked as in
+    :func:`scene_dir`."""
+    return scene_dir(root, benchmark, STAGING) / _folder("staging_dir", "scene_id", scene_id)
 
 
 def committed_record(root: str | Path, benchmark: str, scene_id: str) -> dict[str, Any] | None:
