@@ -188,3 +188,65 @@ def test_a_scene_id_that_is_no_folder_name_is_refused_before_anything_moves(tmp_
         ff.staging_dir(root, "styles", sid)
     assert ff.scene_dir(root, "styles", "s0") == root / "styles" / "s0"
     assert ff.staging_dir(root, "styles", "s0") == root / "styles" / ff.STAGING / "s0"
+
+
+@pytest.mark.parametrize(
+    ("edit", "message"),
+    [
+        (lambda d: d.update(split="Train"), r"scene.json: split 'Train' is not one of \['train', 'test'\]"),
+        (lambda d: d.update(task="closedrawer"), r"scene.json: task 'closedrawer' is not one of"),
+        (lambda d: d.update(benchmark="style"), r"scene.json: benchmark 'style' is not one of"),
+        (lambda d: d.update(spec=[0, 1, 2]), r"scene.json: spec must be a record"),
+    ],
+)
+def test_a_scene_record_no_filter_can_select_is_named(tmp_path, edit, message):
+    """A scene.json with split 'Train' or a misspelt task was read, then matched no iter_scenes filter (left out
+    without a word); a spec that is no record failed in read_sample with an AttributeError naming no file."""
+    make_floaff_dataset(tmp_path, problems=False, version=2)
+    rec = next(ff.iter_scenes(tmp_path, benchmark="styles"))
+    sj = tmp_path / "styles" / rec["scene_id"] / ff.SCENE_JSON
+    data = json.loads(sj.read_text())
+    edit(data)
+    sj.write_text(json.dumps(data))
+    with pytest.raises(ff.FormatError, match=message):
+        list(ff.iter_scenes(tmp_path, benchmark="styles", split="train"))
+
+
+def test_a_view_record_without_its_kind_id_or_pose_is_named(tmp_path):
+    """A view record without 'view' or 'view_id', a scene record without 'scene_id' ended in a bare KeyError, a
+    listed base pose of two values in an IndexError, a text in float()'s error: none named scene.json."""
+    make_floaff_dataset(tmp_path, problems=False, version=2)
+    rec = next(ff.iter_scenes(tmp_path, benchmark="styles"))
+    view = rec["views"][0]
+    for key in ("view", "view_id"):
+        bad = {k: v for k, v in view.items() if k != key}
+        with pytest.raises(ff.FormatError, match=r"scene.json: a view record needs a 'view' and a 'view_id'"):
+            ff.read_sample(rec, bad)
+    with pytest.raises(ff.FormatError, match=r"scene.json: the scene record needs a 'scene_id'"):
+        ff.read_sample({k: v for k, v in rec.items() if k != "scene_id"}, view)
+    with pytest.raises(ff.FormatError, match=r"scene.json: view 'front_0000': base_pose_world must be \[x, y, yaw\]"):
+        ff.read_sample(rec, {**view, "base_pose_world": [1.0, 2.0]})
+    with pytest.raises(ff.FormatError, match=r"scene.json: the view's base_pose_world must hold numbers"):
+        ff.read_sample(rec, {**view, "base_pose_world": "abc"})
+    with pytest.raises(ff.NonFiniteFieldError, match=r"scene.json: the view's base_pose_world holds NaN"):
+        ff.read_sample(rec, {**view, "base_pose_world": [float("nan"), 0.0, 0.0]})
+    assert ff.read_sample(rec, view)["meta"]["view"] == view["view"]
+
+
+def test_a_view_numpy_would_pickle_is_refused_when_written(tmp_path):
+    """An object or ragged field was written without a word (pickled) and refused by every reader afterwards."""
+    path = tmp_path / "v.npz"
+    for bad in (np.array([{"x": 1}], dtype=object), [[1.0, 2.0], [3.0]]):
+        with pytest.raises(ValueError, match=r"v.npz: field 'robot' is an object or ragged array"):
+            ff.atomic_save_npz(path, {"scene_xyz": np.zeros((2, 3), np.float32), "robot": bad})
+        assert not path.exists()
+    ff.atomic_save_npz(path, {"robot": np.ones(2, np.float32)})
+    assert np.load(path, allow_pickle=False)["robot"].tolist() == [1.0, 1.0]
+
+
+def test_a_root_that_is_a_file_is_named_so(tmp_path):
+    (tmp_path / "data").write_text("")
+    with pytest.raises(ff.FormatError, match=r"data: dataset root is a file, not a folder"):
+        list(ff.iter_scenes(tmp_path / "data"))
+    with pytest.raises(ff.FormatError, match=r"nowhere: dataset root not found"):
+        list(ff.iter_scenes(tmp_path / "nowhere"))

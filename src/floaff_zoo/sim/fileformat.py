@@ -140,8 +140,20 @@ def atomic_save_npz(path: str | Path, arrays: dict[str, np.ndarray]) -> None:
     path = Path(path)
     if path.suffix != ".npz":
         raise ValueError(f"{path}: view files must end in .npz")
+    pickled = [k for k, a in arrays.items() if _pickled(a)]
+    if pickled:
+        raise ValueError(f"{path}: field {pickled[0]!r} is an object or ragged array, which readers refuse (pickled)")
     # durable as atomic_write_bytes: after a power loss a committed scene holds whole views
     atomic_write(path, lambda f: np.savez_compressed(f, **arrays), durable=True)
+
+
+def _pickled(a: Any) -> bool:
+    """Whether numpy would store ``a`` pickled (an object array: dicts, None) or refuse it (a ragged list): written
+    without a word, such a view was refused by every reader (``allow_pickle=False``)."""
+    try:
+        return np.asarray(a).dtype.hasobject
+    except ValueError:
+        return True
 
 
 def read_json(path: str | Path) -> Any:
@@ -340,6 +352,12 @@ def read_scene(scene_path: str | Path) -> dict[str, Any]:
     for k in _SCENE_KEYS:
         if k not in rec:
             raise FormatError(f"{p}: missing key {k!r}")
+    # a split 'Train' or a misspelt task matched no filter of iter_scenes, so the scene was left out without a word
+    for k, known in (("split", SPLITS), ("task", TASKS), ("benchmark", BENCHMARKS)):
+        if rec[k] not in known:
+            raise FormatError(f"{p}: {k} {rec[k]!r} is not one of {list(known)}")
+    if not isinstance(rec["spec"], dict):  # read_sample failed on it with an AttributeError naming no file
+        raise FormatError(f"{p}: spec must be a record (layout_id, style_id, seed), got {rec['spec']!r:.80}")
     rec["format_version"] = check_format_version(rec.get("format_version", 1), p)
     # the generator's format 2 also keeps the per-cell label rule's inputs and result (docs/data_format.md): where a
     # file has them they must cover the grid like the labels
@@ -432,7 +450,7 @@ def iter_scenes(
             raise ValueError(f"iter_scenes: unknown {what} {value!r}; choose from {list(known)}")
     root = Path(root)
     if not root.is_dir():
-        raise FormatError(f"{root}: dataset root not found")
+        raise FormatError(f"{root}: dataset root {'is a file, not a folder' if root.exists() else 'not found'}")
     benches = [benchmark] if benchmark else list(BENCHMARKS)
     for b in benches:
         bdir = root / b
@@ -500,8 +518,21 @@ def read_sample(scene: dict[str, Any], view: dict[str, Any], root: str | Path | 
     cells = scene["candidates"]["xy"] if "candidates" in scene else None  # the DataModule's records carry none
     if not isinstance(view, dict) or not isinstance(view.get("file"), str):
         raise FormatError(f"{Path(scene['dir']) / SCENE_JSON}: a view record needs a 'file' name, got {view!r:.80}")
+    # a view without its kind or id, a scene without its id, ended below in a bare KeyError naming no file
+    if not (isinstance(view.get("view"), str) and isinstance(view.get("view_id"), str)):
+        raise FormatError(
+            f"{Path(scene['dir']) / SCENE_JSON}: a view record needs a 'view' and a 'view_id', got {view!r:.80}"
+        )
+    if not isinstance(scene.get("scene_id"), str):
+        raise FormatError(f"{Path(scene['dir']) / SCENE_JSON}: the scene record needs a 'scene_id'")
     arr = read_view(Path(scene["dir"]) / view["file"], version, len(cells) if cells is not None else None)
     listed = view.get("base_pose_world")
+    if listed is not None and _finite_numbers(
+        listed, "the view's base_pose_world", Path(scene["dir"]) / SCENE_JSON
+    ).shape != (3,):
+        raise FormatError(
+            f"{Path(scene['dir']) / SCENE_JSON}: view {view['view_id']!r}: base_pose_world must be [x, y, yaw]"
+        )
     if listed is not None and not poses_agree(arr["base_pose_world"], listed):
         # the rollout parks the robot from scene.json's pose (float64); the view's points were taken at the npz's
         raise FormatError(
