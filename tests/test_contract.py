@@ -197,7 +197,7 @@ def test_a_sample_with_no_valid_scene_point_is_named():
     for name in ("scene_mask", "floor_mask"):
         s = _sample(m=6)
         s[name] = np.zeros(len(s[name.replace("mask", "xyz")]), bool)
-        with pytest.raises(SampleError, match=f"{name} marks no valid entry"):
+        with pytest.raises(SampleError, match=f"{name} marks no point valid"):
             validate_sample(s)
     batch = collate_samples([validate_sample(_sample(m=6)), validate_sample(_sample(m=4))], mode="pad")
     batch["scene_mask"][1] = False

@@ -199,6 +199,8 @@ def test_grown_footprint_adds_the_margin_on_every_side():
     for bad in (-0.1, float("nan"), float("inf"), "0.1", True):  # a text was a TypeError naming nothing
         with pytest.raises(ValueError, match="grown_footprint: margin must be a finite number >= 0"):
             grown_footprint(bad)
+    with pytest.raises(ValueError, match="grown_footprint: footprint length must be"):
+        grown_footprint(0.1, (float("nan"), 0.5, 0.3))  # a NaN base grew into a NaN one
 
 
 def test_floor_queries_refuse_clouds_that_are_not_n_by_3_and_poses_that_are_not_finite():

@@ -197,7 +197,7 @@ def _mask(mask: Any, n: int, where: str, name: str) -> Tensor:
     if m.shape[0] != n:
         raise SampleError(f"{where}: {name} has {m.shape[0]} entries, expected {n}")
     if not m.any():  # as an empty cloud: a model scored a sample it saw nothing of, or failed naming another cause
-        raise SampleError(f"{where}: {name} marks no valid entry (all {n} are padding)")
+        raise SampleError(f"{where}: {name} marks no point valid (all {n} false)")
     return m
 
 

@@ -486,11 +486,11 @@ def test_set_abstraction_sizes_must_be_whole_numbers():
             SetAbstraction(npoint, [0.3], [k], 0, [[8]])
 
 
-def test_shared_mlp_sizes_must_be_whole_numbers_of_at_least_one():
-    """A width of 0 built an empty layer that ran silently and True one of width 1; 2.5 and -1 failed inside
-    nn.Linear with a message naming no argument."""
-    for in_channels, widths, said in ((4, [0], "widths"), (4, [True], "widths"), (4, [8, 2.5], "widths")):
-        with pytest.raises(ValueError, match=f"SharedMLP: {said}.* must be an integer >= 1"):
+def test_shared_mlp_sizes_must_be_whole_numbers():
+    """True built a layer of width 1; 2.5 and -1 failed inside nn.Linear with a message naming no argument. (A width
+    of 0 is left to the models' check_layer_sizes, which names the model and the layer.)"""
+    for in_channels, widths, said in ((4, [-1], "widths"), (4, [True], "widths"), (4, [8, 2.5], "widths")):
+        with pytest.raises(ValueError, match=f"SharedMLP: {said}.* must be an integer >= 0"):
             SharedMLP(in_channels, widths)
     with pytest.raises(ValueError, match="SharedMLP: in_channels must be an integer >= 1, got -2"):
         SharedMLP(-2, [4])

@@ -41,7 +41,7 @@ def check_size(field: str, value: Any, minimum: int, none_means: str | None = No
 def check_flag(field: str, value: Any) -> None:
     """DataConfigError unless ``value`` is a bool: "false" from a hand-written config is a true text, 0 or 1 no
     flag."""
-    if not isinstance(value, bool):
+    if not isinstance(value, (bool, np.bool_)):  # numpy's too, as RolloutSuccessRate's flags
         raise DataConfigError(f"data.{field} must be true or false, got {value!r}")
 
 

@@ -289,11 +289,12 @@ class RecordDataset(Dataset):
         raw = self.loader(rec)
         # the contract check and the pre-transforms name meta's path in their messages: the file, not the id again
         raw["meta"] = {**rec.meta, **(raw.get("meta") or {}), "path": rec.file}
-        s = validate_sample(raw)
-        if not bool(s["scene_mask"].any()):  # passed the contract, then failed mid-epoch in the loader's resampling
+        mask = raw.get("scene_mask")
+        if mask is not None and not np.asarray(mask).any():  # its own skip kind, before the contract's SampleError
             raise DataError(
                 f"{rec.file}: sample {rec.key} has no valid scene point (scene_mask all false)", "empty_cloud"
             )
+        s = validate_sample(raw)
         before = dict(s.get("meta") or {})
         s = apply_transforms(s, self.pre_transforms, _record_seed(self.seed, rec.key))
         out: dict[str, Any] = {k: s[k].contiguous() for k in (*TENSOR_KEYS, FULL_CLOUD_KEY) if k in s}

@@ -168,7 +168,7 @@ class FloAffKitchenDataModule(FloAffDataModule):
         check_choice("cache_hash", cache_hash, ("stat", "content"))
         self.root = Path(root)
         self.val_scenes = val_scenes
-        if val_scene_ids is not None and (isinstance(val_scene_ids, str) or not val_scene_ids):
+        if val_scene_ids is not None and (isinstance(val_scene_ids, str) or len(val_scene_ids) == 0):
             # [] held out nothing, yet a fit asked for a validation split: "the 'val' split is empty" at setup; a text
             # was taken letter by letter
             raise DataConfigError(

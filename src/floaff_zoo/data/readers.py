@@ -299,16 +299,13 @@ class GeneratedReader(FloAffReader):
     def _entry(self, rec: dict[str, Any], d: Path, benchmark: str) -> SceneEntry:
         """The scene record of a read ``scene.json`` (its views whose file is missing are skipped and counted).
 
+        ``ff.read_scene`` has checked split, task and benchmark.
+
         Raises:
-            KeyError / TypeError / ValueError: a field is missing or of the wrong kind, or split / task / a view's
-                kind is unknown.
+            KeyError / TypeError / ValueError: a field is missing or of the wrong kind, or a view's kind is unknown.
         """
         from floaff_zoo.sim import fileformat as ff
 
-        if rec["split"] not in ("train", "test"):
-            raise ValueError(f"split {rec['split']!r} is not 'train' or 'test'")
-        if rec["task"] not in TASKS:
-            raise ValueError(f"task {rec['task']!r} is not one of {list(TASKS)}")
         views: list[ViewEntry] = []
         seen: dict[Any, ViewEntry] = {}  # ("id", view_id) and ("file", path) of the views kept so far
         for v in rec["views"]:

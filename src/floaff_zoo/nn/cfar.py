@@ -340,8 +340,8 @@ BALL_MARGIN = 1.0 + 1e-4
 
 def plain_mlp(in_channels: int, widths: Sequence[int]) -> nn.Sequential:
     """Linear + ReLU per layer on [..., C_in] -> [..., widths[-1]] (identity when widths is empty)."""
-    for w in widths:  # 0 built a layer of no output that ran silently; 2.5 failed inside nn.Linear
-        check_integer("widths: a layer's width", w, 1, owner="plain_mlp")
+    for w in widths:  # 2.5, True or -1 failed inside nn.Linear; 0 is refused by the models' check_layer_sizes
+        check_integer("widths: a layer's width", w, 0, owner="plain_mlp")
     layers: list[nn.Module] = []
     c = in_channels
     for w in widths:

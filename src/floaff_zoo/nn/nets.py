@@ -71,10 +71,11 @@ def floor_local_features(floor_xyz: Tensor, target_xyz: Tensor) -> Tensor:
 
 
 def _mlp(sizes: Sequence[int], dropout: float = 0.0) -> nn.Sequential:
-    """Linear layers sizes[0] -> ... -> sizes[-1], ReLU (and dropout) between them; the input may have 0 channels
-    (no robot description), every layer at least 1 (0 built a layer of no output that ran silently)."""
+    """Linear layers sizes[0] -> ... -> sizes[-1], ReLU (and dropout) between them. Widths are whole numbers >= 0
+    (2.5, True or -1 failed inside nn.Linear); a 0 is refused by the models' ``check_layer_sizes``, which names the
+    model and the layer."""
     for w in sizes[1:]:
-        check_integer("sizes: a layer's width", w, 1, owner="mlp")
+        check_integer("sizes: a layer's width", w, 0, owner="mlp")
     layers: list[nn.Module] = []
     for i in range(len(sizes) - 1):
         layers.append(nn.Linear(sizes[i], sizes[i + 1]))

@@ -67,10 +67,11 @@ class SharedMLP(nn.Module):
 
     def __init__(self, in_channels: int, widths: Sequence[int], last_act: bool = True) -> None:
         super().__init__()
-        # a width of 0 built an empty layer that ran silently, True one of 1; 2.5 or -1 failed inside nn.Linear
+        # True built a layer of 1; 2.5 or -1 failed inside nn.Linear. A width of 0 builds: the models'
+        # check_layer_sizes refuses it naming the model and the layer, which this class cannot
         check_integer("in_channels", in_channels, 1, owner="SharedMLP")
         for w in widths:
-            check_integer("widths: a layer's width", w, 1, owner="SharedMLP")
+            check_integer("widths: a layer's width", w, 0, owner="SharedMLP")
         self.linears = nn.ModuleList()
         self.norms = nn.ModuleList()
         c = in_channels
