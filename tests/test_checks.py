@@ -10,7 +10,7 @@ from fractions import Fraction
 import numpy as np
 import pytest
 
-from floaff_zoo.checks import check_integer, check_number, check_numbers, is_number, shown
+from floaff_zoo.checks import check_flag, check_integer, check_number, check_numbers, is_number, shown
 
 
 class OwnError(ValueError):
@@ -108,6 +108,15 @@ def test_integer_bounds_none_and_owner():
     check_integer("k", None, 1, none_means="all")
     with pytest.raises(ValueError, match=r"^O: k must be an integer >= 1 or null \(all\), got 0$"):
         check_integer("k", 0, 1, owner="O", none_means="all")
+
+
+def test_flags_are_bools_python_or_numpy():
+    """One check of a true/false setting where four were spelled (data, rollout callback, presets, curriculum)."""
+    for ok in (True, False, np.bool_(True)):
+        check_flag("f", ok)
+    for bad in ("false", 0, 1, None, np.int64(1), 1.0):
+        with pytest.raises(KeyError, match="own: f must be true or false, got"):
+            check_flag("f", bad, owner="own", error=KeyError)
 
 
 def test_shown():

@@ -13,7 +13,7 @@ import math
 import numbers
 from collections.abc import Mapping
 
-__all__ = ["check_integer", "check_number", "check_numbers", "is_number", "shown"]
+__all__ = ["check_flag", "check_integer", "check_number", "check_numbers", "is_number", "shown"]
 
 
 def is_number(value: object) -> bool:
@@ -107,3 +107,20 @@ def check_integer(
     if not (integer and minimum <= value and (maximum is None or value <= maximum)):
         what = f"an integer >= {minimum}" + (f" and <= {maximum}" if maximum is not None else "")
         raise error(_message(owner, name, what, none_means, "", value))
+
+
+def is_flag(value: object) -> bool:
+    """Whether ``value`` is a bool, Python's or numpy's (recognised by its type without importing numpy)."""
+    kind = type(value)
+    return isinstance(value, bool) or (kind.__module__ == "numpy" and kind.__name__ in ("bool_", "bool"))
+
+
+def check_flag(name: str, value: object, owner: str = "", error: type[Exception] = ValueError) -> None:
+    """Refuse a ``value`` that is not a bool: the text "false" from a hand-written config is true, 0 or 1 no flag;
+    arguments as for :func:`check_number`.
+
+    Raises:
+        error: ``"{owner}: {name} must be true or false, got {value!r}"``.
+    """
+    if not is_flag(value):
+        raise error(f"{owner + ': ' if owner else ''}{name} must be true or false, got {value!r}")

@@ -66,6 +66,7 @@ from typing import Any
 import yaml
 
 from floaff_zoo.atomic import atomic_write_json, atomic_write_text, folder_lock
+from floaff_zoo.checks import check_flag
 from floaff_zoo.runs import RunError, config_value, config_values, data_fingerprint, is_config_file, load_checkpoint
 
 __all__ = ["CurriculumError", "build_stage_args", "load_experiment", "main", "read_lineage", "run_curriculum"]
@@ -213,8 +214,7 @@ def _check_stage(st: Any, where: str, earlier: list[str]) -> None:
     _check_root(st.get("root"), where, optional=True)
     _check_common(st, where)
     _as_list(st.get("configs"), f"{where}: 'configs'")
-    if not isinstance(st.get("shared", True), bool):
-        raise CurriculumError(f"{where}: 'shared' must be true or false, got {st['shared']!r}")
+    check_flag("'shared'", st.get("shared", True), owner=where, error=CurriculumError)
     _check_tasks(st.get("tasks"), where)
     _check_mapping(st.get("from_stages"), f"{where}: 'from_stages'", "init-arg key -> earlier stage name")
     for key, ref in (st.get("from_stages") or {}).items():

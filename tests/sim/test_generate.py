@@ -59,8 +59,8 @@ def test_repeated_or_unsupported_settings_are_refused():
         ("tasks", (), r"tasks must be a non-empty tuple of names, got \(\)"),  # a run of no scene, exit 0
         ("benchmarks", (), r"benchmarks must be a non-empty tuple of names, got \(\)"),
         ("tasks", "CloseDrawer", "tasks must be a non-empty tuple of names, got 'CloseDrawer'"),  # letter by letter
-        ("use_paper_view_counts", "false", "use_paper_view_counts must be True or False, got 'false'"),  # was true
-        ("floor_only", 0, "floor_only must be True or False, got 0"),
+        ("use_paper_view_counts", "false", "use_paper_view_counts must be true or false, got 'false'"),  # was true
+        ("floor_only", 0, "floor_only must be true or false, got 0"),
     ],
 )
 def test_names_and_switches_of_another_type_are_refused_by_name(field, value, message):

@@ -52,7 +52,7 @@ import torch
 from lightning.pytorch.utilities import rank_zero_warn
 from lightning.pytorch.utilities.exceptions import MisconfigurationException
 
-from floaff_zoo.checks import check_integer, check_number
+from floaff_zoo.checks import check_flag, check_integer, check_number
 from floaff_zoo.contract import FULL_CLOUD_KEY, batch_item, best_pose
 from floaff_zoo.floor import footprint_blocked, footprint_coverage, grown_footprint
 from floaff_zoo.frames import ROLLOUT_POSE_DECIMALS, Pose, base_to_world, facing_pose, pose_to_world
@@ -334,8 +334,7 @@ class RolloutSuccessRate(L.Callback):
         check_integer("max_val_samples", max_val_samples, 1, owner=owner, none_means="all")
         check_integer("n_bootstrap", n_bootstrap, 0, owner=owner)  # 0/1: no std
         for name, flag in (("on_test", on_test), ("oracle", oracle), ("progress", progress)):
-            if not isinstance(flag, (bool, np.bool_)):  # a text "false" is true
-                raise ValueError(f"{owner}: {name} must be true or false, got {flag!r}")
+            check_flag(name, flag, owner=owner)
         if free_space not in FREE_SPACE:
             raise ValueError(f"RolloutSuccessRate: free_space must be one of {list(FREE_SPACE)}, got {free_space!r}")
         if pose_source not in POSE_SOURCES:

@@ -15,6 +15,7 @@ from lightning.pytorch.utilities import rank_zero_warn
 from lightning.pytorch.utilities.exceptions import MisconfigurationException
 from torch.utils.data import DataLoader, Dataset, RandomSampler
 
+from floaff_zoo import checks
 from floaff_zoo.checks import check_integer, is_number, shown
 from floaff_zoo.contract import Sample, collate_samples, validate_sample
 from floaff_zoo.data.transforms import SampleTransform, apply_transforms
@@ -39,10 +40,8 @@ def check_size(field: str, value: Any, minimum: int, none_means: str | None = No
 
 
 def check_flag(field: str, value: Any) -> None:
-    """DataConfigError unless ``value`` is a bool: "false" from a hand-written config is a true text, 0 or 1 no
-    flag."""
-    if not isinstance(value, (bool, np.bool_)):  # numpy's too, as RolloutSuccessRate's flags
-        raise DataConfigError(f"data.{field} must be true or false, got {value!r}")
+    """``checks.check_flag`` of ``data.<field>`` as a DataConfigError."""
+    checks.check_flag(f"data.{field}", value, error=DataConfigError)
 
 
 def check_fraction(field: str, value: Any) -> None:

@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, fields, replace
 from typing import Any
 
-from floaff_zoo.checks import check_integer, check_number, check_numbers
+from floaff_zoo.checks import check_flag, check_integer, check_number, check_numbers
 from floaff_zoo.names import BENCHMARKS as ALL_BENCHMARKS  # defined once there; the old names re-exported
 from floaff_zoo.names import TASKS as ALL_TASKS
 
@@ -98,11 +98,10 @@ class GenPreset:
     def validate(self) -> "GenPreset":
         for name in ("tasks", "benchmarks"):  # a text was read letter by letter; none planned no scene, said nothing
             values = getattr(self, name)
-            if isinstance(values, str) or not isinstance(values, (tuple, list)) or not values:
+            if not isinstance(values, (tuple, list)) or not values:
                 raise ValueError(f"{name} must be a non-empty tuple of names, got {values!r}")
         for name in ("floor_only", "use_paper_view_counts"):  # the text "false" was true
-            if not isinstance(getattr(self, name), bool):
-                raise ValueError(f"{name} must be True or False, got {getattr(self, name)!r}")
+            check_flag(name, getattr(self, name))
         bad = [t for t in self.tasks if t not in ALL_TASKS]
         if bad:
             raise ValueError(f"unknown task(s) {bad}; choose from {list(ALL_TASKS)}")
