@@ -182,8 +182,7 @@ class TestReport(L.Callback):
         run's. (``trainer.log_dir`` is a broadcast under DDP: every rank calls it here.)"""
         self._checkpoint, self._weights_known = checkpoint_record(trainer, pl_module), True
         log_dir = trainer.log_dir
-        rollout = any(type(c).__name__ == "RolloutSuccessRate" for c in trainer.callbacks)
-        self._check_report_dir(Path(self.out_dir or log_dir or trainer.default_root_dir), rollout)
+        self._check_report_dir(Path(self.out_dir or log_dir or trainer.default_root_dir), _rollout(trainer) is not None)
         self._config = read_config(Path(log_dir)) if log_dir else None
         if self._config is None and self.out_dir:
             self._config = read_config(Path(self.out_dir))
@@ -276,7 +275,7 @@ class TestReport(L.Callback):
             return
         self._samples = [s for _, s in sorted((c for cands in self._candidates.values() for c in cands), key=_first)]
         run_dir.mkdir(parents=True, exist_ok=True)
-        rollout = next((c for c in trainer.callbacks if type(c).__name__ == "RolloutSuccessRate"), None)
+        rollout = _rollout(trainer)
         report = self.build_report(trainer, pl_module, run_dir, rollout, log_dir)
         episodes = rollout.episodes.get("test", []) if rollout is not None else []
         # a report that cannot be rendered fails here, before the earlier report's figures are replaced
@@ -392,6 +391,11 @@ class TestReport(L.Callback):
             "versions": package_versions(),
             "figures": [],
         }
+
+
+def _rollout(trainer: L.Trainer) -> L.Callback | None:
+    """The trainer's ``RolloutSuccessRate`` (by name: this module does not import the rollout callback), or None."""
+    return next((c for c in trainer.callbacks if type(c).__name__ == "RolloutSuccessRate"), None)
 
 
 def write_report_files(run_dir: Path, report: dict[str, Any], episodes: list[dict[str, Any]]) -> None:
