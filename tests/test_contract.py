@@ -248,3 +248,11 @@ def test_check_batch_names_a_non_finite_label_on_a_valid_floor_point():
     batch["floor_label"][1, 0] = float("inf")
     with pytest.raises(SampleError, match=r"floor_label holds NaN/Inf values in 1 sample"):
         check_batch(batch)
+
+
+def test_check_batch_names_a_non_finite_target_yaw():
+    """H3DNet's target primitives, CFAR's `gt` yaw and AxisNet's loss read it; a NaN made maps and losses NaN."""
+    batch = collate_samples([validate_sample(_sample()), validate_sample(_sample())])
+    batch["target_yaw"][0] = float("nan")
+    with pytest.raises(SampleError, match=r"target_yaw holds NaN/Inf values in 1 sample"):
+        check_batch(batch)

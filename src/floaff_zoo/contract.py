@@ -346,6 +346,8 @@ _FINITE_FIELDS = {
     # a NaN label made the loss NaN and dropped its sample from the rank term silently (NaN > 0 is False)
     "floor_label": "floor_mask",
     "target_xyz": None,
+    # H3DNet's target primitives, CFAR's `gt` yaw and AxisNet's loss read it; a NaN made maps and losses NaN silently
+    "target_yaw": None,
     "robot": None,
 }
 
