@@ -108,6 +108,9 @@ def test_val_layout_holds_out_every_train_scene_of_one_layout(floaff_root):
         _dm(root, val_layout=99).setup("fit")
     with pytest.raises(DataConfigError, match="val_scene_ids or data.val_layout, not both"):
         _dm(root, val_layout=0, val_scene_ids=["x"])
+    for bad in (True, 1.5, -1):  # each matched no layout id and was refused only at setup
+        with pytest.raises(DataConfigError, match=r"data.val_layout must be an integer >= 0"):
+            _dm(root, val_layout=bad)
 
 
 def test_val_scenes_0_trains_every_train_scene_and_view_without_validation(floaff_root):

@@ -178,7 +178,9 @@ class FloAffKitchenDataModule(FloAffDataModule):
         self.val_scene_ids = None if val_scene_ids is None else list(val_scene_ids)
         if val_layout is not None and val_scene_ids is not None:
             raise DataConfigError("FloAffKitchenDataModule: give data.val_scene_ids or data.val_layout, not both")
-        self.val_layout = val_layout
+        # True or 1.5 matched no layout id and was refused only at setup, after the other checks had passed
+        check_size("val_layout", val_layout, 0, "no layout held out")
+        self.val_layout = None if val_layout is None else int(val_layout)
         # val_scenes 0 alone means no validation at all (module docstring)
         self.validates = not (val_scenes == 0 and val_scene_ids is None and val_layout is None)
         self.val_view_fraction = val_view_fraction
