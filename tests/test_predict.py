@@ -198,6 +198,38 @@ def test_the_prediction_writer_refuses_a_file_as_its_folder_before_predicting(tm
     assert Counted.steps == 0 and (tmp_path / "taken").read_text() == "notes"
 
 
+@pytest.mark.parametrize(
+    ("out", "named"),
+    [
+        ("taken/sub", r"out_dir .*taken/sub: .*taken is not a folder"),
+        ("dangling", r"out_dir .*dangling is a dangling link, not a folder"),
+        ("with_dir", r"with_dir/predictions.npz is a folder, where the predictions go"),
+    ],
+)
+def test_the_prediction_writer_refuses_an_unwritable_folder_before_predicting(tmp_path, out, named):
+    """An out_dir under a file or a dangling link failed in mkdir (NotADirectoryError, FileExistsError), a folder
+    named predictions.npz in the rename, after the whole predict had run."""
+    from lightning.pytorch.utilities.exceptions import MisconfigurationException
+
+    from floaff_zoo.callbacks.predictions import PredictionWriter
+    from tests.report._fake_world import ConstantModule, loader, make_samples, quiet_trainer
+
+    class Counted(ConstantModule):
+        steps = 0
+
+        def predict_step(self, batch, batch_idx, dataloader_idx=0):
+            Counted.steps += 1
+            return super().predict_step(batch, batch_idx, dataloader_idx)
+
+    (tmp_path / "taken").write_text("notes")
+    (tmp_path / "dangling").symlink_to(tmp_path / "taken" / "sub")
+    (tmp_path / "with_dir" / "predictions.npz").mkdir(parents=True)
+    writer = PredictionWriter(out_dir=str(tmp_path / out))
+    with pytest.raises(MisconfigurationException, match=named):
+        quiet_trainer([writer]).predict(Counted(), dataloaders=loader(make_samples(2)))
+    assert Counted.steps == 0 and (tmp_path / "taken").read_text() == "notes"
+
+
 def test_a_reader_of_the_earlier_predictions_never_meets_half_of_the_new_ones(tmp_path):
     """predictions.json and .npz were rewritten in place: a reader of the earlier files got the start of one run's and
     the end of the other's (a killed run left a truncated file)."""

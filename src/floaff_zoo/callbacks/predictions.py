@@ -27,7 +27,7 @@ import torch
 from lightning.pytorch.callbacks import BasePredictionWriter
 from lightning.pytorch.utilities.exceptions import MisconfigurationException
 
-from floaff_zoo.atomic import atomic_write, atomic_write_text
+from floaff_zoo.atomic import atomic_write, atomic_write_text, existing_ancestor
 from floaff_zoo.callbacks.report import jsonable
 from floaff_zoo.contract import NonFiniteError
 
@@ -139,6 +139,11 @@ def remove_stale_predictions(run_dir: Path, world_size: int) -> bool:
     return bool(stale)
 
 
+def _stem(trainer: L.Trainer) -> str:
+    """This process's prediction file name without suffix: ``predictions``, ``predictions_rank<r>`` under DDP."""
+    return "predictions" if trainer.world_size == 1 else f"predictions_rank{trainer.global_rank}"
+
+
 class PredictionWriter(BasePredictionWriter):
     """Write ``<run>/predictions.npz`` and ``predictions.json`` at the end of ``floaff-zoo predict`` (module
     docstring); under several processes each rank writes its own pair, ``predictions_rank<r>``.
@@ -153,10 +158,22 @@ class PredictionWriter(BasePredictionWriter):
         self.written: dict[str, str] = {}
 
     def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
-        """Refuse an ``out_dir`` that is a file before predicting (its ``mkdir`` failed after the whole run)."""
+        """Refuse an ``out_dir`` that is a file, lies under one or is a dangling link, and a folder where a
+        prediction file goes, before predicting: its ``mkdir`` or the write failed after the whole run."""
         super().setup(trainer, pl_module, stage)
-        if self.out_dir is not None and Path(self.out_dir).exists() and not Path(self.out_dir).is_dir():
-            raise MisconfigurationException(f"PredictionWriter: out_dir {self.out_dir} is a file, not a folder")
+        if not self.out_dir:  # the run's log dir, made by its logger
+            return
+        out = Path(self.out_dir)
+        found = existing_ancestor(out)  # the first of out_dir and its parents there (a dangling link counts)
+        if found == out.absolute() and not found.is_dir():
+            what = "a dangling link" if found.is_symlink() and not found.exists() else "a file"
+            raise MisconfigurationException(f"PredictionWriter: out_dir {self.out_dir} is {what}, not a folder")
+        if not found.is_dir():
+            raise MisconfigurationException(f"PredictionWriter: out_dir {self.out_dir}: {found} is not a folder")
+        stem = _stem(trainer)
+        taken = [f for f in (out / f"{stem}.npz", out / f"{stem}.json") if f.is_dir()]
+        if taken:
+            raise MisconfigurationException(f"PredictionWriter: {taken[0]} is a folder, where the predictions go")
 
     def write_on_epoch_end(
         self, trainer: L.Trainer, pl_module: L.LightningModule, predictions: Any, batch_indices: Any
@@ -170,7 +187,7 @@ class PredictionWriter(BasePredictionWriter):
         check_finite_scores(arrays, meta, type(pl_module).__name__)
         run_dir = Path(self.out_dir or trainer.log_dir or trainer.default_root_dir)
         run_dir.mkdir(parents=True, exist_ok=True)
-        stem = "predictions" if trainer.world_size == 1 else f"predictions_rank{trainer.global_rank}"
+        stem = _stem(trainer)
         npz, js = run_dir / f"{stem}.npz", run_dir / f"{stem}.json"
         replaced = npz.is_file() or js.is_file()
         if trainer.is_global_zero:
