@@ -100,3 +100,24 @@ def test_link_mode_never_writes_through_the_link(tmp_path):
     cb = LatestCheckpoint(dirpath=tmp_path / "ck", monitor="worse", mode="min", save_last="link")
     _fit(tmp_path, cb)
     assert _step(cb.best_model_path) == 2 and _step(tmp_path / "ck" / "last.ckpt") == 7
+
+
+@pytest.mark.parametrize("dirpath", ["taken", "taken/ck"])
+def test_a_file_as_the_checkpoint_folder_is_refused_before_training(tmp_path, dirpath):
+    """A dirpath that is a file or under one failed in mkdir (FileExistsError, NotADirectoryError) at the first
+    save, after the first validation or epoch of training."""
+    from lightning.pytorch.utilities.exceptions import MisconfigurationException
+
+    class Counted(GetsWorse):
+        steps = 0
+
+        def training_step(self, batch, batch_idx):
+            Counted.steps += 1
+            return super().training_step(batch, batch_idx)
+
+    (tmp_path / "taken").write_text("notes")
+    cb = LatestCheckpoint(dirpath=tmp_path / dirpath, monitor="worse", mode="min", save_last=True)
+    trainer = L.Trainer(default_root_dir=tmp_path, max_steps=3, callbacks=[cb], logger=False, enable_progress_bar=False)
+    with pytest.raises(MisconfigurationException, match=f"dirpath {tmp_path / dirpath}: {tmp_path / 'taken'} is not"):
+        trainer.fit(Counted())
+    assert Counted.steps == 0 and (tmp_path / "taken").read_text() == "notes"

@@ -16,6 +16,9 @@ from __future__ import annotations
 import lightning as L
 from lightning.pytorch.callbacks import ModelCheckpoint
 from lightning.pytorch.trainer.states import TrainerFn
+from lightning.pytorch.utilities.exceptions import MisconfigurationException
+
+from floaff_zoo.atomic import existing_ancestor
 
 __all__ = ["LatestCheckpoint"]
 
@@ -31,6 +34,16 @@ class LatestCheckpoint(ModelCheckpoint):
     @property
     def state_key(self) -> str:
         return super().state_key.replace(type(self).__qualname__, "ModelCheckpoint", 1)
+
+    def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
+        """Refuse a local ``dirpath`` that is a file or lies under one before fitting: the first save failed in its
+        ``mkdir`` after the first epoch or validation."""
+        super().setup(trainer, pl_module, stage)
+        if stage != "fit" or not self.dirpath or "://" in str(self.dirpath):  # a remote store has no folders
+            return
+        found = existing_ancestor(self.dirpath)  # ModelCheckpoint resolved its links
+        if not found.is_dir():
+            raise MisconfigurationException(f"LatestCheckpoint: dirpath {self.dirpath}: {found} is not a folder")
 
     def on_validation_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         super().on_validation_end(trainer, pl_module)
