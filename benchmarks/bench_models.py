@@ -345,6 +345,8 @@ def main(argv: list[str] | None = None) -> int:
         p.error(f"--points-sweep sizes must be >= 1, got {a.points_sweep}")
     if a.points_sweep and not a.sweep_models:  # a heading over no row, exit 0
         p.error(f"--sweep-models: name at least one of {MODELS} for --points-sweep")
+    if a.skip_models and a.skip_reference and not (a.vs_reference or a.points_sweep):  # printed a version line, exit 0
+        p.error("nothing to time: --skip-models and --skip-reference without --vs-reference or --points-sweep")
     if a.threads:
         torch.set_num_threads(a.threads)
     iters = a.iters or (2 if a.quick else 5)

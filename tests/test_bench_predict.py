@@ -141,6 +141,13 @@ def test_bench_models_refuses_a_bad_points_sweep_up_front(args, said, capsys):
     assert exc.value.code == 2 and said in capsys.readouterr().err
 
 
+def test_bench_models_refuses_to_time_nothing(capsys):
+    """--skip-models --skip-reference alone printed the torch version line and exited 0, a report of no figure."""
+    with pytest.raises(SystemExit) as exc:
+        load_benchmark("bench_models").main(["--skip-models", "--skip-reference"])
+    assert exc.value.code == 2 and "nothing to time: --skip-models and --skip-reference" in capsys.readouterr().err
+
+
 def test_a_device_the_benchmarks_cannot_time_is_refused_by_name(monkeypatch, capsys):
     """meta and mps were taken as devices and failed deep in the first model call (meta: Tensor.item() on a meta
     tensor; mps: not linked); a CUDA index past the last device was taken too."""
