@@ -103,7 +103,8 @@ def check_out(ap: argparse.ArgumentParser, out: Path) -> None:
     the suite runs (10-20 minutes), whose output was lost when the write failed at its end."""
     if out.is_dir():
         ap.error(f"--out {out}: is a folder, give the report's file name")
-    folder = existing_ancestor(out.absolute().parent)  # the write creates the missing folders
+    target = Path(os.path.realpath(out)) if out.is_symlink() else out  # the write goes through a link, as open does
+    folder = existing_ancestor(target.absolute().parent)  # the write creates the missing folders
     if not folder.is_dir() or not os.access(folder, os.W_OK | os.X_OK):
         ap.error(f"--out {out}: cannot write under {folder}")
     if out.exists():

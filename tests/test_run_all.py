@@ -70,10 +70,12 @@ def test_an_out_path_that_cannot_be_written_is_refused_before_the_suite_runs(tmp
     (tmp_path / "file").write_text("x")
     (tmp_path / "binary.md").write_bytes(b"\xff\xfe\x00bad")
     (tmp_path / "dangling").symlink_to(tmp_path / "gone")
+    (tmp_path / "link.md").symlink_to(tmp_path / "file" / "perf.md")  # written through: mkdir failed at the end
     for out, said in (
         (tmp_path / "dangling" / "perf.md", "cannot write under"),  # mkdir would fail only at the end
         (tmp_path, "is a folder"),
         (tmp_path / "file" / "sub" / "perf.md", "cannot write under"),
+        (tmp_path / "link.md", "cannot write under"),
         (tmp_path / "binary.md", "cannot read the existing report"),
     ):
         with pytest.raises(SystemExit) as exc:
