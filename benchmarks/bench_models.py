@@ -332,7 +332,7 @@ def main(argv: list[str] | None = None) -> int:
         choices=MODELS,
         help="also time these models against themselves on the reference port's ops (slow: the port is)",
     )
-    p.add_argument("--sweep-models", nargs="*", default=["pointnet2_ssg", "cfar"], choices=MODELS)
+    p.add_argument("--sweep-models", nargs="*", default=None, choices=MODELS, help="default: pointnet2_ssg cfar")
     a = p.parse_args(argv)
     if not a.models:
         p.error(f"--models: name at least one of {MODELS}")
@@ -343,8 +343,11 @@ def main(argv: list[str] | None = None) -> int:
     require_positive(p, a, "batch", "points", "floor_cells", "threads")
     if any(n < 1 for n in a.points_sweep):  # an empty cloud failed deep in make_batch, after the models' timings
         p.error(f"--points-sweep sizes must be >= 1, got {a.points_sweep}")
-    if a.points_sweep and not a.sweep_models:  # a heading over no row, exit 0
+    if a.sweep_models is not None and not a.points_sweep:  # was ignored without a word
+        p.error("--sweep-models names the models of --points-sweep; give --points-sweep too")
+    if a.points_sweep and a.sweep_models == []:  # a heading over no row, exit 0
         p.error(f"--sweep-models: name at least one of {MODELS} for --points-sweep")
+    a.sweep_models = ["pointnet2_ssg", "cfar"] if a.sweep_models is None else a.sweep_models
     if a.skip_models and a.skip_reference and not (a.vs_reference or a.points_sweep):  # printed a version line, exit 0
         p.error("nothing to time: --skip-models and --skip-reference without --vs-reference or --points-sweep")
     if a.threads:

@@ -133,6 +133,7 @@ def test_generation_figures_read_from_a_manifest_say_so(tmp_path):
     [  # a SampleError after the models' rows; a heading over no row, exit 0
         (["--points-sweep", "1024", "0"], "--points-sweep sizes must be >= 1, got [1024, 0]"),
         (["--points-sweep", "1024", "--sweep-models"], "--sweep-models: name at least one of"),
+        (["--vs-reference", "cfar", "--sweep-models", "cfar"], "give --points-sweep too"),  # ignored without a word
     ],
 )
 def test_bench_models_refuses_a_bad_points_sweep_up_front(args, said, capsys):
