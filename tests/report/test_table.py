@@ -306,3 +306,14 @@ def test_a_pipe_in_a_row_label_stays_in_its_markdown_cell(tmp_path):
     cells = [c for c in row.replace("\\|", "\0").split("|")[1:-1]]
     assert len(cells) == len(header.split("|")[1:-1]) == 5  # Method + RMSE, logMSE, PCC, SIM
     assert cells[0].strip() == "r=1.2 \0 top-k" and row.startswith("| r=1.2 \\| top-k |")
+
+
+def test_out_is_never_a_report_the_table_reads(tmp_path, capsys):
+    """``--out`` naming one of the reports read (a run folder's report.json) is refused: the table replaced the
+    report, exit 0."""
+    run = tmp_path / "cfar_styles_s0"
+    shutil.copytree(RUNS / "cfar_styles_s0", run)
+    before = (run / "report.json").read_text()
+    assert main(["--runs", str(tmp_path), "--out", str(run / "report.json")]) == 2
+    assert "is the report" in capsys.readouterr().err
+    assert (run / "report.json").read_text() == before

@@ -975,6 +975,12 @@ def main(argv: list[str] | None = None) -> int:
         print(f"floaff-zoo table: error: {exc}", file=sys.stderr)
         return 2
     if args.out:
+        read = next((path for path, _ in reports if path == Path(args.out).resolve()), None)
+        if read is not None:  # the table was written over a report it had just read, exit 0
+            print(
+                f"floaff-zoo table: error: --out {args.out}: is the report {read}; name another file", file=sys.stderr
+            )
+            return 2
         try:
             Path(args.out).parent.mkdir(parents=True, exist_ok=True)
             Path(args.out).write_text(text)
