@@ -193,6 +193,16 @@ def test_a_non_finite_value_takes_its_own_std_with_it(tmp_path):
     assert aggregate([(0.4, 0.01), (None, None)]).std == 0.01  # a run without a value is left out
 
 
+@pytest.mark.parametrize("where", [0, 2])
+def test_an_oracle_nan_does_not_turn_identical_runs_into_a_spread(where):
+    """The Oracle row shows identical values once with their bootstrap std; a NaN first among them compared unequal
+    (max/min of a NaN) and the row read 0.87 ± 0.00, a NaN last did not."""
+    reps = [json.loads((RUNS / f"cfar_styles_s{i}" / "report.json").read_text()) for i in range(3)]
+    reps[where]["sr"]["oracle"]["front"]["mean"] = float("nan")
+    oracle = build_table(reps, "sr_views").sections[0].rows[-1]
+    assert oracle.oracle and oracle.cells[0].mean == 0.87 and oracle.cells[0].std == 0.02 and oracle.cells[0].n == 1
+
+
 def test_equal_group_values_of_different_types_share_a_row(tmp_path):
     """crop_radius 1 (an int) and 1.0 (a float) made two rows, "1" and "1.00"."""
     src = json.loads((RUNS / "cfar_styles_s0" / "report.json").read_text())

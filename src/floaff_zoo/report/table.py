@@ -338,8 +338,9 @@ def _cell(reports: list[dict[str, Any]], getter: Getter) -> Cell | None:
 def _oracle_cell(reports: list[dict[str, Any]], getter: Getter) -> Cell | None:
     """The Oracle does not depend on the model: runs on one test split report the same episodes, so identical
     values are shown once with their bootstrap std (a std over runs would read 0); differing ones (several
-    test splits) are pooled like a model row."""
-    runs = [r for r in map(getter, reports) if r[0] is not None]
+    test splits) are pooled like a model row. Non-finite values are left out first (as ``aggregate`` leaves them): a
+    NaN compared as equal or not by where it stood, and identical values read ± 0."""
+    runs = [r for r in map(getter, reports) if r[0] is not None and math.isfinite(float(r[0]))]
     if runs and max(v for v, _ in runs) - min(v for v, _ in runs) < 1e-9:
         runs = runs[:1]
     return aggregate(runs)
