@@ -379,6 +379,23 @@ def test_figures_of_groups_whose_names_spell_one_file_name_are_all_kept(tmp_path
     assert sorted(p.stem for p in tmp_path.glob("*.png")) == sorted(names)
 
 
+def test_a_figure_without_a_finite_score_is_drawn_without_a_pose(tmp_path):
+    """A diverged model's NaN map (or a view without floor) raised best_pose's SampleError in write_figures, at the
+    end of a finished test run, which then wrote no report; now the panel is drawn and says it marks no pose."""
+    from floaff_zoo.report.figures import FigureSample, drawn_pose, write_figures
+
+    floor, target = np.c_[np.linspace(0, 1, 6), np.zeros(6), np.zeros(6)], np.array([2.0, 0, 0.5])
+    nan_map = FigureSample(floor, np.zeros(6), np.full(6, np.nan), target, 0.0, meta={"task": "T", "view": "front"})
+    no_floor = FigureSample(np.zeros((0, 3)), np.zeros(0), np.zeros(0), target, 0.0, meta={"task": "T", "view": "side"})
+    assert drawn_pose(nan_map, None, nan_map.scores, None) is None
+    assert drawn_pose(nan_map, None, nan_map.label, None) is not None  # the ground truth still marks its best cell
+    sim = {"base_pose_world": [0.0, 0.0, 0.0], "layout_id": 1, "style_id": 1}
+    over_kitchen = FigureSample(floor, np.zeros(6), np.full(6, np.nan), target, 0.0, meta={"task": "T", "sim": sim})
+    paths = write_figures([nan_map, no_floor, over_kitchen], tmp_path, outline_fn=lambda _: [np.eye(2)])
+    assert [p.stem for p in paths] == ["T_front_0", "T_side_0", "T_view_0"]
+    assert all(p.read_bytes()[:4] == b"\x89PNG" for p in paths)
+
+
 def test_a_figure_sample_out_of_step_is_named():
     """Scores of another length failed in matplotlib at the drawing, naming no sample; a [M, 1] label broadcast."""
     from floaff_zoo.report.figures import FigureSample

@@ -81,18 +81,24 @@ def _safe(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("_") or "sample"
 
 
-def _outcome(ok: bool | None) -> str:
+def _outcome(ok: bool | None, marked: bool = True) -> str:
+    """A panel title's suffix: the rollout's outcome, or that no pose is marked (``drawn_pose`` None)."""
+    if not marked:
+        return " (no pose: no finite value)"
     return "" if ok is None else (" (success)" if ok else " (fail)")
 
 
-def drawn_pose(s: FigureSample, given: Any, values: np.ndarray, base: Sequence[float] | None) -> tuple:
+def drawn_pose(s: FigureSample, given: Any, values: np.ndarray, base: Sequence[float] | None) -> tuple | None:
     """The pose a panel marks, in the panel's frame: the world when ``base`` (the view's base pose) is given (a
     figure over the kitchen), else the base frame. ``given`` (the rolled-out pose, a world pose for sim samples) is
     turned back into the base frame for a sim sample drawn without its kitchen; without one, the top-scored cell of
-    ``values`` [M]."""
+    ``values`` [M], or None where no cell has a finite value (a diverged model's NaN map, a view without floor):
+    best_pose's error failed the finished test run and lost its report."""
     world_base = ((s.meta or {}).get("sim") or {}).get("base_pose_world")
     if given is not None:
         return tuple(given) if base is not None or world_base is None else pose_to_base(given, world_base)
+    if not np.isfinite(np.asarray(values, dtype=np.float64)).any():
+        return None
     # ties broken as predict and the SR callback break them (seeded by the sample's index)
     p = best_pose(s.floor_xyz, values, None, s.target_xyz, 1, seed=int((s.meta or {}).get("index", 0)))[0]
     return pose_to_world(p, base) if base is not None else p
@@ -136,8 +142,8 @@ def draw_sample(
                     cell,
                     t,
                     tyaw,
-                    chosen_xy=np.array(pose[:2]),
-                    title=name + _outcome(ok),
+                    chosen_xy=None if pose is None else np.array(pose[:2]),
+                    title=name + _outcome(ok, pose is not None),
                 )
             fig.colorbar(pc, ax=list(axes), fraction=0.03, pad=0.02)
         else:
@@ -161,12 +167,13 @@ def draw_sample(
                     xytext=(t[0], t[1]),
                     arrowprops=dict(arrowstyle="->", color="red", lw=1.5),
                 )
-                ax.plot(pose[0], pose[1], marker="x", color="black", markersize=10, mew=2.0)
+                if pose is not None:
+                    ax.plot(pose[0], pose[1], marker="x", color="black", markersize=10, mew=2.0)
                 ax.plot(0.0, 0.0, marker="^", color="tab:orange", markersize=8)  # the observing robot
                 ax.set_aspect("equal")
                 ax.set_xlabel("x [m] (robot base frame)")
                 ax.set_ylabel("y [m]")
-                ax.set_title(name + _outcome(ok), fontsize=9)
+                ax.set_title(name + _outcome(ok, pose is not None), fontsize=9)
             fig.colorbar(sc, ax=list(axes), fraction=0.03, pad=0.02)
         path = Path(path)
         # whole or not at all (a temp file renamed over it): a montage reading meanwhile never meets half a PNG
