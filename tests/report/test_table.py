@@ -327,3 +327,14 @@ def test_out_is_never_a_report_the_table_reads(tmp_path, capsys):
     assert main(["--runs", str(tmp_path), "--out", str(run / "report.json")]) == 2
     assert "is the report" in capsys.readouterr().err
     assert (run / "report.json").read_text() == before
+
+
+def test_a_folder_named_report_json_is_named_as_one(tmp_path, capsys):
+    """A folder named report.json was read as a file ("unreadable report.json ([Errno 21] Is a directory)") and the
+    run then said "no report.json found"; given itself, it was searched for a report.json inside."""
+    (tmp_path / "run" / "report.json").mkdir(parents=True)
+    for entry in (tmp_path / "run", tmp_path / "run" / "report.json", tmp_path / "r*" / "report.json"):
+        assert main(["--runs", str(entry)]) == 2
+        err = capsys.readouterr().err
+        assert f"skipped {tmp_path / 'run' / 'report.json'}: a folder named report.json, not a report" in err
+        assert "no usable report.json" in err and "1 found and skipped" in err

@@ -93,6 +93,10 @@ class TableError(ValueError):
 
 
 # ------------------------------------------------------------------------------------------ loading
+#: why a folder named report.json is skipped
+FOLDER_NAMED = "a folder named report.json, not a report"
+
+
 def load_reports(runs: list[str]) -> tuple[list[tuple[Path, dict[str, Any]]], list[tuple[str, str]]]:
     """Find and parse report.json files.
 
@@ -114,8 +118,12 @@ def load_reports(runs: list[str]) -> tuple[list[tuple[Path, dict[str, Any]]], li
                     found[p.resolve()] = None
                 else:
                     skipped.append((m, "not a run directory or report.json"))
+            elif p.is_dir() and p.name == "report.json":
+                skipped.append((m, FOLDER_NAMED))
             elif p.is_dir():
-                reports = sorted(p.rglob("report.json"))
+                # a folder named report.json is no report: named as one, not as a file that could not be read
+                reports = [r for r in sorted(p.rglob("report.json")) if r.is_file()]
+                skipped += [(str(r), FOLDER_NAMED) for r in sorted(p.rglob("report.json")) if r.is_dir()]
                 if not reports:
                     skipped.append((m, "no report.json (run `floaff-zoo test` with the TestReport callback)"))
                 for r in reports:
@@ -954,7 +962,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"floaff-zoo table: skipped {entry}: {reason}", file=sys.stderr)
     if not reports:
         # a report.json that was found but could not be used is named above: "none found" would mislead
-        unusable = sum(Path(entry).name == "report.json" and Path(entry).is_file() for entry, _ in skipped)
+        unusable = sum(
+            Path(entry).name == "report.json" and (Path(entry).is_file() or why == FOLDER_NAMED)
+            for entry, why in skipped
+        )
         if unusable:
             why = f"no usable report.json in {args.runs}: {unusable} found and skipped (named above)"
         else:
