@@ -181,3 +181,31 @@ def test_render_refuses_a_bad_camera_index_or_hidden_geom(scene):
         with pytest.raises(ValueError, match="hide_geoms must be geom ids"):
             r.render(d, "cam", hide_geoms=bad)
     assert r.render(d, "cam", hide_geoms=[]).rgb.shape == (64, 64, 3)
+
+
+@pytest.mark.parametrize(
+    "cam_pos,cam_mat",
+    [
+        (np.array([np.nan, 0.0, 0.0]), np.eye(3)),  # every point NaN, each reported valid
+        (np.zeros(3), np.full((3, 3), np.inf)),
+        (np.zeros(2), np.eye(3)),  # numpy's broadcast error named neither
+        (np.zeros(3), np.eye(2)),  # numpy's reshape error
+    ],
+)
+def test_backproject_refuses_a_camera_pose_that_is_not_finite_3d(cam_pos, cam_mat):
+    with pytest.raises(ValueError, match="backproject: cam_(pos|mat) must be"):
+        render.backproject(np.ones((4, 4)), 60.0, cam_pos, cam_mat)
+
+
+def test_backproject_refuses_an_empty_depth_image():
+    with pytest.raises(ValueError, match=r"non-empty \[H,W\]"):
+        render.backproject(np.ones((0, 4)), 60.0, np.zeros(3), np.eye(3))
+
+
+@pytest.mark.parametrize("size", [float("nan"), -5, 0, 2.5, True])
+def test_camera_intrinsics_refuses_a_size_that_is_no_pixel_count(size):
+    """NaN gave a NaN focal length, -5 a negative one (a mirrored cloud), 0 a zero one, without a word."""
+    with pytest.raises(ValueError, match="camera_intrinsics: height must be an integer >= 1"):
+        render.camera_intrinsics(size, 4, 60.0)
+    with pytest.raises(ValueError, match="camera_intrinsics: width must be an integer >= 1"):
+        render.camera_intrinsics(4, size, 60.0)

@@ -157,9 +157,12 @@ def camera_intrinsics(height: int, width: int, fovy_deg: float) -> tuple[float, 
 
     A fovy outside (0, 180) degrees raises ``ValueError`` (a NaN one made every back-projected point NaN, and each
     was still reported valid; 0 put every point on the camera's axis, 180 made them infinite, a negative one mirrored
-    the image)."""
+    the image). A height or width that is not an integer >= 1 raises ``ValueError`` too (NaN gave a NaN focal length,
+    a negative one a mirrored image)."""
     if not (is_number(fovy_deg) and 0.0 < fovy_deg < 180.0):
         raise ValueError(f"camera_intrinsics: fovy_deg must be a finite number > 0 and < 180, got {fovy_deg}")
+    check_integer("height", height, 1, owner="camera_intrinsics")
+    check_integer("width", width, 1, owner="camera_intrinsics")
     f = (height / 2.0) / np.tan(np.deg2rad(fovy_deg) / 2.0)
     return float(f), width / 2.0, height / 2.0
 
@@ -176,12 +179,18 @@ def backproject(
     depth [H,W] metric along the camera axis; cam_pos [3]; cam_mat [3,3] (world-from-camera rotation).
     Returns points [H*W,3] float64 in world (row-major pixel order) and valid [H*W] bool
     (finite, 0 < d < depth_max: the far plane of background pixels is masked).
+    A camera pose that is not a finite cam_pos [3] and cam_mat [3,3] raises ``ValueError`` (a NaN one made every point
+    NaN, each still reported valid; a wrong shape failed in numpy naming neither).
     """
     # a NaN depth_max masked every point without a word
     check_number("depth_max", depth_max, strict=True, owner="backproject")
     depth = np.asarray(depth, dtype=np.float64)
-    if depth.ndim != 2:
-        raise ValueError(f"depth must be [H,W], got shape {depth.shape}")
+    if depth.ndim != 2 or depth.size == 0:
+        raise ValueError(f"depth must be a non-empty [H,W] image, got shape {depth.shape}")
+    for name, value, shape in (("cam_pos", cam_pos, (3,)), ("cam_mat", cam_mat, (3, 3))):
+        a = np.asarray(value)
+        if a.shape != shape or a.dtype.kind not in "iuf" or not np.isfinite(a).all():
+            raise ValueError(f"backproject: {name} must be {list(shape)} finite numbers, got {a.dtype} {a.shape}")
     h, w = depth.shape
     f, cx, cy = camera_intrinsics(h, w, fovy_deg)
     u = np.arange(w) + 0.5  # pixel centres
