@@ -84,6 +84,8 @@ def test_a_preset_name_that_is_not_a_text_is_refused_by_name():
         ("front_rx", float("nan"), "front_rx must be a finite number >= 0, got nan"),
         ("side_ry", -0.5, "side_ry must be a finite number >= 0, got -0.5"),
         ("max_dist", 0.0, "max_dist must be a finite number > 0, got 0.0"),
+        ("front_rx", 0.0, r"front_rx must be > 0 \(its view region holds no base position\), got 0.0"),
+        ("side_rx", 2.5, r"side_rx must be < max_dist \(its view region holds no base position\), got 2.5"),
         ("max_dist", float("inf"), "max_dist must be a finite number > 0, got inf"),
         ("cell", "0.05", "cell must be a finite number > 0, got '0.05'"),  # a TypeError naming nothing
         ("image_size", 64.0, "image_size must be an integer >= 1, got 64.0"),  # the renderer takes whole pixels

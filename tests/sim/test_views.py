@@ -278,6 +278,12 @@ def test_camera_clearance_is_the_exact_signed_distance():
         ("image_size", 0),
         ("min_target_pixels", -5),
         ("min_target_pixels", 0),  # views whose cloud shows no target point (GenPreset refuses it too)
+        # regions that hold no base position: every proposal refused, no view of the region, without a word
+        ("front_rx", 0.0),
+        ("side_ry", 0.0),
+        ("front_ry", 2.4),  # = max_dist
+        ("side_rx", 3.0),
+        ("hide_robot", "no"),  # a text is true: the robot was hidden
     ],
 )
 def test_view_config_refuses_a_bad_value_naming_it(field, value):

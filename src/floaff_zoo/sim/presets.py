@@ -14,7 +14,16 @@ from floaff_zoo.checks import check_flag, check_integer, check_number, check_num
 from floaff_zoo.names import BENCHMARKS as ALL_BENCHMARKS  # defined once there; the old names re-exported
 from floaff_zoo.names import TASKS as ALL_TASKS
 
-__all__ = ["ALL_BENCHMARKS", "ALL_TASKS", "PAPER_VIEW_TOTALS", "PRESETS", "GenPreset", "get_preset", "view_counts"]
+__all__ = [
+    "ALL_BENCHMARKS",
+    "ALL_TASKS",
+    "PAPER_VIEW_TOTALS",
+    "PRESETS",
+    "GenPreset",
+    "check_view_regions",
+    "get_preset",
+    "view_counts",
+]
 
 
 # benchmark -> task -> (train front, train side, test front, test side); totals 13,610 (Styles) + 11,172 (Layouts)
@@ -127,6 +136,7 @@ class GenPreset:
         # (0 = no smoothing); a NaN or negative view region gives none of its views, found only after each annotation
         check_numbers({k: getattr(self, k) for k in ("sigma_cells", "front_rx", "front_ry", "side_rx", "side_ry")})
         check_number("max_dist", self.max_dist, strict=True)
+        check_view_regions(self.front_rx, self.front_ry, self.side_rx, self.side_ry, self.max_dist)
         # view_counts reads two numbers: one failed the plan, a third was ignored
         if not isinstance(self.views_per_scene, (tuple, list)) or len(self.views_per_scene) != 2:
             raise ValueError(f"views_per_scene must be (front, side), got {self.views_per_scene!r}")
@@ -144,6 +154,25 @@ class GenPreset:
         check_integer("min_target_pixels", self.min_target_pixels, 1)
         check_number("depth_max", self.depth_max, strict=True)
         return self
+
+
+def check_view_regions(
+    front_rx: float, front_ry: float, side_rx: float, side_ry: float, max_dist: float, owner: str = ""
+) -> None:
+    """Refuse view regions (finite numbers >= 0, max_dist > 0, already checked) that hold no base position:
+    V_front = {|x| < front_rx, y < -front_ry, r <= max_dist} is empty when front_rx is 0 or front_ry >= max_dist,
+    V_side = {|x| > side_rx, |y| < side_ry, r <= max_dist} when side_ry is 0 or side_rx >= max_dist. Every proposal
+    was refused and no view of the region sampled, after each scene's annotation, without a word."""
+    who = f"{owner}: " if owner else ""
+    if front_rx <= 0 or side_ry <= 0:
+        name, value = ("front_rx", front_rx) if front_rx <= 0 else ("side_ry", side_ry)
+        raise ValueError(f"{who}{name} must be > 0 (its view region holds no base position), got {value}")
+    for name, value in (("front_ry", front_ry), ("side_rx", side_rx)):
+        if value >= max_dist:
+            raise ValueError(
+                f"{who}{name} must be < max_dist (its view region holds no base position), got {value} "
+                f"(max_dist {max_dist})"
+            )
 
 
 PRESETS: dict[str, GenPreset] = {

@@ -25,8 +25,9 @@ from typing import Any, Literal
 
 import numpy as np
 
-from floaff_zoo.checks import check_integer, check_number, check_numbers
+from floaff_zoo.checks import check_flag, check_integer, check_number, check_numbers
 from floaff_zoo.floor import check_pose
+from floaff_zoo.sim.presets import check_view_regions
 from floaff_zoo.sim.render import Renderer, backproject, near_clip
 
 __all__ = [
@@ -83,6 +84,9 @@ class ViewConfig:
         check_numbers({k: getattr(self, k) for k in ("front_rx", "front_ry", "side_rx", "side_ry")}, owner="ViewConfig")
         check_number("max_dist", self.max_dist, strict=True, owner="ViewConfig")
         check_number("depth_max", self.depth_max, strict=True, owner="ViewConfig")
+        check_view_regions(self.front_rx, self.front_ry, self.side_rx, self.side_ry, self.max_dist, "ViewConfig")
+        # the text "no" hid the robot
+        check_flag("hide_robot", self.hide_robot, owner="ViewConfig")
         for name in ("image_size", "max_points", "max_tries_per_view"):
             check_integer(name, getattr(self, name), 1, owner="ViewConfig")
         # as GenPreset: 0 stored views whose cloud shows no target point, which the models and predict need
