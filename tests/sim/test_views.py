@@ -316,3 +316,34 @@ def test_view_functions_refuse_a_bad_pose_count_or_target(fake):
     ):
         with pytest.raises(ValueError, match=f"make_view_sample: {match}"):
             views.make_view_sample(obs, **{**good, field: bad})
+
+
+@pytest.mark.parametrize(
+    "field,bad,match",
+    [
+        ("grid_xy", np.array([[np.nan, 0.0], [0.0, 0.0]]), "grid_xy must be finite"),  # NaN floor_xyz written
+        ("grid_xy", np.zeros(3), r"grid_xy must be \[M,2\]"),  # numpy's reshape error
+        ("label", [np.nan, 0.0], r"label must be finite numbers in \[0, 1\]"),  # NaN floor_label written
+        ("label", [2.0, 0.0], r"label must be finite numbers in \[0, 1\]"),
+        ("floor_index", [1.7, 0.0], "floor_index must be integers >= 0"),  # cut to cell 1
+        ("floor_index", np.array([-3, 0]), "floor_index must be integers >= 0"),
+        ("floor_known", [0.5, 2.0], "floor_known must be bools"),  # stored as True
+        ("save_images", "no", "save_images must be true or false"),  # the images were saved
+    ],
+)
+def test_make_view_sample_refuses_bad_cells_labels_and_flags(field, bad, match):
+    obs = views.ViewObservation(
+        np.zeros((1, 3), np.float32), np.zeros((1, 4), np.float32), np.zeros((2, 2, 3), np.uint8), np.zeros((2, 2)), 0
+    )
+    good = dict(
+        base_pose=np.zeros(3),
+        target_pos=np.ones(3),
+        target_yaw=0.5,
+        grid_xy=np.zeros((2, 2)),
+        label=[0.0, 1.0],
+        floor_known=np.array([True, False]),
+        floor_index=np.array([0, 3]),
+    )
+    assert views.make_view_sample(obs, **good)["floor_index"].tolist() == [0, 3]
+    with pytest.raises(ValueError, match=f"make_view_sample: {match}"):
+        views.make_view_sample(obs, **{**good, field: bad})

@@ -354,6 +354,46 @@ def sample_view_poses(
     return out
 
 
+def _cells_and_labels(grid_xy: Any, label: Any) -> tuple[np.ndarray, np.ndarray]:
+    """make_view_sample's grid_xy as [M,2] float64 and label as [M] float64, finite, labels in [0, 1]; ValueError
+    naming the argument otherwise (a NaN cell or label was written into the view's floor arrays, a [3] grid failed in
+    numpy's reshape)."""
+    cells = np.asarray(grid_xy)
+    if cells.dtype.kind not in "iuf" or (cells.ndim != 2 or cells.shape[-1] != 2) and cells.size:
+        raise ValueError(f"make_view_sample: grid_xy must be [M,2] cell centres, got {cells.dtype} {cells.shape}")
+    cells = cells.astype(np.float64).reshape(-1, 2)
+    lab = np.asarray(label)
+    if lab.dtype.kind not in "biuf":
+        raise ValueError(f"make_view_sample: label must be numbers in [0, 1], got {lab.dtype}")
+    lab = lab.astype(np.float64).reshape(-1)
+    bad = ~np.isfinite(cells).all(axis=1)
+    if bad.any():
+        raise ValueError(
+            f"make_view_sample: grid_xy must be finite, got {cells[bad][0].tolist()} (cell {bad.argmax()})"
+        )
+    bad = ~(np.isfinite(lab) & (lab >= 0) & (lab <= 1))
+    if bad.any():
+        raise ValueError(
+            f"make_view_sample: label must be finite numbers in [0, 1], got {lab[bad][0]} ({bad.argmax()})"
+        )
+    return cells, lab
+
+
+def _check_floor_fields(floor_known: Any, floor_index: Any) -> None:
+    """make_view_sample's format-v2 fields: floor_known bools (0.5 was stored as True), floor_index integers >= 0
+    (1.7 was cut to cell 1, -3 stored as it is)."""
+    if floor_known is not None:
+        known = np.asarray(floor_known)
+        if known.dtype.kind != "b" and not (known.dtype.kind in "iuf" and np.isin(known, (0, 1)).all()):
+            raise ValueError(f"make_view_sample: floor_known must be bools, got {known.dtype} {known.reshape(-1)[:5]}")
+    if floor_index is not None:
+        idx = np.asarray(floor_index)
+        if idx.size and (idx.dtype.kind not in "iu" or idx.min() < 0):
+            raise ValueError(
+                f"make_view_sample: floor_index must be integers >= 0, got {idx.dtype} {idx.reshape(-1)[:5]}"
+            )
+
+
 def make_view_sample(
     obs: ViewObservation,
     base_pose: np.ndarray,
@@ -378,7 +418,9 @@ def make_view_sample(
     if target.shape != (3,) or not np.isfinite(target).all():
         raise ValueError(f"make_view_sample: target_pos must be 3 finite values (x, y, z), got {target_pos!r}")
     check_number("target_yaw", target_yaw, -math.inf, owner="make_view_sample")
-    grid_xy = np.asarray(grid_xy, dtype=np.float64).reshape(-1, 2)
+    check_flag("save_images", save_images, owner="make_view_sample")  # the text "no" saved the images
+    grid_xy, label = _cells_and_labels(grid_xy, label)
+    _check_floor_fields(floor_known, floor_index)
     floor = np.concatenate([grid_xy, np.zeros((len(grid_xy), 1))], axis=1)
     out = {
         "scene_xyz": obs.scene_xyz.astype(np.float32),
