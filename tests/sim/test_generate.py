@@ -1123,3 +1123,34 @@ def test_rgb_png_refuses_an_image_it_would_draw_wrong():
     for good in (np.full((4, 4, 3), 200, np.uint8), np.full((4, 4, 3), 200, np.int64), np.full((4, 4, 3), 200.0)):
         img = np.asarray(Image.open(io.BytesIO(rgb_png(good, min_size=8))))
         assert img.shape[:2] == (8, 8) and (img[..., :3] == 200).all()
+
+
+def test_pictures_refuse_a_size_cell_or_pose_they_would_draw_wrong():
+    """rgb_png's NaN min_size failed in math.ceil naming nothing; render_topdown_png drew a NaN or negative cell as
+    no cell (or a mirrored one), a NaN or negative size_px as the smallest picture, and [V,3] view poses failed in
+    numpy's reshape; a NaN cell centre failed in matplotlib's axis limits naming nothing."""
+    from floaff_zoo.sim.pictures import render_topdown_png, rgb_png
+
+    for size in (float("nan"), 0, 2.5, True):
+        with pytest.raises(ValueError, match="rgb_png: min_size must be an integer >= 1"):
+            rgb_png(np.zeros((2, 2, 3), np.uint8), size)
+    args = dict(
+        outline_polys=[],
+        cells_xy=np.zeros((2, 2)),
+        values=np.zeros(2),
+        cell=0.1,
+        target_xy=np.zeros(2),
+        target_yaw=0.0,
+        title="t",
+    )
+    assert render_topdown_png(**args, view_poses=np.zeros((1, 4))).startswith(b"\x89PNG")
+    for bad, named in (
+        (dict(cell=float("nan")), "plot_floor_map: cell must be a finite number > 0"),
+        (dict(cell=-1.0), "plot_floor_map: cell must be a finite number > 0"),
+        (dict(size_px=float("nan")), "render_topdown_png: size_px must be an integer >= 1"),
+        (dict(size_px=-100), "render_topdown_png: size_px must be an integer >= 1"),
+        (dict(view_poses=np.zeros((2, 3))), r"render_topdown_png: view_poses must be \[V,4\]"),
+        (dict(cells_xy=np.array([[np.nan, 0.0], [0.0, 0.0]])), "plot_floor_map: cells_xy must be finite"),
+    ):
+        with pytest.raises(ValueError, match=named):
+            render_topdown_png(**{**args, **bad})

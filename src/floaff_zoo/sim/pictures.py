@@ -9,6 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
+from floaff_zoo.checks import check_integer, check_number
+
 __all__ = ["plot_floor_map", "render_topdown_png", "rgb_png"]
 
 
@@ -46,10 +48,15 @@ def plot_floor_map(
     from matplotlib.collections import PatchCollection
     from matplotlib.patches import Polygon, Rectangle
 
+    # a NaN or negative cell drew no cell (or a mirrored one) without a word; a NaN cell centre was not drawn, or
+    # failed in matplotlib's axis limits naming nothing
+    check_number("cell", cell, strict=True, owner="plot_floor_map")
     cells_xy = np.asarray(cells_xy, dtype=np.float64).reshape(-1, 2)
     values = np.asarray(values, dtype=np.float64).reshape(-1)
     if len(values) != len(cells_xy):
         raise ValueError(f"values has {len(values)} entries, cells_xy has {len(cells_xy)}")
+    if not np.isfinite(cells_xy).all():
+        raise ValueError(f"plot_floor_map: cells_xy must be finite, got {cells_xy[~np.isfinite(cells_xy).all(1)][0]}")
     for poly in outline_polys:
         p = np.asarray(poly, dtype=np.float64).reshape(-1, 2)
         if len(p) >= 2:
@@ -102,6 +109,11 @@ def render_topdown_png(
     size_px: int = 256,
 ) -> bytes:
     """PNG bytes of a top-down map; view_poses [V,4] (x, y, yaw, is_side) are drawn as small arrows."""
+    # a NaN or negative size drew the smallest picture without a word; [V,3] poses failed in numpy's reshape
+    check_integer("size_px", size_px, 1, owner="render_topdown_png")
+    if view_poses is not None and np.asarray(view_poses).size and np.asarray(view_poses).shape[-1:] != (4,):
+        shape = np.asarray(view_poses).shape
+        raise ValueError(f"render_topdown_png: view_poses must be [V,4] (x, y, yaw, is_side), got {shape}")
     plt = _plt()
     dpi = max(60, size_px // 3)  # the figure is 6.4 x 5 in; size_px scales its resolution
     fig, ax = plt.subplots(figsize=(6.4, 5.0), dpi=dpi)
@@ -144,6 +156,7 @@ def rgb_png(rgb: np.ndarray, min_size: int = 128) -> bytes:
         ValueError: another shape, an empty image, or values that are not integers 0..255 (a float image in [0, 1]
             was cast to an all-black picture, 300 wrapped to 44, NaN became 0).
     """
+    check_integer("min_size", min_size, 1, owner="rgb_png")  # NaN failed in math.ceil naming nothing
     rgb = np.asarray(rgb)
     if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.size == 0:
         raise ValueError(f"rgb must be a non-empty [H,W,3] image, got {rgb.shape}")
