@@ -190,3 +190,14 @@ def test_fresh_probability_refuses_a_bad_count_seed_or_outcome():
         with pytest.raises(RuntimeError, match="scene a, episode 0: the runner gave outcomes that are not successes"):
             repeat.fresh_probability(scene, lambda seed, jobs, o=outcome: [o] * len(jobs), 1, 0.0, 0.0, 0)
     assert repeat.fresh_probability(scene, lambda s, jobs: [np.True_] * len(jobs), 1, 0.0, 0.0, 0).tolist() == [1, 0]
+
+
+@pytest.mark.parametrize("bad", [1.5, True])
+def test_scene_probabilities_refuses_a_task_seed_that_is_no_integer(tmp_path, bad):
+    """int() cut a task seed 1.5 (or True) to 1 in the recorded setting: a cache made with seed 1 was read back as
+    the probabilities of the seeds asked for, with no rollout and no word."""
+    path = tmp_path / "probs.npz"
+    repeat.write_probs(path, {**SETTING, "task_seeds": [1, 1]}, {"a": np.array([0.0, 0.5, 1.0])})
+    assert repeat.scene_probabilities(SCENES, SETTING, path, seeds=[1, 1])["a"].tolist() == [0.0, 0.5, 1.0]
+    with pytest.raises(ValueError, match="scene_probabilities: task seed must be an integer >= 0"):
+        repeat.scene_probabilities(SCENES, SETTING, path, seeds=[bad, 1])

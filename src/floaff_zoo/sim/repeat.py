@@ -194,6 +194,8 @@ def scene_probabilities(
     unless ``setting`` names them itself under ``task_seed`` (``scripts/fresh_sr.py``'s ``annotation``, whose
     caches stay readable).
     """
+    for task_seed in seeds:  # int() cut 1.5 to 1 (True too) in the setting: a cache made with seed 1 was read back
+        check_integer("task seed", task_seed, owner="scene_probabilities")
     if seeds and "task_seed" not in setting:
         setting = {**setting, "task_seeds": [int(s) for s in seeds]}
     known: dict[str, str] = {}  # the versions of cached scenes not among ``scenes`` stay
