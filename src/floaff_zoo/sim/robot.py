@@ -25,7 +25,8 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from floaff_zoo.checks import check_number
+from floaff_zoo.checks import check_integer, check_number
+from floaff_zoo.floor import check_pose
 from floaff_zoo.quiet import quiet_robosuite
 
 ARM_JOINTS: tuple[str, ...] = tuple(f"robot0_joint{i}" for i in range(1, 8))
@@ -191,8 +192,10 @@ class RobotIndex:
     def set_base_pose(self, data: mujoco.MjData, x: float, y: float, yaw: float) -> None:
         """Teleport: write the 3 base qpos so the base-frame origin is at (x, y) with heading yaw.
 
-        The yaw hinge rotates about ``pivot`` (base frame), so origin = slide + p - R(yaw) p.
+        The yaw hinge rotates about ``pivot`` (base frame), so origin = slide + p - R(yaw) p. A non-finite pose raises
+        ``ValueError`` (it was written into qpos).
         """
+        x, y, yaw = check_pose((x, y, yaw), "RobotIndex.set_base_pose")
         c, s = math.cos(yaw), math.sin(yaw)
         px, py = float(self.pivot[0]), float(self.pivot[1])
         data.qpos[self.base_qadr[0]] = x - px + (c * px - s * py)
@@ -289,7 +292,21 @@ class DLSIK:
         Prioritised DLS: position first; the approach axis (desired gripper z, unit [3] world) is
         tracked in the position task's null space with gain ``w_rot``, so it never costs position
         accuracy. Returns (q, position error m).
+
+        Raises:
+            ValueError: a target, q0 or approach that is not finite numbers of its size (a NaN one gave a NaN q and
+                error, which the controllers' ``err > tol`` let through into the arm's commands), a w_rot, tol or
+                max_step that is no finite number (> 0 for the last two: a negative max_step stepped away from the
+                target), or iters that is no integer >= 0 (1.5 failed in range()).
         """
+        _check_vector("target", target, 3)
+        _check_vector("q0", q0, 8)
+        if approach is not None:
+            _check_vector("approach", approach, 3)
+        check_number("w_rot", w_rot, owner="DLSIK.solve")
+        check_integer("iters", iters, 0, owner="DLSIK.solve")
+        check_number("tol", tol, strict=True, owner="DLSIK.solve")
+        check_number("max_step", max_step, strict=True, owner="DLSIK.solve")
         m, d, ix = self.m, self.d, self.ix
         lo, hi = ix.ik_lo, ix.ik_hi
         q = np.minimum(np.maximum(np.array(q0, dtype=np.float64), lo), hi)  # same values as np.clip
@@ -345,6 +362,16 @@ class DLSIK:
             if err2 < err:
                 return q2, err2
         return q, float(err)
+
+
+def _check_vector(name: str, value: object, n: int) -> None:
+    """Refuse a DLSIK.solve argument that is not n finite numbers (shape [n])."""
+    try:
+        a = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        a = np.full(n, np.nan)
+    if a.shape != (n,) or not np.isfinite(a).all():
+        raise ValueError(f"DLSIK.solve: {name} must be {n} finite numbers, got {value!r}")
 
 
 def _as_slice(idx: np.ndarray) -> slice | np.ndarray:
