@@ -213,3 +213,32 @@ def test_compile_scene_names_an_argument_that_is_no_scene_spec():
 
     with pytest.raises(TypeError, match="compile_scene expects a SceneSpec, got dict"):
         compile_scene({"layout_id": 0, "style_id": 0, "seed": 1, "task": "CloseDrawer"})
+
+
+def test_part_overlaps_and_wall_between_refuse_a_bad_argument(scene_factory):
+    """part_overlaps with a NaN depth reported no overlap at any opening and with an int mask tested geoms 0 and 1
+    instead of the part; wall_between's [1] or [2, 2] point failed in numpy's stack naming neither."""
+    sc = scene_factory("CloseDrawer")
+    part = np.zeros(sc.model.ngeom, dtype=bool)
+    assert sc.part_overlaps(part, 0.01) is False
+    for depth in (float("nan"), -0.01):
+        with pytest.raises(ValueError, match="part_overlaps: depth must be a finite number >= 0"):
+            sc.part_overlaps(part, depth)
+    for bad in (part.astype(int), part[:3]):
+        with pytest.raises(ValueError, match=r"part_overlaps: part must be a bool \[ngeom\]"):
+            sc.part_overlaps(bad, 0.01)
+    for point in ([1.0], [[1.0, 1.0], [2.0, 2.0]]):
+        with pytest.raises(ValueError, match="wall_between: the segment must be finite"):
+            sc.wall_between(0.0, 0.0, point)
+
+
+def test_an_unknown_module_kind_is_refused_not_built_plain():
+    """The builder's last branch built any kind it did not know (a misspelt one) as a plain module, without a word."""
+    import mujoco
+
+    from floaff_zoo.sim import kitchen
+
+    bld = kitchen._Builder(mujoco.MjSpec(), kitchen.style_params(0), np.random.default_rng(0), 0)
+    bld.module("plain", [0.0, 0.0], 0.0, 0.6, 0.6)
+    with pytest.raises(ValueError, match="unknown module kind 'plian'"):
+        bld.module("plian", [2.0, 0.0], 0.0, 0.6, 0.6)

@@ -644,8 +644,10 @@ class _Builder:
         elif kind == "corner":  # a blind filler: the side run stands in front of it (generator 2.3; its handles
             # reached 7-9 mm into the side run's closed doors and drawers, whose contact forces then moved them)
             self.solid_base(b, w, D, fronts=0, drawer_row=False)
-        else:
+        elif kind == "plain":
             self.solid_base(b, w, D, fronts=2 if w > 0.7 else 1, drawer_row=True)
+        else:  # a misspelt kind was built as a plain module without a word
+            raise ValueError(f"unknown module kind {kind!r}; valid kinds: {sorted(_WIDTHS) + ['corner']}")
         if kind not in ("fridge", "wall_cab", "microwave") and self.rng.random() < 0.6:
             self.static_wall_cab(b, w, D)
 
@@ -1002,7 +1004,16 @@ class SimScene:
 
     def part_overlaps(self, part: np.ndarray, depth: float) -> bool:
         """True if a geom of ``part`` (bool [ngeom]: a door and its handle, say), as posed now, reaches deeper than
-        ``depth`` (m) into another scene geom; the robot and the floor do not count."""
+        ``depth`` (m) into another scene geom; the robot and the floor do not count. A NaN or negative depth, or a
+        ``part`` that is no bool [ngeom] mask, raises ``ValueError`` (a NaN depth reported no overlap at any opening; an
+        int mask indexed geoms 0 and 1 instead, a short one failed in numpy naming neither)."""
+        check_number("depth", depth, owner="SimScene.part_overlaps")
+        part = np.asarray(part)
+        if part.dtype != np.bool_ or part.shape != (self.model.ngeom,):
+            raise ValueError(
+                f"SimScene.part_overlaps: part must be a bool [ngeom] = [{self.model.ngeom}] geom mask, got "
+                f"{part.dtype} {part.shape}"
+            )
         mujoco.mj_kinematics(self.model, self.data)
         mujoco.mj_collision(self.model, self.data)
         return self._touching(part, self._scene_mask & ~part, -depth)
@@ -1057,8 +1068,9 @@ class SimScene:
         """True if the floor segment from (x, y) to point_xy [2] crosses a wall footprint (the pose is outside the
         room). A non-finite point raises ``ValueError`` (the overlap test found no separating axis for it: a wall)."""
         a = np.array([float(x), float(y)])
-        b = np.asarray(point_xy, dtype=np.float64)[:2]
-        if not (np.isfinite(a).all() and np.isfinite(b).all()):
+        b = np.asarray(point_xy, dtype=np.float64)
+        b = b[:2] if b.ndim == 1 else b.reshape(-1)[:0]  # [1] or [2,2] failed in numpy's stack naming neither
+        if not (np.isfinite(a).all() and b.shape == (2,) and np.isfinite(b).all()):
             raise ValueError(f"wall_between: the segment must be finite, got {a.tolist()} -> {b.tolist()}")
         seg = np.stack([a, b, b, a])  # degenerate quad: the SAT test works on the segment
         return any(_sat_overlap(seg, rc) for rc in self._wall_corners)
