@@ -347,3 +347,19 @@ def test_make_view_sample_refuses_bad_cells_labels_and_flags(field, bad, match):
     assert views.make_view_sample(obs, **good)["floor_index"].tolist() == [0, 3]
     with pytest.raises(ValueError, match=f"make_view_sample: {match}"):
         views.make_view_sample(obs, **{**good, field: bad})
+
+
+def test_view_functions_refuse_an_rng_that_is_no_generator(fake):
+    """A seed failed with an AttributeError, in render_view only when a view held more than max_points points."""
+    scene, r = fake
+    for seed in (3, np.int64(3), 3.0):
+        with pytest.raises(TypeError, match="sample_view_poses: rng must be a numpy Generator"):
+            views.sample_view_poses(scene, r, "front", 1, CFG, seed)
+        with pytest.raises(TypeError, match="render_view: rng must be a numpy Generator"):
+            views.render_view(scene, r, np.zeros(3), CFG, seed)
+
+
+def test_render_refuses_a_segmentation_that_is_no_bool(fake):
+    scene, r = fake
+    with pytest.raises(ValueError, match="Renderer.render: segmentation must be true or false"):
+        r.render(scene.data, views.EGO_CAMERA, segmentation="no")  # a text is true: it segmented

@@ -23,7 +23,7 @@ from dataclasses import dataclass  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from floaff_zoo.checks import check_integer, check_number, is_number  # noqa: E402
+from floaff_zoo.checks import check_flag, check_integer, check_number, is_number  # noqa: E402
 
 try:
     import mujoco  # noqa: E402
@@ -301,6 +301,7 @@ class Renderer:
         """
         if self._closed:
             raise RuntimeError("Renderer is closed")
+        check_flag("segmentation", segmentation, owner="Renderer.render")  # the text "no" segmented
         cid = self._camera_id(camera)
         self._gl.make_current()
         hide = None if hide_geoms is None else self._geom_ids(hide_geoms)

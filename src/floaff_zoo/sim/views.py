@@ -265,6 +265,13 @@ def view_pose_clear(scene: Any, pose: np.ndarray) -> bool:
 
 
 # ---------------------------------------------------------------------------------------------------- rendering
+def _check_rng(rng: Any, who: str) -> None:
+    """Refuse an rng that is not a numpy Generator, as ``SimScene.reset_task`` does: a seed failed with an
+    AttributeError, in render_view only when a view held more than max_points points (mid-generation)."""
+    if not isinstance(rng, np.random.Generator):
+        raise TypeError(f"{who}: rng must be a numpy Generator (np.random.default_rng(seed)), got {type(rng).__name__}")
+
+
 def render_view(
     scene: Any,
     renderer: Renderer,
@@ -281,6 +288,7 @@ def render_view(
     """
     import mujoco  # local: render.py already chose the GL back end
 
+    _check_rng(rng, "render_view")
     scene.set_base_pose(*check_pose(base_pose, "render_view", "base_pose"))  # a [2] pose failed with an IndexError
     mujoco.mj_forward(scene.model, scene.data)
     ng = scene.model.ngeom
@@ -326,6 +334,7 @@ def sample_view_poses(
     if kind not in ("front", "side"):
         raise ValueError(f"view kind must be 'front' or 'side', got {kind!r}")
     check_integer("n", n, 0, owner="sample_view_poses")  # a NaN n sampled no view without a word, 1.5 a bare TypeError
+    _check_rng(rng, "sample_view_poses")
     in_region = in_front_region if kind == "front" else in_side_region
     tpos = np.asarray(scene.target.pos, dtype=np.float64)
     tyaw = float(scene.target.yaw)
