@@ -363,3 +363,14 @@ def test_render_refuses_a_segmentation_that_is_no_bool(fake):
     scene, r = fake
     with pytest.raises(ValueError, match="Renderer.render: segmentation must be true or false"):
         r.render(scene.data, views.EGO_CAMERA, segmentation="no")  # a text is true: it segmented
+
+
+def test_view_functions_refuse_a_renderer_of_another_image_size(fake):
+    """render_view never read cfg.image_size: a 64 px renderer drew 64 px views for a config of 128 px."""
+    scene, r = fake
+    cfg = views.ViewConfig(image_size=128)
+    rng = np.random.default_rng(0)
+    with pytest.raises(ValueError, match="sample_view_poses: the renderer draws 64x64 images, cfg.image_size is 128"):
+        views.sample_view_poses(scene, r, "front", 1, cfg, rng)
+    with pytest.raises(ValueError, match="render_view: the renderer draws 64x64 images, cfg.image_size is 128"):
+        views.render_view(scene, r, np.zeros(3), cfg, rng)

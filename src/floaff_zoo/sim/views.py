@@ -265,6 +265,14 @@ def view_pose_clear(scene: Any, pose: np.ndarray) -> bool:
 
 
 # ---------------------------------------------------------------------------------------------------- rendering
+def _check_image_size(renderer: Renderer, cfg: ViewConfig, who: str) -> None:
+    """Refuse a renderer whose image is not cfg.image_size square: its own size was rendered and cfg's ignored."""
+    if (renderer.height, renderer.width) != (cfg.image_size, cfg.image_size):
+        raise ValueError(
+            f"{who}: the renderer draws {renderer.height}x{renderer.width} images, cfg.image_size is {cfg.image_size}"
+        )
+
+
 def _check_rng(rng: Any, who: str) -> None:
     """Refuse an rng that is not a numpy Generator, as ``SimScene.reset_task`` does: a seed failed with an
     AttributeError, in render_view only when a view held more than max_points points (mid-generation)."""
@@ -289,6 +297,7 @@ def render_view(
     import mujoco  # local: render.py already chose the GL back end
 
     _check_rng(rng, "render_view")
+    _check_image_size(renderer, cfg, "render_view")
     scene.set_base_pose(*check_pose(base_pose, "render_view", "base_pose"))  # a [2] pose failed with an IndexError
     mujoco.mj_forward(scene.model, scene.data)
     ng = scene.model.ngeom
@@ -335,6 +344,7 @@ def sample_view_poses(
         raise ValueError(f"view kind must be 'front' or 'side', got {kind!r}")
     check_integer("n", n, 0, owner="sample_view_poses")  # a NaN n sampled no view without a word, 1.5 a bare TypeError
     _check_rng(rng, "sample_view_poses")
+    _check_image_size(renderer, cfg, "sample_view_poses")
     in_region = in_front_region if kind == "front" else in_side_region
     tpos = np.asarray(scene.target.pos, dtype=np.float64)
     tyaw = float(scene.target.yaw)
