@@ -129,3 +129,33 @@ def test_an_index_or_config_of_bytes_that_are_not_utf8_names_its_file(tmp_path, 
     (exported / "config.json").write_bytes(b"\xff{}")
     with pytest.raises(ValueError, match=rf"{exported / 'config.json'}: unreadable JSON"):
         load_model(exported)
+
+
+@pytest.mark.parametrize(
+    "patch, said",
+    [
+        ({"hyper_parameters": [1]}, "its 'hyper_parameters' is a list, not a dict"),
+        ({"state_dict": [1]}, "its 'state_dict' is a list, not a dict"),
+        ({"hyper_parameters": {"_class_path": 5}}, "'_class_path' is a int, not a str"),
+    ],
+)
+def test_a_checkpoint_of_wrong_types_is_named_by_push_and_load(tmp_path, capsys, patch, said):
+    """A list of hyper_parameters or a state_dict pushed died in `dict(...)`/`.items()` (a traceback from `hub push`)
+    and a `_class_path` of 5 in `import_model_class` ("argument of type 'int' is not iterable"), naming no file."""
+    ckpt = _ckpt(tmp_path / "a.ckpt")
+    torch.save({**torch.load(ckpt, weights_only=True), **patch}, ckpt)
+    assert zoo_main(["hub", "push", str(ckpt), "--name", "tiny.bad.v1", "--class-path", TINY]) == 2
+    err = capsys.readouterr().err
+    assert f"{ckpt}: " in err and said in err
+    if "_class_path" in said:
+        with pytest.raises(ValueError, match=rf"{ckpt}: .*{said}"):
+            load_model(ckpt)
+
+
+def test_a_push_of_a_file_that_is_no_checkpoint_says_why_in_one_line(tmp_path, capsys):
+    """torch's page of advice about weights_only was printed whole, not the reason."""
+    junk = tmp_path / "junk.ckpt"
+    junk.write_bytes(b"garbage")
+    assert zoo_main(["hub", "push", str(junk), "--name", "tiny.junk.v1"]) == 2
+    err = capsys.readouterr().err
+    assert f"{junk}: not a readable weights-only checkpoint" in err and "documentation of torch.load" not in err

@@ -53,7 +53,7 @@ from floaff_zoo.hub.registry import (
     unique_filename,
     user_index_path,
 )
-from floaff_zoo.runs import RunError, resolve_ckpt_alias
+from floaff_zoo.runs import RunError, load_failure_reason, resolve_ckpt_alias
 
 
 def find_run_checkpoint(run: str | os.PathLike[str]) -> Path:
@@ -370,12 +370,7 @@ def export_checkpoint(
     run_or_ckpt = Path(run_or_ckpt).expanduser()
     report = Path(report).expanduser() if report is not None else None
     run = run_or_ckpt if run_or_ckpt.is_dir() else None
-    try:
-        ckpt = torch.load(ckpt_path, map_location="cpu", weights_only=True)
-    except Exception as exc:
-        raise HubError(f"{ckpt_path}: not a readable weights-only checkpoint ({exc})") from exc
-    if not isinstance(ckpt, dict) or "state_dict" not in ckpt:
-        raise HubError(f"{ckpt_path}: not a Lightning checkpoint (no 'state_dict')")
+    ckpt = _read_lightning_checkpoint(ckpt_path)
     hp = dict(ckpt.get("hyper_parameters") or {})
     recorded = hp.pop("_class_path", None)
     if recorded and class_path and class_path != recorded:  # it was ignored without a word
@@ -403,6 +398,25 @@ def export_checkpoint(
     finally:
         shutil.rmtree(staging, ignore_errors=True)
     return entry, out
+
+
+def _read_lightning_checkpoint(ckpt_path: Path) -> dict[str, Any]:
+    """The dict of a Lightning checkpoint, read weights-only; HubError naming the file for anything else (a
+    ``state_dict`` or ``hyper_parameters`` of another type, a ``_class_path`` that is no string: each ended in a
+    TypeError or AttributeError that named nothing)."""
+    try:
+        ckpt = torch.load(ckpt_path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # corrupt file or a pickle with code in it: torch's reason, not its page of advice
+        raise HubError(f"{ckpt_path}: not a readable weights-only checkpoint ({load_failure_reason(exc)})") from exc
+    if not isinstance(ckpt, dict) or "state_dict" not in ckpt:
+        raise HubError(f"{ckpt_path}: not a Lightning checkpoint (no 'state_dict')")
+    for key, kind in (("state_dict", dict), ("hyper_parameters", (dict, type(None)))):
+        if not isinstance(ckpt.get(key), kind):
+            raise HubError(f"{ckpt_path}: its {key!r} is a {type(ckpt.get(key)).__name__}, not a dict")
+    recorded = (ckpt.get("hyper_parameters") or {}).get("_class_path")
+    if recorded is not None and not isinstance(recorded, str):
+        raise HubError(f"{ckpt_path}: its hyper_parameters' '_class_path' is a {type(recorded).__name__}, not a str")
+    return ckpt
 
 
 def check_name_free(name: str, directory: str | os.PathLike[str] | None = None) -> None:

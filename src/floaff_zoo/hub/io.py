@@ -87,6 +87,8 @@ def _read_torch(path: Path) -> tuple[dict[str, Any], Info]:
     else:
         raise ValueError(f"{path}: no 'state_dict' in the checkpoint and not a plain state dict of tensors")
     class_path = hp.pop("_class_path", None)
+    if class_path is not None and not isinstance(class_path, str):  # import_model_class's TypeError named no file
+        raise ValueError(f"{path}: its hyper_parameters' '_class_path' is a {type(class_path).__name__}, not a str")
     hp.pop("_instantiator", None)
     return state, {"class_path": class_path, "init_args": hp}
 
