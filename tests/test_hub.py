@@ -489,6 +489,7 @@ def test_an_unknown_name_suggests_the_entries_it_begins_newest_version_first(mon
         ({"source": {"kind": "hf", "repo": "org/x", "revision": "main"}}, "pinned 40-hex"),
         ({"source": {"kind": "url", "url": "https://huggingface.co/o/r/resolve/main/x.safetensors"}}, "pin"),
         ({"init_args": {"weights": "other.v1"}}, "weights"),
+        ({"meta": {"metrics": [0.5]}}, "'meta.metrics' must be an object"),  # `hub list` died in `.get`
     ],
 )
 def test_malformed_user_index_names_file_and_field(patch, field):

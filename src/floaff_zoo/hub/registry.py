@@ -178,6 +178,8 @@ class HubEntry:
         for key in ("init_args", "meta"):
             if not isinstance(raw.get(key, {}), dict):
                 raise RegistryFormatError(f"{at}: field {key!r} must be an object")
+        if not isinstance(raw.get("meta", {}).get("metrics", {}), dict):  # `hub list` reads its scores by name
+            raise RegistryFormatError(f"{at}: field 'meta.metrics' must be an object of metric name -> value")
         bad_args = [a for a in NON_PORTABLE_ARGS if a in raw.get("init_args", {})]
         if bad_args:
             raise RegistryFormatError(f"{at}: init_args must not contain {bad_args} (they point at other files)")
