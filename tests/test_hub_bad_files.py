@@ -159,3 +159,18 @@ def test_a_push_of_a_file_that_is_no_checkpoint_says_why_in_one_line(tmp_path, c
     assert zoo_main(["hub", "push", str(junk), "--name", "tiny.junk.v1"]) == 2
     err = capsys.readouterr().err
     assert f"{junk}: not a readable weights-only checkpoint" in err and "documentation of torch.load" not in err
+
+
+def test_a_hub_folder_from_the_environment_that_is_a_file_or_a_broken_link_is_named(tmp_path, monkeypatch, capsys):
+    """Only --hub-dir was checked: FLOAFF_ZOO_HUB naming a file, or a link to nothing, ended a push in
+    "[Errno 17] File exists", and `--hub-dir ''` pushed into the working folder."""
+    ckpt = _ckpt(tmp_path / "a.ckpt")
+    (tmp_path / "hubfile").write_text("x")
+    (tmp_path / "loop").symlink_to(tmp_path / "loop")
+    for hub, said in ((tmp_path / "hubfile", "is a file"), (tmp_path / "loop", "a link to nothing")):
+        monkeypatch.setenv("FLOAFF_ZOO_HUB", str(hub))
+        assert zoo_main(["hub", "push", str(ckpt), "--name", "tiny.env.v1"]) == 2
+        assert f"$FLOAFF_ZOO_HUB {hub}: {said}" in capsys.readouterr().err
+    monkeypatch.chdir(tmp_path)
+    assert zoo_main(["hub", "push", str(ckpt), "--name", "tiny.env.v1", "--hub-dir", ""]) == 2
+    assert "--hub-dir is empty" in capsys.readouterr().err and not (tmp_path / "tiny.env.v1").exists()

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import re
 import sys
-from pathlib import Path
 from typing import Any
 
 from floaff_zoo.hub.registry import (
@@ -197,6 +197,20 @@ def _looks_like_path(name: str) -> bool:
     return looks_like_path(name)
 
 
+def _check_hub_folder(option: str | None) -> None:
+    """HubError unless the hub folder (``--hub-dir``, else ``$FLOAFF_ZOO_HUB``, else the default) is a folder or
+    is still to be made: a file or a broken link ended a push in "[Errno 17] File exists", and an empty
+    ``--hub-dir`` made the working folder the hub."""
+    if option is not None and not option.strip():
+        raise HubError("--hub-dir is empty: give a hub folder, or leave the option out to use $FLOAFF_ZOO_HUB")
+    hub = hub_dir(option)
+    given = "--hub-dir" if option is not None else "$FLOAFF_ZOO_HUB" if os.environ.get("FLOAFF_ZOO_HUB") else "hub"
+    if hub.is_symlink() and not hub.exists():
+        raise HubError(f"{given} {hub}: a link to nothing (or a loop of links), not a hub folder")
+    if hub.exists() and not hub.is_dir():
+        raise HubError(f"{given} {hub}: is a file, not a hub folder")
+
+
 COMMANDS = {"list": cmd_list, "info": cmd_info, "pull": cmd_pull, "push": cmd_push, "verify": cmd_verify}
 
 
@@ -204,9 +218,7 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point for ``floaff-zoo hub ...``; returns the exit code (2 on a hub error)."""
     args = _parser().parse_args(sys.argv[1:] if argv is None else argv)
     try:
-        hub = Path(args.hub_dir).expanduser() if args.hub_dir is not None else None
-        if hub is not None and hub.exists() and not hub.is_dir():  # it ended in "[Errno 17] File exists"
-            raise HubError(f"--hub-dir {args.hub_dir}: is a file, not a hub folder")
+        _check_hub_folder(args.hub_dir)
         name = getattr(args, "name", None)
         if args.cmd in ("info", "pull", "verify") and name and _looks_like_path(name):
             raise HubError(
