@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from floaff_zoo.cli import main as zoo_main
-from floaff_zoo.hub import HubError, load_model, load_registry
+from floaff_zoo.hub import HubError, UnknownWeightsError, get_entry, load_model, load_registry
 from floaff_zoo.hub.export import export_checkpoint
 from floaff_zoo.models.tiny import TinyPointNetModule
 
@@ -174,3 +174,18 @@ def test_a_hub_folder_from_the_environment_that_is_a_file_or_a_broken_link_is_na
     monkeypatch.chdir(tmp_path)
     assert zoo_main(["hub", "push", str(ckpt), "--name", "tiny.env.v1", "--hub-dir", ""]) == 2
     assert "--hub-dir is empty" in capsys.readouterr().err and not (tmp_path / "tiny.env.v1").exists()
+
+
+def test_an_empty_or_non_string_name_is_refused_as_such(tmp_path, monkeypatch):
+    """`load_model('')` read the working folder as an exported directory (Path('') is '.'), `load_model(None)` looked
+    up the hub name 'None', and `get_entry(None)` died in close_names with "'NoneType' object has no attribute"."""
+    monkeypatch.chdir(tmp_path)
+    TinyPointNetModule(width=8).save_pretrained(str(tmp_path))
+    with pytest.raises(UnknownWeightsError, match="an empty name"):
+        load_model("")
+    for bad in (None, 5):
+        with pytest.raises(TypeError, match=rf"a str or os\.PathLike\), got {bad}"):
+            load_model(bad)
+        with pytest.raises(TypeError, match=rf"a hub name must be a str, got {bad}"):
+            get_entry(bad)
+    assert type(load_model(Path("."))).__name__ == "TinyPointNetModule"  # the working folder, named: still loads

@@ -41,6 +41,7 @@ from floaff_zoo.hub.registry import (
     ChecksumError,
     HubEntry,
     HubError,
+    UnknownWeightsError,
     WeightsNotFoundError,
     get_entry,
     hub_dir,
@@ -318,7 +319,11 @@ def resolve_state_dict(
         (the file read), "kind": "file" | "dir" | "hub", "name": str | None, "sha256": str | None,
         "meta": dict}``; ``init_args`` never contains ``weights``/``teacher``.
     """
-    target = str(name_or_path)
+    target = os.fspath(name_or_path) if isinstance(name_or_path, (str, os.PathLike)) else None
+    if not isinstance(target, str):  # str(None) was looked up as the hub name 'None'
+        raise TypeError(f"weights must be a hub name or a path (a str or os.PathLike), got {name_or_path!r}")
+    if not target.strip():  # Path('') is '.': the working folder was read as an exported directory
+        raise UnknownWeightsError(f"weights {target!r}: an empty name is no file, exported directory nor hub name")
     path = Path(target).expanduser()
     name, sha, meta = None, None, {}
     # a registered name is the hub's entry even when the working folder holds a file or folder of that name, unless

@@ -329,6 +329,8 @@ def close_names(name: str, names: list[str], n: int = 5) -> list[str]:
 
 def get_entry(name: str, directory: str | os.PathLike[str] | None = None) -> HubEntry:
     """The entry called ``name``; a retired name says where it went, an unknown one lists close matches."""
+    if not isinstance(name, str):  # close_names died in `.strip()` with an AttributeError
+        raise TypeError(f"a hub name must be a str, got {name!r}")
     reg = load_registry(directory)
     if name in reg:
         return reg[name]
