@@ -479,6 +479,8 @@ def test_an_unknown_name_suggests_the_entries_it_begins_newest_version_first(mon
     assert suggested("alpha")[:3] == [f"alpha.{layouts}.v10", f"alpha.{styles}.v3", f"alpha-x.{layouts}.v1"]
     assert suggested(f"alpha.{layouts}")[0] == f"alpha.{layouts}.v10"
     assert suggested(f"ALPHA.{layouts}.v2")[0] == f"alpha.{layouts}.v2"
+    # a version the entry never had: its versions newest first (difflib ranked v1 and v2 above v10 for v99)
+    assert suggested(f"alpha.{layouts}.v99")[:3] == [f"alpha.{layouts}.v{n}" for n in (10, 2, 1)]
 
 
 @pytest.mark.parametrize(

@@ -312,7 +312,8 @@ def _version_of(name: str) -> tuple[str, int]:
 def close_names(name: str, names: list[str], n: int = 5) -> list[str]:
     """The registered ``names`` a mistyped or partial ``name`` may mean, at most ``n``: the newest version of each
     entry that ``name`` begins (a model alone, ``votenet``, or a name without its version; difflib finds none for a
-    short prefix of a long name, and ranks v9 above v12), then difflib's close matches. Case is ignored: names are
+    short prefix of a long name, and ranks v9 above v12), then every version of an entry named with a version it
+    does not have, newest first, then difflib's close matches. Case is ignored: names are
     lower-case."""
     key = name.strip().lower()
     newest: dict[str, str] = {}
@@ -323,8 +324,13 @@ def close_names(name: str, names: list[str], n: int = 5) -> list[str]:
                 newest[base] = candidate
     # the entries of the model (or model.dataset) typed before those of a longer name it begins (cfar before cfar-x)
     begun = sorted(newest.values(), key=lambda c: (c[len(key) : len(key) + 1] not in ("", "."), c))
+    # a version that does not exist: the entry's versions, newest first (difflib put v9 before v12 for v99)
+    base, version = _version_of(key)
+    versions = sorted(
+        (c for c in names if version >= 0 and _version_of(c)[0] == base), key=lambda c: -_version_of(c)[1]
+    )
     close = difflib.get_close_matches(key, names, n=n, cutoff=0.5)
-    return list(dict.fromkeys([*begun, *close]))[:n]
+    return list(dict.fromkeys([*begun, *versions, *close]))[:n]
 
 
 def get_entry(name: str, directory: str | os.PathLike[str] | None = None) -> HubEntry:
