@@ -189,3 +189,10 @@ def test_an_empty_or_non_string_name_is_refused_as_such(tmp_path, monkeypatch):
         with pytest.raises(TypeError, match=rf"a hub name must be a str, got {bad}"):
             get_entry(bad)
     assert type(load_model(Path("."))).__name__ == "TinyPointNetModule"  # the working folder, named: still loads
+
+
+@pytest.mark.parametrize("cmd", ["info", "pull", "verify"])
+def test_hub_commands_given_an_empty_name_say_so(capsys, cmd):
+    """`hub verify ''` verified every entry and exited 0; `info`/`pull` listed names an empty one 'may mean'."""
+    assert zoo_main(["hub", cmd, ""]) == 2
+    assert f"hub {cmd}: the name is empty" in capsys.readouterr().err

@@ -220,6 +220,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         _check_hub_folder(args.hub_dir)
         name = getattr(args, "name", None)
+        if args.cmd in ("info", "pull", "verify") and name is not None and not name.strip():
+            # `hub verify ''` checked every entry and passed: a script's empty variable verified nothing it meant
+            raise HubError(f"hub {args.cmd}: the name is empty; `floaff-zoo hub list` shows the registered names")
         if args.cmd in ("info", "pull", "verify") and name and _looks_like_path(name):
             raise HubError(
                 f"hub {args.cmd} takes a registered name (`floaff-zoo hub list`), not a path: {name!r}; a file or an "
