@@ -196,3 +196,18 @@ def test_hub_commands_given_an_empty_name_say_so(capsys, cmd):
     """`hub verify ''` verified every entry and exited 0; `info`/`pull` listed names an empty one 'may mean'."""
     assert zoo_main(["hub", cmd, ""]) == 2
     assert f"hub {cmd}: the name is empty" in capsys.readouterr().err
+
+
+def test_an_index_nested_too_deep_for_json_names_its_file(tmp_path, monkeypatch, capsys):
+    """json's RecursionError escaped the JSON checks: `hub list` printed a traceback from json.decoder."""
+    hub = tmp_path / "hub"
+    hub.mkdir()
+    (hub / "index.json").write_text("[" * 100_000 + "]" * 100_000)
+    monkeypatch.setenv("FLOAFF_ZOO_HUB", str(hub))
+    with pytest.raises(HubError, match=rf"{hub / 'index.json'}: not a readable JSON index"):
+        load_registry()
+    exported = tmp_path / "export"
+    TinyPointNetModule(width=8).save_pretrained(str(exported))
+    (exported / "config.json").write_text("[" * 100_000 + "]" * 100_000)
+    with pytest.raises(ValueError, match=rf"{exported / 'config.json'}: unreadable JSON"):
+        load_model(exported)

@@ -137,7 +137,7 @@ def read_config(directory: Path) -> dict[str, Any]:
         raise FileNotFoundError(f"{directory}: not an exported model directory (no {CONFIG_NAME})")
     try:
         cfg = json.loads(cfg_path.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as exc:  # ValueError: bad JSON, or bytes that are not UTF-8
+    except (OSError, ValueError, RecursionError) as exc:  # bad JSON, bytes that are not UTF-8, nesting too deep
         raise ValueError(f"{cfg_path}: unreadable JSON ({exc})") from exc
     if (
         not isinstance(cfg, dict)

@@ -234,7 +234,7 @@ def read_index(path: Path) -> list[HubEntry]:
         return []
     try:
         raw = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as exc:  # ValueError: bad JSON, or bytes that are not UTF-8
+    except (OSError, ValueError, RecursionError) as exc:  # bad JSON, bytes that are not UTF-8, nesting too deep
         raise RegistryFormatError(f"{path}: not a readable JSON index ({exc})") from exc
     if not isinstance(raw, dict) or raw.get("version") != INDEX_VERSION or not isinstance(raw.get("entries"), list):
         raise RegistryFormatError(f"{path}: expected {{'version': {INDEX_VERSION}, 'entries': [...]}}")
@@ -282,7 +282,7 @@ def read_retired(path: Path = RETIRED_INDEX) -> dict[str, RetiredEntry]:
         return {}
     try:
         raw = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as exc:  # ValueError: bad JSON, or bytes that are not UTF-8
+    except (OSError, ValueError, RecursionError) as exc:  # bad JSON, bytes that are not UTF-8, nesting too deep
         raise RegistryFormatError(f"{path}: not a readable JSON file ({exc})") from exc
     form = "{'batches': [{'commit': '<40 hex>', 'entries': {name: successor}}, ...]}"
     batches = raw.get("batches") if isinstance(raw, dict) else None
