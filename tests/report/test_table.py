@@ -338,3 +338,24 @@ def test_a_folder_named_report_json_is_named_as_one(tmp_path, capsys):
         err = capsys.readouterr().err
         assert f"skipped {tmp_path / 'run' / 'report.json'}: a folder named report.json, not a report" in err
         assert "no usable report.json" in err and "1 found and skipped" in err
+
+
+def test_a_row_that_pools_runs_of_different_model_settings_says_so(tmp_path, capsys):
+    """Runs of two variants under one label (the ablation preset's default key, the logger's name by default) were
+    pooled into one row whose mean ± std read as a spread over seeds; the seeds' own files (teacher) differ by
+    design and are no such difference."""
+    src = json.loads((RUNS / "cfar_styles_s0" / "report.json").read_text())
+    reports = {}
+    for i, (crop, teacher) in enumerate([(1.2, "a.ckpt"), (1.2, "b.ckpt"), (0.8, "c.ckpt")]):
+        hp = dict(src["model"]["hparams"], crop_radius=crop, teacher=teacher)
+        reports[f"r{i}"] = dict(
+            src, model=dict(src["model"], hparams=hp), checkpoint={**src["checkpoint"], "sha256": f"{i}" * 64}
+        )
+    _write_runs(tmp_path, reports)
+    seeds = [r for p, r in load_reports([str(tmp_path)])[0] if p.parent.name != "r2"]
+    for preset in ("map", "sr_views", "sr_tasks", "ablation"):
+        assert "model settings" not in build_table(seeds, preset).mixed  # teacher differs per seed
+    assert main(["--runs", str(tmp_path), "--preset", "ablation", "--format", "md"]) == 0
+    out, err = capsys.readouterr()
+    said = "rows pool runs of different model settings: CFARModule (crop_radius 1.2 x2, 0.8 x1)"
+    assert said in out and said in err and "teacher" not in out

@@ -33,7 +33,9 @@ A row pools runs of one protocol: reports that differ in the SR protocol (``sr.t
 reports of one checkpoint (``checkpoint.sha256``), are refused with the row, the setting and the report paths (pass one
 protocol's reports, e.g. a narrower ``--runs`` glob); so is an Oracle row over reports of different SR protocols (or
 pass ``--no-oracle``). Rows of different SR protocols (without an Oracle row) are allowed, since a top-k ablation
-compares them on purpose; the Markdown note and stderr name the setting and the rows of each value.
+compares them on purpose; the Markdown note and stderr name the setting and the rows of each value. They also name a
+row whose runs differ in a model hyper-parameter other than a seed's own files (``teacher``, ``weights``,
+``axisnet``) and seed: two variants under one label, or one model class under ``--group-by model``, are no seeds.
 
 A row whose runs read the simulator's target yaw at test time (``eval_yaw_source: gt``; C2F-Exp's ``yaw_source:
 gt``), which a robot does not have, is named with `` (simulator yaw)`` unless its name says so already.
@@ -52,6 +54,7 @@ import json
 import math
 import statistics
 import sys
+from collections import Counter
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -298,7 +301,9 @@ class Table:
     columns: list[Column]
     sections: list[Section]
     note: str = ""
-    mixed: str = ""  # how the rows' protocols differ (``mixed_protocols``), named under the table and on stderr
+    # how the rows' protocols differ (``mixed_protocols``) and what settings a row pools (``pooled_settings``), named
+    # under the table and on stderr
+    mixed: str = ""
 
 
 #: one run's value in a cell and its own std (an SR's bootstrap std; None for a map metric); value None: n/a
@@ -565,6 +570,52 @@ def mixed_protocols(
     return f"rows differ in {'; '.join(parts)}" if parts else ""
 
 
+#: model hyper-parameters that name a run's own files or seed: the seeds of one row differ in them by design
+PER_RUN_HPARAMS = ("seed", "weights", "teacher", "axisnet", "axisnet_arch", "_instantiator")
+
+
+def _settings(report: dict[str, Any], skip: tuple[str, ...] = ()) -> dict[str, str]:
+    """A report's model hyper-parameters as dotted key -> JSON text, without ``PER_RUN_HPARAMS`` and ``skip``."""
+
+    def walk(value: Any, prefix: str) -> Iterator[tuple[str, str]]:
+        if isinstance(value, dict) and value:
+            for k, v in value.items():
+                yield from walk(v, f"{prefix}.{k}" if prefix else str(k))
+        else:
+            yield prefix, json.dumps(value, sort_keys=True, default=str)
+
+    hparams = (report.get("model") or {}).get("hparams") or {}
+    return {k: v for k, v in walk(hparams, "") if k.split(".", 1)[0] not in (*PER_RUN_HPARAMS, *skip)}
+
+
+def pooled_settings(
+    sections: list[tuple[str, list[tuple[str, list[dict[str, Any]]]]]], skip: tuple[str, ...] = ()
+) -> str:
+    """``"rows pool runs of different model settings: A (crop_radius 0.5 x2, 1.0 x1)"`` when a row's runs differ in
+    a model hyper-parameter (``_settings``), else ``""``. A row's mean ± std reads as a spread over seeds: runs of two
+    variants grouped under one label (the default ``ablation`` key, which defaults to the logger's name) were pooled
+    without a word. ``skip``: settings a row may vary on purpose (``tasks`` for one model per task)."""
+    parts = []
+    for title, rows in sections:
+        where = f"{_short(title)} " if title and len(sections) > 1 else ""
+        for name, reports in rows:
+            settings = [_settings(r, skip) for r in reports]
+            keys = sorted({k for s in settings for k in s})
+            differ = []
+            for key in keys:
+                counts = Counter(s.get(key, "(absent)") for s in settings)
+                if len(counts) > 1:
+                    differ.append(f"{key} " + ", ".join(f"{v} x{n}" for v, n in counts.items()))
+            if differ:
+                parts.append(f"{where}{name} ({'; '.join(differ[:3])}{'; ...' if len(differ) > 3 else ''})")
+    return f"rows pool runs of different model settings: {', '.join(parts)}" if parts else ""
+
+
+def _notes(*texts: str) -> str:
+    """The non-empty notes under a table, joined."""
+    return "; ".join(t for t in texts if t)
+
+
 #: the report field that names the yaw a model read at test time, per model class (others: ``eval_yaw_source``)
 _EVAL_YAW_FIELD = {"C2FExpModule": "yaw_source"}
 #: the marker of a row whose runs read the simulator's yaw at test time
@@ -705,7 +756,8 @@ def build_table(
         header = {"map": "Method", "ablation": "Ablation", "sweep": group_by.rsplit(".", 1)[-1]}[preset]
         # the map columns do not depend on how SR chose a pose: only the other settings make rows incomparable
         map_keys = tuple(k for k in PROTOCOL if not k.startswith("sr."))
-        return Table(preset, header, columns, sections, note, mixed_protocols(grouped, map_keys))
+        notes = _notes(mixed_protocols(grouped, map_keys), pooled_settings(grouped))
+        return Table(preset, header, columns, sections, note, notes)
     if preset == "sr_views":
         benches = _sections(reports)
         columns = [Column(f"SR_{v}", 2, False, group=_short(b)) for b, _ in benches for v in VIEWS]
@@ -731,8 +783,10 @@ def build_table(
             cells = [_oracle_cell(reps, lambda r, v=v: _sr(r, "oracle", view=v)) for _, reps in benches for v in VIEWS]
             if any(c is not None for c in cells):
                 sec.rows.append(Row("Oracle", cells, len(reports), oracle=True))
-        mixed = mixed_protocols([(b, list(g.items())) for (b, _), g in zip(benches, by_bench)])
-        return Table(preset, "Method", columns, [sec], note, mixed)
+        per_bench = [(b, list(g.items())) for (b, _), g in zip(benches, by_bench)]
+        return Table(
+            preset, "Method", columns, [sec], note, _notes(mixed_protocols(per_bench), pooled_settings(per_bench))
+        )
     # sr_tasks
     tasks = [
         t
@@ -772,7 +826,9 @@ def build_table(
         for m in (mixed_protocols(grouped, TASK_ROW_PROTOCOL), task_count_note(grouped))
         if m
     )
-    return Table(preset, "Method", columns, sections, note, f"rows differ in {mixed}" if mixed else "")
+    # one model per task (the paper's Table 3) differs in its tasks on purpose; task_count_note says so
+    pooled = pooled_settings(grouped, skip=("tasks",))
+    return Table(preset, "Method", columns, sections, note, _notes(f"rows differ in {mixed}" if mixed else "", pooled))
 
 
 # ------------------------------------------------------------------------------------------ rendering
