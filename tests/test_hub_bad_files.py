@@ -211,3 +211,25 @@ def test_an_index_nested_too_deep_for_json_names_its_file(tmp_path, monkeypatch,
     (exported / "config.json").write_text("[" * 100_000 + "]" * 100_000)
     with pytest.raises(ValueError, match=rf"{exported / 'config.json'}: unreadable JSON"):
         load_model(exported)
+
+
+def test_a_checkpoint_of_odd_callbacks_or_an_unreadable_last_still_exports(tmp_path):
+    """The best score is looked up in the pushed checkpoint, then in the run's newest last.ckpt: a list of callbacks
+    or a text score ended the push in a traceback naming no file, as did a last.ckpt that became unreadable after the
+    checkpoint was chosen; the export is sound without the score, and the skip is said."""
+    from floaff_zoo.hub.export import _best_score
+
+    ckdir = tmp_path / "run" / "version_0" / "checkpoints"
+    best = _ckpt(ckdir / "epoch001.ckpt")
+    state = torch.load(best, weights_only=True)
+    cb = {"monitor": "val_rmse", "best_model_path": str(best)}
+    for i, odd in enumerate(([1, 2], {"ModelCheckpoint{}": {**cb, "best_model_score": "0.1"}})):
+        torch.save({**state, "callbacks": odd}, best)
+        entry, _ = export_checkpoint(best, f"tiny.odd-callbacks{i}.v1", directory=tmp_path / "hub")
+        assert entry.meta["metrics"] == {}
+    torch.save({**state, "callbacks": {"ModelCheckpoint{}": {**cb, "best_model_score": 0.25}}}, best)
+    entry, _ = export_checkpoint(best, "tiny.good-callbacks.v1", directory=tmp_path / "hub")
+    assert entry.meta["metrics"] == pytest.approx({"val_rmse": 0.25})
+    (ckdir / "last.ckpt").write_bytes(b"not a checkpoint")
+    with pytest.warns(UserWarning, match=r"last.ckpt: not a readable checkpoint .*best validation score is not"):
+        assert _best_score(best, {}, tmp_path / "run") == {}

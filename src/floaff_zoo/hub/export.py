@@ -173,21 +173,38 @@ def _best_score(ckpt_path: Path, ckpt: dict[str, Any], run: Path | None) -> dict
     Looked up in the exported checkpoint itself, then in the run's newest ``last.ckpt`` (which
     knows the final best); a score is used only if its ``best_model_path`` is this file.
     """
-    states = [ckpt]
+    states: list[Any] = [ckpt]
     if run is not None:
         lasts = sorted(run.rglob("last*.ckpt"), key=lambda p: p.stat().st_mtime)
         if lasts and lasts[-1] != ckpt_path:
-            states.append(torch.load(lasts[-1], map_location="cpu", weights_only=True))
+            try:
+                states.append(torch.load(lasts[-1], map_location="cpu", weights_only=True))
+            except Exception as exc:  # the score is metadata: the export goes on, the skip is said
+                problem = f"not a readable checkpoint ({load_failure_reason(exc)})"
+                warnings.warn(f"{lasts[-1]}: {problem}; its best validation score is not recorded", stacklevel=3)
     for state in states:
-        for key, cb in (state.get("callbacks") or {}).items():
+        callbacks = state.get("callbacks") if isinstance(state, dict) else None
+        # a list of callbacks died in .items(), naming no file
+        for key, cb in (callbacks if isinstance(callbacks, dict) else {}).items():
             if not (str(key).startswith("ModelCheckpoint") and isinstance(cb, dict)):
                 continue
             score, monitor, best = cb.get("best_model_score"), cb.get("monitor"), cb.get("best_model_path")
-            if monitor and score is not None and best and Path(best).name == ckpt_path.name:
-                value = float(score.item() if isinstance(score, torch.Tensor) else score)
-                if math.isfinite(value):
-                    return {str(monitor): value}
+            if not (monitor and isinstance(best, (str, os.PathLike)) and Path(best).name == ckpt_path.name):
+                continue
+            value = _finite_score(score)
+            if value is not None:
+                return {str(monitor): value}
     return {}
+
+
+def _finite_score(score: Any) -> float | None:
+    """A recorded best score as a float: a number or a one-element tensor that is finite, else None (a text or a
+    tensor of several values failed in float()/.item(), naming no file)."""
+    if isinstance(score, torch.Tensor):
+        score = score.item() if score.numel() == 1 else None
+    if isinstance(score, bool) or not isinstance(score, (int, float)):
+        return None
+    return float(score) if math.isfinite(score) else None
 
 
 def _portable_state(state: dict[str, Any], where: Path, allow_empty: bool = False) -> dict[str, torch.Tensor]:
