@@ -101,7 +101,9 @@ def test_corrupt_stage_record_is_an_error_naming_it(tmp_path, root, monkeypatch)
         curriculum.load_experiment(latin)
 
 
-@pytest.mark.parametrize(("field", "value"), [("checkpoint", 123), ("before", 5), ("args", ["fit", 3])])
+@pytest.mark.parametrize(
+    ("field", "value"), [("checkpoint", 123), ("before", 5), ("args", ["fit", 3]), ("started", "at noon")]
+)
 def test_a_stage_record_field_of_the_wrong_kind_is_named(tmp_path, root, monkeypatch, field, value):
     """A stage.json that parses but holds e.g. a number for its checkpoint crashed with a TypeError traceback."""
     monkeypatch.chdir(root)

@@ -328,7 +328,10 @@ _RECORD_FIELDS: dict[str, tuple[type, ...]] = {
     "fit_ended": (bool,),
     "shared": (bool,),
     "runs": (list,),
+    "started": (float, int),  # a time.time(): compared with checkpoint mtimes (_mark_shared)
 }
+#: how a kind of ``_RECORD_FIELDS`` is named in an error
+_KIND_TEXT = {list: "a list of strings", float: "a number", int: "a number"}
 
 
 def _read_json(path: Path, fields: dict[str, tuple[type, ...]] | None = None) -> dict[str, Any] | None:
@@ -349,7 +352,7 @@ def _read_json(path: Path, fields: dict[str, tuple[type, ...]] | None = None) ->
         if not bad and isinstance(value, list):
             bad = not all(isinstance(v, str) for v in value)
         if bad:
-            want = " or ".join("a list of strings" if k is list else f"a {k.__name__}" for k in kinds)
+            want = " or ".join(dict.fromkeys(_KIND_TEXT.get(k, f"a {k.__name__}") for k in kinds))
             raise CurriculumError(f"{path}: field {key!r} is {json.dumps(value)[:40]}, not {want}; fix or delete it")
     return record
 
