@@ -631,15 +631,19 @@ def _resume_point(sdir: Path, digest: str) -> Path | None:
 def _same_dir_flags(run: Path) -> list[str] | None:
     """Fit flags that make a resumed fit log and checkpoint into the interrupted run's directory again, so its
     ModelCheckpoint keeps the best of the epochs before the kill (Lightning drops that state when the checkpoint
-    directory changes). ``[]``: no logger, the directory does not change; None: the logger cannot be pinned."""
-    cfg_file = run / "config.yaml"
-    cfg = yaml.safe_load(cfg_file.read_text()) if cfg_file.is_file() else None
+    directory changes). ``[]``: no logger, the directory does not change; None: the logger cannot be pinned (also
+    when the run's ``config.yaml`` is missing or does not read: the resume goes on in a new run directory)."""
+    try:
+        cfg = yaml.safe_load((run / "config.yaml").read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError):  # a damaged file: the stage resumes all the same
+        return None
     if not isinstance(cfg, dict) or not isinstance(cfg.get("trainer"), dict):
         return None
     logger = cfg["trainer"].get("logger")
     if logger is False:
         return []
-    init = dict(logger.get("init_args") or {}) if isinstance(logger, dict) and logger.get("class_path") else {}
+    init = logger.get("init_args") if isinstance(logger, dict) and logger.get("class_path") else None
+    init = dict(init) if isinstance(init, dict) else {}
     if not init.get("save_dir") or Path(init["save_dir"], str(init.get("name") or ""), run.name).resolve() != run:
         return None
     return ["--trainer.logger", json.dumps({**logger, "init_args": {**init, "version": run.name}})]
@@ -690,8 +694,8 @@ def _resume(
     flags = _same_dir_flags(_run_dir(last).resolve())
     if flags is None:
         print(
-            f"[curriculum] stage {name}: cannot resume into {_run_dir(last)} (logger not pinnable); the stage's best "
-            "covers the epochs after the resume only",
+            f"[curriculum] stage {name}: cannot resume into {_run_dir(last)} (its config.yaml names no logger that "
+            "can be pinned, or does not read); the stage's best covers the epochs after the resume only",
             file=out,
         )
     return last, flags or []

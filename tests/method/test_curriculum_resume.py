@@ -108,6 +108,22 @@ def test_a_truncated_last_checkpoint_says_how_to_go_on(tmp_path, capsys):
     assert rec["resumed_from"] is None and Path(rec["checkpoint"]).is_file()
 
 
+@pytest.mark.parametrize(
+    "text", [b"trainer: [unclosed\n", b"\xff\xfe", b"trainer:\n  logger: {class_path: CSVLogger, init_args: [1]}\n"]
+)
+def test_a_killed_run_with_a_damaged_config_file_still_resumes(tmp_path, capsys, text):
+    """A killed run whose config.yaml did not parse (or named a logger with odd init args) stopped the rerun with a
+    YAML, Unicode or TypeError traceback: the stage resumes from its last.ckpt into a new run directory."""
+    exp = _experiment(tmp_path, max_epochs=2)
+    with pytest.raises(KeyboardInterrupt):
+        run_curriculum(exp, runner=_killed_after(1))
+    (last,) = (tmp_path / "run" / "s1").rglob("last.ckpt")
+    (last.parents[1] / "config.yaml").write_bytes(text)
+    (rec,) = run_curriculum(exp)
+    assert rec["resumed_from"] == str(last) and Path(rec["checkpoint"]).is_file()
+    assert "cannot resume into" in capsys.readouterr().out
+
+
 def test_changed_arguments_never_resume_an_older_run(tmp_path, capsys):
     exp = _experiment(tmp_path, max_epochs=2)
     (old,) = run_curriculum(exp)
