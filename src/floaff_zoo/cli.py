@@ -849,14 +849,16 @@ def _parse_hint(message: str, args: list[str]) -> str:
     return _class_hint(message) + (_key_hint(message, args) or _value_hint(message, args))
 
 
-def check_trainer_args(args: list[str]) -> None:
+def check_trainer_args(args: list[str]) -> Namespace:
     """Parse a trainer command (``["fit", "--config", ...]``) without running it: an unknown key, a value of the
     wrong type or a missing config file raises a one-line ``CLIError`` (``floaff-zoo curriculum`` checks every
-    stage this way before the first one trains). Values a class rejects in its ``__init__`` are not checked."""
+    stage this way before the first one trains). Values a class rejects in its ``__init__`` are not checked.
+    Returns the command's parsed config (``model``, ``data``, ``trainer``...)."""
     try:
-        _build_cli(_ParseOnlyCLI, args, {"exit_on_error": False})
+        cli = _build_cli(_ParseOnlyCLI, args, {"exit_on_error": False})
     except argparse.ArgumentError as exc:
         raise CLIError(_one_line(str(exc)) + _parse_hint(str(exc), args)) from exc
+    return cli.config[cli.subcommand]
 
 
 def run_lightning(args: list[str]) -> FloAffCLI:

@@ -77,6 +77,12 @@ RUN_FILE = "curriculum_run.json"  # in each run directory: the stage digest that
 KEPT_METRICS = "metrics.before_resume.csv"  # a resumed run's earlier metrics.csv rows, during the fit
 _STAGE_KEYS = {"name", "root", "shared", "model", "tasks", "overrides", "from_stages", "configs"}
 _TOP_KEYS = {"extends", "root", "data", "model", "trainer", "overrides", "stages", "description"}
+#: model init args that name a checkpoint, an exported folder or a hub name the model loads (CFAR's teacher and
+#: AxisNet, any model's initial weights): one that does not load failed only when its stage's fit started, after
+#: the earlier stages trained
+WEIGHT_ARGS = ("weights", "teacher", "axisnet")
+#: how an earlier stage's checkpoint is named before that stage has run (:func:`build_stage_args`)
+_PLACEHOLDER = "<best checkpoint of "
 
 
 class CurriculumError(ValueError):
@@ -301,7 +307,7 @@ def build_stage_args(
     if stage.get("tasks"):
         args += ["--data.init_args.tasks", json.dumps(list(stage["tasks"]))]
     for key, ref in (stage.get("from_stages") or {}).items():
-        args += [f"--{key.lstrip('-')}", best.get(ref, f"<best checkpoint of {ref}>")]
+        args += [f"--{key.lstrip('-')}", best.get(ref, f"{_PLACEHOLDER}{ref}>")]
     args += list(sets or [])
     args += ["--trainer.default_root_dir", str(stage_dir(cfg, stage, root))]
     return args
@@ -836,14 +842,46 @@ def _check_config_files(cfg: dict[str, Any], config: str | Path, extra: list[str
 def _check_stages(cfg: dict[str, Any], root: Path, extra: list[str], flags: list[str]) -> None:
     """Parse every stage's ``fit`` arguments before the first stage trains, so a typo in a later stage's overrides
     (or an ``--extra-config`` key no model accepts) fails in seconds, not after the earlier stages trained; the
-    checkpoints of earlier stages are placeholders here."""
+    checkpoints of earlier stages are placeholders here. The other ``WEIGHT_ARGS`` files and hub names are checked
+    (:func:`_check_weights_value`)."""
     from floaff_zoo.cli import CLIError, check_trainer_args
 
     for stage in cfg["stages"]:
         try:
-            check_trainer_args(build_stage_args(cfg, stage, root, {}, extra, flags))
+            parsed = check_trainer_args(build_stage_args(cfg, stage, root, {}, extra, flags))
         except CLIError as exc:
             raise CurriculumError(f"stage {stage['name']}: its fit arguments do not parse: {exc}") from exc
+        model = parsed.get("model")
+        init = model.get("init_args") if hasattr(model, "get") else None
+        for key in WEIGHT_ARGS if hasattr(init, "get") else ():
+            value = init.get(key)
+            # a teacher is read only while distilling (CFARModule.distills): w/o FD need not name an existing file
+            distills = init.get("use_fd", True) is not False and (init.get("distill_weight") or 0) > 0
+            if isinstance(value, str) and not value.startswith(_PLACEHOLDER) and (key != "teacher" or distills):
+                _check_weights_value(f"stage {stage['name']}: model.init_args.{key}", value)
+
+
+def _check_weights_value(where: str, value: str) -> None:
+    """A ``WEIGHT_ARGS`` value names an existing file or folder, or a registered hub name; a torch file is also read
+    (memory-mapped, tensors untouched): a truncated or text file is named here, not in the fit's setup."""
+    from floaff_zoo.hub.io import looks_like_path
+    from floaff_zoo.hub.registry import HubError, get_entry
+
+    path = Path(value).expanduser()
+    if path.is_file() and path.suffix in (".ckpt", ".pt", ".pth"):
+        try:
+            load_checkpoint(path)
+        except RunError as exc:
+            raise CurriculumError(f"{where}: {exc}") from exc
+    elif path.exists():
+        return
+    elif looks_like_path(value):
+        raise CurriculumError(f"{where} {value}: no such file or directory (paths are relative to {Path.cwd()})")
+    else:
+        try:
+            get_entry(value)
+        except HubError as exc:
+            raise CurriculumError(f"{where}: {exc}") from exc
 
 
 def run_curriculum(
@@ -909,7 +947,7 @@ def run_curriculum(
         args = build_stage_args(cfg, stage, root, best, extra, flags)
         if dry_run:
             print(f"# stage {name}\nfloaff-zoo {shlex.join(args)}", file=out)
-            best[name] = f"<best checkpoint of {name}>"
+            best[name] = f"{_PLACEHOLDER}{name}>"
             continue
         with _stage_lock(name, sdir, out):
             record = _read_json(sdir / STAGE_FILE, _RECORD_FIELDS)

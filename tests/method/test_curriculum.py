@@ -410,3 +410,34 @@ def test_a_bad_value_in_any_stage_is_named_before_the_first_stage_trains(tmp_pat
     with pytest.raises(CurriculumError, match=named):
         run_curriculum(EXP, root=tmp_path, sets=[*SETS, bad])
     assert seen == []  # no stage ran
+
+
+@pytest.mark.parametrize(
+    "key, value, named",
+    [
+        ("teacher", "missing/stage1.ckpt", r"teacher missing/stage1\.ckpt: no such file or directory"),
+        ("weights", "text.ckpt", r"weights: .*text\.ckpt: not a readable checkpoint"),
+        ("axisnet", "no-such-hub-name", r"axisnet: 'no-such-hub-name' is not a checkpoint file"),
+    ],
+)
+def test_a_later_stages_weights_file_that_does_not_load_is_named_before_the_first_stage_trains(
+    tmp_path, root, monkeypatch, key, value, named
+):
+    """A teacher, weights or AxisNet file named in stage 2 was first read when stage 2's fit started: a missing or
+    damaged file failed after stage 1 had trained."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "text.ckpt").write_text("not a checkpoint")
+    for folder in ("configs", "tests"):
+        (tmp_path / folder).symlink_to(root / folder)
+    exp = yaml.safe_load((root / EXP).read_text())
+    exp["stages"][1]["overrides"] = {f"model.init_args.{key}": value}
+    del exp["stages"][1]["from_stages"]  # which would name stage 1's checkpoint instead
+    bad = tmp_path / "pfal_files.yaml"
+    bad.write_text(yaml.safe_dump(exp))
+    run_root = tmp_path / "run"
+    with pytest.raises(CurriculumError, match=rf"stage stage2_drawer: model\.init_args\.{named}"):
+        run_curriculum(bad, root=run_root, sets=SETS)
+    assert not run_root.exists()  # nothing trained, nothing written
+    # w/o FD never reads the teacher: it need not exist (test_without_fd_the_teacher_is_not_loaded_nor_recorded)
+    if key == "teacher":
+        assert len(run_curriculum(bad, root=run_root, sets=[*SETS, "model.init_args.use_fd=false"], dry_run=True)) == 0
