@@ -845,6 +845,7 @@ def _check_stages(cfg: dict[str, Any], root: Path, extra: list[str], flags: list
     checkpoints of earlier stages are placeholders here. The other ``WEIGHT_ARGS`` files and hub names are checked
     (:func:`_check_weights_value`)."""
     from floaff_zoo.cli import CLIError, check_trainer_args
+    from floaff_zoo.models.cfar import distills
 
     for stage in cfg["stages"]:
         try:
@@ -855,9 +856,9 @@ def _check_stages(cfg: dict[str, Any], root: Path, extra: list[str], flags: list
         init = model.get("init_args") if hasattr(model, "get") else None
         for key in WEIGHT_ARGS if hasattr(init, "get") else ():
             value = init.get(key)
-            # a teacher is read only while distilling (CFARModule.distills): w/o FD need not name an existing file
-            distills = init.get("use_fd", True) is not False and (init.get("distill_weight") or 0) > 0
-            if isinstance(value, str) and not value.startswith(_PLACEHOLDER) and (key != "teacher" or distills):
+            # a teacher is read only while distilling: w/o FD need not name an existing file
+            reads = key != "teacher" or distills(value, init.get("use_fd", True), init.get("distill_weight") or 0)
+            if isinstance(value, str) and not value.startswith(_PLACEHOLDER) and reads:
                 _check_weights_value(f"stage {stage['name']}: model.init_args.{key}", value)
 
 

@@ -133,6 +133,12 @@ def _sha256(path: str) -> str | None:
     return sha256_file(Path(path)) if Path(path).is_file() else None
 
 
+def distills(teacher: str | None, use_fd: bool, distill_weight: float) -> bool:
+    """Whether a CFAR configuration trains with L_shared, and so reads its teacher: a teacher, ``use_fd`` and a
+    positive lambda (``floaff-zoo curriculum`` checks a stage's teacher only then)."""
+    return bool(teacher and use_fd and distill_weight > 0)
+
+
 class CFARModule(FloAffModule):
     """CFAR (+ PFAL distillation when ``teacher`` is set). See the module docstring for the design.
 
@@ -323,8 +329,8 @@ class CFARModule(FloAffModule):
 
     @property
     def distills(self) -> bool:
-        """Whether the configuration trains with L_shared (a teacher, ``use_fd`` and a positive lambda)."""
-        return bool(self.hparams["teacher"] and self.hparams["use_fd"] and self.hparams["distill_weight"] > 0)
+        """Whether the configuration trains with L_shared (:func:`distills`)."""
+        return distills(self.hparams["teacher"], self.hparams["use_fd"], self.hparams["distill_weight"])
 
     @property
     def distill_active(self) -> bool:
