@@ -287,3 +287,72 @@ def test_bad_values_name_their_argument_and_chunk_size_is_an_integer():
     ):
         with pytest.raises(TypeError, match=f"FloorRMSE: {arg} must be a torch.Tensor, got "):
             m.update(*args)
+
+
+def test_defaults_are_the_documented_conventions():
+    """FloorSIM() is the FloAff paper's cosine SIM and the official chunk is 64 samples (docs/background.md §2);
+    every other test named both, so neither default was pinned."""
+    sim = FloorSIM()
+    sim.update(torch.tensor([[1.0, 0.0, 0.0]]), torch.tensor([[1.0, 1.0, 0.0]]))
+    assert float(sim.compute()) == pytest.approx(1 / math.sqrt(2))  # hist: min(1, .5) = 0.5
+    # 65 one-point samples, the last one off by 1: chunk MSEs 0 and 1 -> sqrt(1/2) (chunks of 32: sqrt(1/3))
+    preds, target = torch.zeros(65, 1), torch.zeros(65, 1)
+    preds[64] = 1.0
+    coll = affordance_metrics(reduction="official_batchwise")
+    coll.update(preds, target)
+    assert float(coll.compute()["rmse"]) == pytest.approx(math.sqrt(0.5))
+    for cls in (FloorRMSE, FloorLogMSE, FloorMAE, FloorPCC, FloorCIoU, FloorSIM):
+        m = cls(reduction="official_batchwise")
+        m.update(preds, target)
+        m.compute()
+        assert m.num_elements == 2, cls.__name__
+
+
+def test_official_hist_sim_of_an_all_zero_chunk_is_zero():
+    """Histogram SIM of an all-zero p or g is 0 (the official 1e-12); only the per-sample path was pinned, the
+    chunk path (raw points) could divide 0 by 0."""
+    g = torch.tensor([[0.2, 0.6], [0.0, 0.4], [0.5, 0.5], [0.1, 0.3]])
+    p = g.clone()
+    p[:2] = 0.0  # chunk 0 predicts nothing; chunk 1 is exact (SIM 1)
+    for preds, target in ((p, g), (g, p)):
+        m = FloorSIM("hist", "official_batchwise", 2)
+        m.update(preds, target)
+        assert float(m.compute()) == pytest.approx(0.5)
+
+
+def test_pcc_of_a_constant_map_is_undefined_whatever_the_rounding_and_padding():
+    """Three one-point samples of 0.1 (float64) in one chunk: the merged mean is 0.1 plus an ulp, so the centred
+    second moment is ~6e-34, not 0, yet Pearson is undefined (scipy: constant input). Padding (7 above, 0 below the
+    constant) must not make the map look varied."""
+    varied = torch.tensor([[0.2, 0.0], [0.5, 0.0], [0.9, 0.0]], dtype=torch.float64)
+    mask = torch.tensor([[True, False]] * 3)
+    for pad in (7.0, 0.0):
+        const = torch.tensor([[0.1, pad]] * 3, dtype=torch.float64)
+        for preds, target in ((const, varied), (varied, const)):
+            m = FloorPCC("official_batchwise")
+            m.update(preds, target, mask)
+            assert float(m.compute()) == 0.0 and m.num_undefined == 1, (pad, preds is const)
+
+
+@pytest.mark.parametrize("sim_variant", ["hist", "cosine"])
+@pytest.mark.parametrize("reduction", ["per_sample", "official_batchwise"])
+def test_a_repeated_index_counts_its_first_sample_only(sim_variant, reduction):
+    """Samples with the same index count once, the first one seen: a repeat inside one batch and a later batch
+    with other maps under the same indices change nothing (histogram SIM reduces complete chunks early, on its own
+    path)."""
+    rng = np.random.default_rng(11)
+    preds, target = rng.random((4, 6)).astype(np.float32), rng.random((4, 6)).astype(np.float32)
+    mask = np.ones((4, 6), bool)
+    want = reference(preds, target, mask, np.arange(4), reduction, 2, sim_variant)
+    m = affordance_metrics(sim_variant, reduction, 2)
+    for rows in ([0, 1, 0], [2, 3]):
+        m.update(torch.from_numpy(preds[rows]), torch.from_numpy(target[rows]), None, torch.tensor(rows))
+    other = torch.from_numpy(rng.random((4, 6)).astype(np.float32))  # other maps under the same indices
+    m.update(other, torch.from_numpy(target), None, torch.arange(4))
+    got = {k: float(v) for k, v in m.compute().items()}
+    assert got == pytest.approx(want, rel=1e-5, abs=1e-6)
+
+
+def test_a_negative_index_is_refused():
+    with pytest.raises(ValueError, match="FloorRMSE: index must be >= 0"):
+        FloorRMSE().update(torch.zeros(2, 3), torch.zeros(2, 3), None, torch.tensor([0, -1]))
