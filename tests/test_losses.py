@@ -231,3 +231,21 @@ def test_dice_eps_and_beta_must_be_finite_numbers():
     for beta in (float("nan"), -1.0):
         with pytest.raises(ValueError, match=r"affordance_loss: beta must be a finite number >= 0"):
             affordance_loss(p, g, None, beta=beta)
+
+
+def test_affordance_loss_passes_its_eps_to_the_dice_term():
+    """pred (1, 0), label (0, 1): MSE 1, Dice 1 - eps / (2 + eps) (2/3 at the default eps 1, ~1 at 1e-6)."""
+    p, g = torch.tensor([[1.0, 0.0]]), torch.tensor([[0.0, 1.0]])
+    assert float(affordance_loss(p, g, None)) == pytest.approx(1 + 2 / 3)
+    assert float(affordance_loss(p, g, None, eps=1e-6)) == pytest.approx(2 - 1e-6 / (2 + 1e-6))
+
+
+def test_navaff_deterministic_loss_is_the_expected_weight():
+    """Validation and test use NavAff's weights at their expectation (0.85 on a zero label, no draw): pred (1, 1),
+    label (0, 0.5) -> (0.85 * 1 + 0.25) / 2 = 0.55; one random draw gives 0.475 or 0.625."""
+    p, g = torch.tensor([[1.0, 1.0]]), torch.tensor([[0.0, 0.5]])
+    assert float(navaff_weighted_mse(p, g, None, expected=True)) == pytest.approx(0.55)
+    fn = build_loss("navaff", deterministic=True)
+    assert [float(fn(p, g, None)) for _ in range(8)] == pytest.approx([0.55] * 8)
+    draws = {round(float(build_loss("navaff")(p, g, None)), 6) for _ in range(64)}
+    assert draws == {0.475, 0.625}
