@@ -256,3 +256,51 @@ def test_check_batch_names_a_non_finite_target_yaw():
     batch["target_yaw"][0] = float("nan")
     with pytest.raises(SampleError, match=r"target_yaw holds NaN/Inf values in 1 sample"):
         check_batch(batch)
+
+
+def test_best_pose_ties_are_scores_equal_to_six_decimals():
+    """1e-8 apart is a tie (the tie-break decides), 2e-6 apart is not (the higher score wins whatever the seed)."""
+    floor = torch.tensor([[1.0, 0, 0], [2.0, 0, 0]])
+    target = torch.zeros(3)  # the first point is the nearer one
+    tied = torch.tensor([0.5, 0.50000001], dtype=torch.float64)
+    assert best_pose(floor, tied, None, target, tie_break="nearest")[0][:2] == (1.0, 0.0)
+    apart = torch.tensor([0.5, 0.500002], dtype=torch.float64)
+    for tie_break in ("nearest", "random"):
+        for seed in range(5):
+            assert best_pose(floor, apart, None, target, tie_break=tie_break, seed=seed)[0][:2] == (2.0, 0.0)
+
+
+def test_best_pose_nearest_is_the_planar_distance_then_the_lower_index():
+    target = torch.tensor([0.0, 0.0, 0.9])
+    # x offsets 0.5 and 1, planar distances 2.06 and 1
+    floor = torch.tensor([[0.5, 2.0, 0.0], [1.0, 0.0, 0.0]])
+    assert best_pose(floor, torch.zeros(2), None, target, tie_break="nearest")[0][:2] == (1.0, 0.0)
+    ring = torch.tensor([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [-1.0, 0.0, 0.0]])  # all at distance 1
+    poses = best_pose(ring, torch.zeros(3), None, target, k=3, tie_break="nearest")
+    assert [p[:2] for p in poses] == [(0.0, 1.0), (1.0, 0.0), (-1.0, 0.0)]
+
+
+def test_best_pose_leaves_out_points_without_a_finite_score():
+    floor = torch.tensor([[1.0, 0, 0], [2.0, 0, 0], [3.0, 0, 0]])
+    poses = best_pose(floor, torch.tensor([float("nan"), 0.2, 0.1]), None, torch.zeros(3), k=3)
+    assert [p[:2] for p in poses] == [(2.0, 0.0), (3.0, 0.0)]
+    with pytest.raises(SampleError, match="no valid floor point with a finite score"):
+        best_pose(floor, torch.full((3,), float("nan")), None, torch.zeros(3))
+
+
+def test_floor_grid_rounds_to_cell_centres_and_averages_each_cell():
+    """Cells are centred on multiples of ``cell``: 0.049 and 0.051 fall in the cell at 0.05; a raster cell holds the
+    mean of its points, NaN where none falls; points past the edge (one column or row beyond) are left out."""
+    xy = np.array([[0.049, 0.051], [0.149, 0.151], [0.151, 0.149]])
+    grid = FloorGrid.from_points(xy, cell=0.05)
+    assert grid.origin == pytest.approx((0.05, 0.05)) and grid.shape == (3, 3)
+    wide = FloorGrid.from_points(xy, cell=0.05, margin=2)
+    assert wide.origin == pytest.approx((-0.05, -0.05)) and wide.shape == (7, 7)
+    outside = np.array([[0.21, 0.05], [0.05, 0.21]])  # column 3 / row 3 of a 3 x 3 grid
+    raster = grid.rasterize(np.concatenate([xy, outside]), [5.0, 1.0, 3.0, 100.0, 100.0])
+    want = np.full((3, 3), np.nan)
+    want[0, 0], want[2, 2] = 5.0, 2.0
+    np.testing.assert_allclose(raster, want)
+    assert np.isnan(grid.sample(raster, outside)).all()
+    centres = grid.centers()
+    assert centres.shape == (3, 3, 2) and centres[2, 1] == pytest.approx((0.1, 0.15))  # row i is y, column j is x
