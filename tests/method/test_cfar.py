@@ -346,6 +346,22 @@ def test_residual_scale_shrinks_the_learned_residual_towards_the_prior(root):
         CFARModule(**args, residual_scale=0.5)  # no prior to shrink towards: not silently ignored
 
 
+def test_the_prior_is_read_at_the_canonical_floor_points(root):
+    """With the residual scaled to 0 the scores are the prior alone: read in the canonical frame, they do not move
+    when the whole input turns and shifts about a vertical axis (read in the robot frame, they did)."""
+    b = _batch(2)
+    m = CFARModule(**tiny_args(root), prior_residual=True, yaw_source="gt", eval_yaw_source="gt").eval()
+    canon, _ = m.canonicalize(b)
+    tasks = m.prior.task_index([str(x.get("task")) for x in b["meta"]])
+    m.prior.add(tasks, canon.floor_xyz[..., :2], b["floor_label"], b["floor_mask"])
+    m.hparams["residual_scale"] = 0.0
+    r = _rotate_everything(b, torch.tensor([2.0, -1.0]), torch.tensor([[3.0, 1.0, 0.0], [-2.0, 0.5, 0.0]]))
+    with torch.no_grad():
+        s0, s1 = m(b), m(r)
+    assert s0.std() > 1e-2  # the prior is not flat: the check below can fail
+    assert (s0 - s1).abs().max() < 1e-4
+
+
 def test_a_mistyped_teacher_batchnorm_mode_is_refused(root):
     """Anything but 'batch' ran the frozen teacher on its running statistics, without a word."""
     with pytest.raises(MisconfigurationException, match="distill_bn must be 'batch' or 'running', got 'batchnorm'"):
