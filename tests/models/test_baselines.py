@@ -512,6 +512,37 @@ def test_an_unknown_choice_or_a_bad_channel_count_is_refused_by_name(cls, args, 
         cls(**args)
 
 
+@pytest.mark.parametrize(
+    ("cls", "args", "message"),
+    [
+        # a flag given a text or a number: "false" was true
+        ("cfar", {"use_crop": "false"}, "use_crop must be true or false, got 'false'"),
+        ("prior", {"centred": "no"}, "centred must be true or false, got 'no'"),
+        (PointNet2Module, {"bf16": 1}, "bf16 must be true or false, got 1"),
+        # a count that passed every bound: range(nan) failed at the first batch; True was 1 round
+        (C2FExpModule, {"rounds": float("nan")}, "rounds must be an integer, got nan"),
+        (C2FExpModule, {"rounds": True}, "rounds must be an integer, got True"),
+        (C2FExpModule, {"seed": "abc"}, "seed must be an integer, got 'abc'"),  # int('abc') at the first batch
+        # failed inside torch or Python naming no argument
+        ("tiny", {"width": 0.5}, "width must be an integer, got 0.5"),
+        (PointNet2Module, {"npoints": 64}, "npoints must be a list of integers or null, got 64"),
+        ("cfar", {"head": 256}, "head must be a list of integers or null, got 256"),
+        ("cfar", {"local_mlps": [[32, "64"]]}, r"local_mlps\[0\]\[1\] must be an integer, got '64'"),
+        (C2FExpModule, {"scorer": 0.5}, "scorer must be a text, got 0.5"),
+        (C2FExpModule, {"r_max": None}, "r_max must be a number, got None"),
+    ],
+)
+def test_a_wrongly_typed_init_arg_is_refused_by_name(cls, args, message):
+    """The CLI checks types itself; Python, checkpoints and hub configs did not: a text for a flag was true, and a
+    number for a list or a float for a width failed inside torch with an error that named no argument."""
+    from floaff_zoo.models.cfar import CFARModule
+    from floaff_zoo.models.tiny import TinyPointNetModule
+
+    cls = {"cfar": CFARModule, "prior": CanonicalPriorModule, "tiny": TinyPointNetModule}.get(cls, cls)
+    with pytest.raises(ValueError, match=rf"{cls.__name__}: {message}"):
+        cls(**args)
+
+
 @pytest.mark.parametrize("name", ["pointnet2_ssg", "votenet", "h3dnet", "navaff", "n2m"])
 @pytest.mark.parametrize("value", [1.0, float("nan"), 1.5, -0.1])
 def test_a_dropout_outside_zero_to_one_is_refused_by_name(name, value):

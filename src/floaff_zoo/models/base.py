@@ -21,10 +21,13 @@ Checkpoints and hub configs written before the ``train`` group hold the training
 
 from __future__ import annotations
 
+import collections.abc
 import dataclasses
 import inspect
+import numbers
 import os
 import random
+import re
 import types
 import typing
 from collections.abc import Mapping
@@ -100,6 +103,92 @@ def check_choices(cls: type, args: Mapping[str, Any]) -> None:
         choices = literal_choices(hint)
         if choices and name in args and args[name] not in choices:
             raise ValueError(f"{cls.__name__}: {name} must be one of {list(choices)}, got {args[name]!r}")
+
+
+_PLURAL = {bool: "flags", int: "integers", float: "numbers", str: "texts"}
+_SINGULAR = {bool: "true or false", int: "an integer", float: "a number", str: "a text", type(None): "null"}
+
+
+def _expected(hint: Any, plural: bool = False) -> str:
+    """How a message words the values ``hint`` allows ("an integer", "a list of lists of numbers")."""
+    origin = typing.get_origin(hint)
+    if origin in (list, tuple, collections.abc.Sequence):
+        args = typing.get_args(hint)
+        inner = f" of {_expected(args[0], plural=True)}" if args else ""
+        return f"{'lists' if plural else 'a list'}{inner}"
+    if origin in (typing.Union, types.UnionType):
+        return " or ".join(_expected(p, plural) for p in typing.get_args(hint))
+    if origin in (dict, Mapping, collections.abc.Mapping):
+        return "mappings" if plural else "a mapping"
+    return (_PLURAL if plural else _SINGULAR).get(hint, str(hint))
+
+
+def _type_mismatch(value: object, hint: Any, path: str) -> tuple[str, str] | None:
+    """(path of the first part of ``value`` that ``hint`` does not allow, the words for what it allows); None when
+    ``value`` fits (or ``hint`` is one this check does not read: ``Literal``, dataclasses, ``Any``)."""
+    origin = typing.get_origin(hint)
+    if origin in (typing.Union, types.UnionType):
+        parts = [p for p in typing.get_args(hint) if p is not type(None)]
+        if value is None and len(parts) < len(typing.get_args(hint)):
+            return None
+        if len(parts) == 1:  # ``X | None`` given something else: the error is X's (an entry of a list named)
+            wrong = _type_mismatch(value, parts[0], path)
+            return (path, f"{wrong[1]} or null") if wrong and wrong[0] == path else wrong
+        fits = any(_type_mismatch(value, p, path) is None for p in parts)
+        return None if fits else (path, _expected(hint))
+    if origin in (list, tuple, collections.abc.Sequence):
+        if not isinstance(value, (list, tuple)):  # a text is a sequence too: "64" read as [6, 4]
+            return path, _expected(hint)
+        args = typing.get_args(hint)
+        for i, item in enumerate(value if args else ()):
+            wrong = _type_mismatch(item, args[0], f"{path}[{i}]")
+            if wrong:
+                return wrong
+        return None
+    if origin in (dict, Mapping, collections.abc.Mapping):
+        return None if isinstance(value, Mapping) else (path, _expected(hint))
+    fits = {
+        bool: checks.is_flag,
+        int: lambda v: isinstance(v, numbers.Integral) and not checks.is_flag(v),
+        float: checks.is_number,
+        str: lambda v: isinstance(v, (str, os.PathLike)),
+        type(None): lambda v: v is None,
+    }.get(hint)
+    return None if fits is None or fits(value) else (path, _expected(hint))
+
+
+def wrong_init_type(cls: type, args: Mapping[str, Any]) -> tuple[str, str] | None:
+    """The first init arg of ``cls`` in ``args`` whose value its type hint does not allow: (its name, the message).
+
+    The CLI checks types itself; checkpoints, hub configs and Python do not: the text "false" for a flag was true, a
+    NaN ``rounds`` or ``num_pose_samples`` passed every bound, and a number for a list failed inside torch naming no
+    argument. ``Literal`` hints are :func:`check_choices`'s; ranges are each model's own checks.
+    """
+    try:
+        hints = typing.get_type_hints(cls.__init__)
+    except (NameError, TypeError, AttributeError, SyntaxError):  # a user's hint naming what only a type checker sees
+        return None
+    for name, hint in hints.items():
+        if name in ("return", "train") or name not in args:
+            continue
+        wrong = _type_mismatch(args[name], hint, name)
+        if wrong:
+            path, what = wrong
+            value = _at_path(args[name], path[len(name) :])
+            return name, f"{cls.__name__}: {path} must be {what}, got {checks.shown(value)}"
+    return None
+
+
+def _at_path(value: Any, path: str) -> Any:
+    """``value`` at an index path such as ``"[0][2]"`` (the part :func:`_type_mismatch` names)."""
+    for index in re.findall(r"\[(\d+)\]", path):
+        value = value[int(index)]
+    return value
+
+
+def names_argument(message: str, name: str) -> bool:
+    """Whether ``message`` names ``name`` as a word (``mlps`` is not named by ``fp_mlps`` or ``SharedMLP``)."""
+    return re.search(rf"(?<!\w){re.escape(name)}(?!\w)", message) is not None
 
 
 def check_dropout(value: object, owner: str) -> None:
@@ -289,6 +378,11 @@ class ZooModule(L.LightningModule):
         self.save_hyperparameters({**self.hparams, "train": dataclasses.asdict(train)})
         try:
             self.configure_models()
+        except (TypeError, ValueError, IndexError) as exc:  # a wrongly typed argument fails inside torch, unnamed
+            wrong = wrong_init_type(type(self), self.hparams)
+            if wrong is None or names_argument(str(exc), wrong[0]):  # a model's own check words it first
+                raise
+            raise ValueError(wrong[1]) from exc
         except RuntimeError as exc:  # torch's own words name no argument
             if "negative dimension" not in str(exc):
                 raise
@@ -296,6 +390,9 @@ class ZooModule(L.LightningModule):
                 f"{type(self).__name__}: a size argument is negative ({exc}); every width, channel count and mlps "
                 "entry must be >= 1"
             ) from exc
+        wrong = wrong_init_type(type(self), self.hparams)  # what the build took: "false" for a flag, a NaN count
+        if wrong is not None:
+            raise ValueError(wrong[1])
         check_choices(type(self), self.hparams)  # after configure_models: its own checks word some choices first
         check_layer_sizes(self)
         self.configure_losses()
