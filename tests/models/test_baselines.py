@@ -607,3 +607,28 @@ def test_an_empty_list_saved_when_it_meant_the_default_still_loads():
     kept = {"prior_residual": True, "prior_tasks": ["CloseDrawer"]}
     assert CFARModule.upgrade_init_args(kept)["prior_tasks"] == ["CloseDrawer"]
     AxisNetModule(**AxisNetModule.upgrade_init_args({"widths": []}))
+
+
+@pytest.mark.parametrize(
+    ("field", "cut", "message"),
+    [
+        ("target_xyz", lambda t: t[:, :2], r"target_xyz must be \[B=2, 3\], got \[2, 2\]"),  # trained silently
+        ("robot", lambda t: t[:, 0], r"robot must be \[B=2, R\], got \[2\]"),
+        ("scene_feat", lambda t: t[:, :100], r"scene_feat must be \[B=2, N=256, C\], got \[2, 100, 1\]"),
+        ("floor_label", lambda t: t[:, :10], r"floor_label must be \[B=2, M=64\], got \[2, 10\]"),
+        ("robot", lambda t: t[:1], r"robot must be \[B=2, R\], got \[1, 2\]"),
+        ("meta", lambda t: t[:1], r"meta must hold B=2 entries, got 1"),
+    ],
+)
+def test_a_batch_whose_fields_disagree_on_their_sizes_is_refused_naming_the_field(field, cut, message):
+    """A user's collate or a hand-built batch need not follow the contract's shapes: a 2-column target_xyz trained
+    TinyPointNet without a word, the others failed inside torch naming no field."""
+    from floaff_zoo.contract import SampleError
+    from floaff_zoo.models.tiny import TinyPointNetModule
+
+    batch = collate_samples([make_synthetic_sample(i, num_points=256, floor_cells=8) for i in range(2)])
+    batch[field] = cut(batch[field])
+    model = TinyPointNetModule(width=8)
+    for step in (model.training_step, model.validation_step, model.predict_step):
+        with pytest.raises(SampleError, match=rf"TinyPointNetModule: batch field {message}"):
+            step(batch, 0)
