@@ -524,7 +524,7 @@ def test_an_unknown_choice_or_a_bad_channel_count_is_refused_by_name(cls, args, 
         (C2FExpModule, {"rounds": True}, "rounds must be an integer, got True"),
         (C2FExpModule, {"seed": "abc"}, "seed must be an integer, got 'abc'"),  # int('abc') at the first batch
         # failed inside torch or Python naming no argument
-        ("tiny", {"width": 0.5}, "width must be an integer, got 0.5"),
+        ("tiny", {"width": 0.5}, "width must be an integer >= 1, got 0.5"),
         (PointNet2Module, {"npoints": 64}, "npoints must be a list of integers or null, got 64"),
         ("cfar", {"head": 256}, "head must be a list of integers or null, got 256"),
         ("cfar", {"local_mlps": [[32, "64"]]}, r"local_mlps\[0\]\[1\] must be an integer, got '64'"),
@@ -632,3 +632,31 @@ def test_a_batch_whose_fields_disagree_on_their_sizes_is_refused_naming_the_fiel
     for step in (model.training_step, model.validation_step, model.predict_step):
         with pytest.raises(SampleError, match=rf"TinyPointNetModule: batch field {message}"):
             step(batch, 0)
+
+
+@pytest.mark.parametrize(
+    ("name", "arg", "value", "message"),
+    [
+        ("votenet", "proposal_radius", 0, "proposal_radius must be a finite number > 0"),  # reported as "radii"
+        ("h3dnet", "proposal_radius", float("nan"), "proposal_radius must be a finite number > 0"),
+        ("votenet", "num_proposals", 0, "num_proposals must be an integer >= 1"),  # reported as "npoints"
+        ("h3dnet", "proposal_nsample", -1, "proposal_nsample must be an integer >= 1"),  # reported as "nsamples"
+        ("h3dnet", "fuse_width", 0, "fuse_width must be an integer >= 1"),  # "SharedMLP: in_channels"
+        ("pointnet2_ssg", "robot_width", -1, "robot_width must be an integer >= 1"),  # "mlp: sizes"
+        ("pointnet2_msg", "head_width", 0, "head_width must be an integer >= 1"),  # named the layer only
+    ],
+)
+def test_a_zero_or_negative_size_is_refused_by_its_own_name(name, arg, value, message):
+    """The nets worded a bad proposal radius or count by their own parameter, which is another init arg of the model
+    (``radii``, ``npoints``), and an empty width by the layer it left empty."""
+    cfg = yaml.safe_load((TINY / f"{name}_tiny.yaml").read_text())["model"]
+    cls = CLASSES[cfg["class_path"].rsplit(".", 1)[1]]
+    with pytest.raises(ValueError, match=rf"{cls.__name__}: {message}"):
+        cls(**{**cfg.get("init_args", {}), arg: value})
+
+
+def test_tiny_pointnet_refuses_a_width_of_zero_by_name():
+    from floaff_zoo.models.tiny import TinyPointNetModule
+
+    with pytest.raises(ValueError, match="TinyPointNetModule: width must be an integer >= 1, got 0"):
+        TinyPointNetModule(width=0)

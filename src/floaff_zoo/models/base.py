@@ -191,6 +191,18 @@ def names_argument(message: str, name: str) -> bool:
     return re.search(rf"(?<!\w){re.escape(name)}(?!\w)", message) is not None
 
 
+def check_sizes(args: Mapping[str, Any], names: tuple[str, ...], owner: str) -> None:
+    """Refuse a width or count among ``names`` of ``args`` that is not an integer >= 1, naming it: the nets word a
+    0 or -1 by their own parameter (``proposal_radius: 0`` was reported as ``radii``, another init arg), or by the
+    layer it leaves empty.
+
+    Raises:
+        ValueError: ``"{owner}: {name} must be an integer >= 1, got {value}"``.
+    """
+    for name in names:
+        checks.check_integer(name, args[name], 1, owner=owner)
+
+
 def check_dropout(value: object, owner: str) -> None:
     """Refuse a dropout probability outside [0, 1): 1 zeroed every activation (the head learned a constant), NaN
     passed torch's constructor and failed at the first training batch, and torch's own error named no model.

@@ -5,9 +5,9 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from floaff_zoo.checks import check_numbers
+from floaff_zoo.checks import check_number, check_numbers
 from floaff_zoo.contract import Batch
-from floaff_zoo.models.base import FloAffTrainConfig, check_dropout
+from floaff_zoo.models.base import FloAffTrainConfig, check_dropout, check_sizes
 from floaff_zoo.models.pointnet2 import maybe_compile
 from floaff_zoo.models.votenet import SeedVotingModule
 from floaff_zoo.nn.nets import PRIMITIVES, H3DNetNet, target_primitives
@@ -75,6 +75,9 @@ class H3DNetModule(SeedVotingModule):
         check_dropout(h["dropout"], type(self).__name__)
         names = ("vote_weight", "face_offset", "edge_half_width", "vote_radius")
         check_numbers({k: h[k] for k in names}, owner=type(self).__name__)
+        sizes = ("num_proposals", "proposal_nsample", "proposal_width", "fuse_width", "robot_width", "head_width")
+        check_sizes(h, sizes, type(self).__name__)
+        check_number("proposal_radius", h["proposal_radius"], strict=True, owner=type(self).__name__)
         self.net = H3DNetNet(
             h["feat_channels"],
             h["robot_dim"],

@@ -14,7 +14,7 @@ import torch
 from torch import Tensor, nn
 
 from floaff_zoo.contract import Batch
-from floaff_zoo.models.base import FloAffModule, FloAffTrainConfig, check_choices, check_dropout
+from floaff_zoo.models.base import FloAffModule, FloAffTrainConfig, check_choices, check_dropout, check_sizes
 from floaff_zoo.nn.nets import PointNet2Net, check_inputs, require_valid
 from floaff_zoo.nn.placement import OCCUPANCY_CHANNELS, footprint_occupancy
 
@@ -153,6 +153,7 @@ class PointNet2Module(FloAffModule):
     def configure_models(self) -> None:
         h = self.hparams
         check_dropout(h["dropout"], type(self).__name__)
+        check_sizes(h, ("robot_width", "head_width"), type(self).__name__)
         check_choices(type(self), {"variant": h["variant"]})  # named by this module, before PointNet2Net's check
         sizes = resolve_sizes(
             h["variant"],

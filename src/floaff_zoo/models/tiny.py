@@ -6,7 +6,7 @@ import torch
 from torch import Tensor, nn
 
 from floaff_zoo.contract import Batch
-from floaff_zoo.models.base import FloAffModule, FloAffTrainConfig
+from floaff_zoo.models.base import FloAffModule, FloAffTrainConfig, check_sizes
 
 
 class TinyPointNet(nn.Module):
@@ -63,6 +63,7 @@ class TinyPointNetModule(FloAffModule):
 
     def configure_models(self) -> None:
         h = self.hparams
+        check_sizes(h, ("width",), type(self).__name__)
         self.net = TinyPointNet(h["feat_channels"], h["robot_dim"], h["width"])
 
     def forward(self, batch: Batch) -> Tensor:

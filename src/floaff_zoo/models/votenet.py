@@ -7,9 +7,9 @@ import abc
 import torch
 from torch import Tensor
 
-from floaff_zoo.checks import check_numbers
+from floaff_zoo.checks import check_number, check_numbers
 from floaff_zoo.contract import Batch
-from floaff_zoo.models.base import FloAffModule, FloAffTrainConfig, check_dropout
+from floaff_zoo.models.base import FloAffModule, FloAffTrainConfig, check_dropout, check_sizes
 from floaff_zoo.models.pointnet2 import maybe_compile, run_scene_floor_net
 from floaff_zoo.nn.nets import VoteNetNet
 
@@ -154,6 +154,9 @@ class VoteNetModule(SeedVotingModule):
         check_dropout(h["dropout"], type(self).__name__)
         check_numbers({"vote_weight": h["vote_weight"]}, owner=type(self).__name__)
         check_numbers({"vote_label_threshold": h["vote_label_threshold"]}, high=1.0, owner=type(self).__name__)
+        sizes = ("num_proposals", "proposal_nsample", "proposal_width", "robot_width", "head_width")
+        check_sizes(h, sizes, type(self).__name__)
+        check_number("proposal_radius", h["proposal_radius"], strict=True, owner=type(self).__name__)
         self.net = VoteNetNet(
             h["feat_channels"],
             h["robot_dim"],
