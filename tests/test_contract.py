@@ -250,6 +250,17 @@ def test_check_batch_names_a_non_finite_label_on_a_valid_floor_point():
         check_batch(batch)
 
 
+def test_check_batch_names_a_label_outside_0_1_on_a_valid_floor_point():
+    """validate_sample refuses such a label; a user's collate does not pass through it, and a label of 5 trained
+    every model silently. Padding may hold anything."""
+    batch = collate_samples([validate_sample(_sample(m=6)), validate_sample(_sample(m=4))], mode="pad")
+    batch["floor_label"][1, 5] = 5.0  # padding of the shorter sample
+    check_batch(batch)
+    batch["floor_label"][0, 2] = -0.5
+    with pytest.raises(SampleError, match=r"floor_label holds values outside \[0, 1\] in 1 sample"):
+        check_batch(batch)
+
+
 def test_check_batch_names_a_non_finite_target_yaw():
     """H3DNet's target primitives, CFAR's `gt` yaw and AxisNet's loss read it; a NaN made maps and losses NaN."""
     batch = collate_samples([validate_sample(_sample()), validate_sample(_sample())])

@@ -352,12 +352,16 @@ _FINITE_FIELDS = {
 }
 
 
+#: ``check_batch``'s key for labels outside [0, 1] on a valid floor point
+_LABEL_RANGE = "floor_label range"
+
+
 def check_batch(batch: Batch) -> None:
-    """Raise a clear error for an empty batch, one whose samples have no valid floor or scene point, or one with
-    NaN/Inf on a valid point of the inputs every model reads (the readers refuse such files; a user's data module or
-    a batch built by hand does not pass through them), naming the field and the samples. Every model of the zoo calls
-    this before its step: CFAR, the prior and AxisNet cropped NaN points away without a word, the other models named
-    them."""
+    """Raise a clear error for an empty batch, one whose samples have no valid floor or scene point, one with a
+    label outside [0, 1] on a valid floor point, or one with NaN/Inf on a valid point of the inputs every model
+    reads (the readers refuse such files; a user's data module or a batch built by hand does not pass through them),
+    naming the field and the samples. Every model of the zoo calls this before its step: CFAR, the prior and AxisNet
+    cropped NaN points away without a word, the other models named them."""
     if batch["scene_xyz"].shape[0] == 0:
         raise SampleError("empty batch (0 samples)")
     # [B] per check; a sample with no valid scene point was scored from nothing (TinyPointNet) or failed naming another
@@ -373,6 +377,11 @@ def check_batch(batch: Batch) -> None:
         if mask_key is not None and bad.dim() == 2 and torch.is_tensor(batch.get(mask_key)):
             bad = bad & batch[mask_key].bool()
         rows_of[key] = bad.reshape(bad.shape[0], -1).any(dim=1)  # [B]
+    label = batch.get("floor_label")
+    if torch.is_tensor(label) and label.is_floating_point() and torch.is_tensor(batch.get("floor_mask")):
+        # a success probability: a label of 5 or -1 from a user's collate trained every model without a word
+        outside = ((label < 0) | (label > 1)) & batch["floor_mask"].bool()
+        rows_of[_LABEL_RANGE] = outside.reshape(outside.shape[0], -1).any(dim=1)
     if not bool(torch.stack(list(rows_of.values())).any()):  # one host sync per step; the details only on failure
         return
     meta = batch.get("meta") or []
@@ -382,6 +391,8 @@ def check_batch(batch: Batch) -> None:
             names = [_where(meta[i] if i < len(meta) else None) for i in bad_rows[:3]]
             if key in ("floor", "scene"):
                 raise SampleError(f"{len(bad_rows)} sample(s) in the batch have no valid {key} point: {names}")
+            if key == _LABEL_RANGE:
+                raise SampleError(f"floor_label holds values outside [0, 1] in {len(bad_rows)} sample(s): {names}")
             raise SampleError(f"{key} holds NaN/Inf values in {len(bad_rows)} sample(s) of the batch: {names}")
 
 
