@@ -193,6 +193,90 @@ def test_manhattan_yaw_without_reference_uses_the_heading_and_falls_back():
     assert torch.allclose(far, heading_yaw(target))
 
 
+def _face(yaw: float, centre: list[float], n: int, seed: int) -> torch.Tensor:
+    """n points [n, 3] on a 0.6 m wide, 0.9 m high vertical face through ``centre`` whose outward normal has ``yaw``."""
+    g = torch.Generator().manual_seed(seed)
+    u, z = (torch.rand(n, generator=g) * 2 - 1) * 0.3, torch.rand(n, generator=g) * 0.9
+    side = torch.tensor([-math.sin(yaw), math.cos(yaw), 0.0])
+    return torch.tensor(centre) + u[:, None] * side + z[:, None] * torch.tensor([0.0, 0.0, 1.0])
+
+
+def _err_deg(est: torch.Tensor, yaw_deg: float) -> float:
+    return abs((math.degrees(float(est[0])) - yaw_deg + 180.0) % 360.0 - 180.0)
+
+
+def test_manhattan_yaw_picks_any_of_the_four_directions_in_range_from_the_reference():
+    """A side view: the front (100 deg) is 90 deg from the face direction mod 90 (10 deg) and ~90 deg from the
+    heading (~191 deg); the reference (120 deg) picks it, and the yaw comes back in [-pi, pi)."""
+    xyz, target = _box_scene(math.radians(100.0))
+    mask = torch.ones(xyz.shape[:2], dtype=torch.bool)
+    assert _err_deg(manhattan_yaw(xyz, mask, target, 2.0, torch.tensor([math.radians(120.0)])), 100.0) < 2.0
+    xyz, target = _box_scene(math.radians(-100.0))  # base -10 deg + 270 deg: wrapped to -100 deg, not 260 deg
+    est = manhattan_yaw(xyz, mask, target, 2.0, torch.tensor([math.radians(-80.0)]))
+    assert -math.pi <= float(est[0]) < math.pi and abs(math.degrees(float(est[0])) + 100.0) < 2.0
+
+
+def test_manhattan_yaw_reads_the_nearest_valid_points_and_only_vertical_faces():
+    target = torch.tensor([[1.0, 0.0, 0.4]])
+    near = _face(math.radians(170.0), [1.0, 0.0, 0.0], 1100, 0)  # within 0.6 m of the target
+    far = _face(math.radians(140.0), [-0.4, 0.6, 0.0], 1100, 1)  # 1.5-1.7 m away, 30 deg off the near axes
+    ref = torch.tensor([math.radians(180.0)])
+    xyz = torch.cat([far, near])[None]  # over MAX_POINTS within the radius: the 1,024 nearest are the near face
+    assert _err_deg(manhattan_yaw(xyz, torch.ones(1, 2200, dtype=torch.bool), target, 2.0, ref), 170.0) < 1.0
+    few = torch.cat([far[:300], near[:300]])[None]
+    mask = torch.arange(600)[None] >= 300  # the far face is masked out
+    assert _err_deg(manhattan_yaw(few, mask, target, 2.0, ref), 170.0) < 1.0
+    # a slanted face (|n_z| = 0.6, its horizontal normal 22.5 deg off the axes) is no vertical face, whichever
+    # sign its PCA normal takes
+    g = torch.Generator().manual_seed(5)
+    phi, uv = math.radians(192.5), torch.rand(600, 2, generator=g) - 0.5
+    normal = torch.tensor([0.8 * math.cos(phi), 0.8 * math.sin(phi), 0.6])
+    across = torch.tensor([-math.sin(phi), math.cos(phi), 0.0])
+    slanted = torch.tensor([1.0, 0.0, 0.6]) + uv[:, :1] * across + uv[:, 1:] * torch.linalg.cross(normal, across)
+    xyz = torch.cat([near[:600], slanted])[None]
+    assert _err_deg(manhattan_yaw(xyz, torch.ones(1, 1200, dtype=torch.bool), target, 2.0, ref), 170.0) < 1.0
+
+
+def test_manhattan_yaw_keeps_the_reference_with_k_points_or_fewer():
+    near = _face(math.radians(170.0), [1.0, 0.0, 0.0], 12, 0)[None]  # MANHATTAN_K points: no k-NN neighbourhood
+    ref = torch.tensor([math.radians(177.0)])
+    est = manhattan_yaw(near, torch.ones(1, 12, dtype=torch.bool), torch.tensor([[1.0, 0.0, 0.4]]), 2.0, ref)
+    assert torch.allclose(est, ref)
+
+
+def test_local_normals_are_face_normals_and_planarity_is_high_on_faces_only():
+    g = torch.Generator().manual_seed(0)
+    wall = _face(math.radians(30.0), [0.0, 0.0, 0.0], 200, 0)
+    normals, planarity = local_normals(wall)
+    # PCA normals have either sign
+    assert torch.allclose(
+        (normals[:, :2] @ torch.tensor([math.cos(math.pi / 6), 0.5])).abs(), torch.ones(200), atol=1e-4
+    )
+    assert float(planarity.min()) > 0.99
+    line = torch.cat([torch.rand(200, 1, generator=g), 0.01 * torch.randn(200, 2, generator=g)], 1)  # a cable
+    assert float(local_normals(line)[1].mean()) < 0.8  # 1 - smallest / middle eigenvalue: ~0.5 on a line
+
+
+def test_estimate_yaw_heading_faces_the_robot_and_axisnet_manhattan_snaps_axisnet():
+    from floaff_zoo.models.yaw import axisnet_yaw, estimate_yaw
+    from floaff_zoo.nn.axisnet import AxisNet
+
+    xyz, target = _box_scene(math.radians(100.0))
+    batch = {"scene_xyz": xyz, "scene_mask": torch.ones(xyz.shape[:2], dtype=torch.bool), "target_xyz": target}
+    batch["scene_feat"] = torch.zeros(*xyz.shape[:2], 1)
+    # the target at (1.5, 0.3): its front faces back to the robot at the origin
+    assert torch.allclose(
+        estimate_yaw(batch, "heading", None, 1.3, 2.0, "t"), torch.atan2(-target[:, 1], -target[:, 0])
+    )
+    torch.manual_seed(1)  # an untrained AxisNet whose yaw (13 deg) is far from the heading (191 deg)
+    net = AxisNet(4, [8], [8]).eval()
+    ref = axisnet_yaw(batch, net, 1.3)
+    snapped = estimate_yaw(batch, "axisnet_manhattan", net, 1.3, 2.0, "t")
+    assert torch.allclose(snapped, manhattan_yaw(xyz, batch["scene_mask"], target, 2.0, ref))
+    # AxisNet's reference picks another of the four directions than the heading would: the reference is used
+    assert not torch.allclose(snapped, manhattan_yaw(xyz, batch["scene_mask"], target, 2.0))
+
+
 _X, _M, _T = torch.rand(2, 40, 3), torch.ones(2, 40, dtype=torch.bool), torch.zeros(2, 3)
 
 
