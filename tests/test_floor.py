@@ -256,3 +256,22 @@ def test_a_lattice_refuses_a_half_size_that_is_no_integer_and_a_centre_that_is_n
             FloorLattice(centre, 0.0, 0.1, (1, 2))
     with pytest.raises(ValueError, match=r"half sizes \(ny, nx\) must be >= 0"):
         FloorLattice((0.0, 0.0), 0.0, 0.1, (-1, 2))
+
+
+def test_footprint_occupancy_rescales_counts_to_the_reference_cloud_size():
+    """Counts are expressed for OCCUPANCY_REF_POINTS = 1024 valid points; the flag is rescaled count >= 2."""
+    import torch
+
+    from floaff_zoo.nn.placement import footprint_occupancy
+
+    xyz = torch.zeros(3, 1024, 3)
+    xyz[:, :, 0] = 5.0  # out of every footprint
+    xyz[:, 0] = torch.tensor([0.0, 0.0, 0.5])  # one obstacle point on the base parked at the origin
+    mask = torch.zeros(3, 1024, dtype=torch.bool)
+    mask[0, :512] = True  # 512 valid points: 1 point counts as 2
+    mask[1] = True  # 1024 valid points: 1 point is 1, under the flag's 2
+    floor = torch.zeros(3, 1, 3)
+    target = torch.tensor([[1.0, 0.0, 0.5]]).expand(3, 3)  # the base faces +x; sample 2 has no valid point
+    occ = footprint_occupancy(xyz, mask, floor, target)
+    expected = [[math.log1p(2.0), 1.0], [math.log1p(1.0), 0.0], [0.0, 0.0]]
+    assert torch.allclose(occ[:, 0], torch.tensor(expected))
