@@ -268,8 +268,10 @@ def test_estimate_yaw_heading_faces_the_robot_and_axisnet_manhattan_snaps_axisne
     assert torch.allclose(
         estimate_yaw(batch, "heading", None, 1.3, 2.0, "t"), torch.atan2(-target[:, 1], -target[:, 0])
     )
-    torch.manual_seed(1)  # an untrained AxisNet whose yaw (13 deg) is far from the heading (191 deg)
     net = AxisNet(4, [8], [8]).eval()
+    with torch.no_grad():  # an AxisNet whose yaw is 13 deg whatever it sees, far from the heading (191 deg)
+        net.out.weight.zero_()
+        net.out.bias.copy_(torch.tensor([math.sin(math.radians(13.0)), math.cos(math.radians(13.0))]))
     ref = axisnet_yaw(batch, net, 1.3)
     snapped = estimate_yaw(batch, "axisnet_manhattan", net, 1.3, 2.0, "t")
     assert torch.allclose(snapped, manhattan_yaw(xyz, batch["scene_mask"], target, 2.0, ref))
