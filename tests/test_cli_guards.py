@@ -272,13 +272,13 @@ def test_ckpt_best_with_a_truncated_last_ckpt_names_it(width16_run, tmp_path, ro
             "fit",
             DATA,
             ["--model.init_args.width", "0", "--trainer.max_steps", "1"],
-            "model (TinyPointNetModule): TinyPointNetModule: layer net.",
+            "model (TinyPointNetModule): TinyPointNetModule: width must be an integer >= 1, got 0",
         ),
         (
             "fit",
             DATA,
             ["--model.init_args.width", "-3"],
-            "model (TinyPointNetModule): TinyPointNetModule: a size argument is negative",
+            "model (TinyPointNetModule): TinyPointNetModule: width must be an integer >= 1, got -3",
         ),
     ],
 )

@@ -50,7 +50,7 @@ def test_heads_refuse_sizes_by_name(build, message):
 def test_layer_widths_and_encoder_channels_are_whole_numbers():
     """A fractional or negative width failed inside nn.Linear naming nothing; a negative encoder input built a
     narrower first level. A width of 0 reaches the model's check, which names the model and the layer."""
-    from floaff_zoo.models.pointnet2 import PointNet2Module
+    from floaff_zoo.models.cfar import CFARModule
     from floaff_zoo.nn.cfar import plain_mlp
     from floaff_zoo.nn.pointnet2 import PointNet2Encoder
 
@@ -58,8 +58,8 @@ def test_layer_widths_and_encoder_channels_are_whole_numbers():
         plain_mlp(4, [8, 2.5])
     with pytest.raises(ValueError, match="mlp: sizes: a layer's width must be an integer >= 0, got -1"):
         PointNet2Net("ssg", **{**SIZES, "robot_width": -1})
-    with pytest.raises(ValueError, match=r"PointNet2Module: layer net\.scene\.robot\.0 \(Linear\) has out_features 0"):
-        PointNet2Module(robot_width=0)
+    with pytest.raises(ValueError, match=r"CFARModule: layer net\.head\.linears\.0 \(Linear\) has out_features 0"):
+        CFARModule(head=[0])  # robot_width and the other single widths are each checked by name first
     assert len(plain_mlp(4, [])) == 0  # an empty list stays the identity
     with pytest.raises(ValueError, match="PointNet2Encoder: in_channels must be an integer >= 0, got -1"):
         PointNet2Encoder(-1, [8], [[0.3]], [[4]], [[[8]]], xyz_as_feat=True)
