@@ -203,3 +203,39 @@ def test_one_rollout_with_workers_runs_on_the_given_scene(scene_factory, monkeyp
     monkeypatch.setattr(annotate, "RolloutService", NoService)
     again = annotate_scene(sc, cell=0.2, max_candidates=1, workers=2)
     assert again.counts["rolled_out"] == 1 and again.success.tobytes() == one.success.tobytes()
+
+
+def test_candidate_grid_counts_cells_up_to_the_region_edge_in_the_target_frame():
+    """|x°| <= r_x and |y°| <= r_y on the cell lattice, row-major (y°, x°); a region that is a whole number of cells
+    keeps its edge cell though r / cell falls just below it in floating point (1.2 / 0.05 = 23.999999999999996:
+    the default region lost its outer rows and labels moved by a row)."""
+    from types import SimpleNamespace
+
+    from floaff_zoo.sim.annotate import candidate_grid
+    from floaff_zoo.sim.tasks import TargetInfo
+
+    scene = SimpleNamespace(target=TargetInfo(np.zeros(3), 0.0, "drawer", [], np.zeros(0, np.int64), []))
+    xy, shape, xo = candidate_grid(scene, 0.2, 0.5, 0.6)  # 0.5 / 0.2 = 2.5 -> 2; 0.6 / 0.2 = 2.9999999999999996 -> 3
+    assert shape == (7, 5) and xo.shape == (35, 2)
+    assert xo[0] == pytest.approx([-0.4, -0.6]) and xo[1] == pytest.approx([-0.2, -0.6])  # x° runs fastest
+    assert xo[5] == pytest.approx([-0.4, -0.4]) and xo[-1] == pytest.approx([0.4, 0.6])
+    assert xy[0] == pytest.approx([0.6, -0.4])  # target at the origin facing +x: world = (-y°, x°)
+    assert candidate_grid(scene, 0.2, 0.6, 0.5)[1] == (5, 7)  # and the same rule along x°
+    assert candidate_grid(scene, 0.05, 1.0, 1.2)[1] == (49, 41) and candidate_grid(scene, 0.05, 1.2, 1.0)[1] == (41, 49)
+
+
+def test_probability_label_ignores_skipped_cells():
+    """A skipped cell carries no rate: its value must not enter the map, nor count as a failure beside it."""
+    shape = (1, 3)
+    status = np.array([ROLLED_OUT, SKIPPED, ROLLED_OUT])
+    lab = probability_label(np.array([1.0, 0.7, 1.0]), status, shape, sigma_cells=1.0)
+    every = probability_label(np.ones(3), np.full(3, ROLLED_OUT), shape, sigma_cells=1.0)
+    assert lab == pytest.approx(every, abs=1e-6)  # the known neighbourhood reads success everywhere
+    lab = probability_label(np.array([1.0, 0.7, 0.0]), status, shape, sigma_cells=0.0)
+    assert lab == pytest.approx([1.0, 0.0, 0.0])  # unsmoothed: the skipped cell's 0.7 is dropped
+    one = np.full(9, SKIPPED)
+    one[0] = ROLLED_OUT  # one known success: skipped cells within the kernel's reach read it, however weakly weighed
+    every = probability_label(np.ones(9), np.full(9, ROLLED_OUT), (1, 9), sigma_cells=1.0)
+    assert probability_label(np.eye(1, 9)[0], one, (1, 9), sigma_cells=1.0)[:4] == pytest.approx(every[:4], abs=1e-6)
+    with pytest.raises(ValueError, match=r"range \[-0.1, 1\]"):
+        probability_label(np.array([1.0, -0.1, 1.0]), status, shape)
