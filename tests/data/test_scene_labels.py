@@ -53,6 +53,7 @@ def test_file_round_trip_and_bad_files(tmp_path):
     for bad, match in (
         ((np.zeros((3, 2)), np.array([0.0, 2.0, 1.0]), 0.1), "scene b has non-finite values or labels outside"),
         ((np.zeros((3, 2)), np.array([0.0, np.nan, 1.0]), 0.1), "scene b has non-finite"),
+        ((np.zeros((3, 2)), np.array([0.0, -0.5, 1.0]), 0.1), "scene b has non-finite values or labels outside"),
         ((np.zeros((3, 2)), np.zeros(2), 0.1), r"scene b has xy \[3, 2\], label \[2\]"),
         # an inf spacing put every floor point on the grid; a scene of no cell failed at the first sample (numpy's
         # argmin of an empty sequence); a spacing of shape [2] was a TypeError that escaped the data module's check
@@ -111,6 +112,9 @@ def test_transform_maps_floor_points_to_their_cells(tmp_path):
     assert out["floor_label"].tolist() == pytest.approx([0.1, 0.3, 0.2])
     with pytest.raises(SampleError, match="1 floor point"):
         t(_sample(pose, np.array([[0.0, 0.0], [0.05, 0.0]])), np.random.default_rng(0))
+    padded = _sample(pose, np.array([[0.0, 0.0], [0.05, 0.0]]))
+    padded["floor_mask"][1] = False  # padding off the grid: neither refused nor relabelled
+    assert t(padded, np.random.default_rng(0))["floor_label"].tolist() == pytest.approx([0.1, 0.25])
     with pytest.raises(SampleError, match="scene s2 has no labels in .*l.npz"):
         t(_sample(pose, np.zeros((1, 2)), sid="s2"), np.random.default_rng(0))
     import pickle
