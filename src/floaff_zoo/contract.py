@@ -352,18 +352,57 @@ _FINITE_FIELDS = {
 }
 
 
+def _check_shapes(batch: Batch) -> None:
+    """Refuse a batch whose fields disagree on their sizes (the contract's shapes, module docstring of
+    ``floaff_zoo.contract``): a collated batch always agrees, a user's collate or a batch built by hand need not.
+    A 2-column ``target_xyz`` trained TinyPointNet silently; the rest failed inside torch naming no field.
+
+    Raises:
+        SampleError: ``"batch field {key} must be [B=2, M=64], got [2, 10]"``.
+    """
+    xyz = batch["scene_xyz"]
+    if xyz.dim() != 3 or xyz.shape[-1] != 3:
+        raise SampleError(f"batch field scene_xyz must be [B, N, 3], got {list(xyz.shape)}")
+    b, n = xyz.shape[:2]
+    floor = batch["floor_xyz"]
+    m = floor.shape[1] if floor.dim() == 3 else "M"
+    want: dict[str, tuple[tuple[int | None, ...], str]] = {
+        "scene_feat": ((b, n, None), f"[B={b}, N={n}, C]"),
+        "scene_mask": ((b, n), f"[B={b}, N={n}]"),
+        "floor_xyz": ((b, None, 3), f"[B={b}, M, 3]"),
+        "floor_label": ((b, m), f"[B={b}, M={m}]"),
+        "floor_mask": ((b, m), f"[B={b}, M={m}]"),
+        "robot": ((b, None), f"[B={b}, R]"),
+        "target_xyz": ((b, 3), f"[B={b}, 3]"),
+    }
+    for key, (shape, words) in want.items():
+        t = batch.get(key)
+        if t is None and key in ("scene_mask", "floor_mask"):
+            continue
+        got = tuple(t.shape) if torch.is_tensor(t) else None
+        if got is None or len(got) != len(shape) or any(w is not None and w != g for w, g in zip(shape, got)):
+            raise SampleError(f"batch field {key} must be {words}, got {list(got) if got else type(t)}")
+    yaw = batch["target_yaw"]
+    if not torch.is_tensor(yaw) or yaw.numel() != b or yaw.dim() > 2:  # [B] (collated) or [B, 1]
+        raise SampleError(f"batch field target_yaw must be [B={b}], got {list(getattr(yaw, 'shape', []))}")
+    meta = batch.get("meta")
+    if isinstance(meta, (list, tuple)) and len(meta) != b:  # predictions paired samples with the wrong meta
+        raise SampleError(f"batch field meta must hold B={b} entries, got {len(meta)}")
+
+
 #: ``check_batch``'s key for labels outside [0, 1] on a valid floor point
 _LABEL_RANGE = "floor_label range"
 
 
 def check_batch(batch: Batch) -> None:
-    """Raise a clear error for an empty batch, one whose samples have no valid floor or scene point, one with a
-    label outside [0, 1] on a valid floor point, or one with NaN/Inf on a valid point of the inputs every model
-    reads (the readers refuse such files; a user's data module or a batch built by hand does not pass through them),
-    naming the field and the samples. Every model of the zoo calls this before its step: CFAR, the prior and AxisNet
-    cropped NaN points away without a word, the other models named them."""
+    """Raise a clear error for an empty batch, one whose fields disagree on their sizes, one whose samples have no
+    valid floor or scene point, one with a label outside [0, 1] on a valid floor point, or one with NaN/Inf on a
+    valid point of the inputs every model reads (the readers refuse such files; a user's data module or a batch built
+    by hand does not pass through them), naming the field and the samples. Every model of the zoo calls this before
+    its step: CFAR, the prior and AxisNet cropped NaN points away without a word, the other models named them."""
     if batch["scene_xyz"].shape[0] == 0:
         raise SampleError("empty batch (0 samples)")
+    _check_shapes(batch)
     # [B] per check; a sample with no valid scene point was scored from nothing (TinyPointNet) or failed naming another
     # cause (CFAR's crop)
     rows_of: dict[str, Tensor] = {"floor": ~batch["floor_mask"].any(dim=1), "scene": ~batch["scene_mask"].any(dim=1)}

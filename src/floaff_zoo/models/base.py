@@ -329,44 +329,6 @@ def as_train_config(value: TrainConfig | Mapping[str, Any], default: TrainConfig
         raise ValueError(f"{owner}: {exc}") from exc
 
 
-def check_batch_shapes(batch: Batch, owner: str) -> None:
-    """Refuse a batch whose fields disagree on their sizes (the contract's shapes, module docstring of
-    ``floaff_zoo.contract``): a collated batch always agrees, a user's collate or a batch built by hand need not.
-    A 2-column ``target_xyz`` trained TinyPointNet silently; the rest failed inside torch naming no field.
-
-    Raises:
-        SampleError: ``"{owner}: batch field {key} must be [B=2, M=64], got [2, 10]"``.
-    """
-    xyz = batch["scene_xyz"]
-    if xyz.dim() != 3 or xyz.shape[-1] != 3:
-        raise SampleError(f"{owner}: batch field scene_xyz must be [B, N, 3], got {list(xyz.shape)}")
-    b, n = xyz.shape[:2]
-    floor = batch["floor_xyz"]
-    m = floor.shape[1] if floor.dim() == 3 else "M"
-    want: dict[str, tuple[tuple[int | None, ...], str]] = {
-        "scene_feat": ((b, n, None), f"[B={b}, N={n}, C]"),
-        "scene_mask": ((b, n), f"[B={b}, N={n}]"),
-        "floor_xyz": ((b, None, 3), f"[B={b}, M, 3]"),
-        "floor_label": ((b, m), f"[B={b}, M={m}]"),
-        "floor_mask": ((b, m), f"[B={b}, M={m}]"),
-        "robot": ((b, None), f"[B={b}, R]"),
-        "target_xyz": ((b, 3), f"[B={b}, 3]"),
-    }
-    for key, (shape, words) in want.items():
-        t = batch.get(key)
-        if t is None and key in ("scene_mask", "floor_mask"):
-            continue
-        got = tuple(t.shape) if torch.is_tensor(t) else None
-        if got is None or len(got) != len(shape) or any(w is not None and w != g for w, g in zip(shape, got)):
-            raise SampleError(f"{owner}: batch field {key} must be {words}, got {list(got) if got else type(t)}")
-    yaw = batch["target_yaw"]
-    if not torch.is_tensor(yaw) or yaw.numel() != b or yaw.dim() > 2:  # [B] (collated) or [B, 1]
-        raise SampleError(f"{owner}: batch field target_yaw must be [B={b}], got {list(getattr(yaw, 'shape', []))}")
-    meta = batch.get("meta")
-    if isinstance(meta, (list, tuple)) and len(meta) != b:  # predictions paired samples with the wrong meta
-        raise SampleError(f"{owner}: batch field meta must hold B={b} entries, got {len(meta)}")
-
-
 def sample_names(batch: Batch) -> list[str]:
     """``sample_id`` of every sample of a batch (its index when missing), for error messages."""
     return [str(m.get("sample_id", i)) for i, m in enumerate(batch.get("meta") or [])]
@@ -489,7 +451,6 @@ class ZooModule(L.LightningModule):
 
     def check_inputs(self, batch: Batch) -> None:
         """Fail early and clearly when the data does not fit the model's configuration."""
-        check_batch_shapes(batch, type(self).__name__)
         check_batch(batch)
         need, c = int(self.hparams.get("feat_channels", 1)), batch["scene_feat"].shape[-1]
         if c < need:
