@@ -33,7 +33,7 @@ lint: setup
 
 # lint first: a style slip fails in seconds, before the suite's minutes. The suite runs in TEST_WORKERS processes
 # (pytest-xdist), one file per worker at a time so a module's fixtures are built once: the suite keeps about one core
-# busy, and 2 workers on the 2-core CI machine take about 2,000 tests in 10-12 minutes. TEST_WORKERS=0 runs it
+# busy, and 2 workers on the 2-core CI machine take about 2,100 tests in 9-12 minutes. TEST_WORKERS=0 runs it
 # in one process.
 TEST_WORKERS ?= 2
 test: setup
